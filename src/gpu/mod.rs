@@ -1,0 +1,17 @@
+//! The Vulkan core: the only module with `unsafe` ash calls. It knows nothing of scenes,
+//! physics or solvers: it opens a device, maps queue roles, allocates buffers and 3D images,
+//! builds pipelines from reflected SPIR-V, and submits passes described as data.
+
+mod context;
+mod error;
+mod memory;
+mod pipeline;
+mod queues;
+mod submit;
+
+pub use context::{list_devices, DeviceInfo, DeviceSummary, Gpu, GpuOptions, ENV_DEVICE, ENV_TIMEOUT, ENV_VALIDATE};
+pub use error::{GpuError, Result};
+pub use memory::{Buffer, Image3d, VolumeFormat};
+pub use pipeline::{reflect, BindingKind, Pipeline, Reflection, ShaderSource, Spec};
+pub use queues::{map_roles, FamilyInfo, MappingKind, QueueRole, QueueSlot, RoleMapping};
+pub use submit::{Access, Bind, Pass, PassTiming, Resource, SyncPoint};

@@ -1,0 +1,157 @@
+// scene.glsl: the scene block every solver reads (binding SCENE_BINDING), the medium's
+// density, the camera, and majorant segments for tracking. Layout mirrors
+// `solvers::gpu_scene::SceneBlock` (std430, vec4-aligned members only).
+#ifndef SCATTERLAB_SCENE
+#define SCATTERLAB_SCENE
+#include "common.glsl"
+
+#define LIGHT_POINT 0u
+#define LIGHT_DIRECTIONAL 1u
+#define LIGHT_ENVIRONMENT 2u
+
+#define DENSITY_CONSTANT 0u
+#define DENSITY_SPHERE 1u
+#define DENSITY_GRID 2u
+
+struct Light {
+    vec4 pos_kind;   // point: position; directional: travel direction (unit); w = kind
+    vec4 value;      // rgb: intensity W/sr | irradiance W/m^2 | radiance W/(m^2 sr)
+};
+
+layout(std430, binding = SCENE_BINDING) readonly buffer SceneBlock {
+    vec4 bounds_min;     // medium box, scene units
+    vec4 bounds_max;
+    vec4 sigma_t;        // rgb extinction scale, 1/unit; w = max over channels
+    vec4 albedo;         // rgb sigma_s / sigma_t; w = g
+    vec4 sphere;         // sphere density: centre xyz, radius w
+    uvec4 grid_dims;     // grid density: voxels xyz
+    uvec4 maj_dims;      // majorant grid cells xyz; w = voxels per cell edge
+    vec4 cam_origin;     // w: 0 perspective, 1 orthographic
+    vec4 cam_forward;    // unit; w: tan(fov/2) (perspective) or extent/2 (orthographic)
+    vec4 cam_right;      // unit
+    vec4 cam_up;         // unit
+    uvec4 image;         // width, height, light count, 0
+    Light lights[];
+} scene;
+
+// Specialisation: the kernels compile only the density kind and physics a scene needs.
+layout(constant_id = 0) const uint DENSITY_KIND = 0u;
+layout(constant_id = 1) const bool CHROMATIC = true;
+layout(constant_id = 2) const bool ANISOTROPIC = true;
+
+layout(r32f, binding = DENSITY_BINDING) uniform readonly image3D density_grid;
+layout(std430, binding = MAJORANT_BINDING) readonly buffer MajorantGrid { float maj[]; };
+
+// Camera ray through image position `px` (pixels, continuous; row 0 at the top).
+void camera_ray(vec2 px, out vec3 o, out vec3 d) {
+    vec2 res = vec2(scene.image.xy);
+    vec2 ndc = vec2(px.x / res.x * 2.0 - 1.0, 1.0 - px.y / res.y * 2.0);
+    float aspect = res.y / res.x;   // fov/extent is along x; pixels are square
+    float k = scene.cam_forward.w;
+    if (scene.cam_origin.w < 0.5) {
+        o = scene.cam_origin.xyz;
+        d = normalize(scene.cam_forward.xyz + scene.cam_right.xyz * (ndc.x * k) + scene.cam_up.xyz * (ndc.y * k * aspect));
+    } else {
+        o = scene.cam_origin.xyz + scene.cam_right.xyz * (ndc.x * k) + scene.cam_up.xyz * (ndc.y * k * aspect);
+        d = scene.cam_forward.xyz;
+    }
+}
+
+// Interval of the ray inside the medium's support (box, and the sphere for sphere density).
+vec2 medium_interval(vec3 o, vec3 d) {
+    vec2 t = ray_box(o, d, scene.bounds_min.xyz, scene.bounds_max.xyz);
+    if (DENSITY_KIND == DENSITY_SPHERE) {
+        vec2 s = ray_sphere(o, d, scene.sphere.xyz, scene.sphere.w);
+        t = vec2(max(t.x, s.x), min(t.y, s.y));
+    }
+    return t;
+}
+
+// Density in [0, 1+] at world position p (DESIGN.md: voxel-centred, trilinear, clamped).
+float density_at(vec3 p) {
+    if (DENSITY_KIND == DENSITY_CONSTANT) return 1.0;
+    if (DENSITY_KIND == DENSITY_SPHERE) {
+        vec3 q = p - scene.sphere.xyz;
+        return dot(q, q) <= scene.sphere.w * scene.sphere.w ? 1.0 : 0.0;
+    }
+    ivec3 n = ivec3(scene.grid_dims.xyz);
+    vec3 g = (p - scene.bounds_min.xyz) / (scene.bounds_max.xyz - scene.bounds_min.xyz) * vec3(n) - 0.5;
+    g = clamp(g, vec3(0.0), vec3(n - 1));
+    ivec3 i0 = ivec3(floor(g));
+    ivec3 i1 = min(i0 + 1, n - 1);
+    vec3 f = g - vec3(i0);
+    float c000 = imageLoad(density_grid, ivec3(i0.x, i0.y, i0.z)).r;
+    float c100 = imageLoad(density_grid, ivec3(i1.x, i0.y, i0.z)).r;
+    float c010 = imageLoad(density_grid, ivec3(i0.x, i1.y, i0.z)).r;
+    float c110 = imageLoad(density_grid, ivec3(i1.x, i1.y, i0.z)).r;
+    float c001 = imageLoad(density_grid, ivec3(i0.x, i0.y, i1.z)).r;
+    float c101 = imageLoad(density_grid, ivec3(i1.x, i0.y, i1.z)).r;
+    float c011 = imageLoad(density_grid, ivec3(i0.x, i1.y, i1.z)).r;
+    float c111 = imageLoad(density_grid, ivec3(i1.x, i1.y, i1.z)).r;
+    return mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y),
+               mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
+}
+
+// Majorant segments along a ray (pbrt-v4's DDAMajorantIterator): piecewise-constant
+// sigma_maj (1/unit, grey: max over channels) over [t_min, t_max]. Constant and sphere media
+// have one segment with density 1; grids walk a coarse grid of per-cell maximum density.
+struct Segments {
+    vec3 org;       // ray origin, direction
+    vec3 dir;
+    float t_min;
+    float t_max;
+    vec3 next_t;
+    vec3 delta_t;
+    ivec3 step;
+    ivec3 cell;
+    bool done;
+};
+
+Segments segments_begin(vec3 o, vec3 d, float t0, float t1) {
+    Segments s;
+    s.org = o; s.dir = d; s.t_min = t0; s.t_max = t1; s.done = !(t0 < t1);
+    s.next_t = vec3(INF); s.delta_t = vec3(0.0); s.step = ivec3(0); s.cell = ivec3(0);
+    if (DENSITY_KIND != DENSITY_GRID || s.done) return s;
+    vec3 ext = scene.bounds_max.xyz - scene.bounds_min.xyz;
+    vec3 m = vec3(scene.maj_dims.xyz);
+    vec3 go = (o + d * t0 - scene.bounds_min.xyz) / ext * m;
+    vec3 gd = d / ext * m;
+    for (int a = 0; a < 3; ++a) {
+        s.cell[a] = clamp(int(floor(go[a])), 0, int(scene.maj_dims[a]) - 1);
+        if (gd[a] > 0.0) {
+            s.next_t[a] = t0 + (float(s.cell[a] + 1) - go[a]) / gd[a];
+            s.delta_t[a] = 1.0 / gd[a];
+            s.step[a] = 1;
+        } else if (gd[a] < 0.0) {
+            s.next_t[a] = t0 + (float(s.cell[a]) - go[a]) / gd[a];
+            s.delta_t[a] = -1.0 / gd[a];
+            s.step[a] = -1;
+        }
+    }
+    return s;
+}
+
+// Next segment: returns false when the ray has left the medium.
+bool segments_next(inout Segments s, out float seg_t0, out float seg_t1, out float sigma_maj) {
+    if (s.done) return false;
+    if (DENSITY_KIND != DENSITY_GRID) {
+        seg_t0 = s.t_min; seg_t1 = s.t_max; sigma_maj = scene.sigma_t.w;
+        s.done = true;
+        return true;
+    }
+    int axis = (s.next_t.x < s.next_t.y) ? ((s.next_t.x < s.next_t.z) ? 0 : 2) : ((s.next_t.y < s.next_t.z) ? 1 : 2);
+    float t_end = min(s.t_max, s.next_t[axis]);
+    uvec3 md = scene.maj_dims.xyz;
+    uint idx = uint(s.cell.x) + md.x * (uint(s.cell.y) + md.y * uint(s.cell.z));
+    seg_t0 = s.t_min; seg_t1 = t_end; sigma_maj = maj[idx] * scene.sigma_t.w;
+    s.t_min = t_end;
+    if (s.next_t[axis] >= s.t_max) {
+        s.done = true;
+    } else {
+        s.cell[axis] += s.step[axis];
+        if (s.cell[axis] < 0 || s.cell[axis] >= int(md[axis])) s.done = true;
+        s.next_t[axis] += s.delta_t[axis];
+    }
+    return true;
+}
+#endif

@@ -1,0 +1,569 @@
+//! Instance, validation, device choice and queue roles: everything created once per run.
+
+use std::ffi::{c_void, CStr, CString};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+use serde::Serialize;
+
+use super::error::{GpuError, Result, VkContext};
+use super::queues::{map_roles, FamilyInfo, QueueRole, RoleMapping};
+
+/// Environment variables, read when the corresponding option is not given.
+pub const ENV_VALIDATE: &str = "SCATTERLAB_VALIDATE";
+pub const ENV_DEVICE: &str = "SCATTERLAB_DEVICE";
+pub const ENV_TIMEOUT: &str = "SCATTERLAB_GPU_TIMEOUT";
+
+const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+
+/// How to open the GPU.
+#[derive(Clone, Debug)]
+pub struct GpuOptions {
+    /// Khronos validation layer with synchronization validation and a messenger that counts errors.
+    pub validate: bool,
+    /// Device index or case-insensitive name substring; `None` picks the best device.
+    pub device: Option<String>,
+    /// Limit on every host wait; a wait that runs past it fails loudly instead of hanging.
+    pub timeout: Duration,
+}
+
+impl Default for GpuOptions {
+    /// Validation from `SCATTERLAB_VALIDATE=1`, device from `SCATTERLAB_DEVICE`, timeout from
+    /// `SCATTERLAB_GPU_TIMEOUT` (seconds, default 300).
+    fn default() -> Self {
+        let validate = std::env::var(ENV_VALIDATE).map(|v| v != "0" && !v.is_empty()).unwrap_or(false);
+        let device = std::env::var(ENV_DEVICE).ok().filter(|s| !s.is_empty());
+        let secs = std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
+        GpuOptions { validate, device, timeout: Duration::from_secs_f64(secs) }
+    }
+}
+
+/// Counts validation messages; error-severity messages fail a test run.
+#[derive(Default)]
+pub struct ValidationLog {
+    pub errors: AtomicU64,
+    pub warnings: AtomicU64,
+    pub first_errors: Mutex<Vec<String>>,
+}
+
+/// What a result file records about the device.
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviceInfo {
+    pub index: usize,
+    pub name: String,
+    pub device_type: String,
+    pub software: bool,
+    pub vendor_id: u32,
+    pub device_id: u32,
+    pub api_version: String,
+    pub driver_name: String,
+    pub driver_info: String,
+    pub max_storage_buffer_range: u64,
+    pub max_image_dimension_3d: u32,
+    pub max_compute_workgroup_count: [u32; 3],
+    pub timestamp_period_ns: f32,
+    pub float_atomics: bool,
+    pub calibrated_timestamps: bool,
+    pub queue_families: Vec<FamilyInfo>,
+    pub mapping: RoleMapping,
+    pub device_local_bytes: u64,
+}
+
+/// Per-role queue state: the queue, its timeline semaphore, and the last value submitted.
+pub(crate) struct RoleQueue {
+    pub queue: vk::Queue,
+    pub family: u32,
+    pub timeline: vk::Semaphore,
+    pub pool: vk::CommandPool,
+}
+
+/// The device and everything resources need to free themselves; shared by `Arc`.
+pub(crate) struct Shared {
+    /// Keeps the Vulkan loader loaded for as long as the device lives.
+    pub _entry: ash::Entry,
+    pub instance: ash::Instance,
+    pub device: ash::Device,
+    pub allocator: Mutex<Option<Allocator>>,
+    pub debug_utils: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    pub debug_device: Option<ash::ext::debug_utils::Device>,
+    pub push_descriptor: ash::khr::push_descriptor::Device,
+    pub calibrated: Option<ash::ext::calibrated_timestamps::Device>,
+    pub roles: [RoleQueue; 2],
+    pub info: DeviceInfo,
+    pub sharing_families: Vec<u32>,
+    pub validation: Arc<ValidationLog>,
+    _validation_box: Option<Box<Arc<ValidationLog>>>,
+}
+
+impl Shared {
+    pub fn role(&self, role: QueueRole) -> &RoleQueue {
+        &self.roles[role.index()]
+    }
+
+    /// Give a Vulkan object a debug name (shows in validation messages and captures).
+    pub fn name_object<H: vk::Handle>(&self, handle: H, name: &str) {
+        if let Some(du) = &self.debug_device {
+            if let Ok(cname) = CString::new(name) {
+                let info = vk::DebugUtilsObjectNameInfoEXT::default().object_handle(handle).object_name(&cname);
+                // Naming is best effort: a failure only loses a debug label.
+                let _ = unsafe { du.set_debug_utils_object_name(&info) };
+            }
+        }
+    }
+}
+
+impl Drop for Shared {
+    fn drop(&mut self) {
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            // The allocator must go before the device it allocates from.
+            if let Ok(mut a) = self.allocator.lock() {
+                a.take();
+            }
+            for r in &self.roles {
+                self.device.destroy_command_pool(r.pool, None);
+                self.device.destroy_semaphore(r.timeline, None);
+            }
+            self.device.destroy_device(None);
+            if let Some((du, messenger)) = self.debug_utils.take() {
+                du.destroy_debug_utils_messenger(messenger, None);
+            }
+            self.instance.destroy_instance(None);
+        }
+    }
+}
+
+unsafe extern "system" fn debug_callback(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    user: *mut c_void,
+) -> vk::Bool32 {
+    let log = &*(user as *const Arc<ValidationLog>);
+    let msg = if data.is_null() || (*data).p_message.is_null() {
+        String::from("(no message)")
+    } else {
+        CStr::from_ptr((*data).p_message).to_string_lossy().into_owned()
+    };
+    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+        log.errors.fetch_add(1, Ordering::SeqCst);
+        eprintln!("[vulkan validation error] {msg}");
+        if let Ok(mut v) = log.first_errors.lock() {
+            if v.len() < 16 {
+                v.push(msg);
+            }
+        }
+    } else if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING) {
+        log.warnings.fetch_add(1, Ordering::SeqCst);
+        eprintln!("[vulkan validation warning] {msg}");
+    }
+    vk::FALSE
+}
+
+fn cstr_array(raw: &[std::ffi::c_char]) -> String {
+    let bytes: Vec<u8> = raw.iter().take_while(|c| **c != 0).map(|c| *c as u8).collect();
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+fn type_rank(t: vk::PhysicalDeviceType) -> u32 {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+        vk::PhysicalDeviceType::CPU => 3,
+        _ => 4,
+    }
+}
+
+fn type_name(t: vk::PhysicalDeviceType) -> &'static str {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => "discrete",
+        vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated",
+        vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual",
+        vk::PhysicalDeviceType::CPU => "cpu",
+        _ => "other",
+    }
+}
+
+/// One line per device, for `scatterlab devices` and error messages.
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviceSummary {
+    pub index: usize,
+    pub name: String,
+    pub device_type: String,
+    pub api_version: String,
+    pub queue_families: Vec<FamilyInfo>,
+    pub mapping: Option<RoleMapping>,
+    pub missing: Vec<String>,
+}
+
+struct Candidate {
+    physical: vk::PhysicalDevice,
+    summary: DeviceSummary,
+    props: vk::PhysicalDeviceProperties,
+}
+
+fn version_string(v: u32) -> String {
+    format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
+}
+
+fn has_extension(instance: &ash::Instance, pd: vk::PhysicalDevice, name: &CStr) -> bool {
+    unsafe { instance.enumerate_device_extension_properties(pd) }
+        .map(|exts| exts.iter().any(|e| e.extension_name_as_c_str().map(|n| n == name).unwrap_or(false)))
+        .unwrap_or(false)
+}
+
+/// The features every solver relies on; a device lacking one is refused up front.
+fn missing_features(instance: &ash::Instance, pd: vk::PhysicalDevice, props: &vk::PhysicalDeviceProperties) -> Vec<String> {
+    let mut missing = Vec::new();
+    if props.api_version < vk::API_VERSION_1_3 {
+        missing.push(format!("Vulkan 1.3 (device offers {})", version_string(props.api_version)));
+        return missing;
+    }
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12).push_next(&mut f13);
+    unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+    if f12.timeline_semaphore == vk::FALSE {
+        missing.push("timelineSemaphore".into());
+    }
+    if f13.synchronization2 == vk::FALSE {
+        missing.push("synchronization2".into());
+    }
+    if !has_extension(instance, pd, ash::khr::push_descriptor::NAME) {
+        missing.push("VK_KHR_push_descriptor".into());
+    }
+    let fmt = unsafe { instance.get_physical_device_format_properties(pd, vk::Format::R32_SFLOAT) };
+    if !fmt.optimal_tiling_features.contains(vk::FormatFeatureFlags::STORAGE_IMAGE) {
+        missing.push("R32_SFLOAT storage images".into());
+    }
+    missing
+}
+
+fn families_of(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Vec<FamilyInfo> {
+    unsafe { instance.get_physical_device_queue_family_properties(pd) }
+        .iter()
+        .enumerate()
+        .map(|(i, q)| FamilyInfo {
+            index: i as u32,
+            queue_count: q.queue_count,
+            graphics: q.queue_flags.contains(vk::QueueFlags::GRAPHICS),
+            compute: q.queue_flags.contains(vk::QueueFlags::COMPUTE),
+            transfer: q.queue_flags.contains(vk::QueueFlags::TRANSFER),
+            timestamp_valid_bits: q.timestamp_valid_bits,
+        })
+        .collect()
+}
+
+fn load_entry() -> Result<ash::Entry> {
+    unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))
+}
+
+fn create_instance(entry: &ash::Entry, validate: bool, log: &Arc<ValidationLog>) -> Result<(ash::Instance, Option<Box<Arc<ValidationLog>>>, bool)> {
+    let app = vk::ApplicationInfo::default()
+        .application_name(c"scatterlab")
+        .engine_name(c"scatterlab")
+        .api_version(vk::API_VERSION_1_3);
+    let mut layers: Vec<*const std::ffi::c_char> = Vec::new();
+    let mut extensions: Vec<*const std::ffi::c_char> = Vec::new();
+    let mut boxed = None;
+    let mut debug = false;
+    if validate {
+        let available = unsafe { entry.enumerate_instance_layer_properties() }.vk("vkEnumerateInstanceLayerProperties")?;
+        if !available.iter().any(|l| l.layer_name_as_c_str().map(|n| n == VALIDATION_LAYER).unwrap_or(false)) {
+            return Err(GpuError::NoValidationLayer);
+        }
+        layers.push(VALIDATION_LAYER.as_ptr());
+        extensions.push(ash::ext::debug_utils::NAME.as_ptr());
+        extensions.push(ash::ext::validation_features::NAME.as_ptr());
+        boxed = Some(Box::new(log.clone()));
+        debug = true;
+    }
+    // Synchronization validation on (the layer misses some hazards; a clean run is no proof).
+    let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+    let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
+    let mut messenger_info = messenger_create_info(boxed.as_deref());
+    let mut info = vk::InstanceCreateInfo::default()
+        .application_info(&app)
+        .enabled_layer_names(&layers)
+        .enabled_extension_names(&extensions);
+    if debug {
+        info = info.push_next(&mut features).push_next(&mut messenger_info);
+    }
+    let instance = unsafe { entry.create_instance(&info, None) }.vk("vkCreateInstance")?;
+    Ok((instance, boxed, debug))
+}
+
+fn messenger_create_info(log: Option<&Arc<ValidationLog>>) -> vk::DebugUtilsMessengerCreateInfoEXT<'static> {
+    let mut info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+        .message_severity(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING)
+        .message_type(
+            vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+        )
+        .pfn_user_callback(Some(debug_callback));
+    if let Some(l) = log {
+        info = info.user_data(l as *const Arc<ValidationLog> as *mut c_void);
+    }
+    info
+}
+
+fn candidates(instance: &ash::Instance) -> Result<Vec<Candidate>> {
+    let pds = unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
+    Ok(pds
+        .into_iter()
+        .enumerate()
+        .map(|(index, pd)| {
+            let props = unsafe { instance.get_physical_device_properties(pd) };
+            let queue_families = families_of(instance, pd);
+            let mapping = map_roles(&queue_families);
+            let mut missing = missing_features(instance, pd, &props);
+            if mapping.is_none() {
+                missing.push("a compute queue".into());
+            }
+            let summary = DeviceSummary {
+                index,
+                name: cstr_array(&props.device_name),
+                device_type: type_name(props.device_type).into(),
+                api_version: version_string(props.api_version),
+                queue_families,
+                mapping,
+                missing,
+            };
+            Candidate { physical: pd, summary, props }
+        })
+        .collect())
+}
+
+/// List every Vulkan device with its queue families and the role mapping it would get.
+pub fn list_devices() -> Result<Vec<DeviceSummary>> {
+    let entry = load_entry()?;
+    let log = Arc::new(ValidationLog::default());
+    let (instance, _b, _) = create_instance(&entry, false, &log)?;
+    let list = candidates(&instance).map(|c| c.into_iter().map(|c| c.summary).collect());
+    unsafe { instance.destroy_instance(None) };
+    list
+}
+
+fn choose(cands: Vec<Candidate>, wanted: Option<&str>) -> Result<Candidate> {
+    if cands.is_empty() {
+        return Err(GpuError::NoDevice);
+    }
+    let available = cands.iter().map(|c| format!("{}: {}", c.summary.index, c.summary.name)).collect::<Vec<_>>().join(", ");
+    let chosen = match wanted {
+        Some(w) => {
+            let by_index = w.parse::<usize>().ok();
+            let lw = w.to_lowercase();
+            cands
+                .into_iter()
+                .find(|c| Some(c.summary.index) == by_index || c.summary.name.to_lowercase().contains(&lw))
+                .ok_or(GpuError::DeviceNotFound { wanted: w.to_string(), available })?
+        }
+        None => {
+            let mut usable: Vec<Candidate> = cands.into_iter().collect();
+            // Prefer a device with everything we need, then discrete > integrated > virtual > CPU.
+            usable.sort_by_key(|c| (!c.summary.missing.is_empty(), type_rank(c.props.device_type), c.summary.index));
+            usable.into_iter().next().ok_or(GpuError::NoDevice)?
+        }
+    };
+    if let Some(first) = chosen.summary.missing.first() {
+        return Err(GpuError::MissingFeature {
+            device: chosen.summary.name.clone(),
+            feature: first.clone(),
+            hint: "update the driver or pick another device with --device (see `scatterlab devices`)".into(),
+        });
+    }
+    Ok(chosen)
+}
+
+/// The opened GPU: device, allocator, queue roles. Cheap to clone.
+#[derive(Clone)]
+pub struct Gpu {
+    pub(crate) shared: Arc<Shared>,
+    pub(crate) submit: Arc<Mutex<super::submit::SubmitState>>,
+    pub(crate) timeout: Duration,
+}
+
+impl Gpu {
+    pub fn new(opts: &GpuOptions) -> Result<Gpu> {
+        let entry = load_entry()?;
+        let log = Arc::new(ValidationLog::default());
+        let (instance, boxed, debug) = create_instance(&entry, opts.validate, &log)?;
+        // From here on, any early return must destroy the instance.
+        let result = Self::open_device(entry.clone(), instance.clone(), boxed, debug, log, opts);
+        if result.is_err() {
+            unsafe { instance.destroy_instance(None) };
+        }
+        result
+    }
+
+    fn open_device(
+        entry: ash::Entry,
+        instance: ash::Instance,
+        boxed: Option<Box<Arc<ValidationLog>>>,
+        debug: bool,
+        log: Arc<ValidationLog>,
+        opts: &GpuOptions,
+    ) -> Result<Gpu> {
+        let chosen = choose(candidates(&instance)?, opts.device.as_deref())?;
+        let pd = chosen.physical;
+        let props = chosen.props;
+        let mapping = chosen.summary.mapping.expect("checked by missing_features");
+
+        // Queues: clamp the count to what the family reports (lavapipe accepts more and only
+        // the validation layer complains; vulkan-notes.md).
+        let mut per_family: Vec<(u32, u32)> = Vec::new();
+        for role in QueueRole::ALL {
+            let slot = mapping.slot(role);
+            match per_family.iter_mut().find(|(f, _)| *f == slot.family) {
+                Some((_, n)) => *n = (*n).max(slot.index + 1),
+                None => per_family.push((slot.family, slot.index + 1)),
+            }
+        }
+        let priorities = [1.0f32; 2];
+        let queue_infos: Vec<vk::DeviceQueueCreateInfo> = per_family
+            .iter()
+            .map(|(f, n)| vk::DeviceQueueCreateInfo::default().queue_family_index(*f).queue_priorities(&priorities[..*n as usize]))
+            .collect();
+
+        let float_atomics = has_extension(&instance, pd, ash::ext::shader_atomic_float::NAME) && {
+            let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut fa);
+            unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+            fa.shader_buffer_float32_atomic_add == vk::TRUE
+        };
+        let calibrated = has_extension(&instance, pd, ash::ext::calibrated_timestamps::NAME);
+        let mut ext_names = vec![ash::khr::push_descriptor::NAME.as_ptr()];
+        if float_atomics {
+            ext_names.push(ash::ext::shader_atomic_float::NAME.as_ptr());
+        }
+        if calibrated {
+            ext_names.push(ash::ext::calibrated_timestamps::NAME.as_ptr());
+        }
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
+        let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true);
+        let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
+            .shader_buffer_float32_atomics(float_atomics)
+            .shader_buffer_float32_atomic_add(float_atomics);
+        let mut info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queue_infos)
+            .enabled_extension_names(&ext_names)
+            .push_next(&mut f12)
+            .push_next(&mut f13);
+        if float_atomics {
+            info = info.push_next(&mut fa);
+        }
+        let device = unsafe { instance.create_device(pd, &info, None) }.vk("vkCreateDevice")?;
+
+        let debug_utils = if debug {
+            let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
+            // A fresh create-info: reusing one that was chained trips the layer (vulkan-notes.md).
+            let mi = messenger_create_info(boxed.as_deref());
+            let m = unsafe { du.create_debug_utils_messenger(&mi, None) }.vk("vkCreateDebugUtilsMessengerEXT")?;
+            Some((du, m))
+        } else {
+            None
+        };
+        let debug_device = debug.then(|| ash::ext::debug_utils::Device::new(&instance, &device));
+
+        let make_role = |role: QueueRole| -> Result<RoleQueue> {
+            let slot = mapping.slot(role);
+            let queue = unsafe { device.get_device_queue(slot.family, slot.index) };
+            let mut ty = vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE).initial_value(0);
+            let timeline = unsafe { device.create_semaphore(&vk::SemaphoreCreateInfo::default().push_next(&mut ty), None) }
+                .vk("vkCreateSemaphore")?;
+            let pool = unsafe {
+                device.create_command_pool(
+                    &vk::CommandPoolCreateInfo::default().queue_family_index(slot.family).flags(vk::CommandPoolCreateFlags::TRANSIENT),
+                    None,
+                )
+            }
+            .vk("vkCreateCommandPool")?;
+            Ok(RoleQueue { queue, family: slot.family, timeline, pool })
+        };
+        let roles = [make_role(QueueRole::Trace)?, make_role(QueueRole::Diffuse)?];
+
+        let allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: device.clone(),
+            physical_device: pd,
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        })
+        .map_err(|e| GpuError::Alloc { name: "allocator".into(), bytes: 0, reason: e.to_string() })?;
+
+        let mut driver = vk::PhysicalDeviceDriverProperties::default();
+        let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
+        unsafe { instance.get_physical_device_properties2(pd, &mut p2) };
+        let mem = unsafe { instance.get_physical_device_memory_properties(pd) };
+        let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+            .iter()
+            .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+            .map(|h| h.size)
+            .max()
+            .unwrap_or(0);
+        let info = DeviceInfo {
+            index: chosen.summary.index,
+            name: chosen.summary.name.clone(),
+            device_type: type_name(props.device_type).into(),
+            software: props.device_type == vk::PhysicalDeviceType::CPU,
+            vendor_id: props.vendor_id,
+            device_id: props.device_id,
+            api_version: version_string(props.api_version),
+            driver_name: cstr_array(&driver.driver_name),
+            driver_info: cstr_array(&driver.driver_info),
+            max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
+            max_image_dimension_3d: props.limits.max_image_dimension3_d,
+            max_compute_workgroup_count: props.limits.max_compute_work_group_count,
+            timestamp_period_ns: props.limits.timestamp_period,
+            float_atomics,
+            calibrated_timestamps: calibrated,
+            queue_families: chosen.summary.queue_families.clone(),
+            mapping,
+            device_local_bytes,
+        };
+        let shared = Shared {
+            push_descriptor: ash::khr::push_descriptor::Device::new(&instance, &device),
+            calibrated: calibrated.then(|| ash::ext::calibrated_timestamps::Device::new(&instance, &device)),
+            _entry: entry,
+            instance,
+            device,
+            allocator: Mutex::new(Some(allocator)),
+            debug_utils,
+            debug_device,
+            roles,
+            sharing_families: mapping.families(),
+            info,
+            validation: log,
+            _validation_box: boxed,
+        };
+        Ok(Gpu {
+            shared: Arc::new(shared),
+            submit: Arc::new(Mutex::new(super::submit::SubmitState::default())),
+            timeout: opts.timeout,
+        })
+    }
+
+    pub fn info(&self) -> &DeviceInfo {
+        &self.shared.info
+    }
+
+    /// Validation errors seen so far (0 when validation is off).
+    pub fn validation_errors(&self) -> u64 {
+        self.shared.validation.errors.load(Ordering::SeqCst)
+    }
+
+    /// The first few validation error messages, for test failure output.
+    pub fn validation_messages(&self) -> Vec<String> {
+        self.shared.validation.first_errors.lock().map(|v| v.clone()).unwrap_or_default()
+    }
+
+    pub fn validation_enabled(&self) -> bool {
+        self.shared.debug_utils.is_some()
+    }
+}

@@ -1,0 +1,325 @@
+//! Buffers and 3D images through gpu-allocator, each with a debug name; they free themselves
+//! when the last reference (including an in-flight submission's) is dropped.
+
+use std::sync::Arc;
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+
+use super::context::{Gpu, Shared};
+use super::error::{GpuError, Result, VkContext};
+
+pub(crate) struct BufferInner {
+    pub shared: Arc<Shared>,
+    pub raw: vk::Buffer,
+    pub allocation: Option<Allocation>,
+    pub size: u64,
+    pub name: String,
+}
+
+impl Drop for BufferInner {
+    fn drop(&mut self) {
+        unsafe { self.shared.device.destroy_buffer(self.raw, None) };
+        if let (Some(a), Ok(mut alloc)) = (self.allocation.take(), self.shared.allocator.lock()) {
+            if let Some(alloc) = alloc.as_mut() {
+                let _ = alloc.free(a);
+            }
+        }
+    }
+}
+
+/// A storage buffer. Cloning shares it.
+#[derive(Clone)]
+pub struct Buffer {
+    pub(crate) inner: Arc<BufferInner>,
+}
+
+impl Buffer {
+    pub fn size(&self) -> u64 {
+        self.inner.size
+    }
+    pub fn name(&self) -> &str {
+        &self.inner.name
+    }
+    pub(crate) fn raw(&self) -> vk::Buffer {
+        self.inner.raw
+    }
+    /// Host pointer when the memory is host-visible and coherent (lavapipe, ReBAR), else None.
+    fn mapped(&self) -> Option<*mut u8> {
+        let a = self.inner.allocation.as_ref()?;
+        if !a.memory_properties().contains(vk::MemoryPropertyFlags::HOST_COHERENT) {
+            return None;
+        }
+        a.mapped_ptr().map(|p| p.as_ptr() as *mut u8)
+    }
+}
+
+pub(crate) struct ImageInner {
+    pub shared: Arc<Shared>,
+    pub raw: vk::Image,
+    pub view: vk::ImageView,
+    pub allocation: Option<Allocation>,
+    pub dims: [u32; 3],
+    pub name: String,
+}
+
+impl Drop for ImageInner {
+    fn drop(&mut self) {
+        unsafe {
+            self.shared.device.destroy_image_view(self.view, None);
+            self.shared.device.destroy_image(self.raw, None);
+        }
+        if let (Some(a), Ok(mut alloc)) = (self.allocation.take(), self.shared.allocator.lock()) {
+            if let Some(alloc) = alloc.as_mut() {
+                let _ = alloc.free(a);
+            }
+        }
+    }
+}
+
+/// A 3D storage image (always in `GENERAL` layout once created), for volumes larger than a
+/// storage buffer binding may be (`maxStorageBufferRange`, 128 MiB on lavapipe).
+#[derive(Clone)]
+pub struct Image3d {
+    pub(crate) inner: Arc<ImageInner>,
+}
+
+impl Image3d {
+    pub fn dims(&self) -> [u32; 3] {
+        self.inner.dims
+    }
+    pub fn name(&self) -> &str {
+        &self.inner.name
+    }
+    pub fn bytes(&self) -> u64 {
+        self.inner.dims.iter().map(|d| *d as u64).product::<u64>() * 4
+    }
+}
+
+/// Supported 3D image formats.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VolumeFormat {
+    /// One f32 per voxel (`r32f` in GLSL).
+    R32F,
+}
+
+impl VolumeFormat {
+    fn vk(self) -> vk::Format {
+        match self {
+            VolumeFormat::R32F => vk::Format::R32_SFLOAT,
+        }
+    }
+}
+
+impl Gpu {
+    fn sharing<'a>(&'a self, families: &'a [u32]) -> (vk::SharingMode, &'a [u32]) {
+        // Roles on different families share resources concurrently rather than by ownership
+        // transfers: small and obvious, and lavapipe can never exercise the transfer path.
+        if families.len() > 1 {
+            (vk::SharingMode::CONCURRENT, families)
+        } else {
+            (vk::SharingMode::EXCLUSIVE, &[])
+        }
+    }
+
+    /// A storage buffer of `size` bytes in device memory, zero-filled.
+    pub fn buffer(&self, name: &str, size: u64) -> Result<Buffer> {
+        let max = self.shared.info.max_storage_buffer_range;
+        if size > max {
+            return Err(GpuError::BindingTooLarge { name: name.into(), bytes: size, max });
+        }
+        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::STORAGE_BUFFER, MemoryLocation::GpuOnly)?;
+        self.fill_zero(&b)?;
+        Ok(b)
+    }
+
+    /// A storage buffer holding `data`.
+    pub fn buffer_with<T: bytemuck::Pod>(&self, name: &str, data: &[T]) -> Result<Buffer> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let b = self.buffer(name, bytes.len() as u64)?;
+        self.write_buffer(&b, 0, bytes)?;
+        Ok(b)
+    }
+
+    fn raw_buffer(&self, name: &str, size: u64, usage: vk::BufferUsageFlags, location: MemoryLocation) -> Result<Buffer> {
+        let s = &self.shared;
+        let (mode, fams) = self.sharing(&s.sharing_families);
+        let info = vk::BufferCreateInfo::default()
+            .size(size)
+            .usage(usage | vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST)
+            .sharing_mode(mode)
+            .queue_family_indices(fams);
+        let raw = unsafe { s.device.create_buffer(&info, None) }.vk("vkCreateBuffer")?;
+        let requirements = unsafe { s.device.get_buffer_memory_requirements(raw) };
+        let allocation = {
+            let mut guard = s.allocator.lock().expect("allocator lock");
+            let alloc = guard.as_mut().expect("allocator alive");
+            alloc.allocate(&AllocationCreateDesc { name, requirements, location, linear: true, allocation_scheme: AllocationScheme::GpuAllocatorManaged })
+        };
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(e) => {
+                unsafe { s.device.destroy_buffer(raw, None) };
+                return Err(GpuError::Alloc { name: name.into(), bytes: size, reason: e.to_string() });
+            }
+        };
+        unsafe { s.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) }.vk("vkBindBufferMemory")?;
+        s.name_object(raw, name);
+        Ok(Buffer { inner: Arc::new(BufferInner { shared: s.clone(), raw, allocation: Some(allocation), size, name: name.into() }) })
+    }
+
+    fn staging(&self, name: &str, size: u64, location: MemoryLocation) -> Result<(Buffer, *mut u8)> {
+        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::empty(), location)?;
+        let a = b.inner.allocation.as_ref().expect("allocated");
+        let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc { name: name.into(), bytes: size, reason: "staging memory is not host-visible".into() })?;
+        Ok((b, p.as_ptr() as *mut u8))
+    }
+
+    fn fill_zero(&self, b: &Buffer) -> Result<()> {
+        if let Some(p) = b.mapped() {
+            unsafe { std::ptr::write_bytes(p, 0, b.size() as usize) };
+            return Ok(());
+        }
+        let raw = b.raw();
+        let size = b.size();
+        self.one_shot(&[b.clone()], &[], |d, cb| unsafe { d.cmd_fill_buffer(cb, raw, 0, size, 0) })
+    }
+
+    /// Write `bytes` at `offset` (direct when the memory is host-visible, else via staging).
+    pub fn write_buffer(&self, b: &Buffer, offset: u64, bytes: &[u8]) -> Result<()> {
+        let end = offset + bytes.len() as u64;
+        if end > b.size() {
+            return Err(GpuError::OutOfRange { name: b.name().into(), offset, wanted: bytes.len() as u64, size: b.size() });
+        }
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        if let Some(p) = b.mapped() {
+            // Host writes to coherent memory are made visible by the next queue submission.
+            self.wait_idle_roles()?;
+            unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p.add(offset as usize), bytes.len()) };
+            return Ok(());
+        }
+        let (stage, p) = self.staging("staging upload", bytes.len() as u64, MemoryLocation::CpuToGpu)?;
+        unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p, bytes.len()) };
+        let (src, dst, n) = (stage.raw(), b.raw(), bytes.len() as u64);
+        self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
+            d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size: n }])
+        })
+    }
+
+    /// Read the whole buffer back to the host, after all submitted work has finished.
+    pub fn read_buffer(&self, b: &Buffer) -> Result<Vec<u8>> {
+        self.wait_idle_roles()?;
+        if let Some(p) = b.mapped() {
+            let mut out = vec![0u8; b.size() as usize];
+            unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
+            return Ok(out);
+        }
+        let (stage, p) = self.staging("staging readback", b.size(), MemoryLocation::GpuToCpu)?;
+        let (src, dst, n) = (b.raw(), stage.raw(), b.size());
+        self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
+            d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: n }])
+        })?;
+        let mut out = vec![0u8; n as usize];
+        unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
+        Ok(out)
+    }
+
+    /// Read a buffer as a typed vector.
+    pub fn read_buffer_as<T: bytemuck::Pod>(&self, b: &Buffer) -> Result<Vec<T>> {
+        let bytes = self.read_buffer(b)?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
+    }
+
+    /// A 3D storage image holding `data` (x fastest), left in `GENERAL` layout.
+    pub fn image3d_with(&self, name: &str, dims: [u32; 3], format: VolumeFormat, data: &[f32]) -> Result<Image3d> {
+        let s = &self.shared;
+        let maxd = s.info.max_image_dimension_3d;
+        if dims.iter().any(|d| *d == 0 || *d > maxd) {
+            return Err(GpuError::Alloc { name: name.into(), bytes: 0, reason: format!("dims {dims:?} outside 1..={maxd} (maxImageDimension3D)") });
+        }
+        let voxels: u64 = dims.iter().map(|d| *d as u64).product();
+        if data.len() as u64 != voxels {
+            return Err(GpuError::OutOfRange { name: name.into(), offset: 0, wanted: data.len() as u64 * 4, size: voxels * 4 });
+        }
+        let (mode, fams) = self.sharing(&s.sharing_families);
+        let info = vk::ImageCreateInfo::default()
+            .image_type(vk::ImageType::TYPE_3D)
+            .format(format.vk())
+            .extent(vk::Extent3D { width: dims[0], height: dims[1], depth: dims[2] })
+            .mip_levels(1)
+            .array_layers(1)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .tiling(vk::ImageTiling::OPTIMAL)
+            .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST | vk::ImageUsageFlags::TRANSFER_SRC)
+            .sharing_mode(mode)
+            .queue_family_indices(fams)
+            .initial_layout(vk::ImageLayout::UNDEFINED);
+        let raw = unsafe { s.device.create_image(&info, None) }.vk("vkCreateImage")?;
+        let requirements = unsafe { s.device.get_image_memory_requirements(raw) };
+        let allocation = {
+            let mut guard = s.allocator.lock().expect("allocator lock");
+            guard.as_mut().expect("allocator alive").allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location: MemoryLocation::GpuOnly,
+                linear: false,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            })
+        };
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(e) => {
+                unsafe { s.device.destroy_image(raw, None) };
+                return Err(GpuError::Alloc { name: name.into(), bytes: requirements.size, reason: e.to_string() });
+            }
+        };
+        unsafe { s.device.bind_image_memory(raw, allocation.memory(), allocation.offset()) }.vk("vkBindImageMemory")?;
+        let range = vk::ImageSubresourceRange { aspect_mask: vk::ImageAspectFlags::COLOR, base_mip_level: 0, level_count: 1, base_array_layer: 0, layer_count: 1 };
+        let view = unsafe {
+            s.device.create_image_view(
+                &vk::ImageViewCreateInfo::default().image(raw).view_type(vk::ImageViewType::TYPE_3D).format(format.vk()).subresource_range(range),
+                None,
+            )
+        }
+        .vk("vkCreateImageView")?;
+        s.name_object(raw, name);
+        let image = Image3d { inner: Arc::new(ImageInner { shared: s.clone(), raw, view, allocation: Some(allocation), dims, name: name.into() }) };
+
+        let (stage, p) = self.staging("staging volume upload", voxels * 4, MemoryLocation::CpuToGpu)?;
+        unsafe { std::ptr::copy_nonoverlapping(data.as_ptr() as *const u8, p, data.len() * 4) };
+        let src = stage.raw();
+        self.one_shot(&[stage.clone()], &[image.clone()], |d, cb| unsafe {
+            let to_dst = vk::ImageMemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::NONE)
+                .dst_stage_mask(vk::PipelineStageFlags2::COPY)
+                .dst_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                .old_layout(vk::ImageLayout::UNDEFINED)
+                .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .image(raw)
+                .subresource_range(range);
+            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_dst)));
+            let region = vk::BufferImageCopy::default()
+                .image_subresource(vk::ImageSubresourceLayers { aspect_mask: vk::ImageAspectFlags::COLOR, mip_level: 0, base_array_layer: 0, layer_count: 1 })
+                .image_extent(vk::Extent3D { width: dims[0], height: dims[1], depth: dims[2] });
+            d.cmd_copy_buffer_to_image(cb, src, raw, vk::ImageLayout::TRANSFER_DST_OPTIMAL, &[region]);
+            let to_general = vk::ImageMemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::COPY)
+                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                .dst_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+                .dst_access_mask(vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE)
+                .old_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+                .new_layout(vk::ImageLayout::GENERAL)
+                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .image(raw)
+                .subresource_range(range);
+            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_general)));
+        })?;
+        Ok(image)
+    }
+}

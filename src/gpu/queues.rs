@@ -1,0 +1,188 @@
+//! Queue roles and their mapping onto the device's queue families.
+//!
+//! Solvers name a *role* (`trace`, `diffuse`); the mapping to real queues is decided once, when
+//! the device is created, by [`map_roles`], a pure function of the queue-family table so it can
+//! be tested against the tables of real GPUs without owning one (see `../shared/vulkan-notes.md`).
+
+use serde::Serialize;
+
+/// The queue roles of the engine. Tracing-like work runs on `Trace`, stencil/diffusion work on
+/// `Diffuse`; on a device with one queue both roles share it and the same graph runs serialised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum QueueRole {
+    Trace,
+    Diffuse,
+}
+
+impl QueueRole {
+    pub const ALL: [QueueRole; 2] = [QueueRole::Trace, QueueRole::Diffuse];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            QueueRole::Trace => "trace",
+            QueueRole::Diffuse => "diffuse",
+        }
+    }
+
+    pub(crate) fn index(self) -> usize {
+        self as usize
+    }
+}
+
+impl std::fmt::Display for QueueRole {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What the mapping needs to know about one queue family.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct FamilyInfo {
+    pub index: u32,
+    pub queue_count: u32,
+    pub graphics: bool,
+    pub compute: bool,
+    pub transfer: bool,
+    pub timestamp_valid_bits: u32,
+}
+
+/// A queue a role runs on: (family, index within family).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct QueueSlot {
+    pub family: u32,
+    pub index: u32,
+}
+
+/// How the two roles were placed, strongest concurrency first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MappingKind {
+    /// Two queues of one compute-only family (NVIDIA family 2, AMD's compute family).
+    TwoComputeOnly,
+    /// Two queues of one compute-capable family that also does graphics.
+    TwoComputeCapable,
+    /// One queue in each of two compute-capable families (needs care with buffer sharing).
+    TwoFamilies,
+    /// One queue shared by both roles (lavapipe, many Intel GPUs): no overlap is possible.
+    Shared,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct RoleMapping {
+    pub kind: MappingKind,
+    pub trace: QueueSlot,
+    pub diffuse: QueueSlot,
+}
+
+impl RoleMapping {
+    pub fn slot(&self, role: QueueRole) -> QueueSlot {
+        match role {
+            QueueRole::Trace => self.trace,
+            QueueRole::Diffuse => self.diffuse,
+        }
+    }
+
+    pub fn shared(&self) -> bool {
+        self.trace == self.diffuse
+    }
+
+    /// Distinct families used, for `VK_SHARING_MODE_CONCURRENT` and queue creation.
+    pub fn families(&self) -> Vec<u32> {
+        let mut f = vec![self.trace.family, self.diffuse.family];
+        f.dedup();
+        f
+    }
+
+    pub fn describe(&self) -> String {
+        format!(
+            "{:?}: trace -> family {} queue {}, diffuse -> family {} queue {}",
+            self.kind, self.trace.family, self.trace.index, self.diffuse.family, self.diffuse.index
+        )
+    }
+}
+
+/// Map the roles onto queues: two compute-only queues, else two compute-capable queues of
+/// one family, else queues of two families, else one shared queue (DESIGN.md, "Queues and
+/// schedule"). Returns `None` when no family can run compute at all. Families whose
+/// timestamps are not valid are avoided where an alternative exists, since every pass is timed.
+pub fn map_roles(families: &[FamilyInfo]) -> Option<RoleMapping> {
+    let compute: Vec<&FamilyInfo> = families.iter().filter(|f| f.compute && f.queue_count > 0).collect();
+    if compute.is_empty() {
+        return None;
+    }
+    let slot = |f: &FamilyInfo, index: u32| QueueSlot { family: f.index, index };
+    let two = |kind, f: &FamilyInfo| RoleMapping { kind, trace: slot(f, 0), diffuse: slot(f, 1) };
+    let timed = |f: &&&FamilyInfo| f.timestamp_valid_bits > 0;
+
+    if let Some(f) = compute.iter().filter(timed).find(|f| !f.graphics && f.queue_count >= 2) {
+        return Some(two(MappingKind::TwoComputeOnly, f));
+    }
+    if let Some(f) = compute.iter().filter(timed).find(|f| f.queue_count >= 2) {
+        return Some(two(MappingKind::TwoComputeCapable, f));
+    }
+    let timed_families: Vec<&&FamilyInfo> = compute.iter().filter(timed).collect();
+    if timed_families.len() >= 2 {
+        // Prefer a compute-only family for tracing (the heavier role), a general one for diffusion.
+        let mut sorted = timed_families.clone();
+        sorted.sort_by_key(|f| f.graphics);
+        return Some(RoleMapping { kind: MappingKind::TwoFamilies, trace: slot(sorted[0], 0), diffuse: slot(sorted[1], 0) });
+    }
+    let best = timed_families.first().copied().unwrap_or(&compute[0]);
+    Some(RoleMapping { kind: MappingKind::Shared, trace: slot(best, 0), diffuse: slot(best, 0) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fam(index: u32, queue_count: u32, graphics: bool, compute: bool) -> FamilyInfo {
+        FamilyInfo { index, queue_count, graphics, compute, transfer: true, timestamp_valid_bits: 64 }
+    }
+
+    #[test]
+    fn nvidia_uses_compute_only_family() {
+        let t = [fam(0, 16, true, true), fam(1, 2, false, false), fam(2, 8, false, true)];
+        let m = map_roles(&t).unwrap();
+        assert_eq!(m.kind, MappingKind::TwoComputeOnly);
+        assert_eq!((m.trace, m.diffuse), (QueueSlot { family: 2, index: 0 }, QueueSlot { family: 2, index: 1 }));
+    }
+
+    #[test]
+    fn radv_with_single_compute_queue_uses_two_families() {
+        let t = [fam(0, 1, true, true), fam(1, 1, false, true)];
+        let m = map_roles(&t).unwrap();
+        assert_eq!(m.kind, MappingKind::TwoFamilies);
+        assert_eq!(m.trace.family, 1);
+        assert_eq!(m.diffuse.family, 0);
+        assert!(!m.shared());
+    }
+
+    #[test]
+    fn general_family_with_two_queues() {
+        let m = map_roles(&[fam(0, 4, true, true)]).unwrap();
+        assert_eq!(m.kind, MappingKind::TwoComputeCapable);
+    }
+
+    #[test]
+    fn lavapipe_shares_one_queue() {
+        let m = map_roles(&[fam(0, 1, true, true)]).unwrap();
+        assert_eq!(m.kind, MappingKind::Shared);
+        assert!(m.shared());
+        assert_eq!(m.families(), vec![0]);
+    }
+
+    #[test]
+    fn no_compute_no_mapping() {
+        assert!(map_roles(&[fam(0, 1, true, false)]).is_none());
+    }
+
+    #[test]
+    fn untimed_family_avoided() {
+        let mut only = fam(1, 8, false, true);
+        only.timestamp_valid_bits = 0;
+        let m = map_roles(&[fam(0, 1, true, true), only]).unwrap();
+        assert_eq!(m.kind, MappingKind::Shared);
+        assert_eq!(m.trace.family, 0);
+    }
+}

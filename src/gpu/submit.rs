@@ -1,0 +1,464 @@
+//! Passes as data, and their submission on queue roles ordered by timeline semaphores.
+//!
+//! A solver describes a pass (name, role, pipeline, bindings with access, push constants,
+//! workgroups) and hands a list of them to [`Gpu::submit`] with the `(role, value)` points it
+//! waits on. This module records the barriers, semaphore waits and timestamps; solvers never do.
+//!
+//! Host-order rule (vulkan-notes.md): a submission is made only after every submission it waits
+//! on has been submitted, since on a shared queue (lavapipe) a wait placed before its signal
+//! deadlocks. [`Gpu::submit`] refuses such a submission with an error instead of hanging.
+
+use std::collections::HashSet;
+use std::time::Instant;
+
+use ash::vk;
+use serde::Serialize;
+
+use super::context::Gpu;
+use super::error::{GpuError, Result, VkContext};
+use super::memory::{Buffer, Image3d};
+use super::pipeline::{BindingKind, Pipeline};
+use super::queues::QueueRole;
+
+/// How a pass uses a binding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Access {
+    Read,
+    Write,
+    ReadWrite,
+}
+
+impl Access {
+    fn writes(self) -> bool {
+        !matches!(self, Access::Read)
+    }
+}
+
+/// A resource a pass binds; holding it keeps the resource alive while the GPU uses it.
+#[derive(Clone)]
+pub enum Resource {
+    Buffer(Buffer),
+    Image(Image3d),
+}
+
+impl Resource {
+    fn key(&self) -> u64 {
+        use ash::vk::Handle;
+        match self {
+            Resource::Buffer(b) => b.raw().as_raw(),
+            Resource::Image(i) => i.inner.raw.as_raw(),
+        }
+    }
+    fn kind(&self) -> BindingKind {
+        match self {
+            Resource::Buffer(_) => BindingKind::StorageBuffer,
+            Resource::Image(_) => BindingKind::StorageImage,
+        }
+    }
+    fn name(&self) -> &str {
+        match self {
+            Resource::Buffer(b) => b.name(),
+            Resource::Image(i) => i.name(),
+        }
+    }
+}
+
+impl From<&Buffer> for Resource {
+    fn from(b: &Buffer) -> Self {
+        Resource::Buffer(b.clone())
+    }
+}
+impl From<&Image3d> for Resource {
+    fn from(i: &Image3d) -> Self {
+        Resource::Image(i.clone())
+    }
+}
+
+#[derive(Clone)]
+pub struct Bind {
+    pub binding: u32,
+    pub access: Access,
+    pub resource: Resource,
+}
+
+/// One compute dispatch, described as data.
+#[derive(Clone)]
+pub struct Pass {
+    pub name: String,
+    pub role: QueueRole,
+    pub pipeline: Pipeline,
+    pub bindings: Vec<Bind>,
+    pub push: Vec<u8>,
+    pub groups: [u32; 3],
+}
+
+impl Pass {
+    pub fn new(name: impl Into<String>, role: QueueRole, pipeline: &Pipeline) -> Pass {
+        Pass { name: name.into(), role, pipeline: pipeline.clone(), bindings: Vec::new(), push: Vec::new(), groups: [1, 1, 1] }
+    }
+    pub fn read(mut self, binding: u32, r: impl Into<Resource>) -> Pass {
+        self.bindings.push(Bind { binding, access: Access::Read, resource: r.into() });
+        self
+    }
+    pub fn write(mut self, binding: u32, r: impl Into<Resource>) -> Pass {
+        self.bindings.push(Bind { binding, access: Access::Write, resource: r.into() });
+        self
+    }
+    pub fn read_write(mut self, binding: u32, r: impl Into<Resource>) -> Pass {
+        self.bindings.push(Bind { binding, access: Access::ReadWrite, resource: r.into() });
+        self
+    }
+    pub fn push<T: bytemuck::Pod>(mut self, constants: &T) -> Pass {
+        self.push = bytemuck::bytes_of(constants).to_vec();
+        self
+    }
+    /// Dispatch enough workgroups to cover `n` invocations (workgroup size from reflection).
+    pub fn cover(mut self, n: [u32; 3]) -> Pass {
+        self.groups = self.pipeline.groups_for(n);
+        self
+    }
+    pub fn groups(mut self, g: [u32; 3]) -> Pass {
+        self.groups = g;
+        self
+    }
+
+    /// Check bindings and push constants against the shader's reflected interface.
+    pub fn check(&self) -> Result<()> {
+        let refl = &self.pipeline.reflection;
+        let mut seen = HashSet::new();
+        for b in &self.bindings {
+            let err = |reason: String| GpuError::Binding { pass: self.name.clone(), binding: b.binding, reason };
+            if !seen.insert(b.binding) {
+                return Err(err("bound twice".into()));
+            }
+            match refl.bindings.get(&b.binding) {
+                None => return Err(err(format!("{:?} is bound but shader {} declares no such binding", b.resource.name(), self.pipeline.name))),
+                Some((kind, decl)) if *kind != b.resource.kind() => {
+                    return Err(err(format!("shader declares `{decl}` as {kind:?} but the pass binds {:?}, a {:?}", b.resource.name(), b.resource.kind())))
+                }
+                _ => {}
+            }
+        }
+        for (index, (kind, decl)) in &refl.bindings {
+            if !seen.contains(index) {
+                return Err(GpuError::Binding { pass: self.name.clone(), binding: *index, reason: format!("shader declares `{decl}` ({kind:?}) but the pass binds nothing there") });
+            }
+        }
+        if self.push.len() != refl.push_constant_bytes {
+            return Err(GpuError::PushConstants { pass: self.name.clone(), given: self.push.len(), expected: refl.push_constant_bytes });
+        }
+        Ok(())
+    }
+}
+
+/// A point on a role's timeline: "the role's work up to `value` is done".
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct SyncPoint {
+    pub role: QueueRole,
+    pub value: u64,
+}
+
+/// GPU time of one pass, from timestamps on its queue. Times are nanoseconds on the host's
+/// CLOCK_MONOTONIC where the device offers calibrated timestamps, else on the device clock.
+#[derive(Clone, Debug, Serialize)]
+pub struct PassTiming {
+    pub name: String,
+    pub role: QueueRole,
+    pub submission: u64,
+    pub start_ns: i128,
+    pub end_ns: i128,
+    pub host_clock: bool,
+}
+
+impl PassTiming {
+    pub fn duration_ms(&self) -> f64 {
+        (self.end_ns - self.start_ns) as f64 * 1e-6
+    }
+}
+
+struct InFlight {
+    point: SyncPoint,
+    cb: vk::CommandBuffer,
+    queries: Option<vk::QueryPool>,
+    names: Vec<String>,
+    // Resources and pipelines stay alive until the GPU is done with them.
+    _keep: Vec<Resource>,
+    _pipelines: Vec<Pipeline>,
+    /// (device ticks, host ns) pair taken at submission, to place timestamps on the host clock.
+    calibration: Option<(u64, i128)>,
+}
+
+#[derive(Default)]
+pub(crate) struct SubmitState {
+    submitted: [u64; 2],
+    in_flight: Vec<InFlight>,
+    timings: Vec<PassTiming>,
+}
+
+impl Gpu {
+    /// The last value submitted on a role's timeline.
+    pub fn submitted(&self, role: QueueRole) -> SyncPoint {
+        let st = self.submit.lock().expect("submit lock");
+        SyncPoint { role, value: st.submitted[role.index()] }
+    }
+
+    fn calibration(&self) -> Option<(u64, i128)> {
+        let cal = self.shared.calibrated.as_ref()?;
+        let infos = [
+            vk::CalibratedTimestampInfoEXT::default().time_domain(vk::TimeDomainEXT::DEVICE),
+            vk::CalibratedTimestampInfoEXT::default().time_domain(vk::TimeDomainEXT::CLOCK_MONOTONIC),
+        ];
+        let (ts, _dev) = unsafe { cal.get_calibrated_timestamps(&infos) }.ok()?;
+        Some((ts[0], ts[1] as i128))
+    }
+
+    /// Record `passes` into one command buffer on `role`'s queue, waiting on `waits`, and
+    /// signal the role's next timeline value, which is returned.
+    pub fn submit(&self, role: QueueRole, passes: &[Pass], waits: &[SyncPoint]) -> Result<SyncPoint> {
+        for p in passes {
+            p.check()?;
+            if p.role != role {
+                return Err(GpuError::Binding { pass: p.name.clone(), binding: 0, reason: format!("pass is for role {} but was submitted on {role}", p.role) });
+            }
+        }
+        let passes_owned = passes.to_vec();
+        let names: Vec<String> = passes.iter().map(|p| p.name.clone()).collect();
+        let s = self.shared.clone();
+        let d = &s.device;
+        let push = &s.push_descriptor;
+        let with_queries = s.info.queue_families.iter().any(|f| f.index == s.role(role).family && f.timestamp_valid_bits > 0) && !passes.is_empty();
+        self.record_and_submit(role, waits, names, passes_owned.iter().flat_map(|p| p.bindings.iter().map(|b| b.resource.clone())).collect(), passes_owned.iter().map(|p| p.pipeline.clone()).collect(), with_queries.then_some(passes.len() as u32 * 2), |cb, pool| unsafe {
+            let mut written: HashSet<u64> = HashSet::new();
+            let mut read: HashSet<u64> = HashSet::new();
+            for (i, p) in passes.iter().enumerate() {
+                // Barrier only where this pass touches what an earlier pass wrote (RAW, WAW) or
+                // writes what an earlier one read (WAR).
+                let hazard = p.bindings.iter().any(|b| written.contains(&b.resource.key()) || (b.access.writes() && read.contains(&b.resource.key())));
+                if hazard {
+                    let mb = vk::MemoryBarrier2::default()
+                        .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+                        .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE | vk::AccessFlags2::SHADER_STORAGE_READ)
+                        .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+                        .dst_access_mask(vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE);
+                    d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+                    written.clear();
+                    read.clear();
+                }
+                for b in &p.bindings {
+                    if b.access.writes() {
+                        written.insert(b.resource.key());
+                    } else {
+                        read.insert(b.resource.key());
+                    }
+                }
+                if let Some(du) = &s.debug_device {
+                    if let Ok(label) = std::ffi::CString::new(p.name.as_str()) {
+                        du.cmd_begin_debug_utils_label(cb, &vk::DebugUtilsLabelEXT::default().label_name(&label));
+                    }
+                }
+                if let Some(pool) = pool {
+                    d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::COMPUTE_SHADER, pool, 2 * i as u32);
+                }
+                d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, p.pipeline.inner.pipeline);
+                let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = p
+                    .bindings
+                    .iter()
+                    .map(|b| match &b.resource {
+                        Resource::Buffer(buf) => [vk::DescriptorBufferInfo { buffer: buf.raw(), offset: 0, range: vk::WHOLE_SIZE }],
+                        Resource::Image(_) => [vk::DescriptorBufferInfo::default()],
+                    })
+                    .collect();
+                let image_infos: Vec<[vk::DescriptorImageInfo; 1]> = p
+                    .bindings
+                    .iter()
+                    .map(|b| match &b.resource {
+                        Resource::Image(img) => [vk::DescriptorImageInfo { sampler: vk::Sampler::null(), image_view: img.inner.view, image_layout: vk::ImageLayout::GENERAL }],
+                        Resource::Buffer(_) => [vk::DescriptorImageInfo::default()],
+                    })
+                    .collect();
+                let writes: Vec<vk::WriteDescriptorSet> = p
+                    .bindings
+                    .iter()
+                    .enumerate()
+                    .map(|(j, b)| {
+                        let w = vk::WriteDescriptorSet::default().dst_binding(b.binding);
+                        match &b.resource {
+                            Resource::Buffer(_) => w.descriptor_type(vk::DescriptorType::STORAGE_BUFFER).buffer_info(&buffer_infos[j]),
+                            Resource::Image(_) => w.descriptor_type(vk::DescriptorType::STORAGE_IMAGE).image_info(&image_infos[j]),
+                        }
+                    })
+                    .collect();
+                if !writes.is_empty() {
+                    push.cmd_push_descriptor_set(cb, vk::PipelineBindPoint::COMPUTE, p.pipeline.inner.layout, 0, &writes);
+                }
+                if !p.push.is_empty() {
+                    d.cmd_push_constants(cb, p.pipeline.inner.layout, vk::ShaderStageFlags::COMPUTE, 0, &p.push);
+                }
+                d.cmd_dispatch(cb, p.groups[0], p.groups[1], p.groups[2]);
+                if let Some(pool) = pool {
+                    d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::COMPUTE_SHADER, pool, 2 * i as u32 + 1);
+                }
+                if s.debug_device.is_some() {
+                    s.debug_device.as_ref().unwrap().cmd_end_debug_utils_label(cb);
+                }
+            }
+        })
+    }
+
+    /// Record a command buffer with `record` and submit it on `role` with waits and a signal.
+    #[allow(clippy::too_many_arguments)]
+    fn record_and_submit(
+        &self,
+        role: QueueRole,
+        waits: &[SyncPoint],
+        names: Vec<String>,
+        keep: Vec<Resource>,
+        pipelines: Vec<Pipeline>,
+        query_count: Option<u32>,
+        record: impl FnOnce(vk::CommandBuffer, Option<vk::QueryPool>),
+    ) -> Result<SyncPoint> {
+        let s = self.shared.clone();
+        let d = &s.device;
+        let rq = s.role(role);
+        let mut st = self.submit.lock().expect("submit lock");
+        for w in waits {
+            let submitted = st.submitted[w.role.index()];
+            if w.value > submitted {
+                return Err(GpuError::WaitBeforeSignal { role: role.to_string(), wait_role: w.role.to_string(), value: w.value, submitted });
+            }
+        }
+        let cb = unsafe { d.allocate_command_buffers(&vk::CommandBufferAllocateInfo::default().command_pool(rq.pool).command_buffer_count(1)) }
+            .vk("vkAllocateCommandBuffers")?[0];
+        let pool = match query_count {
+            Some(n) => Some(unsafe { d.create_query_pool(&vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(n), None) }.vk("vkCreateQueryPool")?),
+            None => None,
+        };
+        unsafe {
+            d.begin_command_buffer(cb, &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT)).vk("vkBeginCommandBuffer")?;
+            if let (Some(p), Some(n)) = (pool, query_count) {
+                d.cmd_reset_query_pool(cb, p, 0, n);
+            }
+            // Earlier submissions on the same queue are ordered but not made visible without a
+            // barrier or semaphore: one global barrier at the start covers that.
+            let mb = vk::MemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+                .src_access_mask(vk::AccessFlags2::MEMORY_WRITE)
+                .dst_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+                .dst_access_mask(vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE);
+            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+            record(cb, pool);
+            d.end_command_buffer(cb).vk("vkEndCommandBuffer")?;
+        }
+        let value = st.submitted[role.index()] + 1;
+        let wait_infos: Vec<vk::SemaphoreSubmitInfo> = waits
+            .iter()
+            .map(|w| vk::SemaphoreSubmitInfo::default().semaphore(s.role(w.role).timeline).value(w.value).stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS))
+            .collect();
+        let signal = [vk::SemaphoreSubmitInfo::default().semaphore(rq.timeline).value(value).stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)];
+        let cbs = [vk::CommandBufferSubmitInfo::default().command_buffer(cb)];
+        let submit = vk::SubmitInfo2::default().wait_semaphore_infos(&wait_infos).command_buffer_infos(&cbs).signal_semaphore_infos(&signal);
+        let calibration = if pool.is_some() { self.calibration() } else { None };
+        unsafe { d.queue_submit2(rq.queue, &[submit], vk::Fence::null()) }.map_err(|e| match e {
+            vk::Result::ERROR_DEVICE_LOST => GpuError::DeviceLost { passes: names.join(", ") },
+            e => GpuError::Vk { call: "vkQueueSubmit2", result: e },
+        })?;
+        st.submitted[role.index()] = value;
+        let point = SyncPoint { role, value };
+        st.in_flight.push(InFlight { point, cb, queries: pool, names, _keep: keep, _pipelines: pipelines, calibration });
+        Ok(point)
+    }
+
+    /// Run a one-off command buffer on the trace role and wait for it (uploads, readbacks).
+    pub(crate) fn one_shot(&self, buffers: &[Buffer], images: &[Image3d], record: impl FnOnce(&ash::Device, vk::CommandBuffer)) -> Result<()> {
+        let keep: Vec<Resource> = buffers.iter().map(Resource::from).chain(images.iter().map(Resource::from)).collect();
+        let d = self.shared.device.clone();
+        let p = self.record_and_submit(QueueRole::Trace, &[], vec!["transfer".into()], keep, Vec::new(), None, |cb, _| record(&d, cb))?;
+        self.wait(p)
+    }
+
+    /// Block until `point` is reached, or fail after the configured timeout.
+    pub fn wait(&self, point: SyncPoint) -> Result<()> {
+        let s = &self.shared;
+        let sems = [s.role(point.role).timeline];
+        let values = [point.value];
+        let info = vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values);
+        let started = Instant::now();
+        let r = unsafe { s.device.wait_semaphores(&info, self.timeout.as_nanos().min(u64::MAX as u128) as u64) };
+        match r {
+            Ok(()) => self.collect(),
+            Err(vk::Result::TIMEOUT) => {
+                let st = self.submit.lock().expect("submit lock");
+                let passes = st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>().join(", ");
+                Err(GpuError::Timeout { role: point.role.to_string(), value: point.value, seconds: started.elapsed().as_secs_f64(), passes })
+            }
+            Err(vk::Result::ERROR_DEVICE_LOST) => {
+                let st = self.submit.lock().expect("submit lock");
+                Err(GpuError::DeviceLost { passes: st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>().join(", ") })
+            }
+            Err(e) => Err(GpuError::Vk { call: "vkWaitSemaphores", result: e }),
+        }
+    }
+
+    /// Wait until everything submitted on every role has finished.
+    pub fn wait_idle_roles(&self) -> Result<()> {
+        for role in QueueRole::ALL {
+            let p = self.submitted(role);
+            if p.value > 0 {
+                self.wait(p)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Free finished submissions and turn their timestamps into [`PassTiming`]s.
+    fn collect(&self) -> Result<()> {
+        let s = &self.shared;
+        let d = &s.device;
+        let mut st = self.submit.lock().expect("submit lock");
+        let mut reached = [0u64; 2];
+        for role in QueueRole::ALL {
+            reached[role.index()] = unsafe { d.get_semaphore_counter_value(s.role(role).timeline) }.vk("vkGetSemaphoreCounterValue")?;
+        }
+        let period = s.info.timestamp_period_ns as f64;
+        let (done, pending): (Vec<InFlight>, Vec<InFlight>) = std::mem::take(&mut st.in_flight).into_iter().partition(|f| f.point.value <= reached[f.point.role.index()]);
+        st.in_flight = pending;
+        for f in done {
+            if let Some(pool) = f.queries {
+                let mut ticks = vec![0u64; f.names.len() * 2];
+                unsafe { d.get_query_pool_results(pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT) }.vk("vkGetQueryPoolResults")?;
+                for (i, name) in f.names.iter().enumerate() {
+                    let to_ns = |t: u64| -> i128 {
+                        match f.calibration {
+                            Some((dev0, host0)) => host0 + ((t as i128 - dev0 as i128) as f64 * period) as i128,
+                            None => (t as f64 * period) as i128,
+                        }
+                    };
+                    st.timings.push(PassTiming {
+                        name: name.clone(),
+                        role: f.point.role,
+                        submission: f.point.value,
+                        start_ns: to_ns(ticks[2 * i]),
+                        end_ns: to_ns(ticks[2 * i + 1]),
+                        host_clock: f.calibration.is_some(),
+                    });
+                }
+                unsafe { d.destroy_query_pool(pool, None) };
+            }
+            unsafe { d.free_command_buffers(s.role(f.point.role).pool, &[f.cb]) };
+        }
+        Ok(())
+    }
+
+    /// Take the pass timings collected so far.
+    pub fn take_timings(&self) -> Vec<PassTiming> {
+        std::mem::take(&mut self.submit.lock().expect("submit lock").timings)
+    }
+}
+
+impl Drop for SubmitState {
+    fn drop(&mut self) {
+        // In-flight work is waited for by `Shared::drop` (device_wait_idle); command buffers and
+        // query pools go with their pools and device.
+    }
+}
+
