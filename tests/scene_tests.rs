@@ -583,6 +583,18 @@ fn scene_error_grid_over_memory_budget_checked_before_reading() {
         ],
     );
 
+    // Resolutions whose product overflows u64 are "too large", not a panic.
+    let absurd = write_vol([i32::MAX as u32; 3], &[], Vec3::ZERO, Vec3::ONE);
+    let msg = grid_error(
+        &[("absurd.vol", absurd)],
+        r#"density = { kind = "grid", file = "absurd.vol" }"#,
+        &LoadOptions::default(),
+    );
+    assert_mentions(
+        &msg,
+        &["2147483647x2147483647x2147483647", "resample the grid"],
+    );
+
     let small_budget = LoadOptions {
         memory_budget_bytes: 1000,
     };
@@ -742,6 +754,14 @@ fn scene_grid_sample_clamps_at_faces() {
     );
     assert!((g.sample(on_face) - 0.5 * (g.at(0, 0, 0) + g.at(0, 0, 1))).abs() < 1e-5);
     assert_eq!(g.at(9, 9, 9), g.at(2, 1, 3), "indices clamp");
+    // A hand-built grid whose dims disagree with its data reads 0, never panics.
+    let bad = Grid {
+        dims: [u32::MAX; 3],
+        data: vec![1.0; 8],
+        file: PathBuf::new(),
+    };
+    assert_eq!(bad.at(u32::MAX, u32::MAX, u32::MAX), 0.0);
+    let _ = bad.sample(Vec3::splat(0.7));
 }
 
 #[test]

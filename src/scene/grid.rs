@@ -21,11 +21,20 @@ impl Grid {
             return 0.0;
         }
         let (i, j, k) = (
-            i.min(nx - 1) as usize,
-            j.min(ny - 1) as usize,
-            k.min(nz - 1) as usize,
+            u64::from(i.min(nx - 1)),
+            u64::from(j.min(ny - 1)),
+            u64::from(k.min(nz - 1)),
         );
-        let index = (k * ny as usize + j) * nx as usize + i;
+        // Checked: a hand-built Grid may have dims that do not match its data.
+        let index = k
+            .checked_mul(u64::from(ny))
+            .and_then(|v| v.checked_add(j))
+            .and_then(|v| v.checked_mul(u64::from(nx)))
+            .and_then(|v| v.checked_add(i))
+            .and_then(|v| usize::try_from(v).ok());
+        let Some(index) = index else {
+            return 0.0;
+        };
         self.data.get(index).copied().unwrap_or(0.0)
     }
 
@@ -140,7 +149,10 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
     };
 
     // Budget before reading: the grid is held as f32 in memory.
-    let voxels = dims.iter().map(|&d| u64::from(d)).product::<u64>();
+    // Saturating: three u32 resolutions can overflow u64 (a hostile header must not panic).
+    let voxels = dims
+        .iter()
+        .fold(1u64, |acc, &d| acc.saturating_mul(u64::from(d)));
     let needed = voxels.saturating_mul(4);
     if needed > req.opts.memory_budget_bytes {
         return Err(SceneError::GridTooLarge {
