@@ -1114,3 +1114,90 @@ fn scene_make_cloud_regenerates_the_committed_grid() {
         "tools/make-cloud no longer reproduces scenes/cloud64.vol byte for byte"
     );
 }
+
+/// Deterministic xorshift for the mutation tests.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+}
+
+#[test]
+fn scene_mutated_inputs_never_panic_and_errors_stay_one_line() {
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let alphabet = b"[]{}=,.\"'#\n -+0123456789einfa_kxyz";
+    let dir = tempfile::tempdir().expect("tempdir");
+    let good_vol = vol([2, 3, 4], &ramp(24));
+    let grid_text = grid_scene(r#"density = { kind = "grid", file = "g.vol" }"#);
+    for round in 0..10_000 {
+        // Text: a few random byte edits of the base scene.
+        let mut bytes = BASE.as_bytes().to_vec();
+        for _ in 0..1 + rng.below(4) {
+            let at = rng.below(bytes.len());
+            let c = alphabet[rng.below(alphabet.len())];
+            match rng.below(3) {
+                0 => bytes[at] = c,
+                1 => bytes.insert(at, c),
+                _ => {
+                    bytes.remove(at);
+                }
+            }
+        }
+        let text = String::from_utf8_lossy(&bytes);
+        if let Err(e) = parse(&text) {
+            assert!(!e.to_string().contains('\n'), "{text:?}: {e}");
+        }
+        // Grid: random header and size edits of a valid .vol.
+        if round % 6 == 0 {
+            let mut v = good_vol.clone();
+            for _ in 0..1 + rng.below(3) {
+                let at = rng.below(48);
+                v[at] = rng.next() as u8;
+            }
+            v.truncate(rng.below(v.len() + 1).max(v.len() * (rng.below(2))));
+            write(dir.path(), "g.vol", &v);
+            let result = parse_in(&grid_text, dir.path(), &[], &LoadOptions::default());
+            if let Err(e) = result {
+                assert!(!e.to_string().contains('\n'), "{e}");
+            }
+        }
+    }
+    // Overrides: random keys and values.
+    let keys = [
+        "medium.albedo",
+        "light.0",
+        "light[0].kind",
+        "camera",
+        "render.width.x",
+        "medium.density.kind",
+        "x",
+        "light[9]",
+    ];
+    let values = [
+        "1",
+        "[1, 2, 3]",
+        "{ kind = \"sphere\" }",
+        "\"grid\"",
+        "nan",
+        "-inf",
+        "[]",
+        "{}",
+        "1e40",
+        "foo bar",
+    ];
+    for key in keys {
+        for value in values {
+            if let Err(e) = with_overrides(&[(key, value)]) {
+                assert!(!e.to_string().contains('\n'), "{key}={value}: {e}");
+            }
+        }
+    }
+}
