@@ -1,0 +1,202 @@
+//! Scenes: parsing and validation of scene files (format v1, `docs/scene-format.md`), and
+//! the feature analysis that tells solvers which physics a scene needs.
+//!
+//! A [`Scene`] is always valid: [`Scene::load`] rejects anything a solver could not render
+//! with a one-line [`SceneError`] naming the file and the field. Units follow Mitsuba 3:
+//! lengths in scene units, `sigma_t` in 1/unit, point-light intensity in W/sr, directional
+//! irradiance in W/m^2, environment radiance in W/(m^2 sr).
+
+mod error;
+mod features;
+mod grid;
+mod parse;
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+
+pub use error::SceneError;
+pub use grid::write_vol;
+
+/// A validated scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// The scene file path (or the `name` given to [`Scene::from_str`], e.g. `"<string>"`).
+    pub source: PathBuf,
+    pub render: RenderSettings,
+    pub camera: Camera,
+    pub medium: Medium,
+    /// At least one.
+    pub lights: Vec<Light>,
+}
+
+/// `[render]`: image size, the seed every random choice derives from, default samples/pixel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RenderSettings {
+    /// Pixels, 1 ..= [`MAX_IMAGE_SIZE`].
+    pub width: u32,
+    /// Pixels, 1 ..= [`MAX_IMAGE_SIZE`].
+    pub height: u32,
+    pub seed: u64,
+    /// Default samples per pixel for `path` (>= 1).
+    pub spp: u32,
+}
+
+/// Largest accepted `render.width` / `render.height`.
+pub const MAX_IMAGE_SIZE: u32 = 16384;
+
+/// Projection. Pixels are square; a pixel's value is the average radiance over its area.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CameraKind {
+    /// Full field of view along the image x axis, degrees in (0, 180).
+    Perspective { fov_deg: f32 },
+    /// Width of the view along the image x axis, scene units (> 0).
+    Orthographic { extent: f32 },
+}
+
+/// A look-at camera. `origin != target`, `up` not parallel to the view direction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    pub kind: CameraKind,
+    pub origin: Vec3,
+    pub target: Vec3,
+    pub up: Vec3,
+}
+
+impl Camera {
+    /// Orthonormal camera frame `(right, up, forward)`: `forward` points from origin to
+    /// target, `right` is the image +x axis (columns increasing), `up` the image +y axis
+    /// (rows decreasing). Same convention as Mitsuba's `look_at` sensor.
+    pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
+        let forward = (self.target - self.origin).normalize_or_zero();
+        let right = forward.cross(self.up).normalize_or_zero();
+        let up = right.cross(forward);
+        (right, up, forward)
+    }
+}
+
+/// `[medium]`: one box of participating medium; outside it is vacuum.
+/// `sigma_t(x) = sigma_t * density(x)`, `sigma_s = albedo * sigma_t`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Medium {
+    pub bounds_min: Vec3,
+    /// Strictly greater than `bounds_min` on every axis.
+    pub bounds_max: Vec3,
+    /// Extinction scale, 1/unit, RGB, finite and >= 0 (a scalar in the file becomes splat).
+    pub sigma_t: Vec3,
+    /// Single-scattering albedo sigma_s / sigma_t, each channel in [0, 1].
+    pub albedo: Vec3,
+    /// Henyey-Greenstein mean cosine in (-1, 1); g > 0 scatters forward.
+    pub g: f32,
+    pub density: Density,
+}
+
+/// Density multiplier inside the medium bounds.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Density {
+    /// 1 everywhere inside the bounds.
+    Constant,
+    /// 1 inside the sphere (and the bounds), 0 outside.
+    Sphere { center: Vec3, radius: f32 },
+    /// A voxel grid spanning the bounds.
+    Grid(Grid),
+}
+
+/// A density grid spanning the medium bounds. Sample `(i, j, k)` sits at the voxel centre
+/// `((i, j, k) + 0.5) / dims`; values are finite and >= 0.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Grid {
+    pub dims: [u32; 3],
+    /// `dims[0] * dims[1] * dims[2]` values, x fastest, then y, then z.
+    pub data: Vec<f32>,
+    /// The file it was loaded from (resolved against the scene file's folder).
+    pub file: PathBuf,
+}
+
+/// An emitter (Mitsuba 3 `point`, `directional`, `constant`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Light {
+    /// Radiant intensity, W/sr.
+    Point { position: Vec3, intensity: Vec3 },
+    /// `direction` is normalised and is the direction the light travels; irradiance in W/m^2
+    /// on a plane perpendicular to it.
+    Directional { direction: Vec3, irradiance: Vec3 },
+    /// Uniform radiance arriving from every direction at infinity, W/(m^2 sr).
+    Environment { radiance: Vec3 },
+}
+
+/// Limits applied while loading.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Largest density grid accepted, in bytes of f32 data (checked before reading it).
+    pub memory_budget_bytes: u64,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions {
+            memory_budget_bytes: 4 << 30,
+        }
+    }
+}
+
+/// What physics a scene needs; solvers compile in and allocate only these.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Features {
+    /// `g != 0`.
+    pub anisotropic: bool,
+    /// `sigma_t` or `albedo` differ between channels.
+    pub chromatic: bool,
+    /// A point light lies strictly inside the bounds where the density is > 0.
+    pub light_inside: bool,
+    /// `Density::Constant`.
+    pub homogeneous: bool,
+    pub has_environment: bool,
+    /// Grid resolution when the density is a grid.
+    pub grid_dims: Option<[u32; 3]>,
+}
+
+impl Scene {
+    /// Load a scene file, apply `overrides` (dotted key, TOML value text: `("medium.albedo",
+    /// "0.5")`, `("medium.sigma_t", "[1, 2, 3]")`, `("camera.kind", "\"orthographic\"")`) to
+    /// the parsed TOML before validation, and validate. Relative grid paths resolve against
+    /// the scene file's folder.
+    pub fn load(
+        path: &Path,
+        overrides: &[(String, String)],
+        opts: &LoadOptions,
+    ) -> Result<Scene, SceneError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
+            file: path.to_path_buf(),
+            source,
+        })?;
+        let base_dir = match path.parent() {
+            Some(dir) if !dir.as_os_str().is_empty() => dir,
+            _ => Path::new("."),
+        };
+        parse::parse_scene(&text, path, base_dir, overrides, opts)
+    }
+
+    /// [`Scene::load`] from a string: relative grid paths resolve against `base_dir`, and
+    /// `name` stands for the file in messages and in [`Scene::source`].
+    // Not `FromStr`: it needs a base directory, overrides and options.
+    #[allow(clippy::should_implement_trait)]
+    pub fn from_str(
+        text: &str,
+        name: &str,
+        base_dir: &Path,
+        overrides: &[(String, String)],
+        opts: &LoadOptions,
+    ) -> Result<Scene, SceneError> {
+        parse::parse_scene(text, Path::new(name), base_dir, overrides, opts)
+    }
+}
+
+/// True if a `--set` key belongs to the scene (first segment `render`, `camera`, `medium` or
+/// `light`) rather than to a solver (`path.max_depth`).
+pub fn is_scene_key(key: &str) -> bool {
+    let first = key.split('.').next().unwrap_or("");
+    // `light.0.intensity` and `light[0].intensity` both address the first light.
+    let first = first.split('[').next().unwrap_or("");
+    matches!(first, "render" | "camera" | "medium" | "light")
+}

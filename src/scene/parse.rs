@@ -1,0 +1,1077 @@
+//! Scene parsing: TOML text -> `toml::Value` tree -> overrides -> typed raw structs (serde,
+//! unknown keys rejected) -> validated [`Scene`].
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use serde::de::{self, Deserializer, SeqAccess, Visitor};
+use serde::Deserialize;
+
+use super::error::one_line;
+use super::grid::{load_grid, GridRequest};
+use super::{
+    Camera, CameraKind, Density, Light, LoadOptions, Medium, RenderSettings, Scene, SceneError,
+    MAX_IMAGE_SIZE,
+};
+
+// ---------------------------------------------------------------------------------------
+// Raw file structure (serde). Only shape and types are checked here; ranges come later.
+// ---------------------------------------------------------------------------------------
+
+/// Top level of a scene file.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    render: RawRender,
+    camera: RawCamera,
+    medium: RawMedium,
+    /// `[[light]]` tables, deserialised one by one so errors can name `light[i]`.
+    #[serde(default)]
+    light: Vec<toml::Value>,
+}
+
+/// `[render]`. Integers are read wide and range-checked with a readable message.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRender {
+    width: i64,
+    height: i64,
+    #[serde(default = "default_seed")]
+    seed: i64,
+    #[serde(default = "default_spp")]
+    spp: i64,
+}
+
+fn default_seed() -> i64 {
+    1
+}
+
+fn default_spp() -> i64 {
+    256
+}
+
+/// `[camera]`. `kind` is a plain string so a wrong fov/extent combination gets its own message.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamera {
+    #[serde(default = "default_camera_kind")]
+    kind: String,
+    origin: [f32; 3],
+    target: [f32; 3],
+    #[serde(default = "default_up")]
+    up: [f32; 3],
+    fov: Option<f32>,
+    extent: Option<f32>,
+}
+
+fn default_camera_kind() -> String {
+    "perspective".to_owned()
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+/// `[medium]`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMedium {
+    bounds: [[f32; 3]; 2],
+    sigma_t: Rgb,
+    albedo: Rgb,
+    #[serde(default)]
+    g: f32,
+    #[serde(default = "default_density")]
+    density: RawDensity,
+}
+
+fn default_density() -> RawDensity {
+    RawDensity::Constant {}
+}
+
+/// `medium.density = { kind = ..., ... }`.
+#[derive(Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+enum RawDensity {
+    Constant {},
+    Sphere {
+        center: [f32; 3],
+        radius: f32,
+    },
+    Grid {
+        file: String,
+        dims: Option<[i64; 3]>,
+    },
+}
+
+/// One `[[light]]`.
+#[derive(Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+enum RawLight {
+    Point {
+        position: [f32; 3],
+        intensity: Rgb,
+    },
+    Directional {
+        direction: [f32; 3],
+        irradiance: Rgb,
+    },
+    Environment {
+        radiance: Rgb,
+    },
+}
+
+/// A colour: a scalar (splat) or `[r, g, b]`.
+#[derive(Clone, Copy)]
+struct Rgb([f64; 3]);
+
+impl<'de> Deserialize<'de> for Rgb {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct RgbVisitor;
+        impl<'de> Visitor<'de> for RgbVisitor {
+            type Value = Rgb;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a number or an array of 3 numbers [r, g, b]")
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Rgb, E> {
+                Ok(Rgb([v; 3]))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Rgb, E> {
+                Ok(Rgb([v as f64; 3]))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Rgb, E> {
+                Ok(Rgb([v as f64; 3]))
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Rgb, A::Error> {
+                let mut out = [0.0; 3];
+                for (i, slot) in out.iter_mut().enumerate() {
+                    *slot = seq
+                        .next_element::<f64>()?
+                        .ok_or_else(|| de::Error::invalid_length(i, &self))?;
+                }
+                if seq.next_element::<de::IgnoredAny>()?.is_some() {
+                    return Err(de::Error::invalid_length(4, &self));
+                }
+                Ok(Rgb(out))
+            }
+        }
+        deserializer.deserialize_any(RgbVisitor)
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Entry point
+// ---------------------------------------------------------------------------------------
+
+/// Parse, override, validate. `file` names the scene in messages; grids resolve against
+/// `base_dir`.
+pub(crate) fn parse_scene(
+    text: &str,
+    file: &Path,
+    base_dir: &Path,
+    overrides: &[(String, String)],
+    opts: &LoadOptions,
+) -> Result<Scene, SceneError> {
+    let ctx = Ctx {
+        file,
+        text,
+        overrides,
+    };
+    ctx.parse(base_dir, opts)
+        .map_err(|e| ctx.attribute_to_override(e))
+}
+
+struct Ctx<'a> {
+    file: &'a Path,
+    text: &'a str,
+    overrides: &'a [(String, String)],
+}
+
+impl Ctx<'_> {
+    fn parse(&self, base_dir: &Path, opts: &LoadOptions) -> Result<Scene, SceneError> {
+        // Syntax.
+        let table: toml::Table = self.text.parse().map_err(|e| self.syntax_error(&e))?;
+        let mut root = toml::Value::Table(table);
+
+        // Overrides act on the tree, before any typing or validation.
+        for (key, value) in self.overrides {
+            apply_override(&mut root, key, value).map_err(|message| SceneError::Override {
+                file: self.file.to_path_buf(),
+                key: key.clone(),
+                message,
+            })?;
+        }
+
+        // Shape and types.
+        let raw: RawScene = root.try_into().map_err(|e| self.serde_error("", &e))?;
+        let mut raw_lights = Vec::with_capacity(raw.light.len());
+        for (i, value) in raw.light.into_iter().enumerate() {
+            let light: RawLight = value
+                .try_into()
+                .map_err(|e| self.serde_error(&format!("light[{i}]"), &e))?;
+            raw_lights.push(light);
+        }
+
+        // Values: cheap checks first, the grid file last.
+        let render = self.render(&raw.render)?;
+        let camera = self.camera(&raw.camera)?;
+        let (bounds_min, bounds_max) = self.bounds(&raw.medium.bounds)?;
+        let lights = self.lights(&raw_lights)?;
+        self.camera_sees_medium(&camera, &render, bounds_min, bounds_max)?;
+
+        let m = &raw.medium;
+        let sigma_t = self.rgb_non_negative("medium.sigma_t", m.sigma_t, "extinction")?;
+        let albedo = self.albedo(m.albedo)?;
+        if !m.g.is_finite() || m.g.abs() >= 1.0 {
+            return Err(self.invalid(
+                "medium.g",
+                format!(
+                    "g = {} must lie strictly inside (-1, 1) (Henyey-Greenstein mean cosine); use e.g. 0.99 for very forward scattering",
+                    num32(m.g)
+                ),
+            ));
+        }
+        let density = match &m.density {
+            RawDensity::Constant {} => Density::Constant,
+            RawDensity::Sphere { center, radius } => {
+                let center = self.vec3("medium.density.center", *center)?;
+                if !radius.is_finite() || *radius <= 0.0 {
+                    return Err(self.invalid(
+                        "medium.density.radius",
+                        format!("radius = {} must be a finite number > 0", num32(*radius)),
+                    ));
+                }
+                let closest = center.clamp(bounds_min, bounds_max);
+                if closest.distance(center) >= *radius {
+                    return Err(self.invalid(
+                        "medium.density",
+                        format!(
+                            "the sphere (center {}, radius {}) does not overlap medium.bounds {}..{}, so the medium would be empty; move the sphere inside the bounds",
+                            fmt3(center), num32(*radius), fmt3(bounds_min), fmt3(bounds_max)
+                        ),
+                    ));
+                }
+                Density::Sphere {
+                    center,
+                    radius: *radius,
+                }
+            }
+            RawDensity::Grid { file, dims } => {
+                let written = PathBuf::from(file);
+                let resolved = if written.is_absolute() {
+                    written.clone()
+                } else {
+                    base_dir.join(&written)
+                };
+                let grid = load_grid(&GridRequest {
+                    scene_file: self.file,
+                    file_as_written: &written,
+                    resolved,
+                    dims: *dims,
+                    opts,
+                })?;
+                Density::Grid(grid)
+            }
+        };
+
+        Ok(Scene {
+            source: self.file.to_path_buf(),
+            render,
+            camera,
+            medium: Medium {
+                bounds_min,
+                bounds_max,
+                sigma_t,
+                albedo,
+                g: m.g,
+                density,
+            },
+            lights,
+        })
+    }
+
+    // -------------------------------------------------------------------- sections
+
+    fn render(&self, r: &RawRender) -> Result<RenderSettings, SceneError> {
+        let size = |field: &str, v: i64| -> Result<u32, SceneError> {
+            u32::try_from(v)
+                .ok()
+                .filter(|v| (1..=MAX_IMAGE_SIZE).contains(v))
+                .ok_or_else(|| {
+                    self.invalid(
+                        field,
+                        format!("{v} pixels is out of range; use 1 ..= {MAX_IMAGE_SIZE}"),
+                    )
+                })
+        };
+        let width = size("render.width", r.width)?;
+        let height = size("render.height", r.height)?;
+        let seed = u64::try_from(r.seed).map_err(|_| {
+            self.invalid("render.seed", format!("{} must be an integer >= 0", r.seed))
+        })?;
+        let spp = u32::try_from(r.spp)
+            .ok()
+            .filter(|&s| s >= 1)
+            .ok_or_else(|| {
+                self.invalid(
+                    "render.spp",
+                    format!(
+                        "{} samples per pixel is out of range; use 1 ..= {}",
+                        r.spp,
+                        u32::MAX
+                    ),
+                )
+            })?;
+        Ok(RenderSettings {
+            width,
+            height,
+            seed,
+            spp,
+        })
+    }
+
+    fn camera(&self, c: &RawCamera) -> Result<Camera, SceneError> {
+        // Both fov and extent may be present (so `--set camera.kind=...` can switch
+        // projections); each is checked when present, and the kind's own one is required.
+        if let Some(fov) = c.fov {
+            if !(fov > 0.0 && fov < 180.0) {
+                return Err(self.invalid(
+                    "camera.fov",
+                    format!(
+                        "fov = {} degrees must lie strictly inside (0, 180)",
+                        num32(fov)
+                    ),
+                ));
+            }
+        }
+        if let Some(extent) = c.extent {
+            if !(extent.is_finite() && extent > 0.0) {
+                return Err(self.invalid(
+                    "camera.extent",
+                    format!(
+                        "extent = {} must be a finite width > 0 in scene units",
+                        num32(extent)
+                    ),
+                ));
+            }
+        }
+        let kind = match (c.kind.as_str(), c.fov, c.extent) {
+            ("perspective", Some(fov_deg), _) => CameraKind::Perspective { fov_deg },
+            ("orthographic", _, Some(extent)) => CameraKind::Orthographic { extent },
+            ("perspective", None, _) => {
+                return Err(SceneError::MissingKey {
+                    file: self.file.to_path_buf(),
+                    key: "camera.fov".into(),
+                    hint: "a perspective camera needs fov = <full field of view along the image x axis, degrees in (0, 180)>".into(),
+                })
+            }
+            ("orthographic", _, None) => {
+                return Err(SceneError::MissingKey {
+                    file: self.file.to_path_buf(),
+                    key: "camera.extent".into(),
+                    hint: "an orthographic camera needs extent = <width of the view along the image x axis, scene units, > 0>".into(),
+                })
+            }
+            (other, _, _) => {
+                return Err(self.invalid(
+                    "camera.kind",
+                    format!("unknown kind `{other}`; expected \"perspective\" or \"orthographic\""),
+                ))
+            }
+        };
+        let origin = self.vec3("camera.origin", c.origin)?;
+        let target = self.vec3("camera.target", c.target)?;
+        let up = self.vec3("camera.up", c.up)?;
+        let Some(forward) = (target - origin).try_normalize() else {
+            return Err(self.invalid(
+                "camera.target",
+                format!(
+                    "target {} equals camera.origin, so the camera has no view direction; move the target to the point the camera looks at",
+                    fmt3(target)
+                ),
+            ));
+        };
+        let Some(up_n) = up.try_normalize() else {
+            return Err(self.invalid(
+                "camera.up",
+                "up is zero-length; use the direction that should point up in the image, e.g. [0, 1, 0]",
+            ));
+        };
+        if forward.cross(up_n).length() < 1e-4 {
+            // Suggest the world axis least aligned with the view.
+            let a = forward.abs();
+            let suggestion = if a.y <= a.x && a.y <= a.z {
+                "[0, 1, 0]"
+            } else if a.z <= a.x {
+                "[0, 0, 1]"
+            } else {
+                "[1, 0, 0]"
+            };
+            return Err(self.invalid(
+                "camera.up",
+                format!(
+                    "up {} is parallel to the view direction {} (origin -> target); choose an up vector across the view, e.g. {suggestion}",
+                    fmt3(up),
+                    fmt3(forward)
+                ),
+            ));
+        }
+        Ok(Camera {
+            kind,
+            origin,
+            target,
+            up,
+        })
+    }
+
+    fn bounds(&self, b: &[[f32; 3]; 2]) -> Result<(Vec3, Vec3), SceneError> {
+        let min = self.vec3("medium.bounds[0]", b[0])?;
+        let max = self.vec3("medium.bounds[1]", b[1])?;
+        for (axis, name) in ["x", "y", "z"].iter().enumerate() {
+            if min[axis] >= max[axis] {
+                return Err(self.invalid(
+                    "medium.bounds",
+                    format!(
+                        "min {} must be less than max {} on every axis, but on {name} {} >= {}; write bounds = [[min x, y, z], [max x, y, z]]",
+                        fmt3(min), fmt3(max), num32(min[axis]), num32(max[axis])
+                    ),
+                ));
+            }
+        }
+        Ok((min, max))
+    }
+
+    fn albedo(&self, rgb: Rgb) -> Result<Vec3, SceneError> {
+        for (c, &v) in rgb.0.iter().enumerate() {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(self.invalid(
+                    "medium.albedo",
+                    format!(
+                        "{} channel is {}, outside [0, 1]; albedo = sigma_s / sigma_t must lie in [0, 1]",
+                        CHANNELS[c],
+                        num(v)
+                    ),
+                ));
+            }
+        }
+        Ok(Vec3::new(rgb.0[0] as f32, rgb.0[1] as f32, rgb.0[2] as f32))
+    }
+
+    fn lights(&self, raw: &[RawLight]) -> Result<Vec<Light>, SceneError> {
+        if raw.is_empty() {
+            return Err(self.invalid(
+                "light",
+                "the scene has no lights; add at least one [[light]] table with kind = \"point\", \"directional\" or \"environment\"",
+            ));
+        }
+        raw.iter()
+            .enumerate()
+            .map(|(i, light)| {
+                let f = |name: &str| format!("light[{i}].{name}");
+                Ok(match *light {
+                    RawLight::Point {
+                        position,
+                        intensity,
+                    } => Light::Point {
+                        position: self.vec3(&f("position"), position)?,
+                        intensity: self.rgb_non_negative(&f("intensity"), intensity, "intensity")?,
+                    },
+                    RawLight::Directional {
+                        direction,
+                        irradiance,
+                    } => {
+                        let d = self.vec3(&f("direction"), direction)?;
+                        let Some(direction) = d.try_normalize() else {
+                            return Err(self.invalid(
+                                &f("direction"),
+                                format!(
+                                    "direction {} is zero-length; give the direction the light travels, e.g. [0, -1, 0] for light from above",
+                                    fmt3(d)
+                                ),
+                            ));
+                        };
+                        Light::Directional {
+                            direction,
+                            irradiance: self.rgb_non_negative(
+                                &f("irradiance"),
+                                irradiance,
+                                "irradiance",
+                            )?,
+                        }
+                    }
+                    RawLight::Environment { radiance } => Light::Environment {
+                        radiance: self.rgb_non_negative(&f("radiance"), radiance, "radiance")?,
+                    },
+                })
+            })
+            .collect()
+    }
+
+    /// Reject a camera whose view cannot contain any point of the bounds box: all eight
+    /// corners outside one and the same side of the view volume (the box is convex, so this
+    /// never rejects a camera that sees a part of it). A camera inside the box is fine.
+    fn camera_sees_medium(
+        &self,
+        camera: &Camera,
+        render: &RenderSettings,
+        min: Vec3,
+        max: Vec3,
+    ) -> Result<(), SceneError> {
+        let o = camera.origin;
+        if o.cmpge(min).all() && o.cmple(max).all() {
+            return Ok(());
+        }
+        let (right, up, forward) = camera.basis();
+        let aspect = render.height as f32 / render.width as f32;
+        let corners = (0..8).map(|i| {
+            let c = Vec3::new(
+                if i & 1 == 0 { min.x } else { max.x },
+                if i & 2 == 0 { min.y } else { max.y },
+                if i & 4 == 0 { min.z } else { max.z },
+            ) - o;
+            (c.dot(right), c.dot(up), c.dot(forward))
+        });
+        let corners: Vec<(f32, f32, f32)> = corners.collect();
+        // Every corner outside the same half-space of the view volume?
+        let all = |outside: &dyn Fn(f32, f32, f32) -> bool| {
+            corners.iter().all(|&(x, y, z)| outside(x, y, z))
+        };
+        let hidden = match camera.kind {
+            CameraKind::Perspective { fov_deg } => {
+                let tx = (fov_deg.to_radians() * 0.5).tan();
+                let ty = tx * aspect;
+                all(&|_, _, z| z <= 0.0)
+                    || all(&|x, _, z| x > tx * z)
+                    || all(&|x, _, z| x < -tx * z)
+                    || all(&|_, y, z| y > ty * z)
+                    || all(&|_, y, z| y < -ty * z)
+            }
+            CameraKind::Orthographic { extent } => {
+                let hx = extent * 0.5;
+                let hy = hx * aspect;
+                all(&|_, _, z| z < 0.0)
+                    || all(&|x, _, _| x > hx)
+                    || all(&|x, _, _| x < -hx)
+                    || all(&|_, y, _| y > hy)
+                    || all(&|_, y, _| y < -hy)
+            }
+        };
+        if hidden {
+            let centre = (min + max) * 0.5;
+            return Err(self.invalid(
+                "camera",
+                format!(
+                    "the camera (origin {}, target {}) sees no part of the medium bounds {}..{}; aim it at the medium, e.g. target = {} (the centre of the bounds), or widen the view",
+                    fmt3(camera.origin), fmt3(camera.target), fmt3(min), fmt3(max), fmt3(centre)
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    // -------------------------------------------------------------------- value helpers
+
+    fn vec3(&self, field: &str, v: [f32; 3]) -> Result<Vec3, SceneError> {
+        let v = Vec3::from_array(v);
+        if !v.is_finite() {
+            return Err(self.invalid(
+                field,
+                format!("{} has a non-finite component; use finite numbers", fmt3(v)),
+            ));
+        }
+        Ok(v)
+    }
+
+    fn rgb_non_negative(&self, field: &str, rgb: Rgb, what: &str) -> Result<Vec3, SceneError> {
+        for (c, &v) in rgb.0.iter().enumerate() {
+            if !(v.is_finite() && (v as f32).is_finite()) || v < 0.0 {
+                return Err(self.invalid(
+                    field,
+                    format!(
+                        "{} channel is {}; {what} must be finite and >= 0",
+                        CHANNELS[c],
+                        num(v)
+                    ),
+                ));
+            }
+        }
+        Ok(Vec3::new(rgb.0[0] as f32, rgb.0[1] as f32, rgb.0[2] as f32))
+    }
+
+    // -------------------------------------------------------------------- errors
+
+    fn invalid(&self, field: &str, message: impl Into<String>) -> SceneError {
+        SceneError::Invalid {
+            file: self.file.to_path_buf(),
+            field: field.to_owned(),
+            message: message.into(),
+        }
+    }
+
+    fn syntax_error(&self, e: &toml::de::Error) -> SceneError {
+        let (line, column) = e
+            .span()
+            .map(|span| line_col(self.text, span.start))
+            .unwrap_or((1, 1));
+        SceneError::Syntax {
+            file: self.file.to_path_buf(),
+            line,
+            column,
+            message: one_line(e.message()),
+        }
+    }
+
+    /// Turn a serde error from a `toml::Value` into a scene error naming the field. `prefix`
+    /// is the path of the value that was deserialised (`light[2]`), "" for the root.
+    fn serde_error(&self, prefix: &str, e: &toml::de::Error) -> SceneError {
+        let message = one_line(e.message());
+        // toml appends "in `a.b`" (the keys it unwound through) to its Display, not to
+        // message(); that is the only place the path is available.
+        let display = e.to_string();
+        let inner = display
+            .lines()
+            .rev()
+            .find_map(|l| l.strip_prefix("in `").and_then(|r| r.strip_suffix('`')))
+            .unwrap_or("");
+        let path = join_path(prefix, inner);
+        let file = self.file.to_path_buf();
+
+        if let Some(rest) = message.strip_prefix("unknown field `") {
+            let (name, tail) = rest.split_once('`').unwrap_or((rest, ""));
+            let expected = tail.trim_start_matches(", ").to_owned();
+            let candidates: Vec<&str> = expected.split('`').skip(1).step_by(2).collect();
+            let expected = match did_you_mean(name, &candidates) {
+                Some(best) => format!("did you mean `{best}`? {expected}"),
+                None if expected == "there are no fields" => {
+                    "this kind takes no other keys".to_owned()
+                }
+                None => expected,
+            };
+            return SceneError::UnknownKey {
+                line: locate_key(self.text, &path, name),
+                key: join_path(&path, name),
+                expected,
+                file,
+            };
+        }
+        if let Some(rest) = message.strip_prefix("missing field `") {
+            let name = rest.split('`').next().unwrap_or(rest);
+            let key = join_path(&path, name);
+            return SceneError::MissingKey {
+                hint: missing_hint(&path, name),
+                key,
+                file,
+            };
+        }
+        if let Some(rest) = message.strip_prefix("unknown variant `") {
+            let (name, tail) = rest.split_once('`').unwrap_or((rest, ""));
+            return SceneError::Invalid {
+                file,
+                // The tag's own key is usually on the path already.
+                field: if path == "kind" || path.ends_with(".kind") {
+                    path
+                } else {
+                    join_path(&path, "kind")
+                },
+                message: format!("unknown kind `{name}`; {}", tail.trim_start_matches(", ")),
+            };
+        }
+        // serde names Rust types; say what the file needs instead.
+        let mut message = message
+            .replace("expected i64", "expected an integer")
+            .replace("expected f32", "expected a number")
+            .replace("expected a string", "expected a quoted string")
+            .replace("expected a sequence", "expected an array");
+        if path == "light" && message.contains("expected an array") {
+            message.push_str("; write each light as a [[light]] table (double brackets)");
+        }
+        SceneError::Invalid {
+            file,
+            field: if path.is_empty() {
+                "(top level)".into()
+            } else {
+                path
+            },
+            message,
+        }
+    }
+
+    /// An error caused by a `--set` value should say so: unknown keys become override
+    /// errors, and invalid values name the override they came from.
+    fn attribute_to_override(&self, err: SceneError) -> SceneError {
+        let origin = |field: &str| {
+            self.overrides.iter().find(|(key, _)| {
+                let key = normalise_key(key);
+                related(&key, field)
+            })
+        };
+        match err {
+            SceneError::UnknownKey {
+                file,
+                key,
+                line,
+                expected,
+            } => match origin(&key) {
+                Some((okey, _)) => SceneError::Override {
+                    file,
+                    key: okey.clone(),
+                    message: format!("unknown key `{key}`; {expected}"),
+                },
+                None => SceneError::UnknownKey {
+                    file,
+                    key,
+                    line,
+                    expected,
+                },
+            },
+            SceneError::Invalid {
+                file,
+                field,
+                message,
+            } => match origin(&field) {
+                Some((okey, value)) => SceneError::Invalid {
+                    file,
+                    message: format!("{message} (value from override {okey}={})", one_line(value)),
+                    field,
+                },
+                None => SceneError::Invalid {
+                    file,
+                    field,
+                    message,
+                },
+            },
+            other => other,
+        }
+    }
+}
+
+const CHANNELS: [&str; 3] = ["red (0)", "green (1)", "blue (2)"];
+
+/// `[1, 2.5, 3]`.
+fn fmt3(v: Vec3) -> String {
+    format!("[{}, {}, {}]", num32(v.x), num32(v.y), num32(v.z))
+}
+
+/// [`num`] for f32 (shortest digits of the f32, not of its f64 widening).
+fn num32(v: f32) -> String {
+    let a = v.abs();
+    if v.is_finite() && a != 0.0 && !(1e-4..1e7).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// A number as a person would write it: `0.5`, `1e300` (not 301 digits), `NaN`, `inf`.
+fn num(v: f64) -> String {
+    let a = v.abs();
+    if v.is_finite() && a != 0.0 && !(1e-4..1e7).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+fn join_path(a: &str, b: &str) -> String {
+    match (a.is_empty(), b.is_empty()) {
+        (true, _) => b.to_owned(),
+        (_, true) => a.to_owned(),
+        _ => format!("{a}.{b}"),
+    }
+}
+
+/// True if one dotted path is the other or contains it (`medium.density` ~ `medium.density.radius`).
+fn related(a: &str, b: &str) -> bool {
+    let within = |long: &str, short: &str| {
+        long == short
+            || (long.starts_with(short)
+                && matches!(long.as_bytes().get(short.len()), Some(b'.') | Some(b'[')))
+    };
+    within(a, b) || within(b, a)
+}
+
+fn missing_hint(section: &str, name: &str) -> String {
+    if name == "kind" {
+        return match section {
+            "medium.density" => {
+                "add kind = \"constant\", \"sphere\" or \"grid\" to medium.density".into()
+            }
+            s if s.starts_with("light") => {
+                format!("add kind = \"point\", \"directional\" or \"environment\" to {s}")
+            }
+            _ => format!("add kind = ... to {section}"),
+        };
+    }
+    if section.is_empty() {
+        let table = if name == "light" { "[[light]]" } else { name };
+        return format!("add a [{table}] table (see docs/scene-format.md)");
+    }
+    let table = if section.contains(['.', '[']) {
+        section.to_owned()
+    } else {
+        format!("[{section}]")
+    };
+    format!("add {name} = ... to {table} (see docs/scene-format.md)")
+}
+
+/// The closest candidate within edit distance 2, if any.
+fn did_you_mean<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
+    candidates
+        .iter()
+        .map(|c| (edit_distance(name, c), *c))
+        .filter(|&(d, _)| d <= 2)
+        .min_by_key(|&(d, _)| d)
+        .map(|(_, c)| c)
+}
+
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut prev: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut cur = vec![i + 1; b.len() + 1];
+        for (j, &cb) in b.iter().enumerate() {
+            let subst = prev[j] + usize::from(ca != cb);
+            cur[j + 1] = subst.min(prev[j + 1] + 1).min(cur[j] + 1);
+        }
+        prev = cur;
+    }
+    prev[b.len()]
+}
+
+/// 1-based line and column (in characters) of a byte offset.
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let mut offset = offset.min(text.len());
+    while !text.is_char_boundary(offset) {
+        offset -= 1;
+    }
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    (line, before[line_start..].chars().count() + 1)
+}
+
+/// Best-effort line of `key` inside the table at `section` (`medium`, `medium.density`,
+/// `light[1]`, "" for the top level), found by scanning the text. `None` when not found
+/// (e.g. the key came from an override).
+fn locate_key(text: &str, section: &str, key: &str) -> Option<usize> {
+    // Which `[header]` / `[[header]]` block to search, and which occurrence of it.
+    let (top, index) = match section.split('.').next().unwrap_or("") {
+        s if s.contains('[') => {
+            let (name, rest) = s.split_once('[')?;
+            (name, rest.trim_end_matches(']').parse::<usize>().ok())
+        }
+        s => (s, None),
+    };
+    let mut current: Option<String> = None; // header of the block a line is in
+    let mut occurrence = 0usize;
+    for (n, line) in text.lines().enumerate() {
+        let trimmed = line.trim_start();
+        if let Some(header) = trimmed.strip_prefix('[') {
+            let is_array = header.starts_with('[');
+            let name = header.trim_start_matches('[');
+            let name = name.split(']').next().unwrap_or("").trim();
+            if section.is_empty() && (name == key || name.starts_with(&format!("{key}."))) {
+                return Some(n + 1);
+            }
+            let first = name.split('.').next().unwrap_or("").trim();
+            if is_array && first == top && name == top {
+                occurrence += 1;
+            }
+            current = Some(name.to_owned());
+            continue;
+        }
+        let in_section = match (&current, index) {
+            (None, _) => section.is_empty(),
+            (Some(h), None) => {
+                !section.is_empty()
+                    && (h == top || h == section || h.starts_with(&format!("{top}.")))
+            }
+            (Some(h), Some(i)) => h == top && occurrence == i + 1,
+        };
+        if in_section && contains_key_assignment(trimmed, key) {
+            return Some(n + 1);
+        }
+    }
+    None
+}
+
+/// `key = ...` at the start of the line or after `{`, `,` or whitespace (inline tables).
+fn contains_key_assignment(line: &str, key: &str) -> bool {
+    let line = line.split('#').next().unwrap_or("");
+    line.match_indices(key).any(|(at, _)| {
+        let before_ok = line[..at]
+            .chars()
+            .next_back()
+            .map_or(true, |c| c == '{' || c == ',' || c.is_whitespace());
+        let after = line[at + key.len()..].trim_start();
+        before_ok && after.starts_with('=')
+    })
+}
+
+// ---------------------------------------------------------------------------------------
+// Overrides
+// ---------------------------------------------------------------------------------------
+
+enum Segment {
+    Key(String),
+    Index(usize),
+}
+
+/// "there is 1 entry", "there are 3 entries".
+fn count(len: usize) -> String {
+    match len {
+        1 => "there is 1 entry".into(),
+        n => format!("there are {n} entries"),
+    }
+}
+
+/// `light.0.intensity` and `light[0].intensity` -> `light[0].intensity` (the form errors use).
+fn normalise_key(key: &str) -> String {
+    match parse_key(key) {
+        Ok(segments) => {
+            let mut out = String::new();
+            for s in segments {
+                match s {
+                    Segment::Key(k) => {
+                        if !out.is_empty() {
+                            out.push('.');
+                        }
+                        out.push_str(&k);
+                    }
+                    Segment::Index(i) => out.push_str(&format!("[{i}]")),
+                }
+            }
+            out
+        }
+        Err(_) => key.to_owned(),
+    }
+}
+
+fn parse_key(key: &str) -> Result<Vec<Segment>, String> {
+    let mut segments = Vec::new();
+    for part in key.trim().split('.') {
+        let (name, mut rest) = match part.find('[') {
+            Some(at) => (&part[..at], &part[at..]),
+            None => (part, ""),
+        };
+        if name.is_empty() && rest.is_empty() {
+            return Err("empty key segment; write a dotted path like medium.albedo".into());
+        }
+        if !name.is_empty() {
+            match name.parse::<usize>() {
+                Ok(i) if !segments.is_empty() => segments.push(Segment::Index(i)),
+                _ => segments.push(Segment::Key(name.to_owned())),
+            }
+        }
+        while let Some(r) = rest.strip_prefix('[') {
+            let (index, after) = r
+                .split_once(']')
+                .ok_or_else(|| format!("unclosed `[` in `{part}`"))?;
+            let index = index
+                .trim()
+                .parse::<usize>()
+                .map_err(|_| format!("`[{index}]` is not an array index"))?;
+            segments.push(Segment::Index(index));
+            rest = after;
+        }
+        if !rest.is_empty() {
+            return Err(format!("unexpected `{rest}` in `{part}`"));
+        }
+    }
+    Ok(segments)
+}
+
+/// The override value as TOML; a bare word (`orthographic`) is taken as a string.
+fn parse_value(text: &str) -> Result<toml::Value, String> {
+    let parsed = format!("v = {text}").parse::<toml::Table>();
+    match parsed {
+        Ok(mut table) if table.len() == 1 => table
+            .remove("v")
+            .ok_or_else(|| format!("`{}` is not a TOML value", one_line(text))),
+        Ok(_) => Err(format!("`{}` is not a single TOML value", one_line(text))),
+        Err(e) => {
+            let word = text.trim();
+            let bare = !word.is_empty()
+                && word
+                    .chars()
+                    .next()
+                    .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                && word
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-_./".contains(c));
+            if bare {
+                Ok(toml::Value::String(word.to_owned()))
+            } else {
+                Err(format!(
+                    "`{}` is not a TOML value ({}); examples: 0.5, [1, 2, 3], \"orthographic\", {{ kind = \"constant\" }}",
+                    one_line(text),
+                    one_line(e.message())
+                ))
+            }
+        }
+    }
+}
+
+/// Set `key` (dotted, with `[i]` or `.i` array indices) in the tree. Intermediate tables
+/// must exist; the last key may be new (serde then rejects it if the format lacks it).
+fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result<(), String> {
+    let segments = parse_key(key)?;
+    let value = parse_value(value_text)?;
+    let Some((last, parents)) = segments.split_last() else {
+        return Err("empty key".into());
+    };
+    let mut current = root;
+    let mut walked = String::new();
+    for segment in parents {
+        current = match segment {
+            Segment::Key(name) => {
+                let here = join_path(&walked, name);
+                let table = current
+                    .as_table_mut()
+                    .ok_or_else(|| format!("`{walked}` is not a table"))?;
+                walked = here;
+                table.get_mut(name).ok_or_else(|| {
+                    if walked.contains('.') {
+                        format!(
+                            "`{walked}` is not in the scene; set the whole table instead, e.g. {walked}={{ kind = ..., ... }}"
+                        )
+                    } else {
+                        format!(
+                            "`{walked}` is not a section of the scene (render, camera, medium, light)"
+                        )
+                    }
+                })?
+            }
+            Segment::Index(i) => {
+                let array = current
+                    .as_array_mut()
+                    .ok_or_else(|| format!("`{walked}` is not an array"))?;
+                let len = array.len();
+                walked = format!("{walked}[{i}]");
+                array
+                    .get_mut(*i)
+                    .ok_or_else(|| format!("`{walked}` does not exist ({})", count(len)))?
+            }
+        };
+    }
+    match last {
+        Segment::Key(name) => {
+            let table = current
+                .as_table_mut()
+                .ok_or_else(|| format!("`{walked}` is not a table, so it has no key `{name}`"))?;
+            table.insert(name.clone(), value);
+        }
+        Segment::Index(i) => {
+            let array = current
+                .as_array_mut()
+                .ok_or_else(|| format!("`{walked}` is not an array"))?;
+            let len = array.len();
+            let slot = array
+                .get_mut(*i)
+                .ok_or_else(|| format!("`{walked}[{i}]` does not exist ({})", count(len)))?;
+            *slot = value;
+        }
+    }
+    Ok(())
+}
