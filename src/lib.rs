@@ -9,3 +9,4 @@ pub mod output;
 pub mod physics;
 pub mod scene;
 pub mod solvers;
+pub mod cli;

@@ -2,3 +2,6 @@
 //! GPU tests run on whatever Vulkan device the loader finds (lavapipe in CI) with the
 //! validation layer on; a missing device is a failure, never a skip.
 mod scene_tests;
+mod common;
+mod gpu_core;
+mod solvers;

@@ -8,6 +8,9 @@
 // exact phase function, and shadow transmittance marched toward each light with the same
 // rule. The environment's in-scattering is a fixed spherical Fibonacci quadrature of
 // `env_dirs` directions. Deterministic: no random numbers unless `jitter` is set.
+// Resumable (budget.glsl): the state of a pixel's march (subsample, step, light unit and the
+// partial sums) lives in a buffer; each dispatch does one shadow march per loop iteration
+// until its budget is spent, and the host re-dispatches until every pixel is done.
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
@@ -16,20 +19,36 @@
 #include "../include/scene.glsl"
 #include "../include/rng.glsl"
 #include "../include/phase.glsl"
+#include "../include/budget.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
-layout(std430, binding = 3) writeonly buffer Radiance { vec4 radiance[]; };
+layout(std430, binding = 3) buffer Radiance { vec4 radiance[]; };
+// [0] pixels whose value was not finite (zeroed, reported), [2] most own-counted loop
+// iterations in one invocation, [3 + slot] unfinished invocations.
+layout(std430, binding = 4) buffer Stats { uint stats[]; };
+
+struct MarchState {
+    vec4 T_k;      // transmittance to the current step, subsample index k (uint bits)
+    vec4 L_i;      // radiance of the current subsample ray so far, step index i (uint bits)
+    vec4 S_j;      // in-scattering sum of the current step, light unit j (uint bits)
+    vec4 sum;      // sum over finished subsamples
+};
+layout(std430, binding = 5) buffer State { MarchState state[]; };
 
 layout(push_constant) uniform Push {
     float step;          // camera-ray step, scene units
     float shadow_step;   // shadow-ray step, scene units
     uint env_dirs;       // quadrature directions for environment in-scattering
-    uint jitter;         // 1: jitter the step origin per pixel (trades banding for noise)
+    uint jitter;         // 1: jitter the step origin per subsample ray (noise instead of banding)
     uint seed_lo;
     uint seed_hi;
     uint supersample;    // n x n pixel subsamples (box filter)
-    uint pad;
+    uint budget;         // own-counted loop iterations per invocation per dispatch
+    uint slot;           // which unfinished-counter this dispatch reports into
+    uint pad0;
+    uint pad1;
+    uint pad2;
 } pc;
 
 float phase_eval(float g, float c) { return ANISOTROPIC ? hg_eval(g, c) : INV_4PI; }
@@ -46,7 +65,10 @@ vec3 optical_depth(vec3 p, vec3 w, float t_far) {
     uint n = max(1u, uint(ceil(len / pc.shadow_step)));
     float dt = len / float(n);
     float tau = 0.0;
-    for (uint i = 0u; i < n; ++i) tau += density_at(p + w * (a + (float(i) + 0.5) * dt));
+    for (uint i = 0u; i < n; ++i) {
+        iters++;
+        tau += density_at(p + w * (a + (float(i) + 0.5) * dt));
+    }
     return scene.sigma_t.xyz * (tau * dt);
 }
 
@@ -59,58 +81,41 @@ vec3 fibonacci_dir(uint i, uint n) {
     return vec3(r * cos(phi), r * sin(phi), z);
 }
 
-// In-scattered radiance toward -d at p per unit sigma_s, from all lights: sum p(cos) L_i T.
-vec3 inscatter(vec3 p, vec3 d) {
-    vec3 S = vec3(0.0);
+// Light units per step: one per point or directional light, env_dirs per environment.
+uint unit_count() {
+    uint u = 0u;
+    for (uint i = 0u; i < scene.image.z; ++i) {
+        iters++;
+        u += uint(scene.lights[i].pos_kind.w) == LIGHT_ENVIRONMENT ? pc.env_dirs : 1u;
+    }
+    return u;
+}
+
+// In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T.
+vec3 unit_inscatter(vec3 p, vec3 d, uint j) {
     float g = scene.albedo.w;
     for (uint i = 0u; i < scene.image.z; ++i) {
+        iters++;
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
+        uint n = kind == LIGHT_ENVIRONMENT ? pc.env_dirs : 1u;
+        if (j >= n) { j -= n; continue; }
         if (kind == LIGHT_POINT) {
             vec3 to = li.pos_kind.xyz - p;
             float dist2 = dot(to, to);
-            if (dist2 <= 0.0) continue;
+            if (dist2 <= 0.0) return vec3(0.0);
             float dist = sqrt(dist2);
             vec3 wi = to / dist;
-            S += phase_eval(g, dot(d, wi)) * li.value.rgb / dist2 * exp(-optical_depth(p, wi, dist));
+            return phase_eval(g, dot(d, wi)) * li.value.rgb / dist2 * exp(-optical_depth(p, wi, dist));
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
-            S += phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-optical_depth(p, wi, INF));
+            return phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-optical_depth(p, wi, INF));
         } else {
-            vec3 acc = vec3(0.0);
-            for (uint k = 0u; k < pc.env_dirs; ++k) {
-                vec3 wi = fibonacci_dir(k, pc.env_dirs);
-                acc += phase_eval(g, dot(d, wi)) * exp(-optical_depth(p, wi, INF));
-            }
-            S += li.value.rgb * acc * (4.0 * PI / float(pc.env_dirs));
+            vec3 wi = fibonacci_dir(j, pc.env_dirs);
+            return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-optical_depth(p, wi, INF)) * (4.0 * PI / float(pc.env_dirs));
         }
     }
-    return S;
-}
-
-vec3 render_ray(vec3 o, vec3 d, float offset) {
-    vec3 env = vec3(0.0);
-    for (uint i = 0u; i < scene.image.z; ++i)
-        if (uint(scene.lights[i].pos_kind.w) == LIGHT_ENVIRONMENT) env += scene.lights[i].value.rgb;
-    vec2 iv = medium_interval(o, d);
-    float a = max(iv.x, 0.0);
-    float b = iv.y;
-    if (!(a < b)) return env;
-    float len = b - a;
-    uint n = max(1u, uint(ceil(len / pc.step)));
-    float dt = len / float(n);
-    vec3 T = vec3(1.0);
-    vec3 L = vec3(0.0);
-    for (uint i = 0u; i < n; ++i) {
-        float tm = a + (float(i) + offset) * dt;
-        vec3 p = o + d * tm;
-        vec3 st = scene.sigma_t.xyz * density_at(p);
-        vec3 seg_T = exp(-st * dt);
-        // integral over the step of T(s) sigma_s ds with sigma_t constant = albedo (1 - e^{-sigma_t dt})
-        L += T * scene.albedo.xyz * (vec3(1.0) - seg_T) * inscatter(p, d);
-        T *= seg_T;
-    }
-    return L + T * env;
+    return vec3(0.0);
 }
 
 void main() {
@@ -118,19 +123,68 @@ void main() {
     uvec2 res = scene.image.xy;
     if (px.x >= res.x || px.y >= res.y) return;
     uint pixel = px.y * res.x + px.x;
-    uint rng = rng_init(pc.seed_lo, pc.seed_hi, pixel, 0u);
+    MarchState st = state[pixel];
+    vec3 T = st.T_k.xyz;
+    uint k = floatBitsToUint(st.T_k.w);
+    vec3 L = st.L_i.xyz;
+    uint i = floatBitsToUint(st.L_i.w);
+    vec3 S = st.S_j.xyz;
+    uint j = floatBitsToUint(st.S_j.w);
+    vec3 sum = st.sum.xyz;
     uint ss = max(pc.supersample, 1u);
-    vec3 sum = vec3(0.0);
-    for (uint sy = 0u; sy < ss; ++sy) {
-        for (uint sx = 0u; sx < ss; ++sx) {
-            vec2 sub = (vec2(sx, sy) + 0.5) / float(ss);
-            vec3 o, d;
-            camera_ray(vec2(px) + sub, o, d);
-            float offset = pc.jitter != 0u ? rnd(rng) : 0.5;
-            sum += render_ray(o, d, offset);
-        }
+    uint total = ss * ss;
+
+    vec3 env = vec3(0.0);
+    for (uint l = 0u; l < scene.image.z; ++l) {
+        iters++;
+        if (uint(scene.lights[l].pos_kind.w) == LIGHT_ENVIRONMENT) env += scene.lights[l].value.rgb;
     }
-    vec3 L = sum / float(ss * ss);
-    if (any(isnan(L)) || any(isinf(L))) L = vec3(0.0);
-    radiance[pixel] = vec4(L, 1.0);
+    // Light units per step; none when nothing scatters (a pure absorber needs no shadow rays).
+    uint units = max3(scene.albedo.xyz) > 0.0 ? unit_count() : 0u;
+
+    while (iters < pc.budget && k < total) {
+        iters++;
+        // The subsample ray k, recomputed on every step: cheaper than storing it.
+        vec2 sub = (vec2(float(k % ss), float(k / ss)) + 0.5) / float(ss);
+        vec3 o, d;
+        camera_ray(vec2(px) + sub, o, d);
+        uint rng = rng_init(pc.seed_lo, pc.seed_hi, pixel, k);
+        float offset = pc.jitter != 0u ? rnd(rng) : 0.5;
+        vec2 iv = medium_interval(o, d);
+        float a = max(iv.x, 0.0);
+        float len = iv.y - a;
+        uint n = len > 0.0 ? max(1u, uint(ceil(len / pc.step))) : 0u;
+        if (i >= n) {
+            // Ray done: what passed through the medium, plus what it scattered toward the camera.
+            sum += L + T * env;
+            k++; i = 0u; j = 0u;
+            T = vec3(1.0); L = vec3(0.0); S = vec3(0.0);
+            continue;
+        }
+        float dt = len / float(n);
+        vec3 p = o + d * (a + (float(i) + offset) * dt);
+        if (j < units) {
+            S += unit_inscatter(p, d, j);
+            j++;
+            continue;
+        }
+        // Close the step: integral over it of T(s) sigma_s ds with sigma_t held constant is
+        // albedo (1 - e^{-sigma_t dt}), so a thick step never scatters more than it extinguishes.
+        vec3 st_ = scene.sigma_t.xyz * density_at(p);
+        vec3 seg_T = exp(-st_ * dt);
+        L += T * scene.albedo.xyz * (vec3(1.0) - seg_T) * S;
+        T *= seg_T;
+        S = vec3(0.0);
+        j = 0u;
+        i++;
+    }
+    state[pixel] = MarchState(vec4(T, uintBitsToFloat(k)), vec4(L, uintBitsToFloat(i)), vec4(S, uintBitsToFloat(j)), vec4(sum, 0.0));
+    if (k >= total) {
+        vec3 Lp = sum / float(total);
+        // Never let a NaN/Inf leave the pass; count it so the host reports it.
+        if (any(isnan(Lp)) || any(isinf(Lp))) { Lp = vec3(0.0); atomicAdd(stats[0], 1u); }
+        radiance[pixel] = vec4(Lp, 1.0);
+    }
+    atomicMax(stats[2], iters);
+    if (k < total) atomicAdd(stats[3u + pc.slot], 1u);
 }

@@ -1,0 +1,107 @@
+//! Solvers: each turns a scene into radiance toward the camera, in the same units as `path`,
+//! by describing passes for the `gpu` layer. They never record barriers or semaphore waits.
+
+pub mod gpu_scene;
+pub mod path;
+pub mod resumable;
+pub mod settings;
+pub mod shaders;
+pub mod single;
+
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::gpu::{DeviceInfo, Gpu, GpuError, PassTiming};
+use crate::output::Image;
+use crate::scene::Scene;
+
+pub use gpu_scene::Modelled;
+pub use settings::Settings;
+
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum SolverError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error("--set {key}: {reason}")]
+    Setting { key: String, reason: String },
+    #[error("{0}")]
+    Unsupported(String),
+}
+
+/// The solvers this build ships.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum SolverKind {
+    /// Volumetric path tracer: the unbiased ground truth.
+    Path,
+    /// Single scattering by ray marching: the direct term.
+    Single,
+}
+
+impl SolverKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            SolverKind::Path => "path",
+            SolverKind::Single => "single",
+        }
+    }
+}
+
+/// Everything a render needs besides the scene.
+pub struct RenderRequest<'a> {
+    pub scene: &'a Scene,
+    /// Solver knobs from `--set solver.key=value` (scene keys are applied to the scene itself).
+    pub settings: &'a Settings,
+    /// Model every feature even when the scene does not need it (to measure the slim path).
+    pub force_full: bool,
+    /// Called with (done, total) work units as the render progresses.
+    pub progress: &'a dyn Fn(u64, u64),
+}
+
+/// A finished render: the image, its per-pixel variance where the solver is Monte Carlo, and
+/// what was done to make it.
+pub struct RenderOutput {
+    pub image: Image,
+    pub variance: Option<Image>,
+    pub report: RenderReport,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RenderReport {
+    pub solver: SolverKind,
+    pub settings: serde_json::Value,
+    pub modelled: Modelled,
+    pub device_bytes: u64,
+    pub passes: Vec<PassTiming>,
+    pub gpu_ms: f64,
+    pub stats: serde_json::Value,
+    pub warnings: Vec<String>,
+}
+
+/// Run `kind` on the scene.
+pub fn render(gpu: &Gpu, kind: SolverKind, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
+    match kind {
+        SolverKind::Path => path::render(gpu, req),
+        SolverKind::Single => single::render(gpu, req),
+    }
+}
+
+/// Device memory a solver would allocate for this scene, in bytes (for `scene info`).
+pub fn memory_estimate(kind: SolverKind, scene: &Scene) -> u64 {
+    let pixels = scene.render.width as u64 * scene.render.height as u64;
+    gpu_scene::scene_bytes(scene)
+        + match kind {
+            SolverKind::Path => pixels * path::ACCUM_BYTES_PER_PIXEL + resumable::STATS_WORDS * 4,
+            SolverKind::Single => pixels * (16 + single::STATE_BYTES_PER_PIXEL) + resumable::STATS_WORDS * 4,
+        }
+}
+
+pub(crate) fn gpu_ms(passes: &[PassTiming]) -> f64 {
+    passes.iter().map(|p| p.duration_ms()).sum()
+}
+
+#[allow(dead_code)]
+fn _device_info_is_serialisable(d: &DeviceInfo) -> serde_json::Value {
+    serde_json::to_value(d).unwrap_or_default()
+}

@@ -1,0 +1,18 @@
+// budget.glsl: a per-invocation loop budget, so no kernel ever meets llvmpipe's loop limiter.
+//
+// Measured (docs/lavapipe.md): llvmpipe (gallivm) gives every shader invocation one counter,
+// LP_MAX_TGSI_LOOP_ITERATIONS = 65535, "shared between every loop", decremented on each loop
+// back-edge of the 8-wide SIMD batch; when it reaches 0 *every loop exits silently* and the
+// shader runs on with wrong values. Kernels here therefore count their own loop iterations
+// in `iters`, stop at a resumable point once `budget` is spent, keep their state in a buffer,
+// and are dispatched again until no invocation has work left. Real GPUs have no such limiter;
+// there the budget bounds the time one dispatch may run (watchdog/TDR).
+#ifndef SCATTERLAB_BUDGET
+#define SCATTERLAB_BUDGET
+
+uint iters = 0u;
+
+// Past this many own-counted iterations in one dispatch the limiter could have fired
+// (divergent lanes may add up); the kernel reports it and the host fails loudly.
+const uint LOOP_GUARD = 60000u;
+#endif

@@ -1,0 +1,290 @@
+//! What each subcommand does, in terms of the library's layers.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+
+use super::{Cli, Command, CompareArgs, GpuArgs, RenderArgs, SceneCommand};
+use crate::gpu::{list_devices, Gpu, GpuOptions};
+use crate::output;
+use crate::scene::{is_scene_key, LoadOptions, Scene};
+use crate::solvers::{self, RenderRequest, Settings, SolverKind};
+
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Render(a) => render(a),
+        Command::Compare(a) => compare(a),
+        Command::Devices { gpu, json } => devices(&gpu, json),
+        Command::Scene { command: SceneCommand::Info { scene, set, json } } => scene_info(&scene, &set, json),
+    }
+}
+
+/// `KEY=VALUE` pairs, each split once at the first `=`.
+fn parse_sets(sets: &[String]) -> Result<Vec<(String, String)>> {
+    sets.iter()
+        .map(|s| match s.split_once('=') {
+            Some((k, v)) if !k.trim().is_empty() => Ok((k.trim().to_string(), v.trim().to_string())),
+            _ => Err(anyhow!("--set {s:?}: expected KEY=VALUE, e.g. medium.albedo=0.5 or path.max_depth=1")),
+        })
+        .collect()
+}
+
+/// "4G", "512M", "1024" -> bytes.
+fn parse_bytes(s: &str) -> Result<u64> {
+    let t = s.trim();
+    let (num, mult) = match t.chars().last() {
+        Some('K' | 'k') => (&t[..t.len() - 1], 1u64 << 10),
+        Some('M' | 'm') => (&t[..t.len() - 1], 1 << 20),
+        Some('G' | 'g') => (&t[..t.len() - 1], 1 << 30),
+        _ => (t, 1),
+    };
+    let v: f64 = num.parse().map_err(|_| anyhow!("--memory-budget {s:?}: expected a size such as 512M or 4G"))?;
+    if !(v.is_finite() && v > 0.0) {
+        bail!("--memory-budget {s:?}: must be positive");
+    }
+    Ok((v * mult as f64) as u64)
+}
+
+fn gpu_options(a: &GpuArgs) -> GpuOptions {
+    let mut o = GpuOptions::default();
+    if a.validate {
+        o.validate = true;
+    }
+    if a.device.is_some() {
+        o.device = a.device.clone();
+    }
+    o
+}
+
+/// Fail when the validation layer reported errors: a clean run is the contract of every test.
+fn check_validation(gpu: &Gpu) -> Result<()> {
+    let n = gpu.validation_errors();
+    if n > 0 {
+        bail!("the Vulkan validation layer reported {n} error(s), first: {}", gpu.validation_messages().first().cloned().unwrap_or_default());
+    }
+    Ok(())
+}
+
+fn check_output_path(p: &Path, what: &str, ext: &[&str]) -> Result<()> {
+    let e = p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
+    if !ext.contains(&e.as_str()) {
+        bail!("{what} {}: expected a .{} file", p.display(), ext.join(" or ."));
+    }
+    if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !dir.is_dir() {
+            bail!("{what} {}: directory {} does not exist; create it first", p.display(), dir.display());
+        }
+    }
+    Ok(())
+}
+
+fn render(a: RenderArgs) -> Result<()> {
+    let started = Instant::now();
+    let mut sets = parse_sets(&a.set)?;
+    if let Some(spp) = a.spp {
+        sets.push(("render.spp".into(), spp.to_string()));
+    }
+    if let Some(seed) = a.seed {
+        sets.push(("render.seed".into(), seed.to_string()));
+    }
+    let (scene_sets, solver_sets): (Vec<_>, Vec<_>) = sets.into_iter().partition(|(k, _)| is_scene_key(k));
+    for (k, _) in &solver_sets {
+        let prefix = k.split('.').next().unwrap_or("");
+        if !["path", "single"].contains(&prefix) || !k.contains('.') {
+            bail!("--set {k}: unknown key; scene keys start with render., camera., medium. or light., solver knobs with path. or single.");
+        }
+    }
+    // Check outputs before any work, so a typo costs nothing.
+    if a.out.is_none() && a.png.is_none() && a.json.is_none() {
+        bail!("no output requested; give --out image.exr and/or --png image.png (and --json metrics.json)");
+    }
+    if let Some(p) = &a.out {
+        check_output_path(p, "--out", &["exr"])?;
+    }
+    if let Some(p) = &a.png {
+        check_output_path(p, "--png", &["png"])?;
+    }
+    if let Some(p) = &a.json {
+        check_output_path(p, "--json", &["json"])?;
+    }
+    let budget = parse_bytes(&a.memory_budget)?;
+    let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions { memory_budget_bytes: budget })?;
+    let settings = Settings::new(&solver_sets);
+
+    let gpu = Gpu::new(&gpu_options(&a.gpu))?;
+    let info = gpu.info().clone();
+    if !a.quiet {
+        eprintln!(
+            "device: {} ({}{}), queues: {}",
+            info.name,
+            info.device_type,
+            if info.software { ", software" } else { "" },
+            info.mapping.describe()
+        );
+    }
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    bar.set_message(format!("{} {}", a.solver.name(), a.scene.display()));
+    let progress = |done: u64, total: u64| {
+        bar.set_length(total);
+        bar.set_position(done);
+    };
+    let req = RenderRequest { scene: &scene, settings: &settings, force_full: a.model_all, progress: &progress };
+    let out = solvers::render(&gpu, a.solver, &req)?;
+    bar.finish_and_clear();
+    check_validation(&gpu)?;
+    let wall_s = started.elapsed().as_secs_f64();
+    let nonfinite = out.image.nan_inf_count();
+    if nonfinite > 0 {
+        bail!("solver {} produced {nonfinite} NaN/Inf values; nothing written (this is a bug: please report the scene)", a.solver.name());
+    }
+
+    if let Some(p) = &a.out {
+        let mut layers: Vec<(&str, &output::Image)> = vec![("", &out.image)];
+        if let Some(v) = &out.variance {
+            layers.push(("variance", v));
+        }
+        output::write_exr(p, &layers)?;
+    }
+    if let Some(p) = &a.png {
+        output::write_png_tonemapped(p, &out.image, a.exposure)?;
+    }
+    let r = &out.report;
+    if let Some(p) = &a.json {
+        let doc = json!({
+            "scatterlab": env!("CARGO_PKG_VERSION"),
+            "scene": a.scene.display().to_string(),
+            "width": scene.render.width,
+            "height": scene.render.height,
+            "device": info,
+            "solver": r.solver,
+            "settings": r.settings,
+            "modelled": r.modelled,
+            "device_bytes": r.device_bytes,
+            "gpu_ms": r.gpu_ms,
+            "wall_s": wall_s,
+            "passes": r.passes,
+            "stats": r.stats,
+            "warnings": r.warnings,
+            "validation": { "enabled": gpu.validation_enabled(), "errors": gpu.validation_errors() },
+            "image_mean": out.image.mean(),
+        });
+        output::write_json(p, &doc)?;
+    }
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
+    if !a.quiet {
+        eprintln!("{}", r.modelled.describe());
+        eprintln!("{} passes, GPU {:.1} ms, wall {:.2} s", r.passes.len(), r.gpu_ms, wall_s);
+        if let Some(p) = &a.out {
+            eprintln!("wrote {} (linear RGB f32{})", p.display(), if out.variance.is_some() { ", + variance layer" } else { "" });
+        }
+        if let Some(p) = &a.png {
+            eprintln!("wrote {} (tone-mapped: {})", p.display(), output::TONEMAP_DESCRIPTION);
+        }
+        if let Some(p) = &a.json {
+            eprintln!("wrote {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+fn compare(a: CompareArgs) -> Result<()> {
+    let x = output::read_exr(&a.a)?;
+    let r = output::read_exr(&a.b)?;
+    let m = output::compare(&x, &r)?;
+    if let Some(p) = &a.error_png {
+        check_output_path(p, "--error-png", &["png"])?;
+        output::error_png(p, &x, &r)?;
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&m)?);
+    } else {
+        println!("relL2         {:.6}", m.rel_l2);
+        println!("relMSE        {:.6e}", m.rel_mse);
+        println!("RMSE          {:.6e}", m.rmse);
+        println!("energy ratio  {:.6}", m.energy_ratio);
+        println!("max abs error {:.6e}", m.max_abs_error);
+        println!("NaN/Inf       {}", m.nan_inf_count);
+    }
+    Ok(())
+}
+
+fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
+    let list = list_devices()?;
+    if list.is_empty() {
+        bail!("no Vulkan device found; run tools/setup-deps (installs lavapipe, the CPU driver)");
+    }
+    if as_json {
+        println!("{}", serde_json::to_string_pretty(&list)?);
+        return Ok(());
+    }
+    let _ = gpu;
+    for d in &list {
+        println!("[{}] {} ({}, Vulkan {})", d.index, d.name, d.device_type, d.api_version);
+        for f in &d.queue_families {
+            let mut caps = Vec::new();
+            if f.graphics {
+                caps.push("graphics");
+            }
+            if f.compute {
+                caps.push("compute");
+            }
+            if f.transfer {
+                caps.push("transfer");
+            }
+            println!("    family {}: {} queue(s), {}, timestamps {} bits", f.index, f.queue_count, caps.join("+"), f.timestamp_valid_bits);
+        }
+        match &d.mapping {
+            Some(m) => println!("    roles: {}", m.describe()),
+            None => println!("    roles: none (no compute queue)"),
+        }
+        if d.missing.is_empty() {
+            println!("    usable: yes");
+        } else {
+            println!("    usable: no, lacks {}", d.missing.join(", "));
+        }
+    }
+    Ok(())
+}
+
+fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
+    let sets = parse_sets(sets)?;
+    let scene = Scene::load(path, &sets, &LoadOptions::default()).with_context(|| "scene info".to_string())?;
+    let f = scene.features();
+    let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
+    if as_json {
+        let mem: serde_json::Map<String, serde_json::Value> = solvers.iter().map(|(k, b)| (k.name().to_string(), json!(b))).collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({
+                "scene": path.display().to_string(),
+                "anisotropic": f.anisotropic, "chromatic": f.chromatic, "light_inside": f.light_inside,
+                "homogeneous": f.homogeneous, "has_environment": f.has_environment, "grid_dims": f.grid_dims,
+                "device_bytes": mem,
+            }))?
+        );
+        return Ok(());
+    }
+    let yn = |b: bool| if b { "yes" } else { "no" };
+    println!("scene        {}", path.display());
+    println!("image        {} x {}, {} spp, seed {}", scene.render.width, scene.render.height, scene.render.spp, scene.render.seed);
+    println!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
+    println!("chromatic    {}", yn(f.chromatic));
+    println!("homogeneous  {}", yn(f.homogeneous));
+    println!("light inside {}", yn(f.light_inside));
+    println!("environment  {}", yn(f.has_environment));
+    match f.grid_dims {
+        Some(d) => println!("grid         {} x {} x {}", d[0], d[1], d[2]),
+        None => println!("grid         none"),
+    }
+    println!("device memory each solver would allocate:");
+    for (k, b) in solvers {
+        println!("  {:<8} {:>10.2} MiB", k.name(), b as f64 / (1u64 << 20) as f64);
+    }
+    Ok(())
+}

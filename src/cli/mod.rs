@@ -1,0 +1,138 @@
+//! The command line: parse raw arguments (clap), validate them into a ready-to-run request,
+//! run it, and turn any error into one line on stderr and a non-zero exit code.
+
+mod commands;
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+
+use crate::solvers::SolverKind;
+
+#[derive(Parser, Debug)]
+#[command(name = "scatterlab", version, about = "Multiple scattering in participating media on any Vulkan device, headless.")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct GpuArgs {
+    /// Device index or name substring (see `scatterlab devices`); env SCATTERLAB_DEVICE.
+    #[arg(long, global = true)]
+    pub device: Option<String>,
+    /// Enable the Khronos validation layer (synchronization validation included); env SCATTERLAB_VALIDATE=1.
+    /// Any validation error makes the command fail.
+    #[arg(long, global = true)]
+    pub validate: bool,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Render a scene to EXR (linear) and/or PNG (tone-mapped).
+    Render(RenderArgs),
+    /// Compare two EXR images: relL2, relMSE, RMSE, energy ratio, max error, NaN/Inf count.
+    Compare(CompareArgs),
+    /// List Vulkan devices, their queue families and the queue-role mapping scatterlab would use.
+    Devices {
+        #[command(flatten)]
+        gpu: GpuArgs,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Scene tools.
+    Scene {
+        #[command(subcommand)]
+        command: SceneCommand,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+pub enum SceneCommand {
+    /// What physics a scene requires and the device memory each solver would allocate.
+    Info {
+        scene: PathBuf,
+        /// Override scene keys (`medium.albedo=0.5`).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// Scene file (TOML, format v1: docs/scene-format.md).
+    pub scene: PathBuf,
+    #[arg(long, value_enum, default_value = "path")]
+    pub solver: SolverKind,
+    /// Samples per pixel for `path` (overrides render.spp).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Seed of every random choice (overrides render.seed).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Override a scene key (`medium.albedo=0.5`) or set a solver knob (`path.max_depth=1`,
+    /// `single.step=0.01`). Repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Linear HDR output (RGB f32; `path` adds a `variance` layer: variance of the pixel mean).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Tone-mapped 8-bit PNG.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// PNG exposure in stops.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub exposure: f32,
+    /// Metrics and provenance as JSON (device, driver, queue mapping, settings, pass times).
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Model every feature (chromatic tracking, HG phase) even where the scene needs none.
+    #[arg(long)]
+    pub model_all: bool,
+    /// Largest grid, in bytes, a scene may load (suffixes K, M, G: 512M, 4G).
+    #[arg(long, default_value = "4G")]
+    pub memory_budget: String,
+    /// No progress bar or summary.
+    #[arg(long, short)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub gpu: GpuArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct CompareArgs {
+    /// The image to judge.
+    pub a: PathBuf,
+    /// The reference.
+    pub b: PathBuf,
+    /// Write a false-colour per-pixel relative-error PNG.
+    #[arg(long)]
+    pub error_png: Option<PathBuf>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parse `std::env::args`, run, and return the process exit code.
+pub fn main() -> i32 {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let code = if e.use_stderr() { 2 } else { 0 };
+            let _ = e.print();
+            return code;
+        }
+    };
+    match commands::run(cli) {
+        Ok(()) => 0,
+        Err(e) => {
+            // One line: the chain joined, so a wrapped error keeps its file and field.
+            let msg = format!("{e:#}").replace('\n', " ");
+            eprintln!("error: {msg}");
+            1
+        }
+    }
+}

@@ -1,0 +1,223 @@
+//! The scene as the GPU sees it: the `SceneBlock` storage buffer (glsl/include/scene.glsl),
+//! the density volume and the majorant grid, shared by every solver.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::gpu::{Buffer, Gpu, Image3d, Spec, VolumeFormat};
+use crate::scene::{CameraKind, Density, Light, Scene};
+
+use super::SolverError;
+
+/// Header of `SceneBlock` (std430; vec4-sized members only, so Rust and GLSL agree).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct SceneHeader {
+    pub bounds_min: [f32; 4],
+    pub bounds_max: [f32; 4],
+    pub sigma_t: [f32; 4],
+    pub albedo: [f32; 4],
+    pub sphere: [f32; 4],
+    pub grid_dims: [u32; 4],
+    pub maj_dims: [u32; 4],
+    pub cam_origin: [f32; 4],
+    pub cam_forward: [f32; 4],
+    pub cam_right: [f32; 4],
+    pub cam_up: [f32; 4],
+    pub image: [u32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuLight {
+    pub pos_kind: [f32; 4],
+    pub value: [f32; 4],
+}
+
+pub const LIGHT_POINT: f32 = 0.0;
+pub const LIGHT_DIRECTIONAL: f32 = 1.0;
+pub const LIGHT_ENVIRONMENT: f32 = 2.0;
+
+/// Specialisation constant ids shared by every kernel that includes scene.glsl.
+pub const SPEC_DENSITY_KIND: u32 = 0;
+pub const SPEC_CHROMATIC: u32 = 1;
+pub const SPEC_ANISOTROPIC: u32 = 2;
+
+/// What a render modelled and what it skipped (DESIGN.md: "model only what a scene requires").
+#[derive(Clone, Debug, Serialize)]
+pub struct Modelled {
+    pub density: &'static str,
+    pub chromatic: bool,
+    pub anisotropic: bool,
+    pub forced_full: bool,
+}
+
+impl Modelled {
+    pub fn describe(&self) -> String {
+        let mut skipped = Vec::new();
+        if !self.chromatic {
+            skipped.push("per-channel tracking (grey medium)");
+        }
+        if !self.anisotropic {
+            skipped.push("HG phase (isotropic, g = 0)");
+        }
+        let skipped = if skipped.is_empty() { "nothing".to_string() } else { skipped.join(", ") };
+        format!(
+            "modelled: {} density, {} tracking, {} phase{}; skipped: {}",
+            self.density,
+            if self.chromatic { "chromatic" } else { "grey" },
+            if self.anisotropic { "Henyey-Greenstein" } else { "isotropic" },
+            if self.forced_full { " (--model-all)" } else { "" },
+            skipped
+        )
+    }
+
+    pub fn spec(&self) -> Vec<(u32, Spec)> {
+        let kind = match self.density {
+            "constant" => 0,
+            "sphere" => 1,
+            _ => 2,
+        };
+        vec![(SPEC_DENSITY_KIND, Spec::U32(kind)), (SPEC_CHROMATIC, Spec::Bool(self.chromatic)), (SPEC_ANISOTROPIC, Spec::Bool(self.anisotropic))]
+    }
+}
+
+/// Scene data resident on the device.
+pub struct GpuScene {
+    pub block: Buffer,
+    pub density: Image3d,
+    pub majorant: Buffer,
+    pub modelled: Modelled,
+    pub bytes: u64,
+}
+
+fn v4(v: Vec3, w: f32) -> [f32; 4] {
+    [v.x, v.y, v.z, w]
+}
+
+/// Voxels per majorant cell edge: 4 gives 16^3 cells on a 64^3 grid (pbrt-v4 uses 16^3 in all).
+pub const MAJORANT_CELL: u32 = 4;
+
+pub fn majorant_dims(dims: [u32; 3], cell: u32) -> [u32; 3] {
+    [dims[0].div_ceil(cell), dims[1].div_ceil(cell), dims[2].div_ceil(cell)]
+}
+
+/// Per-cell maximum density over every voxel that trilinear interpolation can reach from a
+/// point inside the cell, padded by one voxel against rounding at cell faces. A majorant
+/// that is too low biases delta tracking; one that is too high only costs time.
+pub fn majorant_grid(dims: [u32; 3], data: &[f32], m: [u32; 3]) -> Vec<f32> {
+    let range = |c: u32, n: u32, mcount: u32| -> (u32, u32) {
+        let lo = (c as f64 * n as f64 / mcount as f64 - 0.5).floor() as i64 - 1;
+        let hi = ((c + 1) as f64 * n as f64 / mcount as f64 - 0.5).floor() as i64 + 2;
+        (lo.clamp(0, n as i64 - 1) as u32, hi.clamp(0, n as i64 - 1) as u32)
+    };
+    let mut out = vec![0f32; (m[0] * m[1] * m[2]) as usize];
+    for cz in 0..m[2] {
+        let (z0, z1) = range(cz, dims[2], m[2]);
+        for cy in 0..m[1] {
+            let (y0, y1) = range(cy, dims[1], m[1]);
+            for cx in 0..m[0] {
+                let (x0, x1) = range(cx, dims[0], m[0]);
+                let mut mx = 0f32;
+                for z in z0..=z1 {
+                    for y in y0..=y1 {
+                        let row = ((z * dims[1] + y) * dims[0]) as usize;
+                        for x in x0..=x1 {
+                            mx = mx.max(data[row + x as usize]);
+                        }
+                    }
+                }
+                out[(cx + m[0] * (cy + m[1] * cz)) as usize] = mx;
+            }
+        }
+    }
+    out
+}
+
+/// The header and lights as bytes; pure, so tests can check the layout without a device.
+pub fn scene_block(scene: &Scene) -> (SceneHeader, Vec<GpuLight>) {
+    let m = &scene.medium;
+    let cam = &scene.camera;
+    let (right, up, forward) = cam.basis();
+    let (cam_kind, k) = match cam.kind {
+        CameraKind::Perspective { fov_deg } => (0.0, (fov_deg.to_radians() * 0.5).tan()),
+        CameraKind::Orthographic { extent } => (1.0, extent * 0.5),
+    };
+    let (sphere, grid_dims, maj_dims) = match &m.density {
+        Density::Constant => ([0.0; 4], [1, 1, 1, 0], [1, 1, 1, 1]),
+        Density::Sphere { center, radius } => (v4(*center, *radius), [1, 1, 1, 0], [1, 1, 1, 1]),
+        Density::Grid(g) => {
+            let md = majorant_dims(g.dims, MAJORANT_CELL);
+            ([0.0; 4], [g.dims[0], g.dims[1], g.dims[2], 0], [md[0], md[1], md[2], MAJORANT_CELL])
+        }
+    };
+    let lights: Vec<GpuLight> = scene
+        .lights
+        .iter()
+        .map(|l| match l {
+            Light::Point { position, intensity } => GpuLight { pos_kind: v4(*position, LIGHT_POINT), value: v4(*intensity, 0.0) },
+            Light::Directional { direction, irradiance } => GpuLight { pos_kind: v4(direction.normalize(), LIGHT_DIRECTIONAL), value: v4(*irradiance, 0.0) },
+            Light::Environment { radiance } => GpuLight { pos_kind: [0.0, 0.0, 0.0, LIGHT_ENVIRONMENT], value: v4(*radiance, 0.0) },
+        })
+        .collect();
+    let header = SceneHeader {
+        bounds_min: v4(m.bounds_min, 0.0),
+        bounds_max: v4(m.bounds_max, 0.0),
+        sigma_t: v4(m.sigma_t, m.sigma_t.max_element()),
+        albedo: v4(m.albedo, m.g),
+        sphere,
+        grid_dims,
+        maj_dims,
+        cam_origin: v4(cam.origin, cam_kind),
+        cam_forward: v4(forward, k),
+        cam_right: v4(right, 0.0),
+        cam_up: v4(up, 0.0),
+        image: [scene.render.width, scene.render.height, lights.len() as u32, 0],
+    };
+    (header, lights)
+}
+
+/// Decide what to model from the scene's features (or everything, with `force_full`).
+pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
+    let f = scene.features();
+    let density = match scene.medium.density {
+        Density::Constant => "constant",
+        Density::Sphere { .. } => "sphere",
+        Density::Grid(_) => "grid",
+    };
+    Modelled { density, chromatic: f.chromatic || force_full, anisotropic: f.anisotropic || force_full, forced_full: force_full }
+}
+
+/// Bytes the scene occupies on the device (block, density volume, majorant grid).
+pub fn scene_bytes(scene: &Scene) -> u64 {
+    let block = (std::mem::size_of::<SceneHeader>() + scene.lights.len() * std::mem::size_of::<GpuLight>()) as u64;
+    match &scene.medium.density {
+        Density::Grid(g) => {
+            let md = majorant_dims(g.dims, MAJORANT_CELL);
+            block + g.dims.iter().map(|d| *d as u64).product::<u64>() * 4 + md.iter().map(|d| *d as u64).product::<u64>() * 4
+        }
+        _ => block + 4 + 4,
+    }
+}
+
+impl GpuScene {
+    pub fn upload(gpu: &Gpu, scene: &Scene, force_full: bool) -> Result<GpuScene, SolverError> {
+        let (header, lights) = scene_block(scene);
+        let mut bytes = bytemuck::bytes_of(&header).to_vec();
+        bytes.extend_from_slice(bytemuck::cast_slice(&lights));
+        let block = gpu.buffer("scene block", bytes.len() as u64)?;
+        gpu.write_buffer(&block, 0, &bytes)?;
+        let (density, majorant) = match &scene.medium.density {
+            Density::Grid(g) => {
+                let md = majorant_dims(g.dims, MAJORANT_CELL);
+                let maj = majorant_grid(g.dims, &g.data, md);
+                (gpu.image3d_with("density grid", g.dims, VolumeFormat::R32F, &g.data)?, gpu.buffer_with("majorant grid", &maj)?)
+            }
+            // Kernels specialised for analytic densities never read these; they are bound
+            // because the shared layout declares them.
+            _ => (gpu.image3d_with("density (unused)", [1, 1, 1], VolumeFormat::R32F, &[0.0])?, gpu.buffer_with("majorant (unused)", &[0f32])?),
+        };
+        Ok(GpuScene { block, density, majorant, modelled: modelled(scene, force_full), bytes: scene_bytes(scene) })
+    }
+}

@@ -1,0 +1,52 @@
+//! Driving resumable kernels (glsl/include/budget.glsl): dispatch, in submissions of a few
+//! rounds, until no invocation reports work left.
+//!
+//! llvmpipe ends every loop of an invocation silently after 65535 iterations in all
+//! (LP_MAX_TGSI_LOOP_ITERATIONS, shared by every loop; docs/lavapipe.md), so every kernel
+//! with data-dependent loops counts its own iterations, stops at a resumable point after
+//! `budget` of them, and reports whether it has work left. Stats buffer layout shared by such
+//! kernels: word 2 = most iterations one invocation ran in a dispatch; words 3.. = one
+//! "invocations with work left" counter per round of a submission.
+
+use crate::gpu::{Buffer, Gpu, Pass, QueueRole};
+
+use super::SolverError;
+
+/// Dispatches per submission; each reports its unfinished invocations in its own counter.
+pub const ROUNDS_PER_SUBMIT: u32 = 4;
+/// Words in a resumable kernel's stats buffer.
+pub const STATS_WORDS: u64 = 3 + ROUNDS_PER_SUBMIT as u64;
+/// Own-counted loop iterations past which llvmpipe's shared loop limiter (65535) may fire.
+pub const LOOP_GUARD: u32 = 60000;
+/// Default loop budget per invocation per dispatch.
+pub const DEFAULT_BUDGET: u32 = 4096;
+
+pub fn check_budget(key: &str, budget: u32) -> Result<(), SolverError> {
+    if !(16..=LOOP_GUARD / 4).contains(&budget) {
+        return Err(SolverError::Setting { key: key.into(), reason: format!("{budget} must lie in 16..={}", LOOP_GUARD / 4) });
+    }
+    Ok(())
+}
+
+/// Submit rounds of `make_pass(slot)` until the last round reports no work left. Returns the
+/// number of dispatches and the final stats words.
+pub fn run_until_done(gpu: &Gpu, solver: &str, stats: &Buffer, make_pass: impl Fn(u32) -> Pass) -> Result<(u64, Vec<u32>), SolverError> {
+    let mut dispatches = 0u64;
+    loop {
+        gpu.write_buffer(stats, 12, &[0u8; ROUNDS_PER_SUBMIT as usize * 4])?;
+        let passes: Vec<Pass> = (0..ROUNDS_PER_SUBMIT).map(&make_pass).collect();
+        let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+        gpu.wait(point)?;
+        dispatches += ROUNDS_PER_SUBMIT as u64;
+        let st: Vec<u32> = gpu.read_buffer_as(stats)?;
+        if st[2] >= LOOP_GUARD {
+            return Err(SolverError::Unsupported(format!(
+                "{solver}: one invocation ran {} loop iterations in a dispatch, past the {LOOP_GUARD} at which llvmpipe silently ends loops; lower {solver}.budget",
+                st[2]
+            )));
+        }
+        if st[3 + ROUNDS_PER_SUBMIT as usize - 1] == 0 {
+            return Ok((dispatches, st));
+        }
+    }
+}

@@ -1,0 +1,69 @@
+//! Shared helpers for GPU tests: a validated device (never a skip), scenes from text, renders.
+
+use std::path::Path;
+
+use scatterlab::gpu::{Gpu, GpuOptions};
+use scatterlab::output::Image;
+use scatterlab::scene::{LoadOptions, Scene};
+use scatterlab::solvers::{self, RenderOutput, RenderRequest, Settings, SolverKind};
+
+/// The device every GPU test uses, validation layer on. A missing device or layer fails the
+/// test: a test never passes for want of a device.
+pub fn gpu() -> Gpu {
+    let opts = GpuOptions { validate: true, ..GpuOptions::default() };
+    match Gpu::new(&opts) {
+        Ok(g) => g,
+        Err(e) => panic!("GPU tests need a Vulkan device with the validation layer (run tools/setup-deps): {e}"),
+    }
+}
+
+/// Assert the validation layer reported nothing.
+pub fn assert_clean(gpu: &Gpu) {
+    assert_eq!(gpu.validation_errors(), 0, "validation errors: {:#?}", gpu.validation_messages());
+}
+
+pub fn scene(text: &str) -> Scene {
+    Scene::from_str(text, "test.toml", Path::new("."), &[], &LoadOptions::default()).unwrap_or_else(|e| panic!("test scene invalid: {e}"))
+}
+
+pub fn render_with(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)], force_full: bool) -> RenderOutput {
+    let pairs: Vec<(String, String)> = sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    let settings = Settings::new(&pairs);
+    let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
+    let out = solvers::render(gpu, kind, &req).unwrap_or_else(|e| panic!("render failed: {e}"));
+    assert_eq!(out.image.nan_inf_count(), 0, "NaN/Inf in the image");
+    if let Some(v) = &out.variance {
+        assert_eq!(v.nan_inf_count(), 0, "NaN/Inf in the variance");
+    }
+    assert!(out.image.data.iter().all(|v| *v >= 0.0), "negative radiance");
+    assert!(out.report.warnings.is_empty(), "warnings: {:?}", out.report.warnings);
+    out
+}
+
+pub fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)]) -> RenderOutput {
+    render_with(gpu, scene, kind, sets, false)
+}
+
+/// Mean over all pixels and channels, and the standard error of that mean from the
+/// per-pixel variance of the mean (pixels are independent).
+pub fn mean_and_stderr(img: &Image, var: &Image) -> (f64, f64) {
+    let n = img.data.len() as f64;
+    let mean = img.data.iter().map(|v| *v as f64).sum::<f64>() / n;
+    let var_sum: f64 = var.data.iter().map(|v| *v as f64).sum();
+    (mean, var_sum.sqrt() / n)
+}
+
+/// Per-pixel, per-channel z-test of a Monte Carlo image against exact values: each value
+/// within `k` standard errors (from the variance image) plus an absolute floor `eps` that
+/// covers pixels whose sample variance happens to be 0. Returns the worst (|z|, index).
+pub fn worst_z(img: &Image, var: &Image, exact: impl Fn(usize) -> f64, eps: f64) -> (f64, usize) {
+    let mut worst = (0.0, 0);
+    for i in 0..img.data.len() {
+        let d = (img.data[i] as f64 - exact(i)).abs();
+        let z = d / ((var.data[i] as f64).sqrt() + eps);
+        if z > worst.0 {
+            worst = (z, i);
+        }
+    }
+    worst
+}

@@ -1,0 +1,189 @@
+//! The Vulkan core on the test device: reflection, pass checking, the host-order rule, queue
+//! roles and timeline semaphores, timestamps, limits.
+
+use scatterlab::gpu::{reflect, BindingKind, GpuError, Pass, QueueRole, SyncPoint};
+use scatterlab::solvers::gpu_scene::{majorant_dims, majorant_grid, SceneHeader};
+use scatterlab::solvers::path::PathPush;
+use scatterlab::solvers::shaders;
+use scatterlab::solvers::single::SinglePush;
+
+use crate::common::{assert_clean, gpu};
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ProbePush {
+    pub g: f32,
+    pub count: u32,
+    pub eval_count: u32,
+    pub seed: u32,
+}
+
+#[test]
+fn push_constant_structs_match_reflection() {
+    let cases = [
+        (shaders::PATH_TRACE, std::mem::size_of::<PathPush>()),
+        (shaders::SINGLE_MARCH, std::mem::size_of::<SinglePush>()),
+        (shaders::PROBE_PHASE, std::mem::size_of::<ProbePush>()),
+    ];
+    for (src, size) in cases {
+        let r = reflect(&src).unwrap();
+        assert_eq!(r.push_constant_bytes, size, "{}: Rust push-constant struct size differs from the shader's block", src.name);
+    }
+}
+
+#[test]
+fn every_shader_reflects_and_scene_kernels_share_a_layout() {
+    for src in shaders::ALL {
+        let r = reflect(src).unwrap_or_else(|e| panic!("{}: {e}", src.name));
+        assert!(r.workgroup_size.iter().all(|w| *w >= 1));
+    }
+    for src in [shaders::PATH_TRACE, shaders::SINGLE_MARCH] {
+        let r = reflect(&src).unwrap();
+        assert_eq!(r.bindings[&0].0, BindingKind::StorageBuffer, "{}: binding 0 is the scene block", src.name);
+        assert_eq!(r.bindings[&1].0, BindingKind::StorageImage, "{}: binding 1 is the density volume", src.name);
+        assert_eq!(r.bindings[&2].0, BindingKind::StorageBuffer, "{}: binding 2 is the majorant grid", src.name);
+    }
+    // The scene block header is 12 vec4s in scene.glsl.
+    assert_eq!(std::mem::size_of::<SceneHeader>(), 12 * 16);
+}
+
+#[test]
+fn pass_bindings_are_checked_against_reflection() {
+    let gpu = gpu();
+    let p = gpu.pipeline(&shaders::PROBE_PHASE, &[]).unwrap();
+    let a = gpu.buffer("a", 64).unwrap();
+    let push = ProbePush { g: 0.0, count: 0, eval_count: 0, seed: 0 };
+    // Missing binding 2.
+    let pass = Pass::new("probe.missing", QueueRole::Trace, &p).write(0, &a).read(1, &a).push(&push);
+    let e = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail");
+    let msg = e.to_string();
+    assert!(matches!(e, GpuError::Binding { binding: 2, .. }), "{msg}");
+    assert!(msg.contains("probe.missing") && msg.contains("binding 2"), "{msg}");
+    // A binding the shader does not declare.
+    let img = gpu.image3d_with("vol", [1, 1, 1], scatterlab::gpu::VolumeFormat::R32F, &[0.0]).unwrap();
+    let pass = Pass::new("probe.extra", QueueRole::Trace, &p).write(0, &a).read(1, &a).write(2, &a).read(7, &img).push(&push);
+    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail").to_string();
+    assert!(msg.contains("probe.extra") && msg.contains("binding 7"), "{msg}");
+    // An image where a buffer is declared.
+    let pass = Pass::new("probe.kind", QueueRole::Trace, &p).write(0, &img).read(1, &a).write(2, &a).push(&push);
+    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail").to_string();
+    assert!(msg.contains("probe.kind") && msg.contains("binding 0"), "{msg}");
+    // Wrong push-constant size.
+    let pass = Pass::new("probe.push", QueueRole::Trace, &p).write(0, &a).read(1, &a).write(2, &a).push(&0u32);
+    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail").to_string();
+    assert!(msg.contains("probe.push") && msg.contains("push constants"), "{msg}");
+    assert_clean(&gpu);
+}
+
+#[test]
+fn a_wait_before_its_signal_is_refused_not_deadlocked() {
+    let gpu = gpu();
+    let p = gpu.pipeline(&shaders::PROBE_PHASE, &[]).unwrap();
+    let a = gpu.buffer("a", 64).unwrap();
+    let push = ProbePush { g: 0.0, count: 0, eval_count: 0, seed: 0 };
+    let pass = Pass::new("probe", QueueRole::Diffuse, &p).write(0, &a).read(1, &a).write(2, &a).push(&push);
+    let future = SyncPoint { role: QueueRole::Trace, value: gpu.submitted(QueueRole::Trace).value + 1 };
+    let e = gpu.submit(QueueRole::Diffuse, &[pass], &[future]).err().expect("must be refused");
+    assert!(matches!(e, GpuError::WaitBeforeSignal { .. }), "{e}");
+    assert!(e.to_string().contains("deadlock"));
+    assert_clean(&gpu);
+}
+
+/// A chain trace -> diffuse -> trace through timeline semaphores computes the right values on
+/// any queue mapping, including lavapipe's single shared queue.
+#[test]
+fn roles_chain_through_timeline_semaphores() {
+    let gpu = gpu();
+    let p = gpu.pipeline(&shaders::PROBE_PHASE, &[]).unwrap();
+    let n = 256u32;
+    let cos: Vec<f32> = (0..n).map(|i| -1.0 + 2.0 * i as f32 / (n - 1) as f32).collect();
+    let cos_buf = gpu.buffer_with("cos", &cos).unwrap();
+    let samples = gpu.buffer("samples", n as u64 * 16).unwrap();
+    let eval = gpu.buffer("eval", n as u64 * 4).unwrap();
+    let mk = |name: &str, role, g: f32| {
+        Pass::new(name, role, &p).write(0, &samples).read(1, &cos_buf).write(2, &eval).push(&ProbePush { g, count: n, eval_count: n, seed: 1 }).cover([n, 1, 1])
+    };
+    let t1 = gpu.submit(QueueRole::Trace, &[mk("t1", QueueRole::Trace, 0.3)], &[]).unwrap();
+    let d1 = gpu.submit(QueueRole::Diffuse, &[mk("d1", QueueRole::Diffuse, -0.4)], &[t1]).unwrap();
+    let t2 = gpu.submit(QueueRole::Trace, &[mk("t2", QueueRole::Trace, 0.7)], &[d1]).unwrap();
+    gpu.wait(t2).unwrap();
+    let out: Vec<f32> = gpu.read_buffer_as(&eval).unwrap();
+    for (c, v) in cos.iter().zip(&out) {
+        let want = scatterlab::physics::phase::hg_eval(0.7, *c);
+        assert!((v - want).abs() <= 1e-5 * want.max(1.0), "last writer wins: got {v}, want {want}");
+    }
+    let timings = gpu.take_timings();
+    let names: Vec<&str> = timings.iter().map(|t| t.name.as_str()).collect();
+    for want in ["t1", "d1", "t2"] {
+        assert!(names.contains(&want), "timestamps for {want}: {names:?}");
+    }
+    let d1t = timings.iter().find(|t| t.name == "d1").unwrap();
+    assert_eq!(d1t.role, QueueRole::Diffuse);
+    for t in &timings {
+        assert!(t.end_ns >= t.start_ns, "{}: negative duration", t.name);
+    }
+    // Ordering holds on the host clock: d1 starts after t1 ends (it waited on it).
+    let t1t = timings.iter().find(|t| t.name == "t1").unwrap();
+    if t1t.host_clock && d1t.host_clock {
+        assert!(d1t.start_ns >= t1t.end_ns - 1_000, "d1 started before t1 ended");
+    }
+    assert_clean(&gpu);
+}
+
+#[test]
+fn bindings_beyond_max_storage_buffer_range_are_refused() {
+    let gpu = gpu();
+    let max = gpu.info().max_storage_buffer_range;
+    let e = gpu.buffer("huge", max + 4).err().expect("must be refused");
+    assert!(matches!(e, GpuError::BindingTooLarge { .. }));
+    assert!(e.to_string().contains("maxStorageBufferRange"), "{e}");
+    assert_clean(&gpu);
+}
+
+#[test]
+fn buffers_round_trip() {
+    let gpu = gpu();
+    let data: Vec<u32> = (0..1000).map(|i| i * 7 + 3).collect();
+    let b = gpu.buffer_with("round trip", &data).unwrap();
+    let back: Vec<u32> = gpu.read_buffer_as(&b).unwrap();
+    assert_eq!(back, data);
+    let z = gpu.buffer("zeroed", 4096).unwrap();
+    assert!(gpu.read_buffer(&z).unwrap().iter().all(|b| *b == 0));
+    assert_clean(&gpu);
+}
+
+/// The majorant grid bounds the trilinear density everywhere (a low majorant would bias
+/// delta tracking): dense random points against the CPU reference interpolation.
+#[test]
+fn majorant_grid_bounds_trilinear_density() {
+    let dims = [13u32, 7, 10];
+    let mut rng = scatterlab::physics::rng::Pcg32::new(7, 1);
+    let data: Vec<f32> = (0..dims.iter().product::<u32>()).map(|_| rng.next_f32().powi(4)).collect();
+    for cell in [1u32, 2, 4, 5] {
+        let m = majorant_dims(dims, cell);
+        let maj = majorant_grid(dims, &data, m);
+        let grid = scatterlab::scene::Grid { dims, data: data.clone(), file: "mem".into() };
+        for _ in 0..20000 {
+            let u = glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let d = grid.sample(u);
+            let c = [0, 1, 2].map(|a| ((u[a] * m[a] as f32) as u32).min(m[a] - 1));
+            let bound = maj[(c[0] + m[0] * (c[1] + m[1] * c[2])) as usize];
+            assert!(d <= bound + 1e-6, "cell {c:?} (edge {cell}): density {d} above majorant {bound}");
+        }
+    }
+}
+
+#[test]
+fn queue_mapping_is_reported() {
+    let gpu = gpu();
+    let info = gpu.info();
+    assert!(!info.name.is_empty());
+    let fams = &info.queue_families;
+    assert!(fams.iter().any(|f| f.index == info.mapping.trace.family && f.compute));
+    if info.driver_name.to_lowercase().contains("llvmpipe") || info.name.to_lowercase().contains("llvmpipe") {
+        // Lavapipe: one family, one queue; both roles share it.
+        assert!(info.mapping.shared());
+        assert!(info.software);
+    }
+    assert_clean(&gpu);
+}
