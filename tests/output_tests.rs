@@ -1,0 +1,1 @@
+//! Pure-Rust tests of `scatterlab::output`.
