@@ -117,7 +117,12 @@ impl HFunction {
         for j in 0..mu.len() {
             weighted[j] = wt[j] * mu[j] * h[j];
         }
-        Self { omega, mu, weighted, iterations }
+        Self {
+            omega,
+            mu,
+            weighted,
+            iterations,
+        }
     }
 
     /// Single scattering albedo this H was solved for.
@@ -133,14 +138,23 @@ impl HFunction {
     /// H(mu) for `mu in [0, 1]` (clamped).
     pub fn eval(&self, mu: f64) -> f64 {
         let mu = mu.clamp(0.0, 1.0);
-        let integral: f64 = self.mu.iter().zip(&self.weighted).map(|(m, w)| w / (mu + m)).sum();
+        let integral: f64 = self
+            .mu
+            .iter()
+            .zip(&self.weighted)
+            .map(|(m, w)| w / (mu + m))
+            .sum();
         1.0 / ((1.0 - self.omega).sqrt() + 0.5 * self.omega * integral)
     }
 
     /// Moment `int_0^1 H(mu) mu^n dmu` by the same quadrature.
     pub fn moment(&self, n: i32) -> f64 {
         // weighted = w mu H, so divide one mu back out.
-        self.mu.iter().zip(&self.weighted).map(|(m, w)| w * m.powi(n - 1)).sum()
+        self.mu
+            .iter()
+            .zip(&self.weighted)
+            .map(|(m, w)| w * m.powi(n - 1))
+            .sum()
     }
 
     /// Plane albedo `1 - H(mu) sqrt(1 - omega)`: see

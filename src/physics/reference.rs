@@ -53,7 +53,7 @@ pub fn ray_sphere(origin: Vec3, dir: Vec3, center: Vec3, radius: f32) -> Option<
     }
     let f = o - c;
     let b = -f.dot(d); // half of the usual -b
-    // r^2 - |f - (f.d / d.d) d|^2: distance of the line from the centre, without cancellation.
+                       // r^2 - |f - (f.d / d.d) d|^2: distance of the line from the centre, without cancellation.
     let perp: DVec3 = f + (b / a) * d;
     let disc = a * (r * r - perp.length_squared());
     if disc < 0.0 {

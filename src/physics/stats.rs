@@ -171,7 +171,16 @@ pub fn adaptive_simpson<F: Fn(f64) -> f64>(
     let m = 0.5 * (a + b);
     let (fa, fm, fb) = (f(a), f(m), f(b));
     let whole = (b - a) / 6.0 * (fa + 4.0 * fm + fb);
-    simpson_step(f, [a, m, b], [fa, fm, fb], whole, tol, 0, min_depth, max_depth)
+    simpson_step(
+        f,
+        [a, m, b],
+        [fa, fm, fb],
+        whole,
+        tol,
+        0,
+        min_depth,
+        max_depth,
+    )
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -195,8 +204,25 @@ fn simpson_step<F: Fn(f64) -> f64>(
         return left + right + delta / 15.0;
     }
     let next = depth + 1;
-    simpson_step(f, [a, lm, m], [fa, flm, fm], left, 0.5 * tol, next, min_depth, max_depth)
-        + simpson_step(f, [m, rm, b], [fm, frm, fb], right, 0.5 * tol, next, min_depth, max_depth)
+    simpson_step(
+        f,
+        [a, lm, m],
+        [fa, flm, fm],
+        left,
+        0.5 * tol,
+        next,
+        min_depth,
+        max_depth,
+    ) + simpson_step(
+        f,
+        [m, rm, b],
+        [fm, frm, fb],
+        right,
+        0.5 * tol,
+        next,
+        min_depth,
+        max_depth,
+    )
 }
 
 /// Integral of `f(x, y)` over the rectangle `[x0, x1] x [y0, y1]` by nested adaptive
@@ -322,7 +348,10 @@ where
     let (x0, x1) = config.x_range;
     let (y0, y1) = config.y_range;
     let (nx, ny) = (config.x_res, config.y_res);
-    assert!(nx > 0 && ny > 0 && x1 > x0 && y1 > y0, "empty chi-square domain or histogram");
+    assert!(
+        nx > 0 && ny > 0 && x1 > x0 && y1 > y0,
+        "empty chi-square domain or histogram"
+    );
 
     // Histogram of the samples.
     let mut observed = vec![0.0f64; nx * ny];
@@ -330,7 +359,8 @@ where
     let mut rng = Pcg32::new(config.seed, 0);
     for _ in 0..config.sample_count {
         let [x, y] = sample(&mut rng);
-        let inside = x.is_finite() && y.is_finite() && (x0..=x1).contains(&x) && (y0..=y1).contains(&y);
+        let inside =
+            x.is_finite() && y.is_finite() && (x0..=x1).contains(&x) && (y0..=y1).contains(&y);
         if !inside {
             invalid_samples += 1;
             continue;
@@ -386,7 +416,11 @@ where
     }
     // The total count is fixed, which removes one degree of freedom.
     let dof = cells.saturating_sub(1);
-    let p_value = if dof >= 1 { chi_square_p_value(statistic, dof) } else { 0.0 };
+    let p_value = if dof >= 1 {
+        chi_square_p_value(statistic, dof)
+    } else {
+        0.0
+    };
 
     ChiSquareResult {
         statistic,
@@ -405,7 +439,11 @@ where
 /// [`orthonormal_basis`]: the coordinates of [`ChiSquareConfig::sphere`].
 pub fn spherical_coords(w: Vec3, axis: Vec3) -> [f64; 2] {
     let (b1, b2) = orthonormal_basis(axis);
-    let (x, y, z) = (f64::from(w.dot(b1)), f64::from(w.dot(b2)), f64::from(w.dot(axis)));
+    let (x, y, z) = (
+        f64::from(w.dot(b1)),
+        f64::from(w.dot(b2)),
+        f64::from(w.dot(axis)),
+    );
     // Normalise away the f32 rounding of w so cos_theta stays in [-1, 1].
     let len = (x * x + y * y + z * z).sqrt();
     [(z / len).clamp(-1.0, 1.0), y.atan2(x)]
