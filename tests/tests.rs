@@ -1,7 +1,9 @@
 //! All integration tests in one binary (ripgrep style) so ash and gpu-allocator link once.
 //! GPU tests run on whatever Vulkan device the loader finds (lavapipe in CI) with the
 //! validation layer on; a missing device is a failure, never a skip.
-mod scene_tests;
 mod common;
 mod gpu_core;
+mod output_tests;
+mod physics_tests;
+mod scene_tests;
 mod solvers;

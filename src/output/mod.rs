@@ -1,0 +1,21 @@
+//! Output: HDR images, EXR and PNG files, error metrics and JSON reports.
+//!
+//! Every writer here is atomic ([`write_atomically`]): it writes a temporary file in the
+//! destination directory and renames it over the final name only on success, so a failed
+//! or interrupted write never leaves a truncated file under the name a user asked for.
+
+mod atomic;
+mod error;
+pub mod exr;
+mod image;
+pub mod metrics;
+pub mod png;
+pub mod report;
+
+pub use self::atomic::write_atomically;
+pub use self::error::OutputError;
+pub use self::exr::{read_exr, read_exr_layer, write_exr};
+pub use self::image::Image;
+pub use self::metrics::{compare, error_png, Metrics};
+pub use self::png::{write_png_tonemapped, TONEMAP_DESCRIPTION};
+pub use self::report::write_json;

@@ -1,0 +1,11 @@
+//! Physics: phase functions, CPU reference kernels and the statistics that judge sampling code.
+//!
+//! Everything here is plain Rust with no GPU dependency. The GLSL kernels in `glsl/include`
+//! restate `phase` with the same formulas; the rest (`reference`, `chandrasekhar`, `stats`)
+//! are the exact answers and the tests that GPU results are held to.
+
+pub mod chandrasekhar;
+pub mod phase;
+pub mod reference;
+pub mod rng;
+pub mod stats;

@@ -1,0 +1,98 @@
+//! Errors of the output layer: each names the file and says what to do.
+
+use std::path::PathBuf;
+
+/// What went wrong writing or reading an image, metrics or report file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum OutputError {
+    /// A filesystem operation failed.
+    #[error("cannot {action} '{}': {source}; check that the directory exists and is writable", path.display())]
+    Io {
+        /// File or directory involved.
+        path: PathBuf,
+        /// What was being done ("create", "rename into place", ...).
+        action: &'static str,
+        /// Underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+
+    /// The EXR encoder or decoder failed.
+    #[error("cannot {action} EXR file '{}': {source}; check the path, or that the file is an uncorrupted OpenEXR image", path.display())]
+    Exr {
+        /// File involved.
+        path: PathBuf,
+        /// "read" or "write".
+        action: &'static str,
+        /// Underlying error.
+        #[source]
+        source: ::exr::error::Error,
+    },
+
+    /// The PNG encoder failed.
+    #[error("cannot write PNG file '{}': {source}; check the path and free disk space", path.display())]
+    Png {
+        /// File involved.
+        path: PathBuf,
+        /// Underlying error.
+        #[source]
+        source: ::image::ImageError,
+    },
+
+    /// JSON serialisation failed.
+    #[error("cannot write JSON file '{}': {source}; the value holds something JSON cannot represent", path.display())]
+    Json {
+        /// File involved.
+        path: PathBuf,
+        /// Underlying error.
+        #[source]
+        source: serde_json::Error,
+    },
+
+    /// An EXR file lacks the requested layer (or the R, G, B channels of it).
+    #[error("EXR file '{}' has no {} (channels present: {available}); pick one of those layers or re-render", path.display(), layer_label(layer))]
+    MissingLayer {
+        /// File involved.
+        path: PathBuf,
+        /// Requested layer name ("" = main RGB layer).
+        layer: String,
+        /// Channel names found in the file, comma separated.
+        available: String,
+    },
+
+    /// An image's buffer does not match its size, or it is empty.
+    #[error("image for '{}' is invalid: {reason}; this is a bug in the code that built the image", path.display())]
+    InvalidImage {
+        /// File the image was to be written to.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+
+    /// Two images that must have one size do not.
+    #[error("{what}: image is {}x{} but the reference is {}x{}; render both at the same resolution", size.0, size.1, reference_size.0, reference_size.1)]
+    SizeMismatch {
+        /// Which comparison or file this is.
+        what: String,
+        /// Width and height of the image.
+        size: (u32, u32),
+        /// Width and height of the reference (or the first layer).
+        reference_size: (u32, u32),
+    },
+
+    /// The reference image holds NaN or infinite pixels, so no error can be measured.
+    #[error("reference image has {count} non-finite (NaN/Inf) pixels; re-render or repair the reference before comparing against it")]
+    NonFiniteReference {
+        /// Number of pixels with a non-finite channel.
+        count: u64,
+    },
+}
+
+fn layer_label(layer: &str) -> String {
+    if layer.is_empty() {
+        "main RGB layer (channels R, G, B)".to_owned()
+    } else {
+        format!("layer '{layer}' (channels {layer}.R, {layer}.G, {layer}.B)")
+    }
+}

@@ -1,0 +1,26 @@
+//! JSON reports (metrics, bench results), written atomically.
+
+use std::io::Write;
+use std::path::Path;
+
+use serde::Serialize;
+
+use super::{write_atomically, OutputError};
+
+/// Write `value` as pretty-printed JSON (with a trailing newline) to `path`, atomically.
+pub fn write_json<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<(), OutputError> {
+    let mut text = serde_json::to_vec_pretty(value).map_err(|source| OutputError::Json {
+        path: path.to_owned(),
+        source,
+    })?;
+    text.push(b'\n');
+    write_atomically(path, |tmp| {
+        std::fs::File::create(tmp)
+            .and_then(|mut f| f.write_all(&text))
+            .map_err(|source| OutputError::Io {
+                path: tmp.to_owned(),
+                action: "write",
+                source,
+            })
+    })
+}
