@@ -4,6 +4,7 @@
 mod common;
 mod gpu_core;
 mod output_tests;
+mod phase_gpu;
 mod physics_tests;
 mod scene_tests;
 mod solvers;
