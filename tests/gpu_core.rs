@@ -187,3 +187,15 @@ fn queue_mapping_is_reported() {
     }
     assert_clean(&gpu);
 }
+
+/// Tests run with the validation layer, and an error-severity message is counted (so
+/// `assert_clean` can fail a test).
+#[test]
+fn validation_errors_are_counted() {
+    let gpu = gpu();
+    assert!(gpu.validation_enabled(), "GPU tests must run with the validation layer");
+    assert_eq!(gpu.validation_errors(), 0);
+    assert!(gpu.inject_validation_error_for_test("scatterlab test: injected error"));
+    assert_eq!(gpu.validation_errors(), 1);
+    assert!(gpu.validation_messages()[0].contains("injected"));
+}

@@ -87,6 +87,12 @@ fn render(a: RenderArgs) -> Result<()> {
     if let Some(spp) = a.spp {
         sets.push(("render.spp".into(), spp.to_string()));
     }
+    if let Some(d) = a.max_depth {
+        if a.solver != SolverKind::Path {
+            bail!("--max-depth applies to --solver path only");
+        }
+        sets.push(("path.max_depth".into(), d.to_string()));
+    }
     if let Some(seed) = a.seed {
         sets.push(("render.seed".into(), seed.to_string()));
     }

@@ -70,6 +70,10 @@ pub struct RenderArgs {
     /// Samples per pixel for `path` (overrides render.spp).
     #[arg(long)]
     pub spp: Option<u32>,
+    /// Scattering events per path for `path` (1 = single scattering; default unbounded);
+    /// the same as `--set path.max_depth=N`.
+    #[arg(long)]
+    pub max_depth: Option<u32>,
     /// Seed of every random choice (overrides render.seed).
     #[arg(long)]
     pub seed: Option<u64>,

@@ -566,4 +566,16 @@ impl Gpu {
     pub fn validation_enabled(&self) -> bool {
         self.shared.debug_utils.is_some()
     }
+
+    /// Send an error-severity message through the debug messenger, as the validation layer
+    /// would: lets a test prove that errors are counted (and so fail tests). Returns false when
+    /// validation is off.
+    #[doc(hidden)]
+    pub fn inject_validation_error_for_test(&self, text: &str) -> bool {
+        let Some((du, _)) = &self.shared.debug_utils else { return false };
+        let Ok(msg) = CString::new(text) else { return false };
+        let data = vk::DebugUtilsMessengerCallbackDataEXT::default().message(&msg);
+        unsafe { du.submit_debug_utils_message(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR, vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION, &data) };
+        true
+    }
 }
