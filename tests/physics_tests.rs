@@ -4,7 +4,8 @@
 
 use glam::{Vec2, Vec3};
 use scatterlab::physics::chandrasekhar::{
-    h_function, semi_infinite_reflectance_uniform_env, HFunction,
+    h_function, h_function_integral_representation, semi_infinite_reflectance_uniform_env,
+    HFunction, PUBLISHED_H_VALUES,
 };
 use scatterlab::physics::phase::{
     hg_eval, hg_sample, hg_sample_cos, orthonormal_basis, INV_FOUR_PI,
@@ -647,4 +648,36 @@ fn physics_h_function_is_monotone_and_bounded() {
         "omega = 1 reflects all",
     );
     assert_close(h_function(0.0, 0.7), 1.0, 1e-14, "H = 1 without scattering");
+}
+
+#[test]
+fn physics_h_function_matches_published_values() {
+    for &(omega, mu, published, decimals) in PUBLISHED_H_VALUES {
+        let h = h_function(omega, mu);
+        // To the printed precision: half a unit in the last printed decimal.
+        let half_ulp = 0.5 * 10f64.powi(-(decimals as i32));
+        assert_close(
+            h,
+            published,
+            half_ulp,
+            &format!("H(omega = {omega}, mu = {mu}) vs published"),
+        );
+    }
+}
+
+#[test]
+fn physics_h_function_matches_integral_representation() {
+    // The iteration and the explicit integral share nothing but the answer.
+    for omega in [0.2, 0.5, 0.9, 0.99, 1.0] {
+        let h = HFunction::new(omega);
+        for mu in [0.0, 0.01, 0.05, 0.1, 0.3, 0.5, 0.8, 1.0] {
+            let reference = h_function_integral_representation(omega, mu);
+            assert_close(
+                h.eval(mu),
+                reference,
+                2e-9,
+                &format!("H(omega = {omega}, mu = {mu})"),
+            );
+        }
+    }
 }

@@ -21,8 +21,26 @@
 //! The integral uses Gauss-Legendre quadrature on [0, 1]; values between the nodes come
 //! from the same equation (Nystrom interpolation), so `H` is smooth in `mu`.
 //!
-//! Published values reproduced by the tests (`tests/physics_tests.rs`), see
-//! [`PUBLISHED_H_VALUES`].
+//! Two independent checks keep this honest (`tests/physics_tests.rs`): the published values
+//! in [`PUBLISHED_H_VALUES`], and [`h_function_integral_representation`], the explicit
+//! closed-form integral for H, which shares no code or method with the iteration.
+
+use super::stats::adaptive_simpson;
+
+/// Published H-function values for isotropic scattering, as
+/// `(omega, mu, H, decimals printed)`.
+///
+/// - `H(1) = 2.9078` for conservative scattering (`omega = 1`): S. Chandrasekhar,
+///   *Radiative Transfer* (Oxford 1950; Dover 1960), ch. V, table of H(mu) for isotropic
+///   scattering; the best-known number of the theory.
+///
+/// Fuller tables, for any albedo, are in K. Kawabata & S. S. Limaye, "Rational
+/// approximation formula for Chandrasekhar's H-function for isotropic scattering",
+/// Astrophys. Space Sci. 332, 365 (2011), <https://doi.org/10.1007/s10509-010-0512-x>,
+/// arXiv:1010.4839 (11 digits); K. Kawabata, Astrophys. Space Sci. 363:1 (2018),
+/// arXiv:1712.04790 (conservative case, 15 digits); R. N. Das & R. Bera,
+/// arXiv:0711.3336; and H. C. van de Hulst, *Multiple Light Scattering* (1980), vol. 1.
+pub const PUBLISHED_H_VALUES: &[(f64, f64, f64, u32)] = &[(1.0, 1.0, 2.9078, 4)];
 
 /// Gauss-Legendre nodes used for the integral over `mu'`.
 pub const QUADRATURE_NODES: usize = 128;
@@ -184,4 +202,48 @@ pub fn h_function(omega: f64, mu: f64) -> f64 {
 /// *Multiple Light Scattering*, vol. 1, sec. 8). So the answer is `L * r(mu)`.
 pub fn semi_infinite_reflectance_uniform_env(omega: f64, mu: f64) -> f64 {
     HFunction::new(omega).plane_albedo(mu)
+}
+
+/// H(mu) from the explicit integral representation for isotropic scattering,
+///
+/// ```text
+/// H(mu) = exp( -(mu / pi) int_0^{pi/2} ln(1 - omega theta cot theta)
+///                                      / (cos^2 theta + mu^2 sin^2 theta) dtheta )
+/// ```
+///
+/// (Chandrasekhar 1960, ch. V; the "closed-form integral representation" Kawabata & Limaye
+/// 2011 evaluate to 11 digits). Independent of [`HFunction`]: no iteration, a different
+/// integral. Slower; meant as a test reference. The logarithmic singularity at
+/// `theta = 0` when `omega = 1` is removed by substituting `theta = s^2`.
+pub fn h_function_integral_representation(omega: f64, mu: f64) -> f64 {
+    assert!(
+        (0.0..=1.0).contains(&omega) && (0.0..=1.0).contains(&mu),
+        "omega and mu must lie in [0, 1], got omega = {omega}, mu = {mu}"
+    );
+    if mu == 0.0 {
+        // The prefactor mu vanishes (and the integrand alone diverges at pi/2).
+        return 1.0;
+    }
+    // 1 - omega theta cot theta, without cancellation for small theta:
+    // theta cot theta = 1 - t^2/3 - t^4/45 - 2 t^6/945 - t^8/4725 - ...
+    let one_minus = |t: f64| -> f64 {
+        if t < 0.1 {
+            let t2 = t * t;
+            (1.0 - omega)
+                + omega * t2 * (1.0 / 3.0 + t2 * (1.0 / 45.0 + t2 * (2.0 / 945.0 + t2 / 4725.0)))
+        } else {
+            1.0 - omega * t / t.tan()
+        }
+    };
+    let integrand = |s: f64| -> f64 {
+        let t = s * s;
+        if t <= 0.0 {
+            return 0.0; // 2 s ln(...) -> 0 (as s ln s at omega = 1)
+        }
+        let (sin, cos) = t.sin_cos();
+        2.0 * s * one_minus(t).ln() / (cos * cos + mu * mu * sin * sin)
+    };
+    let upper = std::f64::consts::FRAC_PI_2.sqrt();
+    let integral = adaptive_simpson(&integrand, 0.0, upper, 1e-13, 6, 40);
+    (-mu / std::f64::consts::PI * integral).exp()
 }
