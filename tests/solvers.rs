@@ -347,4 +347,3 @@ radiance = 1.0
     }
     assert_clean(&gpu);
 }
-

@@ -32,9 +32,9 @@ layout(std430, binding = 4) buffer Stats { uint stats[]; };
 struct PathState {
     vec4 o_pdf;        // ray origin, phase pdf of the ray direction (0 for a camera ray)
     vec4 d_depth;      // ray direction, scattering events so far (uint bits)
-    vec4 beta_rng;     // throughput, rng state (uint bits)
+    vec4 beta_key;     // throughput, rng stream key (uint bits)
     vec4 L_coll;       // radiance gathered so far, tentative collisions so far (uint bits)
-    uvec4 k_flight;    // next sample index, 1 while a path is in flight, truncated flag, 0
+    uvec4 k_flight;    // next sample index, 1 while a path is in flight, truncated flag, rng counter
 };
 layout(std430, binding = 5) buffer State { PathState state[]; };
 
@@ -58,7 +58,7 @@ bool truncated;
 // Ratio tracking (Novak et al. 2014) of the transmittance from p along w over [0, t_far]:
 // T *= sigma_n / sigma_maj per tentative collision, per channel; unbiased for each channel
 // since sigma_maj >= max channel sigma_t. Russian roulette on small T stays unbiased.
-vec3 transmittance(vec3 p, vec3 w, float t_far, inout uint rng) {
+vec3 transmittance(vec3 p, vec3 w, float t_far, inout uvec2 rng) {
     vec2 iv = medium_interval(p, w);
     iv.x = max(iv.x, 0.0);
     iv.y = min(iv.y, t_far);
@@ -89,7 +89,7 @@ vec3 transmittance(vec3 p, vec3 w, float t_far, inout uint rng) {
 
 // Delta/spectral tracking to the next real scattering event. Returns true and sets `t_hit`
 // on a scattering; false when the path escapes (beta then weights the escape) or dies (beta 0).
-bool next_scatter(vec3 o, vec3 d, inout vec3 beta, inout uint rng, out float t_hit) {
+bool next_scatter(vec3 o, vec3 d, inout vec3 beta, inout uvec2 rng, out float t_hit) {
     vec2 iv = medium_interval(o, d);
     iv.x = max(iv.x, 0.0);
     Segments s = segments_begin(o, d, iv.x, iv.y);
@@ -137,7 +137,7 @@ float mis_power(float a, float b) { return a * a / (a * a + b * b); }
 
 // One event of a path: free flight to the next scattering (next-event estimation and a new
 // direction there) or to its escape. Returns true when the path has ended.
-bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uint depth, inout float pdf_dir, inout uint rng) {
+bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uint depth, inout float pdf_dir, inout uvec2 rng) {
     uint light_count = scene.image.z;
     float g = scene.albedo.w;
     float t_hit;
@@ -210,8 +210,8 @@ void main() {
     float pdf_dir = st.o_pdf.w;
     vec3 d = st.d_depth.xyz;
     uint depth = floatBitsToUint(st.d_depth.w);
-    vec3 beta = st.beta_rng.xyz;
-    uint rng = floatBitsToUint(st.beta_rng.w);
+    vec3 beta = st.beta_key.xyz;
+    uvec2 rng = uvec2(floatBitsToUint(st.beta_key.w), st.k_flight.w);
     vec3 L = st.L_coll.xyz;
     collisions = floatBitsToUint(st.L_coll.w);
     uint k = st.k_flight.x;
@@ -253,8 +253,8 @@ void main() {
         }
     }
     if (in_flight) segs += collisions - segs0;
-    state[pixel] = PathState(vec4(o, pdf_dir), vec4(d, uintBitsToFloat(depth)), vec4(beta, uintBitsToFloat(rng)),
-                             vec4(L, uintBitsToFloat(collisions)), uvec4(k, in_flight ? 1u : 0u, truncated ? 1u : 0u, 0u));
+    state[pixel] = PathState(vec4(o, pdf_dir), vec4(d, uintBitsToFloat(depth)), vec4(beta, uintBitsToFloat(rng.x)),
+                             vec4(L, uintBitsToFloat(collisions)), uvec4(k, in_flight ? 1u : 0u, truncated ? 1u : 0u, rng.y));
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);

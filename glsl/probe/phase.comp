@@ -23,7 +23,7 @@ layout(push_constant) uniform Push {
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i < pc.count) {
-        uint rng = rng_init(pc.seed, 0u, i, 0u);
+        uvec2 rng = rng_init(pc.seed, 0u, i, 0u);
         vec3 w = hg_sample(pc.g, vec3(0.0, 0.0, 1.0), rnd2(rng));
         samples[i] = vec4(w, hg_eval(pc.g, w.z));
     }

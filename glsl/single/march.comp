@@ -148,7 +148,7 @@ void main() {
         vec2 sub = (vec2(float(k % ss), float(k / ss)) + 0.5) / float(ss);
         vec3 o, d;
         camera_ray(vec2(px) + sub, o, d);
-        uint rng = rng_init(pc.seed_lo, pc.seed_hi, pixel, k);
+        uvec2 rng = rng_init(pc.seed_lo, pc.seed_hi, pixel, k);
         float offset = pc.jitter != 0u ? rnd(rng) : 0.5;
         vec2 iv = medium_interval(o, d);
         float a = max(iv.x, 0.0);
