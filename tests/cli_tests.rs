@@ -1,0 +1,1438 @@
+//! End-to-end tests of the `scatterlab` binary: bad input of every kind gets one clear line
+//! on stderr (`error: ` + the file or flag + the field + what is wrong), a non-zero exit, no
+//! panic, and no output file (or temporary file) left behind; good input renders, compares,
+//! lists devices and describes scenes. Every render runs with `--validate` (any validation
+//! error fails the command) and is tiny (16x16, 4 spp) so the whole module stays fast on a
+//! CPU driver.
+//!
+//! Each test works in its own temporary folder: inputs (scenes, grids, images) at its top,
+//! outputs under `out/`. A failing command must leave the folder exactly as it found it.
+
+use std::ffi::OsStr;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use scatterlab::output::{read_exr, read_exr_layer, write_exr, Image};
+use scatterlab::scene::write_vol;
+
+const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
+
+/// Flags that keep every render tiny.
+const TINY: [&str; 6] = [
+    "--set",
+    "render.width=16",
+    "--set",
+    "render.height=16",
+    "--spp",
+    "4",
+];
+
+/// A small valid scene (a constant-density cube lit by a point light); tests write broken
+/// variants of it with [`with`].
+const BASE: &str = r#"# test scene
+[render]
+width = 16
+height = 16
+seed = 3
+spp = 4
+
+[camera]
+kind = "perspective"
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 30.0
+
+[medium]
+bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+sigma_t = 2.0
+albedo = 0.8
+g = 0.0
+density = { kind = "constant" }
+
+[[light]]
+kind = "point"
+position = [1.0, 1.0, 1.0]
+intensity = 10.0
+"#;
+
+/// The lines of [`BASE`] that hold the light (removed for the no-lights case).
+const BASE_LIGHT: &str =
+    "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n";
+
+/// [`BASE`] with `from` replaced by `to` (which must change something).
+#[track_caller]
+fn with(from: &str, to: &str) -> String {
+    assert!(BASE.contains(from), "test bug: BASE has no {from:?}");
+    BASE.replacen(from, to, 1)
+}
+
+/// [`BASE`] with a grid density read from `file`, optionally with `dims`.
+fn grid_scene(file: &str, dims: Option<[i64; 3]>) -> String {
+    let density = match dims {
+        Some([x, y, z]) => {
+            format!("density = {{ kind = \"grid\", file = \"{file}\", dims = [{x}, {y}, {z}] }}")
+        }
+        None => format!("density = {{ kind = \"grid\", file = \"{file}\" }}"),
+    };
+    with("density = { kind = \"constant\" }", &density)
+}
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+/// Raw little-endian f32 bytes.
+fn f32_bytes(values: &[f32]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// A `.vol` file of `n^3` voxels, all 0.5 except voxel `bad_at` (if any), which is `bad`.
+fn vol_bytes(n: u32, bad: Option<(usize, f32)>) -> Vec<u8> {
+    let mut data = vec![0.5f32; (n * n * n) as usize];
+    if let Some((i, v)) = bad {
+        data[i] = v;
+    }
+    write_vol(
+        [n, n, n],
+        &data,
+        glam::Vec3::splat(-0.5),
+        glam::Vec3::splat(0.5),
+    )
+}
+
+/// An image with a smooth, non-zero gradient (so relative errors are defined).
+fn gradient(width: u32, height: u32) -> Image {
+    let mut img = Image::new(width, height);
+    for (i, v) in img.data.iter_mut().enumerate() {
+        *v = 0.25 + (i % 7) as f32 * 0.1;
+    }
+    img
+}
+
+/// One test's temporary folder.
+struct Case {
+    dir: tempfile::TempDir,
+}
+
+impl Case {
+    fn new() -> Case {
+        let dir = tempfile::Builder::new()
+            .prefix("scatterlab-cli-")
+            .tempdir()
+            .expect("temp dir");
+        fs::create_dir(dir.path().join("out")).expect("out dir");
+        Case { dir }
+    }
+
+    fn path(&self, rel: &str) -> PathBuf {
+        self.dir.path().join(rel)
+    }
+
+    /// Write an input file at the top of the folder.
+    fn write(&self, name: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
+        let p = self.path(name);
+        fs::write(&p, bytes).expect("write input");
+        p
+    }
+
+    /// Write `scene.toml`.
+    fn scene(&self, text: &str) -> PathBuf {
+        self.write("scene.toml", text)
+    }
+
+    /// Copy the shipped 64^3 cloud grid next to the scene.
+    fn cloud_grid(&self) -> PathBuf {
+        let p = self.path("cloud64.vol");
+        fs::copy(repo("scenes/cloud64.vol"), &p).expect("copy cloud64.vol");
+        p
+    }
+
+    /// Every file and folder under the temporary folder, relative and sorted.
+    fn listing(&self) -> Vec<String> {
+        fn walk(root: &Path, dir: &Path, out: &mut Vec<String>) {
+            for e in fs::read_dir(dir).expect("read_dir").flatten() {
+                let p = e.path();
+                out.push(p.strip_prefix(root).unwrap().display().to_string());
+                if p.is_dir() {
+                    walk(root, &p, out);
+                }
+            }
+        }
+        let mut out = Vec::new();
+        walk(self.dir.path(), self.dir.path(), &mut out);
+        out.sort();
+        out
+    }
+
+    /// Run the binary in this folder (no device or validation choice from the environment).
+    fn run<I, S>(&self, args: I) -> Output
+    where
+        I: IntoIterator<Item = S>,
+        S: AsRef<OsStr>,
+    {
+        Command::new(BIN)
+            .args(args)
+            .current_dir(self.dir.path())
+            .env_remove("SCATTERLAB_DEVICE")
+            .env_remove("SCATTERLAB_VALIDATE")
+            .env("NO_COLOR", "1")
+            .output()
+            .expect("run scatterlab")
+    }
+
+    /// `render SCENE --validate -q --out out/x.exr --png out/x.png --json out/x.json EXTRA...`.
+    fn render(&self, scene: &Path, extra: &[&str]) -> Output {
+        self.run(self.render_args(scene, extra))
+    }
+
+    /// The arguments of [`Case::render`].
+    fn render_args(&self, scene: &Path, extra: &[&str]) -> Vec<String> {
+        let mut args: Vec<String> = vec![
+            "render".into(),
+            scene.display().to_string(),
+            "--validate".into(),
+            "-q".into(),
+        ];
+        for (flag, name) in [
+            ("--out", "out/x.exr"),
+            ("--png", "out/x.png"),
+            ("--json", "out/x.json"),
+        ] {
+            args.push(flag.into());
+            args.push(self.path(name).display().to_string());
+        }
+        args.extend(extra.iter().map(|s| s.to_string()));
+        args
+    }
+
+    /// Run `args`, expect [`one_error_line`] with `needles`, and expect the folder to be
+    /// exactly as before (no output, no temporary file, no created folder). Returns the line.
+    #[track_caller]
+    fn fails<I, S>(&self, args: I, needles: &[&str]) -> String
+    where
+        I: IntoIterator<Item = S>,
+        S: AsRef<OsStr>,
+    {
+        self.fails_with(|| self.run(args), needles, Cause::Once)
+    }
+
+    /// [`Case::fails`], but tolerating an error that repeats its cause (a known defect,
+    /// pinned by the ignored `errors_name_their_cause_once`; use `fails` once it is fixed).
+    #[track_caller]
+    fn fails_repeating_cause<I, S>(&self, args: I, needles: &[&str]) -> String
+    where
+        I: IntoIterator<Item = S>,
+        S: AsRef<OsStr>,
+    {
+        self.fails_with(|| self.run(args), needles, Cause::MayRepeat)
+    }
+
+    /// [`Case::render`] of `scene` with `extra`, expected to fail like [`Case::fails`].
+    #[track_caller]
+    fn render_fails(&self, scene: &Path, extra: &[&str], needles: &[&str]) -> String {
+        self.fails_with(|| self.render(scene, extra), needles, Cause::Once)
+    }
+
+    #[track_caller]
+    fn fails_with(&self, run: impl FnOnce() -> Output, needles: &[&str], cause: Cause) -> String {
+        let before = self.listing();
+        let out = run();
+        let line = error_line(&out, needles, cause);
+        self.unchanged(&before, &line);
+        line
+    }
+
+    #[track_caller]
+    fn unchanged(&self, before: &[String], line: &str) {
+        let after = self.listing();
+        assert_eq!(before, after.as_slice(), "the failed command changed the folder (outputs or temporary files left behind); its error: {line}");
+        for name in ["out/x.exr", "out/x.png", "out/x.json"] {
+            assert!(
+                !self.path(name).exists(),
+                "{name} exists after a failed command"
+            );
+        }
+    }
+}
+
+/// Whether an error line may name the same cause twice (`...: No such file or directory (os
+/// error 2): No such file or directory (os error 2)`).
+#[derive(Clone, Copy, PartialEq)]
+enum Cause {
+    Once,
+    MayRepeat,
+}
+
+/// A part of an error line (between `: ` / `; `) long enough to mean something that occurs
+/// twice: the message repeats its cause.
+fn repeated_part(line: &str) -> Option<String> {
+    let joined = line.replace("; ", ": ");
+    let parts: Vec<&str> = joined
+        .split(": ")
+        .map(str::trim)
+        .filter(|p| p.len() >= 12)
+        .collect();
+    parts
+        .iter()
+        .enumerate()
+        .find(|(i, p)| parts[i + 1..].contains(p))
+        .map(|(_, p)| p.to_string())
+}
+
+/// [`error_line`] with [`Cause::Once`].
+#[track_caller]
+fn one_error_line(out: &Output, needles: &[&str]) -> String {
+    error_line(out, needles, Cause::Once)
+}
+
+/// The command failed cleanly: a normal non-zero exit (not a signal, not a panic's 101),
+/// stderr is exactly one non-empty line, it starts with `error: `, contains every needle,
+/// and (with [`Cause::Once`]) says each thing once.
+#[track_caller]
+fn error_line(out: &Output, needles: &[&str], cause: Cause) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let code = out.status.code();
+    assert!(
+        code.is_some(),
+        "killed by a signal ({:?}); stderr:\n{stderr}",
+        out.status
+    );
+    assert_ne!(
+        code,
+        Some(0),
+        "the command succeeded but should have failed; stdout:\n{stdout}\nstderr:\n{stderr}"
+    );
+    assert!(
+        !stderr.contains("panicked") && !stderr.contains("RUST_BACKTRACE"),
+        "panic:\n{stderr}"
+    );
+    assert_ne!(
+        code,
+        Some(101),
+        "exit code 101 (a Rust panic); stderr:\n{stderr}"
+    );
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(
+        lines.len(),
+        1,
+        "expected exactly one line on stderr, got {}:\n{stderr}",
+        lines.len()
+    );
+    let line = lines[0];
+    assert!(
+        line.starts_with("error: "),
+        "the line does not start with `error: `: {line}"
+    );
+    for n in needles {
+        assert!(line.contains(n), "the error line lacks {n:?}: {line}");
+    }
+    if cause == Cause::Once {
+        if let Some(part) = repeated_part(line) {
+            panic!("the error line repeats {part:?}: {line}");
+        }
+    }
+    line.to_string()
+}
+
+/// The command succeeded, did not panic, and the validation layer printed no error.
+#[track_caller]
+fn succeeded(out: &Output) -> (String, String) {
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "the command failed; stdout:\n{stdout}\nstderr:\n{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "panic:\n{stderr}");
+    assert!(
+        !stderr.contains("validation error"),
+        "validation errors:\n{stderr}"
+    );
+    (stdout, stderr)
+}
+
+fn read_json(p: &Path) -> serde_json::Value {
+    let text = fs::read_to_string(p).unwrap_or_else(|e| panic!("read {}: {e}", p.display()));
+    serde_json::from_str(&text)
+        .unwrap_or_else(|e| panic!("{} is not JSON: {e}\n{text}", p.display()))
+}
+
+// ------------------------------------------------------------------ scene files
+
+#[test]
+fn malformed_toml_names_file_and_line() {
+    let c = Case::new();
+    // Line 3 of BASE is `width = 16`.
+    let s = c.scene(&with("width = 16", "width = = 16"));
+    c.render_fails(&s, &TINY, &["scene.toml:3:", "malformed TOML"]);
+    // An unterminated string on line 9 (`kind = "perspective"`).
+    let s = c.scene(&with("kind = \"perspective\"", "kind = \"perspective"));
+    c.render_fails(&s, &TINY, &["scene.toml:9:", "malformed TOML"]);
+    // A key given twice.
+    let s = c.scene(&with("albedo = 0.8", "albedo = 0.8\nalbedo = 0.7"));
+    c.render_fails(&s, &TINY, &["scene.toml:", "malformed TOML", "albedo"]);
+}
+
+#[test]
+fn unknown_keys_name_file_key_and_line() {
+    let c = Case::new();
+    let s = c.scene(&with("albedo = 0.8", "albdo = 0.8"));
+    let line = c.render_fails(&s, &TINY, &["scene.toml", "medium.albdo", "unknown key"]);
+    assert!(line.contains("albedo"), "no did-you-mean: {line}");
+    let s = c.scene(&with(
+        "intensity = 10.0",
+        "intensity = 10.0\nintensty = 3.0",
+    ));
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "light[0].intensty", "unknown key"],
+    );
+    let s = c.scene(&format!("{BASE}\n[extra]\nfoo = 1\n"));
+    c.render_fails(&s, &TINY, &["scene.toml", "extra", "unknown key"]);
+}
+
+#[test]
+fn missing_keys_and_wrong_types_name_the_field() {
+    let c = Case::new();
+    let s = c.scene(&with("albedo = 0.8\n", ""));
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", "missing"]);
+    let s = c.scene(&with("albedo = 0.8", "albedo = \"high\""));
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", "expected"]);
+    let s = c.scene(&with("kind = \"point\"", "kind = \"spot\""));
+    c.render_fails(&s, &TINY, &["scene.toml", "light[0].kind", "spot"]);
+}
+
+#[test]
+fn scene_file_missing() {
+    let c = Case::new();
+    let args = c.render_args(&c.path("nope.toml"), &TINY);
+    c.fails_repeating_cause(
+        args,
+        &["nope.toml", "cannot read scene file", "No such file"],
+    );
+}
+
+#[test]
+fn grid_file_missing() {
+    let c = Case::new();
+    let s = c.scene(&grid_scene("nope.vol", None));
+    c.render_fails(
+        &s,
+        &TINY,
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "nope.vol",
+            "cannot open",
+        ],
+    );
+}
+
+#[test]
+fn grid_file_truncated() {
+    let c = Case::new();
+    let full = fs::read(repo("scenes/cloud64.vol")).expect("cloud64.vol");
+    // Data cut short.
+    c.write("cut.vol", &full[..full.len() / 2]);
+    let s = c.scene(&grid_scene("cut.vol", None));
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "medium.density.file", "cut.vol", "truncated"],
+    );
+    // Header cut short.
+    c.write("cut.vol", &full[..20]);
+    c.render_fails(
+        &s,
+        &TINY,
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "cut.vol",
+            "truncated .vol header",
+        ],
+    );
+    // Empty file.
+    c.write("cut.vol", b"");
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol"]);
+}
+
+#[test]
+fn grid_dims_do_not_match_file_size() {
+    let c = Case::new();
+    // 4x4x4 raw f32 needs 256 bytes; give 100.
+    c.write("raw.f32", vec![0u8; 100]);
+    let s = c.scene(&grid_scene("raw.f32", Some([4, 4, 4])));
+    c.render_fails(
+        &s,
+        &TINY,
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "raw.f32",
+            "dims",
+            "256 bytes",
+            "100 bytes",
+        ],
+    );
+    // Too many bytes.
+    c.write("raw.f32", f32_bytes(&[0.5; 65]));
+    c.render_fails(
+        &s,
+        &TINY,
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "raw.f32",
+            "extra bytes",
+        ],
+    );
+    // Raw without dims.
+    let s = c.scene(&grid_scene("raw.f32", None));
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "medium.density.file", "raw.f32", "dims"],
+    );
+    // A zero dimension.
+    let s = c.scene(&grid_scene("raw.f32", Some([4, 0, 4])));
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "dims[1]"]);
+    // dims that contradict a .vol header.
+    c.cloud_grid();
+    let s = c.scene(&grid_scene("cloud64.vol", Some([32, 32, 32])));
+    c.render_fails(
+        &s,
+        &TINY,
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "cloud64.vol",
+            "disagrees",
+            "64x64x64",
+        ],
+    );
+}
+
+#[test]
+fn grid_nan_inf_negative_density() {
+    let c = Case::new();
+    let s = c.scene(&grid_scene("bad.vol", None));
+    for (value, text) in [(f32::NAN, "NaN"), (f32::INFINITY, "inf"), (-1.0, "-1")] {
+        // Voxel #5 of a 4^3 grid is (1, 1, 0).
+        c.write("bad.vol", vol_bytes(4, Some((5, value))));
+        c.render_fails(
+            &s,
+            &TINY,
+            &[
+                "scene.toml",
+                "medium.density.file",
+                "bad.vol",
+                "voxel (1, 1, 0)",
+                text,
+                "finite and >= 0",
+            ],
+        );
+    }
+    // The same in a raw grid.
+    let mut data = vec![0.5f32; 8];
+    data[7] = f32::NAN;
+    c.write("bad.f32", f32_bytes(&data));
+    let s = c.scene(&grid_scene("bad.f32", Some([2, 2, 2])));
+    c.render_fails(
+        &s,
+        &TINY,
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "bad.f32",
+            "voxel (1, 1, 1)",
+            "NaN",
+        ],
+    );
+}
+
+#[test]
+fn albedo_outside_unit_interval() {
+    let c = Case::new();
+    for (value, shown) in [("1.5", "1.5"), ("-0.1", "-0.1"), ("[0.5, 1.2, 0.5]", "1.2")] {
+        let s = c.scene(&with("albedo = 0.8", &format!("albedo = {value}")));
+        c.render_fails(
+            &s,
+            &TINY,
+            &["scene.toml", "medium.albedo", shown, "outside [0, 1]"],
+        );
+    }
+    let s = c.scene(&with("albedo = 0.8", "albedo = nan"));
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", "NaN"]);
+}
+
+#[test]
+fn g_magnitude_one_or_more() {
+    let c = Case::new();
+    for value in ["1.0", "-1.0", "1.5", "inf"] {
+        let s = c.scene(&with("g = 0.0", &format!("g = {value}")));
+        c.render_fails(&s, &TINY, &["scene.toml", "medium.g", "(-1, 1)"]);
+    }
+}
+
+#[test]
+fn sigma_t_negative_or_not_finite() {
+    let c = Case::new();
+    for value in ["-1.0", "[1.0, -2.0, 1.0]", "nan", "inf"] {
+        let s = c.scene(&with("sigma_t = 2.0", &format!("sigma_t = {value}")));
+        c.render_fails(
+            &s,
+            &TINY,
+            &["scene.toml", "medium.sigma_t", "finite and >= 0"],
+        );
+    }
+}
+
+#[test]
+fn negative_light_intensity() {
+    let c = Case::new();
+    let s = c.scene(&with("intensity = 10.0", "intensity = -10.0"));
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "light[0].intensity", "finite and >= 0"],
+    );
+}
+
+#[test]
+fn zero_size_image() {
+    let c = Case::new();
+    // In the file (no --set overriding it).
+    let s = c.scene(&with("width = 16", "width = 0"));
+    c.render_fails(
+        &s,
+        &["--spp", "4"],
+        &["scene.toml", "render.width", "out of range"],
+    );
+    let s = c.scene(&with("height = 16", "height = 0"));
+    c.render_fails(
+        &s,
+        &["--spp", "4"],
+        &["scene.toml", "render.height", "out of range"],
+    );
+    let s = c.scene(&with("width = 16", "width = -5"));
+    c.render_fails(
+        &s,
+        &["--spp", "4"],
+        &["scene.toml", "render.width", "out of range"],
+    );
+    // From --set: the message says the value came from the override.
+    let s = c.scene(BASE);
+    c.render_fails(
+        &s,
+        &["--set", "render.width=0", "--spp", "4"],
+        &["scene.toml", "render.width", "out of range", "override"],
+    );
+    // Zero samples per pixel.
+    c.render_fails(
+        &s,
+        &["--spp", "0"],
+        &["scene.toml", "render.spp", "out of range"],
+    );
+}
+
+#[test]
+fn no_lights() {
+    let c = Case::new();
+    let s = c.scene(&with(BASE_LIGHT, ""));
+    c.render_fails(&s, &TINY, &["scene.toml", "light", "no lights"]);
+}
+
+#[test]
+fn camera_that_sees_nothing() {
+    let c = Case::new();
+    // Looking away from the medium.
+    let s = c.scene(&with(
+        "target = [0.0, 0.0, 0.0]",
+        "target = [0.0, 0.0, 8.0]",
+    ));
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "camera", "sees no part of the medium"],
+    );
+    // Looking past it with a narrow view.
+    let s = c.scene(
+        &with("target = [0.0, 0.0, 0.0]", "target = [5.0, 0.0, 0.0]")
+            .replace("fov = 30.0", "fov = 5.0"),
+    );
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "camera", "sees no part of the medium"],
+    );
+    // No view direction at all.
+    let s = c.scene(&with(
+        "target = [0.0, 0.0, 0.0]",
+        "target = [0.0, 0.0, 4.0]",
+    ));
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "camera.target", "equals camera.origin"],
+    );
+    // Up along the view.
+    let s = c.scene(&with("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 1.0]"));
+    c.render_fails(&s, &TINY, &["scene.toml", "camera.up", "parallel"]);
+    // Field of view out of range.
+    let s = c.scene(&with("fov = 30.0", "fov = 180.0"));
+    c.render_fails(&s, &TINY, &["scene.toml", "camera.fov", "(0, 180)"]);
+}
+
+#[test]
+fn grid_beyond_memory_budget() {
+    let c = Case::new();
+    c.cloud_grid();
+    let s = c.scene(&grid_scene("cloud64.vol", None));
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--memory-budget", "1K"]].concat(),
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "cloud64.vol",
+            "64x64x64",
+            "memory budget",
+            "--memory-budget",
+        ],
+    );
+    // A hostile header claiming 4096^3 voxels (256 GiB) is refused before any voxel is read,
+    // under the default budget.
+    let mut header = write_vol(
+        [4096, 4096, 4096],
+        &[],
+        glam::Vec3::splat(-0.5),
+        glam::Vec3::splat(0.5),
+    );
+    header.extend(f32_bytes(&[0.5; 16]));
+    c.write("huge.vol", header);
+    let s = c.scene(&grid_scene("huge.vol", None));
+    c.render_fails(
+        &s,
+        &TINY,
+        &[
+            "scene.toml",
+            "medium.density.file",
+            "huge.vol",
+            "4096x4096x4096",
+            "memory budget",
+        ],
+    );
+}
+
+#[test]
+fn memory_budget_syntax() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--memory-budget", "lots"]].concat(),
+        &["--memory-budget", "lots"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--memory-budget", "0"]].concat(),
+        &["--memory-budget", "positive"],
+    );
+}
+
+// ------------------------------------------------------------------ --set
+
+#[test]
+fn unknown_set_keys() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    let line = c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "medium.albdo=1"]].concat(),
+        &["scene.toml", "medium.albdo", "unknown key"],
+    );
+    assert!(line.contains("albedo"), "no did-you-mean: {line}");
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "path.nope=1"]].concat(),
+        &["--set path.nope", "unknown setting", "path"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "single.step=0.01"]].concat(),
+        &["--set single.step", "solver single", "solver path"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "nope=1"]].concat(),
+        &["--set nope", "unknown key"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "mesh.file=1"]].concat(),
+        &["--set mesh.file", "unknown key"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "light[3].intensity=1"]].concat(),
+        &["scene.toml", "light[3]", "does not exist"],
+    );
+    // The other way round: a path knob while rendering with single.
+    c.render_fails(
+        &s,
+        &[
+            &TINY[..],
+            &["--solver", "single", "--set", "path.max_depth=1"],
+        ]
+        .concat(),
+        &["--set path.max_depth", "solver path", "solver single"],
+    );
+}
+
+#[test]
+fn bad_set_syntax() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "medium.albedo"]].concat(),
+        &["--set", "medium.albedo", "KEY=VALUE"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "=0.5"]].concat(),
+        &["--set", "KEY=VALUE"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "medium.albedo=[0.5,"]].concat(),
+        &["scene.toml", "medium.albedo", "not a TOML value"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "medium.albedo=2"]].concat(),
+        &["scene.toml", "medium.albedo", "outside [0, 1]", "override"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "path.max_depth=lots"]].concat(),
+        &["--set path.max_depth", "unbounded"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "path.batch=lots"]].concat(),
+        &["--set path.batch", "cannot parse", "lots"],
+    );
+}
+
+// ------------------------------------------------------------------ outputs and devices
+
+#[test]
+fn no_output_requested() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    c.fails(
+        [
+            &["render", s.to_str().unwrap(), "--validate", "-q"][..],
+            &TINY[..],
+        ]
+        .concat(),
+        &["no output requested", "--out"],
+    );
+}
+
+#[test]
+fn output_directory_missing() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    for (flag, name) in [("--out", "x.exr"), ("--png", "x.png"), ("--json", "x.json")] {
+        let p = c.path(&format!("missing/{name}"));
+        c.fails(
+            [
+                &[
+                    "render",
+                    s.to_str().unwrap(),
+                    "--validate",
+                    "-q",
+                    flag,
+                    p.to_str().unwrap(),
+                ][..],
+                &TINY[..],
+            ]
+            .concat(),
+            &[flag, "missing", "does not exist"],
+        );
+    }
+    // With the other outputs valid, nothing is written either.
+    let p = c.path("missing/x.json");
+    let out = c.path("out/x.exr");
+    c.fails(
+        [
+            &[
+                "render",
+                s.to_str().unwrap(),
+                "--validate",
+                "-q",
+                "--out",
+                out.to_str().unwrap(),
+                "--json",
+                p.to_str().unwrap(),
+            ][..],
+            &TINY[..],
+        ]
+        .concat(),
+        &["--json", "missing", "does not exist"],
+    );
+}
+
+#[test]
+fn output_with_wrong_extension() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    for (flag, name, want) in [
+        ("--out", "out/x.png", ".exr"),
+        ("--png", "out/x.jpg", ".png"),
+        ("--json", "out/x.txt", ".json"),
+        ("--out", "out/x", ".exr"),
+    ] {
+        let p = c.path(name);
+        c.fails(
+            [
+                &[
+                    "render",
+                    s.to_str().unwrap(),
+                    "--validate",
+                    "-q",
+                    flag,
+                    p.to_str().unwrap(),
+                ][..],
+                &TINY[..],
+            ]
+            .concat(),
+            &[flag, name, want],
+        );
+    }
+}
+
+/// Errors whose cause is an I/O or decoder error must say it once. Today the scene-file and
+/// EXR errors embed their source in their own message and the CLI appends the source chain
+/// (`{e:#}`) again, e.g. `nope.toml: cannot read scene file: No such file or directory (os
+/// error 2): No such file or directory (os error 2)`.
+#[test]
+#[ignore = "CLI defect: I/O and EXR errors repeat their cause (`{e:#}` appends the source the message already contains); see report"]
+fn errors_name_their_cause_once() {
+    let c = Case::new();
+    let args = c.render_args(&c.path("nope.toml"), &TINY);
+    c.fails(
+        args,
+        &["nope.toml", "cannot read scene file", "No such file"],
+    );
+    let missing = c.path("nope.toml");
+    c.fails(
+        ["scene", "info", missing.to_str().unwrap()],
+        &["nope.toml", "cannot read scene file"],
+    );
+    let a = c.path("a.exr");
+    write_exr(&a, &[("", &gradient(8, 8))]).expect("write a.exr");
+    let missing = c.path("missing.exr");
+    c.fails(
+        ["compare", a.to_str().unwrap(), missing.to_str().unwrap()],
+        &["missing.exr", "No such file"],
+    );
+    let junk = c.write("junk.exr", "this is not an image\n");
+    c.fails(
+        ["compare", junk.to_str().unwrap(), a.to_str().unwrap()],
+        &["junk.exr", "EXR"],
+    );
+}
+
+/// An empty (fully truncated) grid file should be called empty, not "not a .vol file ...
+/// add dims" (which sends the user after the wrong fix).
+#[test]
+#[ignore = "CLI defect: an empty grid file is reported as 'not a Mitsuba .vol file ... add dims' instead of empty/truncated; see report"]
+fn empty_grid_file_is_called_empty() {
+    let c = Case::new();
+    c.write("cut.vol", b"");
+    let s = c.scene(&grid_scene("cut.vol", None));
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "medium.density.file", "cut.vol", "empty"],
+    );
+    c.write("cut.vol", b"VO");
+    c.render_fails(
+        &s,
+        &TINY,
+        &["scene.toml", "medium.density.file", "cut.vol", "truncated"],
+    );
+}
+
+/// A solver knob that does not parse should show the value it got.
+#[test]
+#[ignore = "CLI defect: `--set path.max_depth=lots` says 'invalid digit found in string' without the value; see report"]
+fn bad_solver_knob_value_is_shown() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--set", "path.max_depth=lots"]].concat(),
+        &["--set path.max_depth", "lots", "unbounded"],
+    );
+}
+
+/// An output that can only fail when written (a folder sits where the JSON should go): the
+/// images written before it must not stay behind as if the render had succeeded.
+#[test]
+#[ignore = "CLI defect: outputs are written one by one, so a failure writing --json leaves --out/--png behind; see report"]
+fn late_output_failure_leaves_nothing_behind() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    fs::create_dir(c.path("out/x.json")).expect("dir");
+    let before = c.listing();
+    let out = c.render(&s, &TINY);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(
+        before,
+        c.listing(),
+        "outputs or temporary files left behind after: {stderr}"
+    );
+    one_error_line(&out, &["x.json"]);
+}
+
+#[test]
+fn device_that_does_not_exist() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--device", "nonexistent"]].concat(),
+        &["--device", "nonexistent", "available"],
+    );
+    c.render_fails(
+        &s,
+        &[&TINY[..], &["--device", "99"]].concat(),
+        &["--device", "99", "available"],
+    );
+}
+
+#[test]
+#[ignore = "CLI defect: `devices` accepts --device but ignores it, so a typo passes silently; see report"]
+fn devices_with_device_that_does_not_exist() {
+    let c = Case::new();
+    c.fails(
+        ["devices", "--device", "nonexistent"],
+        &["--device", "nonexistent"],
+    );
+}
+
+// ------------------------------------------------------------------ compare
+
+#[test]
+fn compare_missing_file() {
+    let c = Case::new();
+    let a = c.path("a.exr");
+    write_exr(&a, &[("", &gradient(8, 8))]).expect("write a.exr");
+    let missing = c.path("missing.exr");
+    c.fails_repeating_cause(
+        ["compare", a.to_str().unwrap(), missing.to_str().unwrap()],
+        &["missing.exr", "No such file"],
+    );
+    c.fails_repeating_cause(
+        ["compare", missing.to_str().unwrap(), a.to_str().unwrap()],
+        &["missing.exr", "No such file"],
+    );
+    // Not an EXR at all.
+    let junk = c.write("junk.exr", "this is not an image\n");
+    c.fails_repeating_cause(
+        ["compare", junk.to_str().unwrap(), a.to_str().unwrap()],
+        &["junk.exr", "EXR"],
+    );
+}
+
+#[test]
+#[ignore = "CLI defect: the size-mismatch error of `compare` names neither file; see report"]
+fn compare_images_of_different_sizes_names_the_files() {
+    let c = Case::new();
+    let a = c.path("a.exr");
+    let b = c.path("b.exr");
+    write_exr(&a, &[("", &gradient(16, 16))]).expect("write a.exr");
+    write_exr(&b, &[("", &gradient(8, 8))]).expect("write b.exr");
+    c.fails(
+        ["compare", a.to_str().unwrap(), b.to_str().unwrap()],
+        &["a.exr", "b.exr", "16x16", "8x8"],
+    );
+}
+
+#[test]
+fn compare_images_of_different_sizes() {
+    let c = Case::new();
+    let a = c.path("a.exr");
+    let b = c.path("b.exr");
+    write_exr(&a, &[("", &gradient(16, 16))]).expect("write a.exr");
+    write_exr(&b, &[("", &gradient(8, 8))]).expect("write b.exr");
+    let err = c.path("out/err.png");
+    c.fails(
+        [
+            "compare",
+            a.to_str().unwrap(),
+            b.to_str().unwrap(),
+            "--error-png",
+            err.to_str().unwrap(),
+        ],
+        &["16x16", "8x8", "same resolution"],
+    );
+}
+
+#[test]
+fn compare_error_png_bad_path() {
+    let c = Case::new();
+    let a = c.path("a.exr");
+    write_exr(&a, &[("", &gradient(8, 8))]).expect("write a.exr");
+    let wrong = c.path("out/err.jpg");
+    c.fails(
+        [
+            "compare",
+            a.to_str().unwrap(),
+            a.to_str().unwrap(),
+            "--error-png",
+            wrong.to_str().unwrap(),
+        ],
+        &["--error-png", "err.jpg", ".png"],
+    );
+    let missing = c.path("missing/err.png");
+    c.fails(
+        [
+            "compare",
+            a.to_str().unwrap(),
+            a.to_str().unwrap(),
+            "--error-png",
+            missing.to_str().unwrap(),
+        ],
+        &["--error-png", "missing", "does not exist"],
+    );
+}
+
+#[test]
+fn compare_identical_and_error_png() {
+    let c = Case::new();
+    let a = c.path("a.exr");
+    let b = c.path("b.exr");
+    write_exr(&a, &[("", &gradient(16, 16))]).expect("write a.exr");
+    let mut other = gradient(16, 16);
+    other.data[0] *= 2.0;
+    write_exr(&b, &[("", &other)]).expect("write b.exr");
+
+    let (stdout, _) = succeeded(&c.run(["compare", a.to_str().unwrap(), a.to_str().unwrap()]));
+    let rel = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("relL2"))
+        .unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
+    assert_eq!(
+        rel.trim().parse::<f64>().expect("relL2 number"),
+        0.0,
+        "{stdout}"
+    );
+    assert!(stdout.contains("NaN/Inf"), "{stdout}");
+
+    let (stdout, _) = succeeded(&c.run([
+        "compare",
+        b.to_str().unwrap(),
+        a.to_str().unwrap(),
+        "--json",
+    ]));
+    let m: serde_json::Value =
+        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
+    assert!(m["rel_l2"].as_f64().expect("rel_l2") > 0.0, "{m}");
+    assert_eq!(m["pixels"], 256, "{m}");
+
+    let err = c.path("out/err.png");
+    succeeded(&c.run([
+        "compare",
+        b.to_str().unwrap(),
+        a.to_str().unwrap(),
+        "--error-png",
+        err.to_str().unwrap(),
+    ]));
+    let png = image::open(&err).expect("error PNG decodes");
+    assert_eq!((png.width(), png.height()), (16, 16));
+    assert_eq!(
+        c.listing(),
+        ["a.exr", "b.exr", "out", "out/err.png"],
+        "stray files"
+    );
+}
+
+// ------------------------------------------------------------------ renders that succeed
+
+/// Render the shipped sphere with `solver`, check all three outputs, and compare the EXR
+/// with itself through the CLI.
+fn render_sphere(solver: &str) -> serde_json::Value {
+    let c = Case::new();
+    let (exr, png, json) = (
+        c.path("out/s.exr"),
+        c.path("out/s.png"),
+        c.path("out/s.json"),
+    );
+    let scene = repo("scenes/homogeneous-sphere.toml");
+    let out = c.run(
+        [
+            &[
+                "render",
+                scene.to_str().unwrap(),
+                "--solver",
+                solver,
+                "--validate",
+            ][..],
+            &TINY[..],
+            &[
+                "--out",
+                exr.to_str().unwrap(),
+                "--png",
+                png.to_str().unwrap(),
+                "--json",
+                json.to_str().unwrap(),
+            ][..],
+        ]
+        .concat(),
+    );
+    let (_, stderr) = succeeded(&out);
+    assert!(stderr.contains("wrote"), "no summary:\n{stderr}");
+    assert_eq!(
+        c.listing(),
+        ["out", "out/s.exr", "out/s.json", "out/s.png"],
+        "missing outputs or stray (temporary) files"
+    );
+
+    let img = read_exr(&exr).expect("EXR reads back");
+    assert_eq!((img.width, img.height), (16, 16));
+    assert_eq!(img.nan_inf_count(), 0);
+    assert!(
+        img.mean().iter().all(|m| *m > 0.0),
+        "black image: {:?}",
+        img.mean()
+    );
+    if solver == "path" {
+        let var = read_exr_layer(&exr, "variance").expect("path writes a variance layer");
+        assert_eq!((var.width, var.height), (16, 16));
+    }
+    let p = image::open(&png).expect("PNG decodes");
+    assert_eq!((p.width(), p.height()), (16, 16));
+
+    let doc = read_json(&json);
+    for key in ["device", "solver", "settings", "passes", "gpu_ms", "wall_s"] {
+        assert!(doc.get(key).is_some(), "JSON lacks {key}: {doc}");
+    }
+    assert!(
+        doc["device"].get("mapping").is_some(),
+        "JSON lacks device.mapping: {doc}"
+    );
+    assert_eq!(doc["solver"], solver, "{doc}");
+    assert_eq!(
+        (doc["width"].as_u64(), doc["height"].as_u64()),
+        (Some(16), Some(16)),
+        "{doc}"
+    );
+    assert!(
+        doc["passes"].as_array().is_some_and(|p| !p.is_empty()),
+        "no passes: {doc}"
+    );
+    assert_eq!(doc["validation"]["enabled"], true, "{doc}");
+    assert_eq!(doc["validation"]["errors"], 0, "{doc}");
+
+    // The CLI's compare on its own output.
+    let (stdout, _) = succeeded(&c.run(["compare", exr.to_str().unwrap(), exr.to_str().unwrap()]));
+    let rel = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("relL2"))
+        .unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
+    assert_eq!(
+        rel.trim().parse::<f64>().expect("relL2 number"),
+        0.0,
+        "{stdout}"
+    );
+    doc
+}
+
+#[test]
+fn render_path_writes_exr_png_json() {
+    let doc = render_sphere("path");
+    assert_eq!(doc["settings"]["spp"], 4, "--spp not applied: {doc}");
+}
+
+#[test]
+fn render_single_writes_exr_png_json() {
+    render_sphere("single");
+}
+
+#[test]
+fn render_over_existing_outputs_replaces_them() {
+    let c = Case::new();
+    let s = c.scene(BASE);
+    for name in ["out/x.exr", "out/x.png", "out/x.json"] {
+        fs::write(c.path(name), "old").expect("old file");
+    }
+    succeeded(&c.render(&s, &TINY));
+    assert_eq!(read_exr(&c.path("out/x.exr")).expect("new EXR").width, 16);
+    read_json(&c.path("out/x.json"));
+    assert_eq!(
+        c.listing(),
+        ["out", "out/x.exr", "out/x.json", "out/x.png", "scene.toml"],
+        "stray files"
+    );
+}
+
+#[test]
+fn render_grid_scene_within_budget() {
+    let c = Case::new();
+    c.cloud_grid();
+    let s = c.scene(&grid_scene("cloud64.vol", None));
+    succeeded(&c.render(&s, &[&TINY[..], &["--memory-budget", "2M"]].concat()));
+    let doc = read_json(&c.path("out/x.json"));
+    assert_eq!(doc["validation"]["errors"], 0, "{doc}");
+}
+
+// ------------------------------------------------------------------ devices, scene info, help
+
+#[test]
+fn devices_lists_a_device_and_its_roles() {
+    let c = Case::new();
+    let (stdout, _) = succeeded(&c.run(["devices"]));
+    assert!(
+        stdout.lines().any(|l| l.starts_with("[0] ")),
+        "no device listed:\n{stdout}"
+    );
+    assert!(stdout.contains("roles: "), "no role mapping:\n{stdout}");
+    assert!(stdout.contains("family 0:"), "no queue families:\n{stdout}");
+    assert!(
+        stdout.contains("usable: yes"),
+        "no usable device:\n{stdout}"
+    );
+}
+
+#[test]
+fn devices_json_parses() {
+    let c = Case::new();
+    let (stdout, _) = succeeded(&c.run(["devices", "--json"]));
+    let v: serde_json::Value =
+        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
+    let list = v.as_array().unwrap_or_else(|| panic!("not an array: {v}"));
+    assert!(!list.is_empty(), "no devices: {v}");
+    for key in [
+        "index",
+        "name",
+        "device_type",
+        "queue_families",
+        "mapping",
+        "missing",
+    ] {
+        assert!(list[0].get(key).is_some(), "device lacks {key}: {v}");
+    }
+    assert!(
+        list.iter().any(|d| d["mapping"].is_object()),
+        "no device has a role mapping: {v}"
+    );
+}
+
+#[test]
+fn scene_info_cloud() {
+    let c = Case::new();
+    let scene = repo("scenes/cloud.toml");
+    let (stdout, _) = succeeded(&c.run(["scene", "info", scene.to_str().unwrap()]));
+    assert!(stdout.contains("64 x 64 x 64"), "no grid dims:\n{stdout}");
+    for solver in ["path", "single"] {
+        assert!(
+            stdout
+                .lines()
+                .any(|l| l.trim_start().starts_with(solver) && l.contains("MiB")),
+            "no memory for {solver}:\n{stdout}"
+        );
+    }
+    assert!(stdout.contains("anisotropic  yes"), "{stdout}");
+
+    let (stdout, _) = succeeded(&c.run(["scene", "info", scene.to_str().unwrap(), "--json"]));
+    let v: serde_json::Value =
+        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
+    assert_eq!(v["grid_dims"], serde_json::json!([64, 64, 64]), "{v}");
+    for solver in ["path", "single"] {
+        assert!(
+            v["device_bytes"][solver]
+                .as_u64()
+                .is_some_and(|b| b > 1 << 20),
+            "{v}"
+        );
+    }
+}
+
+#[test]
+fn scene_info_bad_scene() {
+    let c = Case::new();
+    let s = c.scene(&with("g = 0.0", "g = 1.0"));
+    c.fails(
+        ["scene", "info", s.to_str().unwrap()],
+        &["scene.toml", "medium.g", "(-1, 1)"],
+    );
+    c.fails(
+        ["scene", "info", s.to_str().unwrap(), "--set", "medium.g"],
+        &["--set", "KEY=VALUE"],
+    );
+    let missing = c.path("nope.toml");
+    c.fails_repeating_cause(
+        ["scene", "info", missing.to_str().unwrap()],
+        &["nope.toml", "cannot read scene file"],
+    );
+}
+
+#[test]
+fn help_and_version() {
+    let c = Case::new();
+    let (stdout, _) = succeeded(&c.run(["--help"]));
+    for word in ["render", "compare", "devices", "scene"] {
+        assert!(stdout.contains(word), "--help lacks {word}:\n{stdout}");
+    }
+    let (stdout, _) = succeeded(&c.run(["render", "--help"]));
+    for word in [
+        "--solver",
+        "--set",
+        "--out",
+        "--png",
+        "--json",
+        "--memory-budget",
+        "--validate",
+        "--device",
+    ] {
+        assert!(
+            stdout.contains(word),
+            "render --help lacks {word}:\n{stdout}"
+        );
+    }
+    let (stdout, _) = succeeded(&c.run(["--version"]));
+    assert!(stdout.contains(env!("CARGO_PKG_VERSION")), "{stdout}");
+}
+
+#[test]
+fn usage_errors_exit_nonzero_without_panic() {
+    let c = Case::new();
+    // clap's own errors are several lines (usage); only check they fail cleanly with status 2.
+    for args in [
+        &["render"][..],
+        &["render", "x.toml", "--solver", "nope"],
+        &["frobnicate"],
+        &["render", "x.toml", "--spp", "-1"],
+        &[],
+    ] {
+        let out = c.run(args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+        // No arguments at all prints the help (to stderr) rather than an error line.
+        if !args.is_empty() {
+            assert!(stderr.starts_with("error: "), "{args:?}: {stderr}");
+        }
+    }
+}
