@@ -218,17 +218,6 @@ impl Case {
         self.fails_with(|| self.run(args), needles, Cause::Once)
     }
 
-    /// [`Case::fails`], but tolerating an error that repeats its cause (a known defect,
-    /// pinned by the ignored `errors_name_their_cause_once`; use `fails` once it is fixed).
-    #[track_caller]
-    fn fails_repeating_cause<I, S>(&self, args: I, needles: &[&str]) -> String
-    where
-        I: IntoIterator<Item = S>,
-        S: AsRef<OsStr>,
-    {
-        self.fails_with(|| self.run(args), needles, Cause::MayRepeat)
-    }
-
     /// [`Case::render`] of `scene` with `extra`, expected to fail like [`Case::fails`].
     #[track_caller]
     fn render_fails(&self, scene: &Path, extra: &[&str], needles: &[&str]) -> String {
@@ -257,12 +246,11 @@ impl Case {
     }
 }
 
-/// Whether an error line may name the same cause twice (`...: No such file or directory (os
-/// error 2): No such file or directory (os error 2)`).
+/// How often an error line may name its cause: once (`...: No such file or directory (os
+/// error 2): No such file or directory (os error 2)` fails).
 #[derive(Clone, Copy, PartialEq)]
 enum Cause {
     Once,
-    MayRepeat,
 }
 
 /// A part of an error line (between `: ` / `; `) long enough to mean something that occurs
@@ -411,7 +399,7 @@ fn missing_keys_and_wrong_types_name_the_field() {
 fn scene_file_missing() {
     let c = Case::new();
     let args = c.render_args(&c.path("nope.toml"), &TINY);
-    c.fails_repeating_cause(
+    c.fails(
         args,
         &["nope.toml", "cannot read scene file", "No such file"],
     );
@@ -633,12 +621,8 @@ fn zero_size_image() {
         &["--set", "render.width=0", "--spp", "4"],
         &["scene.toml", "render.width", "out of range", "override"],
     );
-    // Zero samples per pixel.
-    c.render_fails(
-        &s,
-        &["--spp", "0"],
-        &["scene.toml", "render.spp", "out of range"],
-    );
+    // Zero samples per pixel: the message names the flag the user typed.
+    c.render_fails(&s, &["--spp", "0"], &["--spp 0", "at least 1"]);
 }
 
 #[test]
@@ -925,7 +909,6 @@ fn output_with_wrong_extension() {
 /// (`{e:#}`) again, e.g. `nope.toml: cannot read scene file: No such file or directory (os
 /// error 2): No such file or directory (os error 2)`.
 #[test]
-#[ignore = "CLI defect: I/O and EXR errors repeat their cause (`{e:#}` appends the source the message already contains); see report"]
 fn errors_name_their_cause_once() {
     let c = Case::new();
     let args = c.render_args(&c.path("nope.toml"), &TINY);
@@ -955,7 +938,6 @@ fn errors_name_their_cause_once() {
 /// An empty (fully truncated) grid file should be called empty, not "not a .vol file ...
 /// add dims" (which sends the user after the wrong fix).
 #[test]
-#[ignore = "CLI defect: an empty grid file is reported as 'not a Mitsuba .vol file ... add dims' instead of empty/truncated; see report"]
 fn empty_grid_file_is_called_empty() {
     let c = Case::new();
     c.write("cut.vol", b"");
@@ -975,7 +957,6 @@ fn empty_grid_file_is_called_empty() {
 
 /// A solver knob that does not parse should show the value it got.
 #[test]
-#[ignore = "CLI defect: `--set path.max_depth=lots` says 'invalid digit found in string' without the value; see report"]
 fn bad_solver_knob_value_is_shown() {
     let c = Case::new();
     let s = c.scene(BASE);
@@ -989,7 +970,6 @@ fn bad_solver_knob_value_is_shown() {
 /// An output that can only fail when written (a folder sits where the JSON should go): the
 /// images written before it must not stay behind as if the render had succeeded.
 #[test]
-#[ignore = "CLI defect: outputs are written one by one, so a failure writing --json leaves --out/--png behind; see report"]
 fn late_output_failure_leaves_nothing_behind() {
     let c = Case::new();
     let s = c.scene(BASE);
@@ -1022,7 +1002,6 @@ fn device_that_does_not_exist() {
 }
 
 #[test]
-#[ignore = "CLI defect: `devices` accepts --device but ignores it, so a typo passes silently; see report"]
 fn devices_with_device_that_does_not_exist() {
     let c = Case::new();
     c.fails(
@@ -1039,24 +1018,23 @@ fn compare_missing_file() {
     let a = c.path("a.exr");
     write_exr(&a, &[("", &gradient(8, 8))]).expect("write a.exr");
     let missing = c.path("missing.exr");
-    c.fails_repeating_cause(
+    c.fails(
         ["compare", a.to_str().unwrap(), missing.to_str().unwrap()],
         &["missing.exr", "No such file"],
     );
-    c.fails_repeating_cause(
+    c.fails(
         ["compare", missing.to_str().unwrap(), a.to_str().unwrap()],
         &["missing.exr", "No such file"],
     );
     // Not an EXR at all.
     let junk = c.write("junk.exr", "this is not an image\n");
-    c.fails_repeating_cause(
+    c.fails(
         ["compare", junk.to_str().unwrap(), a.to_str().unwrap()],
         &["junk.exr", "EXR"],
     );
 }
 
 #[test]
-#[ignore = "CLI defect: the size-mismatch error of `compare` names neither file; see report"]
 fn compare_images_of_different_sizes_names_the_files() {
     let c = Case::new();
     let a = c.path("a.exr");
@@ -1382,7 +1360,7 @@ fn scene_info_bad_scene() {
         &["--set", "KEY=VALUE"],
     );
     let missing = c.path("nope.toml");
-    c.fails_repeating_cause(
+    c.fails(
         ["scene", "info", missing.to_str().unwrap()],
         &["nope.toml", "cannot read scene file"],
     );

@@ -1,9 +1,9 @@
 //! What each subcommand does, in terms of the library's layers.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
@@ -78,6 +78,9 @@ fn check_output_path(p: &Path, what: &str, ext: &[&str]) -> Result<()> {
             bail!("{what} {}: directory {} does not exist; create it first", p.display(), dir.display());
         }
     }
+    if p.is_dir() {
+        bail!("{what} {}: a directory is in the way; choose another file name", p.display());
+    }
     Ok(())
 }
 
@@ -85,6 +88,9 @@ fn render(a: RenderArgs) -> Result<()> {
     let started = Instant::now();
     let mut sets = parse_sets(&a.set)?;
     if let Some(spp) = a.spp {
+        if spp == 0 {
+            bail!("--spp 0: samples per pixel must be at least 1");
+        }
         sets.push(("render.spp".into(), spp.to_string()));
     }
     if let Some(d) = a.max_depth {
@@ -148,38 +154,68 @@ fn render(a: RenderArgs) -> Result<()> {
         bail!("solver {} produced {nonfinite} NaN/Inf values; nothing written (this is a bug: please report the scene)", a.solver.name());
     }
 
-    if let Some(p) = &a.out {
-        let mut layers: Vec<(&str, &output::Image)> = vec![("", &out.image)];
-        if let Some(v) = &out.variance {
-            layers.push(("variance", v));
+    // Every output is first written under a staging name beside its final one; only when all
+    // of them are written are they renamed into place, so a failure (disk full, a directory in
+    // the way) never leaves some outputs behind as if the render had succeeded.
+    let mut staged: Vec<(PathBuf, PathBuf)> = Vec::new();
+    let result = (|| -> Result<()> {
+        let r = &out.report;
+        if let Some(p) = &a.out {
+            let tmp = staging_path(p);
+            staged.push((tmp.clone(), p.clone()));
+            let mut layers: Vec<(&str, &output::Image)> = vec![("", &out.image)];
+            if let Some(v) = &out.variance {
+                layers.push(("variance", v));
+            }
+            output::write_exr(&tmp, &layers)?;
         }
-        output::write_exr(p, &layers)?;
-    }
-    if let Some(p) = &a.png {
-        output::write_png_tonemapped(p, &out.image, a.exposure)?;
+        if let Some(p) = &a.png {
+            let tmp = staging_path(p);
+            staged.push((tmp.clone(), p.clone()));
+            output::write_png_tonemapped(&tmp, &out.image, a.exposure)?;
+        }
+        if let Some(p) = &a.json {
+            let tmp = staging_path(p);
+            staged.push((tmp.clone(), p.clone()));
+            let doc = json!({
+                "scatterlab": env!("CARGO_PKG_VERSION"),
+                "scene": a.scene.display().to_string(),
+                "width": scene.render.width,
+                "height": scene.render.height,
+                "device": info,
+                "solver": r.solver,
+                "settings": r.settings,
+                "modelled": r.modelled,
+                "device_bytes": r.device_bytes,
+                "gpu_ms": r.gpu_ms,
+                "wall_s": wall_s,
+                "passes": r.passes,
+                "stats": r.stats,
+                "warnings": r.warnings,
+                "validation": { "enabled": gpu.validation_enabled(), "errors": gpu.validation_errors() },
+                "image_mean": out.image.mean(),
+            });
+            output::write_json(&tmp, &doc)?;
+        }
+        let mut placed: Vec<&PathBuf> = Vec::new();
+        for (tmp, fin) in &staged {
+            if let Err(e) = std::fs::rename(tmp, fin) {
+                for p in placed {
+                    let _ = std::fs::remove_file(p);
+                }
+                bail!("cannot move the finished output into place as {}: {e}; nothing was written", fin.display());
+            }
+            placed.push(fin);
+        }
+        Ok(())
+    })();
+    if let Err(e) = result {
+        for (tmp, _) in &staged {
+            let _ = std::fs::remove_file(tmp);
+        }
+        return Err(e);
     }
     let r = &out.report;
-    if let Some(p) = &a.json {
-        let doc = json!({
-            "scatterlab": env!("CARGO_PKG_VERSION"),
-            "scene": a.scene.display().to_string(),
-            "width": scene.render.width,
-            "height": scene.render.height,
-            "device": info,
-            "solver": r.solver,
-            "settings": r.settings,
-            "modelled": r.modelled,
-            "device_bytes": r.device_bytes,
-            "gpu_ms": r.gpu_ms,
-            "wall_s": wall_s,
-            "passes": r.passes,
-            "stats": r.stats,
-            "warnings": r.warnings,
-            "validation": { "enabled": gpu.validation_enabled(), "errors": gpu.validation_errors() },
-            "image_mean": out.image.mean(),
-        });
-        output::write_json(p, &doc)?;
-    }
     for w in &r.warnings {
         eprintln!("warning: {w}");
     }
@@ -199,9 +235,28 @@ fn render(a: RenderArgs) -> Result<()> {
     Ok(())
 }
 
+/// `dir/.name.partial.ext`: same directory (so the final rename is atomic), same extension
+/// (so writers that look at it still work), hidden.
+fn staging_path(p: &Path) -> PathBuf {
+    let name = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = p.extension().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    p.with_file_name(format!(".{name}.partial.{ext}"))
+}
+
 fn compare(a: CompareArgs) -> Result<()> {
     let x = output::read_exr(&a.a)?;
     let r = output::read_exr(&a.b)?;
+    if (x.width, x.height) != (r.width, r.height) {
+        bail!(
+            "{} is {}x{} but the reference {} is {}x{}; render both at the same resolution",
+            a.a.display(),
+            x.width,
+            x.height,
+            a.b.display(),
+            r.width,
+            r.height
+        );
+    }
     let m = output::compare(&x, &r)?;
     if let Some(p) = &a.error_png {
         check_output_path(p, "--error-png", &["png"])?;
@@ -229,9 +284,10 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&list)?);
         return Ok(());
     }
-    let _ = gpu;
+    let chosen = pick_device(&list, gpu.device.as_deref().or(std::env::var(crate::gpu::ENV_DEVICE).ok().as_deref()).filter(|s| !s.is_empty()))?;
     for d in &list {
-        println!("[{}] {} ({}, Vulkan {})", d.index, d.name, d.device_type, d.api_version);
+        let mark = if Some(d.index) == chosen { "  <- scatterlab would use this one" } else { "" };
+        println!("[{}] {} ({}, Vulkan {}){mark}", d.index, d.name, d.device_type, d.api_version);
         for f in &d.queue_families {
             let mut caps = Vec::new();
             if f.graphics {
@@ -258,9 +314,14 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
     Ok(())
 }
 
+/// The device `Gpu::new` would open for `wanted` (same rule), or an error if none matches.
+fn pick_device(list: &[crate::gpu::DeviceSummary], wanted: Option<&str>) -> Result<Option<usize>> {
+    Ok(crate::gpu::choose_device(list, wanted)?)
+}
+
 fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     let sets = parse_sets(sets)?;
-    let scene = Scene::load(path, &sets, &LoadOptions::default()).with_context(|| "scene info".to_string())?;
+    let scene = Scene::load(path, &sets, &LoadOptions::default())?;
     let f = scene.features();
     let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
     if as_json {

@@ -133,8 +133,9 @@ pub fn main() -> i32 {
     match commands::run(cli) {
         Ok(()) => 0,
         Err(e) => {
-            // One line: the chain joined, so a wrapped error keeps its file and field.
-            let msg = format!("{e:#}").replace('\n', " ");
+            // One line. The library's errors already carry their cause in their own text, so
+            // print the top-level message only (`{:#}` would repeat the cause).
+            let msg = format!("{e}").replace('\n', " ");
             eprintln!("error: {msg}");
             1
         }

@@ -168,16 +168,6 @@ fn cstr_array(raw: &[std::ffi::c_char]) -> String {
     String::from_utf8_lossy(&bytes).into_owned()
 }
 
-fn type_rank(t: vk::PhysicalDeviceType) -> u32 {
-    match t {
-        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
-        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
-        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
-        vk::PhysicalDeviceType::CPU => 3,
-        _ => 4,
-    }
-}
-
 fn type_name(t: vk::PhysicalDeviceType) -> &'static str {
     match t {
         vk::PhysicalDeviceType::DISCRETE_GPU => "discrete",
@@ -349,35 +339,48 @@ pub fn list_devices() -> Result<Vec<DeviceSummary>> {
     list
 }
 
-fn choose(cands: Vec<Candidate>, wanted: Option<&str>) -> Result<Candidate> {
-    if cands.is_empty() {
+fn type_rank_name(t: &str) -> u32 {
+    match t {
+        "discrete" => 0,
+        "integrated" => 1,
+        "virtual" => 2,
+        "cpu" => 3,
+        _ => 4,
+    }
+}
+
+/// The index of the device `Gpu::new` opens for `wanted` (an index or a case-insensitive name
+/// substring; `None`: the first with everything needed, discrete > integrated > virtual > CPU).
+/// Errors when nothing matches or the match lacks a required feature.
+pub fn choose_device(list: &[DeviceSummary], wanted: Option<&str>) -> Result<Option<usize>> {
+    if list.is_empty() {
         return Err(GpuError::NoDevice);
     }
-    let available = cands.iter().map(|c| format!("{}: {}", c.summary.index, c.summary.name)).collect::<Vec<_>>().join(", ");
     let chosen = match wanted {
         Some(w) => {
             let by_index = w.parse::<usize>().ok();
             let lw = w.to_lowercase();
-            cands
-                .into_iter()
-                .find(|c| Some(c.summary.index) == by_index || c.summary.name.to_lowercase().contains(&lw))
-                .ok_or(GpuError::DeviceNotFound { wanted: w.to_string(), available })?
+            list.iter().find(|c| Some(c.index) == by_index || c.name.to_lowercase().contains(&lw)).ok_or_else(|| GpuError::DeviceNotFound {
+                wanted: w.to_string(),
+                available: list.iter().map(|c| format!("{}: {}", c.index, c.name)).collect::<Vec<_>>().join(", "),
+            })?
         }
-        None => {
-            let mut usable: Vec<Candidate> = cands.into_iter().collect();
-            // Prefer a device with everything we need, then discrete > integrated > virtual > CPU.
-            usable.sort_by_key(|c| (!c.summary.missing.is_empty(), type_rank(c.props.device_type), c.summary.index));
-            usable.into_iter().next().ok_or(GpuError::NoDevice)?
-        }
+        None => list.iter().min_by_key(|c| (!c.missing.is_empty(), type_rank_name(&c.device_type), c.index)).ok_or(GpuError::NoDevice)?,
     };
-    if let Some(first) = chosen.summary.missing.first() {
+    if let Some(first) = chosen.missing.first() {
         return Err(GpuError::MissingFeature {
-            device: chosen.summary.name.clone(),
+            device: chosen.name.clone(),
             feature: first.clone(),
             hint: "update the driver or pick another device with --device (see `scatterlab devices`)".into(),
         });
     }
-    Ok(chosen)
+    Ok(Some(chosen.index))
+}
+
+fn choose(cands: Vec<Candidate>, wanted: Option<&str>) -> Result<Candidate> {
+    let summaries: Vec<DeviceSummary> = cands.iter().map(|c| c.summary.clone()).collect();
+    let index = choose_device(&summaries, wanted)?;
+    cands.into_iter().find(|c| Some(c.summary.index) == index).ok_or(GpuError::NoDevice)
 }
 
 /// The opened GPU: device, allocator, queue roles. Cheap to clone.

@@ -133,6 +133,12 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
         (dims, VOL_HEADER_BYTES)
     } else {
         let Some(given) = req.dims else {
+            if file_len < VOL_HEADER_BYTES {
+                return Err(req.err(format!(
+                    "file is {} ({file_len} bytes): too short for a Mitsuba .vol header ({VOL_HEADER_BYTES} bytes) or any grid; the file is truncated or not a grid",
+                    if file_len == 0 { "empty" } else { "truncated" }
+                )));
+            }
             return Err(req.err(
                 "not a Mitsuba .vol file (no 'VOL' magic) and no dims given; for a raw little-endian f32 grid add dims = [nx, ny, nz]",
             ));

@@ -73,7 +73,10 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let max_depth = if max_depth_raw == "unbounded" {
         UNBOUNDED
     } else {
-        max_depth_raw.parse::<u32>().map_err(|e| SolverError::Setting { key: "path.max_depth".into(), reason: format!("{e}; give a count of scattering events or `unbounded`") })?
+        max_depth_raw.parse::<u32>().map_err(|e| SolverError::Setting {
+            key: "path.max_depth".into(),
+            reason: format!("cannot parse {max_depth_raw:?}: {e}; give a count of scattering events or `unbounded`"),
+        })?
     };
     let default_batch = ((1u64 << 20) / pixels.max(1)).clamp(1, 1024) as u32;
     let batch: u32 = s.get("path", "batch", default_batch)?;
