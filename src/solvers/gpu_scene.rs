@@ -5,7 +5,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use serde::Serialize;
 
-use crate::gpu::{Buffer, Gpu, Image3d, Spec, VolumeFormat};
+use crate::gpu::{Buffer, Gpu, Image3d, Pass, Spec, VolumeFormat};
 use crate::scene::{CameraKind, Density, Light, Scene};
 
 use super::SolverError;
@@ -202,6 +202,12 @@ pub fn scene_bytes(scene: &Scene) -> u64 {
 }
 
 impl GpuScene {
+    /// Bind the scene block, density volume and majorant grid at bindings 0, 1, 2, where every
+    /// kernel that includes scene.glsl declares them.
+    pub fn bind(&self, pass: Pass) -> Pass {
+        pass.read(0, &self.block).read(1, &self.density).read(2, &self.majorant)
+    }
+
     pub fn upload(gpu: &Gpu, scene: &Scene, force_full: bool) -> Result<GpuScene, SolverError> {
         let (header, lights) = scene_block(scene);
         let mut bytes = bytemuck::bytes_of(&header).to_vec();

@@ -102,10 +102,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
         sample_end = sample_end.saturating_add(batch).min(spp);
         let (n, _) = resumable::run_until_done(gpu, "path", &stats, |slot| {
             let push = PathPush { sample_end, budget, seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, max_depth, collision_cap, slot, pad: 0 };
-            Pass::new("path.trace", QueueRole::Trace, &pipeline)
-                .read(0, &gs.block)
-                .read(1, &gs.density)
-                .read(2, &gs.majorant)
+            gs.bind(Pass::new("path.trace", QueueRole::Trace, &pipeline))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
                 .read_write(5, &state)

@@ -80,10 +80,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     (req.progress)(0, 1);
     let (dispatches, st) = resumable::run_until_done(gpu, "single", &stats, |slot| {
         let push = SinglePush { step, shadow_step, env_dirs, jitter, seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, supersample, budget, slot, pad: [0; 3] };
-        Pass::new("single.march", QueueRole::Trace, &pipeline)
-            .read(0, &gs.block)
-            .read(1, &gs.density)
-            .read(2, &gs.majorant)
+        gs.bind(Pass::new("single.march", QueueRole::Trace, &pipeline))
             .write(3, &out)
             .read_write(4, &stats)
             .read_write(5, &state)
