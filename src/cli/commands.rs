@@ -13,6 +13,21 @@ use crate::output;
 use crate::scene::{is_scene_key, LoadOptions, Scene};
 use crate::solvers::{self, RenderRequest, Settings, SolverKind};
 
+/// `println!` that treats a closed stdout (`scatterlab compare ... | head -1`) as the reader
+/// being done: exit quietly with success instead of panicking on EPIPE.
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        if let Err(e) = writeln!(out, $($arg)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            return Err(anyhow!("cannot write to stdout: {e}"));
+        }
+    }};
+}
+
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => render(a),
@@ -263,14 +278,14 @@ fn compare(a: CompareArgs) -> Result<()> {
         output::error_png(p, &x, &r)?;
     }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&m)?);
+        outln!("{}", serde_json::to_string_pretty(&m)?);
     } else {
-        println!("relL2         {:.6}", m.rel_l2);
-        println!("relMSE        {:.6e}", m.rel_mse);
-        println!("RMSE          {:.6e}", m.rmse);
-        println!("energy ratio  {:.6}", m.energy_ratio);
-        println!("max abs error {:.6e}", m.max_abs_error);
-        println!("NaN/Inf       {}", m.nan_inf_count);
+        outln!("relL2         {:.6}", m.rel_l2);
+        outln!("relMSE        {:.6e}", m.rel_mse);
+        outln!("RMSE          {:.6e}", m.rmse);
+        outln!("energy ratio  {:.6}", m.energy_ratio);
+        outln!("max abs error {:.6e}", m.max_abs_error);
+        outln!("NaN/Inf       {}", m.nan_inf_count);
     }
     Ok(())
 }
@@ -281,13 +296,13 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
         bail!("no Vulkan device found; run tools/setup-deps (installs lavapipe, the CPU driver)");
     }
     if as_json {
-        println!("{}", serde_json::to_string_pretty(&list)?);
+        outln!("{}", serde_json::to_string_pretty(&list)?);
         return Ok(());
     }
     let chosen = pick_device(&list, gpu.device.as_deref().or(std::env::var(crate::gpu::ENV_DEVICE).ok().as_deref()).filter(|s| !s.is_empty()))?;
     for d in &list {
         let mark = if Some(d.index) == chosen { "  <- scatterlab would use this one" } else { "" };
-        println!("[{}] {} ({}, Vulkan {}){mark}", d.index, d.name, d.device_type, d.api_version);
+        outln!("[{}] {} ({}, Vulkan {}){mark}", d.index, d.name, d.device_type, d.api_version);
         for f in &d.queue_families {
             let mut caps = Vec::new();
             if f.graphics {
@@ -299,16 +314,16 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
             if f.transfer {
                 caps.push("transfer");
             }
-            println!("    family {}: {} queue(s), {}, timestamps {} bits", f.index, f.queue_count, caps.join("+"), f.timestamp_valid_bits);
+            outln!("    family {}: {} queue(s), {}, timestamps {} bits", f.index, f.queue_count, caps.join("+"), f.timestamp_valid_bits);
         }
         match &d.mapping {
-            Some(m) => println!("    roles: {}", m.describe()),
-            None => println!("    roles: none (no compute queue)"),
+            Some(m) => outln!("    roles: {}", m.describe()),
+            None => outln!("    roles: none (no compute queue)"),
         }
         if d.missing.is_empty() {
-            println!("    usable: yes");
+            outln!("    usable: yes");
         } else {
-            println!("    usable: no, lacks {}", d.missing.join(", "));
+            outln!("    usable: no, lacks {}", d.missing.join(", "));
         }
     }
     Ok(())
@@ -326,7 +341,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
     if as_json {
         let mem: serde_json::Map<String, serde_json::Value> = solvers.iter().map(|(k, b)| (k.name().to_string(), json!(b))).collect();
-        println!(
+        outln!(
             "{}",
             serde_json::to_string_pretty(&json!({
                 "scene": path.display().to_string(),
@@ -338,20 +353,20 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
         return Ok(());
     }
     let yn = |b: bool| if b { "yes" } else { "no" };
-    println!("scene        {}", path.display());
-    println!("image        {} x {}, {} spp, seed {}", scene.render.width, scene.render.height, scene.render.spp, scene.render.seed);
-    println!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
-    println!("chromatic    {}", yn(f.chromatic));
-    println!("homogeneous  {}", yn(f.homogeneous));
-    println!("light inside {}", yn(f.light_inside));
-    println!("environment  {}", yn(f.has_environment));
+    outln!("scene        {}", path.display());
+    outln!("image        {} x {}, {} spp, seed {}", scene.render.width, scene.render.height, scene.render.spp, scene.render.seed);
+    outln!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
+    outln!("chromatic    {}", yn(f.chromatic));
+    outln!("homogeneous  {}", yn(f.homogeneous));
+    outln!("light inside {}", yn(f.light_inside));
+    outln!("environment  {}", yn(f.has_environment));
     match f.grid_dims {
-        Some(d) => println!("grid         {} x {} x {}", d[0], d[1], d[2]),
-        None => println!("grid         none"),
+        Some(d) => outln!("grid         {} x {} x {}", d[0], d[1], d[2]),
+        None => outln!("grid         none"),
     }
-    println!("device memory each solver would allocate:");
+    outln!("device memory each solver would allocate:");
     for (k, b) in solvers {
-        println!("  {:<8} {:>10.2} MiB", k.name(), b as f64 / (1u64 << 20) as f64);
+        outln!("  {:<8} {:>10.2} MiB", k.name(), b as f64 / (1u64 << 20) as f64);
     }
     Ok(())
 }
