@@ -5,6 +5,7 @@
 //! `gpu` is the only module with `unsafe` Vulkan calls and knows nothing of scenes or physics.
 
 pub mod gpu;
+pub mod measure;
 pub mod output;
 pub mod physics;
 pub mod scene;

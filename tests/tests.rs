@@ -9,3 +9,4 @@ mod phase_gpu;
 mod physics_tests;
 mod scene_tests;
 mod solvers;
+mod timeline_tests;

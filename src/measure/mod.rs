@@ -1,0 +1,3 @@
+//! Measurement: what the GPU did and how long it took (timelines, overlap, serial baseline).
+
+pub mod timeline;

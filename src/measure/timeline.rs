@@ -1,0 +1,202 @@
+//! Per-queue GPU timelines from pass timestamps: busy time per queue role, how much of it the
+//! two roles overlapped, the one-queue serial baseline, and a Chrome-trace / Perfetto export.
+//!
+//! Definitions (`../shared/vulkan-notes.md`, "Real GPUs"): a role is *busy* over the union of
+//! its passes' intervals; *overlap* is the time both roles were busy, `|U(trace) ∩ U(diffuse)|`;
+//! the overlap fraction is overlap over `|U(all passes)|`; the *serial* baseline is the sum of
+//! all pass durations (what one queue running the same passes back to back would need).
+//!
+//! All arithmetic is exact on `i128` nanoseconds. Input may be in any order; zero-length passes
+//! are allowed (they count as passes but add no time). A pass whose end precedes its start
+//! (a broken timestamp) is treated as zero-length at its start.
+
+use std::path::Path;
+
+use serde::Serialize;
+use serde_json::{json, Value};
+
+use crate::gpu::{PassTiming, QueueRole};
+use crate::output::{write_json, OutputError};
+
+/// Busy time of one queue role.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct QueueStats {
+    pub role: QueueRole,
+    /// Length of the union of this role's pass intervals, in nanoseconds.
+    pub busy_ns: i128,
+    /// Number of passes on this role (zero-length ones included).
+    pub passes: usize,
+}
+
+/// Summary of a set of pass timings. All times in nanoseconds.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TimelineSummary {
+    /// One entry per role, in [`QueueRole::ALL`] order (trace, diffuse), present even when the
+    /// role ran no pass.
+    pub per_queue: Vec<QueueStats>,
+    /// Earliest start to latest end over all passes; 0 when there are none.
+    pub span_ns: i128,
+    /// Length of the union of all pass intervals (time at least one role was busy).
+    pub union_busy_ns: i128,
+    /// Time both roles were busy: `|U(trace) ∩ U(diffuse)|`.
+    pub overlap_ns: i128,
+    /// `overlap_ns / union_busy_ns` in [0, 1]; 0 when `union_busy_ns` is 0 (never NaN).
+    pub overlap_fraction: f64,
+    /// Sum of all pass durations: what one queue running every pass back to back would need.
+    pub serial_ns: i128,
+}
+
+/// A pass's interval `[start, end)` in ns, with a reversed one collapsed to its start.
+fn interval(t: &PassTiming) -> (i128, i128) {
+    (t.start_ns, t.end_ns.max(t.start_ns))
+}
+
+/// Union of intervals as sorted, disjoint, non-empty intervals (touching ones merged).
+fn union(mut v: Vec<(i128, i128)>) -> Vec<(i128, i128)> {
+    v.retain(|&(s, e)| e > s);
+    v.sort_unstable();
+    let mut out: Vec<(i128, i128)> = Vec::with_capacity(v.len());
+    for (s, e) in v {
+        match out.last_mut() {
+            Some(last) if s <= last.1 => last.1 = last.1.max(e),
+            _ => out.push((s, e)),
+        }
+    }
+    out
+}
+
+/// Total length of a list of disjoint intervals.
+fn length(v: &[(i128, i128)]) -> i128 {
+    v.iter().map(|&(s, e)| e - s).sum()
+}
+
+/// Length of the intersection of two sorted, disjoint interval lists.
+fn intersection_length(a: &[(i128, i128)], b: &[(i128, i128)]) -> i128 {
+    let (mut i, mut j, mut total) = (0, 0, 0i128);
+    while i < a.len() && j < b.len() {
+        let lo = a[i].0.max(b[j].0);
+        let hi = a[i].1.min(b[j].1);
+        if hi > lo {
+            total += hi - lo;
+        }
+        if a[i].1 < b[j].1 {
+            i += 1;
+        } else {
+            j += 1;
+        }
+    }
+    total
+}
+
+/// Busy time per role, overlap between the roles and the serial baseline of `timings`.
+pub fn summarize(timings: &[PassTiming]) -> TimelineSummary {
+    let role_union = |role: QueueRole| {
+        union(
+            timings
+                .iter()
+                .filter(|t| t.role == role)
+                .map(interval)
+                .collect(),
+        )
+    };
+    let unions: Vec<_> = QueueRole::ALL.iter().map(|&r| role_union(r)).collect();
+    let per_queue = QueueRole::ALL
+        .iter()
+        .zip(&unions)
+        .map(|(&role, u)| QueueStats {
+            role,
+            busy_ns: length(u),
+            passes: timings.iter().filter(|t| t.role == role).count(),
+        })
+        .collect();
+    let span_ns = match (
+        timings.iter().map(|t| interval(t).0).min(),
+        timings.iter().map(|t| interval(t).1).max(),
+    ) {
+        (Some(first), Some(last)) => last - first,
+        _ => 0,
+    };
+    let union_busy_ns = length(&union(timings.iter().map(interval).collect()));
+    let overlap_ns = intersection_length(&unions[0], &unions[1]);
+    let overlap_fraction = if union_busy_ns > 0 {
+        overlap_ns as f64 / union_busy_ns as f64
+    } else {
+        0.0
+    };
+    let serial_ns = timings
+        .iter()
+        .map(|t| {
+            let (s, e) = interval(t);
+            e - s
+        })
+        .sum();
+    TimelineSummary {
+        per_queue,
+        span_ns,
+        union_busy_ns,
+        overlap_ns,
+        overlap_fraction,
+        serial_ns,
+    }
+}
+
+/// Process id of the GPU in the Chrome trace.
+pub const TRACE_PID: u32 = 1;
+/// Name of the GPU process in the Chrome trace.
+pub const TRACE_PROCESS_NAME: &str = "scatterlab GPU";
+
+/// Thread id of a role's track in the Chrome trace: 1 = trace, 2 = diffuse.
+pub fn trace_tid(role: QueueRole) -> u32 {
+    match role {
+        QueueRole::Trace => 1,
+        QueueRole::Diffuse => 2,
+    }
+}
+
+/// Nanoseconds to the trace format's microseconds.
+fn us(ns: i128) -> f64 {
+    ns as f64 / 1000.0
+}
+
+/// `timings` as Chrome-trace / Perfetto JSON (the Trace Event Format, JSON object form):
+/// `{"traceEvents": [...], "displayTimeUnit": "ms", "otherData": meta}`.
+///
+/// One process `"scatterlab GPU"` (pid 1) with one track per role: tid 1 = `trace`,
+/// tid 2 = `diffuse`, named by `"ph": "M"` metadata events (`process_name`, `thread_name`,
+/// plus `thread_sort_index` so trace is drawn above diffuse). Each pass is a complete event
+/// (`"ph": "X"`) with `name`, `cat` = role name, `ts` = start minus the earliest start and
+/// `dur` = duration, both in microseconds as floats, and `args` = `{submission, host_clock}`.
+/// Passes are emitted in start order. Viewers expect slices on one track to nest; passes on
+/// one queue whose timestamps partially overlap may be flagged by the viewer.
+pub fn chrome_trace(timings: &[PassTiming], meta: Value) -> Value {
+    let mut events = vec![json!({
+        "name": "process_name", "ph": "M", "pid": TRACE_PID, "args": { "name": TRACE_PROCESS_NAME },
+    })];
+    for role in QueueRole::ALL {
+        let tid = trace_tid(role);
+        events.push(json!({ "name": "thread_name", "ph": "M", "pid": TRACE_PID, "tid": tid, "args": { "name": role.name() } }));
+        events.push(json!({ "name": "thread_sort_index", "ph": "M", "pid": TRACE_PID, "tid": tid, "args": { "sort_index": tid } }));
+    }
+    let t0 = timings.iter().map(|t| t.start_ns).min().unwrap_or(0);
+    let mut order: Vec<&PassTiming> = timings.iter().collect();
+    order.sort_by_key(|t| (t.start_ns, trace_tid(t.role), t.submission));
+    for t in order {
+        let (s, e) = interval(t);
+        events.push(json!({
+            "name": t.name, "cat": t.role.name(), "ph": "X", "pid": TRACE_PID, "tid": trace_tid(t.role),
+            "ts": us(s - t0), "dur": us(e - s),
+            "args": { "submission": t.submission, "host_clock": t.host_clock },
+        }));
+    }
+    json!({ "traceEvents": events, "displayTimeUnit": "ms", "otherData": meta })
+}
+
+/// Write [`chrome_trace`] of `timings` to `path` atomically (open it in ui.perfetto.dev or
+/// chrome://tracing).
+pub fn write_chrome_trace(
+    path: &Path,
+    timings: &[PassTiming],
+    meta: Value,
+) -> Result<(), OutputError> {
+    write_json(path, &chrome_trace(timings, meta))
+}
