@@ -92,6 +92,13 @@ float density_at(vec3 p) {
                mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
 }
 
+// Density with the medium's box applied: 0 outside the bounds (vacuum), for callers that
+// sample anywhere (lattice resampling, photon marching) rather than inside a ray's interval.
+float medium_density(vec3 p) {
+    if (any(lessThan(p, scene.bounds_min.xyz)) || any(greaterThan(p, scene.bounds_max.xyz))) return 0.0;
+    return density_at(p);
+}
+
 // Majorant segments along a ray (pbrt-v4's DDAMajorantIterator): piecewise-constant
 // sigma_maj (1/unit, grey: max over channels) over [t_min, t_max]. Constant and sphere media
 // have one segment with density 1; grids walk a coarse grid of per-cell maximum density.

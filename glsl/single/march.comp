@@ -35,6 +35,9 @@ struct MarchState {
     vec4 sum;      // sum over finished subsamples
 };
 layout(std430, binding = 5) buffer State { MarchState state[]; };
+// Solver `lbl`: the time-integrated lattice energy per voxel ([c * V + v]); the multiply
+// scattered fluence is that over lambda^2 (thesis 4.6.2). Unused (ms_dims.x = 0) for `single`.
+layout(std430, binding = 6) readonly buffer MsVolume { float ms_energy[]; };
 
 layout(push_constant) uniform Push {
     float step;          // camera-ray step, scene units
@@ -49,7 +52,39 @@ layout(push_constant) uniform Push {
     uint pad0;
     uint pad1;
     uint pad2;
+    uvec4 ms_dims;       // lbl: lattice voxels xyz (0: no multiple-scattering volume), w = channels
+    vec4 ms_origin;      // lbl: lattice min corner, w = lambda (voxel edge)
 } pc;
+
+// Multiply scattered radiance arriving at p, per unit sigma_s, from the lattice (thesis 4.6.2):
+// the isotropic part of the field, fluence / (4 pi), with fluence = energy / lambda^2,
+// trilinear between voxel centres.
+vec3 ms_inscatter(vec3 p) {
+    if (pc.ms_dims.x == 0u) return vec3(0.0);
+    ivec3 n = ivec3(pc.ms_dims.xyz);
+    uint V = pc.ms_dims.x * pc.ms_dims.y * pc.ms_dims.z;
+    vec3 g = (p - pc.ms_origin.xyz) / pc.ms_origin.w - 0.5;
+    g = clamp(g, vec3(0.0), vec3(n - 1));
+    ivec3 i0 = ivec3(floor(g));
+    ivec3 i1 = min(i0 + 1, n - 1);
+    vec3 f = g - vec3(i0);
+    vec3 e = vec3(0.0);
+    for (uint c = 0u; c < pc.ms_dims.w; ++c) {
+        iters++;
+        uint base = c * V;
+        float c000 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i0.z))];
+        float c100 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i0.z))];
+        float c010 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i0.z))];
+        float c110 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i0.z))];
+        float c001 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i1.z))];
+        float c101 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i1.z))];
+        float c011 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i1.z))];
+        float c111 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i1.z))];
+        e[c] = mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y), mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
+    }
+    if (pc.ms_dims.w == 1u) e = vec3(e.x);
+    return e * (INV_4PI / (pc.ms_origin.w * pc.ms_origin.w));
+}
 
 float phase_eval(float g, float c) { return ANISOTROPIC ? hg_eval(g, c) : INV_4PI; }
 
@@ -172,7 +207,7 @@ void main() {
         // albedo (1 - e^{-sigma_t dt}), so a thick step never scatters more than it extinguishes.
         vec3 st_ = scene.sigma_t.xyz * density_at(p);
         vec3 seg_T = exp(-st_ * dt);
-        L += T * scene.albedo.xyz * (vec3(1.0) - seg_T) * S;
+        L += T * scene.albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p));
         T *= seg_T;
         S = vec3(0.0);
         j = 0u;

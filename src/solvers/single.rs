@@ -1,8 +1,9 @@
 //! Solver `single`: the direct term by camera-ray marching (glsl/single/march.comp) with shadow
 //! transmittance to each light and the exact phase function; it converges to
-//! `path --set path.max_depth=1` as the step shrinks (tests/solvers.rs).
+//! `path --set path.max_depth=1` as the step shrinks (tests/solvers.rs). The same march is the
+//! view pass of `lbl`, which adds the multiply scattered part from its lattice.
 //!
-//! Knobs (`--set single.KEY=VALUE`):
+//! Knobs (`--set single.KEY=VALUE`; `lbl` reads the same ones as `lbl.KEY`):
 //! - `step`: camera-ray step in scene units (default: 1/128 of the medium's diagonal);
 //! - `shadow_step`: shadow-ray step (default: `step`);
 //! - `env_dirs`: quadrature directions for environment in-scattering (default 64);
@@ -13,12 +14,12 @@
 use bytemuck::{Pod, Zeroable};
 use serde_json::json;
 
-use crate::gpu::{Pass, QueueRole};
+use crate::gpu::{Buffer, Gpu, Pass, QueueRole};
 use crate::output::Image;
+use crate::scene::Scene;
 
 use super::gpu_scene::GpuScene;
-use super::{resumable, shaders, RenderOutput, RenderReport, RenderRequest, SolverError, SolverKind};
-use crate::gpu::Gpu;
+use super::{resumable, shaders, RenderOutput, RenderReport, RenderRequest, Settings, SolverError, SolverKind};
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -33,6 +34,10 @@ pub struct SinglePush {
     pub budget: u32,
     pub slot: u32,
     pub pad: [u32; 3],
+    /// `lbl`: lattice voxels xyz and channels (x = 0: no multiple-scattering volume).
+    pub ms_dims: [u32; 4],
+    /// `lbl`: lattice min corner and voxel edge lambda.
+    pub ms_origin: [f32; 4],
 }
 
 /// Per-pixel resumable march state (`MarchState` in glsl/single/march.comp).
@@ -40,69 +45,144 @@ pub const STATE_BYTES_PER_PIXEL: u64 = 64;
 /// Longest shadow march (steps across the medium's diagonal) a single loop may take.
 pub const MAX_SHADOW_STEPS: f32 = 16384.0;
 
-pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
-    let scene = req.scene;
-    let s = req.settings;
-    let (w, h) = (scene.render.width, scene.render.height);
-    let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
-    let step: f32 = s.get("single", "step", diag / 128.0)?;
-    let shadow_step: f32 = s.get("single", "shadow_step", step)?;
-    let env_dirs: u32 = s.get("single", "env_dirs", 64)?;
-    let supersample: u32 = s.get("single", "supersample", 2)?;
-    let jitter: u32 = s.get("single", "jitter", 0)?;
-    let budget: u32 = s.get("single", "budget", resumable::DEFAULT_BUDGET)?;
-    s.check_all_used("single")?;
-    resumable::check_budget("single.budget", budget)?;
-    for (key, v) in [("single.step", step), ("single.shadow_step", shadow_step)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(SolverError::Setting { key: key.into(), reason: format!("{v} must be a positive length in scene units") });
+/// The camera-ray march's knobs.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewSettings {
+    pub step: f32,
+    pub shadow_step: f32,
+    pub env_dirs: u32,
+    pub supersample: u32,
+    pub jitter: u32,
+    pub budget: u32,
+}
+
+impl ViewSettings {
+    /// Read `<solver>.step` etc., with defaults scaled to the medium.
+    pub fn parse(s: &Settings, solver: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
+        let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
+        let step: f32 = s.get(solver, "step", diag / 128.0)?;
+        let v = ViewSettings {
+            step,
+            shadow_step: s.get(solver, "shadow_step", step)?,
+            env_dirs: s.get(solver, "env_dirs", 64)?,
+            supersample: s.get(solver, "supersample", 2)?,
+            jitter: s.get(solver, "jitter", 0)?,
+            budget: s.get(solver, "budget", resumable::DEFAULT_BUDGET)?,
+        };
+        resumable::check_budget(&format!("{solver}.budget"), v.budget)?;
+        for (key, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
+            if !(x.is_finite() && x > 0.0) {
+                return Err(SolverError::Setting { key: format!("{solver}.{key}"), reason: format!("{x} must be a positive length in scene units") });
+            }
+            // A shadow march runs in one loop (it cannot be split across dispatches), so its
+            // length is bounded; camera-ray steps are resumable and only bounded for sanity.
+            let max_steps = if key == "shadow_step" { MAX_SHADOW_STEPS } else { 1e7 };
+            if diag / x > max_steps {
+                return Err(SolverError::Setting {
+                    key: format!("{solver}.{key}"),
+                    reason: format!("{x} gives over {max_steps} steps across the medium's diagonal {diag}; use a larger step"),
+                });
+            }
         }
-        // A shadow march runs in one loop (it cannot be split across dispatches), so its length
-        // is bounded; camera-ray steps are resumable and only bounded for sanity.
-        let max_steps = if key == "single.shadow_step" { MAX_SHADOW_STEPS } else { 1e7 };
-        if diag / v > max_steps {
-            return Err(SolverError::Setting { key: key.into(), reason: format!("{v} gives over {max_steps} steps across the medium's diagonal {diag}; use a larger step") });
+        if v.env_dirs == 0 || v.supersample == 0 || v.supersample > 16 {
+            return Err(SolverError::Setting { key: format!("{solver}.env_dirs/{solver}.supersample"), reason: "env_dirs must be >= 1 and supersample in 1..=16".into() });
         }
-    }
-    if env_dirs == 0 || supersample == 0 || supersample > 16 {
-        return Err(SolverError::Setting { key: "single.env_dirs/single.supersample".into(), reason: "env_dirs must be >= 1 and supersample in 1..=16".into() });
+        Ok(v)
     }
 
-    let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+    pub fn json(&self) -> serde_json::Value {
+        json!({ "step": self.step, "shadow_step": self.shadow_step, "env_dirs": self.env_dirs, "supersample": self.supersample, "jitter": self.jitter, "budget": self.budget })
+    }
+}
+
+/// A multiply scattered energy volume for the view pass (`lbl`'s lattice result).
+pub struct MsVolume<'a> {
+    pub energy: &'a Buffer,
+    pub dims: [u32; 3],
+    pub channels: u32,
+    pub origin: [f32; 3],
+    pub lambda: f32,
+}
+
+/// What one view march did.
+pub struct ViewResult {
+    pub image: Image,
+    pub dispatches: u64,
+    pub max_loop_iterations: u32,
+    pub nonfinite_pixels: u32,
+    pub device_bytes: u64,
+}
+
+/// March camera rays through the medium: single scattering with the exact phase function,
+/// plus, when `ms` is given, the multiply scattered in-scattering from it.
+pub fn march_view(gpu: &Gpu, scene: &Scene, gs: &GpuScene, v: &ViewSettings, ms: Option<&MsVolume>) -> Result<ViewResult, SolverError> {
+    let (w, h) = (scene.render.width, scene.render.height);
     let pipeline = gpu.pipeline(&shaders::SINGLE_MARCH, &gs.modelled.spec())?;
     let pixels = w as u64 * h as u64;
-    let out = gpu.buffer("single radiance", pixels * 16)?;
+    let out = gpu.buffer("view radiance", pixels * 16)?;
     // Every pixel starts at subsample 0, step 0, with transmittance 1.
-    let init: Vec<[f32; 16]> = vec![[1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]; pixels as usize];
-    let state = gpu.buffer_with("single state", &init)?;
-    let stats = gpu.buffer("single stats", resumable::STATS_WORDS * 4)?;
+    let mut init = [0f32; 16];
+    init[..3].copy_from_slice(&[1.0; 3]);
+    let state = gpu.buffer_with("view state", &vec![init; pixels as usize])?;
+    let stats = gpu.buffer("view stats", resumable::STATS_WORDS * 4)?;
+    let dummy;
+    let (ms_buf, ms_dims, ms_origin) = match ms {
+        Some(m) => (m.energy, [m.dims[0], m.dims[1], m.dims[2], m.channels], [m.origin[0], m.origin[1], m.origin[2], m.lambda]),
+        None => {
+            dummy = gpu.buffer("no ms volume", 4)?;
+            (&dummy, [0; 4], [0.0; 4])
+        }
+    };
     let seed = scene.render.seed;
-    (req.progress)(0, 1);
-    let (dispatches, st) = resumable::run_until_done(gpu, "single", &stats, |slot| {
-        let push = SinglePush { step, shadow_step, env_dirs, jitter, seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, supersample, budget, slot, pad: [0; 3] };
-        gs.bind(Pass::new("single.march", QueueRole::Trace, &pipeline))
+    let (dispatches, st) = resumable::run_until_done(gpu, "view", &stats, |slot| {
+        let push = SinglePush {
+            step: v.step,
+            shadow_step: v.shadow_step,
+            env_dirs: v.env_dirs,
+            jitter: v.jitter,
+            seed_lo: seed as u32,
+            seed_hi: (seed >> 32) as u32,
+            supersample: v.supersample,
+            budget: v.budget,
+            slot,
+            pad: [0; 3],
+            ms_dims,
+            ms_origin,
+        };
+        gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline))
             .write(3, &out)
             .read_write(4, &stats)
             .read_write(5, &state)
+            .read(6, ms_buf)
             .push(&push)
             .cover([w, h, 1])
     })?;
-    (req.progress)(1, 1);
     let px: Vec<[f32; 4]> = gpu.read_buffer_as(&out)?;
     let mut image = Image::new(w, h);
     for (i, p) in px.iter().enumerate() {
         image.data[3 * i..3 * i + 3].copy_from_slice(&p[..3]);
     }
+    Ok(ViewResult { image, dispatches, max_loop_iterations: st[2], nonfinite_pixels: st[0], device_bytes: out.size() + state.size() + stats.size() })
+}
+
+pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
+    let scene = req.scene;
+    let v = ViewSettings::parse(req.settings, "single", scene)?;
+    req.settings.check_all_used("single")?;
+    let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+    (req.progress)(0, 1);
+    let view = march_view(gpu, scene, &gs, &v, None)?;
+    (req.progress)(1, 1);
     let passes = gpu.take_timings();
     let report = RenderReport {
         solver: SolverKind::Single,
-        settings: json!({ "step": step, "shadow_step": shadow_step, "env_dirs": env_dirs, "supersample": supersample, "jitter": jitter, "budget": budget }),
+        settings: v.json(),
         modelled: gs.modelled.clone(),
-        device_bytes: gs.bytes + out.size() + state.size() + stats.size(),
+        device_bytes: gs.bytes + view.device_bytes,
         gpu_ms: super::gpu_ms(&passes),
         passes,
-        stats: json!({ "dispatches": dispatches, "max_loop_iterations": st[2], "nonfinite_pixels": st[0] }),
-        warnings: if st[0] > 0 { vec![format!("{} pixels were not finite and were set to 0 (a bug: please report the scene)", st[0])] } else { Vec::new() },
+        stats: json!({ "dispatches": view.dispatches, "max_loop_iterations": view.max_loop_iterations, "nonfinite_pixels": view.nonfinite_pixels }),
+        warnings: if view.nonfinite_pixels > 0 { vec![format!("{} pixels were not finite and were set to 0 (a bug: please report the scene)", view.nonfinite_pixels)] } else { Vec::new() },
     };
-    Ok(RenderOutput { image, variance: None, report })
+    Ok(RenderOutput { image: view.image, variance: None, report })
 }

@@ -1,0 +1,146 @@
+#version 460
+// lbl/diffuse: Lattice-Boltzmann diffusion of the deposited once-scattered energy (thesis 4.5,
+// eq. 4.4-4.5), blockwise: one workgroup owns a block of B^3 voxels and runs `inner_steps`
+// lattice steps on it in shared memory (thesis Fig. 4.5). Energy that crosses a block face
+// during the dispatch is summed per link and handed to the neighbour block through the state
+// buffer, which it reads at its first step of the next dispatch: the interface buffer of
+// Fig. 4.5, ping-ponged with the state. `inner_steps` = 1 is the global (unblocked) lattice,
+// exactly; more inner steps delay energy at block faces but visit the same voxels, so the
+// time-integrated field converges to the same result (thesis 4.7.2, Fig. 4.7; tested).
+//
+// Per step and channel at voxel v: S = sum_i in_i (arrived), r = rest (deposited);
+//   out_i = (1 - kappa_t) in_i + kappa_s S / 6 + r / 6              (eq. 4.4-4.5)
+//   irradiance(v) += S + r        (time integral of the energy present: the fluence, up to
+//                                  the factor 1/lambda^2 applied in the view pass)
+//   absorbed += (kappa_t - kappa_s) S;  leaked += out_i where v + e_i leaves the lattice.
+#extension GL_GOOGLE_include_directive : require
+#include "../include/lattice.glsl"
+
+layout(constant_id = 4) const uint B = 4u;   // block edge in voxels
+layout(local_size_x_id = 5, local_size_y_id = 5, local_size_z_id = 5) in;
+layout(constant_id = 5) const uint WG = 4u;  // = B (a separate id: local_size_*_id must be one)
+
+layout(std430, binding = 0) readonly buffer Density { float density[]; };  // resampled medium, per voxel
+layout(std430, binding = 1) readonly buffer StateIn { float fin[]; };
+layout(std430, binding = 2) writeonly buffer StateOut { float fout[]; };
+layout(std430, binding = 3) buffer Irradiance { float irr[]; };             // [c * V + v]
+// Per workgroup and channel, Kahan-compensated running sums: absorbed (sum, comp), leaked (sum, comp).
+layout(std430, binding = 4) buffer Tally { vec4 tally[]; };
+
+layout(push_constant) uniform Push {
+    uvec4 dims;          // lattice voxels xyz, w = number of voxels V
+    vec4 sigma_t;        // rgb extinction scale (1/unit), w = lambda (voxel edge, scene units)
+    vec4 albedo;         // rgb, w = g
+    uint inner_steps;
+    uint pad0;
+    uint pad1;
+    uint pad2;
+} pc;
+
+shared float sh_out[6u * NCH * B * B * B];
+shared float sh_red[2u * NCH * B * B * B];
+
+void kahan_add(inout float s, inout float comp, float x) {
+    float y = x - comp;
+    float t = s + y;
+    comp = (t - s) - y;
+    s = t;
+}
+
+void main() {
+    uvec3 n = pc.dims.xyz;
+    uint V = pc.dims.w;
+    ivec3 local = ivec3(gl_LocalInvocationID);
+    ivec3 p = ivec3(gl_WorkGroupID) * int(B) + local;
+    bool inside = lattice_inside(p, n);
+    uint v = inside ? lattice_index(p, n) : 0u;
+    uint li = uint(local.x) + B * (uint(local.y) + B * uint(local.z));
+    uint BB = B * B * B;
+
+    float kt[3], ks[3];
+    float dens = inside ? density[v] : 0.0;
+    for (uint c = 0u; c < NCH; ++c) lattice_kappa(pc.sigma_t[c] * dens, pc.albedo[c], pc.albedo.w, pc.sigma_t.w, kt[c], ks[c]);
+
+    float out_face[6 * 3];   // per link and channel: summed over steps if it crosses the block face
+    float out_last[6 * 3];   // the last step's out, for links staying in the block
+    for (uint k = 0u; k < 18u; ++k) { out_face[k] = 0.0; out_last[k] = 0.0; }
+    float absorbed[3] = float[3](0.0, 0.0, 0.0);
+    float leaked[3] = float[3](0.0, 0.0, 0.0);
+    float irr_add[3] = float[3](0.0, 0.0, 0.0);
+
+    for (uint s = 0u; s < pc.inner_steps; ++s) {
+        for (uint c = 0u; c < NCH; ++c) {
+            float in_[6];
+            float S = 0.0;
+            for (uint i = 1u; i <= 6u; ++i) {
+                ivec3 q = p - LATTICE_DIR[i];
+                ivec3 ql = local - LATTICE_DIR[i];
+                bool in_block = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
+                float x = 0.0;
+                if (s == 0u) {
+                    // First step: everything arrives through the state buffer (in-block links
+                    // from the last step of the previous dispatch, face links summed over it).
+                    if (inside && lattice_inside(q, n)) x = fin[(i * NCH + c) * V + lattice_index(q, n)];
+                } else if (in_block) {
+                    uint qi = uint(ql.x) + B * (uint(ql.y) + B * uint(ql.z));
+                    x = sh_out[((i - 1u) * NCH + c) * BB + qi];
+                }
+                in_[i - 1u] = x;
+                S += x;
+            }
+            float r = (s == 0u && inside) ? fin[c * V + v] : 0.0;
+            irr_add[c] += S + r;
+            absorbed[c] += (kt[c] - ks[c]) * S;
+            for (uint i = 1u; i <= 6u; ++i) {
+                float o = inside ? (1.0 - kt[c]) * in_[i - 1u] + ks[c] * S / 6.0 + r / 6.0 : 0.0;
+                ivec3 ql = local + LATTICE_DIR[i];
+                bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
+                uint k = (i - 1u) * 3u + c;
+                if (stays) out_last[k] = o; else out_face[k] += o;
+                if (inside && !lattice_inside(p + LATTICE_DIR[i], n)) leaked[c] += o;
+            }
+        }
+        // All of this step's outs must be visible before anyone reads them, and all reads of
+        // the previous step's outs must be done before they are overwritten.
+        barrier();
+        for (uint c = 0u; c < NCH; ++c)
+            for (uint i = 1u; i <= 6u; ++i) sh_out[((i - 1u) * NCH + c) * BB + li] = out_last[(i - 1u) * 3u + c];
+        barrier();
+    }
+
+    if (inside) {
+        for (uint c = 0u; c < NCH; ++c) {
+            fout[c * V + v] = 0.0;   // the rest was emitted at the first step
+            for (uint i = 1u; i <= 6u; ++i) {
+                ivec3 ql = local + LATTICE_DIR[i];
+                bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
+                uint k = (i - 1u) * 3u + c;
+                fout[(i * NCH + c) * V + v] = stays ? out_last[k] : out_face[k];
+            }
+            irr[c * V + v] += irr_add[c];
+        }
+    }
+
+    // Workgroup sums of absorbed and leaked energy (tree reduction), kept per workgroup so the
+    // totals are deterministic; the host adds the workgroups up in double precision.
+    for (uint c = 0u; c < NCH; ++c) {
+        sh_red[c * BB + li] = absorbed[c];
+        sh_red[(NCH + c) * BB + li] = leaked[c];
+    }
+    barrier();
+    for (uint stride = BB / 2u; stride > 0u; stride >>= 1u) {
+        if (li < stride) {
+            for (uint k = 0u; k < 2u * NCH; ++k) sh_red[k * BB + li] += sh_red[k * BB + li + stride];
+        }
+        barrier();
+    }
+    if (li == 0u) {
+        uint wg = gl_WorkGroupID.x + gl_NumWorkGroups.x * (gl_WorkGroupID.y + gl_NumWorkGroups.y * gl_WorkGroupID.z);
+        for (uint c = 0u; c < NCH; ++c) {
+            vec4 t = tally[wg * NCH + c];
+            kahan_add(t.x, t.y, sh_red[c * BB]);
+            kahan_add(t.z, t.w, sh_red[(NCH + c) * BB]);
+            tally[wg * NCH + c] = t;
+        }
+    }
+}

@@ -1,0 +1,27 @@
+#version 460
+// lbl/transfer_fixed: the deterministic transfer. Deposits are added as 32-bit fixed-point
+// integers (integer addition is associative, so any order gives the same bits):
+// q = round(deposit * scale), with scale = 2^30 / (largest total source power of a channel),
+// so no voxel's sum can overflow within a round; resolution ~1e-9 of the total power.
+#extension GL_GOOGLE_include_directive : require
+#include "../include/lattice.glsl"
+
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+layout(std430, binding = 0) readonly buffer History { uvec4 rhb[]; };
+layout(std430, binding = 1) buffer Accum { uint acc[]; };   // [c * V + v]
+
+layout(push_constant) uniform Push {
+    uint entries;
+    uint voxels;
+    float scale;
+    uint pad;
+} pc;
+
+void main() {
+    uint e = gl_GlobalInvocationID.x;
+    if (e >= pc.entries) return;
+    uvec4 s = rhb[e];
+    if (s.x == 0xffffffffu) return;
+    vec3 dep = uintBitsToFloat(s.yzw);
+    for (uint c = 0u; c < NCH; ++c) atomicAdd(acc[c * pc.voxels + s.x], uint(dep[c] * pc.scale + 0.5));
+}
