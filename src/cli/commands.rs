@@ -120,8 +120,8 @@ fn render(a: RenderArgs) -> Result<()> {
     let (scene_sets, solver_sets): (Vec<_>, Vec<_>) = sets.into_iter().partition(|(k, _)| is_scene_key(k));
     for (k, _) in &solver_sets {
         let prefix = k.split('.').next().unwrap_or("");
-        if !["path", "single"].contains(&prefix) || !k.contains('.') {
-            bail!("--set {k}: unknown key; scene keys start with render., camera., medium. or light., solver knobs with path. or single.");
+        if !["path", "single", "lbl"].contains(&prefix) || !k.contains('.') {
+            bail!("--set {k}: unknown key; scene keys start with render., camera., medium. or light., solver knobs with path., single. or lbl.");
         }
     }
     // Check outputs before any work, so a typo costs nothing.
@@ -338,7 +338,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     let sets = parse_sets(sets)?;
     let scene = Scene::load(path, &sets, &LoadOptions::default())?;
     let f = scene.features();
-    let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
+    let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single, SolverKind::Lbl].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
     if as_json {
         let mem: serde_json::Map<String, serde_json::Value> = solvers.iter().map(|(k, b)| (k.name().to_string(), json!(b))).collect();
         outln!(

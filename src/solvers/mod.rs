@@ -2,6 +2,7 @@
 //! by describing passes for the `gpu` layer. They never record barriers or semaphore waits.
 
 pub mod gpu_scene;
+pub mod lbl;
 pub mod path;
 pub mod resumable;
 pub mod settings;
@@ -37,6 +38,8 @@ pub enum SolverKind {
     Path,
     /// Single scattering by ray marching: the direct term.
     Single,
+    /// Photon marching + Lattice-Boltzmann diffusion on concurrent queues (thesis ch. 4).
+    Lbl,
 }
 
 impl SolverKind {
@@ -44,6 +47,7 @@ impl SolverKind {
         match self {
             SolverKind::Path => "path",
             SolverKind::Single => "single",
+            SolverKind::Lbl => "lbl",
         }
     }
 }
@@ -84,6 +88,7 @@ pub fn render(gpu: &Gpu, kind: SolverKind, req: &RenderRequest) -> Result<Render
     match kind {
         SolverKind::Path => path::render(gpu, req),
         SolverKind::Single => single::render(gpu, req),
+        SolverKind::Lbl => lbl::render(gpu, req),
     }
 }
 
@@ -94,6 +99,13 @@ pub fn memory_estimate(kind: SolverKind, scene: &Scene) -> u64 {
         + match kind {
             SolverKind::Path => pixels * path::ACCUM_BYTES_PER_PIXEL + resumable::STATS_WORDS * 4,
             SolverKind::Single => pixels * (16 + single::STATE_BYTES_PER_PIXEL) + resumable::STATS_WORDS * 4,
+            SolverKind::Lbl => {
+                // Default knobs: 64 voxels along the longest side, 3 channels at most, 65536
+                // rays per light with 16 history slots, plus the view march.
+                let g = lbl::LatticeGeom::new(scene, 64).voxels();
+                let rays = 65536 * scene.lights.len() as u64;
+                g * 4 * (1 + 2 * 7 * 3 + 3 + 3) + rays * (48 + 16 * 16) + pixels * (16 + single::STATE_BYTES_PER_PIXEL)
+            }
         }
 }
 

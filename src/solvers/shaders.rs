@@ -11,6 +11,13 @@ macro_rules! shader {
 pub const PATH_TRACE: ShaderSource = shader!("path/trace");
 pub const SINGLE_MARCH: ShaderSource = shader!("single/march");
 pub const PROBE_PHASE: ShaderSource = shader!("probe/phase");
+pub const LBL_RESAMPLE: ShaderSource = shader!("lbl/resample");
+pub const LBL_MARCH: ShaderSource = shader!("lbl/march");
+pub const LBL_TRANSFER_FLOAT: ShaderSource = shader!("lbl/transfer_float");
+pub const LBL_TRANSFER_FIXED: ShaderSource = shader!("lbl/transfer_fixed");
+pub const LBL_INJECT: ShaderSource = shader!("lbl/inject");
+pub const LBL_DIFFUSE: ShaderSource = shader!("lbl/diffuse");
 
 /// Every shader, for reflection tests.
-pub const ALL: &[ShaderSource] = &[PATH_TRACE, SINGLE_MARCH, PROBE_PHASE];
+pub const ALL: &[ShaderSource] =
+    &[PATH_TRACE, SINGLE_MARCH, PROBE_PHASE, LBL_RESAMPLE, LBL_MARCH, LBL_TRANSFER_FLOAT, LBL_TRANSFER_FIXED, LBL_INJECT, LBL_DIFFUSE];

@@ -57,26 +57,29 @@ pub struct ViewSettings {
 }
 
 impl ViewSettings {
-    /// Read `<solver>.step` etc., with defaults scaled to the medium.
-    pub fn parse(s: &Settings, solver: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
+    /// Read `<solver>.<prefix>step` etc., with defaults scaled to the medium (`single` uses no
+    /// prefix, `lbl` uses `view_`, its own `step` being the photon-marching step).
+    pub fn parse(s: &Settings, solver: &str, prefix: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
         let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
-        let step: f32 = s.get(solver, "step", diag / 128.0)?;
+        let key = |k: &str| format!("{prefix}{k}");
+        let step: f32 = s.get(solver, &key("step"), diag / 128.0)?;
         let v = ViewSettings {
             step,
-            shadow_step: s.get(solver, "shadow_step", step)?,
-            env_dirs: s.get(solver, "env_dirs", 64)?,
-            supersample: s.get(solver, "supersample", 2)?,
-            jitter: s.get(solver, "jitter", 0)?,
-            budget: s.get(solver, "budget", resumable::DEFAULT_BUDGET)?,
+            shadow_step: s.get(solver, &key("shadow_step"), step)?,
+            env_dirs: s.get(solver, &key("env_dirs"), 64)?,
+            supersample: s.get(solver, &key("supersample"), 2)?,
+            jitter: s.get(solver, &key("jitter"), 0)?,
+            budget: s.get(solver, &key("budget"), resumable::DEFAULT_BUDGET)?,
         };
-        resumable::check_budget(&format!("{solver}.budget"), v.budget)?;
-        for (key, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
+        resumable::check_budget(&format!("{solver}.{}", key("budget")), v.budget)?;
+        for (k, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
+            let key = key(k);
             if !(x.is_finite() && x > 0.0) {
                 return Err(SolverError::Setting { key: format!("{solver}.{key}"), reason: format!("{x} must be a positive length in scene units") });
             }
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
             // length is bounded; camera-ray steps are resumable and only bounded for sanity.
-            let max_steps = if key == "shadow_step" { MAX_SHADOW_STEPS } else { 1e7 };
+            let max_steps = if k == "shadow_step" { MAX_SHADOW_STEPS } else { 1e7 };
             if diag / x > max_steps {
                 return Err(SolverError::Setting {
                     key: format!("{solver}.{key}"),
@@ -85,7 +88,7 @@ impl ViewSettings {
             }
         }
         if v.env_dirs == 0 || v.supersample == 0 || v.supersample > 16 {
-            return Err(SolverError::Setting { key: format!("{solver}.env_dirs/{solver}.supersample"), reason: "env_dirs must be >= 1 and supersample in 1..=16".into() });
+            return Err(SolverError::Setting { key: format!("{solver}.{}/{solver}.{}", key("env_dirs"), key("supersample")), reason: "env_dirs must be >= 1 and supersample in 1..=16".into() });
         }
         Ok(v)
     }
@@ -167,7 +170,7 @@ pub fn march_view(gpu: &Gpu, scene: &Scene, gs: &GpuScene, v: &ViewSettings, ms:
 
 pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
-    let v = ViewSettings::parse(req.settings, "single", scene)?;
+    let v = ViewSettings::parse(req.settings, "single", "", scene)?;
     req.settings.check_all_used("single")?;
     let gs = GpuScene::upload(gpu, scene, req.force_full)?;
     (req.progress)(0, 1);

@@ -1,0 +1,683 @@
+//! Solver `lbl`: photon marching plus Lattice-Boltzmann diffusion (thesis ch. 4), with tracing
+//! and diffusion on separate queue roles synchronised by timeline semaphores.
+//!
+//! Per round n (thesis Fig. 4.1): `march(n)` advances every light ray by `k` steps on the
+//! `trace` role, writing deposits into the Ray History Buffer, while `diffuse(n-1)` runs
+//! lattice iterations on the `diffuse` role; then `transfer(n)` (alone: it reads the history
+//! and writes the lattice) adds the round's deposits to the lattice. After the last round the
+//! lattice iterates until the relative change at sparse probe voxels falls under `tol`, and the
+//! view pass marches camera rays: exact single scattering (as `single`) plus the multiply
+//! scattered light gathered from the lattice's time-integrated field (thesis 4.6.2). The
+//! deposits are the power scattered out of the light beams (the once-scattered source); what
+//! they send straight to the camera is the single-scattering term, and the lattice carries the
+//! rest, so no energy is counted twice.
+//!
+//! Knobs (`--set lbl.KEY=VALUE`): `rays` (per light, default 65536), `k` (history slots per
+//! ray per round, default 16), `step` (marching step, scene units; default half a voxel),
+//! `grid` (lattice voxels along the medium's longest side, default 64), `lattice` (`d3q6`),
+//! `block` (block edge b: 2, 4 or 8; default 4), `block_steps` (lattice steps per dispatch in a
+//! block; 1 = the global lattice; default b), `iters_per_round` (default 8), `tol` (default
+//! 1e-4), `max_iters` (default 20000), `threshold` (default 1e-4), `env_lights` (directional
+//! raymaps standing in for an environment, default 14), `deterministic` (fixed-point transfer),
+//! `schedule` (`concurrent` | `sequential`), and the view march's `view_step`,
+//! `view_shadow_step`, `view_env_dirs`, `view_supersample`, `view_jitter`, `view_budget`.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use serde::Serialize;
+use serde_json::json;
+
+use crate::gpu::{Buffer, Gpu, Pass, QueueRole, Spec, SyncPoint};
+use crate::physics::rng::Pcg32;
+use crate::scene::{Light, Scene};
+
+use super::gpu_scene::GpuScene;
+use super::single::{march_view, MsVolume, ViewSettings};
+use super::{shaders, RenderOutput, RenderReport, RenderRequest, SolverError, SolverKind};
+
+const SPEC_NCH: u32 = 3;
+const SPEC_BLOCK: u32 = 4;
+const SPEC_WG: u32 = 5;
+const SPEC_FIXED: u32 = 6;
+
+/// Whether marching of round n overlaps diffusion of round n-1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Schedule {
+    /// Thesis Fig. 4.1: tracing round n runs while diffusion of round n-1 runs.
+    Concurrent,
+    /// The same passes, each diffusion waiting for the tracing of the same round.
+    Sequential,
+}
+
+impl std::str::FromStr for Schedule {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "concurrent" => Ok(Schedule::Concurrent),
+            "sequential" => Ok(Schedule::Sequential),
+            _ => Err(format!("unknown schedule {s:?}; use concurrent or sequential")),
+        }
+    }
+}
+
+/// One step of the round graph.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    March(u32),
+    Transfer(u32),
+    Diffuse(u32),
+}
+
+/// A submission of the plan: its role, what it runs, and the earlier submissions (by index)
+/// it waits on. Indices always point backwards: the host-order rule by construction.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Planned {
+    pub role: QueueRole,
+    pub step: Step,
+    pub waits: Vec<usize>,
+}
+
+/// The round graph for `rounds` marching rounds (thesis Fig. 4.1). Both schedules contain the
+/// same steps on the same roles; `Sequential` only adds a wait of every diffusion on the
+/// marching of the same round, removing the overlap.
+pub fn plan(rounds: u32, schedule: Schedule) -> Vec<Planned> {
+    let mut p: Vec<Planned> = Vec::new();
+    if rounds == 0 {
+        return p;
+    }
+    p.push(Planned { role: QueueRole::Trace, step: Step::March(0), waits: vec![] });
+    p.push(Planned { role: QueueRole::Diffuse, step: Step::Transfer(0), waits: vec![0] });
+    let mut transfer_prev = 1;
+    for n in 1..rounds {
+        // March n overwrites the history that transfer n-1 reads.
+        p.push(Planned { role: QueueRole::Trace, step: Step::March(n), waits: vec![transfer_prev] });
+        let march = p.len() - 1;
+        // Diffuse n-1 follows transfer n-1 in its own queue's order.
+        let waits = match schedule {
+            Schedule::Concurrent => vec![],
+            Schedule::Sequential => vec![march],
+        };
+        p.push(Planned { role: QueueRole::Diffuse, step: Step::Diffuse(n - 1), waits });
+        p.push(Planned { role: QueueRole::Diffuse, step: Step::Transfer(n), waits: vec![march] });
+        transfer_prev = p.len() - 1;
+    }
+    p.push(Planned { role: QueueRole::Diffuse, step: Step::Diffuse(rounds - 1), waits: vec![] });
+    p
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GeomPush {
+    dims: [u32; 4],
+    origin: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct MarchPush {
+    dims: [u32; 4],
+    origin: [f32; 4],
+    step: f32,
+    threshold: f32,
+    k: u32,
+    max_steps: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct TransferPush {
+    entries: u32,
+    voxels: u32,
+    scale: f32,
+    pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct InjectPush {
+    voxels: u32,
+    inv_scale: f32,
+    pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct DiffusePush {
+    dims: [u32; 4],
+    sigma_t: [f32; 4],
+    albedo: [f32; 4],
+    inner_steps: u32,
+    pad: [u32; 3],
+}
+
+/// Push-constant sizes of the lbl kernels, for the reflection test.
+pub fn push_sizes() -> [(crate::gpu::ShaderSource, usize); 6] {
+    [
+        (shaders::LBL_RESAMPLE, std::mem::size_of::<GeomPush>()),
+        (shaders::LBL_MARCH, std::mem::size_of::<MarchPush>()),
+        (shaders::LBL_TRANSFER_FLOAT, std::mem::size_of::<TransferPush>()),
+        (shaders::LBL_TRANSFER_FIXED, std::mem::size_of::<TransferPush>()),
+        (shaders::LBL_INJECT, std::mem::size_of::<InjectPush>()),
+        (shaders::LBL_DIFFUSE, std::mem::size_of::<DiffusePush>()),
+    ]
+}
+
+/// One light ray's start: position, unit direction, power per channel (W).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct RayInit {
+    pub pos_steps: [f32; 4],
+    pub dir_alive: [f32; 4],
+    pub power: [f32; 4],
+}
+
+/// The lattice: `dims` cubic voxels of edge `lambda` from `origin` (the medium's min corner).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct LatticeGeom {
+    pub dims: [u32; 3],
+    pub origin: [f32; 3],
+    pub lambda: f32,
+}
+
+impl LatticeGeom {
+    pub fn new(scene: &Scene, grid: u32) -> LatticeGeom {
+        let ext = scene.medium.bounds_max - scene.medium.bounds_min;
+        let lambda = ext.max_element() / grid as f32;
+        let dims = [0, 1, 2].map(|a| ((ext[a] / lambda) - 1e-4).ceil().max(1.0) as u32);
+        LatticeGeom { dims, origin: scene.medium.bounds_min.to_array(), lambda }
+    }
+    pub fn voxels(&self) -> u64 {
+        self.dims.iter().map(|d| *d as u64).product()
+    }
+    fn min(&self) -> Vec3 {
+        Vec3::from(self.origin)
+    }
+    fn max(&self) -> Vec3 {
+        self.min() + Vec3::new(self.dims[0] as f32, self.dims[1] as f32, self.dims[2] as f32) * self.lambda
+    }
+}
+
+fn ray_box(o: Vec3, d: Vec3, min: Vec3, max: Vec3) -> Option<(f32, f32)> {
+    crate::physics::reference::ray_box(o, d, min, max)
+}
+
+/// The raymaps of every light (thesis 4.4.1): `rays` rays per light, each carrying its share of
+/// the light's power, started where it enters the lattice, backed off by a jitter of up to one
+/// step against aliasing. Point lights cover the solid angle the lattice subtends (all
+/// directions from inside); directional lights cover the lattice's projection; an environment
+/// becomes `env_lights` directional lights of irradiance L 4 pi / K from a spherical Fibonacci
+/// set (an approximation the note in `docs/lbl.md` quantifies).
+pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, step: f32, seed: u64) -> Vec<RayInit> {
+    let (lo, hi) = (geom.min(), geom.max());
+    let centre = 0.5 * (lo + hi);
+    let radius = 0.5 * (hi - lo).length();
+    let mut rng = Pcg32::new(seed, 0x1b1);
+    let m = (rays as f32).sqrt().ceil().max(1.0) as u32;
+    let mut out = Vec::new();
+    // Start a ray where it enters the lattice (or at its origin from inside), backed off by a
+    // random fraction of a step.
+    let push = |out: &mut Vec<RayInit>, o: Vec3, d: Vec3, power: Vec3, from_inside: bool, rng: &mut Pcg32| {
+        let start = if from_inside {
+            Some(o)
+        } else {
+            ray_box(o, d, lo, hi).filter(|(_, t1)| *t1 > 0.0).map(|(t0, _)| o + d * t0.max(0.0))
+        };
+        if let Some(s) = start {
+            let s = s - d * (rng.next_f32() * step);
+            out.push(RayInit { pos_steps: [s.x, s.y, s.z, 0.0], dir_alive: [d.x, d.y, d.z, 1.0], power: [power.x, power.y, power.z, power.max_element()] });
+        }
+    };
+    let directional = |out: &mut Vec<RayInit>, dir: Vec3, e: Vec3, n: u32, rng: &mut Pcg32| {
+        let (b1, b2) = crate::physics::phase::orthonormal_basis(dir);
+        let side = 2.0 * radius;
+        let per = e * (side * side / (n * n) as f32);
+        for i in 0..n {
+            for j in 0..n {
+                let u = (i as f32 + rng.next_f32()) / n as f32 - 0.5;
+                let v = (j as f32 + rng.next_f32()) / n as f32 - 0.5;
+                let o = centre - dir * (radius * 1.01) + b1 * (u * side) + b2 * (v * side);
+                push(out, o, dir, per, false, rng);
+            }
+        }
+    };
+    for light in &scene.lights {
+        match light {
+            Light::Point { position, intensity } => {
+                let to_c = centre - *position;
+                let dist = to_c.length();
+                let inside = dist <= radius;
+                // Solid angle covered: the whole sphere from inside, else the bounding cone.
+                let cos_max = if inside { -1.0 } else { (1.0 - (radius / dist).powi(2)).max(0.0).sqrt() };
+                let omega = 2.0 * std::f32::consts::PI * (1.0 - cos_max);
+                let axis = if inside { Vec3::Z } else { to_c / dist };
+                let (b1, b2) = crate::physics::phase::orthonormal_basis(axis);
+                let per = *intensity * (omega / (m * m) as f32);
+                let from_inside = position.cmpge(lo).all() && position.cmple(hi).all();
+                for i in 0..m {
+                    for j in 0..m {
+                        // Stratified, uniform in solid angle over the cap cos_theta >= cos_max.
+                        let u = (i as f32 + rng.next_f32()) / m as f32;
+                        let v = (j as f32 + rng.next_f32()) / m as f32;
+                        let ct = 1.0 - u * (1.0 - cos_max);
+                        let st = (1.0 - ct * ct).max(0.0).sqrt();
+                        let phi = 2.0 * std::f32::consts::PI * v;
+                        let d = (b1 * (st * phi.cos()) + b2 * (st * phi.sin()) + axis * ct).normalize();
+                        push(&mut out, *position, d, per, from_inside, &mut rng);
+                    }
+                }
+            }
+            Light::Directional { direction, irradiance } => directional(&mut out, direction.normalize(), *irradiance, m, &mut rng),
+            Light::Environment { radiance } => {
+                let k = env_lights.max(1);
+                let n = ((m * m / k) as f32).sqrt().ceil().max(8.0) as u32;
+                for i in 0..k {
+                    let z = 1.0 - (2.0 * i as f32 + 1.0) / k as f32;
+                    let r = (1.0 - z * z).max(0.0).sqrt();
+                    let phi = 2.399_963_2 * i as f32;
+                    let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                    directional(&mut out, d, *radiance * (4.0 * std::f32::consts::PI / k as f32), n, &mut rng);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Parsed knobs.
+#[derive(Clone, Debug)]
+pub struct LblSettings {
+    pub rays: u32,
+    pub k: u32,
+    pub step: f32,
+    pub grid: u32,
+    pub block: u32,
+    pub block_steps: u32,
+    pub iters_per_round: u32,
+    pub tol: f32,
+    pub max_iters: u32,
+    pub threshold: f32,
+    pub env_lights: u32,
+    pub deterministic: bool,
+    pub schedule: Schedule,
+    pub view: ViewSettings,
+}
+
+impl LblSettings {
+    pub fn parse(req: &RenderRequest) -> Result<LblSettings, SolverError> {
+        let s = req.settings;
+        let grid: u32 = s.get("lbl", "grid", 64)?;
+        let bad = |key: &str, reason: String| SolverError::Setting { key: format!("lbl.{key}"), reason };
+        if !(2..=512).contains(&grid) {
+            return Err(bad("grid", format!("{grid} must lie in 2..=512")));
+        }
+        let geom = LatticeGeom::new(req.scene, grid);
+        let lattice: String = s.get("lbl", "lattice", "d3q6".to_string())?;
+        if lattice != "d3q6" {
+            return Err(bad("lattice", format!("{lattice:?}: only d3q6 (6 links + rest, thesis 4.5) is implemented; Geist's 18-link lattice is not yet")));
+        }
+        let block: u32 = s.get("lbl", "block", 4)?;
+        if ![2, 4, 8].contains(&block) {
+            return Err(bad("block", format!("{block}: block edge must be 2, 4 or 8 (a power of two for the workgroup reduction)")));
+        }
+        let out = LblSettings {
+            rays: s.get("lbl", "rays", 65536)?,
+            k: s.get("lbl", "k", 16)?,
+            step: s.get("lbl", "step", geom.lambda * 0.5)?,
+            grid,
+            block,
+            block_steps: s.get("lbl", "block_steps", block)?,
+            iters_per_round: s.get("lbl", "iters_per_round", 8)?,
+            tol: s.get("lbl", "tol", 1e-4)?,
+            max_iters: s.get("lbl", "max_iters", 20000)?,
+            threshold: s.get("lbl", "threshold", 1e-4)?,
+            env_lights: s.get("lbl", "env_lights", 14)?,
+            deterministic: s.get("lbl", "deterministic", false)?,
+            schedule: s.get("lbl", "schedule", Schedule::Concurrent)?,
+            view: ViewSettings::parse(s, "lbl", "view_", req.scene)?,
+        };
+        if out.rays == 0 || out.rays > 1 << 22 {
+            return Err(bad("rays", format!("{} must lie in 1..=4194304", out.rays)));
+        }
+        if !(1..=256).contains(&out.k) {
+            return Err(bad("k", format!("{} must lie in 1..=256", out.k)));
+        }
+        if !(out.step.is_finite() && out.step > 0.0 && out.step <= 4.0 * geom.lambda) {
+            return Err(bad("step", format!("{} must be positive and at most 4 voxels ({})", out.step, 4.0 * geom.lambda)));
+        }
+        if !(1..=64).contains(&out.block_steps) {
+            return Err(bad("block_steps", format!("{} must lie in 1..=64", out.block_steps)));
+        }
+        if out.iters_per_round == 0 || out.max_iters == 0 {
+            return Err(bad("iters_per_round/max_iters", "must be at least 1".into()));
+        }
+        if !(out.tol > 0.0 && out.tol < 1.0) || !(out.threshold > 0.0 && out.threshold < 1.0) {
+            return Err(bad("tol/threshold", "must lie in (0, 1)".into()));
+        }
+        Ok(out)
+    }
+}
+
+/// Energy bookkeeping of the lattice, per channel (W, summed in double precision).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct EnergyBook {
+    pub injected: [f64; 3],
+    pub absorbed: [f64; 3],
+    pub leaked: [f64; 3],
+    pub remaining: [f64; 3],
+}
+
+impl EnergyBook {
+    /// |injected - absorbed - leaked - remaining| / injected, worst channel.
+    pub fn imbalance(&self) -> f64 {
+        (0..3)
+            .map(|c| {
+                let inj = self.injected[c];
+                if inj <= 0.0 {
+                    0.0
+                } else {
+                    (inj - self.absorbed[c] - self.leaked[c] - self.remaining[c]).abs() / inj
+                }
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Everything `lbl` measured, beside the image.
+#[derive(Clone, Debug, Serialize)]
+pub struct LblStats {
+    pub lattice: LatticeGeom,
+    pub channels: u32,
+    pub rays: u32,
+    pub rounds: u32,
+    pub iterations: u32,
+    pub converged: bool,
+    pub final_change: f64,
+    pub energy: EnergyBook,
+    pub schedule: Schedule,
+    pub deterministic: bool,
+}
+
+/// The lattice's time-integrated energy and stats, without the view pass (for tests of the
+/// diffusion itself and for warm starts).
+pub struct LatticeResult {
+    pub irradiance: Vec<f32>,
+    pub irradiance_buffer: Buffer,
+    pub stats: LblStats,
+}
+
+fn read_f32(gpu: &Gpu, b: &Buffer) -> Result<Vec<f32>, SolverError> {
+    Ok(gpu.read_buffer_as(b)?)
+}
+
+/// Run marching, transfer and diffusion to convergence.
+pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, progress: &dyn Fn(u64, u64)) -> Result<LatticeResult, SolverError> {
+    let geom = LatticeGeom::new(scene, set.grid);
+    let v = geom.voxels();
+    // Model only what the scene requires: one channel when the medium and every light are grey.
+    let grey_lights = scene.lights.iter().all(|l| {
+        let c = match l {
+            Light::Point { intensity, .. } => *intensity,
+            Light::Directional { irradiance, .. } => *irradiance,
+            Light::Environment { radiance } => *radiance,
+        };
+        c.x == c.y && c.y == c.z
+    });
+    let nch: u32 = if gs.modelled.chromatic || !grey_lights { 3 } else { 1 };
+    let info = gpu.info().clone();
+    let state_bytes = 7 * nch as u64 * v * 4;
+    if state_bytes > info.max_storage_buffer_range {
+        return Err(SolverError::Setting {
+            key: "lbl.grid".into(),
+            reason: format!("a {}x{}x{} lattice with {nch} channel(s) needs {state_bytes} bytes per state buffer, over this device's maxStorageBufferRange {}; lower lbl.grid", geom.dims[0], geom.dims[1], geom.dims[2], info.max_storage_buffer_range),
+        });
+    }
+    let block_voxels = (set.block as u64).pow(3);
+    let shared_bytes = (6 + 2) * nch as u64 * block_voxels * 4;
+    if shared_bytes > info.max_compute_shared_memory as u64 || block_voxels > info.max_compute_workgroup_invocations as u64 {
+        return Err(SolverError::Setting {
+            key: "lbl.block".into(),
+            reason: format!("block {} needs {shared_bytes} bytes of shared memory and {block_voxels} invocations; this device offers {} and {}; use a smaller block", set.block, info.max_compute_shared_memory, info.max_compute_workgroup_invocations),
+        });
+    }
+    // Float atomics are the fast path where the device has them; fixed point is deterministic.
+    let fixed = set.deterministic || !info.float_atomics;
+
+    let spec_lattice = |extra: &[(u32, Spec)]| {
+        let mut s = gs.modelled.spec();
+        s.push((SPEC_NCH, Spec::U32(nch)));
+        s.extend_from_slice(extra);
+        s
+    };
+    let p_resample = gpu.pipeline(&shaders::LBL_RESAMPLE, &gs.modelled.spec())?;
+    let p_march = gpu.pipeline(&shaders::LBL_MARCH, &gs.modelled.spec())?;
+    let p_transfer = gpu.pipeline(if fixed { &shaders::LBL_TRANSFER_FIXED } else { &shaders::LBL_TRANSFER_FLOAT }, &spec_lattice(&[]))?;
+    let p_inject = gpu.pipeline(&shaders::LBL_INJECT, &spec_lattice(&[(SPEC_FIXED, Spec::Bool(fixed))]))?;
+    let p_diffuse = gpu.pipeline(&shaders::LBL_DIFFUSE, &spec_lattice(&[(SPEC_BLOCK, Spec::U32(set.block)), (SPEC_WG, Spec::U32(set.block))]))?;
+
+    let dims4 = [geom.dims[0], geom.dims[1], geom.dims[2], v as u32];
+    let origin4 = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
+    let density = gpu.buffer("lbl density", v * 4)?;
+    let p = gs.bind(Pass::new("lbl.resample", QueueRole::Trace, &p_resample)).write(3, &density).push(&GeomPush { dims: dims4, origin: origin4 }).cover(geom.dims);
+    let pt = gpu.submit(QueueRole::Trace, &[p], &[])?;
+    gpu.wait(pt)?;
+
+    let rays = raymaps(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
+    let ray_count = rays.len() as u32;
+    if ray_count == 0 {
+        return Err(SolverError::Unsupported("lbl: no light ray reaches the medium's box; check the lights".into()));
+    }
+    let total_power: f64 = (0..3).map(|c| rays.iter().map(|r| r.power[c] as f64).sum::<f64>()).fold(0.0, f64::max);
+    let ray_buf = gpu.buffer_with("lbl rays", &rays)?;
+    let rhb = gpu.buffer("lbl ray history", ray_count as u64 * set.k as u64 * 16)?;
+    let accum = gpu.buffer("lbl transfer sums", nch as u64 * v * 4)?;
+    let states = [gpu.buffer("lbl lattice state A", state_bytes)?, gpu.buffer("lbl lattice state B", state_bytes)?];
+    let irr = gpu.buffer("lbl irradiance", nch as u64 * v * 4)?;
+    let wg = [0, 1, 2].map(|a| geom.dims[a].div_ceil(set.block));
+    let n_wg = wg.iter().map(|x| *x as u64).product::<u64>();
+    let diffuse_tally = gpu.buffer("lbl diffuse tally", n_wg * nch as u64 * 16)?;
+    let inject_wg = v.div_ceil(64);
+    let inject_tally = gpu.buffer("lbl inject tally", inject_wg * nch as u64 * 8)?;
+
+    let diag = (geom.max() - geom.min()).length();
+    let max_steps = (diag / set.step).ceil() as u32 + 2;
+    let rounds = max_steps.div_ceil(set.k);
+    // Scale of the fixed-point transfer: a voxel's sum within a round never exceeds the total.
+    let scale = if total_power > 0.0 { ((1u64 << 30) as f64 / total_power) as f32 } else { 1.0 };
+    let m = &scene.medium;
+    let diffuse_push = |inner: u32| DiffusePush {
+        dims: dims4,
+        sigma_t: [m.sigma_t.x, m.sigma_t.y, m.sigma_t.z, geom.lambda],
+        albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
+        inner_steps: inner,
+        pad: [0; 3],
+    };
+    // The lattice state ping-pongs; `cur` is the one the next step reads (and inject adds to).
+    let mut cur = 0usize;
+    let mut iterations = 0u32;
+    let diffuse_passes = |count: u32, cur: &mut usize, iterations: &mut u32| -> Vec<Pass> {
+        let mut passes = Vec::new();
+        let mut left = count;
+        while left > 0 {
+            let inner = left.min(set.block_steps);
+            passes.push(
+                Pass::new("lbl.diffuse", QueueRole::Diffuse, &p_diffuse)
+                    .read(0, &density)
+                    .read(1, &states[*cur])
+                    .write(2, &states[1 - *cur])
+                    .read_write(3, &irr)
+                    .read_write(4, &diffuse_tally)
+                    .push(&diffuse_push(inner))
+                    .groups(wg),
+            );
+            *cur = 1 - *cur;
+            *iterations += inner;
+            left -= inner;
+        }
+        passes
+    };
+
+    let steps = plan(rounds, set.schedule);
+    let mut points: Vec<SyncPoint> = Vec::with_capacity(steps.len());
+    progress(0, rounds as u64 + 1);
+    for st in &steps {
+        let waits: Vec<SyncPoint> = st.waits.iter().map(|w| points[*w]).collect();
+        let passes = match st.step {
+            Step::March(_) => vec![gs
+                .bind(Pass::new("lbl.march", QueueRole::Trace, &p_march))
+                .read_write(3, &ray_buf)
+                .write(4, &rhb)
+                .push(&MarchPush { dims: [geom.dims[0], geom.dims[1], geom.dims[2], ray_count], origin: origin4, step: set.step, threshold: set.threshold, k: set.k, max_steps })
+                .cover([ray_count, 1, 1])],
+            Step::Transfer(_) => vec![
+                Pass::new("lbl.transfer", QueueRole::Diffuse, &p_transfer)
+                    .read(0, &rhb)
+                    .read_write(1, &accum)
+                    .push(&TransferPush { entries: ray_count * set.k, voxels: v as u32, scale, pad: 0 })
+                    .cover([ray_count * set.k, 1, 1]),
+                Pass::new("lbl.inject", QueueRole::Diffuse, &p_inject)
+                    .read_write(0, &accum)
+                    .read_write(1, &states[cur])
+                    .read_write(2, &inject_tally)
+                    .push(&InjectPush { voxels: v as u32, inv_scale: 1.0 / scale, pad: [0; 2] })
+                    .cover([v as u32, 1, 1]),
+            ],
+            Step::Diffuse(_) => diffuse_passes(set.iters_per_round, &mut cur, &mut iterations),
+        };
+        let point = gpu.submit(st.role, &passes, &waits)?;
+        points.push(point);
+        if let Step::Transfer(n) = st.step {
+            progress(n as u64 + 1, rounds as u64 + 1);
+        }
+    }
+
+    // Iterate to convergence: relative change of the time-integrated energy at sparse probes.
+    let dens_host = read_f32(gpu, &density)?;
+    let stride = 4usize.max((geom.dims.iter().copied().max().unwrap_or(1) / 8) as usize);
+    let mut probes: Vec<usize> = Vec::new();
+    for z in (stride / 2..geom.dims[2] as usize).step_by(stride) {
+        for y in (stride / 2..geom.dims[1] as usize).step_by(stride) {
+            for x in (stride / 2..geom.dims[0] as usize).step_by(stride) {
+                let i = x + geom.dims[0] as usize * (y + geom.dims[1] as usize * z);
+                if dens_host[i] > 0.0 {
+                    probes.push(i);
+                }
+            }
+        }
+    }
+    if probes.is_empty() {
+        probes = (0..v as usize).filter(|i| dens_host[*i] > 0.0).collect();
+    }
+    let probe_sum = |irr_host: &[f32]| -> Vec<f64> { probes.iter().map(|p| (0..nch as usize).map(|c| irr_host[c * v as usize + p] as f64).sum()).collect() };
+    let chunk = 8 * set.block_steps;
+    let mut prev = probe_sum(&read_f32(gpu, &irr)?);
+    let mut converged = false;
+    let mut change = f64::INFINITY;
+    while iterations < set.max_iters {
+        let before = iterations;
+        let passes = diffuse_passes(chunk.min(set.max_iters - iterations), &mut cur, &mut iterations);
+        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+        gpu.wait(point)?;
+        let now = probe_sum(&read_f32(gpu, &irr)?);
+        let done = (iterations - before) as f64;
+        // Largest relative change per iteration over the probes that hold energy.
+        change = now.iter().zip(&prev).filter(|(n, _)| **n > 0.0).map(|(n, p)| (n - p).abs() / n / done).fold(0.0, f64::max);
+        prev = now;
+        if change < set.tol as f64 {
+            converged = true;
+            break;
+        }
+    }
+    gpu.wait_idle_roles()?;
+    progress(rounds as u64 + 1, rounds as u64 + 1);
+
+    // Energy bookkeeping: injected = absorbed + leaked + what is still moving in the lattice.
+    let mut book = EnergyBook::default();
+    let it: Vec<[f32; 2]> = gpu.read_buffer_as(&inject_tally)?;
+    for (i, t) in it.iter().enumerate() {
+        book.injected[i % nch as usize] += t[0] as f64 - t[1] as f64;
+    }
+    let dt: Vec<[f32; 4]> = gpu.read_buffer_as(&diffuse_tally)?;
+    for (i, t) in dt.iter().enumerate() {
+        book.absorbed[i % nch as usize] += t[0] as f64 - t[1] as f64;
+        book.leaked[i % nch as usize] += t[2] as f64 - t[3] as f64;
+    }
+    let state = read_f32(gpu, &states[cur])?;
+    book.remaining = lattice_content(&state, geom.dims, nch);
+    if nch == 1 {
+        for b in [&mut book.injected, &mut book.absorbed, &mut book.leaked, &mut book.remaining] {
+            b[1] = b[0];
+            b[2] = b[0];
+        }
+    }
+    let irradiance = read_f32(gpu, &irr)?;
+    Ok(LatticeResult {
+        irradiance,
+        irradiance_buffer: irr,
+        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed },
+    })
+}
+
+/// Energy still moving in a lattice state: every rest value, and every outgoing link whose
+/// destination is inside (links leaving the lattice were tallied as leaked when produced).
+pub fn lattice_content(state: &[f32], dims: [u32; 3], nch: u32) -> [f64; 3] {
+    let [nx, ny, nz] = dims.map(|d| d as i64);
+    let v = (nx * ny * nz) as usize;
+    let dirs: [(i64, i64, i64); 7] = [(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)];
+    let mut out = [0f64; 3];
+    for c in 0..nch as usize {
+        for (i, d) in dirs.iter().enumerate() {
+            let base = (i * nch as usize + c) * v;
+            for z in 0..nz {
+                for y in 0..ny {
+                    for x in 0..nx {
+                        let (tx, ty, tz) = (x + d.0, y + d.1, z + d.2);
+                        if i == 0 || (0..nx).contains(&tx) && (0..ny).contains(&ty) && (0..nz).contains(&tz) {
+                            out[c] += state[base + (x + nx * (y + ny * z)) as usize] as f64;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
+    let scene = req.scene;
+    let set = LblSettings::parse(req)?;
+    req.settings.check_all_used("lbl")?;
+    let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+    let lat = run_lattice(gpu, scene, &gs, &set, req.progress)?;
+    let g = &lat.stats.lattice;
+    let ms = MsVolume { energy: &lat.irradiance_buffer, dims: g.dims, channels: lat.stats.channels, origin: g.origin, lambda: g.lambda };
+    let view = march_view(gpu, scene, &gs, &set.view, Some(&ms))?;
+    let passes = gpu.take_timings();
+    let timeline = crate::measure::timeline::summarize(&passes);
+    let mut warnings = Vec::new();
+    if !lat.stats.converged {
+        warnings.push(format!(
+            "lbl: the lattice did not converge in {} iterations (relative change {:.2e} per iteration, tolerance {:.1e}); raise lbl.max_iters or lbl.tol",
+            lat.stats.iterations, lat.stats.final_change, set.tol
+        ));
+    }
+    if view.nonfinite_pixels > 0 {
+        warnings.push(format!("{} pixels were not finite and were set to 0 (a bug: please report the scene)", view.nonfinite_pixels));
+    }
+    let report = RenderReport {
+        solver: SolverKind::Lbl,
+        settings: json!({
+            "rays": set.rays, "k": set.k, "step": set.step, "grid": set.grid, "lattice": "d3q6", "block": set.block,
+            "block_steps": set.block_steps, "iters_per_round": set.iters_per_round, "tol": set.tol, "max_iters": set.max_iters,
+            "threshold": set.threshold, "env_lights": set.env_lights, "deterministic": lat.stats.deterministic,
+            "schedule": set.schedule, "view": set.view.json(),
+        }),
+        modelled: gs.modelled.clone(),
+        device_bytes: gs.bytes + view.device_bytes,
+        gpu_ms: super::gpu_ms(&passes),
+        passes,
+        stats: json!({ "lbl": lat.stats, "timeline": timeline, "view_dispatches": view.dispatches }),
+        warnings,
+    };
+    Ok(RenderOutput { image: view.image, variance: None, report })
+}
