@@ -114,6 +114,18 @@ fn render(a: RenderArgs) -> Result<()> {
         }
         sets.push(("path.max_depth".into(), d.to_string()));
     }
+    if a.solver != SolverKind::Lbl && (a.schedule.is_some() || a.compare_schedules || a.deterministic) {
+        bail!("--schedule, --compare-schedules and --deterministic apply to --solver lbl only");
+    }
+    if let Some(sch) = a.schedule {
+        if a.compare_schedules {
+            bail!("--schedule and --compare-schedules exclude each other (the comparison runs both)");
+        }
+        sets.push(("lbl.schedule".into(), format!("{sch:?}").to_lowercase()));
+    }
+    if a.deterministic {
+        sets.push(("lbl.deterministic".into(), "true".into()));
+    }
     if let Some(seed) = a.seed {
         sets.push(("render.seed".into(), seed.to_string()));
     }
@@ -125,8 +137,8 @@ fn render(a: RenderArgs) -> Result<()> {
         }
     }
     // Check outputs before any work, so a typo costs nothing.
-    if a.out.is_none() && a.png.is_none() && a.json.is_none() {
-        bail!("no output requested; give --out image.exr and/or --png image.png (and --json metrics.json)");
+    if a.out.is_none() && a.png.is_none() && a.json.is_none() && a.trace.is_none() {
+        bail!("no output requested; give --out image.exr and/or --png image.png (and --json metrics.json, --trace trace.json)");
     }
     if let Some(p) = &a.out {
         check_output_path(p, "--out", &["exr"])?;
@@ -136,6 +148,9 @@ fn render(a: RenderArgs) -> Result<()> {
     }
     if let Some(p) = &a.json {
         check_output_path(p, "--json", &["json"])?;
+    }
+    if let Some(p) = &a.trace {
+        check_output_path(p, "--trace", &["json"])?;
     }
     let budget = parse_bytes(&a.memory_budget)?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions { memory_budget_bytes: budget })?;
@@ -160,6 +175,17 @@ fn render(a: RenderArgs) -> Result<()> {
         bar.set_position(done);
     };
     let req = RenderRequest { scene: &scene, settings: &settings, force_full: a.model_all, progress: &progress };
+    // --compare-schedules: the sequential baseline first, then the concurrent run kept as output.
+    let sequential = if a.compare_schedules {
+        let mut seq_sets = solver_sets.clone();
+        seq_sets.push(("lbl.schedule".into(), "sequential".into()));
+        let seq_settings = Settings::new(&seq_sets);
+        let seq_req = RenderRequest { scene: &scene, settings: &seq_settings, force_full: a.model_all, progress: &progress };
+        let seq = solvers::render(&gpu, a.solver, &seq_req)?;
+        Some((crate::measure::timeline::summarize(&seq.report.passes), seq.image))
+    } else {
+        None
+    };
     let out = solvers::render(&gpu, a.solver, &req)?;
     bar.finish_and_clear();
     check_validation(&gpu)?;
@@ -172,6 +198,7 @@ fn render(a: RenderArgs) -> Result<()> {
     // Every output is first written under a staging name beside its final one; only when all
     // of them are written are they renamed into place, so a failure (disk full, a directory in
     // the way) never leaves some outputs behind as if the render had succeeded.
+    let timeline = crate::measure::timeline::summarize(&out.report.passes);
     let mut staged: Vec<(PathBuf, PathBuf)> = Vec::new();
     let result = (|| -> Result<()> {
         let r = &out.report;
@@ -210,7 +237,18 @@ fn render(a: RenderArgs) -> Result<()> {
                 "validation": { "enabled": gpu.validation_enabled(), "errors": gpu.validation_errors() },
                 "image_mean": out.image.mean(),
             });
+            let mut doc = doc;
+            doc["timeline"] = serde_json::to_value(&timeline)?;
+            if let Some((seq, _)) = &sequential {
+                doc["sequential_timeline"] = serde_json::to_value(seq)?;
+            }
             output::write_json(&tmp, &doc)?;
+        }
+        if let Some(p) = &a.trace {
+            let tmp = staging_path(p);
+            staged.push((tmp.clone(), p.clone()));
+            let meta = json!({ "scene": a.scene.display().to_string(), "solver": a.solver, "device": info.name, "mapping": info.mapping, "calibrated": info.calibrated_timestamps });
+            crate::measure::timeline::write_chrome_trace(&tmp, &out.report.passes, meta)?;
         }
         let mut placed: Vec<&PathBuf> = Vec::new();
         for (tmp, fin) in &staged {
@@ -237,6 +275,19 @@ fn render(a: RenderArgs) -> Result<()> {
     if !a.quiet {
         eprintln!("{}", r.modelled.describe());
         eprintln!("{} passes, GPU {:.1} ms, wall {:.2} s", r.passes.len(), r.gpu_ms, wall_s);
+        if a.solver == SolverKind::Lbl {
+            let busy: Vec<String> = timeline.per_queue.iter().map(|q| format!("{} {:.1} ms ({} passes)", q.role, q.busy_ns as f64 * 1e-6, q.passes)).collect();
+            eprintln!("queues: busy {}; overlap {:.1}% of busy time{}", busy.join(", "), 100.0 * timeline.overlap_fraction, if info.mapping.shared() { " (one shared queue: no overlap possible)" } else { "" });
+            if let Some((seq, seq_img)) = &sequential {
+                let ratio = seq.span_ns as f64 / timeline.span_ns.max(1) as f64;
+                let diff = output::compare(&out.image, seq_img).map(|m| m.rel_l2).unwrap_or(f64::NAN);
+                eprintln!(
+                    "schedules: sequential {:.1} ms, concurrent {:.1} ms (GPU span): concurrency gain {ratio:.3}x; images differ by relL2 {diff:.2e}",
+                    seq.span_ns as f64 * 1e-6,
+                    timeline.span_ns as f64 * 1e-6
+                );
+            }
+        }
         if let Some(p) = &a.out {
             eprintln!("wrote {} (linear RGB f32{})", p.display(), if out.variance.is_some() { ", + variance layer" } else { "" });
         }
@@ -245,6 +296,9 @@ fn render(a: RenderArgs) -> Result<()> {
         }
         if let Some(p) = &a.json {
             eprintln!("wrote {}", p.display());
+        }
+        if let Some(p) = &a.trace {
+            eprintln!("wrote {} (Chrome trace: one track per queue role)", p.display());
         }
     }
     Ok(())

@@ -96,6 +96,19 @@ pub struct RenderArgs {
     /// Model every feature (chromatic tracking, HG phase) even where the scene needs none.
     #[arg(long)]
     pub model_all: bool,
+    /// `lbl`: overlap tracing round n with diffusion of round n-1 (concurrent), or not.
+    #[arg(long, value_enum)]
+    pub schedule: Option<crate::solvers::lbl::Schedule>,
+    /// `lbl`: run both schedules and print the sequential/concurrent time ratio (the image
+    /// written is the concurrent one).
+    #[arg(long)]
+    pub compare_schedules: bool,
+    /// `lbl`: deterministic transfer (fixed-point integer atomics): bit-identical images.
+    #[arg(long)]
+    pub deterministic: bool,
+    /// Per-queue GPU timeline as Chrome-trace/Perfetto JSON (open in ui.perfetto.dev).
+    #[arg(long)]
+    pub trace: Option<PathBuf>,
     /// Largest grid, in bytes, a scene may load (suffixes K, M, G: 512M, 4G).
     #[arg(long, default_value = "4G")]
     pub memory_budget: String,

@@ -406,6 +406,120 @@ pub struct LatticeResult {
     pub stats: LblStats,
 }
 
+/// The lattice and its diffusion passes: state ping-pong, time-integrated energy, tallies.
+pub struct Diffuser {
+    pipeline: crate::gpu::Pipeline,
+    density: Buffer,
+    states: [Buffer; 2],
+    irr: Buffer,
+    tally: Buffer,
+    push: DiffusePush,
+    groups: [u32; 3],
+    block_steps: u32,
+    dims: [u32; 3],
+    nch: u32,
+    /// The state the next step reads (and injection adds to).
+    pub cur: usize,
+    pub iterations: u32,
+}
+
+impl Diffuser {
+    /// A zero lattice over `density` (one value per voxel). `medium` = (sigma_t rgb, albedo
+    /// rgb, g), `lambda` the voxel edge in scene units.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(gpu: &Gpu, spec: &[(u32, Spec)], density: Buffer, dims: [u32; 3], nch: u32, medium: ([f32; 3], [f32; 3], f32), lambda: f32, block: u32, block_steps: u32) -> Result<Diffuser, SolverError> {
+        let v: u64 = dims.iter().map(|d| *d as u64).product();
+        let mut spec = spec.to_vec();
+        spec.extend_from_slice(&[(SPEC_NCH, Spec::U32(nch)), (SPEC_BLOCK, Spec::U32(block)), (SPEC_WG, Spec::U32(block))]);
+        let pipeline = gpu.pipeline(&shaders::LBL_DIFFUSE, &spec)?;
+        let state_bytes = 7 * nch as u64 * v * 4;
+        let groups = [0, 1, 2].map(|a| dims[a].div_ceil(block));
+        let n_wg = groups.iter().map(|x| *x as u64).product::<u64>();
+        let (st, al, g) = medium;
+        Ok(Diffuser {
+            pipeline,
+            density,
+            states: [gpu.buffer("lbl lattice state A", state_bytes)?, gpu.buffer("lbl lattice state B", state_bytes)?],
+            irr: gpu.buffer("lbl irradiance", nch as u64 * v * 4)?,
+            tally: gpu.buffer("lbl diffuse tally", n_wg * nch as u64 * 16)?,
+            push: DiffusePush { dims: [dims[0], dims[1], dims[2], v as u32], sigma_t: [st[0], st[1], st[2], lambda], albedo: [al[0], al[1], al[2], g], inner_steps: 1, pad: [0; 3] },
+            groups,
+            block_steps,
+            dims,
+            nch,
+            cur: 0,
+            iterations: 0,
+        })
+    }
+
+    pub fn state(&self) -> &Buffer {
+        &self.states[self.cur]
+    }
+
+    pub fn irradiance(&self) -> &Buffer {
+        &self.irr
+    }
+
+    /// Passes for `count` more lattice steps, `block_steps` per dispatch.
+    pub fn passes(&mut self, count: u32) -> Vec<Pass> {
+        let mut passes = Vec::new();
+        let mut left = count;
+        while left > 0 {
+            let inner = left.min(self.block_steps);
+            let push = DiffusePush { inner_steps: inner, ..self.push };
+            passes.push(
+                Pass::new("lbl.diffuse", QueueRole::Diffuse, &self.pipeline)
+                    .read(0, &self.density)
+                    .read(1, &self.states[self.cur])
+                    .write(2, &self.states[1 - self.cur])
+                    .read_write(3, &self.irr)
+                    .read_write(4, &self.tally)
+                    .push(&push)
+                    .groups(self.groups),
+            );
+            self.cur = 1 - self.cur;
+            self.iterations += inner;
+            left -= inner;
+        }
+        passes
+    }
+
+    /// Absorbed and leaked energy so far, and what is still moving, per channel.
+    pub fn book(&self, gpu: &Gpu) -> Result<EnergyBook, SolverError> {
+        let mut book = EnergyBook::default();
+        let dt: Vec<[f32; 4]> = gpu.read_buffer_as(&self.tally)?;
+        for (i, t) in dt.iter().enumerate() {
+            book.absorbed[i % self.nch as usize] += t[0] as f64 - t[1] as f64;
+            book.leaked[i % self.nch as usize] += t[2] as f64 - t[3] as f64;
+        }
+        book.remaining = lattice_content(&read_f32(gpu, self.state())?, self.dims, self.nch);
+        Ok(book)
+    }
+}
+
+/// Test bench for the lattice alone: unit energy deposited at `source` in a homogeneous
+/// medium filling the whole lattice, `iterations` steps; returns the time-integrated energy
+/// per voxel (one channel) and the energy book.
+#[allow(clippy::too_many_arguments)]
+pub fn diffuse_impulse(gpu: &Gpu, dims: [u32; 3], sigma_t: f32, albedo: f32, g: f32, lambda: f32, block: u32, block_steps: u32, source: [u32; 3], iterations: u32) -> Result<(Vec<f32>, EnergyBook), SolverError> {
+    let v: u64 = dims.iter().map(|d| *d as u64).product();
+    let density = gpu.buffer_with("impulse density", &vec![1f32; v as usize])?;
+    let mut d = Diffuser::new(gpu, &[], density, dims, 1, ([sigma_t; 3], [albedo; 3], g), lambda, block, block_steps)?;
+    let src = (source[0] + dims[0] * (source[1] + dims[1] * source[2])) as u64;
+    gpu.write_buffer(d.state(), src * 4, bytemuck::bytes_of(&1f32))?;
+    let mut left = iterations;
+    while left > 0 {
+        let n = left.min(256);
+        let passes = d.passes(n);
+        let p = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+        gpu.wait(p)?;
+        left -= n;
+    }
+    let mut book = d.book(gpu)?;
+    book.injected = [1.0, 0.0, 0.0];
+    Ok((read_f32(gpu, d.irradiance())?, book))
+}
+
 fn read_f32(gpu: &Gpu, b: &Buffer) -> Result<Vec<f32>, SolverError> {
     Ok(gpu.read_buffer_as(b)?)
 }
@@ -453,8 +567,6 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     let p_march = gpu.pipeline(&shaders::LBL_MARCH, &gs.modelled.spec())?;
     let p_transfer = gpu.pipeline(if fixed { &shaders::LBL_TRANSFER_FIXED } else { &shaders::LBL_TRANSFER_FLOAT }, &spec_lattice(&[]))?;
     let p_inject = gpu.pipeline(&shaders::LBL_INJECT, &spec_lattice(&[(SPEC_FIXED, Spec::Bool(fixed))]))?;
-    let p_diffuse = gpu.pipeline(&shaders::LBL_DIFFUSE, &spec_lattice(&[(SPEC_BLOCK, Spec::U32(set.block)), (SPEC_WG, Spec::U32(set.block))]))?;
-
     let dims4 = [geom.dims[0], geom.dims[1], geom.dims[2], v as u32];
     let origin4 = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
     let density = gpu.buffer("lbl density", v * 4)?;
@@ -471,11 +583,8 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     let ray_buf = gpu.buffer_with("lbl rays", &rays)?;
     let rhb = gpu.buffer("lbl ray history", ray_count as u64 * set.k as u64 * 16)?;
     let accum = gpu.buffer("lbl transfer sums", nch as u64 * v * 4)?;
-    let states = [gpu.buffer("lbl lattice state A", state_bytes)?, gpu.buffer("lbl lattice state B", state_bytes)?];
-    let irr = gpu.buffer("lbl irradiance", nch as u64 * v * 4)?;
-    let wg = [0, 1, 2].map(|a| geom.dims[a].div_ceil(set.block));
-    let n_wg = wg.iter().map(|x| *x as u64).product::<u64>();
-    let diffuse_tally = gpu.buffer("lbl diffuse tally", n_wg * nch as u64 * 16)?;
+    let m = &scene.medium;
+    let mut lattice = Diffuser::new(gpu, &gs.modelled.spec(), density.clone(), geom.dims, nch, (m.sigma_t.to_array(), m.albedo.to_array(), m.g), geom.lambda, set.block, set.block_steps)?;
     let inject_wg = v.div_ceil(64);
     let inject_tally = gpu.buffer("lbl inject tally", inject_wg * nch as u64 * 8)?;
 
@@ -484,39 +593,6 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     let rounds = max_steps.div_ceil(set.k);
     // Scale of the fixed-point transfer: a voxel's sum within a round never exceeds the total.
     let scale = if total_power > 0.0 { ((1u64 << 30) as f64 / total_power) as f32 } else { 1.0 };
-    let m = &scene.medium;
-    let diffuse_push = |inner: u32| DiffusePush {
-        dims: dims4,
-        sigma_t: [m.sigma_t.x, m.sigma_t.y, m.sigma_t.z, geom.lambda],
-        albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
-        inner_steps: inner,
-        pad: [0; 3],
-    };
-    // The lattice state ping-pongs; `cur` is the one the next step reads (and inject adds to).
-    let mut cur = 0usize;
-    let mut iterations = 0u32;
-    let diffuse_passes = |count: u32, cur: &mut usize, iterations: &mut u32| -> Vec<Pass> {
-        let mut passes = Vec::new();
-        let mut left = count;
-        while left > 0 {
-            let inner = left.min(set.block_steps);
-            passes.push(
-                Pass::new("lbl.diffuse", QueueRole::Diffuse, &p_diffuse)
-                    .read(0, &density)
-                    .read(1, &states[*cur])
-                    .write(2, &states[1 - *cur])
-                    .read_write(3, &irr)
-                    .read_write(4, &diffuse_tally)
-                    .push(&diffuse_push(inner))
-                    .groups(wg),
-            );
-            *cur = 1 - *cur;
-            *iterations += inner;
-            left -= inner;
-        }
-        passes
-    };
-
     let steps = plan(rounds, set.schedule);
     let mut points: Vec<SyncPoint> = Vec::with_capacity(steps.len());
     progress(0, rounds as u64 + 1);
@@ -537,12 +613,12 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
                     .cover([ray_count * set.k, 1, 1]),
                 Pass::new("lbl.inject", QueueRole::Diffuse, &p_inject)
                     .read_write(0, &accum)
-                    .read_write(1, &states[cur])
+                    .read_write(1, lattice.state())
                     .read_write(2, &inject_tally)
                     .push(&InjectPush { voxels: v as u32, inv_scale: 1.0 / scale, pad: [0; 2] })
                     .cover([v as u32, 1, 1]),
             ],
-            Step::Diffuse(_) => diffuse_passes(set.iters_per_round, &mut cur, &mut iterations),
+            Step::Diffuse(_) => lattice.passes(set.iters_per_round),
         };
         let point = gpu.submit(st.role, &passes, &waits)?;
         points.push(point);
@@ -568,18 +644,19 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     if probes.is_empty() {
         probes = (0..v as usize).filter(|i| dens_host[*i] > 0.0).collect();
     }
+    let irr = lattice.irradiance().clone();
     let probe_sum = |irr_host: &[f32]| -> Vec<f64> { probes.iter().map(|p| (0..nch as usize).map(|c| irr_host[c * v as usize + p] as f64).sum()).collect() };
     let chunk = 8 * set.block_steps;
     let mut prev = probe_sum(&read_f32(gpu, &irr)?);
     let mut converged = false;
     let mut change = f64::INFINITY;
-    while iterations < set.max_iters {
-        let before = iterations;
-        let passes = diffuse_passes(chunk.min(set.max_iters - iterations), &mut cur, &mut iterations);
+    while lattice.iterations < set.max_iters {
+        let before = lattice.iterations;
+        let passes = lattice.passes(chunk.min(set.max_iters - lattice.iterations));
         let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
         gpu.wait(point)?;
         let now = probe_sum(&read_f32(gpu, &irr)?);
-        let done = (iterations - before) as f64;
+        let done = (lattice.iterations - before) as f64;
         // Largest relative change per iteration over the probes that hold energy.
         change = now.iter().zip(&prev).filter(|(n, _)| **n > 0.0).map(|(n, p)| (n - p).abs() / n / done).fold(0.0, f64::max);
         prev = now;
@@ -592,18 +669,11 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     progress(rounds as u64 + 1, rounds as u64 + 1);
 
     // Energy bookkeeping: injected = absorbed + leaked + what is still moving in the lattice.
-    let mut book = EnergyBook::default();
+    let mut book = lattice.book(gpu)?;
     let it: Vec<[f32; 2]> = gpu.read_buffer_as(&inject_tally)?;
     for (i, t) in it.iter().enumerate() {
         book.injected[i % nch as usize] += t[0] as f64 - t[1] as f64;
     }
-    let dt: Vec<[f32; 4]> = gpu.read_buffer_as(&diffuse_tally)?;
-    for (i, t) in dt.iter().enumerate() {
-        book.absorbed[i % nch as usize] += t[0] as f64 - t[1] as f64;
-        book.leaked[i % nch as usize] += t[2] as f64 - t[3] as f64;
-    }
-    let state = read_f32(gpu, &states[cur])?;
-    book.remaining = lattice_content(&state, geom.dims, nch);
     if nch == 1 {
         for b in [&mut book.injected, &mut book.absorbed, &mut book.leaked, &mut book.remaining] {
             b[1] = b[0];
@@ -614,7 +684,7 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
-        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed },
+        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations: lattice.iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed },
     })
 }
 
