@@ -4,6 +4,7 @@
 mod cli_tests;
 mod common;
 mod gpu_core;
+mod lbl;
 mod output_tests;
 mod phase_gpu;
 mod physics_tests;

@@ -1,0 +1,272 @@
+//! Solver `lbl`: the round graph against fake queues (no deadlock on a shared queue, overlap
+//! on two), the lattice against the diffusion equation and conservation, schedules and
+//! blocking against each other, and the image against `single` and `path`.
+
+use std::collections::VecDeque;
+
+use scatterlab::gpu::QueueRole;
+use scatterlab::solvers::lbl::{diffuse_impulse, plan, Planned, Schedule, Step};
+use scatterlab::solvers::SolverKind;
+
+use crate::common::{assert_clean, gpu, render, scene};
+
+/// Execute a plan on fake in-order queues. `shared`: one queue for both roles (lavapipe),
+/// else one per role. Every submission takes `duration(step)` time units once it starts; a
+/// submission starts when it is at the head of its queue and everything it waits on has
+/// finished. Returns per-submission (start, end), or Err on a deadlock (a queue head waiting
+/// on something that can never finish).
+fn run_fake(plan: &[Planned], shared: bool, duration: impl Fn(&Step) -> u64) -> Result<Vec<(u64, u64)>, String> {
+    let q_of = |r: QueueRole| if shared { 0 } else { r as usize };
+    let mut queues: Vec<VecDeque<usize>> = vec![VecDeque::new(), VecDeque::new()];
+    for (i, p) in plan.iter().enumerate() {
+        // Host-order rule: a submission may only wait on earlier submissions.
+        if p.waits.iter().any(|w| *w >= i) {
+            return Err(format!("submission {i} waits on a later submission"));
+        }
+        queues[q_of(p.role)].push_back(i);
+    }
+    let mut done: Vec<Option<(u64, u64)>> = vec![None; plan.len()];
+    let mut free_at = [0u64; 2];
+    loop {
+        let mut progressed = false;
+        for q in 0..2 {
+            while let Some(&head) = queues[q].front() {
+                let ready = plan[head].waits.iter().map(|w| done[*w].map(|d| d.1)).collect::<Option<Vec<u64>>>();
+                let Some(deps) = ready else { break };
+                let start = deps.into_iter().chain([free_at[q]]).max().unwrap_or(0);
+                let end = start + duration(&plan[head].step);
+                done[head] = Some((start, end));
+                free_at[q] = end;
+                queues[q].pop_front();
+                progressed = true;
+            }
+        }
+        if queues.iter().all(|q| q.is_empty()) {
+            return Ok(done.into_iter().map(|d| d.expect("all done")).collect());
+        }
+        if !progressed {
+            return Err(format!("deadlock with {:?} still queued", queues));
+        }
+    }
+}
+
+fn dur(s: &Step) -> u64 {
+    match s {
+        Step::March(_) => 10,
+        Step::Transfer(_) => 2,
+        Step::Diffuse(_) => 8,
+    }
+}
+
+#[test]
+fn round_graph_never_deadlocks_and_overlaps_only_when_concurrent() {
+    for rounds in [1u32, 2, 3, 7, 20] {
+        for schedule in [Schedule::Concurrent, Schedule::Sequential] {
+            let p = plan(rounds, schedule);
+            // Same steps in both schedules: every round marched, transferred and diffused once.
+            for n in 0..rounds {
+                for want in [Step::March(n), Step::Transfer(n), Step::Diffuse(n)] {
+                    assert_eq!(p.iter().filter(|s| s.step == want).count(), 1, "{schedule:?} {rounds}: {want:?}");
+                }
+            }
+            assert!(p.iter().all(|s| matches!(s.step, Step::March(_)) == (s.role == QueueRole::Trace)));
+            for shared in [true, false] {
+                let t = run_fake(&p, shared, dur).unwrap_or_else(|e| panic!("{schedule:?}, {rounds} rounds, shared {shared}: {e}"));
+                let idx = |st: Step| p.iter().position(|s| s.step == st).unwrap();
+                for n in 0..rounds {
+                    // Transfer n after march n; march n+1 after transfer n (it overwrites the history).
+                    assert!(t[idx(Step::Transfer(n))].0 >= t[idx(Step::March(n))].1);
+                    if n + 1 < rounds {
+                        assert!(t[idx(Step::March(n + 1))].0 >= t[idx(Step::Transfer(n))].1);
+                        let (m, d) = (t[idx(Step::March(n + 1))], t[idx(Step::Diffuse(n))]);
+                        let overlap = m.0.max(d.0) < m.1.min(d.1);
+                        match (schedule, shared) {
+                            (_, true) | (Schedule::Sequential, _) => assert!(!overlap, "{schedule:?} shared {shared}: march {} overlaps diffuse {n}", n + 1),
+                            (Schedule::Concurrent, false) => assert!(overlap, "concurrent on two queues: march {} should overlap diffuse {n}", n + 1),
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The fake queue itself catches the hazard it guards against: a wait on a later submission
+/// (which on one in-order queue can never be satisfied).
+#[test]
+fn fake_queue_detects_wait_before_signal() {
+    let bad = vec![
+        Planned { role: QueueRole::Diffuse, step: Step::Diffuse(0), waits: vec![1] },
+        Planned { role: QueueRole::Trace, step: Step::March(0), waits: vec![] },
+    ];
+    assert!(run_fake(&bad, true, dur).is_err());
+}
+
+/// Diffusion limit: an impulse in a large homogeneous lattice integrates in time to the Green's
+/// function of de/dt = D lap e - mu e with the lattice's own coefficients, D = (1+c)/(6(1-c))
+/// voxels^2 per step for the persistence c = (1 - kappa_t) / (1 - kappa_a) of a surviving
+/// particle's direction, and mu = -ln(1 - kappa_a) per step:
+///   G(r) = exp(-r sqrt(mu / D)) / (4 pi D r).
+/// The diffusion regime needs r well beyond a mean free path (1.25 voxels here) and within a
+/// few diffusion lengths L = sqrt(D / mu) (6 voxels here); farther out a lattice walk's tail is
+/// anisotropic (large deviations prefer the axes), which the diffusion equation does not describe.
+#[test]
+fn lattice_matches_the_diffusion_green_function() {
+    let gpu = gpu();
+    let n = 48u32;
+    let c = n / 2;
+    // Lattice units (lambda = 1): kappa_t = 1 - exp(-sigma_t) = 0.8; albedo chosen for L = 6.
+    let kt = 0.8f64;
+    let sigma_t = (-(1.0 - kt).ln()) as f32;
+    let d_guess = 0.25;
+    let ka_want = d_guess / 36.0;
+    let albedo = (1.0 - ka_want / kt) as f32;
+    let (irr, book) = diffuse_impulse(&gpu, [n; 3], sigma_t, albedo, 0.0, 1.0, 4, 4, [c; 3], 1600).unwrap();
+    let ka = kt * (1.0 - albedo as f64);
+    let persist = (1.0 - kt) / (1.0 - ka);
+    let d = (1.0 + persist) / (6.0 * (1.0 - persist));
+    let mu = -(1.0 - ka).ln();
+    let green = |r: f64| (-r * (mu / d).sqrt()).exp() / (4.0 * std::f64::consts::PI * d * r);
+    // Shell averages: the lattice's anisotropic short-range corrections (cubic harmonics, of
+    // relative order 1/r^2, largest along the axes) average out over a sphere, the diffusion
+    // solution is what is left.
+    let mut worst = 0.0f64;
+    for r in 3..=12u32 {
+        let (mut lat, mut ana, mut count) = (0.0f64, 0.0f64, 0u32);
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    let d = [x, y, z].iter().map(|q| (*q as f64 - c as f64).powi(2)).sum::<f64>().sqrt();
+                    if d >= r as f64 - 0.5 && d < r as f64 + 0.5 {
+                        lat += irr[(x + n * (y + n * z)) as usize] as f64;
+                        ana += green(d);
+                        count += 1;
+                    }
+                }
+            }
+        }
+        let rel = (lat - ana).abs() / ana;
+        eprintln!("shell r {r} ({count} voxels): lattice {:.4e}, diffusion {:.4e}, rel {rel:.4}", lat / count as f64, ana / count as f64);
+        if r >= 4 {
+            worst = worst.max(rel);
+        }
+    }
+    assert!(worst < 0.03, "worst relative deviation of a shell average from the diffusion solution: {worst}");
+    // Every bit of the impulse is absorbed, leaked or still moving.
+    assert!((book.absorbed[0] + book.leaked[0] + book.remaining[0] - 1.0).abs() < 1e-4, "{book:?}");
+    assert_clean(&gpu);
+}
+
+/// Without absorption energy is conserved: what was deposited either left through the boundary
+/// or is still in the lattice, at every stage (tracked by the kernels' tallies).
+#[test]
+fn lossless_lattice_conserves_energy() {
+    let gpu = gpu();
+    for (steps, block_steps) in [(7u32, 1u32), (40, 4), (300, 8)] {
+        let (_, book) = diffuse_impulse(&gpu, [20, 16, 12], 3.0, 1.0, 0.0, 0.1, 4, block_steps, [9, 7, 5], steps).unwrap();
+        assert!(book.absorbed[0].abs() < 1e-7, "albedo 1 absorbed {}", book.absorbed[0]);
+        let total = book.leaked[0] + book.remaining[0];
+        assert!((total - 1.0).abs() < 1e-5, "after {steps} steps: leaked {} + remaining {} = {total}", book.leaked[0], book.remaining[0]);
+        assert!(book.leaked[0] > 0.0);
+    }
+    assert_clean(&gpu);
+}
+
+/// Blocked lattice (b^3 blocks, several steps per dispatch, energy crossing block faces
+/// delayed to the next dispatch) against the global lattice: same field after convergence
+/// (thesis 4.7.2, Fig. 4.7).
+#[test]
+fn blocked_and_global_lattices_agree_after_convergence() {
+    let gpu = gpu();
+    let dims = [24u32, 20, 16];
+    let run = |block: u32, steps: u32| diffuse_impulse(&gpu, dims, 0.4, 0.95, 0.3, 1.0, block, steps, [5, 9, 8], 1200).unwrap().0;
+    let global = run(4, 1);
+    for (block, steps) in [(4u32, 4u32), (2, 2), (8, 8)] {
+        let blocked = run(block, steps);
+        let num: f64 = global.iter().zip(&blocked).map(|(a, b)| ((a - b) as f64).powi(2)).sum();
+        let den: f64 = global.iter().map(|a| (*a as f64).powi(2)).sum();
+        let rel = (num / den).sqrt();
+        eprintln!("block {block}, {steps} steps per dispatch: relL2 vs global {rel:.2e}");
+        assert!(rel < 1e-4, "block {block}: relL2 {rel}");
+    }
+    assert_clean(&gpu);
+}
+
+const SPHERE: &str = r#"
+[render]
+width = 32
+height = 32
+seed = 4
+spp = 512
+[camera]
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+fov = 20.0
+[medium]
+bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+sigma_t = 10.0
+albedo = ALBEDO
+density = { kind = "sphere", center = [0.0, 0.0, 0.0], radius = 0.45 }
+[[light]]
+kind = "directional"
+direction = [-0.57735, -0.57735, -0.57735]
+irradiance = 3.0
+[[light]]
+kind = "environment"
+radiance = 0.1
+"#;
+
+const SMALL: [(&str, &str); 4] = [("lbl.grid", "24"), ("lbl.rays", "4096"), ("lbl.view_env_dirs", "16"), ("lbl.view_supersample", "1")];
+
+fn with(extra: &[(&'static str, &'static str)]) -> Vec<(&'static str, &'static str)> {
+    SMALL.iter().copied().chain(extra.iter().copied()).collect()
+}
+
+#[test]
+fn concurrent_and_sequential_schedules_agree() {
+    let gpu = gpu();
+    let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
+    let a = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "concurrent")]));
+    let b = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "sequential")]));
+    assert!(a.image.data == b.image.data, "deterministic mode: schedules must give identical images");
+    let c = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "concurrent")]));
+    assert!(a.image.data == c.image.data, "deterministic mode: two runs must be identical");
+    if gpu.info().float_atomics {
+        let f = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.schedule", "sequential")]));
+        let m = scatterlab::output::compare(&f.image, &a.image).unwrap();
+        assert!(m.rel_l2 < 1e-4, "float-atomic transfer vs fixed point: relL2 {}", m.rel_l2);
+    }
+    assert_clean(&gpu);
+}
+
+#[test]
+fn no_albedo_lbl_equals_single() {
+    let gpu = gpu();
+    let s = scene(&SPHERE.replace("ALBEDO", "0.0"));
+    let l = render(&gpu, &s, SolverKind::Lbl, &with(&[]));
+    let v = render(&gpu, &s, SolverKind::Single, &[("single.env_dirs", "16"), ("single.supersample", "1")]);
+    assert!(l.image.data == v.image.data, "albedo 0: nothing to diffuse, lbl must be single");
+    let s = scene(&SPHERE.replace("ALBEDO", "0.02"));
+    let l = render(&gpu, &s, SolverKind::Lbl, &with(&[]));
+    let v = render(&gpu, &s, SolverKind::Single, &[("single.env_dirs", "16"), ("single.supersample", "1")]);
+    let m = scatterlab::output::compare(&l.image, &v.image).unwrap();
+    assert!(m.rel_l2 < 2e-3, "albedo 0.02: lbl vs single relL2 {}", m.rel_l2);
+    assert_clean(&gpu);
+}
+
+#[test]
+fn lbl_beats_single_against_path_at_albedo_09() {
+    let gpu = gpu();
+    let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
+    let reference = render(&gpu, &s, SolverKind::Path, &[]);
+    let l = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.grid", "32"), ("lbl.rays", "16384")]));
+    let v = render(&gpu, &s, SolverKind::Single, &[]);
+    let el = scatterlab::output::compare(&l.image, &reference.image).unwrap();
+    let es = scatterlab::output::compare(&v.image, &reference.image).unwrap();
+    eprintln!("albedo 0.9 sphere vs path ({} spp): lbl relL2 {:.4} (energy {:.3}), single relL2 {:.4} (energy {:.3})", s.render.spp, el.rel_l2, el.energy_ratio, es.rel_l2, es.energy_ratio);
+    assert!(el.rel_l2 < 0.5 * es.rel_l2, "lbl {} must be well closer to path than single {}", el.rel_l2, es.rel_l2);
+    let stats = &l.report.stats["lbl"];
+    assert_eq!(stats["converged"], true);
+    assert!(stats["energy"]["injected"][0].as_f64().unwrap() > 0.0);
+    assert_clean(&gpu);
+}
