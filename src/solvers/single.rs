@@ -6,8 +6,9 @@
 //! Knobs (`--set single.KEY=VALUE`; `lbl` reads the same ones as `lbl.KEY`):
 //! - `step`: camera-ray step in scene units (default: 1/128 of the medium's diagonal);
 //! - `shadow_step`: shadow-ray step (default: `step`);
-//! - `env_dirs`: quadrature directions for environment in-scattering (default 64);
-//! - `supersample`: n x n subpixel rays, box filter (default 2);
+//! - `env_dirs`: quadrature directions for environment in-scattering (default 16: each costs a
+//!   shadow march per camera step, the dominant cost on grids);
+//! - `supersample`: n x n subpixel rays, box filter (default 1);
 //! - `jitter`: 1 to jitter step origins per pixel (noise instead of banding; default 0);
 //! - `budget`: loop iterations per invocation per dispatch (resumable kernel, default 4096).
 
@@ -66,8 +67,8 @@ impl ViewSettings {
         let v = ViewSettings {
             step,
             shadow_step: s.get(solver, &key("shadow_step"), step)?,
-            env_dirs: s.get(solver, &key("env_dirs"), 64)?,
-            supersample: s.get(solver, &key("supersample"), 2)?,
+            env_dirs: s.get(solver, &key("env_dirs"), 16)?,
+            supersample: s.get(solver, &key("supersample"), 1)?,
             jitter: s.get(solver, &key("jitter"), 0)?,
             budget: s.get(solver, &key("budget"), resumable::DEFAULT_BUDGET)?,
         };
