@@ -1,9 +1,10 @@
 // lattice.glsl: the Lattice-Boltzmann lighting lattice of solver `lbl` (thesis 4.5, eq. 4.4-4.5;
 // Geist et al. 2004 for the lattice; section 2.2.3).
 //
-// D3Q6 + rest: distribution 0 is the rest (newly deposited, once-scattered energy, emitted
-// isotropically at the next step), 1..6 move along +x, -x, +y, -y, +z, -z by one voxel per step.
-// Storage: one float per (distribution, channel, voxel): f[(i * NCH + c) * V + v], x fastest.
+// D3Q6 + rest (thesis 4.5), or Geist's D3Q18 + rest (section 2.2.3): distribution 0 is the rest
+// (newly deposited, once-scattered energy, emitted isotropically at the next step), 1..6 move
+// along +x, -x, +y, -y, +z, -z by one voxel per step, 7..18 (D3Q18 only) along the 12 face
+// diagonals. Storage: one float per (distribution, channel, voxel): f[(i * NCH + c) * V + v].
 // The state buffers hold *outgoing* distributions at their source voxel; a step pulls
 // in_i(v) = out_i(v - e_i).
 #ifndef SCATTERLAB_LATTICE
@@ -12,7 +13,18 @@
 // Channels carried: 1 for grey media (model only what the scene requires), 3 for chromatic.
 layout(constant_id = 3) const uint NCH = 3u;
 
-const ivec3 LATTICE_DIR[7] = ivec3[7](ivec3(0), ivec3(1, 0, 0), ivec3(-1, 0, 0), ivec3(0, 1, 0), ivec3(0, -1, 0), ivec3(0, 0, 1), ivec3(0, 0, -1));
+// Links per voxel besides the rest: 6 (D3Q6) or 18 (D3Q18).
+layout(constant_id = 7) const uint LINKS = 6u;
+
+const ivec3 LATTICE_DIR[19] = ivec3[19](ivec3(0),
+    ivec3(1, 0, 0), ivec3(-1, 0, 0), ivec3(0, 1, 0), ivec3(0, -1, 0), ivec3(0, 0, 1), ivec3(0, 0, -1),
+    ivec3(1, 1, 0), ivec3(-1, -1, 0), ivec3(1, -1, 0), ivec3(-1, 1, 0),
+    ivec3(1, 0, 1), ivec3(-1, 0, -1), ivec3(1, 0, -1), ivec3(-1, 0, 1),
+    ivec3(0, 1, 1), ivec3(0, -1, -1), ivec3(0, 1, -1), ivec3(0, -1, 1));
+
+// Share of scattered (and rest) energy sent along link i: 1/6 each in D3Q6; in D3Q18 1/12 per
+// axial and 1/24 per diagonal link (Geist's collision matrix, section 2.2.3).
+float link_weight(uint i) { return LINKS == 6u ? 1.0 / 6.0 : (i <= 6u ? 1.0 / 12.0 : 1.0 / 24.0); }
 
 uint lattice_index(ivec3 p, uvec3 n) { return uint(p.x) + n.x * (uint(p.y) + n.y * uint(p.z)); }
 bool lattice_inside(ivec3 p, uvec3 n) { return all(greaterThanEqual(p, ivec3(0))) && all(lessThan(p, ivec3(n))); }
@@ -25,10 +37,21 @@ bool lattice_inside(ivec3 p, uvec3 n) { return all(greaterThanEqual(p, ivec3(0))
 // g enters a lattice that can only scatter isotropically. The exponential keeps every
 // coefficient of eq. 4.5 non-negative even for optically thick voxels, where
 // 1 - kappa_t + kappa_s/6 would otherwise go below zero.
+//
+// D3Q18 moves energy 1.5 lambda^2 per step in mean square (half its links are sqrt 2 long), so
+// at equal kappa_t it diffuses 1.5x faster; it takes kappa_t = 1 - exp(-1.5 sigma_t' lambda)
+// to keep the physical diffusion coefficient 1 / (3 sigma_t') and absorbs
+// kappa_a = 1 - exp(-sigma_a lambda) per step to keep the physical absorption rate.
 void lattice_kappa(float sigma_t, float albedo, float g, float lambda, out float kt, out float ks) {
     float ss = sigma_t * albedo * (1.0 - g);
-    float st = sigma_t * (1.0 - albedo) + ss;
-    kt = 1.0 - exp(-st * lambda);
-    ks = st > 0.0 ? kt * (ss / st) : 0.0;
+    float sa = sigma_t * (1.0 - albedo);
+    float st = sa + ss;
+    if (LINKS == 6u) {
+        kt = 1.0 - exp(-st * lambda);
+        ks = st > 0.0 ? kt * (ss / st) : 0.0;
+    } else {
+        kt = 1.0 - exp(-1.5 * st * lambda);
+        ks = kt - min(kt, 1.0 - exp(-sa * lambda));
+    }
 }
 #endif

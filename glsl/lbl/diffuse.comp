@@ -9,7 +9,8 @@
 // time-integrated field converges to the same result (thesis 4.7.2, Fig. 4.7; tested).
 //
 // Per step and channel at voxel v: S = sum_i in_i (arrived), r = rest (deposited);
-//   out_i = (1 - kappa_t) in_i + kappa_s S / 6 + r / 6              (eq. 4.4-4.5)
+//   out_i = (1 - kappa_t) in_i + (kappa_s S + r) w_i                 (eq. 4.4-4.5)
+// with w_i = 1/6 (D3Q6) or 1/12 axial, 1/24 diagonal (D3Q18).
 //   irradiance(v) += S + r        (time integral of the energy present: the fluence, up to
 //                                  the factor 1/lambda^2 applied in the view pass)
 //   absorbed += (kappa_t - kappa_s) S;  leaked += out_i where v + e_i leaves the lattice.
@@ -37,7 +38,7 @@ layout(push_constant) uniform Push {
     uint pad2;
 } pc;
 
-shared float sh_out[6u * NCH * B * B * B];
+shared float sh_out[LINKS * NCH * B * B * B];
 shared float sh_red[2u * NCH * B * B * B];
 
 void kahan_add(inout float s, inout float comp, float x) {
@@ -61,18 +62,18 @@ void main() {
     float dens = inside ? density[v] : 0.0;
     for (uint c = 0u; c < NCH; ++c) lattice_kappa(pc.sigma_t[c] * dens, pc.albedo[c], pc.albedo.w, pc.sigma_t.w, kt[c], ks[c]);
 
-    float out_face[6 * 3];   // per link and channel: summed over steps if it crosses the block face
-    float out_last[6 * 3];   // the last step's out, for links staying in the block
-    for (uint k = 0u; k < 18u; ++k) { out_face[k] = 0.0; out_last[k] = 0.0; }
+    float out_face[18 * 3];   // per link and channel: summed over steps if it crosses the block face
+    float out_last[18 * 3];   // the last step's out, for links staying in the block
+    for (uint k = 0u; k < 54u; ++k) { out_face[k] = 0.0; out_last[k] = 0.0; }
     float absorbed[3] = float[3](0.0, 0.0, 0.0);
     float leaked[3] = float[3](0.0, 0.0, 0.0);
     float irr_add[3] = float[3](0.0, 0.0, 0.0);
 
     for (uint s = 0u; s < pc.inner_steps; ++s) {
         for (uint c = 0u; c < NCH; ++c) {
-            float in_[6];
+            float in_[18];
             float S = 0.0;
-            for (uint i = 1u; i <= 6u; ++i) {
+            for (uint i = 1u; i <= LINKS; ++i) {
                 ivec3 q = p - LATTICE_DIR[i];
                 ivec3 ql = local - LATTICE_DIR[i];
                 bool in_block = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
@@ -91,8 +92,9 @@ void main() {
             float r = (s == 0u && inside) ? fin[c * V + v] : 0.0;
             irr_add[c] += S + r;
             absorbed[c] += (kt[c] - ks[c]) * S;
-            for (uint i = 1u; i <= 6u; ++i) {
-                float o = inside ? (1.0 - kt[c]) * in_[i - 1u] + ks[c] * S / 6.0 + r / 6.0 : 0.0;
+            for (uint i = 1u; i <= LINKS; ++i) {
+                float w = link_weight(i);
+                float o = inside ? (1.0 - kt[c]) * in_[i - 1u] + (ks[c] * S + r) * w : 0.0;
                 ivec3 ql = local + LATTICE_DIR[i];
                 bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
                 uint k = (i - 1u) * 3u + c;
@@ -104,14 +106,14 @@ void main() {
         // the previous step's outs must be done before they are overwritten.
         barrier();
         for (uint c = 0u; c < NCH; ++c)
-            for (uint i = 1u; i <= 6u; ++i) sh_out[((i - 1u) * NCH + c) * BB + li] = out_last[(i - 1u) * 3u + c];
+            for (uint i = 1u; i <= LINKS; ++i) sh_out[((i - 1u) * NCH + c) * BB + li] = out_last[(i - 1u) * 3u + c];
         barrier();
     }
 
     if (inside) {
         for (uint c = 0u; c < NCH; ++c) {
             fout[c * V + v] = 0.0;   // the rest was emitted at the first step
-            for (uint i = 1u; i <= 6u; ++i) {
+            for (uint i = 1u; i <= LINKS; ++i) {
                 ivec3 ql = local + LATTICE_DIR[i];
                 bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
                 uint k = (i - 1u) * 3u + c;

@@ -14,7 +14,8 @@
 //!
 //! Knobs (`--set lbl.KEY=VALUE`): `rays` (per light, default 65536), `k` (history slots per
 //! ray per round, default 16), `step` (marching step, scene units; default half a voxel),
-//! `grid` (lattice voxels along the medium's longest side, default 64), `lattice` (`d3q6`),
+//! `grid` (lattice voxels along the medium's longest side, default 64), `lattice` (`d3q6` or
+//! `d3q18`),
 //! `block` (block edge b: 2, 4 or 8; default 4), `block_steps` (lattice steps per dispatch in a
 //! block; 1 = the global lattice; default b), `iters_per_round` (default 8), `tol` (default
 //! 1e-4), `max_iters` (default 20000), `threshold` (default 1e-4), `env_lights` (directional
@@ -39,6 +40,56 @@ const SPEC_NCH: u32 = 3;
 const SPEC_BLOCK: u32 = 4;
 const SPEC_WG: u32 = 5;
 const SPEC_FIXED: u32 = 6;
+const SPEC_LINKS: u32 = 7;
+
+/// The lattice's links besides the rest (glsl/include/lattice.glsl).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Lattice {
+    /// 6 axial links + rest (thesis 4.5).
+    D3q6,
+    /// Geist's 6 axial + 12 face-diagonal links + rest (section 2.2.3).
+    D3q18,
+}
+
+impl Lattice {
+    pub fn links(self) -> u32 {
+        match self {
+            Lattice::D3q6 => 6,
+            Lattice::D3q18 => 18,
+        }
+    }
+
+    /// Link vectors, index 0 the rest (same order as LATTICE_DIR in lattice.glsl).
+    pub fn dirs(self) -> Vec<[i64; 3]> {
+        let all: [[i64; 3]; 19] = [
+            [0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
+            [1, 1, 0], [-1, -1, 0], [1, -1, 0], [-1, 1, 0], [1, 0, 1], [-1, 0, -1], [1, 0, -1], [-1, 0, 1],
+            [0, 1, 1], [0, -1, -1], [0, 1, -1], [0, -1, 1],
+        ];
+        all[..=self.links() as usize].to_vec()
+    }
+
+    /// Mean square distance per step, in voxels^2: 1 (D3Q6), 1.5 (D3Q18, half its energy on
+    /// sqrt 2 links).
+    pub fn mean_square_step(self) -> f64 {
+        match self {
+            Lattice::D3q6 => 1.0,
+            Lattice::D3q18 => 1.5,
+        }
+    }
+}
+
+impl std::str::FromStr for Lattice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "d3q6" => Ok(Lattice::D3q6),
+            "d3q18" => Ok(Lattice::D3q18),
+            _ => Err(format!("unknown lattice {s:?}; use d3q6 or d3q18")),
+        }
+    }
+}
 
 /// Whether marching of round n overlaps diffusion of round n-1.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -298,6 +349,7 @@ pub struct LblSettings {
     pub max_iters: u32,
     pub threshold: f32,
     pub env_lights: u32,
+    pub lattice: Lattice,
     pub deterministic: bool,
     pub schedule: Schedule,
     pub view: ViewSettings,
@@ -312,10 +364,7 @@ impl LblSettings {
             return Err(bad("grid", format!("{grid} must lie in 2..=512")));
         }
         let geom = LatticeGeom::new(req.scene, grid);
-        let lattice: String = s.get("lbl", "lattice", "d3q6".to_string())?;
-        if lattice != "d3q6" {
-            return Err(bad("lattice", format!("{lattice:?}: only d3q6 (6 links + rest, thesis 4.5) is implemented; Geist's 18-link lattice is not yet")));
-        }
+        let lattice: Lattice = s.get("lbl", "lattice", Lattice::D3q6)?;
         let block: u32 = s.get("lbl", "block", 4)?;
         if ![2, 4, 8].contains(&block) {
             return Err(bad("block", format!("{block}: block edge must be 2, 4 or 8 (a power of two for the workgroup reduction)")));
@@ -332,6 +381,7 @@ impl LblSettings {
             max_iters: s.get("lbl", "max_iters", 20000)?,
             threshold: s.get("lbl", "threshold", 1e-4)?,
             env_lights: s.get("lbl", "env_lights", 14)?,
+            lattice,
             deterministic: s.get("lbl", "deterministic", false)?,
             schedule: s.get("lbl", "schedule", Schedule::Concurrent)?,
             view: ViewSettings::parse(s, "lbl", "view_", req.scene)?,
@@ -418,6 +468,7 @@ pub struct Diffuser {
     block_steps: u32,
     dims: [u32; 3],
     nch: u32,
+    lattice: Lattice,
     /// The state the next step reads (and injection adds to).
     pub cur: usize,
     pub iterations: u32,
@@ -427,12 +478,24 @@ impl Diffuser {
     /// A zero lattice over `density` (one value per voxel). `medium` = (sigma_t rgb, albedo
     /// rgb, g), `lambda` the voxel edge in scene units.
     #[allow(clippy::too_many_arguments)]
-    pub fn new(gpu: &Gpu, spec: &[(u32, Spec)], density: Buffer, dims: [u32; 3], nch: u32, medium: ([f32; 3], [f32; 3], f32), lambda: f32, block: u32, block_steps: u32) -> Result<Diffuser, SolverError> {
+    pub fn new(gpu: &Gpu, spec: &[(u32, Spec)], density: Buffer, dims: [u32; 3], nch: u32, lattice: Lattice, medium: ([f32; 3], [f32; 3], f32), lambda: f32, block: u32, block_steps: u32) -> Result<Diffuser, SolverError> {
         let v: u64 = dims.iter().map(|d| *d as u64).product();
+        let info = gpu.info();
+        let block_voxels = (block as u64).pow(3);
+        let shared_bytes = (lattice.links() as u64 + 2) * nch as u64 * block_voxels * 4;
+        if shared_bytes > info.max_compute_shared_memory as u64 || block_voxels > info.max_compute_workgroup_invocations as u64 {
+            return Err(SolverError::Setting {
+                key: "lbl.block".into(),
+                reason: format!(
+                    "block {block} with {:?} and {nch} channel(s) needs {shared_bytes} bytes of shared memory and {block_voxels} invocations; this device offers {} and {}; use a smaller block",
+                    lattice, info.max_compute_shared_memory, info.max_compute_workgroup_invocations
+                ),
+            });
+        }
         let mut spec = spec.to_vec();
-        spec.extend_from_slice(&[(SPEC_NCH, Spec::U32(nch)), (SPEC_BLOCK, Spec::U32(block)), (SPEC_WG, Spec::U32(block))]);
+        spec.extend_from_slice(&[(SPEC_NCH, Spec::U32(nch)), (SPEC_BLOCK, Spec::U32(block)), (SPEC_WG, Spec::U32(block)), (SPEC_LINKS, Spec::U32(lattice.links()))]);
         let pipeline = gpu.pipeline(&shaders::LBL_DIFFUSE, &spec)?;
-        let state_bytes = 7 * nch as u64 * v * 4;
+        let state_bytes = (lattice.links() as u64 + 1) * nch as u64 * v * 4;
         let groups = [0, 1, 2].map(|a| dims[a].div_ceil(block));
         let n_wg = groups.iter().map(|x| *x as u64).product::<u64>();
         let (st, al, g) = medium;
@@ -447,6 +510,7 @@ impl Diffuser {
             block_steps,
             dims,
             nch,
+            lattice,
             cur: 0,
             iterations: 0,
         })
@@ -492,7 +556,7 @@ impl Diffuser {
             book.absorbed[i % self.nch as usize] += t[0] as f64 - t[1] as f64;
             book.leaked[i % self.nch as usize] += t[2] as f64 - t[3] as f64;
         }
-        book.remaining = lattice_content(&read_f32(gpu, self.state())?, self.dims, self.nch);
+        book.remaining = lattice_content(&read_f32(gpu, self.state())?, self.dims, self.nch, self.lattice);
         Ok(book)
     }
 }
@@ -501,10 +565,10 @@ impl Diffuser {
 /// medium filling the whole lattice, `iterations` steps; returns the time-integrated energy
 /// per voxel (one channel) and the energy book.
 #[allow(clippy::too_many_arguments)]
-pub fn diffuse_impulse(gpu: &Gpu, dims: [u32; 3], sigma_t: f32, albedo: f32, g: f32, lambda: f32, block: u32, block_steps: u32, source: [u32; 3], iterations: u32) -> Result<(Vec<f32>, EnergyBook), SolverError> {
+pub fn diffuse_impulse(gpu: &Gpu, lattice: Lattice, dims: [u32; 3], sigma_t: f32, albedo: f32, g: f32, lambda: f32, block: u32, block_steps: u32, source: [u32; 3], iterations: u32) -> Result<(Vec<f32>, EnergyBook), SolverError> {
     let v: u64 = dims.iter().map(|d| *d as u64).product();
     let density = gpu.buffer_with("impulse density", &vec![1f32; v as usize])?;
-    let mut d = Diffuser::new(gpu, &[], density, dims, 1, ([sigma_t; 3], [albedo; 3], g), lambda, block, block_steps)?;
+    let mut d = Diffuser::new(gpu, &[], density, dims, 1, lattice, ([sigma_t; 3], [albedo; 3], g), lambda, block, block_steps)?;
     let src = (source[0] + dims[0] * (source[1] + dims[1] * source[2])) as u64;
     gpu.write_buffer(d.state(), src * 4, bytemuck::bytes_of(&1f32))?;
     let mut left = iterations;
@@ -539,19 +603,11 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     });
     let nch: u32 = if gs.modelled.chromatic || !grey_lights { 3 } else { 1 };
     let info = gpu.info().clone();
-    let state_bytes = 7 * nch as u64 * v * 4;
+    let state_bytes = (set.lattice.links() as u64 + 1) * nch as u64 * v * 4;
     if state_bytes > info.max_storage_buffer_range {
         return Err(SolverError::Setting {
             key: "lbl.grid".into(),
             reason: format!("a {}x{}x{} lattice with {nch} channel(s) needs {state_bytes} bytes per state buffer, over this device's maxStorageBufferRange {}; lower lbl.grid", geom.dims[0], geom.dims[1], geom.dims[2], info.max_storage_buffer_range),
-        });
-    }
-    let block_voxels = (set.block as u64).pow(3);
-    let shared_bytes = (6 + 2) * nch as u64 * block_voxels * 4;
-    if shared_bytes > info.max_compute_shared_memory as u64 || block_voxels > info.max_compute_workgroup_invocations as u64 {
-        return Err(SolverError::Setting {
-            key: "lbl.block".into(),
-            reason: format!("block {} needs {shared_bytes} bytes of shared memory and {block_voxels} invocations; this device offers {} and {}; use a smaller block", set.block, info.max_compute_shared_memory, info.max_compute_workgroup_invocations),
         });
     }
     // Float atomics are the fast path where the device has them; fixed point is deterministic.
@@ -584,7 +640,7 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     let rhb = gpu.buffer("lbl ray history", ray_count as u64 * set.k as u64 * 16)?;
     let accum = gpu.buffer("lbl transfer sums", nch as u64 * v * 4)?;
     let m = &scene.medium;
-    let mut lattice = Diffuser::new(gpu, &gs.modelled.spec(), density.clone(), geom.dims, nch, (m.sigma_t.to_array(), m.albedo.to_array(), m.g), geom.lambda, set.block, set.block_steps)?;
+    let mut lattice = Diffuser::new(gpu, &gs.modelled.spec(), density.clone(), geom.dims, nch, set.lattice, (m.sigma_t.to_array(), m.albedo.to_array(), m.g), geom.lambda, set.block, set.block_steps)?;
     let inject_wg = v.div_ceil(64);
     let inject_tally = gpu.buffer("lbl inject tally", inject_wg * nch as u64 * 8)?;
 
@@ -690,10 +746,10 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
 
 /// Energy still moving in a lattice state: every rest value, and every outgoing link whose
 /// destination is inside (links leaving the lattice were tallied as leaked when produced).
-pub fn lattice_content(state: &[f32], dims: [u32; 3], nch: u32) -> [f64; 3] {
+pub fn lattice_content(state: &[f32], dims: [u32; 3], nch: u32, lattice: Lattice) -> [f64; 3] {
     let [nx, ny, nz] = dims.map(|d| d as i64);
     let v = (nx * ny * nz) as usize;
-    let dirs: [(i64, i64, i64); 7] = [(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)];
+    let dirs: Vec<(i64, i64, i64)> = lattice.dirs().iter().map(|d| (d[0], d[1], d[2])).collect();
     let mut out = [0f64; 3];
     for c in 0..nch as usize {
         for (i, d) in dirs.iter().enumerate() {
@@ -737,7 +793,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let report = RenderReport {
         solver: SolverKind::Lbl,
         settings: json!({
-            "rays": set.rays, "k": set.k, "step": set.step, "grid": set.grid, "lattice": "d3q6", "block": set.block,
+            "rays": set.rays, "k": set.k, "step": set.step, "grid": set.grid, "lattice": set.lattice, "block": set.block,
             "block_steps": set.block_steps, "iters_per_round": set.iters_per_round, "tol": set.tol, "max_iters": set.max_iters,
             "threshold": set.threshold, "env_lights": set.env_lights, "deterministic": lat.stats.deterministic,
             "schedule": set.schedule, "view": set.view.json(),
