@@ -276,6 +276,17 @@ fn render(a: RenderArgs) -> Result<()> {
         eprintln!("{}", r.modelled.describe());
         eprintln!("{} passes, GPU {:.1} ms, wall {:.2} s", r.passes.len(), r.gpu_ms, wall_s);
         if a.solver == SolverKind::Lbl {
+            let l = &r.stats["lbl"];
+            let dims = &l["lattice"]["dims"];
+            eprintln!(
+                "lbl: {}x{}x{} {} lattice, {} channel(s){}, {} rays, {} rounds, {} iterations ({})",
+                dims[0], dims[1], dims[2],
+                r.settings["lattice"].as_str().unwrap_or("?"),
+                l["channels"],
+                if l["channels"] == 1 { " (grey medium and lights)" } else { "" },
+                l["rays"], l["rounds"], l["iterations"],
+                if l["converged"] == true { "converged" } else { "NOT converged" }
+            );
             let busy: Vec<String> = timeline.per_queue.iter().map(|q| format!("{} {:.1} ms ({} passes)", q.role, q.busy_ns as f64 * 1e-6, q.passes)).collect();
             eprintln!("queues: busy {}; overlap {:.1}% of busy time{}", busy.join(", "), 100.0 * timeline.overlap_fraction, if info.mapping.shared() { " (one shared queue: no overlap possible)" } else { "" });
             if let Some((seq, seq_img)) = &sequential {
