@@ -10,4 +10,5 @@ mod phase_gpu;
 mod physics_tests;
 mod scene_tests;
 mod solvers;
+mod stability_tests;
 mod timeline_tests;

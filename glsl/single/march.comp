@@ -126,8 +126,38 @@ uint unit_count() {
     return u;
 }
 
-// In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T.
-vec3 unit_inscatter(vec3 p, vec3 d, uint j) {
+// Mean of 1 / |x(t) - l|^2 over the camera-ray segment t in [t0, t1] (x(t) = o + d t): the
+// point light's 1/r^2 integrated exactly over the step instead of sampled at its midpoint,
+// whose error is unbounded for a step passing near the light (light inside the medium).
+// With h the light's distance from the line and tc its projection:
+//   int dt / (h^2 + (t - tc)^2) = (atan((t1 - tc) / h) - atan((t0 - tc) / h)) / h.
+float mean_inv_r2(vec3 o, vec3 d, float t0, float t1, vec3 l) {
+    vec3 ol = l - o;
+    float tc = dot(ol, d);
+    float h = sqrt(max(dot(ol, ol) - tc * tc, 0.0));
+    // A light exactly on the ray: the integral diverges; a floor at 1e-4 of the segment keeps
+    // it finite (the true radiance is infinite there, like a point light seen through fog).
+    h = max(h, 1e-4 * (t1 - t0));
+    return (atan((t1 - tc) / h) - atan((t0 - tc) / h)) / (h * (t1 - t0));
+}
+
+// Sum over the environment quadrature of the phase function, times 4 pi / n: 1 for an exact
+// quadrature. Dividing by it makes the quadrature conserve energy for any phase function; a
+// strongly peaked HG (|g| near 1) otherwise lets one direction near the peak carry far more
+// than the whole sphere does.
+float env_norm(vec3 d) {
+    float g = scene.albedo.w;
+    float s = 0.0;
+    for (uint k = 0u; k < pc.env_dirs; ++k) {
+        iters++;
+        s += phase_eval(g, dot(d, fibonacci_dir(k, pc.env_dirs)));
+    }
+    return s * (4.0 * PI / float(pc.env_dirs));
+}
+
+// In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T, for the step
+// [t0, t1] of the camera ray o + d t that p samples.
+vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float norm) {
     float g = scene.albedo.w;
     for (uint i = 0u; i < scene.image.z; ++i) {
         iters++;
@@ -141,13 +171,13 @@ vec3 unit_inscatter(vec3 p, vec3 d, uint j) {
             if (dist2 <= 0.0) return vec3(0.0);
             float dist = sqrt(dist2);
             vec3 wi = to / dist;
-            return phase_eval(g, dot(d, wi)) * li.value.rgb / dist2 * exp(-optical_depth(p, wi, dist));
+            return phase_eval(g, dot(d, wi)) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz) * exp(-optical_depth(p, wi, dist));
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
             return phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-optical_depth(p, wi, INF));
         } else {
             vec3 wi = fibonacci_dir(j, pc.env_dirs);
-            return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-optical_depth(p, wi, INF)) * (4.0 * PI / float(pc.env_dirs));
+            return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-optical_depth(p, wi, INF)) * (4.0 * PI / float(pc.env_dirs)) / norm;
         }
     }
     return vec3(0.0);
@@ -166,6 +196,7 @@ void main() {
     vec3 S = st.S_j.xyz;
     uint j = floatBitsToUint(st.S_j.w);
     vec3 sum = st.sum.xyz;
+    float norm = st.sum.w;   // env_norm of the current subsample ray; 0 until computed
     uint ss = max(pc.supersample, 1u);
     uint total = ss * ss;
 
@@ -192,6 +223,7 @@ void main() {
         if (i >= n) {
             // Ray done: what passed through the medium, plus what it scattered toward the camera.
             sum += L + T * env;
+            norm = 0.0;
             k++; i = 0u; j = 0u;
             T = vec3(1.0); L = vec3(0.0); S = vec3(0.0);
             continue;
@@ -199,7 +231,9 @@ void main() {
         float dt = len / float(n);
         vec3 p = o + d * (a + (float(i) + offset) * dt);
         if (j < units) {
-            S += unit_inscatter(p, d, j);
+            if (norm == 0.0) norm = env_norm(d);
+            float t0 = a + float(i) * dt;
+            S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm);
             j++;
             continue;
         }
@@ -213,7 +247,7 @@ void main() {
         j = 0u;
         i++;
     }
-    state[pixel] = MarchState(vec4(T, uintBitsToFloat(k)), vec4(L, uintBitsToFloat(i)), vec4(S, uintBitsToFloat(j)), vec4(sum, 0.0));
+    state[pixel] = MarchState(vec4(T, uintBitsToFloat(k)), vec4(L, uintBitsToFloat(i)), vec4(S, uintBitsToFloat(j)), vec4(sum, norm));
     if (k >= total) {
         vec3 Lp = sum / float(total);
         // Never let a NaN/Inf leave the pass; count it so the host reports it.

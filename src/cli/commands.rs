@@ -33,6 +33,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Render(a) => render(a),
         Command::Compare(a) => compare(a),
         Command::Devices { gpu, json } => devices(&gpu, json),
+        Command::Stability { solvers, slow, out, gpu } => stability(&solvers, slow, &out, &gpu),
         Command::Scene { command: SceneCommand::Info { scene, set, json } } => scene_info(&scene, &set, json),
     }
 }
@@ -397,6 +398,27 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
 /// The device `Gpu::new` would open for `wanted` (same rule), or an error if none matches.
 fn pick_device(list: &[crate::gpu::DeviceSummary], wanted: Option<&str>) -> Result<Option<usize>> {
     Ok(crate::gpu::choose_device(list, wanted)?)
+}
+
+fn stability(kinds: &[SolverKind], slow: bool, out: &Path, g: &GpuArgs) -> Result<()> {
+    std::fs::create_dir_all(out).map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", out.display()))?;
+    let gpu = Gpu::new(&gpu_options(g))?;
+    let bar = ProgressBar::new_spinner();
+    let outcomes = crate::measure::stability::run(&gpu, kinds, slow, &|m| bar.set_message(m.to_string())).map_err(|e| anyhow!(e))?;
+    bar.finish_and_clear();
+    check_validation(&gpu)?;
+    outln!("{}", crate::measure::stability::table(&outcomes));
+    let csv_path = out.join("stability.csv");
+    output::write_atomically(&csv_path, |tmp| std::fs::write(tmp, crate::measure::stability::csv(&outcomes)).map_err(|e| output::OutputError::Io { path: tmp.to_path_buf(), action: "write", source: e }))?;
+    let doc = json!({ "scatterlab": env!("CARGO_PKG_VERSION"), "device": gpu.info(), "slow_included": slow, "outcomes": outcomes });
+    output::write_json(&out.join("stability.json"), &doc)?;
+    let failed = outcomes.iter().filter(|o| !o.passed).count();
+    eprintln!("wrote {} and {}", csv_path.display(), out.join("stability.json").display());
+    if failed > 0 {
+        bail!("{failed} of {} stability checks failed (see the table)", outcomes.len());
+    }
+    eprintln!("all {} stability checks passed{}", outcomes.len(), if slow { "" } else { " (slow cases skipped: --slow runs them)" });
+    Ok(())
 }
 
 fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {

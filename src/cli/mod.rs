@@ -41,6 +41,22 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Every solver at the extremes (albedo, optical thickness, g, point-light placement):
+    /// finite, non-negative, never brighter than the lossless bound, exact where an exact
+    /// answer is cheap. Prints a pass/fail table, writes CSV and JSON, fails on any failure.
+    Stability {
+        /// Solvers to sweep (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl")]
+        solvers: Vec<SolverKind>,
+        /// Also run the cases marked slow (optical thickness 1e3 and 1e4).
+        #[arg(long)]
+        slow: bool,
+        /// Directory for stability.csv and stability.json (created if missing).
+        #[arg(long, default_value = "stability")]
+        out: PathBuf,
+        #[command(flatten)]
+        gpu: GpuArgs,
+    },
     /// Scene tools.
     Scene {
         #[command(subcommand)]

@@ -1,3 +1,4 @@
 //! Measurement: what the GPU did and how long it took (timelines, overlap, serial baseline).
 
+pub mod stability;
 pub mod timeline;

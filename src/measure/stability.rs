@@ -1,0 +1,291 @@
+//! `scatterlab stability`: every solver at the extremes (DESIGN.md, "Measuring the trade").
+//!
+//! Sweeps albedo {0, 0.5, 0.9, 0.99, 0.999, 1}, optical thickness of the medium from 1e-3 to
+//! 1e4, g from -0.99 to 0.99, and a point light at a voxel centre, on a voxel corner, on the
+//! medium's boundary and outside it. Every case is lit so that a cheap exact bound or answer
+//! exists:
+//! - under a uniform environment of radiance L alone, no pixel may exceed L (energy is never
+//!   created: the lossless medium returns exactly L, thesis furnace argument), and a pure
+//!   absorber (albedo 0) must equal L exp(-tau(ray)) on every pixel, which `single` computes
+//!   exactly (the error against it is reported);
+//! - with a point light, output must be finite and non-negative, and its total not brighter
+//!   than the total of the same case with albedo 1 (the lossless bound, by `path`) beyond the
+//!   statistical error of both.
+//! `path` is judged with its variance image (a pixel fails only beyond 5 standard errors plus
+//! a small absolute floor). Cases marked `slow` are run by the command, not by the test suite.
+
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::gpu::Gpu;
+use crate::output::Image;
+use crate::scene::{LoadOptions, Scene};
+use crate::solvers::{self, RenderRequest, Settings, SolverKind};
+
+/// One sweep case: a scene text and what it checks.
+#[derive(Clone, Debug, Serialize)]
+pub struct Case {
+    pub name: String,
+    pub group: &'static str,
+    pub albedo: f32,
+    pub tau: f32,
+    pub g: f32,
+    /// Point light position, or None for the uniform environment.
+    pub light: Option<[f32; 3]>,
+    /// Too slow for the test suite on a CPU device (run by the command only).
+    pub slow: bool,
+}
+
+/// What one solver did on one case.
+#[derive(Clone, Debug, Serialize)]
+pub struct Outcome {
+    pub case: String,
+    pub group: &'static str,
+    pub solver: SolverKind,
+    pub passed: bool,
+    pub finite: bool,
+    pub non_negative: bool,
+    pub energy_ok: bool,
+    /// Environment cases: largest pixel excess over the bound 1; point-light cases: the
+    /// image total over the lossless total, minus 1. Negative or 0 is within the bound.
+    pub max_over_bound: f64,
+    pub exact_error: Option<f64>,
+    pub iterations: Option<u64>,
+    pub converged: Option<bool>,
+    pub gpu_ms: f64,
+    pub notes: Vec<String>,
+}
+
+const RES: u32 = 16;
+/// The medium: a cube of edge 1 made of 8^3 voxels (so "voxel centre" and "corner" mean
+/// something for every solver's grid), seen face on by an orthographic camera narrower than
+/// the cube, so every camera ray crosses exactly one unit of medium (no silhouette pixels:
+/// exact answers hold for every pixel whatever the pixel filter).
+const GRID: u32 = 8;
+
+fn scene_text(c: &Case) -> String {
+    let sigma_t = c.tau; // cube edge 1: optical thickness along an axis = sigma_t
+    let light = match c.light {
+        None => "[[light]]\nkind = \"environment\"\nradiance = 1.0\n".to_string(),
+        Some(p) => format!("[[light]]\nkind = \"point\"\nposition = [{}, {}, {}]\nintensity = 1.0\n", p[0], p[1], p[2]),
+    };
+    format!(
+        "[render]\nwidth = {RES}\nheight = {RES}\nseed = 9\nspp = 64\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 0.6\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = {sigma_t}\nalbedo = {}\ng = {}\ndensity = {{ kind = \"constant\" }}\n{light}",
+        c.albedo, c.g
+    )
+}
+
+/// The sweep (DESIGN.md "stability").
+pub fn cases() -> Vec<Case> {
+    let mut v = Vec::new();
+    let mk = |name: String, group, albedo, tau, g, light, slow| Case { name, group, albedo, tau, g, light, slow };
+    for a in [0.0f32, 0.5, 0.9, 0.99, 0.999, 1.0] {
+        v.push(mk(format!("albedo {a}"), "albedo", a, 4.0, 0.0, None, false));
+    }
+    for tau in [1e-3f32, 1e-1, 10.0, 1e3, 1e4] {
+        // Lossless at extreme thickness: path lengths grow as tau^2 (slow), so albedo 0.9 there.
+        let slow = tau >= 1e3;
+        v.push(mk(format!("tau {tau:e}"), "thickness", 0.9, tau, 0.0, None, slow));
+    }
+    for g in [-0.99f32, -0.5, 0.0, 0.5, 0.99] {
+        v.push(mk(format!("g {g}"), "anisotropy", 0.9, 4.0, g, None, false));
+    }
+    let h = 1.0 / GRID as f32;
+    let lights = [
+        ("light at a voxel centre", [0.5 * h, 0.5 * h, 0.5 * h]),
+        ("light on a voxel corner", [0.0, 0.0, 0.0]),
+        ("light on the boundary", [0.5, 0.0, 0.0]),
+        ("light outside", [1.5, 0.7, 0.9]),
+    ];
+    for (name, p) in lights {
+        v.push(mk(name.to_string(), "point light", 0.9, 4.0, 0.0, Some(p), false));
+    }
+    v
+}
+
+fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)]) -> Result<solvers::RenderOutput, String> {
+    let settings = Settings::new(sets);
+    let req = RenderRequest { scene, settings: &settings, force_full: false, progress: &|_, _| {} };
+    solvers::render(gpu, kind, &req).map_err(|e| e.to_string())
+}
+
+/// Knobs for each solver that keep the sweep cheap on a CPU device.
+fn knobs(kind: SolverKind) -> Vec<(String, String)> {
+    let kv = |k: &str, v: &str| (k.to_string(), v.to_string());
+    match kind {
+        SolverKind::Path => vec![kv("path.spp", "64")],
+        SolverKind::Single => vec![kv("single.env_dirs", "16")],
+        SolverKind::Lbl => vec![kv("lbl.grid", "16"), kv("lbl.rays", "4096"), kv("lbl.view_env_dirs", "16"), kv("lbl.max_iters", "4000")],
+    }
+}
+
+/// Run every case (skipping slow ones unless `include_slow`) for every solver.
+pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dyn Fn(&str)) -> Result<Vec<Outcome>, String> {
+    let mut out = Vec::new();
+    for case in cases() {
+        if case.slow && !include_slow {
+            continue;
+        }
+        let scene = Scene::from_str(&scene_text(&case), &case.name, std::path::Path::new("."), &[], &LoadOptions::default()).map_err(|e| e.to_string())?;
+        // The lossless bound for point-light cases: the same scene with albedo 1, by `path`.
+        let bound: Option<(Image, Option<Image>)> = match case.light {
+            Some(_) => {
+                let mut lossless = scene.clone();
+                lossless.medium.albedo = Vec3::ONE;
+                let r = render(gpu, &lossless, SolverKind::Path, &[("path.spp".into(), "256".into())])?;
+                Some((r.image, r.variance))
+            }
+            None => None,
+        };
+        // The exact pure absorber: every camera ray crosses one unit, L exp(-sigma_t).
+        let exact = if case.albedo == 0.0 && case.light.is_none() {
+            let mut e = Image::new(RES, RES);
+            e.data.iter_mut().for_each(|v| *v = (-(case.tau as f64)).exp() as f32);
+            Some(e)
+        } else {
+            None
+        };
+        for kind in solvers_ {
+            progress(&format!("{} / {}", case.name, kind.name()));
+            let r = match render(gpu, &scene, *kind, &knobs(*kind)) {
+                Ok(r) => r,
+                Err(e) => {
+                    out.push(Outcome {
+                        case: case.name.clone(),
+                        group: case.group,
+                        solver: *kind,
+                        passed: false,
+                        finite: false,
+                        non_negative: false,
+                        energy_ok: false,
+                        max_over_bound: f64::NAN,
+                        exact_error: None,
+                        iterations: None,
+                        converged: None,
+                        gpu_ms: 0.0,
+                        notes: vec![format!("error: {e}")],
+                    });
+                    continue;
+                }
+            };
+            out.push(judge(&case, *kind, &r, bound.as_ref(), exact.as_ref()));
+        }
+    }
+    Ok(out)
+}
+
+fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option<&(Image, Option<Image>)>, exact: Option<&Image>) -> Outcome {
+    let img = &r.image;
+    let finite = img.nan_inf_count() == 0;
+    let non_negative = img.data.iter().all(|v| *v >= 0.0);
+    let var = |i: usize| r.variance.as_ref().map(|v| v.data[i] as f64).unwrap_or(0.0);
+    let (energy_ok, max_over) = match bound {
+        // Uniform environment of radiance 1: no pixel may exceed 1 (beyond 5 standard errors).
+        None => {
+            let mut ok = true;
+            let mut over = 0.0f64;
+            for i in 0..img.data.len() {
+                let x = img.data[i] as f64;
+                if x > 1.0 + 5.0 * var(i).sqrt() + 1e-4 {
+                    ok = false;
+                }
+                over = over.max(x - 1.0);
+            }
+            (ok, over)
+        }
+        // Point light: the image's total against the lossless (albedo 1) `path` render's total.
+        // Per pixel the bound is too noisy near a light inside the medium (next-event estimates
+        // of 1/r^2 are heavy-tailed), the total is not.
+        Some((bi, bv)) => {
+            let sx: f64 = img.data.iter().map(|v| *v as f64).sum();
+            let sb: f64 = bi.data.iter().map(|v| *v as f64).sum();
+            let vx: f64 = (0..img.data.len()).map(var).sum();
+            let vb: f64 = bv.as_ref().map(|v| v.data.iter().map(|x| *x as f64).sum()).unwrap_or(0.0);
+            let ok = sx <= sb + 5.0 * (vx + vb).sqrt() + 1e-6 * sb.abs();
+            (ok, if sb > 0.0 { sx / sb - 1.0 } else { 0.0 })
+        }
+    };
+    let exact_error = exact.and_then(|e| crate::output::compare(img, e).ok()).map(|m| m.rel_l2);
+    let mut notes = r.report.warnings.clone();
+    let lbl = &r.report.stats["lbl"];
+    let (iterations, converged) = if kind == SolverKind::Lbl { (lbl["iterations"].as_u64(), lbl["converged"].as_bool()) } else { (None, None) };
+    // A deterministic solver must be exact on the pure absorber; path within 5 standard
+    // errors on every pixel. In a pure absorber of constant density under a radiance-1
+    // environment each path sample is 1 or 0 (it escapes or not), so its variance is exactly
+    // e (1 - e) per sample: used where the sample variance is 0 (all samples alike).
+    let spp = r.report.settings["spp"].as_f64().unwrap_or(1.0).max(1.0);
+    let exact_ok = match (exact, kind) {
+        (Some(e), SolverKind::Path) => (0..img.data.len()).all(|i| {
+            let ev = e.data[i] as f64;
+            let sd = var(i).max(ev * (1.0 - ev) / spp).sqrt();
+            (img.data[i] as f64 - ev).abs() <= 5.0 * sd + 1e-3
+        }),
+        (Some(_), _) => exact_error.is_some_and(|e| e < 1e-4),
+        (None, _) => true,
+    };
+    if !exact_ok {
+        notes.push("pure absorber differs from the exact answer".into());
+    }
+    if converged == Some(false) {
+        notes.push("lattice did not converge".into());
+    }
+    Outcome {
+        case: case.name.clone(),
+        group: case.group,
+        solver: kind,
+        passed: finite && non_negative && energy_ok && exact_ok,
+        finite,
+        non_negative,
+        energy_ok,
+        max_over_bound: max_over,
+        exact_error,
+        iterations,
+        converged,
+        gpu_ms: r.report.gpu_ms,
+        notes,
+    }
+}
+
+/// CSV of the outcomes (one row per case and solver).
+pub fn csv(outcomes: &[Outcome]) -> String {
+    let mut s = String::from("case,group,solver,passed,finite,non_negative,energy_ok,max_over_bound,exact_rel_l2,iterations,converged,gpu_ms,notes\n");
+    for o in outcomes {
+        s.push_str(&format!(
+            "\"{}\",{},{},{},{},{},{},{:.4e},{},{},{},{:.1},\"{}\"\n",
+            o.case,
+            o.group,
+            o.solver.name(),
+            o.passed,
+            o.finite,
+            o.non_negative,
+            o.energy_ok,
+            o.max_over_bound,
+            o.exact_error.map(|e| format!("{e:.3e}")).unwrap_or_default(),
+            o.iterations.map(|i| i.to_string()).unwrap_or_default(),
+            o.converged.map(|c| c.to_string()).unwrap_or_default(),
+            o.gpu_ms,
+            o.notes.join("; ").replace('"', "'")
+        ));
+    }
+    s
+}
+
+/// The pass/fail table printed by the command.
+pub fn table(outcomes: &[Outcome]) -> String {
+    let mut s = format!("{:<26} {:<7} {:<5} {:>8} {:>10} {:>6} {}\n", "case", "solver", "ok", "over", "exact err", "iters", "notes");
+    for o in outcomes {
+        s.push_str(&format!(
+            "{:<26} {:<7} {:<5} {:>8.1e} {:>10} {:>6} {}\n",
+            o.case,
+            o.solver.name(),
+            if o.passed { "pass" } else { "FAIL" },
+            o.max_over_bound,
+            o.exact_error.map(|e| format!("{e:.1e}")).unwrap_or_else(|| "-".into()),
+            o.iterations.map(|i| i.to_string()).unwrap_or_else(|| "-".into()),
+            o.notes.join("; ")
+        ));
+    }
+    s
+}
