@@ -34,6 +34,9 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Compare(a) => compare(a),
         Command::Devices { gpu, json } => devices(&gpu, json),
         Command::Stability { solvers, slow, out, gpu } => stability(&solvers, slow, &out, &gpu),
+        Command::Bench { scenes, solvers, out, ref_spp, repeats, quick, throughput, set, cache, gpu } => {
+            bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, throughput, set, cache }, &gpu)
+        }
         Command::Scene { command: SceneCommand::Info { scene, set, json } } => scene_info(&scene, &set, json),
     }
 }
@@ -398,6 +401,88 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
 /// The device `Gpu::new` would open for `wanted` (same rule), or an error if none matches.
 fn pick_device(list: &[crate::gpu::DeviceSummary], wanted: Option<&str>) -> Result<Option<usize>> {
     Ok(crate::gpu::choose_device(list, wanted)?)
+}
+
+struct BenchArgs {
+    scenes: Vec<PathBuf>,
+    solvers: Vec<SolverKind>,
+    out: PathBuf,
+    ref_spp: u32,
+    repeats: u32,
+    quick: bool,
+    throughput: bool,
+    set: Vec<String>,
+    cache: PathBuf,
+}
+
+fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
+    use crate::measure::bench as b;
+    let sets = parse_sets(&a.set)?;
+    if let Some((k, _)) = sets.iter().find(|(k, _)| !is_scene_key(k)) {
+        bail!("--set {k}: bench takes scene keys only (solver knobs are what its ladders vary)");
+    }
+    if a.ref_spp == 0 {
+        bail!("--ref-spp must be at least 1");
+    }
+    // Load every scene before any GPU work, so a typo in the last one costs nothing.
+    let mut scenes = Vec::new();
+    for p in &a.scenes {
+        let text = std::fs::read_to_string(p).map_err(|e| anyhow!("{}: cannot read scene file: {e}", p.display()))?;
+        scenes.push((p.clone(), text, Scene::load(p, &sets, &LoadOptions::default())?));
+    }
+    std::fs::create_dir_all(&a.out).map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", a.out.display()))?;
+    let gpu = Gpu::new(&gpu_options(g))?;
+    let info = gpu.info().clone();
+    let bar = ProgressBar::new_spinner();
+    let mut all_points = Vec::new();
+    let mut all_thr = Vec::new();
+    let mut refs = Vec::new();
+    let mut slim = Vec::new();
+    for (path, text, scene) in &scenes {
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let key = b::reference_key(text, scene, &sets, &info, a.ref_spp);
+        bar.set_message(format!("{name}: path reference at {} spp", a.ref_spp));
+        let t = Instant::now();
+        let (reference, cached) = b::reference(&gpu, scene, &key, a.ref_spp, &a.cache).map_err(|e| anyhow!(e))?;
+        refs.push(json!({ "scene": name, "key": key, "spp": a.ref_spp, "cached": cached, "seconds": t.elapsed().as_secs_f64() }));
+        let (points, thr) = b::bench_scene(&gpu, &name, scene, &reference, &a.solvers, a.quick, a.repeats, &|m| bar.set_message(m.to_string())).map_err(|e| anyhow!(e))?;
+        let svg_path = a.out.join(format!("{name}.svg"));
+        output::write_atomically(&svg_path, |tmp| std::fs::write(tmp, b::svg(&format!("{name}: error vs GPU time on {}", info.name), &points)).map_err(|e| output::OutputError::Io { path: tmp.to_path_buf(), action: "write", source: e }))?;
+        for k in &a.solvers {
+            // The third rung: for `path`, enough samples that the difference is not all noise.
+            let (sb, fb, sm, fm, d) = b::slim_vs_full(&gpu, scene, *k, &b::ladder(*k, scene, true)[2].sets).map_err(|e| anyhow!(e))?;
+            slim.push(json!({ "scene": name, "solver": k, "slim_bytes": sb, "full_bytes": fb, "slim_ms": sm, "full_ms": fm, "rel_l2_between": d }));
+        }
+        all_points.extend(points);
+        all_thr.extend(thr);
+    }
+    bar.finish_and_clear();
+    check_validation(&gpu)?;
+    let csv_path = a.out.join("bench.csv");
+    output::write_atomically(&csv_path, |tmp| std::fs::write(tmp, b::csv(&all_points)).map_err(|e| output::OutputError::Io { path: tmp.to_path_buf(), action: "write", source: e }))?;
+    let doc = json!({
+        "scatterlab": env!("CARGO_PKG_VERSION"), "device": info, "references": refs, "quick": a.quick, "repeats": a.repeats,
+        "ladders": a.solvers.iter().map(|k| json!({ "solver": k, "rungs": scenes.first().map(|s| b::ladder(*k, &s.2, a.quick)).unwrap_or_default() })).collect::<Vec<_>>(),
+        "points": all_points, "throughput": all_thr, "slim_vs_full": slim,
+    });
+    output::write_json(&a.out.join("bench.json"), &doc)?;
+    outln!("{:<20} {:<7} {:<14} {:>10} {:>10} {:>9} {:>7}", "scene", "solver", "knob=value", "GPU ms", "relL2", "energy", "pareto");
+    for p in &all_points {
+        let kv = format!("{}={}", p.knob.split('.').nth(1).unwrap_or(&p.knob), p.value.chars().take(7).collect::<String>());
+        outln!("{:<20} {:<7} {:<14} {:>10.1} {:>10.4} {:>9.3} {:>7}", p.scene, p.solver.name(), kv, p.gpu_ms, p.metrics.rel_l2, p.metrics.energy_ratio, if p.pareto { "*" } else { "" });
+    }
+    if a.throughput {
+        outln!("\nthroughput on {} ({}):", info.name, info.driver_name);
+        for t in &all_thr {
+            outln!("  {:<20} {:<7} {:<48} {:>12.4e} {}", t.scene, t.solver.name(), t.figure, t.value, t.unit);
+        }
+        outln!("  (nominal memory bandwidth of this device: not known to scatterlab)");
+    }
+    for s_ in &slim {
+        outln!("model-only-what-is-needed {} {}: slim {} B / full {} B, {:.1} / {:.1} ms, images differ by relL2 {:.2e}", s_["scene"], s_["solver"], s_["slim_bytes"], s_["full_bytes"], s_["slim_ms"].as_f64().unwrap_or(0.0), s_["full_ms"].as_f64().unwrap_or(0.0), s_["rel_l2_between"].as_f64().unwrap_or(0.0));
+    }
+    eprintln!("wrote {}, {} and one SVG per scene in {}", csv_path.display(), a.out.join("bench.json").display(), a.out.display());
+    Ok(())
 }
 
 fn stability(kinds: &[SolverKind], slow: bool, out: &Path, g: &GpuArgs) -> Result<()> {

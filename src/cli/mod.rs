@@ -41,6 +41,39 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Error against time for every solver's quality ladder on each scene, against a cached
+    /// `path` reference: CSV, JSON and an SVG plot per scene (log-log, Pareto front marked).
+    Bench {
+        /// Scene files.
+        #[arg(required = true)]
+        scenes: Vec<PathBuf>,
+        /// Solvers to bench (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl")]
+        solvers: Vec<SolverKind>,
+        /// Output directory (created if missing).
+        #[arg(long, default_value = "bench")]
+        out: PathBuf,
+        /// Samples per pixel of the `path` reference.
+        #[arg(long, default_value_t = 4096)]
+        ref_spp: u32,
+        /// Renders per point; times are medians.
+        #[arg(long, default_value_t = 1)]
+        repeats: u32,
+        /// The cheap end of each ladder only.
+        #[arg(long)]
+        quick: bool,
+        /// Also print the throughput table (samples/s, path segments/s, lattice voxel-updates/s, GB/s).
+        #[arg(long)]
+        throughput: bool,
+        /// Override scene keys for every scene (render.width=64, ...).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Where references are cached.
+        #[arg(long, default_value = ".scatterlab-cache")]
+        cache: PathBuf,
+        #[command(flatten)]
+        gpu: GpuArgs,
+    },
     /// Every solver at the extremes (albedo, optical thickness, g, point-light placement):
     /// finite, non-negative, never brighter than the lossless bound, exact where an exact
     /// answer is cheap. Prints a pass/fail table, writes CSV and JSON, fails on any failure.

@@ -446,6 +446,10 @@ pub struct LblStats {
     pub energy: EnergyBook,
     pub schedule: Schedule,
     pub deterministic: bool,
+    /// Bytes of every lattice, ray and history buffer (what grey media save by one channel).
+    pub device_bytes: u64,
+    /// GPU time of the lattice steps alone, for the voxel-update throughput.
+    pub diffuse_ms: f64,
 }
 
 /// The lattice's time-integrated energy and stats, without the view pass (for tests of the
@@ -518,6 +522,10 @@ impl Diffuser {
 
     pub fn state(&self) -> &Buffer {
         &self.states[self.cur]
+    }
+
+    pub fn device_bytes(&self) -> u64 {
+        self.states[0].size() + self.states[1].size() + self.irr.size() + self.tally.size()
     }
 
     pub fn irradiance(&self) -> &Buffer {
@@ -737,10 +745,11 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
         }
     }
     let irradiance = read_f32(gpu, &irr)?;
+    let device_bytes = density.size() + ray_buf.size() + rhb.size() + accum.size() + inject_tally.size() + lattice.device_bytes();
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
-        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations: lattice.iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed },
+        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations: lattice.iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed, device_bytes, diffuse_ms: 0.0 },
     })
 }
 
@@ -774,12 +783,12 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let set = LblSettings::parse(req)?;
     req.settings.check_all_used("lbl")?;
     let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-    let lat = run_lattice(gpu, scene, &gs, &set, req.progress)?;
+    let mut lat = run_lattice(gpu, scene, &gs, &set, req.progress)?;
     let g = &lat.stats.lattice;
     let ms = MsVolume { energy: &lat.irradiance_buffer, dims: g.dims, channels: lat.stats.channels, origin: g.origin, lambda: g.lambda };
     let view = march_view(gpu, scene, &gs, &set.view, Some(&ms))?;
     let passes = gpu.take_timings();
-    let timeline = crate::measure::timeline::summarize(&passes);
+    lat.stats.diffuse_ms = passes.iter().filter(|p| p.name == "lbl.diffuse").map(|p| p.duration_ms()).sum();
     let mut warnings = Vec::new();
     if !lat.stats.converged {
         warnings.push(format!(
@@ -799,10 +808,10 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
             "schedule": set.schedule, "view": set.view.json(),
         }),
         modelled: gs.modelled.clone(),
-        device_bytes: gs.bytes + view.device_bytes,
+        device_bytes: gs.bytes + view.device_bytes + lat.stats.device_bytes,
         gpu_ms: super::gpu_ms(&passes),
         passes,
-        stats: json!({ "lbl": lat.stats, "timeline": timeline, "view_dispatches": view.dispatches }),
+        stats: json!({ "lbl": lat.stats, "view_dispatches": view.dispatches }),
         warnings,
     };
     Ok(RenderOutput { image: view.image, variance: None, report })

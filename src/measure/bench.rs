@@ -1,0 +1,317 @@
+//! `scatterlab bench`: the error-versus-time trade of every solver on the user's scenes
+//! (DESIGN.md, "Measuring the trade").
+//!
+//! Per scene: the `path` reference at high spp, cached on disk under a key of the scene's
+//! content (scene text, grid data, overrides), engine version, device and reference spp; then
+//! each solver walks its own quality ladder (spp for `path`, step for `single`, grid resolution
+//! for `lbl`). Each point: GPU time (sum of pass timestamps) and wall time, medians over
+//! repeats, and the metrics of `output::compare` against the reference. Results: CSV, JSON
+//! (device, driver, queue mapping, versions, settings) and one SVG plot per scene of relL2
+//! against GPU time on log-log axes, one line per solver, the Pareto front marked.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+use crate::gpu::{DeviceInfo, Gpu};
+use crate::output::{self, Image, Metrics};
+use crate::scene::{Density, Scene};
+use crate::solvers::{self, RenderRequest, Settings, SolverKind};
+
+/// One rung of a solver's quality ladder.
+#[derive(Clone, Debug, Serialize)]
+pub struct Rung {
+    pub knob: String,
+    pub value: String,
+    pub sets: Vec<(String, String)>,
+}
+
+/// Each solver's quality ladder, cheapest first. `quick` keeps the cheap end only.
+pub fn ladder(kind: SolverKind, scene: &Scene, quick: bool) -> Vec<Rung> {
+    let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
+    let rung = |knob: &str, value: String| Rung { knob: knob.to_string(), value: value.clone(), sets: vec![(knob.to_string(), value)] };
+    let mut v: Vec<Rung> = match kind {
+        SolverKind::Path => [4u32, 16, 64, 256, 1024].iter().map(|s| rung("path.spp", s.to_string())).collect(),
+        SolverKind::Single => [16.0f32, 32.0, 64.0, 128.0, 256.0].iter().map(|d| rung("single.step", format!("{}", diag / d))).collect(),
+        SolverKind::Lbl => [16u32, 24, 32, 48, 64].iter().map(|g| rung("lbl.grid", g.to_string())).collect(),
+    };
+    if quick {
+        v.truncate(3);
+    }
+    v
+}
+
+/// A measured point.
+#[derive(Clone, Debug, Serialize)]
+pub struct Point {
+    pub scene: String,
+    pub solver: SolverKind,
+    pub knob: String,
+    pub value: String,
+    pub gpu_ms: f64,
+    pub wall_ms: f64,
+    pub metrics: Metrics,
+    pub iterations: Option<u64>,
+    pub converged: Option<bool>,
+    pub device_bytes: u64,
+    pub pareto: bool,
+}
+
+/// Figures of merit a GPU engineer compares across devices.
+#[derive(Clone, Debug, Serialize)]
+pub struct Throughput {
+    pub scene: String,
+    pub solver: SolverKind,
+    pub figure: String,
+    pub value: f64,
+    pub unit: String,
+}
+
+/// Indices on the Pareto front of (time, error): points no other point beats on both.
+pub fn pareto(points: &[(f64, f64)]) -> Vec<bool> {
+    points
+        .iter()
+        .map(|&(t, e)| !points.iter().any(|&(t2, e2)| t2 <= t && e2 <= e && (t2 < t || e2 < e)))
+        .collect()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    let n = v.len();
+    if n == 0 {
+        0.0
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Cache key of a reference: scene content (file text, overrides, grid data), engine
+/// version, device and driver, reference spp.
+pub fn reference_key(scene_text: &str, scene: &Scene, overrides: &[(String, String)], device: &DeviceInfo, spp: u32) -> String {
+    let mut h = Sha256::new();
+    h.update(scene_text.as_bytes());
+    for (k, v) in overrides {
+        h.update(format!("{k}={v};").as_bytes());
+    }
+    if let Density::Grid(g) = &scene.medium.density {
+        h.update(bytemuck::cast_slice::<f32, u8>(&g.data));
+    }
+    h.update(env!("CARGO_PKG_VERSION").as_bytes());
+    h.update(format!("{}|{}|{}|{}", device.name, device.driver_name, device.driver_info, spp).as_bytes());
+    h.finalize().iter().take(12).map(|b| format!("{b:02x}")).collect()
+}
+
+fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)], force_full: bool) -> Result<(solvers::RenderOutput, f64), String> {
+    let settings = Settings::new(sets);
+    let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
+    let t = Instant::now();
+    let r = solvers::render(gpu, kind, &req).map_err(|e| e.to_string())?;
+    Ok((r, t.elapsed().as_secs_f64() * 1e3))
+}
+
+/// The cached `path` reference for a scene, rendering it when missing. Returns the image and
+/// whether it came from the cache.
+pub fn reference(gpu: &Gpu, scene: &Scene, key: &str, spp: u32, cache: &Path) -> Result<(Image, bool), String> {
+    let file = cache.join(format!("ref-{key}.exr"));
+    if let Ok(img) = output::read_exr(&file) {
+        if (img.width, img.height) == (scene.render.width, scene.render.height) {
+            return Ok((img, true));
+        }
+    }
+    let (r, _) = render(gpu, scene, SolverKind::Path, &[("path.spp".into(), spp.to_string())], false)?;
+    std::fs::create_dir_all(cache).map_err(|e| format!("cannot create cache {}: {e}", cache.display()))?;
+    let mut layers: Vec<(&str, &Image)> = vec![("", &r.image)];
+    if let Some(v) = &r.variance {
+        layers.push(("variance", v));
+    }
+    output::write_exr(&file, &layers).map_err(|e| e.to_string())?;
+    Ok((r.image, false))
+}
+
+/// Walk every solver's ladder on one scene.
+#[allow(clippy::too_many_arguments)]
+pub fn bench_scene(
+    gpu: &Gpu,
+    name: &str,
+    scene: &Scene,
+    reference: &Image,
+    kinds: &[SolverKind],
+    quick: bool,
+    repeats: u32,
+    progress: &dyn Fn(&str),
+) -> Result<(Vec<Point>, Vec<Throughput>), String> {
+    let mut points = Vec::new();
+    let mut thr = Vec::new();
+    for &kind in kinds {
+        for rung in ladder(kind, scene, quick) {
+            progress(&format!("{name}: {} {}={}", kind.name(), rung.knob, rung.value));
+            let mut gpu_ms = Vec::new();
+            let mut wall_ms = Vec::new();
+            let mut last = None;
+            for _ in 0..repeats.max(1) {
+                let (r, wall) = render(gpu, scene, kind, &rung.sets, false)?;
+                gpu_ms.push(r.report.gpu_ms);
+                wall_ms.push(wall);
+                last = Some(r);
+            }
+            let r = last.expect("at least one repeat");
+            let metrics = output::compare(&r.image, reference).map_err(|e| e.to_string())?;
+            let lbl = &r.report.stats["lbl"];
+            let g = median(gpu_ms);
+            // Throughput at the most expensive rung is the figure a device comparison wants.
+            match kind {
+                SolverKind::Path => {
+                    let steps = r.report.stats["tracking_steps"].as_f64().unwrap_or(0.0);
+                    let samples = (scene.render.width * scene.render.height) as f64 * rung.value.parse::<f64>().unwrap_or(0.0);
+                    thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("samples/s at {}={}", rung.knob, rung.value), value: samples / (g * 1e-3), unit: "1/s".into() });
+                    thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("path segments/s at {}={}", rung.knob, rung.value), value: steps / (g * 1e-3), unit: "1/s".into() });
+                }
+                SolverKind::Lbl => {
+                    let dims = &lbl["lattice"]["dims"];
+                    let voxels = (0..3).map(|a| dims[a].as_f64().unwrap_or(0.0)).product::<f64>();
+                    let iters = lbl["iterations"].as_f64().unwrap_or(0.0);
+                    let ms = lbl["diffuse_ms"].as_f64().unwrap_or(0.0);
+                    let ch = lbl["channels"].as_f64().unwrap_or(1.0);
+                    if ms > 0.0 {
+                        let ups = voxels * iters / (ms * 1e-3);
+                        thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("lattice voxel-updates/s at {}={}", rung.knob, rung.value), value: ups, unit: "1/s".into() });
+                        // Per voxel-update at least: 6 links read and written, 1 irradiance
+                        // read-modify-write, 1 density read, 4 bytes each, per channel.
+                        let bytes = (ch * (6.0 * 2.0 + 2.0) + 1.0) * 4.0;
+                        thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("lattice effective bandwidth at {}={}", rung.knob, rung.value), value: ups * bytes / 1e9, unit: "GB/s".into() });
+                    }
+                }
+                SolverKind::Single => {}
+            }
+            points.push(Point {
+                scene: name.into(),
+                solver: kind,
+                knob: rung.knob.clone(),
+                value: rung.value.clone(),
+                gpu_ms: g,
+                wall_ms: median(wall_ms),
+                metrics,
+                iterations: lbl["iterations"].as_u64(),
+                converged: lbl["converged"].as_bool(),
+                device_bytes: r.report.device_bytes,
+                pareto: false,
+            });
+        }
+    }
+    let front = pareto(&points.iter().map(|p| (p.gpu_ms, p.metrics.rel_l2)).collect::<Vec<_>>());
+    for (p, f) in points.iter_mut().zip(front) {
+        p.pareto = f;
+    }
+    Ok((points, thr))
+}
+
+/// Slim against full modelling for one solver: the same scene with every optional feature
+/// forced on (`--model-all`). Returns (slim bytes, full bytes, slim ms, full ms, relL2 between).
+pub fn slim_vs_full(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)]) -> Result<(u64, u64, f64, f64, f64), String> {
+    let (a, _) = render(gpu, scene, kind, sets, false)?;
+    let (b, _) = render(gpu, scene, kind, sets, true)?;
+    let d = output::compare(&a.image, &b.image).map_err(|e| e.to_string())?.rel_l2;
+    Ok((a.report.device_bytes, b.report.device_bytes, a.report.gpu_ms, b.report.gpu_ms, d))
+}
+
+pub fn csv(points: &[Point]) -> String {
+    let mut s = String::from("scene,solver,knob,value,gpu_ms,wall_ms,rel_l2,rel_mse,rmse,energy_ratio,max_abs_error,nan_inf_count,iterations,converged,device_bytes,pareto\n");
+    for p in points {
+        let m = &p.metrics;
+        s.push_str(&format!(
+            "\"{}\",{},{},{},{:.3},{:.3},{:.6e},{:.6e},{:.6e},{:.6},{:.6e},{},{},{},{},{}\n",
+            p.scene,
+            p.solver.name(),
+            p.knob,
+            p.value,
+            p.gpu_ms,
+            p.wall_ms,
+            m.rel_l2,
+            m.rel_mse,
+            m.rmse,
+            m.energy_ratio,
+            m.max_abs_error,
+            m.nan_inf_count,
+            p.iterations.map(|i| i.to_string()).unwrap_or_default(),
+            p.converged.map(|c| c.to_string()).unwrap_or_default(),
+            p.device_bytes,
+            p.pareto
+        ));
+    }
+    s
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// relL2 against GPU time, log-log, one polyline per solver, Pareto points ringed, readable
+/// without the CSV (axis labels, decades, legend, knob values beside points).
+pub fn svg(title: &str, points: &[Point]) -> String {
+    let (w, h, ml, mr, mt, mb) = (720.0f64, 480.0f64, 70.0, 150.0, 40.0, 50.0);
+    let finite: Vec<&Point> = points.iter().filter(|p| p.gpu_ms > 0.0 && p.metrics.rel_l2 > 0.0 && p.metrics.rel_l2.is_finite()).collect();
+    let lx: Vec<f64> = finite.iter().map(|p| p.gpu_ms.log10()).collect();
+    let ly: Vec<f64> = finite.iter().map(|p| p.metrics.rel_l2.log10()).collect();
+    let (x0, x1) = (lx.iter().cloned().fold(f64::INFINITY, f64::min).floor(), lx.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil());
+    let (y0, y1) = (ly.iter().cloned().fold(f64::INFINITY, f64::min).floor(), ly.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil());
+    let (x0, x1, y0, y1) = if finite.is_empty() { (0.0, 1.0, -1.0, 0.0) } else { (x0, x1.max(x0 + 1.0), y0, y1.max(y0 + 1.0)) };
+    let px = |v: f64| ml + (v - x0) / (x1 - x0) * (w - ml - mr);
+    let py = |v: f64| h - mb - (v - y0) / (y1 - y0) * (h - mt - mb);
+    let mut s = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"{w}\" height=\"{h}\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" font-size=\"15\">{}</text>\n",
+        ml,
+        esc(title)
+    );
+    for d in (x0 as i32)..=(x1 as i32) {
+        let x = px(d as f64);
+        s.push_str(&format!("<line x1=\"{x:.1}\" y1=\"{mt}\" x2=\"{x:.1}\" y2=\"{}\" stroke=\"#ddd\"/><text x=\"{x:.1}\" y=\"{}\" text-anchor=\"middle\">1e{d}</text>\n", h - mb, h - mb + 16.0));
+    }
+    for d in (y0 as i32)..=(y1 as i32) {
+        let y = py(d as f64);
+        s.push_str(&format!("<line x1=\"{ml}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">1e{d}</text>\n", w - mr, ml - 6.0, y + 4.0));
+    }
+    s.push_str(&format!(
+        "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">GPU time (ms, log)</text>\n<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">relL2 vs path reference (log)</text>\n",
+        (ml + w - mr) / 2.0,
+        h - 10.0,
+        (mt + h - mb) / 2.0,
+        (mt + h - mb) / 2.0
+    ));
+    let colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"];
+    let mut kinds: Vec<SolverKind> = Vec::new();
+    for p in &finite {
+        if !kinds.contains(&p.solver) {
+            kinds.push(p.solver);
+        }
+    }
+    for (i, kind) in kinds.iter().enumerate() {
+        let c = colours[i % colours.len()];
+        let pts: Vec<&&Point> = finite.iter().filter(|p| p.solver == *kind).collect();
+        let path: Vec<String> = pts.iter().map(|p| format!("{:.1},{:.1}", px(p.gpu_ms.log10()), py(p.metrics.rel_l2.log10()))).collect();
+        s.push_str(&format!("<polyline points=\"{}\" fill=\"none\" stroke=\"{c}\" stroke-width=\"2\"/>\n", path.join(" ")));
+        for p in &pts {
+            let (x, y) = (px(p.gpu_ms.log10()), py(p.metrics.rel_l2.log10()));
+            s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"3.5\" fill=\"{c}\"><title>{} {}={}: {:.1} ms, relL2 {:.4}</title></circle>\n", kind.name(), p.knob, p.value, p.gpu_ms, p.metrics.rel_l2));
+            if p.pareto {
+                s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/>\n"));
+            }
+            let short: String = p.value.chars().take(6).collect();
+            s.push_str(&format!("<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"9\" fill=\"#555\">{}</text>\n", x + 6.0, y - 6.0, esc(&short)));
+        }
+        let ly = mt + 20.0 + 20.0 * i as f64;
+        s.push_str(&format!("<line x1=\"{}\" y1=\"{ly:.1}\" x2=\"{}\" y2=\"{ly:.1}\" stroke=\"{c}\" stroke-width=\"3\"/><text x=\"{}\" y=\"{:.1}\">{}</text>\n", w - mr + 10.0, w - mr + 34.0, w - mr + 40.0, ly + 4.0, kind.name()));
+    }
+    let ly = mt + 20.0 + 20.0 * kinds.len() as f64;
+    s.push_str(&format!("<circle cx=\"{}\" cy=\"{ly:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\">Pareto front</text>\n", w - mr + 22.0, w - mr + 40.0, ly + 4.0));
+    s.push_str("</svg>\n");
+    s
+}
+
+/// Default cache directory for references.
+pub fn default_cache() -> PathBuf {
+    PathBuf::from(".scatterlab-cache")
+}

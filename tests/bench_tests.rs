@@ -1,0 +1,89 @@
+//! `scatterlab bench` end to end on a tiny scene: every ladder point measured, CSV columns and
+//! numbers sane, Pareto front right on a constructed example, SVG well formed.
+
+use scatterlab::measure::bench;
+use scatterlab::solvers::SolverKind;
+
+use crate::common::{assert_clean, gpu, render, scene};
+
+#[test]
+fn pareto_front_on_a_constructed_example() {
+    // (time, error): a dominates c (faster and better); b and d trade; e ties b on time but is worse.
+    let pts = [(1.0, 0.5), (2.0, 0.2), (3.0, 0.6), (4.0, 0.1), (2.0, 0.3), (5.0, 0.1)];
+    assert_eq!(bench::pareto(&pts), vec![true, true, false, true, false, false]);
+    assert_eq!(bench::pareto(&[]), Vec::<bool>::new());
+    // Identical points are both on the front (neither beats the other).
+    assert_eq!(bench::pareto(&[(1.0, 1.0), (1.0, 1.0)]), vec![true, true]);
+}
+
+const TINY: &str = r#"
+[render]
+width = 16
+height = 16
+seed = 2
+spp = 64
+[camera]
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+fov = 20.0
+[medium]
+bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+sigma_t = 8.0
+albedo = 0.8
+density = { kind = "sphere", center = [0.0, 0.0, 0.0], radius = 0.45 }
+[[light]]
+kind = "directional"
+direction = [0.0, -0.6, -0.8]
+irradiance = 2.0
+"#;
+
+#[test]
+fn bench_walks_every_ladder_and_writes_sane_outputs() {
+    let gpu = gpu();
+    let s = scene(TINY);
+    let reference = render(&gpu, &s, SolverKind::Path, &[("path.spp", "512")]).image;
+    let kinds = [SolverKind::Path, SolverKind::Single, SolverKind::Lbl];
+    let (points, thr) = bench::bench_scene(&gpu, "tiny", &s, &reference, &kinds, true, 1, &|_| {}).unwrap();
+    assert_eq!(points.len(), 9, "three quick rungs per solver");
+    for p in &points {
+        assert!(p.gpu_ms > 0.0 && p.gpu_ms.is_finite(), "{p:?}");
+        assert!(p.metrics.rel_l2.is_finite() && p.metrics.nan_inf_count == 0, "{p:?}");
+    }
+    // path's error falls with spp; the front holds at least the cheapest and the best point.
+    let path: Vec<f64> = points.iter().filter(|p| p.solver == SolverKind::Path).map(|p| p.metrics.rel_l2).collect();
+    assert!(path[2] < path[0], "{path:?}");
+    assert!(points.iter().any(|p| p.pareto));
+    let best = points.iter().min_by(|a, b| a.metrics.rel_l2.total_cmp(&b.metrics.rel_l2)).unwrap();
+    assert!(best.pareto);
+    assert!(thr.iter().any(|t| t.figure.starts_with("lattice voxel-updates/s") && t.value > 0.0));
+    assert!(thr.iter().any(|t| t.figure.starts_with("samples/s") && t.value > 0.0));
+
+    let csv = bench::csv(&points);
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    for col in ["scene", "solver", "knob", "value", "gpu_ms", "wall_ms", "rel_l2", "rel_mse", "rmse", "energy_ratio", "max_abs_error", "nan_inf_count", "iterations", "converged", "pareto"] {
+        assert!(header.contains(&col), "CSV lacks column {col}");
+    }
+    for line in csv.lines().skip(1) {
+        assert_eq!(line.split(',').count(), header.len(), "{line}");
+    }
+
+    let svg = bench::svg("tiny", &points);
+    assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+    assert_eq!(svg.matches("<polyline").count(), 3, "one line per solver");
+    assert_eq!(svg.matches("<text").count() - svg.matches("</text>").count(), 0);
+    assert!(svg.contains("Pareto front"));
+    assert_clean(&gpu);
+}
+
+/// Model only what the scene requires, measured: `lbl` on a grey scene allocates less with one
+/// channel than with three (`--model-all`), and the images agree.
+#[test]
+fn slim_lbl_allocates_less_and_agrees() {
+    let gpu = gpu();
+    let s = scene(TINY);
+    let sets = vec![("lbl.grid".to_string(), "16".to_string()), ("lbl.rays".to_string(), "4096".to_string())];
+    let (slim, full, _, _, diff) = bench::slim_vs_full(&gpu, &s, SolverKind::Lbl, &sets).unwrap();
+    assert!(slim < full, "slim {slim} bytes, full {full}");
+    assert!(diff < 1e-5, "slim and full images differ by relL2 {diff}");
+    assert_clean(&gpu);
+}
