@@ -87,3 +87,41 @@ fn slim_lbl_allocates_less_and_agrees() {
     assert!(diff < 1e-5, "slim and full images differ by relL2 {diff}");
     assert_clean(&gpu);
 }
+
+/// The commands themselves, end to end through the binary, outputs parsed.
+#[test]
+fn bench_and_stability_commands_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene_path = dir.path().join("tiny.toml");
+    std::fs::write(&scene_path, TINY).unwrap();
+    let out = dir.path().join("bench");
+    let cache = dir.path().join("cache");
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_scatterlab")).args(args).output().unwrap();
+        (o.status.success(), String::from_utf8_lossy(&o.stdout).into_owned(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let args = ["bench", scene_path.to_str().unwrap(), "--quick", "--ref-spp", "128", "--solvers", "path,single", "--throughput", "--validate", "--out", out.to_str().unwrap(), "--cache", cache.to_str().unwrap()];
+    let (ok, stdout, stderr) = run(&args);
+    assert!(ok, "bench failed: {stderr}");
+    assert!(stdout.contains("samples/s"), "{stdout}");
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(json["points"].as_array().unwrap().len(), 6);
+    assert!(json["device"]["mapping"].is_object() && json["references"][0]["cached"] == false);
+    assert!(json["points"].as_array().unwrap().iter().all(|p| p["metrics"]["rel_l2"].as_f64().is_some_and(f64::is_finite)));
+    let csv = std::fs::read_to_string(out.join("bench.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 7);
+    let svg = std::fs::read_to_string(out.join("tiny.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("polyline"));
+    // A second run finds the reference in the cache.
+    let (ok, _, stderr) = run(&args);
+    assert!(ok, "{stderr}");
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(json["references"][0]["cached"], true);
+
+    let stab = dir.path().join("stab");
+    let (ok, stdout, stderr) = run(&["stability", "--solvers", "path,single", "--validate", "--out", stab.to_str().unwrap()]);
+    assert!(ok, "stability failed: {stderr}\n{stdout}");
+    assert!(stdout.contains("pass") && !stdout.contains("FAIL"));
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(stab.join("stability.json")).unwrap()).unwrap();
+    assert!(json["outcomes"].as_array().unwrap().iter().all(|o| o["passed"] == true));
+}
