@@ -139,14 +139,18 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
             }
             None => None,
         };
-        // The exact pure absorber: every camera ray crosses one unit, L exp(-sigma_t).
-        let exact = if case.albedo == 0.0 && case.light.is_none() {
-            let mut e = Image::new(RES, RES);
-            e.data.iter_mut().for_each(|v| *v = (-(case.tau as f64)).exp() as f32);
-            Some(e)
-        } else {
-            None
+        // Exact answers under the environment: the pure absorber (every camera ray crosses one
+        // unit: L exp(-sigma_t)) and the furnace (albedo 1: L everywhere).
+        let exact_value = match (case.light, case.albedo) {
+            (None, a) if a == 0.0 => Some((-(case.tau as f64)).exp() as f32),
+            (None, a) if a == 1.0 => Some(1.0),
+            _ => None,
         };
+        let exact = exact_value.map(|x| {
+            let mut e = Image::new(RES, RES);
+            e.data.iter_mut().for_each(|v| *v = x);
+            e
+        });
         for kind in solvers_ {
             progress(&format!("{} / {}", case.name, kind.name()));
             let r = match render(gpu, &scene, *kind, &knobs(*kind)) {
@@ -211,8 +215,9 @@ fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option
     let mut notes = r.report.warnings.clone();
     let lbl = &r.report.stats["lbl"];
     let (iterations, converged) = if kind == SolverKind::Lbl { (lbl["iterations"].as_u64(), lbl["converged"].as_bool()) } else { (None, None) };
-    // A deterministic solver must be exact on the pure absorber; path within 5 standard
-    // errors on every pixel. In a pure absorber of constant density under a radiance-1
+    // Against an exact answer: `path` within 5 standard errors on every pixel; the pure
+    // absorber is exact for the deterministic solvers; the furnace is reported for them (single
+    // scattering alone is not meant to reach it), not judged. In a pure absorber of constant density under a radiance-1
     // environment each path sample is 1 or 0 (it escapes or not), so its variance is exactly
     // e (1 - e) per sample: used where the sample variance is 0 (all samples alike).
     let spp = r.report.settings["spp"].as_f64().unwrap_or(1.0).max(1.0);
@@ -222,11 +227,12 @@ fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option
             let sd = var(i).max(ev * (1.0 - ev) / spp).sqrt();
             (img.data[i] as f64 - ev).abs() <= 5.0 * sd + 1e-3
         }),
-        (Some(_), _) => exact_error.is_some_and(|e| e < 1e-4),
+        (Some(_), _) if case.albedo == 0.0 => exact_error.is_some_and(|e| e < 1e-4),
+        (Some(_), _) => true,
         (None, _) => true,
     };
     if !exact_ok {
-        notes.push("pure absorber differs from the exact answer".into());
+        notes.push("differs from the exact answer".into());
     }
     if converged == Some(false) {
         notes.push("lattice did not converge".into());
