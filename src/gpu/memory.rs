@@ -18,14 +18,20 @@ pub(crate) struct BufferInner {
     pub name: String,
 }
 
+/// Return an allocation to gpu-allocator (after its Vulkan object is destroyed). A failure
+/// here can only leak memory until the device goes, so it is not propagated from `drop`.
+fn free_allocation(shared: &Shared, allocation: Option<Allocation>) {
+    if let (Some(a), Ok(mut alloc)) = (allocation, shared.allocator.lock()) {
+        if let Some(alloc) = alloc.as_mut() {
+            let _ = alloc.free(a);
+        }
+    }
+}
+
 impl Drop for BufferInner {
     fn drop(&mut self) {
         unsafe { self.shared.device.destroy_buffer(self.raw, None) };
-        if let (Some(a), Ok(mut alloc)) = (self.allocation.take(), self.shared.allocator.lock()) {
-            if let Some(alloc) = alloc.as_mut() {
-                let _ = alloc.free(a);
-            }
-        }
+        free_allocation(&self.shared, self.allocation.take());
     }
 }
 
@@ -70,11 +76,7 @@ impl Drop for ImageInner {
             self.shared.device.destroy_image_view(self.view, None);
             self.shared.device.destroy_image(self.raw, None);
         }
-        if let (Some(a), Ok(mut alloc)) = (self.allocation.take(), self.shared.allocator.lock()) {
-            if let Some(alloc) = alloc.as_mut() {
-                let _ = alloc.free(a);
-            }
-        }
+        free_allocation(&self.shared, self.allocation.take());
     }
 }
 
