@@ -1,4 +1,5 @@
-//! Output: HDR images, EXR and PNG files, error metrics and JSON reports.
+//! Output: HDR images, EXR and PNG files, error metrics, JSON reports, and the Mitsuba 3
+//! export of a scene.
 //!
 //! Every writer here is atomic ([`write_atomically`]): it writes a temporary file in the
 //! destination directory and renames it over the final name only on success, so a failed
@@ -9,6 +10,7 @@ mod error;
 pub mod exr;
 mod image;
 pub mod metrics;
+pub mod mitsuba;
 pub mod png;
 pub mod report;
 
@@ -17,5 +19,6 @@ pub use self::error::OutputError;
 pub use self::exr::{read_exr, read_exr_layer, write_exr};
 pub use self::image::Image;
 pub use self::metrics::{compare, error_png, Metrics};
+pub use self::mitsuba::export_mitsuba;
 pub use self::png::{write_png_tonemapped, TONEMAP_DESCRIPTION};
 pub use self::report::write_json;
