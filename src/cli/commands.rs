@@ -7,7 +7,7 @@ use anyhow::{anyhow, bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
-use super::{Cli, Command, CompareArgs, GpuArgs, RenderArgs, SceneCommand};
+use super::{Cli, Command, CompareArgs, ExportArgs, GpuArgs, RenderArgs, SceneCommand};
 use crate::gpu::{list_devices, Gpu, GpuOptions};
 use crate::output;
 use crate::scene::{is_scene_key, LoadOptions, Scene};
@@ -32,6 +32,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => render(a),
         Command::Compare(a) => compare(a),
+        Command::Export(a) => export(a),
         Command::Devices { gpu, json } => devices(&gpu, json),
         Command::Stability { solvers, slow, out, gpu } => stability(&solvers, slow, &out, &gpu),
         Command::Bench { scenes, solvers, out, ref_spp, repeats, quick, throughput, set, cache, gpu } => {
@@ -356,6 +357,32 @@ fn compare(a: CompareArgs) -> Result<()> {
         outln!("max abs error {:.6e}", m.max_abs_error);
         outln!("NaN/Inf       {}", m.nan_inf_count);
     }
+    Ok(())
+}
+
+fn export(a: ExportArgs) -> Result<()> {
+    if !a.mitsuba {
+        bail!("export: name the format: --mitsuba (the only one for now), e.g. scatterlab export --mitsuba {} {}", a.scene.display(), a.out.display());
+    }
+    let sets = parse_sets(&a.set)?;
+    if let Some((k, _)) = sets.iter().find(|(k, _)| !is_scene_key(k)) {
+        bail!("--set {k}: export writes the scene only; keys start with render., camera., medium. or light. (solver knobs do not apply)");
+    }
+    check_output_path(&a.out, "--mitsuba", &["xml"])?;
+    let vol = output::mitsuba::vol_path_for(&a.out);
+    if vol.is_dir() {
+        bail!("--mitsuba {}: the grid's file name {} is taken by a directory; choose another name", a.out.display(), vol.display());
+    }
+    let scene = Scene::load(&a.scene, &sets, &LoadOptions::default())?;
+    let files = output::export_mitsuba(&scene, &a.out)?;
+    for w in output::mitsuba::export_warnings(&scene) {
+        eprintln!("warning: {w}");
+    }
+    for f in &files {
+        let what = if f == &a.out { "Mitsuba 3 scene" } else { "sigma_t grid, Mitsuba .vol" };
+        eprintln!("wrote {} ({what})", f.display());
+    }
+    eprintln!("render it with: mitsuba -m scalar_rgb {}", a.out.display());
     Ok(())
 }
 

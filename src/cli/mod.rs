@@ -90,6 +90,9 @@ pub enum Command {
         #[command(flatten)]
         gpu: GpuArgs,
     },
+    /// Write the equivalent Mitsuba 3 scene (XML, plus a .vol grid beside it) to check any
+    /// result with Mitsuba: `scatterlab export --mitsuba SCENE OUT.xml`.
+    Export(ExportArgs),
     /// Scene tools.
     Scene {
         #[command(subcommand)]
@@ -166,6 +169,23 @@ pub struct RenderArgs {
     pub quiet: bool,
     #[command(flatten)]
     pub gpu: GpuArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct ExportArgs {
+    /// Scene file (TOML, format v1: docs/scene-format.md).
+    pub scene: PathBuf,
+    /// The Mitsuba 3 XML to write; a heterogeneous medium's grid goes beside it as
+    /// NAME.sigma_t.vol.
+    pub out: PathBuf,
+    /// Export for Mitsuba 3 (volpath, medium, emitters, sensor; grids as .vol). The only
+    /// format for now, and required: `export --mitsuba SCENE OUT.xml` or
+    /// `export SCENE --mitsuba OUT.xml`.
+    #[arg(long)]
+    pub mitsuba: bool,
+    /// Override a scene key (`medium.albedo=0.5`), as for `render`. Repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 #[derive(Args, Debug)]
