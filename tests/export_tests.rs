@@ -12,8 +12,8 @@ use std::process::{Command, Output};
 
 use glam::Vec3;
 use roxmltree::{Document, Node};
-use scatterlab::output::export_mitsuba;
-use scatterlab::output::mitsuba::{
+use scatterlab::scene::mitsuba::export_mitsuba;
+use scatterlab::scene::mitsuba::{
     export_warnings, sphere_fits, sphere_grid_dims, vol_path_for, SPHERE_GRID_RES,
 };
 use scatterlab::scene::{CameraKind, Density, Light, LoadOptions, Scene};

@@ -369,13 +369,13 @@ fn export(a: ExportArgs) -> Result<()> {
         bail!("--set {k}: export writes the scene only; keys start with render., camera., medium. or light. (solver knobs do not apply)");
     }
     check_output_path(&a.out, "--mitsuba", &["xml"])?;
-    let vol = output::mitsuba::vol_path_for(&a.out);
+    let vol = crate::scene::mitsuba::vol_path_for(&a.out);
     if vol.is_dir() {
         bail!("--mitsuba {}: the grid's file name {} is taken by a directory; choose another name", a.out.display(), vol.display());
     }
     let scene = Scene::load(&a.scene, &sets, &LoadOptions::default())?;
-    let files = output::export_mitsuba(&scene, &a.out)?;
-    for w in output::mitsuba::export_warnings(&scene) {
+    let files = crate::scene::mitsuba::export_mitsuba(&scene, &a.out)?;
+    for w in crate::scene::mitsuba::export_warnings(&scene) {
         eprintln!("warning: {w}");
     }
     for f in &files {

@@ -10,7 +10,6 @@ mod error;
 pub mod exr;
 mod image;
 pub mod metrics;
-pub mod mitsuba;
 pub mod png;
 pub mod report;
 
@@ -19,6 +18,5 @@ pub use self::error::OutputError;
 pub use self::exr::{read_exr, read_exr_layer, write_exr};
 pub use self::image::Image;
 pub use self::metrics::{compare, error_png, Metrics};
-pub use self::mitsuba::export_mitsuba;
 pub use self::png::{write_png_tonemapped, TONEMAP_DESCRIPTION};
 pub use self::report::write_json;

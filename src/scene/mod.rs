@@ -6,6 +6,7 @@
 //! lengths in scene units, `sigma_t` in 1/unit, point-light intensity in W/sr, directional
 //! irradiance in W/m^2, environment radiance in W/(m^2 sr).
 
+pub mod mitsuba;
 mod error;
 mod features;
 mod grid;

@@ -84,8 +84,8 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::{write_atomically, OutputError};
-use crate::scene::{Camera, CameraKind, Density, Light, Medium, Scene};
+use super::{Camera, CameraKind, Density, Light, Medium, Scene};
+use crate::output::{write_atomically, OutputError};
 
 /// Voxels along the longest side of the bounds when a clipped sphere is rasterised.
 pub const SPHERE_GRID_RES: u32 = 128;
