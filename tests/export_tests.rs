@@ -1,5 +1,5 @@
 //! `scatterlab export --mitsuba`: the exported Mitsuba 3 XML parses and carries the scene's
-//! values (a round trip of the mapping documented in `src/output/mitsuba.rs`; no Mitsuba
+//! values (a round trip of the mapping documented in `src/scene/mitsuba.rs`; no Mitsuba
 //! needed), the `.vol` grid beside it reads back with the right size and values, and a
 //! failed export leaves nothing behind.
 //!
