@@ -67,11 +67,14 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
         assert_eq!(line.split(',').count(), header.len(), "{line}");
     }
 
-    let svg = bench::svg("tiny", &points);
-    assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
-    assert_eq!(svg.matches("<polyline").count(), 3, "one line per solver");
-    assert_eq!(svg.matches("<text").count() - svg.matches("</text>").count(), 0);
-    assert!(svg.contains("Pareto front"));
+    let svg = bench::svg("tiny <&> \"quoted\"", &points);
+    let doc = roxmltree::Document::parse(&svg).unwrap_or_else(|e| panic!("SVG is not well-formed XML: {e}"));
+    assert_eq!(doc.root_element().tag_name().name(), "svg");
+    let count = |tag: &str| doc.descendants().filter(|n| n.has_tag_name(tag)).count();
+    assert_eq!(count("polyline"), 3, "one line per solver");
+    let ringed = doc.descendants().filter(|n| n.has_tag_name("circle") && n.attribute("fill") == Some("none")).count();
+    assert_eq!(ringed, points.iter().filter(|p| p.pareto).count() + 1, "a ring per Pareto point, plus the legend's");
+    assert!(doc.descendants().any(|n| n.text() == Some("Pareto front")));
     assert_clean(&gpu);
 }
 
