@@ -81,7 +81,7 @@ fn grid_work(c: &mut Criterion) {
     g.throughput(Throughput::Elements(voxels(dims)));
     let md = majorant_dims(dims, MAJORANT_CELL);
     // A third of a second per call: ten flat samples of one call each.
-    g.sampling_mode(SamplingMode::Flat).sample_size(10).measurement_time(Duration::from_secs(5));
+    g.sampling_mode(SamplingMode::Flat).sample_size(10).measurement_time(Duration::from_secs(6));
     g.bench_function("majorant/synthetic-256^3", |b| b.iter(|| majorant_grid(black_box(dims), black_box(&big), md)));
     g.sampling_mode(SamplingMode::Auto).sample_size(20).measurement_time(Duration::from_secs(3));
 
