@@ -122,11 +122,12 @@ fn lattice_matches_the_diffusion_green_function() {
         let d_guess = msq / 6.0 * 1.5;
         let ka = d_guess / 36.0;
         // Invert the kernel's coefficients (glsl/include/lattice.glsl) for sigma_t and albedo.
+        let ell = lattice.mean_link_length();
         let (sigma_t, albedo) = match lattice {
             Lattice::D3q6 => (-(1.0 - kt).ln(), 1.0 - ka / kt),
             Lattice::D3q18 => {
-                let st = -(1.0 - kt).ln() / 1.5;
-                let sa = -(1.0 - ka).ln();
+                let st = -(1.0 - kt).ln() * ell / 1.5;
+                let sa = -(1.0 - ka).ln() / ell;
                 (st, 1.0 - sa / st)
             }
         };
@@ -134,12 +135,14 @@ fn lattice_matches_the_diffusion_green_function() {
         // The coefficients the kernel used, from the f32 inputs.
         let ka = match lattice {
             Lattice::D3q6 => kt * (1.0 - albedo as f32 as f64),
-            Lattice::D3q18 => 1.0 - (-(sigma_t as f32 as f64) * (1.0 - albedo as f32 as f64)).exp(),
+            Lattice::D3q18 => 1.0 - (-(sigma_t as f32 as f64) * (1.0 - albedo as f32 as f64) * ell).exp(),
         };
         let persist = (1.0 - kt) / (1.0 - ka);
         let d = msq / 6.0 * (1.0 + persist) / (1.0 - persist);
         let mu = -(1.0 - ka).ln();
-        let green = |r: f64| (-r * (mu / d).sqrt()).exp() / (4.0 * std::f64::consts::PI * d * r);
+        // The kernel weights each arrival by its link length: the time-integrated count times
+        // the mean link length of the stationary mix of links.
+        let green = |r: f64| ell * (-r * (mu / d).sqrt()).exp() / (4.0 * std::f64::consts::PI * d * r);
         // Shell averages: the lattice's anisotropic short-range corrections (cubic harmonics, of
         // relative order 1/r^2, largest along the axes) average out over a sphere, the diffusion
         // solution is what is left.

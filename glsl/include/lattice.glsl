@@ -38,10 +38,13 @@ bool lattice_inside(ivec3 p, uvec3 n) { return all(greaterThanEqual(p, ivec3(0))
 // coefficient of eq. 4.5 non-negative even for optically thick voxels, where
 // 1 - kappa_t + kappa_s/6 would otherwise go below zero.
 //
-// D3Q18 moves energy 1.5 lambda^2 per step in mean square (half its links are sqrt 2 long), so
-// at equal kappa_t it diffuses 1.5x faster; it takes kappa_t = 1 - exp(-1.5 sigma_t' lambda)
-// to keep the physical diffusion coefficient 1 / (3 sigma_t') and absorbs
-// kappa_a = 1 - exp(-sigma_a lambda) per step to keep the physical absorption rate.
+// D3Q18: half its energy moves on sqrt 2 links, so a step is l = (1 + sqrt 2)/2 voxels of path
+// on average (the time a step stands for) and 1.5 voxels^2 in mean square. Matching the
+// physical diffusion coefficient 1 / (3 sigma_t') over that time takes
+// kappa_t = 1 - exp(-sigma_t' lambda 1.5 / l), and the physical absorption over that path
+// kappa_a = 1 - exp(-sigma_a lambda l). D3Q6: l = 1, mean square 1, kappa_t from sigma_t' lambda.
+const float MEAN_LINK_D3Q18 = 1.20710678;   // (1 + sqrt 2) / 2
+
 void lattice_kappa(float sigma_t, float albedo, float g, float lambda, out float kt, out float ks) {
     float ss = sigma_t * albedo * (1.0 - g);
     float sa = sigma_t * (1.0 - albedo);
@@ -50,8 +53,11 @@ void lattice_kappa(float sigma_t, float albedo, float g, float lambda, out float
         kt = 1.0 - exp(-st * lambda);
         ks = st > 0.0 ? kt * (ss / st) : 0.0;
     } else {
-        kt = 1.0 - exp(-1.5 * st * lambda);
-        ks = kt - min(kt, 1.0 - exp(-sa * lambda));
+        kt = 1.0 - exp(-st * lambda * (1.5 / MEAN_LINK_D3Q18));
+        ks = kt - min(kt, 1.0 - exp(-sa * lambda * MEAN_LINK_D3Q18));
     }
 }
+
+// Path length of link i in voxels: each arrival adds energy x length to the fluence integral.
+float link_length(uint i) { return i <= 6u ? 1.0 : 1.41421356; }
 #endif

@@ -11,7 +11,8 @@
 // Per step and channel at voxel v: S = sum_i in_i (arrived), r = rest (deposited);
 //   out_i = (1 - kappa_t) in_i + (kappa_s S + r) w_i                 (eq. 4.4-4.5)
 // with w_i = 1/6 (D3Q6) or 1/12 axial, 1/24 diagonal (D3Q18).
-//   irradiance(v) += S            (time integral of the arrived energy: each arrival travelled one voxel, so this is the fluence up to
+//   irradiance(v) += sum_i in_i l_i  (arrived energy times the path it travelled, l_i = 1 or
+//                                  sqrt 2 voxels: the fluence integral, up to
 //                                  the factor 1/lambda^2 applied in the view pass)
 //   absorbed += (kappa_t - kappa_s) S;  leaked += out_i where v + e_i leaves the lattice.
 #extension GL_GOOGLE_include_directive : require
@@ -88,9 +89,9 @@ void main() {
                 }
                 in_[i - 1u] = x;
                 S += x;
+                irr_add[c] += x * link_length(i);
             }
             float r = (s == 0u && inside) ? fin[c * V + v] : 0.0;
-            irr_add[c] += S;
             absorbed[c] += (kt[c] - ks[c]) * S;
             for (uint i = 1u; i <= LINKS; ++i) {
                 float w = link_weight(i);

@@ -70,6 +70,15 @@ impl Lattice {
         all[..=self.links() as usize].to_vec()
     }
 
+    /// Mean path length of a step in voxels (the time a step stands for): 1 (D3Q6),
+    /// (1 + sqrt 2) / 2 (D3Q18). The lattice's fluence weights each arrival by its link length.
+    pub fn mean_link_length(self) -> f64 {
+        match self {
+            Lattice::D3q6 => 1.0,
+            Lattice::D3q18 => (1.0 + std::f64::consts::SQRT_2) / 2.0,
+        }
+    }
+
     /// Mean square distance per step, in voxels^2: 1 (D3Q6), 1.5 (D3Q18, half its energy on
     /// sqrt 2 links).
     pub fn mean_square_step(self) -> f64 {
