@@ -474,7 +474,7 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         refs.push(json!({ "scene": name, "key": key, "spp": a.ref_spp, "cached": cached, "seconds": t.elapsed().as_secs_f64() }));
         let (points, thr) = b::bench_scene(&gpu, &name, scene, &reference, &a.solvers, a.quick, a.repeats, &|m| bar.set_message(m.to_string())).map_err(|e| anyhow!(e))?;
         let svg_path = a.out.join(format!("{name}.svg"));
-        output::write_atomically(&svg_path, |tmp| std::fs::write(tmp, b::svg(&format!("{name}: error vs GPU time on {}", info.name), &points)).map_err(|e| output::OutputError::Io { path: tmp.to_path_buf(), action: "write", source: e }))?;
+        output::write_text(&svg_path, b::svg(&format!("{name}: error vs GPU time on {}", info.name), &points))?;
         for k in &a.solvers {
             // The third rung: for `path`, enough samples that the difference is not all noise.
             let (sb, fb, sm, fm, d) = b::slim_vs_full(&gpu, scene, *k, &b::ladder(*k, scene, true)[2].sets).map_err(|e| anyhow!(e))?;
@@ -486,7 +486,7 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
     bar.finish_and_clear();
     check_validation(&gpu)?;
     let csv_path = a.out.join("bench.csv");
-    output::write_atomically(&csv_path, |tmp| std::fs::write(tmp, b::csv(&all_points)).map_err(|e| output::OutputError::Io { path: tmp.to_path_buf(), action: "write", source: e }))?;
+    output::write_text(&csv_path, b::csv(&all_points))?;
     let doc = json!({
         "scatterlab": env!("CARGO_PKG_VERSION"), "device": info, "references": refs, "quick": a.quick, "repeats": a.repeats,
         "ladders": a.solvers.iter().map(|k| json!({ "solver": k, "rungs": scenes.first().map(|s| b::ladder(*k, &s.2, a.quick)).unwrap_or_default() })).collect::<Vec<_>>(),
@@ -521,7 +521,7 @@ fn stability(kinds: &[SolverKind], slow: bool, out: &Path, g: &GpuArgs) -> Resul
     check_validation(&gpu)?;
     outln!("{}", crate::measure::stability::table(&outcomes));
     let csv_path = out.join("stability.csv");
-    output::write_atomically(&csv_path, |tmp| std::fs::write(tmp, crate::measure::stability::csv(&outcomes)).map_err(|e| output::OutputError::Io { path: tmp.to_path_buf(), action: "write", source: e }))?;
+    output::write_text(&csv_path, crate::measure::stability::csv(&outcomes))?;
     let doc = json!({ "scatterlab": env!("CARGO_PKG_VERSION"), "device": gpu.info(), "slow_included": slow, "outcomes": outcomes });
     output::write_json(&out.join("stability.json"), &doc)?;
     let failed = outcomes.iter().filter(|o| !o.passed).count();

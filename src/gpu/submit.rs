@@ -455,10 +455,4 @@ impl Gpu {
     }
 }
 
-impl Drop for SubmitState {
-    fn drop(&mut self) {
-        // In-flight work is waited for by `Shared::drop` (device_wait_idle); command buffers and
-        // query pools go with their pools and device.
-    }
-}
 

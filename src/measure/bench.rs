@@ -10,7 +10,6 @@
 //! against GPU time on log-log axes, one line per solver, the Pareto front marked.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use serde::Serialize;
 use sha2::{Digest, Sha256};
@@ -18,7 +17,7 @@ use sha2::{Digest, Sha256};
 use crate::gpu::{DeviceInfo, Gpu};
 use crate::output::{self, Image, Metrics};
 use crate::scene::{Density, Scene};
-use crate::solvers::{self, RenderRequest, Settings, SolverKind};
+use crate::solvers::SolverKind;
 
 /// One rung of a solver's quality ladder.
 #[derive(Clone, Debug, Serialize)]
@@ -105,13 +104,7 @@ pub fn reference_key(scene_text: &str, scene: &Scene, overrides: &[(String, Stri
     h.finalize().iter().take(12).map(|b| format!("{b:02x}")).collect()
 }
 
-fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)], force_full: bool) -> Result<(solvers::RenderOutput, f64), String> {
-    let settings = Settings::new(sets);
-    let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
-    let t = Instant::now();
-    let r = solvers::render(gpu, kind, &req).map_err(|e| e.to_string())?;
-    Ok((r, t.elapsed().as_secs_f64() * 1e3))
-}
+use super::render_timed as render;
 
 /// The cached `path` reference for a scene, rendering it when missing. Returns the image and
 /// whether it came from the cache.

@@ -20,7 +20,7 @@ use serde::Serialize;
 use crate::gpu::Gpu;
 use crate::output::Image;
 use crate::scene::{LoadOptions, Scene};
-use crate::solvers::{self, RenderRequest, Settings, SolverKind};
+use crate::solvers::{self, SolverKind};
 
 /// One sweep case: a scene text and what it checks.
 #[derive(Clone, Debug, Serialize)]
@@ -106,9 +106,7 @@ pub fn cases() -> Vec<Case> {
 }
 
 fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)]) -> Result<solvers::RenderOutput, String> {
-    let settings = Settings::new(sets);
-    let req = RenderRequest { scene, settings: &settings, force_full: false, progress: &|_, _| {} };
-    solvers::render(gpu, kind, &req).map_err(|e| e.to_string())
+    super::render_timed(gpu, scene, kind, sets, false).map(|(r, _)| r)
 }
 
 /// Knobs for each solver that keep the sweep cheap on a CPU device.

@@ -19,4 +19,4 @@ pub use self::exr::{read_exr, read_exr_layer, write_exr};
 pub use self::image::Image;
 pub use self::metrics::{compare, error_png, Metrics};
 pub use self::png::{write_png_tonemapped, TONEMAP_DESCRIPTION};
-pub use self::report::write_json;
+pub use self::report::{write_json, write_text};

@@ -14,9 +14,14 @@ pub fn write_json<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<(), O
         source,
     })?;
     text.push(b'\n');
+    write_text(path, &text)
+}
+
+/// Write bytes (CSV, SVG, JSON) to `path` atomically.
+pub fn write_text(path: &Path, text: impl AsRef<[u8]>) -> Result<(), OutputError> {
     write_atomically(path, |tmp| {
         std::fs::File::create(tmp)
-            .and_then(|mut f| f.write_all(&text))
+            .and_then(|mut f| f.write_all(text.as_ref()))
             .map_err(|source| OutputError::Io {
                 path: tmp.to_owned(),
                 action: "write",

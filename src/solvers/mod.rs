@@ -12,7 +12,7 @@ pub mod single;
 use serde::Serialize;
 use thiserror::Error;
 
-use crate::gpu::{DeviceInfo, Gpu, GpuError, PassTiming};
+use crate::gpu::{Gpu, GpuError, PassTiming};
 use crate::output::Image;
 use crate::scene::Scene;
 
@@ -111,9 +111,4 @@ pub fn memory_estimate(kind: SolverKind, scene: &Scene) -> u64 {
 
 pub(crate) fn gpu_ms(passes: &[PassTiming]) -> f64 {
     passes.iter().map(|p| p.duration_ms()).sum()
-}
-
-#[allow(dead_code)]
-fn _device_info_is_serialisable(d: &DeviceInfo) -> serde_json::Value {
-    serde_json::to_value(d).unwrap_or_default()
 }
