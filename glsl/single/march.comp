@@ -35,8 +35,10 @@ struct MarchState {
     vec4 sum;      // sum over finished subsamples
 };
 layout(std430, binding = 5) buffer State { MarchState state[]; };
-// Solver `lbl`: the time-integrated lattice energy per voxel ([c * V + v]); the multiply
-// scattered fluence is that over lambda^2 (thesis 4.6.2). Unused (ms_dims.x = 0) for `single`.
+// Solvers `lbl` and `wavefront`: the multiply scattered energy per voxel ([c * V + v]); the
+// fluence is that over lambda^2 (thesis 4.6.2). With ms_flux = 1 (`wavefront`) the vector
+// irradiance E lambda^2 follows at [C V + (3 c + a) V + v] for C channels. Unused
+// (ms_dims.x = 0) for `single`.
 layout(std430, binding = 6) readonly buffer MsVolume { float ms_energy[]; };
 
 layout(push_constant) uniform Push {
@@ -49,40 +51,53 @@ layout(push_constant) uniform Push {
     uint supersample;    // n x n pixel subsamples (box filter)
     uint budget;         // own-counted loop iterations per invocation per dispatch
     uint slot;           // which unfinished-counter this dispatch reports into
-    uint pad0;
+    uint ms_flux;        // 1: the volume carries the vector irradiance after the fluence
     uint pad1;
     uint pad2;
     uvec4 ms_dims;       // lbl: lattice voxels xyz (0: no multiple-scattering volume), w = channels
     vec4 ms_origin;      // lbl: lattice min corner, w = lambda (voxel edge)
 } pc;
 
-// Multiply scattered radiance arriving at p, per unit sigma_s, from the lattice (thesis 4.6.2):
-// the isotropic part of the field, fluence / (4 pi), with fluence = energy / lambda^2,
-// trilinear between voxel centres.
-vec3 ms_inscatter(vec3 p) {
+// Multiply scattered radiance scattered at p toward the camera (travelling along -d), per
+// unit sigma_s, from the volume: the isotropic part fluence / (4 pi), with fluence = energy /
+// lambda^2 (thesis 4.6.2), trilinear between voxel centres; with a flux volume also the
+// phase-weighted first moment of the two-term expansion L = phi / 4pi + 3 E.w / 4pi
+// (wavefront paper, end of section 2.1): integrated against Henyey-Greenstein it gives
+// phi / 4pi + 3 g E.(-d) / 4pi, clamped at 0.
+float ms_trilinear(uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) {
+    float c000 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i0.z))];
+    float c100 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i0.z))];
+    float c010 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i0.z))];
+    float c110 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i0.z))];
+    float c001 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i1.z))];
+    float c101 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i1.z))];
+    float c011 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i1.z))];
+    float c111 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i1.z))];
+    return mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y), mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
+}
+
+vec3 ms_inscatter(vec3 p, vec3 d) {
     if (pc.ms_dims.x == 0u) return vec3(0.0);
     ivec3 n = ivec3(pc.ms_dims.xyz);
     uint V = pc.ms_dims.x * pc.ms_dims.y * pc.ms_dims.z;
+    uint C = pc.ms_dims.w;
     vec3 g = (p - pc.ms_origin.xyz) / pc.ms_origin.w - 0.5;
     g = clamp(g, vec3(0.0), vec3(n - 1));
     ivec3 i0 = ivec3(floor(g));
     ivec3 i1 = min(i0 + 1, n - 1);
     vec3 f = g - vec3(i0);
     vec3 e = vec3(0.0);
-    for (uint c = 0u; c < pc.ms_dims.w; ++c) {
+    for (uint c = 0u; c < C; ++c) {
         iters++;
-        uint base = c * V;
-        float c000 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i0.z))];
-        float c100 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i0.z))];
-        float c010 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i0.z))];
-        float c110 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i0.z))];
-        float c001 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i1.z))];
-        float c101 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i1.z))];
-        float c011 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i1.z))];
-        float c111 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i1.z))];
-        e[c] = mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y), mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
+        e[c] = ms_trilinear(c * V, n, i0, i1, f);
+        if (pc.ms_flux != 0u && ANISOTROPIC) {
+            vec3 flux = vec3(ms_trilinear(C * V + (3u * c) * V, n, i0, i1, f),
+                             ms_trilinear(C * V + (3u * c + 1u) * V, n, i0, i1, f),
+                             ms_trilinear(C * V + (3u * c + 2u) * V, n, i0, i1, f));
+            e[c] = max(0.0, e[c] + 3.0 * scene.albedo.w * dot(flux, -d));
+        }
     }
-    if (pc.ms_dims.w == 1u) e = vec3(e.x);
+    if (C == 1u) e = vec3(e.x);
     return e * (INV_4PI / (pc.ms_origin.w * pc.ms_origin.w));
 }
 
@@ -241,7 +256,7 @@ void main() {
         // albedo (1 - e^{-sigma_t dt}), so a thick step never scatters more than it extinguishes.
         vec3 st_ = scene.sigma_t.xyz * density_at(p);
         vec3 seg_T = exp(-st_ * dt);
-        L += T * scene.albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p));
+        L += T * scene.albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p, d));
         T *= seg_T;
         S = vec3(0.0);
         j = 0u;

@@ -537,7 +537,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     let sets = parse_sets(sets)?;
     let scene = Scene::load(path, &sets, &LoadOptions::default())?;
     let f = scene.features();
-    let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single, SolverKind::Lbl].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
+    let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single, SolverKind::Lbl, SolverKind::Wavefront].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
     if as_json {
         let mem: serde_json::Map<String, serde_json::Value> = solvers.iter().map(|(k, b)| (k.name().to_string(), json!(b))).collect();
         outln!(

@@ -35,6 +35,16 @@ pub fn ladder(kind: SolverKind, scene: &Scene, quick: bool) -> Vec<Rung> {
         SolverKind::Path => [4u32, 16, 64, 256, 1024].iter().map(|s| rung("path.spp", s.to_string())).collect(),
         SolverKind::Single => [16.0f32, 32.0, 64.0, 128.0, 256.0].iter().map(|d| rung("single.step", format!("{}", diag / d))).collect(),
         SolverKind::Lbl => [16u32, 24, 32, 48, 64].iter().map(|g| rung("lbl.grid", g.to_string())).collect(),
+        // Angular and radial resolution grow together (nu = 2 nv = layers / 2): the knob is
+        // the layer count, the rays follow it.
+        SolverKind::Wavefront => [32u32, 64, 128, 256, 512]
+            .iter()
+            .map(|l| Rung {
+                knob: "wavefront.layers".into(),
+                value: l.to_string(),
+                sets: vec![("wavefront.layers".into(), l.to_string()), ("wavefront.nu".into(), (l / 2).to_string()), ("wavefront.nv".into(), (l / 4).to_string())],
+            })
+            .collect(),
     };
     if quick {
         v.truncate(3);
@@ -178,7 +188,7 @@ pub fn bench_scene(
                         thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("lattice effective bandwidth at {}={}", rung.knob, rung.value), value: ups * bytes / 1e9, unit: "GB/s".into() });
                     }
                 }
-                SolverKind::Single => {}
+                SolverKind::Single | SolverKind::Wavefront => {}
             }
             points.push(Point {
                 scene: name.into(),

@@ -116,6 +116,7 @@ fn knobs(kind: SolverKind) -> Vec<(String, String)> {
         SolverKind::Path => vec![kv("path.spp", "64")],
         SolverKind::Single => vec![kv("single.env_dirs", "16")],
         SolverKind::Lbl => vec![kv("lbl.grid", "16"), kv("lbl.rays", "4096"), kv("lbl.view_env_dirs", "16"), kv("lbl.max_iters", "4000")],
+        SolverKind::Wavefront => vec![kv("wavefront.grid", "16"), kv("wavefront.view_env_dirs", "16")],
     }
 }
 

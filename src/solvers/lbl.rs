@@ -794,7 +794,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let gs = GpuScene::upload(gpu, scene, req.force_full)?;
     let mut lat = run_lattice(gpu, scene, &gs, &set, req.progress)?;
     let g = &lat.stats.lattice;
-    let ms = MsVolume { energy: &lat.irradiance_buffer, dims: g.dims, channels: lat.stats.channels, origin: g.origin, lambda: g.lambda };
+    let ms = MsVolume { energy: &lat.irradiance_buffer, dims: g.dims, channels: lat.stats.channels, origin: g.origin, lambda: g.lambda, flux: false };
     let view = march_view(gpu, scene, &gs, &set.view, Some(&ms))?;
     let passes = gpu.take_timings();
     lat.stats.diffuse_ms = passes.iter().filter(|p| p.name == "lbl.diffuse").map(|p| p.duration_ms()).sum();

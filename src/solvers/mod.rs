@@ -8,6 +8,7 @@ pub mod resumable;
 pub mod settings;
 pub mod shaders;
 pub mod single;
+pub mod wavefront;
 
 use serde::Serialize;
 use thiserror::Error;
@@ -40,6 +41,8 @@ pub enum SolverKind {
     Single,
     /// Photon marching + Lattice-Boltzmann diffusion on concurrent queues (thesis ch. 4).
     Lbl,
+    /// Wavefront tracing of homogeneous spherical layers around point lights (wavefront paper).
+    Wavefront,
 }
 
 impl SolverKind {
@@ -48,6 +51,7 @@ impl SolverKind {
             SolverKind::Path => "path",
             SolverKind::Single => "single",
             SolverKind::Lbl => "lbl",
+            SolverKind::Wavefront => "wavefront",
         }
     }
 }
@@ -89,6 +93,7 @@ pub fn render(gpu: &Gpu, kind: SolverKind, req: &RenderRequest) -> Result<Render
         SolverKind::Path => path::render(gpu, req),
         SolverKind::Single => single::render(gpu, req),
         SolverKind::Lbl => lbl::render(gpu, req),
+        SolverKind::Wavefront => wavefront::render(gpu, req),
     }
 }
 
@@ -105,6 +110,12 @@ pub fn memory_estimate(kind: SolverKind, scene: &Scene) -> u64 {
                 let g = lbl::LatticeGeom::new(scene, 64).voxels();
                 let rays = 65536 * scene.lights.len() as u64;
                 g * 4 * (1 + 2 * 7 * 3 + 3 + 3) + rays * (48 + 16 * 16) + pixels * (16 + single::STATE_BYTES_PER_PIXEL)
+            }
+            SolverKind::Wavefront => {
+                // Default knobs: 64 x 32 rays x 129 nodes x 3 vec4 + shells, a 64-voxel
+                // Cartesian volume with 3 channels of fluence and flux, plus the view march.
+                let g = lbl::LatticeGeom::new(scene, 64).voxels();
+                64 * 32 * (129 * 48 + 128 * 4) + g * 4 * 12 + pixels * (16 + single::STATE_BYTES_PER_PIXEL)
             }
         }
 }

@@ -17,7 +17,10 @@ pub const LBL_TRANSFER_FLOAT: ShaderSource = shader!("lbl/transfer_float");
 pub const LBL_TRANSFER_FIXED: ShaderSource = shader!("lbl/transfer_fixed");
 pub const LBL_INJECT: ShaderSource = shader!("lbl/inject");
 pub const LBL_DIFFUSE: ShaderSource = shader!("lbl/diffuse");
+pub const WAVEFRONT_RESAMPLE: ShaderSource = shader!("wavefront/resample");
+pub const WAVEFRONT_MARCH: ShaderSource = shader!("wavefront/march");
+pub const WAVEFRONT_GATHER: ShaderSource = shader!("wavefront/gather");
 
 /// Every shader, for reflection tests.
 pub const ALL: &[ShaderSource] =
-    &[PATH_TRACE, SINGLE_MARCH, PROBE_PHASE, LBL_RESAMPLE, LBL_MARCH, LBL_TRANSFER_FLOAT, LBL_TRANSFER_FIXED, LBL_INJECT, LBL_DIFFUSE];
+    &[PATH_TRACE, SINGLE_MARCH, PROBE_PHASE, LBL_RESAMPLE, LBL_MARCH, LBL_TRANSFER_FLOAT, LBL_TRANSFER_FIXED, LBL_INJECT, LBL_DIFFUSE, WAVEFRONT_RESAMPLE, WAVEFRONT_MARCH, WAVEFRONT_GATHER];

@@ -34,7 +34,9 @@ pub struct SinglePush {
     pub supersample: u32,
     pub budget: u32,
     pub slot: u32,
-    pub pad: [u32; 3],
+    /// 1: the multiple-scattering volume carries the vector irradiance after the fluence.
+    pub ms_flux: u32,
+    pub pad: [u32; 2],
     /// `lbl`: lattice voxels xyz and channels (x = 0: no multiple-scattering volume).
     pub ms_dims: [u32; 4],
     /// `lbl`: lattice min corner and voxel edge lambda.
@@ -106,6 +108,8 @@ pub struct MsVolume<'a> {
     pub channels: u32,
     pub origin: [f32; 3],
     pub lambda: f32,
+    /// The vector irradiance follows the fluence (`wavefront`'s two-term expansion).
+    pub flux: bool,
 }
 
 /// What one view march did.
@@ -130,11 +134,11 @@ pub fn march_view(gpu: &Gpu, scene: &Scene, gs: &GpuScene, v: &ViewSettings, ms:
     let state = gpu.buffer_with("view state", &vec![init; pixels as usize])?;
     let stats = gpu.buffer("view stats", resumable::STATS_WORDS * 4)?;
     let dummy;
-    let (ms_buf, ms_dims, ms_origin) = match ms {
-        Some(m) => (m.energy, [m.dims[0], m.dims[1], m.dims[2], m.channels], [m.origin[0], m.origin[1], m.origin[2], m.lambda]),
+    let (ms_buf, ms_dims, ms_origin, ms_flux) = match ms {
+        Some(m) => (m.energy, [m.dims[0], m.dims[1], m.dims[2], m.channels], [m.origin[0], m.origin[1], m.origin[2], m.lambda], m.flux as u32),
         None => {
             dummy = gpu.buffer("no ms volume", 4)?;
-            (&dummy, [0; 4], [0.0; 4])
+            (&dummy, [0; 4], [0.0; 4], 0)
         }
     };
     let seed = scene.render.seed;
@@ -149,7 +153,8 @@ pub fn march_view(gpu: &Gpu, scene: &Scene, gs: &GpuScene, v: &ViewSettings, ms:
             supersample: v.supersample,
             budget: v.budget,
             slot,
-            pad: [0; 3],
+            ms_flux,
+            pad: [0; 2],
             ms_dims,
             ms_origin,
         };
