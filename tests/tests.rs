@@ -14,3 +14,4 @@ mod scene_tests;
 mod solvers;
 mod stability_tests;
 mod timeline_tests;
+mod wavefront_tests;

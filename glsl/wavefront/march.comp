@@ -7,8 +7,16 @@
 // reduced extinction sigma_t' = sigma_t - sigma_s g, sigma_e = sqrt(3 sigma_a sigma_t').
 //
 // Integrator 0, `explicit`: the paper's eq. 6, explicit Euler, with the 0/0 of 2 psi0 / r at
-// r = 0 replaced by its limit 6 sigma_t' Phi. Stiff: once sigma_e Delta > 1 the decaying mode's
-// factor 1 - sigma_e Delta changes sign and psi0 goes negative, then overflows.
+// r = 0 replaced by its limit 6 sigma_t' Phi. Measured (tests/wavefront_tests.rs): from r = 0
+// it does not converge to eq. 5 as Delta -> 0 in an absorbing medium. r = 0 is a singular
+// point where both solutions of eq. 4, r e^{-sigma_e r} and the growing r e^{+sigma_e r}, have
+// psi0 = 0, the same psi1 and the same slope, so the initial values cannot tell them apart;
+// Euler's first steps (where Delta / r ~ 1 whatever Delta) mix in the growing mode by an
+// amount independent of Delta, and it outgrows the decaying one by e^{2 sigma_e r}: psi0
+// turns negative, and past sigma_e Delta ~ 2 the iteration overflows. With a start radius
+// r_s > 0 (`wavefront.explicit_start`) the nodes r <= r_s take the homogeneous solution of the
+// material at the light (eq. 5, "in order to obtain the initial values, we take the solution
+// for homogeneous material") and eq. 6 runs from there: first order in Delta.
 //
 // Integrator 1, `exponential`: each shell advanced with the exact homogeneous solution of that
 // shell's material (eq. 5 and its general form phi = (a e^{-sigma_e r} + b e^{sigma_e r}) / r,
@@ -49,6 +57,11 @@ void main() {
 
     vec3 psi0 = vec3(0.0);
     vec3 psi1 = phi_src;
+    float r_start = pc.intensity.w;
+    // The material at the light, for the explicit scheme's homogeneous start.
+    vec3 st_l = scene.sigma_t.xyz * shell_density[wf_node(ray, 0u)];
+    vec3 str_l = st_l - st_l * scene.albedo.xyz * g;
+    vec3 se_l = sqrt(max(vec3(0.0), 3.0 * (st_l - st_l * scene.albedo.xyz) * str_l));
     vec3 tau = vec3(0.0);
     psi0_out[wf_node(ray, 0u)] = vec4(psi0, 0.0);
     psi1_out[wf_node(ray, 0u)] = vec4(psi1, 0.0);
@@ -66,6 +79,10 @@ void main() {
             vec3 se = sqrt(max(vec3(0.0), 3.0 * sa * str));
             psi1 *= exp(-se * delta) * (se * r1 + 1.0) / (se * r0 + 1.0);
             psi0 = 3.0 * str * r1 * psi1 / (se * r1 + 1.0);
+        } else if (r1 <= r_start) {
+            // eq. 5 with A = 3 sigma_t' Phi (psi0 = A r e^{-sigma_e r}, the form of its r -> 0 limit).
+            psi0 = 3.0 * str_l * phi_src * r1 * exp(-se_l * r1);
+            psi1 = phi_src * exp(-se_l * r1) * (se_l * r1 + 1.0);
         } else {
             // eq. 6; at r = 0 the limit of (2 / r) psi0 is 6 sigma_t' Phi (section 2.1).
             vec3 two_over_r = n == 0u ? 6.0 * str * phi_src : 2.0 * psi0 / r0;

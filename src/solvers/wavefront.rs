@@ -23,7 +23,11 @@
 //! - `nu`, `nv`: rays in azimuth and in cos(theta) (default 64 x 32, uniform in solid angle);
 //! - `layers`: radial steps from the light to the farthest corner of the box (default 128);
 //! - `integrator`: `exponential` (default; stable and non-negative for any step) or
-//!   `explicit` (the paper's eq. 6; fails once sigma_e Delta exceeds about 1: reported);
+//!   `explicit` (the paper's eq. 6: from r = 0 it does not converge to the homogeneous
+//!   solution in an absorbing medium, and it goes negative once sigma_e R passes about 2.5:
+//!   reported; see glsl/wavefront/march.comp);
+//! - `explicit_start`: radius (scene units) over which `explicit` starts from the homogeneous
+//!   solution at the light (eq. 5) instead of from r = 0 (default 0, the paper's scheme);
 //! - `grid`: Cartesian voxels along the medium's longest side for the gathered volume
 //!   (default 64);
 //! - the view march's `view_step`, `view_shadow_step`, `view_env_dirs`, `view_supersample`,
@@ -72,6 +76,9 @@ pub struct WavefrontSettings {
     pub layers: u32,
     pub integrator: Integrator,
     pub grid: u32,
+    /// `explicit` only: radius (scene units) over which the homogeneous solution at the light
+    /// (eq. 5) stands in before eq. 6 takes over; 0 = the paper's start at r = 0.
+    pub explicit_start: f32,
 }
 
 /// Most radial layers: the march is one loop per ray (llvmpipe ends every loop of an
@@ -89,6 +96,7 @@ impl WavefrontSettings {
             layers: s.get(solver, &key("layers"), 128)?,
             integrator: s.get(solver, &key("integrator"), Integrator::Exponential)?,
             grid: s.get(solver, &key("grid"), 64)?,
+            explicit_start: s.get(solver, &key("explicit_start"), 0.0)?,
         };
         let bad = |k: &str, reason: String| SolverError::Setting { key: format!("{solver}.{}", key(k)), reason };
         if !(4..=4096).contains(&out.nu) || !(2..=4096).contains(&out.nv) {
@@ -97,6 +105,9 @@ impl WavefrontSettings {
         if !(2..=MAX_LAYERS).contains(&out.layers) {
             return Err(bad("layers", format!("{} must lie in 2..={MAX_LAYERS}", out.layers)));
         }
+        if !(out.explicit_start.is_finite() && out.explicit_start >= 0.0) {
+            return Err(bad("explicit_start", format!("{} must be a radius >= 0 in scene units", out.explicit_start)));
+        }
         if !(2..=1024).contains(&out.grid) {
             return Err(bad("grid", format!("{} must lie in 2..=1024", out.grid)));
         }
@@ -104,7 +115,7 @@ impl WavefrontSettings {
     }
 
     pub fn json(&self) -> serde_json::Value {
-        json!({ "nu": self.nu, "nv": self.nv, "layers": self.layers, "integrator": self.integrator, "grid": self.grid })
+        json!({ "nu": self.nu, "nv": self.nv, "layers": self.layers, "integrator": self.integrator, "grid": self.grid, "explicit_start": self.explicit_start })
     }
 }
 
@@ -162,10 +173,10 @@ impl WaveField {
     pub fn device_bytes(&self) -> u64 {
         self.psi0.size() + self.psi1.size() + self.tau.size() + self.shells.size()
     }
-    fn push(&self, integrator: Integrator) -> WavePush {
+    fn push(&self, integrator: Integrator, explicit_start: f32) -> WavePush {
         WavePush {
             light: [self.position.x, self.position.y, self.position.z, self.delta],
-            intensity: [self.intensity.x, self.intensity.y, self.intensity.z, self.radius],
+            intensity: [self.intensity.x, self.intensity.y, self.intensity.z, explicit_start],
             dims: [self.nu, self.nv, self.layers, if integrator == Integrator::Exponential { 1 } else { 0 }],
             cart_dims: [0; 4],
             cart_origin: [0.0; 4],
@@ -227,7 +238,7 @@ pub fn trace_light(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSetti
     let p_resample = gpu.pipeline(&shaders::WAVEFRONT_RESAMPLE, &spec)?;
     let p_march = gpu.pipeline(&shaders::WAVEFRONT_MARCH, &spec)?;
     let stats = gpu.buffer("wavefront stats", 16)?;
-    let push = f.push(set.integrator);
+    let push = f.push(set.integrator, set.explicit_start);
     let passes = vec![
         gs.bind(Pass::new("wavefront.resample", QueueRole::Trace, &p_resample)).write(3, &f.shells).push(&push).cover([set.nu, set.nv, set.layers]),
         gs.bind(Pass::new("wavefront.march", QueueRole::Trace, &p_march))
@@ -287,7 +298,7 @@ pub fn wave_volume(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSetti
         out.nonfinite_nodes += f.nonfinite_nodes;
         out.failed_rays += f.failed_rays;
         field_bytes = field_bytes.max(f.device_bytes());
-        let mut push = f.push(set.integrator);
+        let mut push = f.push(set.integrator, set.explicit_start);
         push.cart_dims = [geom.dims[0], geom.dims[1], geom.dims[2], channels];
         push.cart_origin = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
         let pass = Pass::new("wavefront.gather", QueueRole::Trace, &p_gather)
