@@ -134,7 +134,7 @@ fn stability_extremes_both_integrators() {
                     let set = settings(16, 8, layers, integ, grid);
                     let (f, _p0, p1) = field(&gpu, &sc, &set);
                     sed = (3.0 * sigma_t as f64 * (1.0 - albedo as f64) * sigma_t as f64).sqrt() * f.delta as f64;
-                    let vol = wave_volume(&gpu, &sc, &gs, &set).unwrap();
+                    let vol = wave_volume(&gpu, &sc, &gs, &set, None).unwrap();
                     let v: Vec<f32> = gpu.read_buffer_as(&vol.energy).unwrap();
                     let fluence_ok = v[..vol.geom.voxels() as usize].iter().all(|x| x.is_finite() && *x >= 0.0);
                     assert!(v.iter().all(|x| x.is_finite()), "gathered volume not finite ({integ:?}, sigma_t {sigma_t}, albedo {albedo}, {lname})");
@@ -205,7 +205,7 @@ fn hole_enclosed_by_absorber_stays_dark() {
     let sc = Scene::from_str(&text, "hole.toml", dir.path(), &[], &LoadOptions::default()).unwrap();
     let gs = GpuScene::upload(&gpu, &sc, false).unwrap();
     let set = settings(128, 64, 128, Integrator::Exponential, 32);
-    let vol = wave_volume(&gpu, &sc, &gs, &set).unwrap();
+    let vol = wave_volume(&gpu, &sc, &gs, &set, None).unwrap();
     let v: Vec<f32> = gpu.read_buffer_as(&vol.energy).unwrap();
     let lambda = vol.geom.lambda;
     let fluence_at = |p: Vec3| {
@@ -256,5 +256,47 @@ fn light_inside_cloud_beats_the_direct_term() {
     eprintln!("explicit: relL2 {:.3}, warnings {:?}", e_ex.rel_l2, ex.report.warnings);
     assert_eq!(ex.image.nan_inf_count(), 0);
     assert!(ex.image.data.iter().all(|x| *x >= 0.0));
+    assert_clean(&gpu);
+}
+
+/// `lbl.warm_start=wavefront` (paper section 1.1: the approximation as an iterative solver's
+/// initial guess, error after n iterations <= lambda^n ||L0 - L||): after the same number of
+/// lattice iterations the warm-started lattice is closer to the converged answer than the cold
+/// one, and both converge to the same image.
+#[test]
+fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
+    let gpu = gpu();
+    let small = [("render.width".to_string(), "16".to_string()), ("render.height".to_string(), "16".to_string())];
+    let sc = Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap();
+    let run = |extra: &[(&str, &str)]| {
+        let mut pairs = vec![("lbl.grid".to_string(), "24".to_string()), ("lbl.rays".to_string(), "8192".to_string())];
+        pairs.extend(extra.iter().map(|(k, v)| (k.to_string(), v.to_string())));
+        let settings = scatterlab::solvers::Settings::new(&pairs);
+        let req = scatterlab::solvers::RenderRequest { scene: &sc, settings: &settings, force_full: false, progress: &|_, _| {} };
+        scatterlab::solvers::render(&gpu, SolverKind::Lbl, &req).unwrap()
+    };
+    let iters = |r: &scatterlab::solvers::RenderOutput| r.report.stats["lbl"]["iterations"].as_u64().unwrap();
+    let converged = run(&[("lbl.tol", "1e-6")]);
+    let warm_converged = run(&[("lbl.tol", "1e-6"), ("lbl.warm_start", "wavefront")]);
+    let same = compare(&warm_converged.image, &converged.image).unwrap().rel_l2;
+    // 64 lattice iterations: the cold start spends 48 of them during the marching rounds.
+    let cold = run(&[("lbl.max_iters", "64")]);
+    let warm = run(&[("lbl.max_iters", "64"), ("lbl.warm_start", "wavefront")]);
+    assert_eq!((iters(&cold), iters(&warm)), (64, 64));
+    let e_cold = compare(&cold.image, &converged.image).unwrap().rel_l2;
+    let e_warm = compare(&warm.image, &converged.image).unwrap().rel_l2;
+    eprintln!(
+        "lbl after 64 iterations: cold relL2 {e_cold:.3e}, warm {e_warm:.3e} (to the converged image); to tol 1e-6: cold {} iterations, warm {}; converged images differ by relL2 {same:.2e}",
+        iters(&converged),
+        iters(&warm_converged)
+    );
+    assert!(warm.report.stats["lbl"]["warm_start"].as_bool().unwrap());
+    assert!(e_warm < 0.5 * e_cold, "warm start is not closer: {e_warm} vs cold {e_cold}");
+    assert!(same < 2e-3, "warm and cold starts converge to different images: relL2 {same}");
+    // The warm start is built for D3Q6 and says so for D3Q18.
+    let settings = scatterlab::solvers::Settings::new(&[("lbl.warm_start".to_string(), "wavefront".to_string()), ("lbl.lattice".to_string(), "d3q18".to_string())]);
+    let req = scatterlab::solvers::RenderRequest { scene: &sc, settings: &settings, force_full: false, progress: &|_, _| {} };
+    let err = scatterlab::solvers::render(&gpu, SolverKind::Lbl, &req).err().expect("d3q18 warm start must be refused").to_string();
+    assert!(err.contains("lbl.warm_start") && err.contains("d3q6"), "{err}");
     assert_clean(&gpu);
 }

@@ -20,7 +20,10 @@
 //! block; 1 = the global lattice; default b), `iters_per_round` (default 8), `tol` (default
 //! 1e-4), `max_iters` (default 20000), `threshold` (default 1e-4), `env_lights` (directional
 //! raymaps standing in for an environment, default 14), `deterministic` (fixed-point transfer),
-//! `schedule` (`concurrent` | `sequential`), and the view march's `view_step`,
+//! `schedule` (`concurrent` | `sequential`), `warm_start` (`none` | `wavefront`: start the
+//! lattice iteration from the wavefront solver's field, with its knobs as `lbl.wavefront_nu`,
+//! `lbl.wavefront_nv`, `lbl.wavefront_layers`, `lbl.wavefront_integrator`; see `warm_start`),
+//! and the view march's `view_step`,
 //! `view_shadow_step`, `view_env_dirs`, `view_supersample`, `view_jitter`, `view_budget`.
 
 use bytemuck::{Pod, Zeroable};
@@ -34,6 +37,7 @@ use crate::scene::{Light, Scene};
 
 use super::gpu_scene::GpuScene;
 use super::single::{march_view, MsVolume, ViewSettings};
+use super::wavefront::{wave_volume, WavefrontSettings};
 use super::{shaders, RenderOutput, RenderReport, RenderRequest, SolverError, SolverKind};
 
 const SPEC_NCH: u32 = 3;
@@ -362,6 +366,9 @@ pub struct LblSettings {
     pub deterministic: bool,
     pub schedule: Schedule,
     pub view: ViewSettings,
+    /// Initial guess of the lattice iteration: `None` (cold: from the deposits alone) or the
+    /// wavefront solver's field (`lbl.warm_start=wavefront`, its knobs as `lbl.wavefront_*`).
+    pub warm_start: Option<WavefrontSettings>,
 }
 
 impl LblSettings {
@@ -394,7 +401,15 @@ impl LblSettings {
             deterministic: s.get("lbl", "deterministic", false)?,
             schedule: s.get("lbl", "schedule", Schedule::Concurrent)?,
             view: ViewSettings::parse(s, "lbl", "view_", req.scene)?,
+            warm_start: match s.get("lbl", "warm_start", "none".to_string())?.as_str() {
+                "none" => None,
+                "wavefront" => Some(WavefrontSettings::parse(s, "lbl", "wavefront_")?),
+                other => return Err(bad("warm_start", format!("unknown warm start {other:?}; use none or wavefront"))),
+            },
         };
+        if out.warm_start.is_some() && out.lattice != Lattice::D3q6 {
+            return Err(bad("warm_start", "the wavefront warm start is built for the d3q6 lattice; use lbl.lattice=d3q6".into()));
+        }
         if out.rays == 0 || out.rays > 1 << 22 {
             return Err(bad("rays", format!("{} must lie in 1..=4194304", out.rays)));
         }
@@ -459,6 +474,9 @@ pub struct LblStats {
     pub device_bytes: u64,
     /// GPU time of the lattice steps alone, for the voxel-update throughput.
     pub diffuse_ms: f64,
+    /// The iteration started from the wavefront solution (the energy book then does not
+    /// balance: the seeded residual is signed).
+    pub warm_start: bool,
 }
 
 /// The lattice's time-integrated energy and stats, without the view pass (for tests of the
@@ -666,11 +684,28 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     let rounds = max_steps.div_ceil(set.k);
     // Scale of the fixed-point transfer: a voxel's sum within a round never exceeds the total.
     let scale = if total_power > 0.0 { ((1u64 << 30) as f64 / total_power) as f32 } else { 1.0 };
+    let inject = |lattice: &Diffuser| {
+        Pass::new("lbl.inject", QueueRole::Diffuse, &p_inject)
+            .read_write(0, &accum)
+            .read_write(1, lattice.state())
+            .read_write(2, &inject_tally)
+            .push(&InjectPush { voxels: v as u32, inv_scale: 1.0 / scale, pad: [0; 2] })
+            .cover([v as u32, 1, 1])
+    };
+
     let steps = plan(rounds, set.schedule);
     let mut points: Vec<SyncPoint> = Vec::with_capacity(steps.len());
+    // A warm start needs the whole deposit s before the iteration starts from the guess, so
+    // the rounds only march and transfer (the sums accumulate until one injection).
+    let warm = set.warm_start.is_some();
     progress(0, rounds as u64 + 1);
     for st in &steps {
         let waits: Vec<SyncPoint> = st.waits.iter().map(|w| points[*w]).collect();
+        if warm && matches!(st.step, Step::Diffuse(_)) {
+            // Nothing waits on a diffusion step: keep the plan's indices with a stand-in.
+            points.push(*points.last().expect("a diffusion step follows a transfer"));
+            continue;
+        }
         let passes = match st.step {
             Step::March(_) => vec![gs
                 .bind(Pass::new("lbl.march", QueueRole::Trace, &p_march))
@@ -678,19 +713,17 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
                 .write(4, &rhb)
                 .push(&MarchPush { dims: [geom.dims[0], geom.dims[1], geom.dims[2], ray_count], origin: origin4, step: set.step, threshold: set.threshold, k: set.k, max_steps })
                 .cover([ray_count, 1, 1])],
-            Step::Transfer(_) => vec![
-                Pass::new("lbl.transfer", QueueRole::Diffuse, &p_transfer)
+            Step::Transfer(_) => {
+                let mut p = vec![Pass::new("lbl.transfer", QueueRole::Diffuse, &p_transfer)
                     .read(0, &rhb)
                     .read_write(1, &accum)
                     .push(&TransferPush { entries: ray_count * set.k, voxels: v as u32, scale, pad: 0 })
-                    .cover([ray_count * set.k, 1, 1]),
-                Pass::new("lbl.inject", QueueRole::Diffuse, &p_inject)
-                    .read_write(0, &accum)
-                    .read_write(1, lattice.state())
-                    .read_write(2, &inject_tally)
-                    .push(&InjectPush { voxels: v as u32, inv_scale: 1.0 / scale, pad: [0; 2] })
-                    .cover([v as u32, 1, 1]),
-            ],
+                    .cover([ray_count * set.k, 1, 1])];
+                if !warm {
+                    p.push(inject(&lattice));
+                }
+                p
+            }
             Step::Diffuse(_) => lattice.passes(set.iters_per_round),
         };
         let point = gpu.submit(st.role, &passes, &waits)?;
@@ -698,6 +731,10 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
         if let Step::Transfer(n) = st.step {
             progress(n as u64 + 1, rounds as u64 + 1);
         }
+    }
+
+    if let Some(ws) = &set.warm_start {
+        warm_start(gpu, scene, gs, ws, &geom, nch, &mut lattice, |l| inject(l))?;
     }
 
     // Iterate to convergence: relative change of the time-integrated energy at sparse probes.
@@ -758,8 +795,54 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
-        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations: lattice.iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed, device_bytes, diffuse_ms: 0.0 },
+        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations: lattice.iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed, device_bytes, diffuse_ms: 0.0, warm_start: warm },
     })
+}
+
+/// Start the lattice iteration from the wavefront solution (wavefront paper, section 1.1:
+/// "an initial guess for an iterative solver"). The lattice's time-integrated field F is the
+/// fixed point of F = s + M F (s: all deposits, M: one lattice step), and running the lattice
+/// from the deposits alone is the Jacobi iteration from F = 0. From a guess G instead,
+///   F_n = sum_{t<n} M^t s + M^n G = G + sum_{t<n} M^t (s + M G - G),
+/// so the lattice is seeded with the residual r = s + M G - G and its accumulated irradiance
+/// with that of G (one lattice step on G produces both M G and G's irradiance). G comes from
+/// the wavefront's multiply scattered fluence and flux on the same grid: per D3Q6 link i
+/// (unit vector e_i) G_i = lambda^2 (phi / 6 + E.e_i / 2), which gives back phi lambda^2 as the
+/// summed arrivals and E lambda^2 as their net flow; |E| <= phi / 3 keeps G_i >= 0. The
+/// residual is signed, so the absorbed/leaked tallies no longer balance the deposits: the
+/// energy book is not kept under a warm start.
+#[allow(clippy::too_many_arguments)]
+fn warm_start<'a>(gpu: &Gpu, scene: &Scene, gs: &GpuScene, ws: &WavefrontSettings, geom: &LatticeGeom, nch: u32, lattice: &mut Diffuser, inject: impl Fn(&Diffuser) -> Pass + 'a) -> Result<(), SolverError> {
+    let vol = wave_volume(gpu, scene, gs, ws, Some(*geom))?;
+    let wf: Vec<f32> = gpu.read_buffer_as(&vol.energy)?;
+    let v = geom.voxels() as usize;
+    let wc = vol.channels as usize;
+    let links = Lattice::D3q6.dirs();
+    let mut g = vec![0f32; 7 * nch as usize * v];
+    for c in 0..nch as usize {
+        let cw = c.min(wc - 1);
+        for x in 0..v {
+            let phi = wf[cw * v + x];
+            let e = [0, 1, 2].map(|a| wf[wc * v + (3 * cw + a) * v + x]);
+            for (i, d) in links.iter().enumerate().skip(1) {
+                let flow = e[0] * d[0] as f32 + e[1] * d[1] as f32 + e[2] * d[2] as f32;
+                g[(i * nch as usize + c) * v + x] = (phi / 6.0 + flow / 2.0).max(0.0);
+            }
+        }
+    }
+    gpu.write_buffer(lattice.state(), 0, bytemuck::cast_slice(&g))?;
+    // One step on G: the state becomes M G, the irradiance that of G.
+    let mut passes = lattice.passes(1);
+    // Then the deposits s join the rest distribution.
+    passes.push(inject(lattice));
+    let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+    gpu.wait(point)?;
+    let mut st: Vec<f32> = gpu.read_buffer_as(lattice.state())?;
+    for (a, b) in st.iter_mut().zip(&g) {
+        *a -= b;
+    }
+    gpu.write_buffer(lattice.state(), 0, bytemuck::cast_slice(&st))?;
+    Ok(())
 }
 
 /// Energy still moving in a lattice state: every rest value, and every outgoing link whose
@@ -815,6 +898,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
             "block_steps": set.block_steps, "iters_per_round": set.iters_per_round, "tol": set.tol, "max_iters": set.max_iters,
             "threshold": set.threshold, "env_lights": set.env_lights, "deterministic": lat.stats.deterministic,
             "schedule": set.schedule, "view": set.view.json(),
+            "warm_start": set.warm_start.as_ref().map(|w| w.json()),
         }),
         modelled: gs.modelled.clone(),
         device_bytes: gs.bytes + view.device_bytes + lat.stats.device_bytes,

@@ -279,9 +279,9 @@ impl WaveVolume {
 }
 
 /// Trace every point light inside the medium and gather onto a Cartesian grid of `set.grid`
-/// voxels along the box's longest side (the same geometry as `lbl`'s lattice).
-pub fn wave_volume(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSettings) -> Result<WaveVolume, SolverError> {
-    let geom = LatticeGeom::new(scene, set.grid);
+/// voxels along the box's longest side (the same geometry as `lbl`'s lattice), or onto `geom`.
+pub fn wave_volume(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSettings, geom: Option<LatticeGeom>) -> Result<WaveVolume, SolverError> {
+    let geom = geom.unwrap_or_else(|| LatticeGeom::new(scene, set.grid));
     let v = geom.voxels();
     let lights = traced_lights(scene);
     let grey_lights = lights.iter().all(|(_, c)| c.x == c.y && c.y == c.z);
@@ -344,7 +344,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     req.settings.check_all_used("wavefront")?;
     let gs = GpuScene::upload(gpu, scene, req.force_full)?;
     (req.progress)(0, 2);
-    let vol = wave_volume(gpu, scene, &gs, &set)?;
+    let vol = wave_volume(gpu, scene, &gs, &set, None)?;
     (req.progress)(1, 2);
     let res = march_view(gpu, scene, &gs, &view, Some(&vol.ms()))?;
     (req.progress)(2, 2);
