@@ -48,7 +48,7 @@ pub enum Command {
         #[arg(required = true)]
         scenes: Vec<PathBuf>,
         /// Solvers to bench (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl")]
+        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl,wavefront")]
         solvers: Vec<SolverKind>,
         /// Output directory (created if missing).
         #[arg(long, default_value = "bench")]

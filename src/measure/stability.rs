@@ -42,6 +42,8 @@ pub struct Outcome {
     pub case: String,
     pub group: &'static str,
     pub solver: SolverKind,
+    /// Which variant of the solver (the wavefront integrator), empty when it has one.
+    pub variant: String,
     pub passed: bool,
     pub finite: bool,
     pub non_negative: bool,
@@ -102,6 +104,14 @@ pub fn cases() -> Vec<Case> {
     for (name, p) in lights {
         v.push(mk(name.to_string(), "point light", 0.9, 4.0, 0.0, Some(p), false));
     }
+    // A point light inside the medium from optically thin to very thick, absorbing and not:
+    // where the wavefront solver's integrators (and every 1/r^2 near-light estimate) are
+    // stressed. Thick lossless bounds take `path` long, so those cases are slow.
+    for tau in [1e-3f32, 10.0, 1e3, 1e4] {
+        for albedo in [0.0f32, 0.99] {
+            v.push(mk(format!("light inside, tau {tau:e}, albedo {albedo}"), "light inside", albedo, tau, 0.0, Some([0.5 * h, 0.5 * h, 0.5 * h]), tau >= 1e3));
+        }
+    }
     v
 }
 
@@ -117,6 +127,22 @@ fn knobs(kind: SolverKind) -> Vec<(String, String)> {
         SolverKind::Single => vec![kv("single.env_dirs", "16")],
         SolverKind::Lbl => vec![kv("lbl.grid", "16"), kv("lbl.rays", "4096"), kv("lbl.view_env_dirs", "16"), kv("lbl.max_iters", "4000")],
         SolverKind::Wavefront => vec![kv("wavefront.grid", "16"), kv("wavefront.view_env_dirs", "16")],
+    }
+}
+
+/// The variants of a solver the sweep judges separately: both wavefront integrators.
+fn variants(kind: SolverKind) -> Vec<(String, Vec<(String, String)>)> {
+    let base = knobs(kind);
+    match kind {
+        SolverKind::Wavefront => ["exponential", "explicit"]
+            .iter()
+            .map(|i| {
+                let mut k = base.clone();
+                k.push(("wavefront.integrator".to_string(), i.to_string()));
+                (i.to_string(), k)
+            })
+            .collect(),
+        _ => vec![(String::new(), base)],
     }
 }
 
@@ -150,15 +176,16 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
             e.data.iter_mut().for_each(|v| *v = x);
             e
         });
-        for kind in solvers_ {
+        for (kind, (variant, knobs)) in solvers_.iter().flat_map(|k| variants(*k).into_iter().map(move |v| (k, v))) {
             progress(&format!("{} / {}", case.name, kind.name()));
-            let r = match render(gpu, &scene, *kind, &knobs(*kind)) {
+            let r = match render(gpu, &scene, *kind, &knobs) {
                 Ok(r) => r,
                 Err(e) => {
                     out.push(Outcome {
                         case: case.name.clone(),
                         group: case.group,
                         solver: *kind,
+                        variant: variant.clone(),
                         passed: false,
                         finite: false,
                         non_negative: false,
@@ -173,7 +200,9 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
                     continue;
                 }
             };
-            out.push(judge(&case, *kind, &r, bound.as_ref(), exact.as_ref()));
+            let mut o = judge(&case, *kind, &r, bound.as_ref(), exact.as_ref());
+            o.variant = variant;
+            out.push(o);
         }
     }
     Ok(out)
@@ -236,11 +265,15 @@ fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option
     if converged == Some(false) {
         notes.push("lattice did not converge".into());
     }
+    // The wavefront march's own state went negative or non-finite (the gather clamps it, so
+    // the image alone would not show it): a failure of the integrator.
+    let wf_failed = kind == SolverKind::Wavefront && r.report.stats["negative_nodes"].as_u64().unwrap_or(0) + r.report.stats["nonfinite_nodes"].as_u64().unwrap_or(0) > 0;
     Outcome {
         case: case.name.clone(),
         group: case.group,
         solver: kind,
-        passed: finite && non_negative && energy_ok && exact_ok,
+        variant: String::new(),
+        passed: finite && non_negative && energy_ok && exact_ok && !wf_failed,
         finite,
         non_negative,
         energy_ok,
@@ -253,6 +286,17 @@ fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option
     }
 }
 
+impl Outcome {
+    /// `solver` or `solver/variant`.
+    pub fn label(&self) -> String {
+        if self.variant.is_empty() {
+            self.solver.name().to_string()
+        } else {
+            format!("{}/{}", self.solver.name(), self.variant)
+        }
+    }
+}
+
 /// CSV of the outcomes (one row per case and solver).
 pub fn csv(outcomes: &[Outcome]) -> String {
     let mut s = String::from("case,group,solver,passed,finite,non_negative,energy_ok,max_over_bound,exact_rel_l2,iterations,converged,gpu_ms,notes\n");
@@ -261,7 +305,7 @@ pub fn csv(outcomes: &[Outcome]) -> String {
             "\"{}\",{},{},{},{},{},{},{:.4e},{},{},{},{:.1},\"{}\"\n",
             o.case,
             o.group,
-            o.solver.name(),
+            o.label(),
             o.passed,
             o.finite,
             o.non_negative,
@@ -279,12 +323,12 @@ pub fn csv(outcomes: &[Outcome]) -> String {
 
 /// The pass/fail table printed by the command.
 pub fn table(outcomes: &[Outcome]) -> String {
-    let mut s = format!("{:<26} {:<7} {:<5} {:>8} {:>10} {:>6} {}\n", "case", "solver", "ok", "over", "exact err", "iters", "notes");
+    let mut s = format!("{:<36} {:<21} {:<5} {:>8} {:>10} {:>6} {}\n", "case", "solver", "ok", "over", "exact err", "iters", "notes");
     for o in outcomes {
         s.push_str(&format!(
-            "{:<26} {:<7} {:<5} {:>8.1e} {:>10} {:>6} {}\n",
+            "{:<36} {:<21} {:<5} {:>8.1e} {:>10} {:>6} {}\n",
             o.case,
-            o.solver.name(),
+            o.label(),
             if o.passed { "pass" } else { "FAIL" },
             o.max_over_bound,
             o.exact_error.map(|e| format!("{e:.1e}")).unwrap_or_else(|| "-".into()),
