@@ -10,6 +10,10 @@
 // budget is spent, then saves the path state; the host re-dispatches until every pixel has
 // finished samples [0, sample_end). Every finished sample adds L and L^2 to the pixel's sums
 // (mean and variance of the mean on the host), always in sample order: deterministic.
+// Point lights (with pc.equiangular) are also sampled by equiangular sampling along every
+// ray segment (Kulla & Fajardo 2012, "Importance sampling techniques for path tracing in
+// participating media"), combined with next-event estimation from the distance-sampled
+// scattering point by MIS: see eq_* and advance().
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
@@ -46,7 +50,7 @@ layout(push_constant) uniform Push {
     uint max_depth;       // scattering events; 1 = single scattering; 0xffffffff = unbounded
     uint collision_cap;   // safety cap on tentative collisions per path (reported, not silent)
     uint slot;            // which active counter this dispatch reports into
-    uint pad;
+    uint equiangular;     // 1: equiangular sampling of point lights + MIS; 0: distance sampling only
 } pc;
 
 float phase_eval(float g, float c) { return ANISOTROPIC ? hg_eval(g, c) : INV_4PI; }
@@ -135,11 +139,104 @@ bool next_scatter(vec3 o, vec3 d, inout vec3 beta, inout uvec2 rng, out float t_
 // Power heuristic (Veach 1997) for two strategies with one sample each.
 float mis_power(float a, float b) { return a * a / (a * a + b * b); }
 
+// Equiangular sampling (Kulla & Fajardo 2012, sec. 4.1) of a point light at c along the ray
+// o + t d, t in [t_in, t_out]: t is drawn with pdf proportional to 1/r^2 (r = |x(t) - c|),
+// i.e. uniformly in the angle subtended at the light. Geometry per (ray, light):
+// delta = dot(c - o, d) (foot of the perpendicular), D = distance of c from the ray's line,
+// theta_a/b = atan((t_in/out - delta) / D); pdf(t) = D / ((theta_b - theta_a)(D^2 + (t - delta)^2)).
+// `ok` is false when the interval is empty or D is too small for the angles to be computed
+// reliably (light on the ray's line): then there is no equiangular sample for this ray and
+// its pdf is 0 everywhere, a deterministic function of the ray, so the MIS weights below stay
+// consistent (distance sampling then carries weight 1).
+struct Equiangular { float delta; float D; float th_a; float th_b; bool ok; };
+
+Equiangular eq_setup(vec3 o, vec3 d, float t_in, float t_out, vec3 c) {
+    Equiangular e;
+    vec3 oc = c - o;
+    e.delta = dot(oc, d);
+    e.D = length(oc - e.delta * d);
+    e.th_a = 0.0; e.th_b = 0.0;
+    e.ok = t_in < t_out && t_out < INF && e.D > 1e-5 * max(1.0, length(oc));
+    if (e.ok) {
+        e.th_a = atan((t_in - e.delta) / e.D);
+        e.th_b = atan((t_out - e.delta) / e.D);
+        e.ok = e.th_b > e.th_a;
+    }
+    return e;
+}
+
+float eq_pdf(Equiangular e, float t) {
+    if (!e.ok) return 0.0;
+    float x = t - e.delta;
+    return e.D / ((e.th_b - e.th_a) * (e.D * e.D + x * x));
+}
+
+// MIS weight of the equiangular strategy at distance t on the ray (power heuristic). Both
+// strategies estimate the same integral over t of T(o, x) sigma_s(x) f(x) with f the light's
+// contribution at x: equiangular directly, distance (delta/spectral) tracking through the
+// scattering point it samples. Any pair of weights w_eq(t) + w_d(t) = 1 that is a
+// deterministic function of (ray, t) keeps the sum unbiased, each estimator estimating its
+// weighted share exactly (Veach 1997). So the distance pdf used here needs only to be a good
+// proxy, not the true tracking pdf (which depends on the whole path through a heterogeneous
+// medium and on the chromatic tracking history): p_d(t) = s exp(-s (t - t_in)) with
+// s = sigma_maj-scale (grey) times the density at x. It is evaluated identically for the
+// equiangular sample and at the distance-sampled scattering point (w_d = 1 - w_eq).
+float eq_weight(Equiangular e, vec3 o, vec3 d, float t_in, float t) {
+    float pe = eq_pdf(e, t);
+    if (pe <= 0.0) return 0.0;
+    float s = scene.sigma_t.w * density_at(o + d * t);
+    float pd = s * exp(-s * max(0.0, t - t_in));
+    if (!(pd > 0.0)) return 1.0;
+    return mis_power(pe, pd);
+}
+
+// The equiangular estimate for every point light along the ray (o, d) over [t_in, t_out],
+// added to L with throughput beta (the throughput at the ray's origin). Transmittances by
+// ratio tracking, so unbiased per channel, chromatic media included.
+void equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inout vec3 L, inout uvec2 rng) {
+    uint light_count = scene.image.z;
+    float g = scene.albedo.w;
+    for (uint i = 0u; i < light_count; ++i) {
+        iters++;
+        Light li = scene.lights[i];
+        if (uint(li.pos_kind.w) != LIGHT_POINT) continue;
+        vec3 c = li.pos_kind.xyz;
+        Equiangular e = eq_setup(o, d, t_in, t_out, c);
+        float u = rnd(rng);   // drawn for every point light, so the stream does not depend on e.ok
+        if (!e.ok) continue;
+        float t = clamp(e.delta + e.D * tan(mix(e.th_a, e.th_b, u)), t_in, t_out);
+        float pdf = eq_pdf(e, t);
+        vec3 x = o + d * t;
+        vec3 ss = scene.sigma_t.xyz * density_at(x) * scene.albedo.xyz;
+        if (!(pdf > 0.0) || max3(ss) <= 0.0) continue;
+        vec3 to = c - x;
+        float dist2 = dot(to, to);
+        if (dist2 <= 0.0) continue;
+        float dist = sqrt(dist2);
+        vec3 wi = to / dist;
+        float w = eq_weight(e, o, d, t_in, t);
+        if (w <= 0.0) continue;
+        vec3 Tcam = transmittance(o, d, t, rng);
+        if (max3(Tcam) <= 0.0) continue;
+        vec3 Tl = transmittance(x, wi, dist, rng);
+        L += beta * Tcam * ss * phase_eval(g, dot(d, wi)) * Tl * li.value.rgb / dist2 * (w / pdf);
+    }
+}
+
 // One event of a path: free flight to the next scattering (next-event estimation and a new
 // direction there) or to its escape. Returns true when the path has ended.
 bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uint depth, inout float pdf_dir, inout uvec2 rng) {
     uint light_count = scene.image.z;
     float g = scene.albedo.w;
+    // The ray's segment in the medium, as next_scatter sees it; kept for the MIS weights.
+    vec2 seg = medium_interval(o, d);
+    seg.x = max(seg.x, 0.0);
+    // Equiangular sampling only where a scattering vertex here would be allowed
+    // (depth + 1 <= max_depth), exactly where the distance-sampled NEE below happens.
+    bool eq_on = pc.equiangular != 0u && depth < pc.max_depth && seg.x < seg.y;
+    if (eq_on && max3(beta) > 0.0) equiangular_lights(o, d, seg.x, seg.y, beta, L, rng);
+    vec3 o_seg = o;
+    vec3 d_seg = d;
     float t_hit;
     bool scattered = next_scatter(o, d, beta, rng, t_hit);
     if (!scattered) {
@@ -170,8 +267,13 @@ bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout ui
             if (dist2 <= 0.0) continue;
             float dist = sqrt(dist2);
             vec3 wi = to / dist;
+            // The distance-sampling share of the MIS with equiangular sampling (w_d = 1 - w_eq
+            // for the same ray and t; 1 when equiangular sampling is off).
+            float w = 1.0;
+            if (eq_on) w = 1.0 - eq_weight(eq_setup(o_seg, d_seg, seg.x, seg.y, li.pos_kind.xyz), o_seg, d_seg, seg.x, t_hit);
+            if (w <= 0.0) continue;
             vec3 T = transmittance(p, wi, dist, rng);
-            L += beta * T * phase_eval(g, dot(d, wi)) * li.value.rgb / dist2;
+            L += beta * T * phase_eval(g, dot(d, wi)) * li.value.rgb / dist2 * w;
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
             vec3 T = transmittance(p, wi, INF, rng);
