@@ -137,8 +137,8 @@ fn render(a: RenderArgs) -> Result<()> {
     let (scene_sets, solver_sets): (Vec<_>, Vec<_>) = sets.into_iter().partition(|(k, _)| is_scene_key(k));
     for (k, _) in &solver_sets {
         let prefix = k.split('.').next().unwrap_or("");
-        if !["path", "single", "lbl"].contains(&prefix) || !k.contains('.') {
-            bail!("--set {k}: unknown key; scene keys start with render., camera., medium. or light., solver knobs with path., single. or lbl.");
+        if !["path", "single", "lbl", "wavefront"].contains(&prefix) || !k.contains('.') {
+            bail!("--set {k}: unknown key; scene keys start with render., camera., medium. or light., solver knobs with path., single., lbl. or wavefront.");
         }
     }
     // Check outputs before any work, so a typo costs nothing.
