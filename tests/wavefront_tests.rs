@@ -300,3 +300,20 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
     assert!(err.contains("lbl.warm_start") && err.contains("d3q6"), "{err}");
     assert_clean(&gpu);
 }
+
+/// `scatterlab bench` walks the wavefront ladder (angular and radial resolution together) on
+/// the light-inside cloud, with finite metrics at every rung.
+#[test]
+fn bench_ladder_runs_for_wavefront() {
+    let gpu = gpu();
+    let small = [("render.width".to_string(), "16".to_string()), ("render.height".to_string(), "16".to_string())];
+    let sc = Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap();
+    let reference = render(&gpu, &sc, SolverKind::Path, &[("path.spp", "256")]).image;
+    let (points, _) = scatterlab::measure::bench::bench_scene(&gpu, "cloud-inside", &sc, &reference, &[SolverKind::Wavefront], true, 1, &|_| {}).unwrap();
+    assert_eq!(points.len(), 3);
+    for p in &points {
+        assert!(p.gpu_ms > 0.0 && p.metrics.rel_l2.is_finite() && p.metrics.nan_inf_count == 0, "{p:?}");
+        assert_eq!(p.knob, "wavefront.layers");
+    }
+    assert_clean(&gpu);
+}

@@ -79,7 +79,7 @@ pub enum Command {
     /// answer is cheap. Prints a pass/fail table, writes CSV and JSON, fails on any failure.
     Stability {
         /// Solvers to sweep (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl")]
+        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl,wavefront")]
         solvers: Vec<SolverKind>,
         /// Also run the cases marked slow (optical thickness 1e3 and 1e4).
         #[arg(long)]
