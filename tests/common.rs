@@ -5,7 +5,7 @@ use std::path::Path;
 use scatterlab::gpu::{Gpu, GpuOptions};
 use scatterlab::output::Image;
 use scatterlab::scene::{LoadOptions, Scene};
-use scatterlab::solvers::{self, RenderOutput, RenderRequest, Settings, SolverKind};
+use scatterlab::solvers::{self, RenderOutput, RenderRequest, Settings, SolverError, SolverKind};
 
 /// The device every GPU test uses, validation layer on. A missing device or layer fails the
 /// test: a test never passes for want of a device.
@@ -26,11 +26,16 @@ pub fn scene(text: &str) -> Scene {
     Scene::from_str(text, "test.toml", Path::new("."), &[], &LoadOptions::default()).unwrap_or_else(|e| panic!("test scene invalid: {e}"))
 }
 
-pub fn render_with(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)], force_full: bool) -> RenderOutput {
+/// A render with its error (or warnings) left to the caller.
+pub fn try_render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)], force_full: bool) -> Result<RenderOutput, SolverError> {
     let pairs: Vec<(String, String)> = sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
     let settings = Settings::new(&pairs);
     let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
-    let out = solvers::render(gpu, kind, &req).unwrap_or_else(|e| panic!("render failed: {e}"));
+    solvers::render(gpu, kind, &req)
+}
+
+pub fn render_with(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)], force_full: bool) -> RenderOutput {
+    let out = try_render(gpu, scene, kind, sets, force_full).unwrap_or_else(|e| panic!("render failed: {e}"));
     assert_eq!(out.image.nan_inf_count(), 0, "NaN/Inf in the image");
     if let Some(v) = &out.variance {
         assert_eq!(v.nan_inf_count(), 0, "NaN/Inf in the variance");

@@ -7,10 +7,10 @@ use scatterlab::gpu::Gpu;
 use scatterlab::output::compare;
 use scatterlab::scene::{write_vol, LoadOptions, Scene};
 use scatterlab::solvers::gpu_scene::GpuScene;
-use scatterlab::solvers::wavefront::{trace_light, wave_volume, Integrator, WaveField, WavefrontSettings};
+use scatterlab::solvers::wavefront::{trace_light, wave_volume, Integrator, WaveField, WaveKernels, WavefrontSettings};
 use scatterlab::solvers::SolverKind;
 
-use crate::common::{assert_clean, gpu, render, scene};
+use crate::common::{assert_clean, gpu, render, scene, try_render};
 
 /// A constant-density cube [-1, 1]^3 with a point light of intensity 1 W/sr at `light`.
 fn cube(sigma_t: f32, albedo: f32, g: f32, light: [f32; 3], res: u32) -> String {
@@ -23,6 +23,12 @@ fn cube(sigma_t: f32, albedo: f32, g: f32, light: [f32; 3], res: u32) -> String 
     )
 }
 
+/// scenes/point-light-in-cloud.toml at `res` x `res` pixels.
+fn cloud_with_light_inside(res: u32) -> Scene {
+    let small = [("render.width".to_string(), res.to_string()), ("render.height".to_string(), res.to_string())];
+    Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap()
+}
+
 fn settings(nu: u32, nv: u32, layers: u32, integrator: Integrator, grid: u32) -> WavefrontSettings {
     WavefrontSettings { nu, nv, layers, integrator, grid, explicit_start: 0.0 }
 }
@@ -33,7 +39,8 @@ fn field(gpu: &Gpu, sc: &Scene, set: &WavefrontSettings) -> (WaveField, Vec<[f32
         scatterlab::scene::Light::Point { position, intensity } => (position, intensity),
         _ => unreachable!(),
     };
-    let f = trace_light(gpu, sc, &gs, set, pos, intensity).unwrap();
+    let kernels = WaveKernels::new(gpu, &gs).unwrap();
+    let f = trace_light(gpu, sc, &gs, &kernels, set, pos, intensity).unwrap();
     let p0: Vec<[f32; 4]> = gpu.read_buffer_as(&f.psi0).unwrap();
     let p1: Vec<[f32; 4]> = gpu.read_buffer_as(&f.psi1).unwrap();
     (f, p0, p1)
@@ -234,8 +241,7 @@ fn hole_enclosed_by_absorber_stays_dark() {
 #[test]
 fn light_inside_cloud_beats_the_direct_term() {
     let gpu = gpu();
-    let small = [("render.width".to_string(), "24".to_string()), ("render.height".to_string(), "24".to_string())];
-    let sc = Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap();
+    let sc = cloud_with_light_inside(24);
     let reference = render(&gpu, &sc, SolverKind::Path, &[("path.spp", "1024")]);
     let wf = render(&gpu, &sc, SolverKind::Wavefront, &[]);
     let direct = render(&gpu, &sc, SolverKind::Single, &[]);
@@ -249,9 +255,7 @@ fn light_inside_cloud_beats_the_direct_term() {
     assert!(e_wf.rel_l2 < 0.6 * e_single.rel_l2, "wavefront {} vs direct term {}", e_wf.rel_l2, e_single.rel_l2);
     // The paper's explicit scheme on the same scene: it goes negative on some rays (reported as
     // a warning, clamped by the gather) and stays finite.
-    let settings = scatterlab::solvers::Settings::new(&[("wavefront.integrator".to_string(), "explicit".to_string())]);
-    let req = scatterlab::solvers::RenderRequest { scene: &sc, settings: &settings, force_full: false, progress: &|_, _| {} };
-    let ex = scatterlab::solvers::render(&gpu, SolverKind::Wavefront, &req).unwrap();
+    let ex = try_render(&gpu, &sc, SolverKind::Wavefront, &[("wavefront.integrator", "explicit")], false).unwrap();
     let e_ex = compare(&ex.image, &reference.image).unwrap();
     eprintln!("explicit: relL2 {:.3}, warnings {:?}", e_ex.rel_l2, ex.report.warnings);
     assert_eq!(ex.image.nan_inf_count(), 0);
@@ -266,14 +270,11 @@ fn light_inside_cloud_beats_the_direct_term() {
 #[test]
 fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
     let gpu = gpu();
-    let small = [("render.width".to_string(), "16".to_string()), ("render.height".to_string(), "16".to_string())];
-    let sc = Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap();
+    let sc = cloud_with_light_inside(16);
     let run = |extra: &[(&str, &str)]| {
-        let mut pairs = vec![("lbl.grid".to_string(), "24".to_string()), ("lbl.rays".to_string(), "8192".to_string())];
-        pairs.extend(extra.iter().map(|(k, v)| (k.to_string(), v.to_string())));
-        let settings = scatterlab::solvers::Settings::new(&pairs);
-        let req = scatterlab::solvers::RenderRequest { scene: &sc, settings: &settings, force_full: false, progress: &|_, _| {} };
-        scatterlab::solvers::render(&gpu, SolverKind::Lbl, &req).unwrap()
+        let mut sets = vec![("lbl.grid", "24"), ("lbl.rays", "8192")];
+        sets.extend_from_slice(extra);
+        try_render(&gpu, &sc, SolverKind::Lbl, &sets, false).unwrap()
     };
     let iters = |r: &scatterlab::solvers::RenderOutput| r.report.stats["lbl"]["iterations"].as_u64().unwrap();
     let converged = run(&[("lbl.tol", "1e-6")]);
@@ -294,9 +295,7 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
     assert!(e_warm < 0.5 * e_cold, "warm start is not closer: {e_warm} vs cold {e_cold}");
     assert!(same < 2e-3, "warm and cold starts converge to different images: relL2 {same}");
     // The warm start is built for D3Q6 and says so for D3Q18.
-    let settings = scatterlab::solvers::Settings::new(&[("lbl.warm_start".to_string(), "wavefront".to_string()), ("lbl.lattice".to_string(), "d3q18".to_string())]);
-    let req = scatterlab::solvers::RenderRequest { scene: &sc, settings: &settings, force_full: false, progress: &|_, _| {} };
-    let err = scatterlab::solvers::render(&gpu, SolverKind::Lbl, &req).err().expect("d3q18 warm start must be refused").to_string();
+    let err = try_render(&gpu, &sc, SolverKind::Lbl, &[("lbl.warm_start", "wavefront"), ("lbl.lattice", "d3q18")], false).err().expect("d3q18 warm start must be refused").to_string();
     assert!(err.contains("lbl.warm_start") && err.contains("d3q6"), "{err}");
     assert_clean(&gpu);
 }
@@ -306,8 +305,7 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
 #[test]
 fn bench_ladder_runs_for_wavefront() {
     let gpu = gpu();
-    let small = [("render.width".to_string(), "16".to_string()), ("render.height".to_string(), "16".to_string())];
-    let sc = Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap();
+    let sc = cloud_with_light_inside(16);
     let reference = render(&gpu, &sc, SolverKind::Path, &[("path.spp", "256")]).image;
     let (points, _) = scatterlab::measure::bench::bench_scene(&gpu, "cloud-inside", &sc, &reference, &[SolverKind::Wavefront], true, 1, &|_| {}).unwrap();
     assert_eq!(points.len(), 3);

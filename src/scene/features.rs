@@ -8,14 +8,11 @@ impl Scene {
     /// What this scene requires of a solver.
     pub fn features(&self) -> Features {
         let m = &self.medium;
-        let varies = |v: Vec3| v.x != v.y || v.y != v.z;
         Features {
             anisotropic: m.g != 0.0,
-            chromatic: varies(m.sigma_t) || varies(m.albedo),
+            chromatic: !is_grey(m.sigma_t) || !is_grey(m.albedo),
             light_inside: self.lights.iter().any(|light| match *light {
-                Light::Point { position, .. } => {
-                    m.strictly_inside(position) && self.density_at(position) > 0.0
-                }
+                Light::Point { position, .. } => self.inside_medium(position),
                 _ => false,
             }),
             homogeneous: matches!(m.density, Density::Constant),
@@ -28,6 +25,12 @@ impl Scene {
                 _ => None,
             },
         }
+    }
+
+    /// True if `p` lies strictly inside the bounds on non-zero density: where a point light
+    /// counts as inside the medium.
+    pub fn inside_medium(&self, p: Vec3) -> bool {
+        self.medium.strictly_inside(p) && self.density_at(p) > 0.0
     }
 
     /// Density multiplier at `p` (CPU reference): 1 for constant, 1 inside the sphere, the
@@ -43,6 +46,23 @@ impl Scene {
         match &self.medium.density {
             Density::Constant | Density::Sphere { .. } => 1.0,
             Density::Grid(grid) => grid.max_value(),
+        }
+    }
+}
+
+/// True when the three channels of `v` are equal (grey).
+pub fn is_grey(v: Vec3) -> bool {
+    v.x == v.y && v.y == v.z
+}
+
+impl Light {
+    /// The emitted quantity per channel: intensity (W/sr), irradiance (W/m^2) or radiance
+    /// (W/(m^2 sr)) by kind.
+    pub fn colour(&self) -> Vec3 {
+        match *self {
+            Light::Point { intensity, .. } => intensity,
+            Light::Directional { irradiance, .. } => irradiance,
+            Light::Environment { radiance } => radiance,
         }
     }
 }

@@ -84,7 +84,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::{Camera, CameraKind, Density, Light, Medium, Scene};
+use super::{is_grey, Camera, CameraKind, Density, Light, Medium, Scene};
 use crate::output::{write_atomically, OutputError};
 
 /// Voxels along the longest side of the bounds when a clipped sphere is rasterised.
@@ -258,10 +258,6 @@ fn rasterise_sphere(m: &Medium, dims: [u32; 3], center: Vec3, radius: f32) -> Ve
         }
     }
     out
-}
-
-fn is_grey(v: Vec3) -> bool {
-    v.x == v.y && v.y == v.z
 }
 
 /// Write the `.vol` (version 3, float32): 1 channel of density for a grey `sigma_t`, 3

@@ -17,6 +17,7 @@ use std::path::{Path, PathBuf};
 use glam::Vec3;
 
 pub use error::SceneError;
+pub use features::is_grey;
 pub use grid::write_vol;
 
 /// A validated scene.

@@ -33,7 +33,7 @@ use serde_json::json;
 
 use crate::gpu::{Buffer, Gpu, Pass, QueueRole, Spec, SyncPoint};
 use crate::physics::rng::Pcg32;
-use crate::scene::{Light, Scene};
+use crate::scene::{is_grey, Light, Scene};
 
 use super::gpu_scene::GpuScene;
 use super::single::{march_view, MsVolume, ViewSettings};
@@ -628,14 +628,7 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     let geom = LatticeGeom::new(scene, set.grid);
     let v = geom.voxels();
     // Model only what the scene requires: one channel when the medium and every light are grey.
-    let grey_lights = scene.lights.iter().all(|l| {
-        let c = match l {
-            Light::Point { intensity, .. } => *intensity,
-            Light::Directional { irradiance, .. } => *irradiance,
-            Light::Environment { radiance } => *radiance,
-        };
-        c.x == c.y && c.y == c.z
-    });
+    let grey_lights = scene.lights.iter().all(|l| is_grey(l.colour()));
     let nch: u32 = if gs.modelled.chromatic || !grey_lights { 3 } else { 1 };
     let info = gpu.info().clone();
     let state_bytes = (set.lattice.links() as u64 + 1) * nch as u64 * v * 4;
@@ -734,7 +727,7 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     }
 
     if let Some(ws) = &set.warm_start {
-        warm_start(gpu, scene, gs, ws, &geom, nch, &mut lattice, |l| inject(l))?;
+        warm_start(gpu, scene, gs, ws, &geom, nch, &mut lattice, &inject)?;
     }
 
     // Iterate to convergence: relative change of the time-integrated energy at sparse probes.
@@ -812,7 +805,7 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
 /// residual is signed, so the absorbed/leaked tallies no longer balance the deposits: the
 /// energy book is not kept under a warm start.
 #[allow(clippy::too_many_arguments)]
-fn warm_start<'a>(gpu: &Gpu, scene: &Scene, gs: &GpuScene, ws: &WavefrontSettings, geom: &LatticeGeom, nch: u32, lattice: &mut Diffuser, inject: impl Fn(&Diffuser) -> Pass + 'a) -> Result<(), SolverError> {
+fn warm_start(gpu: &Gpu, scene: &Scene, gs: &GpuScene, ws: &WavefrontSettings, geom: &LatticeGeom, nch: u32, lattice: &mut Diffuser, inject: impl Fn(&Diffuser) -> Pass) -> Result<(), SolverError> {
     let vol = wave_volume(gpu, scene, gs, ws, Some(*geom))?;
     let wf: Vec<f32> = gpu.read_buffer_as(&vol.energy)?;
     let v = geom.voxels() as usize;

@@ -38,8 +38,8 @@ use glam::Vec3;
 use serde::Serialize;
 use serde_json::json;
 
-use crate::gpu::{Buffer, Gpu, Pass, QueueRole};
-use crate::scene::{Light, Scene};
+use crate::gpu::{Buffer, Gpu, Pass, Pipeline, QueueRole};
+use crate::scene::{is_grey, Light, Scene};
 
 use super::gpu_scene::GpuScene;
 use super::lbl::LatticeGeom;
@@ -190,14 +190,33 @@ pub fn traced_lights(scene: &Scene) -> Vec<(Vec3, Vec3)> {
         .lights
         .iter()
         .filter_map(|l| match *l {
-            Light::Point { position, intensity } if scene.medium.strictly_inside(position) && scene.density_at(position) > 0.0 => Some((position, intensity)),
+            Light::Point { position, intensity } if scene.inside_medium(position) => Some((position, intensity)),
             _ => None,
         })
         .collect()
 }
 
+/// The solver's three pipelines, built once per render and shared by every light.
+pub struct WaveKernels {
+    resample: Pipeline,
+    march: Pipeline,
+    gather: Pipeline,
+}
+
+impl WaveKernels {
+    pub fn new(gpu: &Gpu, gs: &GpuScene) -> Result<WaveKernels, SolverError> {
+        let spec = gs.modelled.spec();
+        Ok(WaveKernels {
+            resample: gpu.pipeline(&shaders::WAVEFRONT_RESAMPLE, &spec)?,
+            march: gpu.pipeline(&shaders::WAVEFRONT_MARCH, &spec)?,
+            gather: gpu.pipeline(&shaders::WAVEFRONT_GATHER, &[])?,
+        })
+    }
+}
+
 /// Resample and march the spherical grid of one point light (eq. 4-6).
-pub fn trace_light(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSettings, position: Vec3, intensity: Vec3) -> Result<WaveField, SolverError> {
+#[allow(clippy::too_many_arguments)]
+pub fn trace_light(gpu: &Gpu, scene: &Scene, gs: &GpuScene, kernels: &WaveKernels, set: &WavefrontSettings, position: Vec3, intensity: Vec3) -> Result<WaveField, SolverError> {
     let m = &scene.medium;
     let radius = (0..8)
         .map(|k| {
@@ -234,14 +253,11 @@ pub fn trace_light(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSetti
         nonfinite_nodes: 0,
         failed_rays: 0,
     };
-    let spec = gs.modelled.spec();
-    let p_resample = gpu.pipeline(&shaders::WAVEFRONT_RESAMPLE, &spec)?;
-    let p_march = gpu.pipeline(&shaders::WAVEFRONT_MARCH, &spec)?;
     let stats = gpu.buffer("wavefront stats", 16)?;
     let push = f.push(set.integrator, set.explicit_start);
     let passes = vec![
-        gs.bind(Pass::new("wavefront.resample", QueueRole::Trace, &p_resample)).write(3, &f.shells).push(&push).cover([set.nu, set.nv, set.layers]),
-        gs.bind(Pass::new("wavefront.march", QueueRole::Trace, &p_march))
+        gs.bind(Pass::new("wavefront.resample", QueueRole::Trace, &kernels.resample)).write(3, &f.shells).push(&push).cover([set.nu, set.nv, set.layers]),
+        gs.bind(Pass::new("wavefront.march", QueueRole::Trace, &kernels.march))
             .read(3, &f.shells)
             .write(4, &f.psi0)
             .write(5, &f.psi1)
@@ -284,16 +300,16 @@ pub fn wave_volume(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSetti
     let geom = geom.unwrap_or_else(|| LatticeGeom::new(scene, set.grid));
     let v = geom.voxels();
     let lights = traced_lights(scene);
-    let grey_lights = lights.iter().all(|(_, c)| c.x == c.y && c.y == c.z);
+    let grey_lights = lights.iter().all(|(_, c)| is_grey(*c));
     // Model only what the scene requires: one channel for a grey medium under grey lights.
     let channels: u32 = if gs.modelled.chromatic || !grey_lights { 3 } else { 1 };
     let energy = gpu.buffer("wavefront volume", v * 4 * channels as u64 * 4)?;
     let stats = gpu.buffer("wavefront gather stats", 16)?;
-    let p_gather = gpu.pipeline(&shaders::WAVEFRONT_GATHER, &[])?;
+    let kernels = WaveKernels::new(gpu, gs)?;
     let mut out = WaveVolume { energy, geom, channels, lights_traced: lights.len(), negative_nodes: 0, nonfinite_nodes: 0, failed_rays: 0, nonfinite_voxels: 0, device_bytes: 0 };
     let mut field_bytes = 0;
     for (pos, intensity) in lights {
-        let f = trace_light(gpu, scene, gs, set, pos, intensity)?;
+        let f = trace_light(gpu, scene, gs, &kernels, set, pos, intensity)?;
         out.negative_nodes += f.negative_nodes;
         out.nonfinite_nodes += f.nonfinite_nodes;
         out.failed_rays += f.failed_rays;
@@ -301,7 +317,7 @@ pub fn wave_volume(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSetti
         let mut push = f.push(set.integrator, set.explicit_start);
         push.cart_dims = [geom.dims[0], geom.dims[1], geom.dims[2], channels];
         push.cart_origin = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
-        let pass = Pass::new("wavefront.gather", QueueRole::Trace, &p_gather)
+        let pass = Pass::new("wavefront.gather", QueueRole::Trace, &kernels.gather)
             .read(0, &f.psi0)
             .read(1, &f.psi1)
             .read(2, &f.tau)
