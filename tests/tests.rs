@@ -5,6 +5,7 @@ mod bench_tests;
 mod cli_tests;
 mod common;
 mod equiangular_tests;
+mod light_tracing_tests;
 mod export_tests;
 mod gpu_core;
 mod lbl;

@@ -23,6 +23,7 @@
 #include "../include/rng.glsl"
 #include "../include/phase.glsl"
 #include "../include/budget.glsl"
+#include "../include/tracking.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
@@ -51,93 +52,12 @@ layout(push_constant) uniform Push {
     uint collision_cap;   // safety cap on tentative collisions per path (reported, not silent)
     uint slot;            // which active counter this dispatch reports into
     uint equiangular;     // 1: equiangular sampling of point lights + MIS; 0: distance sampling only
+    uint light_traced;    // bit i: light i is rendered by light paths (path/light); camera paths skip it
 } pc;
 
-float phase_eval(float g, float c) { return ANISOTROPIC ? hg_eval(g, c) : INV_4PI; }
-vec3 phase_sample(float g, vec3 d, vec2 u) { return ANISOTROPIC ? hg_sample(g, d, u) : uniform_sphere(u); }
-
-uint collisions;
-bool truncated;
-
-// Ratio tracking (Novak et al. 2014) of the transmittance from p along w over [0, t_far]:
-// T *= sigma_n / sigma_maj per tentative collision, per channel; unbiased for each channel
-// since sigma_maj >= max channel sigma_t. Russian roulette on small T stays unbiased.
-vec3 transmittance(vec3 p, vec3 w, float t_far, inout uvec2 rng) {
-    vec2 iv = medium_interval(p, w);
-    iv.x = max(iv.x, 0.0);
-    iv.y = min(iv.y, t_far);
-    vec3 T = vec3(1.0);
-    Segments s = segments_begin(p, w, iv.x, iv.y);
-    float t0, t1, smaj;
-    while (segments_next(s, t0, t1, smaj)) {
-        iters++;
-        if (smaj <= 0.0) continue;
-        float t = t0;
-        while (true) {
-            iters++;
-            t -= log(1.0 - rnd(rng)) / smaj;
-            if (t >= t1) break;
-            collisions++;
-            vec3 st = scene.sigma_t.xyz * density_at(p + w * t);
-            T *= max(vec3(0.0), smaj - st) / smaj;
-            float m = max3(T);
-            if (m < 0.1) {
-                if (rnd(rng) >= 0.5) return vec3(0.0);
-                T *= 2.0;
-            }
-            if (collisions > pc.collision_cap) { truncated = true; return vec3(0.0); }
-        }
-    }
-    return T;
-}
-
-// Delta/spectral tracking to the next real scattering event. Returns true and sets `t_hit`
-// on a scattering; false when the path escapes (beta then weights the escape) or dies (beta 0).
-bool next_scatter(vec3 o, vec3 d, inout vec3 beta, inout uvec2 rng, out float t_hit) {
-    vec2 iv = medium_interval(o, d);
-    iv.x = max(iv.x, 0.0);
-    Segments s = segments_begin(o, d, iv.x, iv.y);
-    float t0, t1, smaj;
-    while (segments_next(s, t0, t1, smaj)) {
-        iters++;
-        if (smaj <= 0.0) continue;
-        float t = t0;
-        while (true) {
-            iters++;
-            t -= log(1.0 - rnd(rng)) / smaj;
-            if (t >= t1) break;
-            collisions++;
-            if (collisions > pc.collision_cap) { truncated = true; beta = vec3(0.0); return false; }
-            vec3 st = scene.sigma_t.xyz * density_at(o + d * t);
-            vec3 ss = st * scene.albedo.xyz;
-            vec3 sn = max(vec3(0.0), smaj - st);
-            if (!CHROMATIC) {
-                // Grey: scatter with probability sigma_s / (sigma_s + sigma_n); absorption is
-                // carried by the weight (sigma_maj - sigma_a) / sigma_maj, the same on both branches.
-                float denom = ss.x + sn.x;
-                if (denom <= 0.0) { beta = vec3(0.0); return false; }
-                beta *= denom / smaj;
-                if (rnd(rng) * denom < ss.x) { t_hit = t; return true; }
-            } else {
-                // Spectral tracking, history-aware probabilities (Kutz 2017, eq. 15-16).
-                float ws = avg3(beta * ss);
-                float wn = avg3(beta * sn);
-                if (ws + wn <= 0.0) { beta = vec3(0.0); return false; }
-                float ps = ws / (ws + wn);
-                if (rnd(rng) < ps) {
-                    beta *= ss / (smaj * ps);
-                    t_hit = t;
-                    return true;
-                }
-                beta *= sn / (smaj * (1.0 - ps));
-            }
-        }
-    }
-    return false;
-}
-
-// Power heuristic (Veach 1997) for two strategies with one sample each.
-float mis_power(float a, float b) { return a * a / (a * a + b * b); }
+// Whether camera paths estimate light i (a light-traced light is left wholly to path/light,
+// a partition of the image's paths by light, so the two kernels' sums add without MIS).
+bool camera_side(uint i) { return i >= 32u || (pc.light_traced & (1u << i)) == 0u; }
 
 // Equiangular sampling (Kulla & Fajardo 2012, sec. 4.1) of a point light at c along the ray
 // o + t d, t in [t_in, t_out]: t is drawn with pdf proportional to 1/r^2 (r = |x(t) - c|),
@@ -199,7 +119,7 @@ void equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
     for (uint i = 0u; i < light_count; ++i) {
         iters++;
         Light li = scene.lights[i];
-        if (uint(li.pos_kind.w) != LIGHT_POINT) continue;
+        if (uint(li.pos_kind.w) != LIGHT_POINT || !camera_side(i)) continue;
         vec3 c = li.pos_kind.xyz;
         Equiangular e = eq_setup(o, d, t_in, t_out, c);
         float u = rnd(rng);   // drawn for every point light, so the stream does not depend on e.ok
@@ -262,6 +182,7 @@ bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout ui
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
         if (kind == LIGHT_POINT) {
+            if (!camera_side(i)) continue;
             vec3 to = li.pos_kind.xyz - p;
             float dist2 = dot(to, to);
             if (dist2 <= 0.0) continue;
@@ -307,6 +228,7 @@ void main() {
     uvec2 res = scene.image.xy;
     if (px.x >= res.x || px.y >= res.y) return;
     uint pixel = px.y * res.x + px.x;
+    collision_cap = pc.collision_cap;
     PathState st = state[pixel];
     vec3 o = st.o_pdf.xyz;
     float pdf_dir = st.o_pdf.w;

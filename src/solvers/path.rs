@@ -17,12 +17,25 @@
 //!   with next-event estimation from the distance-sampled scattering point; this tames the
 //!   1/r^2 variance of a point light inside the medium. `false` is plain distance sampling.
 //!   Both are unbiased; directional and environment lights are unaffected.
+//! - `light_tracing`: which point lights are rendered by light paths (glsl/path/light.comp)
+//!   instead of camera paths: `auto` (default) those strictly inside the medium unless a
+//!   pinhole camera is inside it too, `on` every point light, `off` none. A light-traced light is skipped by the camera paths, so the
+//!   image is a partition of the paths by light, and the two estimates add (means and
+//!   variances) without MIS. A point light deep inside a scattering medium is the case camera
+//!   paths handle worst (deep-penetration noise: they reach the light's neighbourhood only by
+//!   rare long random walks; equiangular sampling fixes the 1/r^2 spikes, not that) and
+//!   light paths best: measured in docs/measurements.md. At most 32 lights (the first 32)
+//!   can be light traced. "spp" is the same budget for both: `spp` light paths per pixel.
+//! - `light_batches`: independent batches the light paths are split into (default 16, at most
+//!   spp); the per-pixel variance of a light-traced image comes from the spread of the batch
+//!   images, since one light path adds to many pixels.
 
 use bytemuck::{Pod, Zeroable};
 use serde_json::json;
 
 use crate::gpu::{Gpu, Pass, QueueRole};
 use crate::output::Image;
+use crate::scene::{CameraKind, Light, Scene};
 
 use super::gpu_scene::GpuScene;
 use super::{resumable, shaders, RenderOutput, RenderReport, RenderRequest, SolverError, SolverKind};
@@ -42,7 +55,35 @@ pub struct PathPush {
     pub slot: u32,
     /// 1: equiangular sampling of point lights combined with distance sampling by MIS.
     pub equiangular: u32,
+    /// Bit i: light i is rendered by light paths, and camera paths skip it.
+    pub light_traced: u32,
 }
+
+/// Push constants of glsl/path/light.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct LightPush {
+    pub sample_end: u32,
+    pub budget: u32,
+    pub seed_lo: u32,
+    pub seed_hi: u32,
+    pub max_depth: u32,
+    pub collision_cap: u32,
+    pub slot: u32,
+    pub light_traced: u32,
+    /// Fixed-point quanta per unit of splat.
+    pub inv_quantum: f32,
+    /// Sum of the mean intensities (W/sr) of the light-traced lights.
+    pub power_sum: f32,
+}
+
+/// Per path slot of the light kernel: the 64-bit fixed-point splat sums (3 channels x 2
+/// words) of its pixel and the resumable state (`LightState`, 64 bytes).
+pub const LIGHT_BYTES_PER_PIXEL: u64 = 24 + 64;
+/// Splats of a typical size are this many fixed-point quanta (2^24): ~7 significant digits.
+const QUANTA_PER_TYPICAL_SPLAT: f64 = 16_777_216.0;
+/// Lights beyond this index are never light traced (the mask is one 32-bit word).
+pub const MAX_LIGHT_TRACED: usize = 32;
 
 /// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp).
 pub const STATE_BYTES_PER_PIXEL: u64 = 80;
@@ -70,6 +111,40 @@ pub fn mean_and_variance(sums: &[[f32; 4]], width: u32, height: u32) -> (Image, 
     (mean, var)
 }
 
+/// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`).
+pub fn light_traced(scene: &Scene, mode: &str) -> Result<Vec<usize>, SolverError> {
+    let pick = |inside_only: bool| -> Vec<usize> {
+        scene
+            .lights
+            .iter()
+            .enumerate()
+            .filter(|(i, l)| match l {
+                // A light with no power has nothing to trace; leave it to the (cheap) camera side.
+                Light::Point { position, intensity } => {
+                    *i < MAX_LIGHT_TRACED && intensity.max_element() > 0.0 && (!inside_only || scene.inside_medium(*position))
+                }
+                _ => false,
+            })
+            .map(|(i, _)| i)
+            .collect()
+    };
+    // A pinhole inside the medium gives light paths' camera connections the same 1/t^2
+    // singularity at the camera that camera paths have at a point light (formally infinite
+    // variance; measured: per-pixel errors far above camera paths'), so auto then leaves every
+    // light to camera paths, which handle that case with equiangular sampling.
+    let pinhole_inside = matches!(scene.camera.kind, CameraKind::Perspective { .. }) && scene.inside_medium(scene.camera.origin);
+    match mode {
+        "auto" if pinhole_inside => Ok(Vec::new()),
+        "auto" => Ok(pick(true)),
+        "on" => Ok(pick(false)),
+        "off" => Ok(Vec::new()),
+        other => Err(SolverError::Setting {
+            key: "path.light_tracing".into(),
+            reason: format!("unknown value {other:?}; give auto (point lights inside the medium), on (every point light) or off"),
+        }),
+    }
+}
+
 pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
     let s = req.settings;
@@ -90,26 +165,130 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let budget: u32 = s.get("path", "budget", resumable::DEFAULT_BUDGET)?;
     let collision_cap: u32 = s.get("path", "collision_cap", 1u32 << 20)?;
     let equiangular: bool = s.get("path", "equiangular", true)?;
+    let lt_mode: String = s.get("path", "light_tracing", "auto".to_string())?;
+    let light_batches: u32 = s.get("path", "light_batches", 16u32)?;
     s.check_all_used("path")?;
-    if spp == 0 || batch == 0 {
-        return Err(SolverError::Setting { key: "path.spp/path.batch".into(), reason: "must be at least 1".into() });
+    if spp == 0 || batch == 0 || light_batches == 0 {
+        return Err(SolverError::Setting { key: "path.spp/path.batch/path.light_batches".into(), reason: "must be at least 1".into() });
     }
     resumable::check_budget("path.budget", budget)?;
+    let traced = light_traced(scene, &lt_mode)?;
+    let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
+    // Camera paths are needed for every light not traced from the light side.
+    let camera_lights = scene.lights.len() - traced.len();
 
     let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+    let seed = scene.render.seed;
+    let kernels = (camera_lights > 0) as u64 + (!traced.is_empty()) as u64;
+    let total = spp as u64 * kernels.max(1);
+    (req.progress)(0, total);
+
+    let common = Common { gpu, gs: &gs, w, h, spp, budget, seed, max_depth, collision_cap, light_mask };
+    let camera = if camera_lights > 0 || traced.is_empty() {
+        Some(camera_paths(&common, batch, equiangular, &|done| (req.progress)(done, total))?)
+    } else {
+        None
+    };
+    let offset = if camera.is_some() { spp as u64 } else { 0 };
+    let light = if traced.is_empty() {
+        None
+    } else {
+        Some(light_paths(&common, scene, &traced, light_batches.min(spp), &|done| (req.progress)(offset + done, total))?)
+    };
+
+    // The two kernels estimate disjoint sets of paths (partition by light): means and
+    // variances (independent estimates) add.
+    let mut image = Image::new(w, h);
+    let mut variance = Image::new(w, h);
+    let mut warnings = Vec::new();
+    let mut stats = serde_json::Map::new();
+    let mut device_bytes = gs.bytes;
+    for part in [camera.as_ref(), light.as_ref()].into_iter().flatten() {
+        for (a, b) in image.data.iter_mut().zip(&part.image.data) {
+            *a += b;
+        }
+        for (a, b) in variance.data.iter_mut().zip(&part.variance.data) {
+            *a += b;
+        }
+        warnings.extend(part.warnings.iter().cloned());
+        device_bytes += part.device_bytes;
+    }
+    let passes = gpu.take_timings();
+    let gpu_ms = super::gpu_ms(&passes);
+    if let Some(c) = &camera {
+        stats.extend(c.stats.as_object().cloned().unwrap_or_default());
+    }
+    if let Some(l) = &light {
+        stats.insert("light_paths".into(), l.stats.clone());
+    }
+    stats.insert(
+        "samples_per_second".into(),
+        json!(if gpu_ms > 0.0 { (pixels * spp as u64) as f64 / (gpu_ms * 1e-3) } else { 0.0 }),
+    );
+    let report = RenderReport {
+        solver: SolverKind::Path,
+        settings: json!({
+            "spp": spp, "max_depth": if max_depth == UNBOUNDED { json!("unbounded") } else { json!(max_depth) }, "batch": batch,
+            "budget": budget, "collision_cap": collision_cap, "equiangular": equiangular, "seed": seed,
+            "light_tracing": lt_mode, "light_traced": traced, "light_batches": light_batches.min(spp),
+        }),
+        modelled: gs.modelled.clone(),
+        device_bytes,
+        gpu_ms,
+        passes,
+        stats: serde_json::Value::Object(stats),
+        warnings,
+    };
+    Ok(RenderOutput { image, variance: Some(variance), report })
+}
+
+/// What both kernels share.
+struct Common<'a> {
+    gpu: &'a Gpu,
+    gs: &'a GpuScene,
+    w: u32,
+    h: u32,
+    spp: u32,
+    budget: u32,
+    seed: u64,
+    max_depth: u32,
+    collision_cap: u32,
+    light_mask: u32,
+}
+
+/// One kernel's share of the image.
+struct Part {
+    image: Image,
+    variance: Image,
+    stats: serde_json::Value,
+    warnings: Vec<String>,
+    device_bytes: u64,
+}
+
+/// Camera paths (glsl/path/trace.comp) for every light not in `c.light_mask`.
+fn camera_paths(c: &Common, batch: u32, equiangular: bool, progress: &dyn Fn(u64)) -> Result<Part, SolverError> {
+    let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
+    let pixels = w as u64 * h as u64;
     let pipeline = gpu.pipeline(&shaders::PATH_TRACE, &gs.modelled.spec())?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
     let stats = gpu.buffer("path stats", resumable::STATS_WORDS * 4)?;
-    let seed = scene.render.seed;
-
     let mut sample_end = 0u32;
     let mut dispatches = 0u64;
-    (req.progress)(0, spp as u64);
-    while sample_end < spp {
-        sample_end = sample_end.saturating_add(batch).min(spp);
+    while sample_end < c.spp {
+        sample_end = sample_end.saturating_add(batch).min(c.spp);
         let (n, _) = resumable::run_until_done(gpu, "path", &stats, |slot| {
-            let push = PathPush { sample_end, budget, seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, max_depth, collision_cap, slot, equiangular: equiangular as u32 };
+            let push = PathPush {
+                sample_end,
+                budget: c.budget,
+                seed_lo: c.seed as u32,
+                seed_hi: (c.seed >> 32) as u32,
+                max_depth: c.max_depth,
+                collision_cap: c.collision_cap,
+                slot,
+                equiangular: equiangular as u32,
+                light_traced: c.light_mask,
+            };
             gs.bind(Pass::new("path.trace", QueueRole::Trace, &pipeline))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
@@ -118,35 +297,176 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
                 .cover([w, h, 1])
         })?;
         dispatches += n;
-        (req.progress)(sample_end as u64, spp as u64);
+        progress(sample_end as u64);
     }
     let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
     let truncated = st[0] as u64;
-    let segments = st[1] as u64;
     let sums: Vec<[f32; 4]> = gpu.read_buffer_as(&accum)?;
     let (image, variance) = mean_and_variance(&sums, w, h);
-    let passes = gpu.take_timings();
-    let gpu_ms = super::gpu_ms(&passes);
     let mut warnings = Vec::new();
     if truncated > 0 {
-        warnings.push(format!("{truncated} of {} paths hit the collision cap ({collision_cap}) and were dropped; the image is biased low there; raise path.collision_cap", pixels * spp as u64));
+        warnings.push(format!(
+            "{truncated} of {} camera paths hit the collision cap ({}) and were dropped; the image is biased low there; raise path.collision_cap",
+            pixels * c.spp as u64,
+            c.collision_cap
+        ));
     }
-    let report = RenderReport {
-        solver: SolverKind::Path,
-        settings: json!({ "spp": spp, "max_depth": if max_depth == UNBOUNDED { json!("unbounded") } else { json!(max_depth) }, "batch": batch, "budget": budget, "collision_cap": collision_cap, "equiangular": equiangular, "seed": seed }),
-        modelled: gs.modelled.clone(),
-        device_bytes: gs.bytes + accum.size() + state.size() + stats.size(),
-        gpu_ms,
-        passes,
+    Ok(Part {
+        image,
+        variance,
         stats: json!({
             "truncated_paths": truncated,
             "dispatches": dispatches,
             "max_loop_iterations": st[2],
             // Counted in 32 bits on the GPU per render; wraps past 4e9 (reported as a lower bound).
-            "tracking_steps": segments,
-            "samples_per_second": if gpu_ms > 0.0 { (pixels * spp as u64) as f64 / (gpu_ms * 1e-3) } else { 0.0 },
+            "tracking_steps": st[1],
         }),
         warnings,
-    };
-    Ok(RenderOutput { image, variance: Some(variance), report })
+        device_bytes: accum.size() + state.size() + stats.size(),
+    })
+}
+
+/// The typical size of one camera connection of a light path, W/(m^2 sr) per path: the
+/// emitted weight (4 pi times the traced lights' summed mean intensity) times an isotropic
+/// phase (1 / 4 pi) times the camera importance at the medium's nearest point (`splat` in
+/// glsl/path/light.comp). It only sets the fixed-point scale: splats up to 2^16 times this are
+/// exact to ~7 digits, larger ones are clamped and counted.
+fn typical_splat(scene: &Scene, power_sum: f64) -> f64 {
+    let (header, _) = super::gpu_scene::scene_block(scene);
+    let k = header.cam_forward[3] as f64;
+    let (wd, ht) = (scene.render.width as f64, scene.render.height as f64);
+    let a_pix = (2.0 * k / wd) * (2.0 * k * (ht / wd) / ht);
+    let m = &scene.medium;
+    match scene.camera.kind {
+        CameraKind::Perspective { .. } => {
+            let o = scene.camera.origin;
+            let nearest = o.clamp(m.bounds_min, m.bounds_max);
+            // A camera inside (or at) the box: the distance floor keeps the scale finite.
+            let t = (nearest - o).length().max(0.05 * (m.bounds_max - m.bounds_min).length()) as f64;
+            power_sum / (a_pix * t * t)
+        }
+        CameraKind::Orthographic { .. } => power_sum / a_pix,
+    }
+}
+
+/// Light paths (glsl/path/light.comp) from the lights in `traced`, `spp` per pixel, in
+/// `batches` independent batches whose spread gives the per-pixel variance.
+fn light_paths(c: &Common, scene: &Scene, traced: &[usize], batches: u32, progress: &dyn Fn(u64)) -> Result<Part, SolverError> {
+    let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
+    let pixels = w as u64 * h as u64;
+    let power_sum: f64 = traced
+        .iter()
+        .map(|&i| match &scene.lights[i] {
+            Light::Point { intensity, .. } => (intensity.x + intensity.y + intensity.z) as f64 / 3.0,
+            _ => 0.0,
+        })
+        .sum();
+    let inv_quantum = QUANTA_PER_TYPICAL_SPLAT / typical_splat(scene, power_sum);
+    let pipeline = gpu.pipeline(&shaders::PATH_LIGHT, &gs.modelled.spec())?;
+    let splats = gpu.buffer("light splats", pixels * 24)?;
+    let state = gpu.buffer("light path state", pixels * 64)?;
+    let stats = gpu.buffer("light path stats", resumable::STATS_WORDS * 4)?;
+    let lstats = gpu.buffer("light splat stats", 16)?;
+    let zeros = vec![0u8; splats.size() as usize];
+    let n_total = c.spp as f64 * pixels as f64;
+    // Per pixel and channel: sum over batches of n_b m_b and of n_b m_b^2, with m_b the batch's
+    // estimate from its n_b rounds of `pixels` paths.
+    let mut s1 = vec![0f64; 3 * pixels as usize];
+    let mut s2 = vec![0f64; 3 * pixels as usize];
+    // The same for the image mean (over pixels and channels), whose standard error cannot be
+    // had from the per-pixel variances: one light path adds to many pixels, so they correlate.
+    let (mut t1, mut t2) = (0f64, 0f64);
+    let mut sample_end = 0u32;
+    let mut dispatches = 0u64;
+    for b in 0..batches {
+        let rounds = c.spp / batches + u32::from(b < c.spp % batches);
+        let start = sample_end;
+        sample_end += rounds;
+        gpu.write_buffer(&splats, 0, &zeros)?;
+        let (n, _) = resumable::run_until_done(gpu, "path", &stats, |slot| {
+            let push = LightPush {
+                sample_end,
+                budget: c.budget,
+                seed_lo: c.seed as u32,
+                seed_hi: (c.seed >> 32) as u32,
+                max_depth: c.max_depth,
+                collision_cap: c.collision_cap,
+                slot,
+                light_traced: c.light_mask,
+                inv_quantum: inv_quantum as f32,
+                power_sum: power_sum as f32,
+            };
+            gs.bind(Pass::new("path.light", QueueRole::Trace, &pipeline))
+                .read_write(3, &splats)
+                .read_write(4, &stats)
+                .read_write(5, &state)
+                .read_write(6, &lstats)
+                .push(&push)
+                .cover([w, h, 1])
+        })?;
+        dispatches += n;
+        let words: Vec<u32> = gpu.read_buffer_as(&splats)?;
+        let paths = (sample_end - start) as f64 * pixels as f64;
+        let mut batch_total = 0f64;
+        for (i, pair) in words.chunks_exact(2).enumerate() {
+            let sum = (((pair[1] as u64) << 32) | pair[0] as u64) as f64 / inv_quantum;
+            // Batch estimate m_b = sum / paths; accumulate n_b m_b and n_b m_b^2 (n_b in rounds).
+            let m_b = sum / paths;
+            s1[i] += rounds as f64 * m_b;
+            s2[i] += rounds as f64 * m_b * m_b;
+            batch_total += m_b;
+        }
+        let mean_b = batch_total / s1.len() as f64;
+        t1 += rounds as f64 * mean_b;
+        t2 += rounds as f64 * mean_b * mean_b;
+        progress(sample_end as u64);
+    }
+    let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
+    let ls: Vec<u32> = gpu.read_buffer_as(&lstats)?;
+    if ls[1] > 0 {
+        return Err(SolverError::Unsupported(format!(
+            "path: {} light-traced pixel sums overflowed their 64-bit fixed point within a batch; the image would be wrong; raise path.light_batches (now {batches})",
+            ls[1]
+        )));
+    }
+    let mut image = Image::new(w, h);
+    let mut variance = Image::new(w, h);
+    let rounds_total = c.spp as f64;
+    for i in 0..s1.len() {
+        let m = s1[i] / rounds_total;
+        image.data[i] = m as f32;
+        // Var(mean) = sum_b n_b (m_b - m)^2 / ((B - 1) N), with N = sum_b n_b rounds.
+        variance.data[i] = if batches > 1 { ((s2[i] - rounds_total * m * m).max(0.0) / ((batches - 1) as f64 * rounds_total)) as f32 } else { 0.0 };
+    }
+    let image_mean = t1 / rounds_total;
+    let mean_stderr = if batches > 1 { ((t2 - rounds_total * image_mean * image_mean).max(0.0) / ((batches - 1) as f64 * rounds_total)).sqrt() } else { 0.0 };
+    let mut warnings = Vec::new();
+    if st[0] > 0 {
+        warnings.push(format!(
+            "{} of {n_total} light paths hit the collision cap ({}) or produced a non-finite splat and were cut short; the image is biased low there; raise path.collision_cap",
+            st[0], c.collision_cap
+        ));
+    }
+    if ls[0] > 0 {
+        warnings.push(format!("{} light-path splats exceeded 2^16 times the typical splat and were clamped; the image is biased low there", ls[0]));
+    }
+    Ok(Part {
+        image,
+        variance,
+        stats: json!({
+            "paths": n_total,
+            "batches": batches,
+            // Of the light-traced part's image mean (over pixels and channels), from the batches.
+            "image_mean": image_mean,
+            "image_mean_stderr": mean_stderr,
+            "truncated_paths": st[0],
+            "clamped_splats": ls[0],
+            "splats": ls[2],
+            "dispatches": dispatches,
+            "max_loop_iterations": st[2],
+            "tracking_steps": st[1],
+        }),
+        warnings,
+        device_bytes: splats.size() + state.size() + stats.size() + lstats.size(),
+    })
 }

@@ -9,6 +9,7 @@ macro_rules! shader {
 }
 
 pub const PATH_TRACE: ShaderSource = shader!("path/trace");
+pub const PATH_LIGHT: ShaderSource = shader!("path/light");
 pub const SINGLE_MARCH: ShaderSource = shader!("single/march");
 pub const PROBE_PHASE: ShaderSource = shader!("probe/phase");
 pub const LBL_RESAMPLE: ShaderSource = shader!("lbl/resample");
@@ -23,4 +24,4 @@ pub const WAVEFRONT_GATHER: ShaderSource = shader!("wavefront/gather");
 
 /// Every shader, for reflection tests.
 pub const ALL: &[ShaderSource] =
-    &[PATH_TRACE, SINGLE_MARCH, PROBE_PHASE, LBL_RESAMPLE, LBL_MARCH, LBL_TRANSFER_FLOAT, LBL_TRANSFER_FIXED, LBL_INJECT, LBL_DIFFUSE, WAVEFRONT_RESAMPLE, WAVEFRONT_MARCH, WAVEFRONT_GATHER];
+    &[PATH_TRACE, PATH_LIGHT, SINGLE_MARCH, PROBE_PHASE, LBL_RESAMPLE, LBL_MARCH, LBL_TRANSFER_FLOAT, LBL_TRANSFER_FIXED, LBL_INJECT, LBL_DIFFUSE, WAVEFRONT_RESAMPLE, WAVEFRONT_MARCH, WAVEFRONT_GATHER];
