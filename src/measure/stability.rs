@@ -155,12 +155,13 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
         }
         let scene = Scene::from_str(&scene_text(&case), &case.name, std::path::Path::new("."), &[], &LoadOptions::default()).map_err(|e| e.to_string())?;
         // The lossless bound for point-light cases: the same scene with albedo 1, by `path`.
-        let bound: Option<(Image, Option<Image>)> = match case.light {
+        let bound: Option<(Image, f64)> = match case.light {
             Some(_) => {
                 let mut lossless = scene.clone();
                 lossless.medium.albedo = Vec3::ONE;
                 let r = render(gpu, &lossless, SolverKind::Path, &[("path.spp".into(), "256".into())])?;
-                Some((r.image, r.variance))
+                let v = r.total_variance();
+                Some((r.image, v))
             }
             None => None,
         };
@@ -208,7 +209,7 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
     Ok(out)
 }
 
-fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option<&(Image, Option<Image>)>, exact: Option<&Image>) -> Outcome {
+fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option<&(Image, f64)>, exact: Option<&Image>) -> Outcome {
     let img = &r.image;
     let finite = img.nan_inf_count() == 0;
     let non_negative = img.data.iter().all(|v| *v >= 0.0);
@@ -233,9 +234,7 @@ fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option
         Some((bi, bv)) => {
             let sx: f64 = img.data.iter().map(|v| *v as f64).sum();
             let sb: f64 = bi.data.iter().map(|v| *v as f64).sum();
-            let vx: f64 = (0..img.data.len()).map(var).sum();
-            let vb: f64 = bv.as_ref().map(|v| v.data.iter().map(|x| *x as f64).sum()).unwrap_or(0.0);
-            let ok = sx <= sb + 5.0 * (vx + vb).sqrt() + 1e-6 * sb.abs();
+            let ok = sx <= sb + 5.0 * (r.total_variance() + bv).sqrt() + 1e-6 * sb.abs();
             (ok, if sb > 0.0 { sx / sb - 1.0 } else { 0.0 })
         }
     };

@@ -75,6 +75,20 @@ pub struct RenderOutput {
     pub report: RenderReport,
 }
 
+impl RenderOutput {
+    /// The variance of the sum of every pixel value (all channels), for judging image totals:
+    /// the per-pixel variances where pixels are independent (camera paths), plus the
+    /// light-traced part's own, from its batches (one light path adds to many pixels, so its
+    /// pixels covary; counting its per-pixel variances too is conservative). 0 for
+    /// deterministic solvers.
+    pub fn total_variance(&self) -> f64 {
+        let per_pixel: f64 = self.variance.as_ref().map_or(0.0, |v| v.data.iter().map(|x| *x as f64).sum());
+        let n = self.image.data.len() as f64;
+        let se_lt = self.report.stats.get("light_paths").and_then(|l| l["image_mean_stderr"].as_f64()).unwrap_or(0.0);
+        per_pixel + (n * se_lt).powi(2)
+    }
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct RenderReport {
     pub solver: SolverKind,
