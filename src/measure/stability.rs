@@ -119,6 +119,9 @@ fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)])
     super::render_timed(gpu, scene, kind, sets, false).map(|(r, _)| r)
 }
 
+/// `path`'s variant with light tracing off.
+const CAMERA_PATHS: &str = "camera paths";
+
 /// Knobs for each solver that keep the sweep cheap on a CPU device.
 fn knobs(kind: SolverKind) -> Vec<(String, String)> {
     let kv = |k: &str, v: &str| (k.to_string(), v.to_string());
@@ -130,10 +133,17 @@ fn knobs(kind: SolverKind) -> Vec<(String, String)> {
     }
 }
 
-/// The variants of a solver the sweep judges separately: both wavefront integrators.
+/// The variants of a solver the sweep judges separately: both wavefront integrators; for
+/// `path`, its default and, where that light-traces (a point light inside the medium), camera
+/// paths alone, so both of its estimators meet the extremes.
 fn variants(kind: SolverKind) -> Vec<(String, Vec<(String, String)>)> {
     let base = knobs(kind);
     match kind {
+        SolverKind::Path => {
+            let mut camera = base.clone();
+            camera.push(("path.light_tracing".to_string(), "off".to_string()));
+            vec![(String::new(), base), (CAMERA_PATHS.to_string(), camera)]
+        }
         SolverKind::Wavefront => ["exponential", "explicit"]
             .iter()
             .map(|i| {
@@ -177,7 +187,11 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
             e.data.iter_mut().for_each(|v| *v = x);
             e
         });
+        let light_traced = !solvers::path::light_traced(&scene, "auto").map_err(|e| e.to_string())?.is_empty();
         for (kind, (variant, knobs)) in solvers_.iter().flat_map(|k| variants(*k).into_iter().map(move |v| (k, v))) {
+            if variant == CAMERA_PATHS && !light_traced {
+                continue; // the default already is camera paths alone
+            }
             progress(&format!("{} / {}", case.name, kind.name()));
             let r = match render(gpu, &scene, *kind, &knobs) {
                 Ok(r) => r,
