@@ -175,6 +175,26 @@ fn light_tracing_is_deterministic_and_rejects_bad_knobs() {
     assert_clean(&gpu);
 }
 
+/// `auto` declines a light its paths could not get out from (optically very thick, lossless:
+/// ~tau^2 / 2 events each, past the collision cap) and says so; it takes the shipped cloud's.
+#[test]
+fn light_tracing_auto_declines_lights_too_deep_to_escape() {
+    let gpu = gpu();
+    let deep = small_scene(PERSPECTIVE, "{ kind = \"constant\" }", "2000.0", "1.0", 0.0, "").replace("width = 16", "width = 4").replace("height = 16", "height = 4");
+    let sc = scene(&deep);
+    let events = scatterlab::solvers::path::light_path_events(&sc, glam::Vec3::new(0.12, -0.08, 0.1));
+    assert!(events > 1e5, "{events}");
+    let out = try_render(&gpu, &sc, SolverKind::Path, &[("path.spp", "1")], false).unwrap();
+    assert_eq!(out.report.settings["light_traced"], serde_json::json!([]));
+    assert!(out.report.warnings.iter().any(|w| w.contains("too deep for light tracing") && w.contains("path.light_tracing=on")), "{:?}", out.report.warnings);
+    let cloud = crate::common::scene(&std::fs::read_to_string("scenes/point-light-in-cloud.toml").unwrap().replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\""));
+    let events = scatterlab::solvers::path::light_path_events(&cloud, glam::Vec3::new(0.0, -0.05, 0.0));
+    eprintln!("shipped cloud: about {events:.1} events per light path");
+    assert!(events > 0.0 && events < 100.0, "{events}");
+    assert_eq!(scatterlab::solvers::path::light_traced(&cloud, "auto", 1 << 20).unwrap(), (vec![0], vec![]));
+    assert_clean(&gpu);
+}
+
 /// Per-pixel relative error against a reference: mean over the pixels brighter than 2% of the
 /// reference's mean of |lum(x) - lum(ref)| / lum(ref) (lum: channel average).
 fn true_error(img: &Image, reference: &Image) -> f64 {

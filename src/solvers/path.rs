@@ -18,8 +18,10 @@
 //!   1/r^2 variance of a point light inside the medium. `false` is plain distance sampling.
 //!   Both are unbiased; directional and environment lights are unaffected.
 //! - `light_tracing`: which point lights are rendered by light paths (glsl/path/light.comp)
-//!   instead of camera paths: `auto` (default) those strictly inside the medium unless a
-//!   pinhole camera is inside it too, `on` every point light, `off` none. A light-traced light is skipped by the camera paths, so the
+//!   instead of camera paths: `auto` (default) those strictly inside the medium, unless a
+//!   pinhole camera is inside it too or the light is so deep in a nearly lossless medium that
+//!   its paths would not get out within the collision cap (then a warning names it), `on`
+//!   every point light, `off` none. A light-traced light is skipped by the camera paths, so the
 //!   image is a partition of the paths by light, and the two estimates add (means and
 //!   variances) without MIS. A point light deep inside a scattering medium is the case camera
 //!   paths handle worst (deep-penetration noise: they reach the light's neighbourhood only by
@@ -35,6 +37,8 @@ use serde_json::json;
 
 use crate::gpu::{Gpu, Pass, QueueRole};
 use crate::output::Image;
+use glam::Vec3;
+
 use crate::scene::{CameraKind, Light, Scene};
 
 use super::gpu_scene::GpuScene;
@@ -111,38 +115,90 @@ pub fn mean_and_variance(sums: &[[f32; 4]], width: u32, height: u32) -> (Image, 
     (mean, var)
 }
 
-/// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`).
-pub fn light_traced(scene: &Scene, mode: &str) -> Result<Vec<usize>, SolverError> {
-    let pick = |inside_only: bool| -> Vec<usize> {
-        scene
-            .lights
-            .iter()
-            .enumerate()
-            .filter(|(i, l)| match l {
-                // A light with no power has nothing to trace; leave it to the (cheap) camera side.
-                Light::Point { position, intensity } => {
-                    *i < MAX_LIGHT_TRACED && intensity.max_element() > 0.0 && (!inside_only || scene.inside_medium(*position))
+/// Expected scattering events of a light path from `p` before it escapes or is absorbed: a
+/// diffusing walk needs about tau_tr^2 / 2 events to cover a transport optical depth tau_tr
+/// (mean square displacement 2 free paths^2 per event), and absorption ends it after about
+/// 1 / (1 - albedo). tau_tr = sigma_t (1 - albedo g) times the density integrated from `p` to
+/// the box boundary, the smallest over 26 directions (the easiest way out). A CPU estimate, only
+/// for choosing a strategy.
+pub fn light_path_events(scene: &Scene, p: Vec3) -> f64 {
+    let m = &scene.medium;
+    let sigma_tr = (m.sigma_t * (Vec3::ONE - m.albedo * m.g)).max_element() as f64;
+    let mut tau_min = f64::INFINITY;
+    for dx in -1i32..=1 {
+        for dy in -1i32..=1 {
+            for dz in -1i32..=1 {
+                if dx == 0 && dy == 0 && dz == 0 {
+                    continue;
                 }
-                _ => false,
-            })
-            .map(|(i, _)| i)
-            .collect()
-    };
+                let d = Vec3::new(dx as f32, dy as f32, dz as f32).normalize();
+                // Distance to the box along d, then a midpoint-rule integral of the density.
+                let t_exit = (0..3)
+                    .map(|a| if d[a] > 0.0 { (m.bounds_max[a] - p[a]) / d[a] } else if d[a] < 0.0 { (m.bounds_min[a] - p[a]) / d[a] } else { f32::INFINITY })
+                    .fold(f32::INFINITY, f32::min)
+                    .max(0.0);
+                const STEPS: usize = 128;
+                let dt = t_exit / STEPS as f32;
+                let integral: f64 = (0..STEPS).map(|i| scene.density_at(p + d * (dt * (i as f32 + 0.5))) as f64).sum::<f64>() * dt as f64;
+                tau_min = tau_min.min(integral * sigma_tr);
+            }
+        }
+    }
+    let absorbed_after = 1.0 / (1.0 - m.albedo.max_element() as f64).max(1e-12);
+    (0.5 * tau_min * tau_min).min(absorbed_after)
+}
+
+/// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
+/// note for each light `auto` declined although it is inside the medium.
+pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Vec<usize>, Vec<String>), SolverError> {
     // A pinhole inside the medium gives light paths' camera connections the same 1/t^2
     // singularity at the camera that camera paths have at a point light (formally infinite
     // variance; measured: per-pixel errors far above camera paths'), so auto then leaves every
     // light to camera paths, which handle that case with equiangular sampling.
     let pinhole_inside = matches!(scene.camera.kind, CameraKind::Perspective { .. }) && scene.inside_medium(scene.camera.origin);
-    match mode {
-        "auto" if pinhole_inside => Ok(Vec::new()),
-        "auto" => Ok(pick(true)),
-        "on" => Ok(pick(false)),
-        "off" => Ok(Vec::new()),
-        other => Err(SolverError::Setting {
-            key: "path.light_tracing".into(),
-            reason: format!("unknown value {other:?}; give auto (point lights inside the medium), on (every point light) or off"),
-        }),
+    let mut notes = Vec::new();
+    let mut traced = Vec::new();
+    for (i, l) in scene.lights.iter().enumerate() {
+        // A light with no power has nothing to trace; leave it to the (cheap) camera side.
+        let Light::Point { position, intensity } = l else { continue };
+        if i >= MAX_LIGHT_TRACED || intensity.max_element() <= 0.0 {
+            continue;
+        }
+        let take = match mode {
+            "on" => true,
+            "off" => false,
+            "auto" if !scene.inside_medium(*position) || pinhole_inside => false,
+            "auto" => {
+                // Light paths that could not get out before the collision cap would be cut
+                // short (biased low) after costing the cap each: leave such a light to camera
+                // paths, and say so.
+                let events = light_path_events(scene, *position);
+                let ok = events <= (collision_cap / 16) as f64;
+                if !ok {
+                    notes.push(format!(
+                        "light {i} is too deep for light tracing (about {events:.0} scattering events to escape, past path.collision_cap / 16); camera paths render it, expect deep-penetration noise; --set path.light_tracing=on forces light paths"
+                    ));
+                }
+                ok
+            }
+            other => {
+                return Err(SolverError::Setting {
+                    key: "path.light_tracing".into(),
+                    reason: format!("unknown value {other:?}; give auto (point lights inside the medium), on (every point light) or off"),
+                })
+            }
+        };
+        if take {
+            traced.push(i);
+        }
     }
+    if !matches!(mode, "auto" | "on" | "off") {
+        return Err(SolverError::Setting {
+            key: "path.light_tracing".into(),
+            reason: format!("unknown value {mode:?}; give auto (point lights inside the medium), on (every point light) or off"),
+        });
+    }
+    Ok((traced, notes))
 }
 
 pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
@@ -172,7 +228,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
         return Err(SolverError::Setting { key: "path.spp/path.batch/path.light_batches".into(), reason: "must be at least 1".into() });
     }
     resumable::check_budget("path.budget", budget)?;
-    let traced = light_traced(scene, &lt_mode)?;
+    let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
     let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
     // Camera paths are needed for every light not traced from the light side.
     let camera_lights = scene.lights.len() - traced.len();
@@ -200,7 +256,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     // variances (independent estimates) add.
     let mut image = Image::new(w, h);
     let mut variance = Image::new(w, h);
-    let mut warnings = Vec::new();
+    let mut warnings = lt_notes;
     let mut stats = serde_json::Map::new();
     let mut device_bytes = gs.bytes;
     for part in [camera.as_ref(), light.as_ref()].into_iter().flatten() {
