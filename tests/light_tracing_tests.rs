@@ -189,7 +189,13 @@ fn light_tracing_auto_declines_lights_too_deep_to_escape() {
     assert!(out.report.warnings.iter().any(|w| w.contains("too deep for light tracing") && w.contains("path.light_tracing=on")), "{:?}", out.report.warnings);
     let cloud = crate::common::scene(&std::fs::read_to_string("scenes/point-light-in-cloud.toml").unwrap().replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\""));
     let events = scatterlab::solvers::path::light_path_events(&cloud, glam::Vec3::new(0.0, -0.05, 0.0));
-    eprintln!("shipped cloud: about {events:.1} events per light path");
+    let (depth, _) = scatterlab::solvers::path::light_depth(&cloud, glam::Vec3::new(0.0, -0.05, 0.0));
+    eprintln!("shipped cloud: about {events:.1} events per light path, mean optical depth {depth:.3} to the boundary");
+    // Optically thin (sigma_t 6 -> 6 / 40): camera paths with equiangular sampling do better there.
+    let mut thin = cloud.clone();
+    thin.medium.sigma_t /= 40.0;
+    assert!(depth / 40.0 < scatterlab::solvers::path::THIN_DEPTH && depth / 20.0 > scatterlab::solvers::path::THIN_DEPTH, "{depth}");
+    assert_eq!(scatterlab::solvers::path::light_traced(&thin, "auto", 1 << 20).unwrap(), (vec![], vec![]));
     assert!(events > 0.0 && events < 100.0, "{events}");
     assert_eq!(scatterlab::solvers::path::light_traced(&cloud, "auto", 1 << 20).unwrap(), (vec![0], vec![]));
     assert_clean(&gpu);

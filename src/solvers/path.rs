@@ -20,8 +20,8 @@
 //! - `light_tracing`: which point lights are rendered by light paths (glsl/path/light.comp)
 //!   instead of camera paths: `auto` (default) those strictly inside the medium, unless a
 //!   pinhole camera is inside it too or the light is so deep in a nearly lossless medium that
-//!   its paths would not get out within the collision cap (then a warning names it), `on`
-//!   every point light, `off` none. A light-traced light is skipped by the camera paths, so the
+//!   its paths would not get out within the collision cap (then a warning names it) or in
+//!   optically thin surroundings (`THIN_DEPTH`), `on` every point light, `off` none. A light-traced light is skipped by the camera paths, so the
 //!   image is a partition of the paths by light, and the two estimates add (means and
 //!   variances) without MIS. A point light deep inside a scattering medium is the case camera
 //!   paths handle worst (deep-penetration noise: they reach the light's neighbourhood only by
@@ -86,6 +86,8 @@ pub struct LightPush {
 pub const LIGHT_BYTES_PER_PIXEL: u64 = 24 + 64;
 /// Splats of a typical size are this many fixed-point quanta (2^24): ~7 significant digits.
 const QUANTA_PER_TYPICAL_SPLAT: f64 = 16_777_216.0;
+/// Mean optical depth around a light below which `auto` leaves it to camera paths.
+pub const THIN_DEPTH: f64 = 0.1;
 /// Lights beyond this index are never light traced (the mask is one 32-bit word).
 pub const MAX_LIGHT_TRACED: usize = 32;
 
@@ -122,9 +124,16 @@ pub fn mean_and_variance(sums: &[[f32; 4]], width: u32, height: u32) -> (Image, 
 /// the box boundary, the smallest over 26 directions (the easiest way out). A CPU estimate, only
 /// for choosing a strategy.
 pub fn light_path_events(scene: &Scene, p: Vec3) -> f64 {
+    light_depth(scene, p).1
+}
+
+/// The mean over 26 directions of the extinction optical depth from `p` to the box boundary
+/// (grey: max channel), and [`light_path_events`].
+pub fn light_depth(scene: &Scene, p: Vec3) -> (f64, f64) {
     let m = &scene.medium;
     let sigma_tr = (m.sigma_t * (Vec3::ONE - m.albedo * m.g)).max_element() as f64;
     let mut tau_min = f64::INFINITY;
+    let mut depth_sum = 0.0;
     for dx in -1i32..=1 {
         for dy in -1i32..=1 {
             for dz in -1i32..=1 {
@@ -141,11 +150,12 @@ pub fn light_path_events(scene: &Scene, p: Vec3) -> f64 {
                 let dt = t_exit / STEPS as f32;
                 let integral: f64 = (0..STEPS).map(|i| scene.density_at(p + d * (dt * (i as f32 + 0.5))) as f64).sum::<f64>() * dt as f64;
                 tau_min = tau_min.min(integral * sigma_tr);
+                depth_sum += integral * m.sigma_t.max_element() as f64;
             }
         }
     }
     let absorbed_after = 1.0 / (1.0 - m.albedo.max_element() as f64).max(1e-12);
-    (0.5 * tau_min * tau_min).min(absorbed_after)
+    (depth_sum / 26.0, (0.5 * tau_min * tau_min).min(absorbed_after))
 }
 
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
@@ -168,6 +178,11 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
             "on" => true,
             "off" => false,
             "auto" if !scene.inside_medium(*position) || pinhole_inside => false,
+            // Optically thin around the light: most light paths leave without scattering, while
+            // camera paths with equiangular sampling are near-ideal for the (mostly single)
+            // scattering. Measured crossover on the cloud (32x32, 64 spp, relL2): mean depth
+            // 0.05 (sigma_t 0.1): light 0.128 vs camera 0.103; 0.14 (sigma_t 0.3): 0.098 vs 0.140.
+            "auto" if light_depth(scene, *position).0 < THIN_DEPTH => false,
             "auto" => {
                 // Light paths that could not get out before the collision cap would be cut
                 // short (biased low) after costing the cap each: leave such a light to camera
