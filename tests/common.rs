@@ -76,3 +76,35 @@ pub fn worst_z(img: &Image, var: &Image, exact: impl Fn(usize) -> f64, eps: f64)
     }
     worst
 }
+
+/// Standard error of a render's image mean: from independent pixels for camera paths, plus a
+/// light-traced part's own (from its batches; its pixels are correlated, one light path adding
+/// to many). Counting the light part's per-pixel variance in both is conservative.
+pub fn render_mean_and_stderr(out: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
+    let (m, se_cam) = mean_and_stderr(&out.image, out.variance.as_ref().unwrap());
+    let se_lt = out.light_traced_mean_stderr();
+    (m, (se_cam * se_cam + se_lt * se_lt).sqrt())
+}
+
+/// Two unbiased Monte Carlo estimates of one image (`a` by strategy `a_name`, `b` by `b_name`):
+/// image means within 4 combined standard errors, and per value (pixel, channel) a z-test that
+/// may fail only rarely (both variances are estimates, and heavy-tailed estimators understate
+/// theirs).
+pub fn assert_agree(what: &str, (a_name, a): (&str, &scatterlab::solvers::RenderOutput), (b_name, b): (&str, &scatterlab::solvers::RenderOutput)) {
+    let (ma, sea) = render_mean_and_stderr(a);
+    let (mb, seb) = render_mean_and_stderr(b);
+    let se = (sea * sea + seb * seb).sqrt();
+    eprintln!("{what}: {a_name} mean {ma:.5} +- {sea:.5}, {b_name} {mb:.5} +- {seb:.5}, z = {:.2}", (ma - mb) / se);
+    assert!(ma > 0.0, "{what}: black image");
+    assert!((ma - mb).abs() < 4.0 * se, "{what}: {a_name} mean {ma} vs {b_name} {mb} (combined stderr {se})");
+    let (va, vb) = (a.variance.as_ref().unwrap(), b.variance.as_ref().unwrap());
+    let n = a.image.data.len();
+    let bad = (0..n)
+        .filter(|&i| {
+            let sd = ((va.data[i] + vb.data[i]) as f64).sqrt() + 1e-4 * ma.min(mb);
+            ((a.image.data[i] - b.image.data[i]) as f64).abs() > 4.0 * sd
+        })
+        .count();
+    eprintln!("{what}: {bad} of {n} values beyond 4 sigma");
+    assert!(bad * 100 <= 2 * n, "{what}: {bad} of {n} values differ by more than 4 sigma");
+}

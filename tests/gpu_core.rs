@@ -3,7 +3,7 @@
 
 use scatterlab::gpu::{reflect, BindingKind, GpuError, Pass, QueueRole, SyncPoint};
 use scatterlab::solvers::gpu_scene::{majorant_dims, majorant_grid, SceneHeader};
-use scatterlab::solvers::path::PathPush;
+use scatterlab::solvers::path::{LightPush, PathPush};
 use scatterlab::solvers::shaders;
 use scatterlab::solvers::single::SinglePush;
 
@@ -22,6 +22,7 @@ pub struct ProbePush {
 fn push_constant_structs_match_reflection() {
     let cases = [
         (shaders::PATH_TRACE, std::mem::size_of::<PathPush>()),
+        (shaders::PATH_LIGHT, std::mem::size_of::<LightPush>()),
         (shaders::SINGLE_MARCH, std::mem::size_of::<SinglePush>()),
         (shaders::PROBE_PHASE, std::mem::size_of::<ProbePush>()),
     ];

@@ -6,9 +6,10 @@
 //! spp within 2x of the error with the light outside.
 
 use scatterlab::output::Image;
+use scatterlab::solvers::path::DEFAULT_COLLISION_CAP;
 use scatterlab::solvers::{RenderOutput, SolverKind};
 
-use crate::common::{assert_clean, gpu, mean_and_stderr, render, scene, try_render};
+use crate::common::{assert_agree, assert_clean, gpu, render, render_mean_and_stderr, scene, try_render};
 
 /// A 16x16 view of a small medium with a point light inside it, off-centre. `camera` and
 /// `density` are TOML fragments; `extra` is appended (more lights).
@@ -46,35 +47,10 @@ fn render_lt(gpu: &scatterlab::gpu::Gpu, text: &str, mode: &str, spp: &str, extr
     render(gpu, &scene(text), SolverKind::Path, &sets)
 }
 
-/// Standard error of the image mean: from independent pixels for camera paths, plus the
-/// light-traced part's own (from its batches; its pixels are correlated, one light path adding
-/// to many). Counting the light part's per-pixel variance in both is conservative.
-fn mean_stderr(out: &RenderOutput) -> (f64, f64) {
-    let (m, se_cam) = mean_and_stderr(&out.image, out.variance.as_ref().unwrap());
-    let se_lt = out.report.stats.get("light_paths").map_or(0.0, |l| l["image_mean_stderr"].as_f64().unwrap());
-    (m, (se_cam * se_cam + se_lt * se_lt).sqrt())
-}
-
-/// Light tracing against camera paths: image means within 4 combined standard errors, and per
-/// value (pixel, channel) a z-test that may fail only rarely (both variances are estimates; the
-/// light-traced one from 16 batches).
-fn assert_agree(what: &str, lt: &RenderOutput, cam: &RenderOutput) {
-    let (ml, sel) = mean_stderr(lt);
-    let (mc, sec) = mean_stderr(cam);
-    let se = (sel * sel + sec * sec).sqrt();
-    eprintln!("{what}: light tracing mean {ml:.5} +- {sel:.5}, camera paths {mc:.5} +- {sec:.5}, z = {:.2}", (ml - mc) / se);
-    assert!(ml > 0.0, "{what}: black image");
-    assert!((ml - mc).abs() < 4.0 * se, "{what}: light-traced mean {ml} vs camera {mc} (combined stderr {se})");
-    let (vl, vc) = (lt.variance.as_ref().unwrap(), cam.variance.as_ref().unwrap());
-    let n = lt.image.data.len();
-    let bad = (0..n)
-        .filter(|&i| {
-            let sd = ((vl.data[i] + vc.data[i]) as f64).sqrt() + 1e-4 * mc;
-            ((lt.image.data[i] - cam.image.data[i]) as f64).abs() > 4.0 * sd
-        })
-        .count();
-    eprintln!("{what}: {bad} of {n} values beyond 4 sigma");
-    assert!(bad * 100 <= 2 * n, "{what}: {bad} of {n} values differ by more than 4 sigma");
+/// Light tracing against camera paths (common::assert_agree; the light-traced per-pixel
+/// variance is an estimate from 16 batches).
+fn assert_lt_agrees(what: &str, lt: &RenderOutput, cam: &RenderOutput) {
+    assert_agree(what, ("light tracing", lt), ("camera paths", cam));
 }
 
 #[test]
@@ -89,17 +65,17 @@ fn light_tracing_agrees_with_camera_paths_perspective() {
     assert!(lt.report.stats.get("tracking_steps").is_none(), "no camera paths are needed when every light is light traced");
     let cam = render_lt(&gpu, &grey, "off", "1024", &[]);
     assert_eq!(cam.report.settings["light_traced"], serde_json::json!([]));
-    assert_agree("grey isotropic", &lt, &cam);
+    assert_lt_agrees("grey isotropic", &lt, &cam);
 
     let chroma = small_scene(PERSPECTIVE, SPHERE, "[2.0, 4.0, 8.0]", "[0.9, 0.7, 0.5]", 0.5, "");
     let lt = render_lt(&gpu, &chroma, "auto", "256", &[]);
     assert!(lt.report.modelled.chromatic && lt.report.modelled.anisotropic);
     let cam = render_lt(&gpu, &chroma, "off", "1024", &[]);
-    assert_agree("chromatic, g 0.5", &lt, &cam);
+    assert_lt_agrees("chromatic, g 0.5", &lt, &cam);
     let lt2 = render_lt(&gpu, &chroma, "auto", "256", &[("path.max_depth", "2")]);
     let cam2 = render_lt(&gpu, &chroma, "off", "1024", &[("path.max_depth", "2")]);
-    assert_agree("chromatic, max_depth 2", &lt2, &cam2);
-    assert!(mean_stderr(&lt2).0 < mean_stderr(&lt).0, "two orders must be darker than all orders");
+    assert_lt_agrees("chromatic, max_depth 2", &lt2, &cam2);
+    assert!(render_mean_and_stderr(&lt2).0 < render_mean_and_stderr(&lt).0, "two orders must be darker than all orders");
     assert_clean(&gpu);
 }
 
@@ -110,7 +86,7 @@ fn light_tracing_agrees_with_camera_paths_orthographic_and_camera_inside() {
     let ortho = small_scene("kind = \"orthographic\"\nextent = 1.2\norigin = [0.0, 0.3, 3.0]\ntarget = [0.0, 0.0, 0.0]", SPHERE, "3.0", "0.8", -0.3, "");
     let lt = render_lt(&gpu, &ortho, "auto", "256", &[]);
     let cam = render_lt(&gpu, &ortho, "off", "1024", &[]);
-    assert_agree("orthographic, g -0.3", &lt, &cam);
+    assert_lt_agrees("orthographic, g -0.3", &lt, &cam);
     // A pinhole inside a constant medium: connections end at the camera with a 1/t^2
     // singularity there (infinite variance, so the per-pixel z-test does not apply), which is
     // why `auto` leaves this case to camera paths. Forced with `on`, the image mean still agrees.
@@ -119,7 +95,7 @@ fn light_tracing_agrees_with_camera_paths_orthographic_and_camera_inside() {
     assert_eq!(auto.report.settings["light_traced"], serde_json::json!([]));
     let lt = render_lt(&gpu, &inside, "on", "256", &[]);
     let cam = render_lt(&gpu, &inside, "off", "1024", &[]);
-    let ((ml, sel), (mc, sec)) = (mean_stderr(&lt), mean_stderr(&cam));
+    let ((ml, sel), (mc, sec)) = (render_mean_and_stderr(&lt), render_mean_and_stderr(&cam));
     eprintln!("camera inside the medium: light tracing mean {ml:.5} +- {sel:.5}, camera paths {mc:.5} +- {sec:.5}");
     assert!(ml > 0.0 && (ml - mc).abs() < 4.0 * (sel * sel + sec * sec).sqrt(), "camera inside: light-traced mean {ml} vs camera {mc}");
     assert_clean(&gpu);
@@ -151,8 +127,8 @@ radiance = [0.05, 0.05, 0.08]
     let on = render_lt(&gpu, &text, "on", "256", &[]);
     assert_eq!(on.report.settings["light_traced"], serde_json::json!([0, 1, 2]));
     let cam = render_lt(&gpu, &text, "off", "1024", &[]);
-    assert_agree("auto: two lights traced, two on camera paths", &auto, &cam);
-    assert_agree("on: three lights traced", &on, &cam);
+    assert_lt_agrees("auto: two lights traced, two on camera paths", &auto, &cam);
+    assert_lt_agrees("on: three lights traced", &on, &cam);
     assert_clean(&gpu);
 }
 
@@ -182,22 +158,21 @@ fn light_tracing_auto_declines_lights_too_deep_to_escape() {
     let gpu = gpu();
     let deep = small_scene(PERSPECTIVE, "{ kind = \"constant\" }", "2000.0", "1.0", 0.0, "").replace("width = 16", "width = 4").replace("height = 16", "height = 4");
     let sc = scene(&deep);
-    let events = scatterlab::solvers::path::light_path_events(&sc, glam::Vec3::new(0.12, -0.08, 0.1));
+    let (_, events) = scatterlab::solvers::path::light_depth(&sc, glam::Vec3::new(0.12, -0.08, 0.1));
     assert!(events > 1e5, "{events}");
     let out = try_render(&gpu, &sc, SolverKind::Path, &[("path.spp", "1")], false).unwrap();
     assert_eq!(out.report.settings["light_traced"], serde_json::json!([]));
     assert!(out.report.warnings.iter().any(|w| w.contains("too deep for light tracing") && w.contains("path.light_tracing=on")), "{:?}", out.report.warnings);
     let cloud = crate::common::scene(&std::fs::read_to_string("scenes/point-light-in-cloud.toml").unwrap().replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\""));
-    let events = scatterlab::solvers::path::light_path_events(&cloud, glam::Vec3::new(0.0, -0.05, 0.0));
-    let (depth, _) = scatterlab::solvers::path::light_depth(&cloud, glam::Vec3::new(0.0, -0.05, 0.0));
+    let (depth, events) = scatterlab::solvers::path::light_depth(&cloud, glam::Vec3::new(0.0, -0.05, 0.0));
     eprintln!("shipped cloud: about {events:.1} events per light path, mean optical depth {depth:.3} to the boundary");
     // Optically thin (sigma_t 6 -> 6 / 40): camera paths with equiangular sampling do better there.
     let mut thin = cloud.clone();
     thin.medium.sigma_t /= 40.0;
     assert!(depth / 40.0 < scatterlab::solvers::path::THIN_DEPTH && depth / 20.0 > scatterlab::solvers::path::THIN_DEPTH, "{depth}");
-    assert_eq!(scatterlab::solvers::path::light_traced(&thin, "auto", 1 << 20).unwrap(), (vec![], vec![]));
+    assert_eq!(scatterlab::solvers::path::light_traced(&thin, "auto", DEFAULT_COLLISION_CAP).unwrap(), (vec![], vec![]));
     assert!(events > 0.0 && events < 100.0, "{events}");
-    assert_eq!(scatterlab::solvers::path::light_traced(&cloud, "auto", 1 << 20).unwrap(), (vec![0], vec![]));
+    assert_eq!(scatterlab::solvers::path::light_traced(&cloud, "auto", DEFAULT_COLLISION_CAP).unwrap(), (vec![0], vec![]));
     assert_clean(&gpu);
 }
 
@@ -248,8 +223,8 @@ fn light_inside_cloud_error_within_2x_of_light_outside() {
     assert!(e_lt < 0.5 * e_cam_in, "light tracing ({e_lt}) should beat camera paths ({e_cam_in}) with the light inside by far");
     // Unbiased against camera paths on the same scene: the references agree in the mean.
     let cam_ref = r(&inside, "off", "1024");
-    let (ml, sel) = mean_stderr(&ref_in);
-    let (mc, sec) = mean_stderr(&cam_ref);
+    let (ml, sel) = render_mean_and_stderr(&ref_in);
+    let (mc, sec) = render_mean_and_stderr(&cam_ref);
     eprintln!("cloud image mean: light tracing {ml:.5} +- {sel:.5}, camera paths {mc:.5} +- {sec:.5}");
     assert!((ml - mc).abs() < 4.0 * (sel * sel + sec * sec).sqrt() + 0.01 * ml, "light-traced mean {ml} vs camera {mc}");
     assert_clean(&gpu);

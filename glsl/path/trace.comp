@@ -51,8 +51,8 @@ layout(push_constant) uniform Push {
     uint max_depth;       // scattering events; 1 = single scattering; 0xffffffff = unbounded
     uint collision_cap;   // safety cap on tentative collisions per path (reported, not silent)
     uint slot;            // which active counter this dispatch reports into
-    uint equiangular;     // 1: equiangular sampling of point lights + MIS; 0: distance sampling only
     uint light_traced;    // bit i: light i is rendered by light paths (path/light); camera paths skip it
+    uint equiangular;     // 1: equiangular sampling of point lights + MIS; 0: distance sampling only
 } pc;
 
 // Whether camera paths estimate light i (a light-traced light is left wholly to path/light,

@@ -187,7 +187,7 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
             e.data.iter_mut().for_each(|v| *v = x);
             e
         });
-        let light_traced = !solvers::path::light_traced(&scene, "auto", 1 << 20).map_err(|e| e.to_string())?.0.is_empty();
+        let light_traced = !solvers::path::light_traced(&scene, "auto", solvers::path::DEFAULT_COLLISION_CAP).map_err(|e| e.to_string())?.0.is_empty();
         for (kind, (variant, knobs)) in solvers_.iter().flat_map(|k| variants(*k).into_iter().map(move |v| (k, v))) {
             if variant == CAMERA_PATHS && !light_traced {
                 continue; // the default already is camera paths alone

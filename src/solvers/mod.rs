@@ -84,8 +84,13 @@ impl RenderOutput {
     pub fn total_variance(&self) -> f64 {
         let per_pixel: f64 = self.variance.as_ref().map_or(0.0, |v| v.data.iter().map(|x| *x as f64).sum());
         let n = self.image.data.len() as f64;
-        let se_lt = self.report.stats.get("light_paths").and_then(|l| l["image_mean_stderr"].as_f64()).unwrap_or(0.0);
-        per_pixel + (n * se_lt).powi(2)
+        per_pixel + (n * self.light_traced_mean_stderr()).powi(2)
+    }
+
+    /// The standard error of the image mean (over pixels and channels) of `path`'s
+    /// light-traced part, from its batches; 0 when nothing was light traced.
+    pub fn light_traced_mean_stderr(&self) -> f64 {
+        self.report.stats.get("light_paths").and_then(|l| l["image_mean_stderr"].as_f64()).unwrap_or(0.0)
     }
 }
 

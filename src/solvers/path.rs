@@ -47,9 +47,12 @@ use super::{resumable, shaders, RenderOutput, RenderReport, RenderRequest, Solve
 /// Per pixel: sum of L and the sample count, then sum of L^2 (two vec4), plus the path state.
 pub const ACCUM_BYTES_PER_PIXEL: u64 = 32 + STATE_BYTES_PER_PIXEL;
 
+/// The first eight words of both path kernels' push constants (`Push` in glsl/path/trace.comp
+/// and glsl/path/light.comp begin alike).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub struct PathPush {
+pub struct PathPushHead {
+    /// Finish samples (camera) or paths per slot (light) [.., sample_end).
     pub sample_end: u32,
     pub budget: u32,
     pub seed_lo: u32,
@@ -57,24 +60,24 @@ pub struct PathPush {
     pub max_depth: u32,
     pub collision_cap: u32,
     pub slot: u32,
-    /// 1: equiangular sampling of point lights combined with distance sampling by MIS.
-    pub equiangular: u32,
     /// Bit i: light i is rendered by light paths, and camera paths skip it.
     pub light_traced: u32,
+}
+
+/// Push constants of glsl/path/trace.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct PathPush {
+    pub head: PathPushHead,
+    /// 1: equiangular sampling of point lights combined with distance sampling by MIS.
+    pub equiangular: u32,
 }
 
 /// Push constants of glsl/path/light.comp.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct LightPush {
-    pub sample_end: u32,
-    pub budget: u32,
-    pub seed_lo: u32,
-    pub seed_hi: u32,
-    pub max_depth: u32,
-    pub collision_cap: u32,
-    pub slot: u32,
-    pub light_traced: u32,
+    pub head: PathPushHead,
     /// Fixed-point quanta per unit of splat.
     pub inv_quantum: f32,
     /// Sum of the mean intensities (W/sr) of the light-traced lights.
@@ -88,6 +91,8 @@ pub const LIGHT_BYTES_PER_PIXEL: u64 = 24 + 64;
 const QUANTA_PER_TYPICAL_SPLAT: f64 = 16_777_216.0;
 /// Mean optical depth around a light below which `auto` leaves it to camera paths.
 pub const THIN_DEPTH: f64 = 0.1;
+/// Default of `path.collision_cap`.
+pub const DEFAULT_COLLISION_CAP: u32 = 1 << 20;
 /// Lights beyond this index are never light traced (the mask is one 32-bit word).
 pub const MAX_LIGHT_TRACED: usize = 32;
 
@@ -117,18 +122,13 @@ pub fn mean_and_variance(sums: &[[f32; 4]], width: u32, height: u32) -> (Image, 
     (mean, var)
 }
 
-/// Expected scattering events of a light path from `p` before it escapes or is absorbed: a
-/// diffusing walk needs about tau_tr^2 / 2 events to cover a transport optical depth tau_tr
+/// How deep a light at `p` sits, for choosing a strategy (a CPU estimate): the mean over 26
+/// directions of the extinction optical depth from `p` to the box boundary (grey: max
+/// channel), and the expected scattering events of a light path before it escapes or is
+/// absorbed: a diffusing walk needs about tau_tr^2 / 2 events to cover a transport optical depth tau_tr
 /// (mean square displacement 2 free paths^2 per event), and absorption ends it after about
 /// 1 / (1 - albedo). tau_tr = sigma_t (1 - albedo g) times the density integrated from `p` to
-/// the box boundary, the smallest over 26 directions (the easiest way out). A CPU estimate, only
-/// for choosing a strategy.
-pub fn light_path_events(scene: &Scene, p: Vec3) -> f64 {
-    light_depth(scene, p).1
-}
-
-/// The mean over 26 directions of the extinction optical depth from `p` to the box boundary
-/// (grey: max channel), and [`light_path_events`].
+/// the box boundary, the smallest over 26 directions (the easiest way out).
 pub fn light_depth(scene: &Scene, p: Vec3) -> (f64, f64) {
     let m = &scene.medium;
     let sigma_tr = (m.sigma_t * (Vec3::ONE - m.albedo * m.g)).max_element() as f64;
@@ -166,6 +166,12 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
     // variance; measured: per-pixel errors far above camera paths'), so auto then leaves every
     // light to camera paths, which handle that case with equiangular sampling.
     let pinhole_inside = matches!(scene.camera.kind, CameraKind::Perspective { .. }) && scene.inside_medium(scene.camera.origin);
+    if !matches!(mode, "auto" | "on" | "off") {
+        return Err(SolverError::Setting {
+            key: "path.light_tracing".into(),
+            reason: format!("unknown value {mode:?}; give auto (point lights inside the medium), on (every point light) or off"),
+        });
+    }
     let mut notes = Vec::new();
     let mut traced = Vec::new();
     for (i, l) in scene.lights.iter().enumerate() {
@@ -176,42 +182,32 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
         }
         let take = match mode {
             "on" => true,
-            "off" => false,
-            "auto" if !scene.inside_medium(*position) || pinhole_inside => false,
-            // Optically thin around the light: most light paths leave without scattering, while
-            // camera paths with equiangular sampling are near-ideal for the (mostly single)
-            // scattering. Measured crossover on the cloud (32x32, 64 spp, relL2): mean depth
-            // 0.05 (sigma_t 0.1): light 0.128 vs camera 0.103; 0.14 (sigma_t 0.3): 0.098 vs 0.140.
-            "auto" if light_depth(scene, *position).0 < THIN_DEPTH => false,
-            "auto" => {
-                // Light paths that could not get out before the collision cap would be cut
-                // short (biased low) after costing the cap each: leave such a light to camera
-                // paths, and say so.
-                let events = light_path_events(scene, *position);
-                let ok = events <= (collision_cap / 16) as f64;
-                if !ok {
+            "auto" if scene.inside_medium(*position) && !pinhole_inside => {
+                let (depth, events) = light_depth(scene, *position);
+                if depth < THIN_DEPTH {
+                    // Optically thin around the light: most light paths leave without
+                    // scattering, while camera paths with equiangular sampling are near-ideal
+                    // for the (mostly single) scattering. Measured crossover on the cloud
+                    // (32x32, 64 spp, relL2): mean depth 0.05 (sigma_t 0.1): light 0.128 vs
+                    // camera 0.103; 0.14 (sigma_t 0.3): 0.098 vs 0.140.
+                    false
+                } else if events > (collision_cap / 16) as f64 {
+                    // Light paths that could not get out before the collision cap would be cut
+                    // short (biased low) after costing the cap each: leave such a light to
+                    // camera paths, and say so.
                     notes.push(format!(
                         "light {i} is too deep for light tracing (about {events:.0} scattering events to escape, past path.collision_cap / 16); camera paths render it, expect deep-penetration noise; --set path.light_tracing=on forces light paths"
                     ));
+                    false
+                } else {
+                    true
                 }
-                ok
             }
-            other => {
-                return Err(SolverError::Setting {
-                    key: "path.light_tracing".into(),
-                    reason: format!("unknown value {other:?}; give auto (point lights inside the medium), on (every point light) or off"),
-                })
-            }
+            _ => false,
         };
         if take {
             traced.push(i);
         }
-    }
-    if !matches!(mode, "auto" | "on" | "off") {
-        return Err(SolverError::Setting {
-            key: "path.light_tracing".into(),
-            reason: format!("unknown value {mode:?}; give auto (point lights inside the medium), on (every point light) or off"),
-        });
     }
     Ok((traced, notes))
 }
@@ -234,7 +230,7 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let default_batch = ((1u64 << 20) / pixels.max(1)).clamp(1, 1024) as u32;
     let batch: u32 = s.get("path", "batch", default_batch)?;
     let budget: u32 = s.get("path", "budget", resumable::DEFAULT_BUDGET)?;
-    let collision_cap: u32 = s.get("path", "collision_cap", 1u32 << 20)?;
+    let collision_cap: u32 = s.get("path", "collision_cap", DEFAULT_COLLISION_CAP)?;
     let equiangular: bool = s.get("path", "equiangular", true)?;
     let lt_mode: String = s.get("path", "light_tracing", "auto".to_string())?;
     let light_batches: u32 = s.get("path", "light_batches", 16u32)?;
@@ -327,6 +323,21 @@ struct Common<'a> {
     light_mask: u32,
 }
 
+impl Common<'_> {
+    fn head(&self, sample_end: u32, slot: u32) -> PathPushHead {
+        PathPushHead {
+            sample_end,
+            budget: self.budget,
+            seed_lo: self.seed as u32,
+            seed_hi: (self.seed >> 32) as u32,
+            max_depth: self.max_depth,
+            collision_cap: self.collision_cap,
+            slot,
+            light_traced: self.light_mask,
+        }
+    }
+}
+
 /// One kernel's share of the image.
 struct Part {
     image: Image,
@@ -349,17 +360,7 @@ fn camera_paths(c: &Common, batch: u32, equiangular: bool, progress: &dyn Fn(u64
     while sample_end < c.spp {
         sample_end = sample_end.saturating_add(batch).min(c.spp);
         let (n, _) = resumable::run_until_done(gpu, "path", &stats, |slot| {
-            let push = PathPush {
-                sample_end,
-                budget: c.budget,
-                seed_lo: c.seed as u32,
-                seed_hi: (c.seed >> 32) as u32,
-                max_depth: c.max_depth,
-                collision_cap: c.collision_cap,
-                slot,
-                equiangular: equiangular as u32,
-                light_traced: c.light_mask,
-            };
+            let push = PathPush { head: c.head(sample_end, slot), equiangular: equiangular as u32 };
             gs.bind(Pass::new("path.trace", QueueRole::Trace, &pipeline))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
@@ -455,18 +456,7 @@ fn light_paths(c: &Common, scene: &Scene, traced: &[usize], batches: u32, progre
         sample_end += rounds;
         gpu.write_buffer(&splats, 0, &zeros)?;
         let (n, _) = resumable::run_until_done(gpu, "path", &stats, |slot| {
-            let push = LightPush {
-                sample_end,
-                budget: c.budget,
-                seed_lo: c.seed as u32,
-                seed_hi: (c.seed >> 32) as u32,
-                max_depth: c.max_depth,
-                collision_cap: c.collision_cap,
-                slot,
-                light_traced: c.light_mask,
-                inv_quantum: inv_quantum as f32,
-                power_sum: power_sum as f32,
-            };
+            let push = LightPush { head: c.head(sample_end, slot), inv_quantum: inv_quantum as f32, power_sum: power_sum as f32 };
             gs.bind(Pass::new("path.light", QueueRole::Trace, &pipeline))
                 .read_write(3, &splats)
                 .read_write(4, &stats)
