@@ -67,7 +67,9 @@ fn grid_work(c: &mut Criterion) {
     let voxels = |d: [u32; 3]| d.iter().map(|&n| n as u64).product::<u64>();
     g.throughput(Throughput::Elements(voxels(grid.dims)));
     let md = majorant_dims(grid.dims, MAJORANT_CELL);
-    g.bench_function("majorant/cloud-64^3", |b| b.iter(|| majorant_grid(black_box(grid.dims), black_box(&grid.data), md)));
+    g.bench_function("majorant/cloud-64^3", |b| {
+        b.iter(|| majorant_grid(black_box(grid.dims), black_box(&grid.data), md))
+    });
 
     // A synthetic 256^3 grid (64 MiB): the size a production cloud would have.
     let n = 256u32;
@@ -107,7 +109,9 @@ fn reflection(c: &mut Criterion) {
     g.warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1)).sample_size(20);
     for src in shaders::ALL {
         g.throughput(Throughput::Bytes(src.spirv.len() as u64));
-        g.bench_with_input(BenchmarkId::from_parameter(src.name), src, |b, src| b.iter(|| reflect(black_box(src)).unwrap()));
+        g.bench_with_input(BenchmarkId::from_parameter(src.name), src, |b, src| {
+            b.iter(|| reflect(black_box(src)).unwrap())
+        });
     }
     // Every shader once, as a pipeline cache miss on all of them would cost.
     g.throughput(Throughput::Bytes(shaders::ALL.iter().map(|s| s.spirv.len() as u64).sum()));

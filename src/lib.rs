@@ -4,10 +4,10 @@
 //! `measure` -> `solvers` -> `scene`, `physics` -> `gpu`, `output`.
 //! `gpu` is the only module with `unsafe` Vulkan calls and knows nothing of scenes or physics.
 
+pub mod cli;
 pub mod gpu;
 pub mod measure;
 pub mod output;
 pub mod physics;
 pub mod scene;
 pub mod solvers;
-pub mod cli;

@@ -60,7 +60,23 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
 
     let csv = bench::csv(&points);
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
-    for col in ["scene", "solver", "knob", "value", "gpu_ms", "wall_ms", "rel_l2", "rel_mse", "rmse", "energy_ratio", "max_abs_error", "nan_inf_count", "iterations", "converged", "pareto"] {
+    for col in [
+        "scene",
+        "solver",
+        "knob",
+        "value",
+        "gpu_ms",
+        "wall_ms",
+        "rel_l2",
+        "rel_mse",
+        "rmse",
+        "energy_ratio",
+        "max_abs_error",
+        "nan_inf_count",
+        "iterations",
+        "converged",
+        "pareto",
+    ] {
         assert!(header.contains(&col), "CSV lacks column {col}");
     }
     for line in csv.lines().skip(1) {
@@ -101,16 +117,39 @@ fn bench_and_stability_commands_end_to_end() {
     let cache = dir.path().join("cache");
     let run = |args: &[&str]| {
         let o = std::process::Command::new(env!("CARGO_BIN_EXE_scatterlab")).args(args).output().unwrap();
-        (o.status.success(), String::from_utf8_lossy(&o.stdout).into_owned(), String::from_utf8_lossy(&o.stderr).into_owned())
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stdout).into_owned(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
     };
-    let args = ["bench", scene_path.to_str().unwrap(), "--quick", "--ref-spp", "128", "--solvers", "path,single", "--throughput", "--validate", "--out", out.to_str().unwrap(), "--cache", cache.to_str().unwrap()];
+    let args = [
+        "bench",
+        scene_path.to_str().unwrap(),
+        "--quick",
+        "--ref-spp",
+        "128",
+        "--solvers",
+        "path,single",
+        "--throughput",
+        "--validate",
+        "--out",
+        out.to_str().unwrap(),
+        "--cache",
+        cache.to_str().unwrap(),
+    ];
     let (ok, stdout, stderr) = run(&args);
     assert!(ok, "bench failed: {stderr}");
     assert!(stdout.contains("samples/s"), "{stdout}");
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
     assert_eq!(json["points"].as_array().unwrap().len(), 6);
     assert!(json["device"]["mapping"].is_object() && json["references"][0]["cached"] == false);
-    assert!(json["points"].as_array().unwrap().iter().all(|p| p["metrics"]["rel_l2"].as_f64().is_some_and(f64::is_finite)));
+    assert!(json["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|p| p["metrics"]["rel_l2"].as_f64().is_some_and(f64::is_finite)));
     let csv = std::fs::read_to_string(out.join("bench.csv")).unwrap();
     assert_eq!(csv.lines().count(), 7);
     let svg = std::fs::read_to_string(out.join("tiny.svg")).unwrap();
@@ -118,13 +157,16 @@ fn bench_and_stability_commands_end_to_end() {
     // A second run finds the reference in the cache.
     let (ok, _, stderr) = run(&args);
     assert!(ok, "{stderr}");
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
     assert_eq!(json["references"][0]["cached"], true);
 
     let stab = dir.path().join("stab");
-    let (ok, stdout, stderr) = run(&["stability", "--solvers", "path,single", "--validate", "--out", stab.to_str().unwrap()]);
+    let (ok, stdout, stderr) =
+        run(&["stability", "--solvers", "path,single", "--validate", "--out", stab.to_str().unwrap()]);
     assert!(ok, "stability failed: {stderr}\n{stdout}");
     assert!(stdout.contains("pass") && !stdout.contains("FAIL"));
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(stab.join("stability.json")).unwrap()).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(stab.join("stability.json")).unwrap()).unwrap();
     assert!(json["outcomes"].as_array().unwrap().iter().all(|o| o["passed"] == true));
 }

@@ -19,14 +19,7 @@ use scatterlab::scene::write_vol;
 const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
 
 /// Flags that keep every render tiny.
-const TINY: [&str; 6] = [
-    "--set",
-    "render.width=16",
-    "--set",
-    "render.height=16",
-    "--spp",
-    "4",
-];
+const TINY: [&str; 6] = ["--set", "render.width=16", "--set", "render.height=16", "--spp", "4"];
 
 /// A small valid scene (a constant-density cube lit by a point light); tests write broken
 /// variants of it with [`with`].
@@ -58,8 +51,7 @@ intensity = 10.0
 "#;
 
 /// The lines of [`BASE`] that hold the light (removed for the no-lights case).
-const BASE_LIGHT: &str =
-    "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n";
+const BASE_LIGHT: &str = "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n";
 
 /// [`BASE`] with `from` replaced by `to` (which must change something).
 #[track_caller]
@@ -94,12 +86,7 @@ fn vol_bytes(n: u32, bad: Option<(usize, f32)>) -> Vec<u8> {
     if let Some((i, v)) = bad {
         data[i] = v;
     }
-    write_vol(
-        [n, n, n],
-        &data,
-        glam::Vec3::splat(-0.5),
-        glam::Vec3::splat(0.5),
-    )
+    write_vol([n, n, n], &data, glam::Vec3::splat(-0.5), glam::Vec3::splat(0.5))
 }
 
 /// An image with a smooth, non-zero gradient (so relative errors are defined).
@@ -118,10 +105,7 @@ struct Case {
 
 impl Case {
     fn new() -> Case {
-        let dir = tempfile::Builder::new()
-            .prefix("scatterlab-cli-")
-            .tempdir()
-            .expect("temp dir");
+        let dir = tempfile::Builder::new().prefix("scatterlab-cli-").tempdir().expect("temp dir");
         fs::create_dir(dir.path().join("out")).expect("out dir");
         Case { dir }
     }
@@ -189,17 +173,9 @@ impl Case {
 
     /// The arguments of [`Case::render`].
     fn render_args(&self, scene: &Path, extra: &[&str]) -> Vec<String> {
-        let mut args: Vec<String> = vec![
-            "render".into(),
-            scene.display().to_string(),
-            "--validate".into(),
-            "-q".into(),
-        ];
-        for (flag, name) in [
-            ("--out", "out/x.exr"),
-            ("--png", "out/x.png"),
-            ("--json", "out/x.json"),
-        ] {
+        let mut args: Vec<String> =
+            vec!["render".into(), scene.display().to_string(), "--validate".into(), "-q".into()];
+        for (flag, name) in [("--out", "out/x.exr"), ("--png", "out/x.png"), ("--json", "out/x.json")] {
             args.push(flag.into());
             args.push(self.path(name).display().to_string());
         }
@@ -236,12 +212,13 @@ impl Case {
     #[track_caller]
     fn unchanged(&self, before: &[String], line: &str) {
         let after = self.listing();
-        assert_eq!(before, after.as_slice(), "the failed command changed the folder (outputs or temporary files left behind); its error: {line}");
+        assert_eq!(
+            before,
+            after.as_slice(),
+            "the failed command changed the folder (outputs or temporary files left behind); its error: {line}"
+        );
         for name in ["out/x.exr", "out/x.png", "out/x.json"] {
-            assert!(
-                !self.path(name).exists(),
-                "{name} exists after a failed command"
-            );
+            assert!(!self.path(name).exists(), "{name} exists after a failed command");
         }
     }
 }
@@ -257,16 +234,8 @@ enum Cause {
 /// twice: the message repeats its cause.
 fn repeated_part(line: &str) -> Option<String> {
     let joined = line.replace("; ", ": ");
-    let parts: Vec<&str> = joined
-        .split(": ")
-        .map(str::trim)
-        .filter(|p| p.len() >= 12)
-        .collect();
-    parts
-        .iter()
-        .enumerate()
-        .find(|(i, p)| parts[i + 1..].contains(p))
-        .map(|(_, p)| p.to_string())
+    let parts: Vec<&str> = joined.split(": ").map(str::trim).filter(|p| p.len() >= 12).collect();
+    parts.iter().enumerate().find(|(i, p)| parts[i + 1..].contains(p)).map(|(_, p)| p.to_string())
 }
 
 /// [`error_line`] with [`Cause::Once`].
@@ -283,37 +252,14 @@ fn error_line(out: &Output, needles: &[&str], cause: Cause) -> String {
     let stderr = String::from_utf8_lossy(&out.stderr);
     let stdout = String::from_utf8_lossy(&out.stdout);
     let code = out.status.code();
-    assert!(
-        code.is_some(),
-        "killed by a signal ({:?}); stderr:\n{stderr}",
-        out.status
-    );
-    assert_ne!(
-        code,
-        Some(0),
-        "the command succeeded but should have failed; stdout:\n{stdout}\nstderr:\n{stderr}"
-    );
-    assert!(
-        !stderr.contains("panicked") && !stderr.contains("RUST_BACKTRACE"),
-        "panic:\n{stderr}"
-    );
-    assert_ne!(
-        code,
-        Some(101),
-        "exit code 101 (a Rust panic); stderr:\n{stderr}"
-    );
+    assert!(code.is_some(), "killed by a signal ({:?}); stderr:\n{stderr}", out.status);
+    assert_ne!(code, Some(0), "the command succeeded but should have failed; stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(!stderr.contains("panicked") && !stderr.contains("RUST_BACKTRACE"), "panic:\n{stderr}");
+    assert_ne!(code, Some(101), "exit code 101 (a Rust panic); stderr:\n{stderr}");
     let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(
-        lines.len(),
-        1,
-        "expected exactly one line on stderr, got {}:\n{stderr}",
-        lines.len()
-    );
+    assert_eq!(lines.len(), 1, "expected exactly one line on stderr, got {}:\n{stderr}", lines.len());
     let line = lines[0];
-    assert!(
-        line.starts_with("error: "),
-        "the line does not start with `error: `: {line}"
-    );
+    assert!(line.starts_with("error: "), "the line does not start with `error: `: {line}");
     for n in needles {
         assert!(line.contains(n), "the error line lacks {n:?}: {line}");
     }
@@ -330,23 +276,15 @@ fn error_line(out: &Output, needles: &[&str], cause: Cause) -> String {
 fn succeeded(out: &Output) -> (String, String) {
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "the command failed; stdout:\n{stdout}\nstderr:\n{stderr}"
-    );
+    assert_eq!(out.status.code(), Some(0), "the command failed; stdout:\n{stdout}\nstderr:\n{stderr}");
     assert!(!stderr.contains("panicked"), "panic:\n{stderr}");
-    assert!(
-        !stderr.contains("validation error"),
-        "validation errors:\n{stderr}"
-    );
+    assert!(!stderr.contains("validation error"), "validation errors:\n{stderr}");
     (stdout, stderr)
 }
 
 fn read_json(p: &Path) -> serde_json::Value {
     let text = fs::read_to_string(p).unwrap_or_else(|e| panic!("read {}: {e}", p.display()));
-    serde_json::from_str(&text)
-        .unwrap_or_else(|e| panic!("{} is not JSON: {e}\n{text}", p.display()))
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{} is not JSON: {e}\n{text}", p.display()))
 }
 
 // ------------------------------------------------------------------ scene files
@@ -371,15 +309,8 @@ fn unknown_keys_name_file_key_and_line() {
     let s = c.scene(&with("albedo = 0.8", "albdo = 0.8"));
     let line = c.render_fails(&s, &TINY, &["scene.toml", "medium.albdo", "unknown key"]);
     assert!(line.contains("albedo"), "no did-you-mean: {line}");
-    let s = c.scene(&with(
-        "intensity = 10.0",
-        "intensity = 10.0\nintensty = 3.0",
-    ));
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "light[0].intensty", "unknown key"],
-    );
+    let s = c.scene(&with("intensity = 10.0", "intensity = 10.0\nintensty = 3.0"));
+    c.render_fails(&s, &TINY, &["scene.toml", "light[0].intensty", "unknown key"]);
     let s = c.scene(&format!("{BASE}\n[extra]\nfoo = 1\n"));
     c.render_fails(&s, &TINY, &["scene.toml", "extra", "unknown key"]);
 }
@@ -399,26 +330,14 @@ fn missing_keys_and_wrong_types_name_the_field() {
 fn scene_file_missing() {
     let c = Case::new();
     let args = c.render_args(&c.path("nope.toml"), &TINY);
-    c.fails(
-        args,
-        &["nope.toml", "cannot read scene file", "No such file"],
-    );
+    c.fails(args, &["nope.toml", "cannot read scene file", "No such file"]);
 }
 
 #[test]
 fn grid_file_missing() {
     let c = Case::new();
     let s = c.scene(&grid_scene("nope.vol", None));
-    c.render_fails(
-        &s,
-        &TINY,
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "nope.vol",
-            "cannot open",
-        ],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "nope.vol", "cannot open"]);
 }
 
 #[test]
@@ -428,23 +347,10 @@ fn grid_file_truncated() {
     // Data cut short.
     c.write("cut.vol", &full[..full.len() / 2]);
     let s = c.scene(&grid_scene("cut.vol", None));
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "medium.density.file", "cut.vol", "truncated"],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "truncated"]);
     // Header cut short.
     c.write("cut.vol", &full[..20]);
-    c.render_fails(
-        &s,
-        &TINY,
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "cut.vol",
-            "truncated .vol header",
-        ],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "truncated .vol header"]);
     // Empty file.
     c.write("cut.vol", b"");
     c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol"]);
@@ -456,54 +362,20 @@ fn grid_dims_do_not_match_file_size() {
     // 4x4x4 raw f32 needs 256 bytes; give 100.
     c.write("raw.f32", vec![0u8; 100]);
     let s = c.scene(&grid_scene("raw.f32", Some([4, 4, 4])));
-    c.render_fails(
-        &s,
-        &TINY,
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "raw.f32",
-            "dims",
-            "256 bytes",
-            "100 bytes",
-        ],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "raw.f32", "dims", "256 bytes", "100 bytes"]);
     // Too many bytes.
     c.write("raw.f32", f32_bytes(&[0.5; 65]));
-    c.render_fails(
-        &s,
-        &TINY,
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "raw.f32",
-            "extra bytes",
-        ],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "raw.f32", "extra bytes"]);
     // Raw without dims.
     let s = c.scene(&grid_scene("raw.f32", None));
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "medium.density.file", "raw.f32", "dims"],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "raw.f32", "dims"]);
     // A zero dimension.
     let s = c.scene(&grid_scene("raw.f32", Some([4, 0, 4])));
     c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "dims[1]"]);
     // dims that contradict a .vol header.
     c.cloud_grid();
     let s = c.scene(&grid_scene("cloud64.vol", Some([32, 32, 32])));
-    c.render_fails(
-        &s,
-        &TINY,
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "cloud64.vol",
-            "disagrees",
-            "64x64x64",
-        ],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cloud64.vol", "disagrees", "64x64x64"]);
 }
 
 #[test]
@@ -516,14 +388,7 @@ fn grid_nan_inf_negative_density() {
         c.render_fails(
             &s,
             &TINY,
-            &[
-                "scene.toml",
-                "medium.density.file",
-                "bad.vol",
-                "voxel (1, 1, 0)",
-                text,
-                "finite and >= 0",
-            ],
+            &["scene.toml", "medium.density.file", "bad.vol", "voxel (1, 1, 0)", text, "finite and >= 0"],
         );
     }
     // The same in a raw grid.
@@ -531,17 +396,7 @@ fn grid_nan_inf_negative_density() {
     data[7] = f32::NAN;
     c.write("bad.f32", f32_bytes(&data));
     let s = c.scene(&grid_scene("bad.f32", Some([2, 2, 2])));
-    c.render_fails(
-        &s,
-        &TINY,
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "bad.f32",
-            "voxel (1, 1, 1)",
-            "NaN",
-        ],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "bad.f32", "voxel (1, 1, 1)", "NaN"]);
 }
 
 #[test]
@@ -549,11 +404,7 @@ fn albedo_outside_unit_interval() {
     let c = Case::new();
     for (value, shown) in [("1.5", "1.5"), ("-0.1", "-0.1"), ("[0.5, 1.2, 0.5]", "1.2")] {
         let s = c.scene(&with("albedo = 0.8", &format!("albedo = {value}")));
-        c.render_fails(
-            &s,
-            &TINY,
-            &["scene.toml", "medium.albedo", shown, "outside [0, 1]"],
-        );
+        c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", shown, "outside [0, 1]"]);
     }
     let s = c.scene(&with("albedo = 0.8", "albedo = nan"));
     c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", "NaN"]);
@@ -573,11 +424,7 @@ fn sigma_t_negative_or_not_finite() {
     let c = Case::new();
     for value in ["-1.0", "[1.0, -2.0, 1.0]", "nan", "inf"] {
         let s = c.scene(&with("sigma_t = 2.0", &format!("sigma_t = {value}")));
-        c.render_fails(
-            &s,
-            &TINY,
-            &["scene.toml", "medium.sigma_t", "finite and >= 0"],
-        );
+        c.render_fails(&s, &TINY, &["scene.toml", "medium.sigma_t", "finite and >= 0"]);
     }
 }
 
@@ -585,11 +432,7 @@ fn sigma_t_negative_or_not_finite() {
 fn negative_light_intensity() {
     let c = Case::new();
     let s = c.scene(&with("intensity = 10.0", "intensity = -10.0"));
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "light[0].intensity", "finite and >= 0"],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "light[0].intensity", "finite and >= 0"]);
 }
 
 #[test]
@@ -597,23 +440,11 @@ fn zero_size_image() {
     let c = Case::new();
     // In the file (no --set overriding it).
     let s = c.scene(&with("width = 16", "width = 0"));
-    c.render_fails(
-        &s,
-        &["--spp", "4"],
-        &["scene.toml", "render.width", "out of range"],
-    );
+    c.render_fails(&s, &["--spp", "4"], &["scene.toml", "render.width", "out of range"]);
     let s = c.scene(&with("height = 16", "height = 0"));
-    c.render_fails(
-        &s,
-        &["--spp", "4"],
-        &["scene.toml", "render.height", "out of range"],
-    );
+    c.render_fails(&s, &["--spp", "4"], &["scene.toml", "render.height", "out of range"]);
     let s = c.scene(&with("width = 16", "width = -5"));
-    c.render_fails(
-        &s,
-        &["--spp", "4"],
-        &["scene.toml", "render.width", "out of range"],
-    );
+    c.render_fails(&s, &["--spp", "4"], &["scene.toml", "render.width", "out of range"]);
     // From --set: the message says the value came from the override.
     let s = c.scene(BASE);
     c.render_fails(
@@ -636,35 +467,14 @@ fn no_lights() {
 fn camera_that_sees_nothing() {
     let c = Case::new();
     // Looking away from the medium.
-    let s = c.scene(&with(
-        "target = [0.0, 0.0, 0.0]",
-        "target = [0.0, 0.0, 8.0]",
-    ));
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "camera", "sees no part of the medium"],
-    );
+    let s = c.scene(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 8.0]"));
+    c.render_fails(&s, &TINY, &["scene.toml", "camera", "sees no part of the medium"]);
     // Looking past it with a narrow view.
-    let s = c.scene(
-        &with("target = [0.0, 0.0, 0.0]", "target = [5.0, 0.0, 0.0]")
-            .replace("fov = 30.0", "fov = 5.0"),
-    );
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "camera", "sees no part of the medium"],
-    );
+    let s = c.scene(&with("target = [0.0, 0.0, 0.0]", "target = [5.0, 0.0, 0.0]").replace("fov = 30.0", "fov = 5.0"));
+    c.render_fails(&s, &TINY, &["scene.toml", "camera", "sees no part of the medium"]);
     // No view direction at all.
-    let s = c.scene(&with(
-        "target = [0.0, 0.0, 0.0]",
-        "target = [0.0, 0.0, 4.0]",
-    ));
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "camera.target", "equals camera.origin"],
-    );
+    let s = c.scene(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 4.0]"));
+    c.render_fails(&s, &TINY, &["scene.toml", "camera.target", "equals camera.origin"]);
     // Up along the view.
     let s = c.scene(&with("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 1.0]"));
     c.render_fails(&s, &TINY, &["scene.toml", "camera.up", "parallel"]);
@@ -681,53 +491,23 @@ fn grid_beyond_memory_budget() {
     c.render_fails(
         &s,
         &[&TINY[..], &["--memory-budget", "1K"]].concat(),
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "cloud64.vol",
-            "64x64x64",
-            "memory budget",
-            "--memory-budget",
-        ],
+        &["scene.toml", "medium.density.file", "cloud64.vol", "64x64x64", "memory budget", "--memory-budget"],
     );
     // A hostile header claiming 4096^3 voxels (256 GiB) is refused before any voxel is read,
     // under the default budget.
-    let mut header = write_vol(
-        [4096, 4096, 4096],
-        &[],
-        glam::Vec3::splat(-0.5),
-        glam::Vec3::splat(0.5),
-    );
+    let mut header = write_vol([4096, 4096, 4096], &[], glam::Vec3::splat(-0.5), glam::Vec3::splat(0.5));
     header.extend(f32_bytes(&[0.5; 16]));
     c.write("huge.vol", header);
     let s = c.scene(&grid_scene("huge.vol", None));
-    c.render_fails(
-        &s,
-        &TINY,
-        &[
-            "scene.toml",
-            "medium.density.file",
-            "huge.vol",
-            "4096x4096x4096",
-            "memory budget",
-        ],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "huge.vol", "4096x4096x4096", "memory budget"]);
 }
 
 #[test]
 fn memory_budget_syntax() {
     let c = Case::new();
     let s = c.scene(BASE);
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--memory-budget", "lots"]].concat(),
-        &["--memory-budget", "lots"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--memory-budget", "0"]].concat(),
-        &["--memory-budget", "positive"],
-    );
+    c.render_fails(&s, &[&TINY[..], &["--memory-budget", "lots"]].concat(), &["--memory-budget", "lots"]);
+    c.render_fails(&s, &[&TINY[..], &["--memory-budget", "0"]].concat(), &["--memory-budget", "positive"]);
 }
 
 // ------------------------------------------------------------------ --set
@@ -752,16 +532,8 @@ fn unknown_set_keys() {
         &[&TINY[..], &["--set", "single.step=0.01"]].concat(),
         &["--set single.step", "solver single", "solver path"],
     );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "nope=1"]].concat(),
-        &["--set nope", "unknown key"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "mesh.file=1"]].concat(),
-        &["--set mesh.file", "unknown key"],
-    );
+    c.render_fails(&s, &[&TINY[..], &["--set", "nope=1"]].concat(), &["--set nope", "unknown key"]);
+    c.render_fails(&s, &[&TINY[..], &["--set", "mesh.file=1"]].concat(), &["--set mesh.file", "unknown key"]);
     c.render_fails(
         &s,
         &[&TINY[..], &["--set", "light[3].intensity=1"]].concat(),
@@ -770,11 +542,7 @@ fn unknown_set_keys() {
     // The other way round: a path knob while rendering with single.
     c.render_fails(
         &s,
-        &[
-            &TINY[..],
-            &["--solver", "single", "--set", "path.max_depth=1"],
-        ]
-        .concat(),
+        &[&TINY[..], &["--solver", "single", "--set", "path.max_depth=1"]].concat(),
         &["--set path.max_depth", "solver path", "solver single"],
     );
 }
@@ -783,16 +551,8 @@ fn unknown_set_keys() {
 fn bad_set_syntax() {
     let c = Case::new();
     let s = c.scene(BASE);
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "medium.albedo"]].concat(),
-        &["--set", "medium.albedo", "KEY=VALUE"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "=0.5"]].concat(),
-        &["--set", "KEY=VALUE"],
-    );
+    c.render_fails(&s, &[&TINY[..], &["--set", "medium.albedo"]].concat(), &["--set", "medium.albedo", "KEY=VALUE"]);
+    c.render_fails(&s, &[&TINY[..], &["--set", "=0.5"]].concat(), &["--set", "KEY=VALUE"]);
     c.render_fails(
         &s,
         &[&TINY[..], &["--set", "medium.albedo=[0.5,"]].concat(),
@@ -822,11 +582,7 @@ fn no_output_requested() {
     let c = Case::new();
     let s = c.scene(BASE);
     c.fails(
-        [
-            &["render", s.to_str().unwrap(), "--validate", "-q"][..],
-            &TINY[..],
-        ]
-        .concat(),
+        [&["render", s.to_str().unwrap(), "--validate", "-q"][..], &TINY[..]].concat(),
         &["no output requested", "--out"],
     );
 }
@@ -838,18 +594,7 @@ fn output_directory_missing() {
     for (flag, name) in [("--out", "x.exr"), ("--png", "x.png"), ("--json", "x.json")] {
         let p = c.path(&format!("missing/{name}"));
         c.fails(
-            [
-                &[
-                    "render",
-                    s.to_str().unwrap(),
-                    "--validate",
-                    "-q",
-                    flag,
-                    p.to_str().unwrap(),
-                ][..],
-                &TINY[..],
-            ]
-            .concat(),
+            [&["render", s.to_str().unwrap(), "--validate", "-q", flag, p.to_str().unwrap()][..], &TINY[..]].concat(),
             &[flag, "missing", "does not exist"],
         );
     }
@@ -887,18 +632,7 @@ fn output_with_wrong_extension() {
     ] {
         let p = c.path(name);
         c.fails(
-            [
-                &[
-                    "render",
-                    s.to_str().unwrap(),
-                    "--validate",
-                    "-q",
-                    flag,
-                    p.to_str().unwrap(),
-                ][..],
-                &TINY[..],
-            ]
-            .concat(),
+            [&["render", s.to_str().unwrap(), "--validate", "-q", flag, p.to_str().unwrap()][..], &TINY[..]].concat(),
             &[flag, name, want],
         );
     }
@@ -912,27 +646,15 @@ fn output_with_wrong_extension() {
 fn errors_name_their_cause_once() {
     let c = Case::new();
     let args = c.render_args(&c.path("nope.toml"), &TINY);
-    c.fails(
-        args,
-        &["nope.toml", "cannot read scene file", "No such file"],
-    );
+    c.fails(args, &["nope.toml", "cannot read scene file", "No such file"]);
     let missing = c.path("nope.toml");
-    c.fails(
-        ["scene", "info", missing.to_str().unwrap()],
-        &["nope.toml", "cannot read scene file"],
-    );
+    c.fails(["scene", "info", missing.to_str().unwrap()], &["nope.toml", "cannot read scene file"]);
     let a = c.path("a.exr");
     write_exr(&a, &[("", &gradient(8, 8))]).expect("write a.exr");
     let missing = c.path("missing.exr");
-    c.fails(
-        ["compare", a.to_str().unwrap(), missing.to_str().unwrap()],
-        &["missing.exr", "No such file"],
-    );
+    c.fails(["compare", a.to_str().unwrap(), missing.to_str().unwrap()], &["missing.exr", "No such file"]);
     let junk = c.write("junk.exr", "this is not an image\n");
-    c.fails(
-        ["compare", junk.to_str().unwrap(), a.to_str().unwrap()],
-        &["junk.exr", "EXR"],
-    );
+    c.fails(["compare", junk.to_str().unwrap(), a.to_str().unwrap()], &["junk.exr", "EXR"]);
 }
 
 /// An empty (fully truncated) grid file should be called empty, not "not a .vol file ...
@@ -942,17 +664,9 @@ fn empty_grid_file_is_called_empty() {
     let c = Case::new();
     c.write("cut.vol", b"");
     let s = c.scene(&grid_scene("cut.vol", None));
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "medium.density.file", "cut.vol", "empty"],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "empty"]);
     c.write("cut.vol", b"VO");
-    c.render_fails(
-        &s,
-        &TINY,
-        &["scene.toml", "medium.density.file", "cut.vol", "truncated"],
-    );
+    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "truncated"]);
 }
 
 /// A solver knob that does not parse should show the value it got.
@@ -977,11 +691,7 @@ fn late_output_failure_leaves_nothing_behind() {
     let before = c.listing();
     let out = c.render(&s, &TINY);
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(
-        before,
-        c.listing(),
-        "outputs or temporary files left behind after: {stderr}"
-    );
+    assert_eq!(before, c.listing(), "outputs or temporary files left behind after: {stderr}");
     one_error_line(&out, &["x.json"]);
 }
 
@@ -989,25 +699,14 @@ fn late_output_failure_leaves_nothing_behind() {
 fn device_that_does_not_exist() {
     let c = Case::new();
     let s = c.scene(BASE);
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--device", "nonexistent"]].concat(),
-        &["--device", "nonexistent", "available"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--device", "99"]].concat(),
-        &["--device", "99", "available"],
-    );
+    c.render_fails(&s, &[&TINY[..], &["--device", "nonexistent"]].concat(), &["--device", "nonexistent", "available"]);
+    c.render_fails(&s, &[&TINY[..], &["--device", "99"]].concat(), &["--device", "99", "available"]);
 }
 
 #[test]
 fn devices_with_device_that_does_not_exist() {
     let c = Case::new();
-    c.fails(
-        ["devices", "--device", "nonexistent"],
-        &["--device", "nonexistent"],
-    );
+    c.fails(["devices", "--device", "nonexistent"], &["--device", "nonexistent"]);
 }
 
 // ------------------------------------------------------------------ compare
@@ -1018,20 +717,11 @@ fn compare_missing_file() {
     let a = c.path("a.exr");
     write_exr(&a, &[("", &gradient(8, 8))]).expect("write a.exr");
     let missing = c.path("missing.exr");
-    c.fails(
-        ["compare", a.to_str().unwrap(), missing.to_str().unwrap()],
-        &["missing.exr", "No such file"],
-    );
-    c.fails(
-        ["compare", missing.to_str().unwrap(), a.to_str().unwrap()],
-        &["missing.exr", "No such file"],
-    );
+    c.fails(["compare", a.to_str().unwrap(), missing.to_str().unwrap()], &["missing.exr", "No such file"]);
+    c.fails(["compare", missing.to_str().unwrap(), a.to_str().unwrap()], &["missing.exr", "No such file"]);
     // Not an EXR at all.
     let junk = c.write("junk.exr", "this is not an image\n");
-    c.fails(
-        ["compare", junk.to_str().unwrap(), a.to_str().unwrap()],
-        &["junk.exr", "EXR"],
-    );
+    c.fails(["compare", junk.to_str().unwrap(), a.to_str().unwrap()], &["junk.exr", "EXR"]);
 }
 
 #[test]
@@ -1041,10 +731,7 @@ fn compare_images_of_different_sizes_names_the_files() {
     let b = c.path("b.exr");
     write_exr(&a, &[("", &gradient(16, 16))]).expect("write a.exr");
     write_exr(&b, &[("", &gradient(8, 8))]).expect("write b.exr");
-    c.fails(
-        ["compare", a.to_str().unwrap(), b.to_str().unwrap()],
-        &["a.exr", "b.exr", "16x16", "8x8"],
-    );
+    c.fails(["compare", a.to_str().unwrap(), b.to_str().unwrap()], &["a.exr", "b.exr", "16x16", "8x8"]);
 }
 
 #[test]
@@ -1056,13 +743,7 @@ fn compare_images_of_different_sizes() {
     write_exr(&b, &[("", &gradient(8, 8))]).expect("write b.exr");
     let err = c.path("out/err.png");
     c.fails(
-        [
-            "compare",
-            a.to_str().unwrap(),
-            b.to_str().unwrap(),
-            "--error-png",
-            err.to_str().unwrap(),
-        ],
+        ["compare", a.to_str().unwrap(), b.to_str().unwrap(), "--error-png", err.to_str().unwrap()],
         &["16x16", "8x8", "same resolution"],
     );
 }
@@ -1074,24 +755,12 @@ fn compare_error_png_bad_path() {
     write_exr(&a, &[("", &gradient(8, 8))]).expect("write a.exr");
     let wrong = c.path("out/err.jpg");
     c.fails(
-        [
-            "compare",
-            a.to_str().unwrap(),
-            a.to_str().unwrap(),
-            "--error-png",
-            wrong.to_str().unwrap(),
-        ],
+        ["compare", a.to_str().unwrap(), a.to_str().unwrap(), "--error-png", wrong.to_str().unwrap()],
         &["--error-png", "err.jpg", ".png"],
     );
     let missing = c.path("missing/err.png");
     c.fails(
-        [
-            "compare",
-            a.to_str().unwrap(),
-            a.to_str().unwrap(),
-            "--error-png",
-            missing.to_str().unwrap(),
-        ],
+        ["compare", a.to_str().unwrap(), a.to_str().unwrap(), "--error-png", missing.to_str().unwrap()],
         &["--error-png", "missing", "does not exist"],
     );
 }
@@ -1107,43 +776,21 @@ fn compare_identical_and_error_png() {
     write_exr(&b, &[("", &other)]).expect("write b.exr");
 
     let (stdout, _) = succeeded(&c.run(["compare", a.to_str().unwrap(), a.to_str().unwrap()]));
-    let rel = stdout
-        .lines()
-        .find_map(|l| l.strip_prefix("relL2"))
-        .unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
-    assert_eq!(
-        rel.trim().parse::<f64>().expect("relL2 number"),
-        0.0,
-        "{stdout}"
-    );
+    let rel =
+        stdout.lines().find_map(|l| l.strip_prefix("relL2")).unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
+    assert_eq!(rel.trim().parse::<f64>().expect("relL2 number"), 0.0, "{stdout}");
     assert!(stdout.contains("NaN/Inf"), "{stdout}");
 
-    let (stdout, _) = succeeded(&c.run([
-        "compare",
-        b.to_str().unwrap(),
-        a.to_str().unwrap(),
-        "--json",
-    ]));
-    let m: serde_json::Value =
-        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
+    let (stdout, _) = succeeded(&c.run(["compare", b.to_str().unwrap(), a.to_str().unwrap(), "--json"]));
+    let m: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
     assert!(m["rel_l2"].as_f64().expect("rel_l2") > 0.0, "{m}");
     assert_eq!(m["pixels"], 256, "{m}");
 
     let err = c.path("out/err.png");
-    succeeded(&c.run([
-        "compare",
-        b.to_str().unwrap(),
-        a.to_str().unwrap(),
-        "--error-png",
-        err.to_str().unwrap(),
-    ]));
+    succeeded(&c.run(["compare", b.to_str().unwrap(), a.to_str().unwrap(), "--error-png", err.to_str().unwrap()]));
     let png = image::open(&err).expect("error PNG decodes");
     assert_eq!((png.width(), png.height()), (16, 16));
-    assert_eq!(
-        c.listing(),
-        ["a.exr", "b.exr", "out", "out/err.png"],
-        "stray files"
-    );
+    assert_eq!(c.listing(), ["a.exr", "b.exr", "out", "out/err.png"], "stray files");
 }
 
 // ------------------------------------------------------------------ renders that succeed
@@ -1152,30 +799,13 @@ fn compare_identical_and_error_png() {
 /// with itself through the CLI.
 fn render_sphere(solver: &str) -> serde_json::Value {
     let c = Case::new();
-    let (exr, png, json) = (
-        c.path("out/s.exr"),
-        c.path("out/s.png"),
-        c.path("out/s.json"),
-    );
+    let (exr, png, json) = (c.path("out/s.exr"), c.path("out/s.png"), c.path("out/s.json"));
     let scene = repo("scenes/homogeneous-sphere.toml");
     let out = c.run(
         [
-            &[
-                "render",
-                scene.to_str().unwrap(),
-                "--solver",
-                solver,
-                "--validate",
-            ][..],
+            &["render", scene.to_str().unwrap(), "--solver", solver, "--validate"][..],
             &TINY[..],
-            &[
-                "--out",
-                exr.to_str().unwrap(),
-                "--png",
-                png.to_str().unwrap(),
-                "--json",
-                json.to_str().unwrap(),
-            ][..],
+            &["--out", exr.to_str().unwrap(), "--png", png.to_str().unwrap(), "--json", json.to_str().unwrap()][..],
         ]
         .concat(),
     );
@@ -1190,11 +820,7 @@ fn render_sphere(solver: &str) -> serde_json::Value {
     let img = read_exr(&exr).expect("EXR reads back");
     assert_eq!((img.width, img.height), (16, 16));
     assert_eq!(img.nan_inf_count(), 0);
-    assert!(
-        img.mean().iter().all(|m| *m > 0.0),
-        "black image: {:?}",
-        img.mean()
-    );
+    assert!(img.mean().iter().all(|m| *m > 0.0), "black image: {:?}", img.mean());
     if solver == "path" {
         let var = read_exr_layer(&exr, "variance").expect("path writes a variance layer");
         assert_eq!((var.width, var.height), (16, 16));
@@ -1206,34 +832,18 @@ fn render_sphere(solver: &str) -> serde_json::Value {
     for key in ["device", "solver", "settings", "passes", "gpu_ms", "wall_s"] {
         assert!(doc.get(key).is_some(), "JSON lacks {key}: {doc}");
     }
-    assert!(
-        doc["device"].get("mapping").is_some(),
-        "JSON lacks device.mapping: {doc}"
-    );
+    assert!(doc["device"].get("mapping").is_some(), "JSON lacks device.mapping: {doc}");
     assert_eq!(doc["solver"], solver, "{doc}");
-    assert_eq!(
-        (doc["width"].as_u64(), doc["height"].as_u64()),
-        (Some(16), Some(16)),
-        "{doc}"
-    );
-    assert!(
-        doc["passes"].as_array().is_some_and(|p| !p.is_empty()),
-        "no passes: {doc}"
-    );
+    assert_eq!((doc["width"].as_u64(), doc["height"].as_u64()), (Some(16), Some(16)), "{doc}");
+    assert!(doc["passes"].as_array().is_some_and(|p| !p.is_empty()), "no passes: {doc}");
     assert_eq!(doc["validation"]["enabled"], true, "{doc}");
     assert_eq!(doc["validation"]["errors"], 0, "{doc}");
 
     // The CLI's compare on its own output.
     let (stdout, _) = succeeded(&c.run(["compare", exr.to_str().unwrap(), exr.to_str().unwrap()]));
-    let rel = stdout
-        .lines()
-        .find_map(|l| l.strip_prefix("relL2"))
-        .unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
-    assert_eq!(
-        rel.trim().parse::<f64>().expect("relL2 number"),
-        0.0,
-        "{stdout}"
-    );
+    let rel =
+        stdout.lines().find_map(|l| l.strip_prefix("relL2")).unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
+    assert_eq!(rel.trim().parse::<f64>().expect("relL2 number"), 0.0, "{stdout}");
     doc
 }
 
@@ -1258,11 +868,7 @@ fn render_over_existing_outputs_replaces_them() {
     succeeded(&c.render(&s, &TINY));
     assert_eq!(read_exr(&c.path("out/x.exr")).expect("new EXR").width, 16);
     read_json(&c.path("out/x.json"));
-    assert_eq!(
-        c.listing(),
-        ["out", "out/x.exr", "out/x.json", "out/x.png", "scene.toml"],
-        "stray files"
-    );
+    assert_eq!(c.listing(), ["out", "out/x.exr", "out/x.json", "out/x.png", "scene.toml"], "stray files");
 }
 
 #[test]
@@ -1281,40 +887,23 @@ fn render_grid_scene_within_budget() {
 fn devices_lists_a_device_and_its_roles() {
     let c = Case::new();
     let (stdout, _) = succeeded(&c.run(["devices"]));
-    assert!(
-        stdout.lines().any(|l| l.starts_with("[0] ")),
-        "no device listed:\n{stdout}"
-    );
+    assert!(stdout.lines().any(|l| l.starts_with("[0] ")), "no device listed:\n{stdout}");
     assert!(stdout.contains("roles: "), "no role mapping:\n{stdout}");
     assert!(stdout.contains("family 0:"), "no queue families:\n{stdout}");
-    assert!(
-        stdout.contains("usable: yes"),
-        "no usable device:\n{stdout}"
-    );
+    assert!(stdout.contains("usable: yes"), "no usable device:\n{stdout}");
 }
 
 #[test]
 fn devices_json_parses() {
     let c = Case::new();
     let (stdout, _) = succeeded(&c.run(["devices", "--json"]));
-    let v: serde_json::Value =
-        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
     let list = v.as_array().unwrap_or_else(|| panic!("not an array: {v}"));
     assert!(!list.is_empty(), "no devices: {v}");
-    for key in [
-        "index",
-        "name",
-        "device_type",
-        "queue_families",
-        "mapping",
-        "missing",
-    ] {
+    for key in ["index", "name", "device_type", "queue_families", "mapping", "missing"] {
         assert!(list[0].get(key).is_some(), "device lacks {key}: {v}");
     }
-    assert!(
-        list.iter().any(|d| d["mapping"].is_object()),
-        "no device has a role mapping: {v}"
-    );
+    assert!(list.iter().any(|d| d["mapping"].is_object()), "no device has a role mapping: {v}");
 }
 
 #[test]
@@ -1325,25 +914,17 @@ fn scene_info_cloud() {
     assert!(stdout.contains("64 x 64 x 64"), "no grid dims:\n{stdout}");
     for solver in ["path", "single"] {
         assert!(
-            stdout
-                .lines()
-                .any(|l| l.trim_start().starts_with(solver) && l.contains("MiB")),
+            stdout.lines().any(|l| l.trim_start().starts_with(solver) && l.contains("MiB")),
             "no memory for {solver}:\n{stdout}"
         );
     }
     assert!(stdout.contains("anisotropic  yes"), "{stdout}");
 
     let (stdout, _) = succeeded(&c.run(["scene", "info", scene.to_str().unwrap(), "--json"]));
-    let v: serde_json::Value =
-        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
     assert_eq!(v["grid_dims"], serde_json::json!([64, 64, 64]), "{v}");
     for solver in ["path", "single"] {
-        assert!(
-            v["device_bytes"][solver]
-                .as_u64()
-                .is_some_and(|b| b > 1 << 20),
-            "{v}"
-        );
+        assert!(v["device_bytes"][solver].as_u64().is_some_and(|b| b > 1 << 20), "{v}");
     }
 }
 
@@ -1351,19 +932,10 @@ fn scene_info_cloud() {
 fn scene_info_bad_scene() {
     let c = Case::new();
     let s = c.scene(&with("g = 0.0", "g = 1.0"));
-    c.fails(
-        ["scene", "info", s.to_str().unwrap()],
-        &["scene.toml", "medium.g", "(-1, 1)"],
-    );
-    c.fails(
-        ["scene", "info", s.to_str().unwrap(), "--set", "medium.g"],
-        &["--set", "KEY=VALUE"],
-    );
+    c.fails(["scene", "info", s.to_str().unwrap()], &["scene.toml", "medium.g", "(-1, 1)"]);
+    c.fails(["scene", "info", s.to_str().unwrap(), "--set", "medium.g"], &["--set", "KEY=VALUE"]);
     let missing = c.path("nope.toml");
-    c.fails(
-        ["scene", "info", missing.to_str().unwrap()],
-        &["nope.toml", "cannot read scene file"],
-    );
+    c.fails(["scene", "info", missing.to_str().unwrap()], &["nope.toml", "cannot read scene file"]);
 }
 
 #[test]
@@ -1374,20 +946,8 @@ fn help_and_version() {
         assert!(stdout.contains(word), "--help lacks {word}:\n{stdout}");
     }
     let (stdout, _) = succeeded(&c.run(["render", "--help"]));
-    for word in [
-        "--solver",
-        "--set",
-        "--out",
-        "--png",
-        "--json",
-        "--memory-budget",
-        "--validate",
-        "--device",
-    ] {
-        assert!(
-            stdout.contains(word),
-            "render --help lacks {word}:\n{stdout}"
-        );
+    for word in ["--solver", "--set", "--out", "--png", "--json", "--memory-budget", "--validate", "--device"] {
+        assert!(stdout.contains(word), "render --help lacks {word}:\n{stdout}");
     }
     let (stdout, _) = succeeded(&c.run(["--version"]));
     assert!(stdout.contains(env!("CARGO_PKG_VERSION")), "{stdout}");

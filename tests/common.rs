@@ -23,18 +23,31 @@ pub fn assert_clean(gpu: &Gpu) {
 }
 
 pub fn scene(text: &str) -> Scene {
-    Scene::from_str(text, "test.toml", Path::new("."), &[], &LoadOptions::default()).unwrap_or_else(|e| panic!("test scene invalid: {e}"))
+    Scene::from_str(text, "test.toml", Path::new("."), &[], &LoadOptions::default())
+        .unwrap_or_else(|e| panic!("test scene invalid: {e}"))
 }
 
 /// A render with its error (or warnings) left to the caller.
-pub fn try_render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)], force_full: bool) -> Result<RenderOutput, SolverError> {
+pub fn try_render(
+    gpu: &Gpu,
+    scene: &Scene,
+    kind: SolverKind,
+    sets: &[(&str, &str)],
+    force_full: bool,
+) -> Result<RenderOutput, SolverError> {
     let pairs: Vec<(String, String)> = sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
     let settings = Settings::new(&pairs);
     let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
     solvers::render(gpu, kind, &req)
 }
 
-pub fn render_with(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)], force_full: bool) -> RenderOutput {
+pub fn render_with(
+    gpu: &Gpu,
+    scene: &Scene,
+    kind: SolverKind,
+    sets: &[(&str, &str)],
+    force_full: bool,
+) -> RenderOutput {
     let out = try_render(gpu, scene, kind, sets, force_full).unwrap_or_else(|e| panic!("render failed: {e}"));
     assert_eq!(out.image.nan_inf_count(), 0, "NaN/Inf in the image");
     if let Some(v) = &out.variance {
@@ -58,7 +71,8 @@ pub fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)])
 pub fn mean_and_stderr(img: &Image, var: &Image) -> (f64, f64) {
     let pixels = img.data.len() / 3;
     let mean = img.data.iter().map(|v| *v as f64).sum::<f64>() / img.data.len() as f64;
-    let var_sum: f64 = var.data.chunks(3).map(|c| (c.iter().map(|v| (*v as f64).sqrt()).sum::<f64>() / 3.0).powi(2)).sum();
+    let var_sum: f64 =
+        var.data.chunks(3).map(|c| (c.iter().map(|v| (*v as f64).sqrt()).sum::<f64>() / 3.0).powi(2)).sum();
     (mean, var_sum.sqrt() / pixels as f64)
 }
 
@@ -90,7 +104,11 @@ pub fn render_mean_and_stderr(out: &scatterlab::solvers::RenderOutput) -> (f64, 
 /// image means within 4 combined standard errors, and per value (pixel, channel) a z-test that
 /// may fail only rarely (both variances are estimates, and heavy-tailed estimators understate
 /// theirs).
-pub fn assert_agree(what: &str, (a_name, a): (&str, &scatterlab::solvers::RenderOutput), (b_name, b): (&str, &scatterlab::solvers::RenderOutput)) {
+pub fn assert_agree(
+    what: &str,
+    (a_name, a): (&str, &scatterlab::solvers::RenderOutput),
+    (b_name, b): (&str, &scatterlab::solvers::RenderOutput),
+) {
     let (ma, sea) = render_mean_and_stderr(a);
     let (mb, seb) = render_mean_and_stderr(b);
     let se = (sea * sea + seb * seb).sqrt();

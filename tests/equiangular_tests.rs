@@ -44,7 +44,8 @@ fn assert_eq_agrees(what: &str, eq: &RenderOutput, dist: &RenderOutput) {
 fn with_eq(gpu: &scatterlab::gpu::Gpu, text: &str, eq: bool, spp: &str, extra: &[(&str, &str)]) -> RenderOutput {
     // Camera paths only: these tests are about equiangular sampling, which light tracing
     // (path.light_tracing, tests/light_tracing_tests.rs) would otherwise take over.
-    let mut sets = vec![("path.spp", spp), ("path.equiangular", if eq { "true" } else { "false" }), ("path.light_tracing", "off")];
+    let mut sets =
+        vec![("path.spp", spp), ("path.equiangular", if eq { "true" } else { "false" }), ("path.light_tracing", "off")];
     sets.extend_from_slice(extra);
     let out = render(gpu, &scene(text), SolverKind::Path, &sets);
     assert_eq!(out.report.settings["equiangular"], serde_json::json!(eq));
@@ -109,12 +110,17 @@ fn relative_error(img: &Image, var: &Image) -> f64 {
 fn equiangular_light_inside_cloud_error_close_to_light_outside() {
     let gpu = gpu();
     let base = std::fs::read_to_string("scenes/point-light-in-cloud.toml").unwrap();
-    let small = base.replace("width  = 128", "width  = 24").replace("height = 128", "height = 24").replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\"");
+    let small = base
+        .replace("width  = 128", "width  = 24")
+        .replace("height = 128", "height = 24")
+        .replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\"");
     assert!(small.contains("width  = 24") && small.contains("scenes/cloud64.vol") && small.contains("sigma_t = 6.0"));
     let spp = "128";
     for sigma_t in ["1.5", "6.0"] {
         let inside = small.replace("sigma_t = 6.0", &format!("sigma_t = {sigma_t}"));
-        let outside = inside.replace("position  = [0.0, -0.05, 0.0]", "position  = [0.0, 2.5, 0.0]").replace("intensity = [4.0, 3.6, 3.0]", "intensity = [40.0, 36.0, 30.0]");
+        let outside = inside
+            .replace("position  = [0.0, -0.05, 0.0]", "position  = [0.0, 2.5, 0.0]")
+            .replace("intensity = [4.0, 3.6, 3.0]", "intensity = [40.0, 36.0, 30.0]");
         assert!(outside.contains("[0.0, 2.5, 0.0]"));
         let run = |text: &str, eq: bool| {
             let out = with_eq(&gpu, text, eq, spp, &[]);
@@ -131,7 +137,10 @@ fn equiangular_light_inside_cloud_error_close_to_light_outside() {
              samples/s inside {sps_eq:.0} (equiangular) vs {sps_d:.0}"
         );
         if sigma_t == "1.5" {
-            assert!(in_eq <= 2.0 * out_eq, "light inside error {in_eq} is more than 2x the light outside error {out_eq}");
+            assert!(
+                in_eq <= 2.0 * out_eq,
+                "light inside error {in_eq} is more than 2x the light outside error {out_eq}"
+            );
             assert!(in_d > in_eq, "equiangular did not reduce the light-inside error: {in_eq} vs {in_d} without");
         }
     }

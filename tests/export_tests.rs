@@ -13,9 +13,7 @@ use std::process::{Command, Output};
 use glam::Vec3;
 use roxmltree::{Document, Node};
 use scatterlab::scene::mitsuba::export_mitsuba;
-use scatterlab::scene::mitsuba::{
-    export_warnings, sphere_fits, sphere_grid_dims, vol_path_for, SPHERE_GRID_RES,
-};
+use scatterlab::scene::mitsuba::{export_warnings, sphere_fits, sphere_grid_dims, vol_path_for, SPHERE_GRID_RES};
 use scatterlab::scene::{CameraKind, Density, Light, LoadOptions, Scene};
 
 const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
@@ -35,11 +33,8 @@ fn tempdir() -> tempfile::TempDir {
 
 /// Every entry under `dir`, relative, sorted (hidden temporary files included).
 fn listing(dir: &Path) -> Vec<String> {
-    let mut out: Vec<String> = fs::read_dir(dir)
-        .expect("read_dir")
-        .flatten()
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .collect();
+    let mut out: Vec<String> =
+        fs::read_dir(dir).expect("read_dir").flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect();
     out.sort();
     out
 }
@@ -47,7 +42,8 @@ fn listing(dir: &Path) -> Vec<String> {
 // ----------------------------------------------------------------------------- XML access
 
 fn parse_vec(s: &str) -> Vec3 {
-    let v: Vec<f32> = s.split(',').map(|t| t.trim().parse().unwrap_or_else(|_| panic!("not a number list: {s:?}"))).collect();
+    let v: Vec<f32> =
+        s.split(',').map(|t| t.trim().parse().unwrap_or_else(|_| panic!("not a number list: {s:?}"))).collect();
     assert_eq!(v.len(), 3, "expected 3 numbers: {s:?}");
     Vec3::new(v[0], v[1], v[2])
 }
@@ -162,13 +158,15 @@ fn grid_density(scene: &Scene) -> Option<([u32; 3], Vec<f32>)> {
 fn export_and_check(scene: &Scene) -> (tempfile::TempDir, PathBuf, Vec<PathBuf>) {
     let dir = tempdir();
     let xml_path = dir.path().join("scene.xml");
-    let files = export_mitsuba(scene, &xml_path).unwrap_or_else(|e| panic!("export of {}: {e}", scene.source.display()));
+    let files =
+        export_mitsuba(scene, &xml_path).unwrap_or_else(|e| panic!("export of {}: {e}", scene.source.display()));
     assert_eq!(files[0], xml_path, "the XML is listed first");
     let text = fs::read_to_string(&xml_path).expect("read XML");
     let doc = Document::parse(&text).unwrap_or_else(|e| panic!("exported XML does not parse: {e}\n{text}"));
     check_xml(scene, &doc, dir.path(), &files);
     // Nothing else in the folder: no temporary files, no stray outputs.
-    let mut expected: Vec<String> = files.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    let mut expected: Vec<String> =
+        files.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
     expected.sort();
     assert_eq!(listing(dir.path()), expected);
     (dir, xml_path, files)
@@ -211,9 +209,14 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
     let near = value(sensor, "float", "near_clip").parse::<f32>().unwrap();
     let far = value(sensor, "float", "far_clip").parse::<f32>().unwrap();
     let m = &scene.medium;
-    let corners = (0..8).map(|i| Vec3::select(glam::BVec3::new(i & 1 != 0, i & 2 != 0, i & 4 != 0), m.bounds_max, m.bounds_min));
+    let corners =
+        (0..8).map(|i| Vec3::select(glam::BVec3::new(i & 1 != 0, i & 2 != 0, i & 4 != 0), m.bounds_max, m.bounds_min));
     let farthest = corners.map(|c| c.distance(cam.origin)).fold(0.0f32, f32::max);
-    assert!(near > 0.0 && near * m.sigma_t.max_element() < 1e-3, "near_clip {near} skips optical depth {}", near * m.sigma_t.max_element());
+    assert!(
+        near > 0.0 && near * m.sigma_t.max_element() < 1e-3,
+        "near_clip {near} skips optical depth {}",
+        near * m.sigma_t.max_element()
+    );
     assert!(near <= 1e-5 * farthest, "near_clip {near} is not negligible against the scene size {farthest}");
     assert!(far >= farthest * (1.0 + 1e-6), "far_clip {far} cuts the medium (farthest corner at {farthest})");
     let sampler = only(sensor, "sampler");
@@ -292,7 +295,10 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
             };
             let v = read_vol(&vol_path);
             assert_eq!(v.channels, channels);
-            assert_eq!(v.bbox, [m.bounds_min.x, m.bounds_min.y, m.bounds_min.z, m.bounds_max.x, m.bounds_max.y, m.bounds_max.z]);
+            assert_eq!(
+                v.bbox,
+                [m.bounds_min.x, m.bounds_min.y, m.bounds_min.z, m.bounds_max.x, m.bounds_max.y, m.bounds_max.z]
+            );
             // The scene's grid, voxel for voxel; a clipped sphere's coverage is checked by
             // `sphere_clipped_by_bounds_is_rasterised`.
             match grid_density(scene) {
@@ -318,7 +324,9 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
     // A camera inside the medium's shape must say so (Mitsuba needs its starting medium).
     let cam_refs = elements(sensor, "ref");
     let cam_inside = match m.density {
-        Density::Sphere { center, radius } if sphere_fits_bounds => cam.origin.distance_squared(center) < radius * radius,
+        Density::Sphere { center, radius } if sphere_fits_bounds => {
+            cam.origin.distance_squared(center) < radius * radius
+        }
         _ => m.strictly_inside(cam.origin),
     };
     assert_eq!(cam_refs.len(), usize::from(cam_inside), "sensor medium reference");
@@ -382,7 +390,8 @@ fn grid_reads_back_through_the_scene_loader() {
          [[light]]\nkind = \"environment\"\nradiance = 1.0\n",
         files[1].file_name().unwrap().to_string_lossy()
     );
-    let back = Scene::from_str(&text, "back.toml", dir.path(), &[], &LoadOptions::default()).expect("exported .vol loads");
+    let back =
+        Scene::from_str(&text, "back.toml", dir.path(), &[], &LoadOptions::default()).expect("exported .vol loads");
     let (Density::Grid(a), Density::Grid(b)) = (&back.medium.density, &scene.medium.density) else {
         panic!("not grids")
     };
@@ -392,7 +401,8 @@ fn grid_reads_back_through_the_scene_loader() {
 
 #[test]
 fn chromatic_grid_writes_density_times_sigma_t() {
-    let scene = load("scenes/cloud.toml", &[("medium.sigma_t", "[2.0, 6.0, 12.5]"), ("medium.albedo", "[0.9, 0.95, 0.99]")]);
+    let scene =
+        load("scenes/cloud.toml", &[("medium.sigma_t", "[2.0, 6.0, 12.5]"), ("medium.albedo", "[0.9, 0.95, 0.99]")]);
     let (_dir, _xml, files) = export_and_check(&scene);
     let v = read_vol(&files[1]);
     assert_eq!((v.channels, v.dims), (3, [64, 64, 64]));
@@ -400,7 +410,10 @@ fn chromatic_grid_writes_density_times_sigma_t() {
 
 #[test]
 fn chromatic_constant_medium_is_rgb() {
-    let scene = load("scenes/anisotropic-cube.toml", &[("medium.sigma_t", "[1.0, 3.0, 9.0]"), ("medium.albedo", "[0.5, 0.8, 1.0]")]);
+    let scene = load(
+        "scenes/anisotropic-cube.toml",
+        &[("medium.sigma_t", "[1.0, 3.0, 9.0]"), ("medium.albedo", "[0.5, 0.8, 1.0]")],
+    );
     let (_dir, xml, _files) = export_and_check(&scene);
     let text = fs::read_to_string(xml).unwrap();
     assert!(text.contains(r#"<rgb name="sigma_t" value="1, 3, 9"/>"#), "{text}");
@@ -456,7 +469,10 @@ fn sphere_clipped_by_bounds_is_rasterised() {
     assert!((volume - exact).abs() < 1e-3, "rasterised volume {volume} vs exact {exact}");
 
     // Non-cubic bounds: cubic voxels, 128 along the longest side.
-    let slab = load("scenes/thick-slab.toml", &[("medium.density", "{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 1.0 }")]);
+    let slab = load(
+        "scenes/thick-slab.toml",
+        &[("medium.density", "{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 1.0 }")],
+    );
     assert_eq!(sphere_grid_dims(&slab.medium), [128, 16, 128]);
     let (_dir, _xml, files) = export_and_check(&slab);
     assert_eq!(read_vol(&files[1]).dims, [128, 16, 128]);
@@ -585,14 +601,22 @@ fn cli_exports_in_either_argument_order() {
     let text = fs::read_to_string(dir.path().join("b.xml")).unwrap();
     assert!(text.contains(r#"<float name="albedo" value="0.5"/>"#), "{text}");
     let text = fs::read_to_string(dir.path().join("a.xml")).unwrap();
-    check_xml(&load("scenes/cloud.toml", &[]), &Document::parse(&text).unwrap(), dir.path(), &[dir.path().join("a.xml"), dir.path().join("a.sigma_t.vol")]);
+    check_xml(
+        &load("scenes/cloud.toml", &[]),
+        &Document::parse(&text).unwrap(),
+        dir.path(),
+        &[dir.path().join("a.xml"), dir.path().join("a.sigma_t.vol")],
+    );
 }
 
 #[test]
 fn cli_prints_the_approximation_warning() {
     let dir = tempdir();
     let scene = repo("scenes/homogeneous-sphere.toml");
-    let out = run(dir.path(), &["export", "--mitsuba", scene.to_str().unwrap(), "s.xml", "--set", "medium.density.radius=0.7"]);
+    let out = run(
+        dir.path(),
+        &["export", "--mitsuba", scene.to_str().unwrap(), "s.xml", "--set", "medium.density.radius=0.7"],
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("warning: the sphere density is clipped"), "{stderr}");
@@ -606,7 +630,10 @@ fn cli_failures_are_one_line_and_leave_nothing() {
     one_error_line(&run(dir.path(), &["export", "--mitsuba", scene, "missing/out.xml"]), "does not exist");
     one_error_line(&run(dir.path(), &["export", scene, "out.xml"]), "--mitsuba");
     one_error_line(&run(dir.path(), &["export", "--mitsuba", scene, "out.txt"]), ".xml");
-    one_error_line(&run(dir.path(), &["export", "--mitsuba", scene, "out.xml", "--set", "path.max_depth=1"]), "path.max_depth");
+    one_error_line(
+        &run(dir.path(), &["export", "--mitsuba", scene, "out.xml", "--set", "path.max_depth=1"]),
+        "path.max_depth",
+    );
     one_error_line(&run(dir.path(), &["export", "--mitsuba", scene, "out.xml", "--set", "medium.albedo=2"]), "albedo");
     assert!(listing(dir.path()).is_empty(), "left behind: {:?}", listing(dir.path()));
 }

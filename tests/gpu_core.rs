@@ -28,7 +28,11 @@ fn push_constant_structs_match_reflection() {
     ];
     for (src, size) in cases {
         let r = reflect(&src).unwrap();
-        assert_eq!(r.push_constant_bytes, size, "{}: Rust push-constant struct size differs from the shader's block", src.name);
+        assert_eq!(
+            r.push_constant_bytes, size,
+            "{}: Rust push-constant struct size differs from the shader's block",
+            src.name
+        );
     }
 }
 
@@ -62,7 +66,8 @@ fn pass_bindings_are_checked_against_reflection() {
     assert!(msg.contains("probe.missing") && msg.contains("binding 2"), "{msg}");
     // A binding the shader does not declare.
     let img = gpu.image3d_with("vol", [1, 1, 1], scatterlab::gpu::VolumeFormat::R32F, &[0.0]).unwrap();
-    let pass = Pass::new("probe.extra", QueueRole::Trace, &p).write(0, &a).read(1, &a).write(2, &a).read(7, &img).push(&push);
+    let pass =
+        Pass::new("probe.extra", QueueRole::Trace, &p).write(0, &a).read(1, &a).write(2, &a).read(7, &img).push(&push);
     let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail").to_string();
     assert!(msg.contains("probe.extra") && msg.contains("binding 7"), "{msg}");
     // An image where a buffer is declared.
@@ -102,7 +107,12 @@ fn roles_chain_through_timeline_semaphores() {
     let samples = gpu.buffer("samples", n as u64 * 16).unwrap();
     let eval = gpu.buffer("eval", n as u64 * 4).unwrap();
     let mk = |name: &str, role, g: f32| {
-        Pass::new(name, role, &p).write(0, &samples).read(1, &cos_buf).write(2, &eval).push(&ProbePush { g, count: n, eval_count: n, seed: 1 }).cover([n, 1, 1])
+        Pass::new(name, role, &p)
+            .write(0, &samples)
+            .read(1, &cos_buf)
+            .write(2, &eval)
+            .push(&ProbePush { g, count: n, eval_count: n, seed: 1 })
+            .cover([n, 1, 1])
     };
     let t1 = gpu.submit(QueueRole::Trace, &[mk("t1", QueueRole::Trace, 0.3)], &[]).unwrap();
     let d1 = gpu.submit(QueueRole::Diffuse, &[mk("d1", QueueRole::Diffuse, -0.4)], &[t1]).unwrap();

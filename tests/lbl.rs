@@ -71,7 +71,8 @@ fn round_graph_never_deadlocks_and_overlaps_only_when_concurrent() {
             }
             assert!(p.iter().all(|s| matches!(s.step, Step::March(_)) == (s.role == QueueRole::Trace)));
             for shared in [true, false] {
-                let t = run_fake(&p, shared, dur).unwrap_or_else(|e| panic!("{schedule:?}, {rounds} rounds, shared {shared}: {e}"));
+                let t = run_fake(&p, shared, dur)
+                    .unwrap_or_else(|e| panic!("{schedule:?}, {rounds} rounds, shared {shared}: {e}"));
                 let idx = |st: Step| p.iter().position(|s| s.step == st).unwrap();
                 for n in 0..rounds {
                     // Transfer n after march n; march n+1 after transfer n (it overwrites the history).
@@ -81,8 +82,12 @@ fn round_graph_never_deadlocks_and_overlaps_only_when_concurrent() {
                         let (m, d) = (t[idx(Step::March(n + 1))], t[idx(Step::Diffuse(n))]);
                         let overlap = m.0.max(d.0) < m.1.min(d.1);
                         match (schedule, shared) {
-                            (_, true) | (Schedule::Sequential, _) => assert!(!overlap, "{schedule:?} shared {shared}: march {} overlaps diffuse {n}", n + 1),
-                            (Schedule::Concurrent, false) => assert!(overlap, "concurrent on two queues: march {} should overlap diffuse {n}", n + 1),
+                            (_, true) | (Schedule::Sequential, _) => {
+                                assert!(!overlap, "{schedule:?} shared {shared}: march {} overlaps diffuse {n}", n + 1)
+                            }
+                            (Schedule::Concurrent, false) => {
+                                assert!(overlap, "concurrent on two queues: march {} should overlap diffuse {n}", n + 1)
+                            }
                         }
                     }
                 }
@@ -131,7 +136,9 @@ fn lattice_matches_the_diffusion_green_function() {
                 (st, 1.0 - sa / st)
             }
         };
-        let (irr, book) = diffuse_impulse(&gpu, lattice, [n; 3], sigma_t as f32, albedo as f32, 0.0, 1.0, 4, 4, [c; 3], 1200).unwrap();
+        let (irr, book) =
+            diffuse_impulse(&gpu, lattice, [n; 3], sigma_t as f32, albedo as f32, 0.0, 1.0, 4, 4, [c; 3], 1200)
+                .unwrap();
         // The coefficients the kernel used, from the f32 inputs.
         let ka = match lattice {
             Lattice::D3q6 => kt * (1.0 - albedo as f32 as f64),
@@ -162,12 +169,19 @@ fn lattice_matches_the_diffusion_green_function() {
                 }
             }
             let rel = (lat - ana).abs() / ana;
-            eprintln!("{lattice:?} shell r {r} ({count} voxels): lattice {:.4e}, diffusion {:.4e}, rel {rel:.4}", lat / count as f64, ana / count as f64);
+            eprintln!(
+                "{lattice:?} shell r {r} ({count} voxels): lattice {:.4e}, diffusion {:.4e}, rel {rel:.4}",
+                lat / count as f64,
+                ana / count as f64
+            );
             if r >= 4 {
                 worst = worst.max(rel);
             }
         }
-        assert!(worst < 0.03, "{lattice:?}: worst relative deviation of a shell average from the diffusion solution: {worst}");
+        assert!(
+            worst < 0.03,
+            "{lattice:?}: worst relative deviation of a shell average from the diffusion solution: {worst}"
+        );
         // Every bit of the impulse is absorbed, leaked or still moving.
         assert!((book.absorbed[0] + book.leaked[0] + book.remaining[0] - 1.0).abs() < 1e-4, "{lattice:?}: {book:?}");
     }
@@ -181,10 +195,17 @@ fn lossless_lattice_conserves_energy() {
     let gpu = gpu();
     for lattice in [Lattice::D3q6, Lattice::D3q18] {
         for (steps, block_steps) in [(7u32, 1u32), (40, 4), (300, 8)] {
-            let (_, book) = diffuse_impulse(&gpu, lattice, [20, 16, 12], 3.0, 1.0, 0.0, 0.1, 4, block_steps, [9, 7, 5], steps).unwrap();
+            let (_, book) =
+                diffuse_impulse(&gpu, lattice, [20, 16, 12], 3.0, 1.0, 0.0, 0.1, 4, block_steps, [9, 7, 5], steps)
+                    .unwrap();
             assert!(book.absorbed[0].abs() < 1e-7, "{lattice:?}: albedo 1 absorbed {}", book.absorbed[0]);
             let total = book.leaked[0] + book.remaining[0];
-            assert!((total - 1.0).abs() < 1e-5, "{lattice:?} after {steps} steps: leaked {} + remaining {} = {total}", book.leaked[0], book.remaining[0]);
+            assert!(
+                (total - 1.0).abs() < 1e-5,
+                "{lattice:?} after {steps} steps: leaked {} + remaining {} = {total}",
+                book.leaked[0],
+                book.remaining[0]
+            );
             assert!(book.leaked[0] > 0.0);
         }
     }
@@ -199,13 +220,17 @@ fn blocked_and_global_lattices_agree_after_convergence() {
     let gpu = gpu();
     let dims = [24u32, 20, 16];
     for lattice in [Lattice::D3q6, Lattice::D3q18] {
-        let run = |block: u32, steps: u32| diffuse_impulse(&gpu, lattice, dims, 0.4, 0.95, 0.3, 1.0, block, steps, [5, 9, 8], 1200).unwrap().0;
+        let run = |block: u32, steps: u32| {
+            diffuse_impulse(&gpu, lattice, dims, 0.4, 0.95, 0.3, 1.0, block, steps, [5, 9, 8], 1200).unwrap().0
+        };
         let global = run(4, 1);
         for (block, steps) in [(4u32, 4u32), (2, 2), (8, 8)] {
             let shared = (lattice.links() + 2) * block.pow(3) * 4;
             if shared > gpu.info().max_compute_shared_memory {
                 // Too big for this device: refused up front, naming the knob, not a validation error.
-                let e = diffuse_impulse(&gpu, lattice, dims, 0.4, 0.95, 0.3, 1.0, block, steps, [5, 9, 8], 8).err().expect("refused");
+                let e = diffuse_impulse(&gpu, lattice, dims, 0.4, 0.95, 0.3, 1.0, block, steps, [5, 9, 8], 8)
+                    .err()
+                    .expect("refused");
                 assert!(e.to_string().contains("lbl.block") && e.to_string().contains("shared memory"), "{e}");
                 continue;
             }
@@ -244,7 +269,8 @@ kind = "environment"
 radiance = 0.1
 "#;
 
-const SMALL: [(&str, &str); 4] = [("lbl.grid", "24"), ("lbl.rays", "4096"), ("lbl.view_env_dirs", "16"), ("lbl.view_supersample", "1")];
+const SMALL: [(&str, &str); 4] =
+    [("lbl.grid", "24"), ("lbl.rays", "4096"), ("lbl.view_env_dirs", "16"), ("lbl.view_supersample", "1")];
 
 fn with(extra: &[(&'static str, &'static str)]) -> Vec<(&'static str, &'static str)> {
     SMALL.iter().copied().chain(extra.iter().copied()).collect()
@@ -291,7 +317,10 @@ fn lbl_beats_single_against_path_at_albedo_09() {
     let v = render(&gpu, &s, SolverKind::Single, &[]);
     let el = scatterlab::output::compare(&l.image, &reference.image).unwrap();
     let es = scatterlab::output::compare(&v.image, &reference.image).unwrap();
-    eprintln!("albedo 0.9 sphere vs path ({} spp): lbl relL2 {:.4} (energy {:.3}), single relL2 {:.4} (energy {:.3})", s.render.spp, el.rel_l2, el.energy_ratio, es.rel_l2, es.energy_ratio);
+    eprintln!(
+        "albedo 0.9 sphere vs path ({} spp): lbl relL2 {:.4} (energy {:.3}), single relL2 {:.4} (energy {:.3})",
+        s.render.spp, el.rel_l2, el.energy_ratio, es.rel_l2, es.energy_ratio
+    );
     assert!(el.rel_l2 < 0.5 * es.rel_l2, "lbl {} must be well closer to path than single {}", el.rel_l2, es.rel_l2);
     let stats = &l.report.stats["lbl"];
     assert_eq!(stats["converged"], true);

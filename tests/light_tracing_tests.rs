@@ -62,7 +62,10 @@ fn light_tracing_agrees_with_camera_paths_perspective() {
     let lt = render_lt(&gpu, &grey, "auto", "256", &[]);
     assert_eq!(lt.report.settings["light_traced"], serde_json::json!([0]));
     assert!(lt.report.stats.get("light_paths").is_some());
-    assert!(lt.report.stats.get("tracking_steps").is_none(), "no camera paths are needed when every light is light traced");
+    assert!(
+        lt.report.stats.get("tracking_steps").is_none(),
+        "no camera paths are needed when every light is light traced"
+    );
     let cam = render_lt(&gpu, &grey, "off", "1024", &[]);
     assert_eq!(cam.report.settings["light_traced"], serde_json::json!([]));
     assert_lt_agrees("grey isotropic", &lt, &cam);
@@ -75,7 +78,10 @@ fn light_tracing_agrees_with_camera_paths_perspective() {
     let lt2 = render_lt(&gpu, &chroma, "auto", "256", &[("path.max_depth", "2")]);
     let cam2 = render_lt(&gpu, &chroma, "off", "1024", &[("path.max_depth", "2")]);
     assert_lt_agrees("chromatic, max_depth 2", &lt2, &cam2);
-    assert!(render_mean_and_stderr(&lt2).0 < render_mean_and_stderr(&lt).0, "two orders must be darker than all orders");
+    assert!(
+        render_mean_and_stderr(&lt2).0 < render_mean_and_stderr(&lt).0,
+        "two orders must be darker than all orders"
+    );
     assert_clean(&gpu);
 }
 
@@ -83,21 +89,38 @@ fn light_tracing_agrees_with_camera_paths_perspective() {
 fn light_tracing_agrees_with_camera_paths_orthographic_and_camera_inside() {
     let gpu = gpu();
     // Orthographic: every connection is along -forward with importance 1 / A_pix.
-    let ortho = small_scene("kind = \"orthographic\"\nextent = 1.2\norigin = [0.0, 0.3, 3.0]\ntarget = [0.0, 0.0, 0.0]", SPHERE, "3.0", "0.8", -0.3, "");
+    let ortho = small_scene(
+        "kind = \"orthographic\"\nextent = 1.2\norigin = [0.0, 0.3, 3.0]\ntarget = [0.0, 0.0, 0.0]",
+        SPHERE,
+        "3.0",
+        "0.8",
+        -0.3,
+        "",
+    );
     let lt = render_lt(&gpu, &ortho, "auto", "256", &[]);
     let cam = render_lt(&gpu, &ortho, "off", "1024", &[]);
     assert_lt_agrees("orthographic, g -0.3", &lt, &cam);
     // A pinhole inside a constant medium: connections end at the camera with a 1/t^2
     // singularity there (infinite variance, so the per-pixel z-test does not apply), which is
     // why `auto` leaves this case to camera paths. Forced with `on`, the image mean still agrees.
-    let inside = small_scene("origin = [0.0, 0.1, 0.4]\ntarget = [0.0, 0.0, 0.0]\nfov = 70.0", "{ kind = \"constant\" }", "2.0", "0.9", 0.2, "");
+    let inside = small_scene(
+        "origin = [0.0, 0.1, 0.4]\ntarget = [0.0, 0.0, 0.0]\nfov = 70.0",
+        "{ kind = \"constant\" }",
+        "2.0",
+        "0.9",
+        0.2,
+        "",
+    );
     let auto = render_lt(&gpu, &inside, "auto", "16", &[]);
     assert_eq!(auto.report.settings["light_traced"], serde_json::json!([]));
     let lt = render_lt(&gpu, &inside, "on", "256", &[]);
     let cam = render_lt(&gpu, &inside, "off", "1024", &[]);
     let ((ml, sel), (mc, sec)) = (render_mean_and_stderr(&lt), render_mean_and_stderr(&cam));
     eprintln!("camera inside the medium: light tracing mean {ml:.5} +- {sel:.5}, camera paths {mc:.5} +- {sec:.5}");
-    assert!(ml > 0.0 && (ml - mc).abs() < 4.0 * (sel * sel + sec * sec).sqrt(), "camera inside: light-traced mean {ml} vs camera {mc}");
+    assert!(
+        ml > 0.0 && (ml - mc).abs() < 4.0 * (sel * sel + sec * sec).sqrt(),
+        "camera inside: light-traced mean {ml} vs camera {mc}"
+    );
     assert_clean(&gpu);
 }
 
@@ -140,12 +163,20 @@ fn light_tracing_is_deterministic_and_rejects_bad_knobs() {
     let a = render_lt(&gpu, &text, "auto", "64", &[]);
     let b = render_lt(&gpu, &text, "auto", "64", &[]);
     assert!(a.image.data.iter().any(|v| *v > 0.0));
-    assert!(a.image.data.iter().zip(&b.image.data).all(|(x, y)| x.to_bits() == y.to_bits()), "light tracing is not deterministic");
+    assert!(
+        a.image.data.iter().zip(&b.image.data).all(|(x, y)| x.to_bits() == y.to_bits()),
+        "light tracing is not deterministic"
+    );
     assert_eq!(a.variance.as_ref().unwrap().data, b.variance.as_ref().unwrap().data);
     let c = render_lt(&gpu, &text.replace("seed = 5", "seed = 6"), "auto", "64", &[]);
     assert_ne!(a.image.data, c.image.data, "the seed must change the light paths");
-    for (key, value, wanted) in [("path.light_tracing", "maybe", "path.light_tracing"), ("path.light_batches", "0", "path.light_batches")] {
-        let err = try_render(&gpu, &scene(&text), SolverKind::Path, &[(key, value)], false).err().expect("must be refused").to_string();
+    for (key, value, wanted) in
+        [("path.light_tracing", "maybe", "path.light_tracing"), ("path.light_batches", "0", "path.light_batches")]
+    {
+        let err = try_render(&gpu, &scene(&text), SolverKind::Path, &[(key, value)], false)
+            .err()
+            .expect("must be refused")
+            .to_string();
         assert!(err.contains(wanted), "{key}={value}: {err}");
     }
     assert_clean(&gpu);
@@ -156,23 +187,45 @@ fn light_tracing_is_deterministic_and_rejects_bad_knobs() {
 #[test]
 fn light_tracing_auto_declines_lights_too_deep_to_escape() {
     let gpu = gpu();
-    let deep = small_scene(PERSPECTIVE, "{ kind = \"constant\" }", "2000.0", "1.0", 0.0, "").replace("width = 16", "width = 4").replace("height = 16", "height = 4");
+    let deep = small_scene(PERSPECTIVE, "{ kind = \"constant\" }", "2000.0", "1.0", 0.0, "")
+        .replace("width = 16", "width = 4")
+        .replace("height = 16", "height = 4");
     let sc = scene(&deep);
     let (_, events) = scatterlab::solvers::path::light_depth(&sc, glam::Vec3::new(0.12, -0.08, 0.1));
     assert!(events > 1e5, "{events}");
     let out = try_render(&gpu, &sc, SolverKind::Path, &[("path.spp", "1")], false).unwrap();
     assert_eq!(out.report.settings["light_traced"], serde_json::json!([]));
-    assert!(out.report.warnings.iter().any(|w| w.contains("too deep for light tracing") && w.contains("path.light_tracing=on")), "{:?}", out.report.warnings);
-    let cloud = crate::common::scene(&std::fs::read_to_string("scenes/point-light-in-cloud.toml").unwrap().replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\""));
+    assert!(
+        out.report
+            .warnings
+            .iter()
+            .any(|w| w.contains("too deep for light tracing") && w.contains("path.light_tracing=on")),
+        "{:?}",
+        out.report.warnings
+    );
+    let cloud = crate::common::scene(
+        &std::fs::read_to_string("scenes/point-light-in-cloud.toml")
+            .unwrap()
+            .replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\""),
+    );
     let (depth, events) = scatterlab::solvers::path::light_depth(&cloud, glam::Vec3::new(0.0, -0.05, 0.0));
     eprintln!("shipped cloud: about {events:.1} events per light path, mean optical depth {depth:.3} to the boundary");
     // Optically thin (sigma_t 6 -> 6 / 40): camera paths with equiangular sampling do better there.
     let mut thin = cloud.clone();
     thin.medium.sigma_t /= 40.0;
-    assert!(depth / 40.0 < scatterlab::solvers::path::THIN_DEPTH && depth / 20.0 > scatterlab::solvers::path::THIN_DEPTH, "{depth}");
-    assert_eq!(scatterlab::solvers::path::light_traced(&thin, "auto", DEFAULT_COLLISION_CAP).unwrap(), (vec![], vec![]));
+    assert!(
+        depth / 40.0 < scatterlab::solvers::path::THIN_DEPTH && depth / 20.0 > scatterlab::solvers::path::THIN_DEPTH,
+        "{depth}"
+    );
+    assert_eq!(
+        scatterlab::solvers::path::light_traced(&thin, "auto", DEFAULT_COLLISION_CAP).unwrap(),
+        (vec![], vec![])
+    );
     assert!(events > 0.0 && events < 100.0, "{events}");
-    assert_eq!(scatterlab::solvers::path::light_traced(&cloud, "auto", DEFAULT_COLLISION_CAP).unwrap(), (vec![0], vec![]));
+    assert_eq!(
+        scatterlab::solvers::path::light_traced(&cloud, "auto", DEFAULT_COLLISION_CAP).unwrap(),
+        (vec![0], vec![])
+    );
     assert_clean(&gpu);
 }
 
@@ -197,19 +250,34 @@ fn true_error(img: &Image, reference: &Image) -> f64 {
 fn light_inside_cloud_error_within_2x_of_light_outside() {
     let gpu = gpu();
     let base = std::fs::read_to_string("scenes/point-light-in-cloud.toml").unwrap();
-    let inside = base.replace("width  = 128", "width  = 24").replace("height = 128", "height = 24").replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\"");
-    assert!(inside.contains("width  = 24") && inside.contains("scenes/cloud64.vol") && inside.contains("sigma_t = 6.0"));
-    let outside = inside.replace("position  = [0.0, -0.05, 0.0]", "position  = [0.0, 2.5, 0.0]").replace("intensity = [4.0, 3.6, 3.0]", "intensity = [40.0, 36.0, 30.0]");
+    let inside = base
+        .replace("width  = 128", "width  = 24")
+        .replace("height = 128", "height = 24")
+        .replace("file = \"cloud64.vol\"", "file = \"scenes/cloud64.vol\"");
+    assert!(
+        inside.contains("width  = 24") && inside.contains("scenes/cloud64.vol") && inside.contains("sigma_t = 6.0")
+    );
+    let outside = inside
+        .replace("position  = [0.0, -0.05, 0.0]", "position  = [0.0, 2.5, 0.0]")
+        .replace("intensity = [4.0, 3.6, 3.0]", "intensity = [40.0, 36.0, 30.0]");
     assert!(outside.contains("[0.0, 2.5, 0.0]"));
     let reseed = |t: &str| t.replace("seed   = 1", "seed   = 77");
     let r = |text: &str, mode: &str, spp: &str| render_lt(&gpu, text, mode, spp, &[]);
     let ref_in = r(&reseed(&inside), "auto", "4096");
     let ref_out = r(&reseed(&outside), "auto", "4096");
-    assert_eq!(ref_out.report.settings["light_traced"], serde_json::json!([]), "the outside light stays on camera paths");
+    assert_eq!(
+        ref_out.report.settings["light_traced"],
+        serde_json::json!([]),
+        "the outside light stays on camera paths"
+    );
     let lt_in = r(&inside, "auto", "128");
     let cam_in = r(&inside, "off", "128");
     let cam_out = r(&outside, "auto", "128");
-    let (e_lt, e_cam_in, e_out) = (true_error(&lt_in.image, &ref_in.image), true_error(&cam_in.image, &ref_in.image), true_error(&cam_out.image, &ref_out.image));
+    let (e_lt, e_cam_in, e_out) = (
+        true_error(&lt_in.image, &ref_in.image),
+        true_error(&cam_in.image, &ref_in.image),
+        true_error(&cam_out.image, &ref_out.image),
+    );
     let ms = |o: &RenderOutput| o.report.gpu_ms;
     eprintln!(
         "cloud sigma_t 6, 24x24 at 128 spp, per-pixel error: light inside {e_lt:.4} (light tracing, {:.0} ms) / {e_cam_in:.4} (camera paths, {:.0} ms); \
@@ -220,12 +288,18 @@ fn light_inside_cloud_error_within_2x_of_light_outside() {
         e_lt / e_out
     );
     assert!(e_lt <= 2.0 * e_out, "light inside error {e_lt} is more than 2x the light outside error {e_out}");
-    assert!(e_lt < 0.5 * e_cam_in, "light tracing ({e_lt}) should beat camera paths ({e_cam_in}) with the light inside by far");
+    assert!(
+        e_lt < 0.5 * e_cam_in,
+        "light tracing ({e_lt}) should beat camera paths ({e_cam_in}) with the light inside by far"
+    );
     // Unbiased against camera paths on the same scene: the references agree in the mean.
     let cam_ref = r(&inside, "off", "1024");
     let (ml, sel) = render_mean_and_stderr(&ref_in);
     let (mc, sec) = render_mean_and_stderr(&cam_ref);
     eprintln!("cloud image mean: light tracing {ml:.5} +- {sel:.5}, camera paths {mc:.5} +- {sec:.5}");
-    assert!((ml - mc).abs() < 4.0 * (sel * sel + sec * sec).sqrt() + 0.01 * ml, "light-traced mean {ml} vs camera {mc}");
+    assert!(
+        (ml - mc).abs() < 4.0 * (sel * sel + sec * sec).sqrt() + 0.01 * ml,
+        "light-traced mean {ml} vs camera {mc}"
+    );
     assert_clean(&gpu);
 }

@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use scatterlab::output::{
-    compare, error_png, read_exr, read_exr_layer, write_atomically, write_exr, write_json,
-    write_png_tonemapped, Image, OutputError, TONEMAP_DESCRIPTION,
+    compare, error_png, read_exr, read_exr_layer, write_atomically, write_exr, write_json, write_png_tonemapped, Image,
+    OutputError, TONEMAP_DESCRIPTION,
 };
 
 fn ramp(width: u32, height: u32) -> Image {
@@ -17,10 +17,8 @@ fn ramp(width: u32, height: u32) -> Image {
 }
 
 fn files_in(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
+    let mut names: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     names.sort();
     names
 }
@@ -56,34 +54,19 @@ fn output_exr_round_trip_is_bit_exact_with_variance_layer() {
     let variance = Image::from_fn(17, 9, |x, y| [x as f32 * 0.01, y as f32 * 0.02, 1e-12]);
 
     write_exr(&path, &[("", &radiance), ("variance", &variance)]).unwrap();
-    assert_eq!(
-        files_in(dir.path()),
-        vec!["render.exr"],
-        "no temporary file left behind"
-    );
+    assert_eq!(files_in(dir.path()), vec!["render.exr"], "no temporary file left behind");
 
     let back = read_exr(&path).unwrap();
     assert_eq!((back.width, back.height), (17, 9));
     let bits = |img: &Image| img.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-    assert_eq!(
-        bits(&back),
-        bits(&radiance),
-        "main layer differs after round trip"
-    );
+    assert_eq!(bits(&back), bits(&radiance), "main layer differs after round trip");
     let back_var = read_exr_layer(&path, "variance").unwrap();
-    assert_eq!(
-        bits(&back_var),
-        bits(&variance),
-        "variance layer differs after round trip"
-    );
+    assert_eq!(bits(&back_var), bits(&variance), "variance layer differs after round trip");
 
     match read_exr_layer(&path, "albedo") {
         Err(err @ OutputError::MissingLayer { .. }) => {
             let msg = err.to_string();
-            assert!(
-                msg.contains("albedo") && msg.contains("variance.R") && msg.contains("render.exr"),
-                "{msg}"
-            );
+            assert!(msg.contains("albedo") && msg.contains("variance.R") && msg.contains("render.exr"), "{msg}");
         }
         other => panic!("expected MissingLayer, got {other:?}"),
     }
@@ -93,26 +76,12 @@ fn output_exr_round_trip_is_bit_exact_with_variance_layer() {
 fn output_exr_rejects_mismatched_layers_and_missing_files() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("bad.exr");
-    let err = write_exr(
-        &path,
-        &[("", &Image::new(4, 4)), ("variance", &Image::new(4, 3))],
-    )
-    .unwrap_err();
+    let err = write_exr(&path, &[("", &Image::new(4, 4)), ("variance", &Image::new(4, 3))]).unwrap_err();
     assert!(matches!(err, OutputError::SizeMismatch { .. }), "{err}");
     assert!(!path.exists());
-    let broken = Image {
-        width: 2,
-        height: 2,
-        data: vec![0.0; 5],
-    };
-    assert!(matches!(
-        write_exr(&path, &[("", &broken)]),
-        Err(OutputError::InvalidImage { .. })
-    ));
-    assert!(matches!(
-        read_exr(&dir.path().join("absent.exr")),
-        Err(OutputError::Exr { .. })
-    ));
+    let broken = Image { width: 2, height: 2, data: vec![0.0; 5] };
+    assert!(matches!(write_exr(&path, &[("", &broken)]), Err(OutputError::InvalidImage { .. })));
+    assert!(matches!(read_exr(&dir.path().join("absent.exr")), Err(OutputError::Exr { .. })));
     assert!(files_in(dir.path()).is_empty());
 }
 
@@ -130,17 +99,10 @@ fn output_png_has_the_right_size_and_marks_nan_magenta() {
 
     let decoded = image::open(&path).unwrap().to_rgb8();
     assert_eq!(decoded.dimensions(), (13, 7));
-    assert_eq!(
-        decoded.get_pixel(5, 2).0,
-        [255, 0, 255],
-        "NaN must render magenta"
-    );
+    assert_eq!(decoded.get_pixel(5, 2).0, [255, 0, 255], "NaN must render magenta");
     assert_eq!(decoded.get_pixel(0, 0).0, [0, 0, 0], "black stays black");
     // Monotone in radiance along x (red channel), and exposure brightens.
-    let reds: Vec<u8> = (1..13)
-        .filter(|&x| x != 5)
-        .map(|x| decoded.get_pixel(x, 3).0[0])
-        .collect();
+    let reds: Vec<u8> = (1..13).filter(|&x| x != 5).map(|x| decoded.get_pixel(x, 3).0[0]).collect();
     assert!(reds.windows(2).all(|w| w[0] <= w[1]), "{reds:?}");
     let brighter = dir.path().join("brighter.png");
     write_png_tonemapped(&brighter, &img, 2.0).unwrap();
@@ -158,68 +120,35 @@ fn close(a: f64, b: f64) -> bool {
 #[test]
 fn output_metrics_hand_computed() {
     // Reference: two pixels, values 1..6. Image: reference plus errors chosen by hand.
-    let reference = Image {
-        width: 2,
-        height: 1,
-        data: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
-    };
-    let a = Image {
-        width: 2,
-        height: 1,
-        data: vec![1.0, 2.0, 3.0, 4.0, 5.0, 8.0],
-    };
+    let reference = Image { width: 2, height: 1, data: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0] };
+    let a = Image { width: 2, height: 1, data: vec![1.0, 2.0, 3.0, 4.0, 5.0, 8.0] };
     let m = compare(&a, &reference).unwrap();
     // diff = (0,0,0,0,0,2): ||d|| = 2, ||r|| = sqrt(91).
     assert!(close(m.rel_l2, 2.0 / 91f64.sqrt()), "rel_l2 {}", m.rel_l2);
-    assert!(
-        close(m.rel_mse, 4.0 / (36.0 + 0.01) / 6.0),
-        "rel_mse {}",
-        m.rel_mse
-    );
+    assert!(close(m.rel_mse, 4.0 / (36.0 + 0.01) / 6.0), "rel_mse {}", m.rel_mse);
     assert!(close(m.rmse, (4.0f64 / 6.0).sqrt()), "rmse {}", m.rmse);
-    assert!(
-        close(m.energy_ratio, 23.0 / 21.0),
-        "energy {}",
-        m.energy_ratio
-    );
+    assert!(close(m.energy_ratio, 23.0 / 21.0), "energy {}", m.energy_ratio);
     assert!(close(m.max_abs_error, 2.0));
     assert_eq!((m.nan_inf_count, m.pixels), (0, 2));
 
     // Identical images: everything zero, energy ratio one.
     let m = compare(&reference, &reference).unwrap();
-    assert_eq!(
-        (m.rel_l2, m.rel_mse, m.rmse, m.max_abs_error, m.energy_ratio),
-        (0.0, 0.0, 0.0, 0.0, 1.0)
-    );
+    assert_eq!((m.rel_l2, m.rel_mse, m.rmse, m.max_abs_error, m.energy_ratio), (0.0, 0.0, 0.0, 0.0, 1.0));
 }
 
 #[test]
 fn output_metrics_count_and_exclude_non_finite_pixels() {
-    let reference = Image {
-        width: 3,
-        height: 1,
-        data: vec![1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 3.0, 3.0, 3.0],
-    };
-    let a = Image {
-        width: 3,
-        height: 1,
-        data: vec![f32::NAN, 1.0, 1.0, 2.0, 2.0, 2.0, 3.0, 3.0, f32::INFINITY],
-    };
+    let reference = Image { width: 3, height: 1, data: vec![1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 3.0, 3.0, 3.0] };
+    let a = Image { width: 3, height: 1, data: vec![f32::NAN, 1.0, 1.0, 2.0, 2.0, 2.0, 3.0, 3.0, f32::INFINITY] };
     let m = compare(&a, &reference).unwrap();
     assert_eq!(m.nan_inf_count, 2);
     assert_eq!(m.pixels, 3);
     // Only the middle pixel remains, and it is exact: the bad pixels poison nothing.
-    assert_eq!(
-        (m.rel_l2, m.rmse, m.max_abs_error, m.energy_ratio),
-        (0.0, 0.0, 0.0, 1.0)
-    );
+    assert_eq!((m.rel_l2, m.rmse, m.max_abs_error, m.energy_ratio), (0.0, 0.0, 0.0, 1.0));
 
     // A non-finite reference is an error, not a silent NaN.
     let err = compare(&reference, &a).unwrap_err();
-    assert!(
-        matches!(err, OutputError::NonFiniteReference { count: 2 }),
-        "{err}"
-    );
+    assert!(matches!(err, OutputError::NonFiniteReference { count: 2 }), "{err}");
 }
 
 #[test]
@@ -242,11 +171,7 @@ fn output_error_png_and_json_report() {
     let decoded = image::open(&png).unwrap().to_rgb8();
     assert_eq!(decoded.dimensions(), (8, 4));
     assert_eq!(decoded.get_pixel(3, 3).0, [255, 0, 255]);
-    assert_eq!(
-        decoded.get_pixel(0, 0).0,
-        [68, 1, 84],
-        "zero error is the dark end of the ramp"
-    );
+    assert_eq!(decoded.get_pixel(0, 0).0, [68, 1, 84], "zero error is the dark end of the ramp");
     assert_ne!(decoded.get_pixel(2, 2).0, [68, 1, 84]);
     assert!(error_png(&dir.path().join("x.png"), &a, &Image::new(2, 2)).is_err());
 
@@ -258,10 +183,7 @@ fn output_error_png_and_json_report() {
     assert_eq!(value["nan_inf_count"], 1);
     assert_eq!(value["pixels"], 32);
     assert!(value["rel_l2"].as_f64().unwrap() > 0.0);
-    assert!(
-        text.ends_with('\n') && text.contains("\n  \"rel_l2\""),
-        "pretty-printed"
-    );
+    assert!(text.ends_with('\n') && text.contains("\n  \"rel_l2\""), "pretty-printed");
 }
 
 // --- atomic writes -----------------------------------------------------------------------
@@ -281,11 +203,7 @@ fn output_atomic_write_leaves_nothing_when_the_closure_fails() {
     })
     .unwrap_err();
     assert!(err.to_string().contains("disk full"));
-    assert!(
-        files_in(dir.path()).is_empty(),
-        "left behind: {:?}",
-        files_in(dir.path())
-    );
+    assert!(files_in(dir.path()).is_empty(), "left behind: {:?}", files_in(dir.path()));
 
     // A failure keeps an existing file intact.
     std::fs::write(&path, b"old").unwrap();
@@ -298,11 +216,7 @@ fn output_atomic_write_leaves_nothing_when_the_closure_fails() {
 
     // Success replaces it.
     write_atomically(&path, |tmp| {
-        std::fs::write(tmp, b"new").map_err(|source| OutputError::Io {
-            path: tmp.to_owned(),
-            action: "write",
-            source,
-        })
+        std::fs::write(tmp, b"new").map_err(|source| OutputError::Io { path: tmp.to_owned(), action: "write", source })
     })
     .unwrap();
     assert_eq!(std::fs::read(&path).unwrap(), b"new");
@@ -315,8 +229,5 @@ fn output_writers_fail_cleanly_into_a_missing_directory() {
     let path = dir.path().join("no-such-dir").join("out.png");
     let err = write_png_tonemapped(&path, &Image::new(2, 2), 0.0).unwrap_err();
     let msg = err.to_string();
-    assert!(
-        msg.contains("no-such-dir") && msg.contains("exists"),
-        "{msg}"
-    );
+    assert!(msg.contains("no-such-dir") && msg.contains("exists"), "{msg}");
 }

@@ -46,7 +46,8 @@ fn glsl_hg_eval_matches_rust_and_is_normalised() {
         }
         // 2 pi * integral over cos of p (trapezoid on the device's values) = 1.
         let h = 2.0 / (n - 1) as f64;
-        let integral: f64 = eval.windows(2).map(|w| 0.5 * (w[0] as f64 + w[1] as f64) * h).sum::<f64>() * 2.0 * std::f64::consts::PI;
+        let integral: f64 =
+            eval.windows(2).map(|w| 0.5 * (w[0] as f64 + w[1] as f64) * h).sum::<f64>() * 2.0 * std::f64::consts::PI;
         assert!((integral - 1.0).abs() < 2e-3, "g {g}: integral {integral}");
     }
     assert_clean(&gpu);
@@ -73,16 +74,28 @@ fn glsl_hg_samples_pdf_mean_cosine_and_chi_square() {
         // Var(cos) <= 1, so the standard error is at most 1e-3.
         assert!((mean_cos - g as f64).abs() < 5e-3, "g {g}: mean cosine {mean_cos}");
 
-        let config = ChiSquareConfig { sample_count: count as usize, test_count: G_VALUES.len() as u32, ..ChiSquareConfig::sphere() };
+        let config = ChiSquareConfig {
+            sample_count: count as usize,
+            test_count: G_VALUES.len() as u32,
+            ..ChiSquareConfig::sphere()
+        };
         let mut it = samples.iter();
         let to_coords = |s: &[f32; 4]| spherical_coords(Vec3::new(s[0], s[1], s[2]), Vec3::Z);
-        let result = chi_square_test(&config, |_| to_coords(it.next().expect("enough samples")), |c, _| hg_eval(g, c as f32) as f64);
+        let result = chi_square_test(
+            &config,
+            |_| to_coords(it.next().expect("enough samples")),
+            |c, _| hg_eval(g, c as f32) as f64,
+        );
         eprintln!("GLSL HG g = {g}: {result}");
         assert!(result.passed(0.01), "GLSL HG sampler rejected for g = {g}: {result}");
         // The test has teeth: the same samples judged against a neighbouring g fail.
         let g_wrong = if g > 0.9 { g - 0.05 } else { g + 0.05 };
         let mut it = samples.iter();
-        let wrong = chi_square_test(&config, |_| to_coords(it.next().expect("enough samples")), |c, _| hg_eval(g_wrong, c as f32) as f64);
+        let wrong = chi_square_test(
+            &config,
+            |_| to_coords(it.next().expect("enough samples")),
+            |c, _| hg_eval(g_wrong, c as f32) as f64,
+        );
         assert!(!wrong.passed(0.01), "g {g}: samples also pass against g = {g_wrong}: {wrong}");
     }
     assert_clean(&gpu);

@@ -4,20 +4,17 @@
 
 use glam::{Vec2, Vec3};
 use scatterlab::physics::chandrasekhar::{
-    h_function, h_function_integral_representation, semi_infinite_reflectance_uniform_env,
-    HFunction, PUBLISHED_H_VALUES,
+    h_function, h_function_integral_representation, semi_infinite_reflectance_uniform_env, HFunction,
+    PUBLISHED_H_VALUES,
 };
-use scatterlab::physics::phase::{
-    hg_eval, hg_sample, hg_sample_cos, orthonormal_basis, INV_FOUR_PI,
-};
+use scatterlab::physics::phase::{hg_eval, hg_sample, hg_sample_cos, orthonormal_basis, INV_FOUR_PI};
 use scatterlab::physics::reference::{
-    cauchy_mean_chord, chord_length_box, chord_length_sphere, ray_box, ray_sphere,
-    sphere_chord_at_impact,
+    cauchy_mean_chord, chord_length_box, chord_length_sphere, ray_box, ray_sphere, sphere_chord_at_impact,
 };
 use scatterlab::physics::rng::Pcg32;
 use scatterlab::physics::stats::{
-    adaptive_simpson, chi_square_p_value, chi_square_test, gamma_p, gamma_q, ln_gamma, sidak_alpha,
-    spherical_coords, ChiSquareConfig,
+    adaptive_simpson, chi_square_p_value, chi_square_test, gamma_p, gamma_q, ln_gamma, sidak_alpha, spherical_coords,
+    ChiSquareConfig,
 };
 
 /// The asymmetry parameters every HG test runs over.
@@ -45,14 +42,7 @@ fn oblique_dir() -> Vec3 {
 fn physics_pcg32_matches_reference_sequence() {
     // pcg32-demo (O'Neill's reference C implementation), seed 42, stream 54.
     let mut rng = Pcg32::new(42, 54);
-    let expected = [
-        0xa15c_02b7u32,
-        0x7b47_f409,
-        0xba1d_3330,
-        0x83d2_f293,
-        0xbfa4_784b,
-        0xcbed_606e,
-    ];
+    let expected = [0xa15c_02b7u32, 0x7b47_f409, 0xba1d_3330, 0x83d2_f293, 0xbfa4_784b, 0xcbed_606e];
     for e in expected {
         assert_eq!(rng.next_u32(), e);
     }
@@ -75,12 +65,7 @@ fn physics_pcg32_floats_in_unit_interval() {
 #[test]
 fn physics_hg_isotropic_value() {
     for c in [-1.0, -0.3, 0.0, 0.7, 1.0] {
-        assert_close(
-            f64::from(hg_eval(0.0, c)),
-            1.0 / (4.0 * std::f64::consts::PI),
-            1e-8,
-            "hg_eval(0, c)",
-        );
+        assert_close(f64::from(hg_eval(0.0, c)), 1.0 / (4.0 * std::f64::consts::PI), 1e-8, "hg_eval(0, c)");
     }
     assert_eq!(hg_eval(0.0, 0.5), INV_FOUR_PI);
 }
@@ -91,20 +76,8 @@ fn physics_hg_normalised_over_sphere() {
     for g in G_VALUES {
         let integral = 2.0
             * std::f64::consts::PI
-            * adaptive_simpson(
-                &|c: f64| f64::from(hg_eval(g, c as f32)),
-                -1.0,
-                1.0,
-                1e-10,
-                4,
-                40,
-            );
-        assert_close(
-            integral,
-            1.0,
-            1e-5,
-            &format!("integral of HG over the sphere, g = {g}"),
-        );
+            * adaptive_simpson(&|c: f64| f64::from(hg_eval(g, c as f32)), -1.0, 1.0, 1e-10, 4, 40);
+        assert_close(integral, 1.0, 1e-5, &format!("integral of HG over the sphere, g = {g}"));
     }
 }
 
@@ -115,16 +88,10 @@ fn physics_hg_is_accurate_near_the_peak() {
     for g in [0.999f32, -0.999, 0.95, -0.95] {
         for c in [1.0f32, 0.999_999, 0.9999, -1.0, -0.999_999, -0.9999] {
             let (gd, cd) = (f64::from(g), f64::from(c));
-            let exact = (1.0 - gd * gd)
-                / (4.0 * std::f64::consts::PI * (1.0 + gd * gd - 2.0 * gd * cd).powf(1.5));
+            let exact = (1.0 - gd * gd) / (4.0 * std::f64::consts::PI * (1.0 + gd * gd - 2.0 * gd * cd).powf(1.5));
             let got = f64::from(hg_eval(g, c));
             assert!(got.is_finite() && got > 0.0);
-            assert_close(
-                got / exact,
-                1.0,
-                1e-5,
-                &format!("hg_eval({g}, {c}) relative to f64"),
-            );
+            assert_close(got / exact, 1.0, 1e-5, &format!("hg_eval({g}, {c}) relative to f64"));
         }
     }
 }
@@ -139,19 +106,9 @@ fn physics_hg_sample_pdf_equals_eval() {
                 let (wo, pdf) = hg_sample(g, dir, u);
                 assert_close(f64::from(wo.length()), 1.0, 1e-5, "|wo|");
                 let eval = hg_eval(g, dir.dot(wo));
-                assert_close(
-                    f64::from(pdf / eval),
-                    1.0,
-                    1e-3,
-                    &format!("pdf / eval, g = {g}"),
-                );
+                assert_close(f64::from(pdf / eval), 1.0, 1e-3, &format!("pdf / eval, g = {g}"));
                 // The cosine the sampler drew is the one the direction has.
-                assert_close(
-                    f64::from(dir.dot(wo)),
-                    f64::from(hg_sample_cos(g, u.x)),
-                    1e-5,
-                    "cos",
-                );
+                assert_close(f64::from(dir.dot(wo)), f64::from(hg_sample_cos(g, u.x)), 1e-5, "cos");
             }
         }
     }
@@ -187,12 +144,7 @@ fn physics_hg_mean_cosine_is_g() {
         let mean = sum / N as f64;
         let std_err = ((sum_sq / N as f64 - mean * mean) / N as f64).sqrt();
         // 5 standard errors: a false failure about once in 3.5 million runs.
-        assert_close(
-            mean,
-            f64::from(g),
-            5.0 * std_err + 1e-6,
-            &format!("mean cosine for g = {g}"),
-        );
+        assert_close(mean, f64::from(g), 5.0 * std_err + 1e-6, &format!("mean cosine for g = {g}"));
     }
 }
 
@@ -213,36 +165,19 @@ fn physics_hg_strong_g_sends_samples_forward() {
                 backward_for_negative += 1;
             }
         }
-        let (f, b) = (
-            forward as f64 / N as f64,
-            backward_for_negative as f64 / N as f64,
-        );
+        let (f, b) = (forward as f64 / N as f64, backward_for_negative as f64 / N as f64);
         assert!(f > forward_at_least, "g = {g}: only {f} of samples forward");
-        assert!(
-            b > forward_at_least,
-            "g = {}: only {b} of samples backward",
-            -g
-        );
+        assert!(b > forward_at_least, "g = {}: only {b} of samples backward", -g);
     }
 }
 
 #[test]
 fn physics_orthonormal_basis_is_orthonormal() {
     let mut rng = Pcg32::new(13, 0);
-    let mut dirs = vec![
-        Vec3::Z,
-        -Vec3::Z,
-        Vec3::X,
-        -Vec3::Y,
-        Vec3::new(0.0, 0.0, -0.0),
-    ];
+    let mut dirs = vec![Vec3::Z, -Vec3::Z, Vec3::X, -Vec3::Y, Vec3::new(0.0, 0.0, -0.0)];
     dirs.pop();
     for _ in 0..1000 {
-        let v = Vec3::new(
-            rng.next_f32() - 0.5,
-            rng.next_f32() - 0.5,
-            rng.next_f32() - 0.5,
-        );
+        let v = Vec3::new(rng.next_f32() - 0.5, rng.next_f32() - 0.5, rng.next_f32() - 0.5);
         if v.length() > 1e-3 {
             dirs.push(v.normalize());
         }
@@ -269,10 +204,7 @@ fn hg_chi_square(
     test_count: u32,
     mut sampler: impl FnMut(Vec2) -> Vec3,
 ) -> scatterlab::physics::stats::ChiSquareResult {
-    let config = ChiSquareConfig {
-        test_count,
-        ..ChiSquareConfig::sphere()
-    };
+    let config = ChiSquareConfig { test_count, ..ChiSquareConfig::sphere() };
     chi_square_test(
         &config,
         |rng| {
@@ -289,24 +221,13 @@ fn physics_hg_chi_square_passes() {
     for g in G_VALUES {
         let result = hg_chi_square(g, dir, G_VALUES.len() as u32, |u| hg_sample(g, dir, u).0);
         eprintln!("HG g = {g}: {result}");
-        assert_close(
-            result.pdf_integral,
-            1.0,
-            1e-6,
-            "pdf integral over the histogram",
-        );
-        assert!(
-            result.passed(ALPHA),
-            "HG sampler rejected for g = {g}: {result}"
-        );
+        assert_close(result.pdf_integral, 1.0, 1e-6, "pdf integral over the histogram");
+        assert!(result.passed(ALPHA), "HG sampler rejected for g = {g}: {result}");
     }
     // The branch of the frame for dir.z < 0.
     let down = Vec3::new(0.1, 0.2, -0.9).normalize();
     let result = hg_chi_square(0.5, down, 1, |u| hg_sample(0.5, down, u).0);
-    assert!(
-        result.passed(ALPHA),
-        "HG sampler rejected for a downward direction: {result}"
-    );
+    assert!(result.passed(ALPHA), "HG sampler rejected for a downward direction: {result}");
 }
 
 #[test]
@@ -321,51 +242,28 @@ fn physics_chi_square_rejects_wrong_samplers() {
     type Sampler<'a> = Box<dyn FnMut(Vec2) -> Vec3 + 'a>;
     let wrong: [(&str, Sampler); 4] = [
         // The classic convention bug: the sign of g flipped.
-        (
-            "sign of g flipped",
-            Box::new(|u: Vec2| hg_sample(-0.3, dir, u).0),
-        ),
+        ("sign of g flipped", Box::new(|u: Vec2| hg_sample(-0.3, dir, u).0)),
         // A slightly wrong g.
-        (
-            "g = 0.33 instead of 0.3",
-            Box::new(|u: Vec2| hg_sample(0.33, dir, u).0),
-        ),
+        ("g = 0.33 instead of 0.3", Box::new(|u: Vec2| hg_sample(0.33, dir, u).0)),
         // Right cosine, azimuth not uniform.
-        (
-            "azimuth 2 pi u^1.1",
-            Box::new(move |u: Vec2| frame(hg_sample_cos(0.3, u.x), tau * u.y.powf(1.1))),
-        ),
+        ("azimuth 2 pi u^1.1", Box::new(move |u: Vec2| frame(hg_sample_cos(0.3, u.x), tau * u.y.powf(1.1)))),
         // Isotropic samples claimed as HG.
-        (
-            "isotropic sampler",
-            Box::new(move |u: Vec2| frame(2.0 * u.x - 1.0, tau * u.y)),
-        ),
+        ("isotropic sampler", Box::new(move |u: Vec2| frame(2.0 * u.x - 1.0, tau * u.y))),
     ];
     for (name, sampler) in wrong {
         let result = hg_chi_square(0.3, dir, 4, sampler);
         eprintln!("wrong sampler ({name}): {result}");
-        assert!(
-            !result.passed(ALPHA),
-            "chi-square accepted a wrong sampler ({name}): {result}"
-        );
+        assert!(!result.passed(ALPHA), "chi-square accepted a wrong sampler ({name}): {result}");
     }
 }
 
 #[test]
 fn physics_chi_square_flags_samples_where_pdf_is_zero() {
     // The pdf claims the lower half of the domain is empty; the sampler disagrees.
-    let config = ChiSquareConfig {
-        sample_count: 100_000,
-        ..ChiSquareConfig::sphere()
-    };
+    let config = ChiSquareConfig { sample_count: 100_000, ..ChiSquareConfig::sphere() };
     let result = chi_square_test(
         &config,
-        |rng| {
-            [
-                2.0 * rng.next_f64() - 1.0,
-                std::f64::consts::TAU * (rng.next_f64() - 0.5),
-            ]
-        },
+        |rng| [2.0 * rng.next_f64() - 1.0, std::f64::consts::TAU * (rng.next_f64() - 0.5)],
         |x, _| {
             if x > 0.0 {
                 1.0 / (2.0 * std::f64::consts::PI)
@@ -374,39 +272,19 @@ fn physics_chi_square_flags_samples_where_pdf_is_zero() {
             }
         },
     );
-    assert!(
-        result.zero_pdf_samples > 0 && !result.passed(ALPHA),
-        "{result}"
-    );
+    assert!(result.zero_pdf_samples > 0 && !result.passed(ALPHA), "{result}");
 }
 
 #[test]
 fn physics_incomplete_gamma_known_values() {
     // ln Gamma: ln sqrt(pi), ln 9!, ln 99! (exact values).
-    assert_close(
-        ln_gamma(0.5),
-        0.572_364_942_924_700_1,
-        1e-13,
-        "ln Gamma(0.5)",
-    );
+    assert_close(ln_gamma(0.5), 0.572_364_942_924_700_1, 1e-13, "ln Gamma(0.5)");
     assert_close(ln_gamma(10.0), 362_880f64.ln(), 1e-12, "ln Gamma(10)");
-    assert_close(
-        ln_gamma(100.0),
-        359.134_205_369_575_4,
-        1e-10,
-        "ln Gamma(100)",
-    );
+    assert_close(ln_gamma(100.0), 359.134_205_369_575_4, 1e-10, "ln Gamma(100)");
     assert_close(ln_gamma(0.1), 2.252_712_651_734_206, 1e-12, "ln Gamma(0.1)");
 
     // Integer a: Q(n, x) = e^-x sum_{k<n} x^k / k! (Poisson tail), both branches.
-    for (n, x) in [
-        (1u32, 0.3f64),
-        (1, 5.0),
-        (5, 3.0),
-        (5, 9.0),
-        (20, 12.0),
-        (20, 30.0),
-    ] {
+    for (n, x) in [(1u32, 0.3f64), (1, 5.0), (5, 3.0), (5, 9.0), (20, 12.0), (20, 30.0)] {
         let mut term = 1.0f64;
         let mut sum = 0.0f64;
         for k in 0..n {
@@ -416,53 +294,18 @@ fn physics_incomplete_gamma_known_values() {
             sum += term;
         }
         let exact = (-x).exp() * sum;
-        assert_close(
-            gamma_q(f64::from(n), x) / exact,
-            1.0,
-            1e-12,
-            &format!("Q({n}, {x})"),
-        );
-        assert_close(
-            gamma_p(f64::from(n), x) + gamma_q(f64::from(n), x),
-            1.0,
-            1e-14,
-            "P + Q",
-        );
+        assert_close(gamma_q(f64::from(n), x) / exact, 1.0, 1e-12, &format!("Q({n}, {x})"));
+        assert_close(gamma_p(f64::from(n), x) + gamma_q(f64::from(n), x), 1.0, 1e-14, "P + Q");
     }
 
     // Half-integer a: Q(1/2, x) = erfc(sqrt x); erfc(1) and erfc(2) from tables.
-    assert_close(
-        gamma_q(0.5, 1.0),
-        0.157_299_207_050_285_13,
-        1e-14,
-        "Q(0.5, 1) = erfc(1)",
-    );
-    assert_close(
-        gamma_q(0.5, 4.0),
-        4.677_734_981_047_266e-3,
-        1e-15,
-        "Q(0.5, 4) = erfc(2)",
-    );
+    assert_close(gamma_q(0.5, 1.0), 0.157_299_207_050_285_13, 1e-14, "Q(0.5, 1) = erfc(1)");
+    assert_close(gamma_q(0.5, 4.0), 4.677_734_981_047_266e-3, 1e-15, "Q(0.5, 4) = erfc(2)");
 
     // Chi-square critical values at the 5 % level (any statistics table).
-    assert_close(
-        chi_square_p_value(3.841_458_820_694_124, 1),
-        0.05,
-        1e-12,
-        "chi2(1) at 3.8415",
-    );
-    assert_close(
-        chi_square_p_value(18.307_038_053_275_146, 10),
-        0.05,
-        1e-12,
-        "chi2(10) at 18.307",
-    );
-    assert_close(
-        chi_square_p_value(124.342_113_404_5, 100),
-        0.05,
-        1e-9,
-        "chi2(100) at 124.342",
-    );
+    assert_close(chi_square_p_value(3.841_458_820_694_124, 1), 0.05, 1e-12, "chi2(1) at 3.8415");
+    assert_close(chi_square_p_value(18.307_038_053_275_146, 10), 0.05, 1e-12, "chi2(10) at 18.307");
+    assert_close(chi_square_p_value(124.342_113_404_5, 100), 0.05, 1e-9, "chi2(100) at 124.342");
 
     // Large a, as with thousands of histogram cells: P(a, a) ~ 1/2 + 1/(3 sqrt(2 pi a)).
     let a = 2500.0f64;
@@ -482,12 +325,7 @@ fn physics_incomplete_gamma_known_values() {
 fn physics_sidak_correction() {
     assert_close(sidak_alpha(0.01, 1), 0.01, 1e-15, "one test");
     let per_test = sidak_alpha(0.01, 6);
-    assert_close(
-        1.0 - (1.0 - per_test).powi(6),
-        0.01,
-        1e-14,
-        "family-wise level",
-    );
+    assert_close(1.0 - (1.0 - per_test).powi(6), 0.01, 1e-14, "family-wise level");
     assert!(per_test < 0.01 / 6.0 + 1e-5 && per_test > 0.01 / 6.0);
 }
 
@@ -497,60 +335,23 @@ fn physics_sidak_correction() {
 fn physics_ray_box_cases() {
     let (min, max) = (Vec3::splat(-1.0), Vec3::splat(1.0));
     // Straight through along x from outside.
-    assert_eq!(
-        ray_box(Vec3::new(-3.0, 0.0, 0.0), Vec3::X, min, max),
-        Some((2.0, 4.0))
-    );
+    assert_eq!(ray_box(Vec3::new(-3.0, 0.0, 0.0), Vec3::X, min, max), Some((2.0, 4.0)));
     // From inside: t0 < 0.
     assert_eq!(ray_box(Vec3::ZERO, Vec3::X, min, max), Some((-1.0, 1.0)));
     // Behind the origin.
     assert_eq!(ray_box(Vec3::new(3.0, 0.0, 0.0), Vec3::X, min, max), None);
     // Parallel to a slab, outside it: miss; inside it: hit.
     assert_eq!(ray_box(Vec3::new(-3.0, 2.0, 0.0), Vec3::X, min, max), None);
-    assert_eq!(
-        ray_box(Vec3::new(-3.0, 1.0, 0.0), Vec3::X, min, max),
-        Some((2.0, 4.0))
-    );
+    assert_eq!(ray_box(Vec3::new(-3.0, 1.0, 0.0), Vec3::X, min, max), Some((2.0, 4.0)));
     // Diagonal through the corners: chord = 2 sqrt(3).
     let d = Vec3::ONE.normalize();
     let (t0, t1) = ray_box(Vec3::splat(-2.0), d, min, max).unwrap();
-    assert_close(
-        f64::from(t1 - t0),
-        2.0 * 3f64.sqrt(),
-        1e-6,
-        "diagonal chord",
-    );
+    assert_close(f64::from(t1 - t0), 2.0 * 3f64.sqrt(), 1e-6, "diagonal chord");
     // Non-unit direction: t in units of |dir|, chord in scene units.
-    assert_eq!(
-        ray_box(Vec3::new(-3.0, 0.0, 0.0), 2.0 * Vec3::X, min, max),
-        Some((1.0, 2.0))
-    );
-    assert_close(
-        f64::from(chord_length_box(
-            Vec3::new(-3.0, 0.0, 0.0),
-            2.0 * Vec3::X,
-            min,
-            max,
-        )),
-        2.0,
-        1e-6,
-        "chord",
-    );
-    assert_close(
-        f64::from(chord_length_box(
-            Vec3::new(0.5, 0.0, 0.0),
-            Vec3::X,
-            min,
-            max,
-        )),
-        0.5,
-        1e-6,
-        "inside chord",
-    );
-    assert_eq!(
-        chord_length_box(Vec3::new(5.0, 5.0, 0.0), Vec3::X, min, max),
-        0.0
-    );
+    assert_eq!(ray_box(Vec3::new(-3.0, 0.0, 0.0), 2.0 * Vec3::X, min, max), Some((1.0, 2.0)));
+    assert_close(f64::from(chord_length_box(Vec3::new(-3.0, 0.0, 0.0), 2.0 * Vec3::X, min, max)), 2.0, 1e-6, "chord");
+    assert_close(f64::from(chord_length_box(Vec3::new(0.5, 0.0, 0.0), Vec3::X, min, max)), 0.5, 1e-6, "inside chord");
+    assert_eq!(chord_length_box(Vec3::new(5.0, 5.0, 0.0), Vec3::X, min, max), 0.0);
 }
 
 #[test]
@@ -564,26 +365,13 @@ fn physics_ray_sphere_cases() {
     let (t0, t1) = ray_sphere(c, Vec3::X, c, 2.0).unwrap();
     assert_close(f64::from(t0), -2.0, 1e-6, "t0 inside");
     assert_close(f64::from(t1), 2.0, 1e-6, "t1 inside");
-    assert_close(
-        f64::from(chord_length_sphere(c, Vec3::X, c, 2.0)),
-        2.0,
-        1e-6,
-        "chord from centre",
-    );
+    assert_close(f64::from(chord_length_sphere(c, Vec3::X, c, 2.0)), 2.0, 1e-6, "chord from centre");
     // Miss, and sphere behind the ray.
-    assert_eq!(
-        ray_sphere(c + Vec3::new(0.0, 3.0, -10.0), Vec3::Z, c, 2.0),
-        None
-    );
+    assert_eq!(ray_sphere(c + Vec3::new(0.0, 3.0, -10.0), Vec3::Z, c, 2.0), None);
     assert_eq!(ray_sphere(c + 10.0 * Vec3::Z, Vec3::Z, c, 2.0), None);
     // Off-centre chord at impact parameter b matches 2 sqrt(r^2 - b^2).
     let chord = chord_length_sphere(c + Vec3::new(1.2, 0.0, -10.0), Vec3::Z, c, 2.0);
-    assert_close(
-        f64::from(chord),
-        sphere_chord_at_impact(2.0, 1.2),
-        1e-5,
-        "chord at impact 1.2",
-    );
+    assert_close(f64::from(chord), sphere_chord_at_impact(2.0, 1.2), 1e-5, "chord at impact 1.2");
     // Far away and small: the stable formulas keep relative precision.
     let (t0, t1) = ray_sphere(Vec3::new(0.0, 0.0, -1.0e4), Vec3::Z, Vec3::ZERO, 1e-2).unwrap();
     assert_close(f64::from(t1 - t0), 0.02, 2e-3, "tiny far sphere chord");
@@ -591,12 +379,7 @@ fn physics_ray_sphere_cases() {
     let r = 2.0f64;
     let v = 4.0 / 3.0 * std::f64::consts::PI * r.powi(3);
     let s = 4.0 * std::f64::consts::PI * r * r;
-    assert_close(
-        cauchy_mean_chord(v, s),
-        4.0 * r / 3.0,
-        1e-12,
-        "Cauchy mean chord",
-    );
+    assert_close(cauchy_mean_chord(v, s), 4.0 * r / 3.0, 1e-12, "Cauchy mean chord");
 }
 
 // --- Chandrasekhar H-function ------------------------------------------------------------
@@ -607,22 +390,12 @@ fn physics_h_function_moment_identity() {
     for omega in [0.1, 0.5, 0.8, 0.9, 0.99, 0.999, 1.0] {
         let h = HFunction::new(omega);
         let exact = 2.0 / omega * (1.0 - (1.0 - omega).sqrt());
-        assert_close(
-            h.moment(0),
-            exact,
-            1e-10,
-            &format!("zeroth moment, omega = {omega}"),
-        );
+        assert_close(h.moment(0), exact, 1e-10, &format!("zeroth moment, omega = {omega}"));
         assert_close(h.eval(0.0), 1.0, 1e-10, "H(0) = 1");
     }
     // Conservative case: first moment 2 / sqrt(3) (Chandrasekhar 1960, eq. V.(?)): the
     // flux-moment identity for omega = 1.
-    assert_close(
-        HFunction::new(1.0).moment(1),
-        2.0 / 3f64.sqrt(),
-        1e-9,
-        "first moment, omega = 1",
-    );
+    assert_close(HFunction::new(1.0).moment(1), 2.0 / 3f64.sqrt(), 1e-9, "first moment, omega = 1");
 }
 
 #[test]
@@ -641,12 +414,7 @@ fn physics_h_function_is_monotone_and_bounded() {
             assert!((0.0..=1.0 + 1e-12).contains(&r));
         }
     }
-    assert_close(
-        semi_infinite_reflectance_uniform_env(1.0, 0.5),
-        1.0,
-        1e-12,
-        "omega = 1 reflects all",
-    );
+    assert_close(semi_infinite_reflectance_uniform_env(1.0, 0.5), 1.0, 1e-12, "omega = 1 reflects all");
     assert_close(h_function(0.0, 0.7), 1.0, 1e-14, "H = 1 without scattering");
 }
 
@@ -656,12 +424,7 @@ fn physics_h_function_matches_published_values() {
         let h = h_function(omega, mu);
         // To the printed precision: half a unit in the last printed decimal.
         let half_ulp = 0.5 * 10f64.powi(-(decimals as i32));
-        assert_close(
-            h,
-            published,
-            half_ulp,
-            &format!("H(omega = {omega}, mu = {mu}) vs published"),
-        );
+        assert_close(h, published, half_ulp, &format!("H(omega = {omega}, mu = {mu}) vs published"));
     }
 }
 
@@ -672,12 +435,7 @@ fn physics_h_function_matches_integral_representation() {
         let h = HFunction::new(omega);
         for mu in [0.0, 0.01, 0.05, 0.1, 0.3, 0.5, 0.8, 1.0] {
             let reference = h_function_integral_representation(omega, mu);
-            assert_close(
-                h.eval(mu),
-                reference,
-                2e-9,
-                &format!("H(omega = {omega}, mu = {mu})"),
-            );
+            assert_close(h.eval(mu), reference, 2e-9, &format!("H(omega = {omega}, mu = {mu})"));
         }
     }
 }

@@ -4,8 +4,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use scatterlab::scene::{
-    is_scene_key, write_vol, CameraKind, Density, Features, Grid, Light, LoadOptions, Scene,
-    SceneError,
+    is_scene_key, write_vol, CameraKind, Density, Features, Grid, Light, LoadOptions, Scene, SceneError,
 };
 
 // ---------------------------------------------------------------------------- helpers
@@ -48,16 +47,8 @@ fn scenes_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes")
 }
 
-fn parse_in(
-    text: &str,
-    dir: &Path,
-    overrides: &[(&str, &str)],
-    opts: &LoadOptions,
-) -> Result<Scene, SceneError> {
-    let overrides: Vec<(String, String)> = overrides
-        .iter()
-        .map(|(k, v)| (k.to_string(), v.to_string()))
-        .collect();
+fn parse_in(text: &str, dir: &Path, overrides: &[(&str, &str)], opts: &LoadOptions) -> Result<Scene, SceneError> {
+    let overrides: Vec<(String, String)> = overrides.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
     Scene::from_str(text, "scene.toml", dir, &overrides, opts)
 }
 
@@ -74,10 +65,7 @@ fn message(result: Result<Scene, SceneError>) -> String {
     let msg = err.to_string();
     eprintln!("error message: {msg}"); // `--nocapture` shows every message a user could see
     assert!(!msg.contains('\n'), "error is not one line: {msg:?}");
-    assert!(
-        msg.starts_with("scene.toml"),
-        "error does not name the file first: {msg}"
-    );
+    assert!(msg.starts_with("scene.toml"), "error does not name the file first: {msg}");
     msg
 }
 
@@ -130,21 +118,12 @@ fn grid_error(files: &[(&str, Vec<u8>)], density: &str, opts: &LoadOptions) -> S
 fn scene_base_is_valid_and_typed() {
     let s = parse(BASE).expect("BASE loads");
     assert_eq!(s.source, PathBuf::from("scene.toml"));
-    assert_eq!(
-        (s.render.width, s.render.height, s.render.seed, s.render.spp),
-        (32, 32, 7, 4)
-    );
+    assert_eq!((s.render.width, s.render.height, s.render.seed, s.render.spp), (32, 32, 7, 4));
     assert_eq!(s.camera.kind, CameraKind::Perspective { fov_deg: 30.0 });
     assert_eq!(s.medium.sigma_t, Vec3::splat(2.0));
     assert_eq!(s.medium.albedo, Vec3::splat(0.8));
     assert_eq!(s.medium.density, Density::Constant);
-    assert_eq!(
-        s.lights,
-        vec![Light::Point {
-            position: Vec3::ONE,
-            intensity: Vec3::splat(10.0)
-        }]
-    );
+    assert_eq!(s.lights, vec![Light::Point { position: Vec3::ONE, intensity: Vec3::splat(10.0) }]);
 }
 
 #[test]
@@ -172,10 +151,7 @@ fn scene_rgb_values_and_direction_normalised() {
     assert_eq!(s.medium.sigma_t, Vec3::new(1.0, 2.0, 3.0));
     assert_eq!(
         s.lights[0],
-        Light::Directional {
-            direction: Vec3::new(0.0, 0.0, -1.0),
-            irradiance: Vec3::new(1.0, 0.5, 0.0)
-        }
+        Light::Directional { direction: Vec3::new(0.0, 0.0, -1.0), irradiance: Vec3::new(1.0, 0.5, 0.0) }
     );
     assert!(s.features().chromatic);
 }
@@ -208,14 +184,7 @@ fn scene_error_unknown_key_names_key_line_and_suggestion() {
     let text = with("albedo = 0.8", "albdo = 0.8");
     let line = text.lines().position(|l| l.starts_with("albdo")).unwrap() + 1;
     let msg = err_of(&text);
-    assert_mentions(
-        &msg,
-        &[
-            "unknown key `medium.albdo`",
-            &format!("scene.toml:{line}:"),
-            "did you mean `albedo`",
-        ],
-    );
+    assert_mentions(&msg, &["unknown key `medium.albdo`", &format!("scene.toml:{line}:"), "did you mean `albedo`"]);
 }
 
 #[test]
@@ -224,13 +193,9 @@ fn scene_error_unknown_key_in_sections_and_lights() {
     assert_mentions(&msg, &["unknown key `rendr`", "render"]);
     let msg = err_of(&with("intensity = 10.0", "intensity = 10.0\ncolour = 1"));
     assert_mentions(&msg, &["unknown key `light[0].colour`"]);
-    let msg = err_of(&grid_scene(
-        r#"density = { kind = "sphere", center = [0, 0, 0], radius = 0.3, radios = 1 }"#,
-    ));
+    let msg = err_of(&grid_scene(r#"density = { kind = "sphere", center = [0, 0, 0], radius = 0.3, radios = 1 }"#));
     assert_mentions(&msg, &["unknown key `medium.density.radios`"]);
-    let msg = err_of(&grid_scene(
-        r#"density = { kind = "constant", radius = 1 }"#,
-    ));
+    let msg = err_of(&grid_scene(r#"density = { kind = "constant", radius = 1 }"#));
     assert_mentions(&msg, &["unknown key `medium.density.radius`"]);
 }
 
@@ -243,10 +208,7 @@ fn scene_error_missing_required_key() {
     let msg = err_of(&with("fov = 30.0\n", ""));
     assert_mentions(&msg, &["missing required key `camera.fov`", "perspective"]);
     let msg = err_of(&with("kind = \"point\"\n", ""));
-    assert_mentions(
-        &msg,
-        &["missing required key `light[0].kind`", "directional"],
-    );
+    assert_mentions(&msg, &["missing required key `light[0].kind`", "directional"]);
     let camera_block = "[camera]\nkind = \"perspective\"\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 30.0\n";
     let msg = err_of(&with(camera_block, ""));
     assert_mentions(&msg, &["missing required key `camera`", "[camera]"]);
@@ -255,20 +217,11 @@ fn scene_error_missing_required_key() {
 #[test]
 fn scene_error_wrong_types_and_kinds() {
     let msg = err_of(&with("width = 32", "width = \"wide\""));
-    assert_mentions(
-        &msg,
-        &["render.width", "invalid type", "expected an integer"],
-    );
+    assert_mentions(&msg, &["render.width", "invalid type", "expected an integer"]);
     let msg = err_of(&with("sigma_t = 2.0", "sigma_t = [1, 2]"));
     assert_mentions(&msg, &["medium.sigma_t", "3 numbers"]);
     let msg = err_of(&with("kind = \"point\"", "kind = \"spot\""));
-    assert_mentions(
-        &msg,
-        &[
-            "scene.toml: light[0].kind: unknown kind `spot`",
-            "directional",
-        ],
-    );
+    assert_mentions(&msg, &["scene.toml: light[0].kind: unknown kind `spot`", "directional"]);
     let msg = err_of(&with("kind = \"perspective\"", "kind = \"fisheye\""));
     assert_mentions(&msg, &["camera.kind", "fisheye", "orthographic"]);
     let msg = err_of(&BASE.replace("[[light]]", "[light]"));
@@ -279,12 +232,9 @@ fn scene_error_wrong_types_and_kinds() {
 
 #[test]
 fn scene_error_albedo_each_channel() {
-    for (value, channel) in [
-        ("[1.2, 0.5, 0.5]", "red"),
-        ("[0.5, 1.2, 0.5]", "green"),
-        ("[0.5, 0.5, -0.1]", "blue"),
-        ("-0.5", "red"),
-    ] {
+    for (value, channel) in
+        [("[1.2, 0.5, 0.5]", "red"), ("[0.5, 1.2, 0.5]", "green"), ("[0.5, 0.5, -0.1]", "blue"), ("-0.5", "red")]
+    {
         let msg = err_of(&with("albedo = 0.8", &format!("albedo = {value}")));
         assert_mentions(&msg, &["medium.albedo", channel, "[0, 1]"]);
     }
@@ -300,18 +250,10 @@ fn scene_error_g_out_of_range() {
 
 #[test]
 fn scene_error_sigma_t_negative_or_non_finite() {
-    for (value, channel) in [
-        ("-1.0", "red"),
-        ("nan", "red"),
-        ("[1, inf, 1]", "green"),
-        ("[1, 1, 1e300]", "blue"),
-    ] {
+    for (value, channel) in [("-1.0", "red"), ("nan", "red"), ("[1, inf, 1]", "green"), ("[1, 1, 1e300]", "blue")] {
         let msg = err_of(&with("sigma_t = 2.0", &format!("sigma_t = {value}")));
         assert_mentions(&msg, &["medium.sigma_t", channel, "finite and >= 0"]);
-        assert!(
-            !msg.contains("00000"),
-            "huge numbers are written compactly: {msg}"
-        );
+        assert!(!msg.contains("00000"), "huge numbers are written compactly: {msg}");
     }
 }
 
@@ -345,34 +287,21 @@ fn scene_error_light_values() {
     assert_mentions(&msg, &["light[0].intensity", "finite and >= 0"]);
     let msg = err_of(&with("intensity = 10.0", "intensity = [1, nan, 1]"));
     assert_mentions(&msg, &["light[0].intensity", "green"]);
-    let msg = err_of(&with(
-        "position = [1.0, 1.0, 1.0]",
-        "position = [1.0, inf, 1.0]",
-    ));
+    let msg = err_of(&with("position = [1.0, 1.0, 1.0]", "position = [1.0, inf, 1.0]"));
     assert_mentions(&msg, &["light[0].position", "non-finite"]);
-    let directional = |body: &str| {
-        BASE.replace(
-            "[[light]]",
-            &format!("[[light]]\nkind = \"directional\"\n{body}\n\n[[light]]"),
-        )
-    };
+    let directional =
+        |body: &str| BASE.replace("[[light]]", &format!("[[light]]\nkind = \"directional\"\n{body}\n\n[[light]]"));
     let msg = err_of(&directional("direction = [0, -1, 0]\nirradiance = -2"));
     assert_mentions(&msg, &["light[0].irradiance", "finite and >= 0"]);
     let msg = err_of(&directional("direction = [0, 0, 0]\nirradiance = 1"));
     assert_mentions(&msg, &["light[0].direction", "zero-length"]);
-    let env = BASE.replace(
-        "[[light]]",
-        "[[light]]\nkind = \"environment\"\nradiance = [1, 1, -0.5]\n\n[[light]]",
-    );
+    let env = BASE.replace("[[light]]", "[[light]]\nkind = \"environment\"\nradiance = [1, 1, -0.5]\n\n[[light]]");
     assert_mentions(&err_of(&env), &["light[0].radiance", "blue", ">= 0"]);
 }
 
 #[test]
 fn scene_error_camera_geometry() {
-    let msg = err_of(&with(
-        "target = [0.0, 0.0, 0.0]",
-        "target = [0.0, 0.0, 4.0]",
-    ));
+    let msg = err_of(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 4.0]"));
     assert_mentions(&msg, &["camera.target", "equals camera.origin"]);
     let msg = err_of(&with("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 2.0]"));
     assert_mentions(&msg, &["camera.up", "parallel", "e.g. [0, 1, 0]"]);
@@ -388,28 +317,16 @@ fn scene_error_camera_geometry() {
         assert_mentions(&err_of(&text), &["camera.extent", "> 0"]);
     }
     let text = with("kind = \"perspective\"", "kind = \"orthographic\"");
-    assert_mentions(
-        &err_of(&text),
-        &["missing required key `camera.extent`", "orthographic"],
-    );
+    assert_mentions(&err_of(&text), &["missing required key `camera.extent`", "orthographic"]);
 }
 
 #[test]
 fn scene_error_camera_sees_no_part_of_medium() {
     // Looking away from the box.
-    let msg = err_of(&with(
-        "target = [0.0, 0.0, 0.0]",
-        "target = [0.0, 0.0, 8.0]",
-    ));
-    assert_mentions(
-        &msg,
-        &["camera", "sees no part of the medium", "target = [0, 0, 0]"],
-    );
+    let msg = err_of(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 8.0]"));
+    assert_mentions(&msg, &["camera", "sees no part of the medium", "target = [0, 0, 0]"]);
     // Looking past it: narrow fov aimed well to the side.
-    let msg = err_of(
-        &with("target = [0.0, 0.0, 0.0]", "target = [3.0, 0.0, 0.0]")
-            .replace("fov = 30.0", "fov = 5.0"),
-    );
+    let msg = err_of(&with("target = [0.0, 0.0, 0.0]", "target = [3.0, 0.0, 0.0]").replace("fov = 30.0", "fov = 5.0"));
     assert_mentions(&msg, &["sees no part of the medium"]);
     // Orthographic, offset sideways by more than the view width.
     let ortho = with("kind = \"perspective\"", "kind = \"orthographic\"")
@@ -429,20 +346,14 @@ fn scene_error_bounds_and_sphere() {
         "bounds = [[-0.5, 0.5, -0.5], [0.5, 0.5, 0.5]]",
     ));
     assert_mentions(&msg, &["medium.bounds", "on y"]);
-    let msg = err_of(&with(
-        "bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]",
-        "bounds = [[1, 1, 1], [0, 0, 0]]",
-    ));
+    let msg = err_of(&with("bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]", "bounds = [[1, 1, 1], [0, 0, 0]]"));
     assert_mentions(&msg, &["medium.bounds", "less than max"]);
     for radius in ["0.0", "-0.3", "nan"] {
-        let msg = err_of(&grid_scene(&format!(
-            r#"density = {{ kind = "sphere", center = [0, 0, 0], radius = {radius} }}"#
-        )));
+        let msg =
+            err_of(&grid_scene(&format!(r#"density = {{ kind = "sphere", center = [0, 0, 0], radius = {radius} }}"#)));
         assert_mentions(&msg, &["medium.density.radius", "> 0"]);
     }
-    let msg = err_of(&grid_scene(
-        r#"density = { kind = "sphere", center = [3, 0, 0], radius = 1 }"#,
-    ));
+    let msg = err_of(&grid_scene(r#"density = { kind = "sphere", center = [3, 0, 0], radius = 1 }"#));
     assert_mentions(&msg, &["medium.density", "does not overlap"]);
 }
 
@@ -450,20 +361,8 @@ fn scene_error_bounds_and_sphere() {
 
 #[test]
 fn scene_error_missing_grid_file() {
-    let msg = grid_error(
-        &[],
-        r#"density = { kind = "grid", file = "nope.vol" }"#,
-        &LoadOptions::default(),
-    );
-    assert_mentions(
-        &msg,
-        &[
-            "medium.density.file",
-            "nope.vol",
-            "cannot open",
-            "resolved against the scene file",
-        ],
-    );
+    let msg = grid_error(&[], r#"density = { kind = "grid", file = "nope.vol" }"#, &LoadOptions::default());
+    assert_mentions(&msg, &["medium.density.file", "nope.vol", "cannot open", "resolved against the scene file"]);
 }
 
 #[test]
@@ -502,47 +401,29 @@ fn scene_error_vol_truncated_and_bad_headers() {
 
     let truncated = good[..good.len() - 8].to_vec();
     let msg = grid_error(&[("g.vol", truncated)], density, &opts);
-    assert_mentions(
-        &msg,
-        &["2x3x4", "needs 144 bytes", "has 136 bytes", "truncated"],
-    );
+    assert_mentions(&msg, &["2x3x4", "needs 144 bytes", "has 136 bytes", "truncated"]);
 
     let msg = grid_error(&[("g.vol", good[..20].to_vec())], density, &opts);
     assert_mentions(&msg, &["truncated .vol header", "48 bytes"]);
 
     let mut v2 = good.clone();
     v2[3] = 2;
-    assert_mentions(
-        &grid_error(&[("g.vol", v2)], density, &opts),
-        &["version 2", "version 3"],
-    );
+    assert_mentions(&grid_error(&[("g.vol", v2)], density, &opts), &["version 2", "version 3"]);
 
     let mut half = good.clone();
     half[4..8].copy_from_slice(&2i32.to_le_bytes());
-    assert_mentions(
-        &grid_error(&[("g.vol", half)], density, &opts),
-        &["encoding 2", "float32"],
-    );
+    assert_mentions(&grid_error(&[("g.vol", half)], density, &opts), &["encoding 2", "float32"]);
 
     let mut rgb = write_vol([2, 3, 4], &ramp(72), Vec3::ZERO, Vec3::ONE);
     rgb[20..24].copy_from_slice(&3i32.to_le_bytes());
-    assert_mentions(
-        &grid_error(&[("g.vol", rgb)], density, &opts),
-        &["3 channels", "1-channel"],
-    );
+    assert_mentions(&grid_error(&[("g.vol", rgb)], density, &opts), &["3 channels", "1-channel"]);
 
     let mut negative_res = good.clone();
     negative_res[12..16].copy_from_slice(&(-3i32).to_le_bytes());
-    assert_mentions(
-        &grid_error(&[("g.vol", negative_res)], density, &opts),
-        &["resolution[1] = -3"],
-    );
+    assert_mentions(&grid_error(&[("g.vol", negative_res)], density, &opts), &["resolution[1] = -3"]);
 
     let with_dims = r#"density = { kind = "grid", file = "g.vol", dims = [2, 3, 5] }"#;
-    assert_mentions(
-        &grid_error(&[("g.vol", good)], with_dims, &opts),
-        &["disagrees with the .vol header", "2x3x4"],
-    );
+    assert_mentions(&grid_error(&[("g.vol", good)], with_dims, &opts), &["disagrees with the .vol header", "2x3x4"]);
 }
 
 #[test]
@@ -551,15 +432,8 @@ fn scene_error_bad_voxel_values_name_the_voxel() {
     for bad in [f32::NAN, f32::INFINITY, -0.25] {
         let mut data = ramp(24);
         data[1 + 2 * 2 + 3 * 6] = bad; // voxel (1, 2, 3) of 2x3x4
-        let msg = grid_error(
-            &[("g.vol", vol([2, 3, 4], &data))],
-            density,
-            &LoadOptions::default(),
-        );
-        assert_mentions(
-            &msg,
-            &["voxel (1, 2, 3)", &format!("is {bad}"), "finite and >= 0"],
-        );
+        let msg = grid_error(&[("g.vol", vol([2, 3, 4], &data))], density, &LoadOptions::default());
+        assert_mentions(&msg, &["voxel (1, 2, 3)", &format!("is {bad}"), "finite and >= 0"]);
     }
 }
 
@@ -573,15 +447,7 @@ fn scene_error_grid_over_memory_budget_checked_before_reading() {
         r#"density = { kind = "grid", file = "big.vol" }"#,
         &LoadOptions::default(),
     );
-    assert_mentions(
-        &msg,
-        &[
-            "2048x2048x2048",
-            "32.0 GiB",
-            "4.0 GiB",
-            "resample the grid or raise --memory-budget",
-        ],
-    );
+    assert_mentions(&msg, &["2048x2048x2048", "32.0 GiB", "4.0 GiB", "resample the grid or raise --memory-budget"]);
 
     // Resolutions whose product overflows u64 are "too large", not a panic.
     let absurd = write_vol([i32::MAX as u32; 3], &[], Vec3::ZERO, Vec3::ONE);
@@ -590,28 +456,15 @@ fn scene_error_grid_over_memory_budget_checked_before_reading() {
         r#"density = { kind = "grid", file = "absurd.vol" }"#,
         &LoadOptions::default(),
     );
-    assert_mentions(
-        &msg,
-        &["2147483647x2147483647x2147483647", "resample the grid"],
-    );
+    assert_mentions(&msg, &["2147483647x2147483647x2147483647", "resample the grid"]);
 
-    let small_budget = LoadOptions {
-        memory_budget_bytes: 1000,
-    };
+    let small_budget = LoadOptions { memory_budget_bytes: 1000 };
     let msg = grid_error(
         &[("g.f32", f32_bytes(&[0.5; 512]))],
         r#"density = { kind = "grid", file = "g.f32", dims = [8, 8, 8] }"#,
         &small_budget,
     );
-    assert_mentions(
-        &msg,
-        &[
-            "8x8x8",
-            "2048 bytes",
-            "1000 B",
-            "resample the grid or raise --memory-budget",
-        ],
-    );
+    assert_mentions(&msg, &["8x8x8", "2048 bytes", "1000 B", "resample the grid or raise --memory-budget"]);
 }
 
 #[test]
@@ -621,9 +474,7 @@ fn scene_vol_round_trip() {
     write(dir.path(), "g.vol", &vol([2, 3, 4], &data));
     let text = grid_scene(r#"density = { kind = "grid", file = "g.vol", dims = [2, 3, 4] }"#);
     let s = parse_in(&text, dir.path(), &[], &LoadOptions::default()).expect("vol loads");
-    let Density::Grid(grid) = &s.medium.density else {
-        panic!("not a grid")
-    };
+    let Density::Grid(grid) = &s.medium.density else { panic!("not a grid") };
     assert_eq!(grid.dims, [2, 3, 4]);
     assert_eq!(grid.data, data);
     assert_eq!(grid.file, dir.path().join("g.vol"));
@@ -639,28 +490,18 @@ fn scene_raw_grid_round_trip_and_scene_file_relative_paths() {
     let data = ramp(24);
     write(&dir.path().join("grids"), "g.f32", &f32_bytes(&data));
     let scene_path = dir.path().join("s.toml");
-    std::fs::write(
-        &scene_path,
-        grid_scene(r#"density = { kind = "grid", file = "grids/g.f32", dims = [2, 3, 4] }"#),
-    )
-    .unwrap();
+    std::fs::write(&scene_path, grid_scene(r#"density = { kind = "grid", file = "grids/g.f32", dims = [2, 3, 4] }"#))
+        .unwrap();
     let s = Scene::load(&scene_path, &[], &LoadOptions::default()).expect("raw grid loads");
     assert_eq!(s.source, scene_path);
-    let Density::Grid(grid) = &s.medium.density else {
-        panic!("not a grid")
-    };
+    let Density::Grid(grid) = &s.medium.density else { panic!("not a grid") };
     assert_eq!(grid.data, data);
     assert_eq!(grid.at(1, 2, 3), data[1 + 2 * 2 + 3 * 6]);
 }
 
 #[test]
 fn scene_load_missing_scene_file() {
-    let err = Scene::load(
-        Path::new("/nonexistent/scene.toml"),
-        &[],
-        &LoadOptions::default(),
-    )
-    .unwrap_err();
+    let err = Scene::load(Path::new("/nonexistent/scene.toml"), &[], &LoadOptions::default()).unwrap_err();
     let msg = err.to_string();
     assert!(!msg.contains('\n'));
     assert_mentions(&msg, &["/nonexistent/scene.toml", "cannot read scene file"]);
@@ -671,11 +512,7 @@ fn scene_load_missing_scene_file() {
 fn test_grid() -> Grid {
     // 3 x 2 x 4 with distinct values.
     let data = (0..24).map(|i| (i * 7 % 24) as f32).collect();
-    Grid {
-        dims: [3, 2, 4],
-        data,
-        file: PathBuf::from("test"),
-    }
+    Grid { dims: [3, 2, 4], data, file: PathBuf::from("test") }
 }
 
 #[test]
@@ -684,15 +521,8 @@ fn scene_grid_sample_at_voxel_centres_is_the_voxel() {
     for k in 0..4 {
         for j in 0..2 {
             for i in 0..3 {
-                let u = Vec3::new(
-                    (i as f32 + 0.5) / 3.0,
-                    (j as f32 + 0.5) / 2.0,
-                    (k as f32 + 0.5) / 4.0,
-                );
-                assert!(
-                    (g.sample(u) - g.at(i, j, k)).abs() < 1e-5,
-                    "voxel ({i}, {j}, {k})"
-                );
+                let u = Vec3::new((i as f32 + 0.5) / 3.0, (j as f32 + 0.5) / 2.0, (k as f32 + 0.5) / 4.0);
+                assert!((g.sample(u) - g.at(i, j, k)).abs() < 1e-5, "voxel ({i}, {j}, {k})");
             }
         }
     }
@@ -707,16 +537,7 @@ fn scene_grid_sample_is_trilinear_between_centres() {
     // The centre of the 8 voxels (0..1, 0..1, 0..1).
     let u = Vec3::new(1.0 / 3.0, 0.5, 0.25);
     let mut mean = 0.0;
-    for (i, j, k) in [
-        (0, 0, 0),
-        (1, 0, 0),
-        (0, 1, 0),
-        (1, 1, 0),
-        (0, 0, 1),
-        (1, 0, 1),
-        (0, 1, 1),
-        (1, 1, 1),
-    ] {
+    for (i, j, k) in [(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0), (0, 0, 1), (1, 0, 1), (0, 1, 1), (1, 1, 1)] {
         mean += g.at(i, j, k) / 8.0;
     }
     assert!((g.sample(u) - mean).abs() < 1e-4);
@@ -725,13 +546,8 @@ fn scene_grid_sample_is_trilinear_between_centres() {
 #[test]
 fn scene_grid_sample_clamps_at_faces() {
     let g = test_grid();
-    let centre = |i: u32, j: u32, k: u32| {
-        Vec3::new(
-            (i as f32 + 0.5) / 3.0,
-            (j as f32 + 0.5) / 2.0,
-            (k as f32 + 0.5) / 4.0,
-        )
-    };
+    let centre =
+        |i: u32, j: u32, k: u32| Vec3::new((i as f32 + 0.5) / 3.0, (j as f32 + 0.5) / 2.0, (k as f32 + 0.5) / 4.0);
     // Between a face and the outermost centre the value is that voxel's.
     for (u, voxel) in [
         (Vec3::new(0.0, 0.25, 0.125), (0, 0, 0)),
@@ -741,25 +557,14 @@ fn scene_grid_sample_clamps_at_faces() {
         (Vec3::new(1.0, 1.0, 1.0), (2, 1, 3)),
         (Vec3::new(-3.0, 7.0, 0.125), (0, 1, 0)),
     ] {
-        assert!(
-            (g.sample(u) - g.at(voxel.0, voxel.1, voxel.2)).abs() < 1e-5,
-            "u = {u}"
-        );
+        assert!((g.sample(u) - g.at(voxel.0, voxel.1, voxel.2)).abs() < 1e-5, "u = {u}");
     }
     // Along a face, interpolation continues in the other axes.
-    let on_face = Vec3::new(
-        0.0,
-        centre(0, 0, 0).y,
-        (centre(0, 0, 0).z + centre(0, 0, 1).z) / 2.0,
-    );
+    let on_face = Vec3::new(0.0, centre(0, 0, 0).y, (centre(0, 0, 0).z + centre(0, 0, 1).z) / 2.0);
     assert!((g.sample(on_face) - 0.5 * (g.at(0, 0, 0) + g.at(0, 0, 1))).abs() < 1e-5);
     assert_eq!(g.at(9, 9, 9), g.at(2, 1, 3), "indices clamp");
     // A hand-built grid whose dims disagree with its data reads 0, never panics.
-    let bad = Grid {
-        dims: [u32::MAX; 3],
-        data: vec![1.0; 8],
-        file: PathBuf::new(),
-    };
+    let bad = Grid { dims: [u32::MAX; 3], data: vec![1.0; 8], file: PathBuf::new() };
     assert_eq!(bad.at(u32::MAX, u32::MAX, u32::MAX), 0.0);
     let _ = bad.sample(Vec3::splat(0.7));
 }
@@ -770,10 +575,7 @@ fn scene_density_at_maps_bounds_and_is_zero_outside() {
     let g = test_grid();
     write(dir.path(), "g.vol", &vol(g.dims, &g.data));
     let text = grid_scene(r#"density = { kind = "grid", file = "g.vol" }"#)
-        .replace(
-            "bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]",
-            "bounds = [[0, 0, 0], [3, 2, 4]]",
-        )
+        .replace("bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]", "bounds = [[0, 0, 0], [3, 2, 4]]")
         .replace("target = [0.0, 0.0, 0.0]", "target = [1.5, 1.0, 2.0]")
         .replace("origin = [0.0, 0.0, 4.0]", "origin = [1.5, 1.0, 12.0]");
     let s = parse_in(&text, dir.path(), &[], &LoadOptions::default()).expect("loads");
@@ -783,10 +585,8 @@ fn scene_density_at_maps_bounds_and_is_zero_outside() {
     assert_eq!(s.density_at(Vec3::new(1.0, 1.0, 4.01)), 0.0);
     assert_eq!(s.max_density(), 23.0);
 
-    let sphere = parse(&grid_scene(
-        r#"density = { kind = "sphere", center = [0.1, 0, 0], radius = 0.3 }"#,
-    ))
-    .expect("loads");
+    let sphere =
+        parse(&grid_scene(r#"density = { kind = "sphere", center = [0.1, 0, 0], radius = 0.3 }"#)).expect("loads");
     assert_eq!(sphere.density_at(Vec3::new(0.35, 0.0, 0.0)), 1.0);
     assert_eq!(sphere.density_at(Vec3::new(-0.25, 0.0, 0.0)), 0.0);
     assert_eq!(sphere.max_density(), 1.0);
@@ -815,62 +615,31 @@ fn scene_overrides_apply_before_validation() {
     assert_eq!(s.medium.sigma_t, Vec3::new(1.0, 2.0, 3.0));
     assert_eq!(s.medium.g, -0.3);
     assert_eq!(s.camera.kind, CameraKind::Orthographic { extent: 2.5 });
-    assert_eq!(
-        s.lights[0],
-        Light::Point {
-            position: Vec3::splat(2.0),
-            intensity: Vec3::splat(5.0)
-        }
-    );
+    assert_eq!(s.lights[0], Light::Point { position: Vec3::splat(2.0), intensity: Vec3::splat(5.0) });
 
     // Whole tables, and bare words as strings.
     let s = with_overrides(&[
-        (
-            "medium.density",
-            "{ kind = \"sphere\", center = [0, 0, 0], radius = 0.3 }",
-        ),
+        ("medium.density", "{ kind = \"sphere\", center = [0, 0, 0], radius = 0.3 }"),
         ("camera.kind", "orthographic"),
         ("camera.extent", "2"),
     ])
     .expect("overrides apply");
-    assert_eq!(
-        s.medium.density,
-        Density::Sphere {
-            center: Vec3::ZERO,
-            radius: 0.3
-        }
-    );
+    assert_eq!(s.medium.density, Density::Sphere { center: Vec3::ZERO, radius: 0.3 });
     assert!(matches!(s.camera.kind, CameraKind::Orthographic { .. }));
 }
 
 #[test]
 fn scene_override_errors() {
     let msg = message(with_overrides(&[("medium.albdo", "0.5")]));
-    assert_mentions(
-        &msg,
-        &[
-            "override `medium.albdo`",
-            "unknown key",
-            "did you mean `albedo`",
-        ],
-    );
+    assert_mentions(&msg, &["override `medium.albdo`", "unknown key", "did you mean `albedo`"]);
     let msg = message(with_overrides(&[("path.max_depth", "3")]));
-    assert_mentions(
-        &msg,
-        &[
-            "override `path.max_depth`",
-            "`path` is not a section of the scene",
-        ],
-    );
+    assert_mentions(&msg, &["override `path.max_depth`", "`path` is not a section of the scene"]);
     let msg = message(with_overrides(&[("medium.density.radius", "0.3")]));
     assert_mentions(&msg, &["override `medium.density.radius`", "unknown key"]);
     let msg = message(with_overrides(&[("medium.albedo", "[1, 2")]));
     assert_mentions(&msg, &["override `medium.albedo`", "not a TOML value"]);
     let msg = message(with_overrides(&[("medium.albedo", "1.5")]));
-    assert_mentions(
-        &msg,
-        &["medium.albedo", "[0, 1]", "override medium.albedo=1.5"],
-    );
+    assert_mentions(&msg, &["medium.albedo", "[0, 1]", "override medium.albedo=1.5"]);
     let msg = message(with_overrides(&[("light.3.intensity", "1")]));
     assert_mentions(&msg, &["override `light.3.intensity`", "there is 1 entry"]);
     let msg = message(with_overrides(&[("medium.g.x", "1")]));
@@ -893,14 +662,7 @@ fn scene_is_scene_key_routes_set_flags() {
     ] {
         assert!(is_scene_key(key), "{key}");
     }
-    for key in [
-        "path.max_depth",
-        "lbl.k",
-        "dom.M",
-        "",
-        "renderer.x",
-        "width",
-    ] {
+    for key in ["path.max_depth", "lbl.k", "dom.M", "", "renderer.x", "width"] {
         assert!(!is_scene_key(key), "{key}");
     }
 }
@@ -926,21 +688,11 @@ fn scene_never_panics_on_odd_input() {
             Ok(_) => panic!("{text:?} loaded"),
             Err(e) => e.to_string(),
         };
-        assert!(
-            !msg.contains('\n'),
-            "{text:?} gave a multi-line error: {msg:?}"
-        );
+        assert!(!msg.contains('\n'), "{text:?} gave a multi-line error: {msg:?}");
     }
     for tail in ["sigma_t = 1e39", "sigma_t = [0, 0, 0]\nalbedo = 0"] {
         let text = with("sigma_t = 2.0", tail);
-        let _ = parse(&text.replace(
-            "albedo = 0.8\n",
-            if tail.contains("albedo") {
-                ""
-            } else {
-                "albedo = 0.8\n"
-            },
-        ));
+        let _ = parse(&text.replace("albedo = 0.8\n", if tail.contains("albedo") { "" } else { "albedo = 0.8\n" }));
     }
 }
 
@@ -1059,34 +811,19 @@ fn scene_shipped_scenes_are_what_they_say() {
     assert_eq!(sphere.render.width, 128);
     let slab = load_shipped("thick-slab.toml");
     let thickness = slab.medium.bounds_max.y - slab.medium.bounds_min.y;
-    assert!(
-        (slab.medium.sigma_t.x * thickness - 50.0).abs() < 1e-3,
-        "optical thickness 50"
-    );
+    assert!((slab.medium.sigma_t.x * thickness - 50.0).abs() < 1e-3, "optical thickness 50");
     assert_eq!(slab.medium.albedo, Vec3::splat(0.99));
     assert_eq!(load_shipped("anisotropic-cube.toml").medium.g, 0.7);
     let cloud = load_shipped("cloud.toml");
-    let Density::Grid(grid) = &cloud.medium.density else {
-        panic!("cloud is a grid")
-    };
+    let Density::Grid(grid) = &cloud.medium.density else { panic!("cloud is a grid") };
     assert!(grid.file.ends_with("cloud64.vol"));
     let max = cloud.max_density();
-    assert!(
-        (0.8..=1.05).contains(&max),
-        "cloud density peaks near 1, got {max}"
-    );
+    assert!((0.8..=1.05).contains(&max), "cloud density peaks near 1, got {max}");
     // Zero on the outermost voxel layer, so nothing is cut off at the bounds.
     let [n, _, _] = grid.dims;
     for a in 0..n {
         for b in 0..n {
-            for (i, j, k) in [
-                (0, a, b),
-                (n - 1, a, b),
-                (a, 0, b),
-                (a, n - 1, b),
-                (a, b, 0),
-                (a, b, n - 1),
-            ] {
+            for (i, j, k) in [(0, a, b), (n - 1, a, b), (a, 0, b), (a, n - 1, b), (a, b, 0), (a, b, n - 1)] {
                 assert_eq!(grid.at(i, j, k), 0.0);
             }
         }
@@ -1109,10 +846,7 @@ fn scene_make_cloud_regenerates_the_committed_grid() {
     assert!(status.success(), "tools/make-cloud failed");
     let made = std::fs::read(&out).expect("make-cloud output");
     let committed = std::fs::read(root.join("scenes/cloud64.vol")).expect("scenes/cloud64.vol");
-    assert!(
-        made == committed,
-        "tools/make-cloud no longer reproduces scenes/cloud64.vol byte for byte"
-    );
+    assert!(made == committed, "tools/make-cloud no longer reproduces scenes/cloud64.vol byte for byte");
 }
 
 /// Deterministic xorshift for the mutation tests.
@@ -1181,18 +915,7 @@ fn scene_mutated_inputs_never_panic_and_errors_stay_one_line() {
         "x",
         "light[9]",
     ];
-    let values = [
-        "1",
-        "[1, 2, 3]",
-        "{ kind = \"sphere\" }",
-        "\"grid\"",
-        "nan",
-        "-inf",
-        "[]",
-        "{}",
-        "1e40",
-        "foo bar",
-    ];
+    let values = ["1", "[1, 2, 3]", "{ kind = \"sphere\" }", "\"grid\"", "nan", "-inf", "[]", "{}", "1e40", "foo bar"];
     for key in keys {
         for value in values {
             if let Err(e) = with_overrides(&[(key, value)]) {

@@ -51,7 +51,9 @@ fn absorber_exact(n: u32) -> Vec<f64> {
                     let py = y as f32 + (sy as f32 + 0.5) / n as f32;
                     let ndc = (px / w as f32 * 2.0 - 1.0, 1.0 - py / h as f32 * 2.0);
                     let d = (forward + right * (ndc.0 * k) + up * (ndc.1 * k * h as f32 / w as f32)).normalize();
-                    let chord = ray_sphere(s.camera.origin, d, glam::Vec3::ZERO, 0.45).map(|(a, b)| (b - a.max(0.0)).max(0.0)).unwrap_or(0.0) as f64;
+                    let chord = ray_sphere(s.camera.origin, d, glam::Vec3::ZERO, 0.45)
+                        .map(|(a, b)| (b - a.max(0.0)).max(0.0))
+                        .unwrap_or(0.0) as f64;
                     for c in 0..3 {
                         acc[c] += 1.5 * (-(s.medium.sigma_t[c] as f64) * chord).exp();
                     }
@@ -153,7 +155,10 @@ fn absorption_never_creates_energy() {
         let (va, vb) = (out.variance.as_ref().unwrap(), lossless.variance.as_ref().unwrap());
         for i in 0..out.image.data.len() {
             let sd = ((va.data[i] + vb.data[i]) as f64).sqrt();
-            assert!((out.image.data[i] - lossless.image.data[i]) as f64 <= 5.0 * sd + 1e-4, "albedo {albedo}: value {i} brighter than lossless");
+            assert!(
+                (out.image.data[i] - lossless.image.data[i]) as f64 <= 5.0 * sd + 1e-4,
+                "albedo {albedo}: value {i} brighter than lossless"
+            );
         }
         assert!(out.image.mean().iter().sum::<f64>() < lossless.image.mean().iter().sum::<f64>());
         let single = render(&gpu, &s, SolverKind::Single, &[]);
@@ -205,7 +210,12 @@ fn single_converges_to_path_depth_one() {
     let noise = var.data.iter().map(|v| *v as f64).sum::<f64>().sqrt() / norm;
     let mut errs = Vec::new();
     for step in ["0.1", "0.03", "0.005"] {
-        let out = render(&gpu, &s, SolverKind::Single, &[("single.step", step), ("single.supersample", "4"), ("single.jitter", "1")]);
+        let out = render(
+            &gpu,
+            &s,
+            SolverKind::Single,
+            &[("single.step", step), ("single.supersample", "4"), ("single.jitter", "1")],
+        );
         let m = scatterlab::output::compare(&out.image, &reference.image).unwrap();
         errs.push(m.rel_l2);
     }
@@ -290,7 +300,14 @@ radiance = 0.3
 #[test]
 fn slim_and_full_models_agree() {
     let gpu = gpu();
-    let s = scene(&furnace_scene("{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 0.4 }", "4.0", 0.0).replace("albedo = 1.0", "albedo = 0.7").replace("kind = \"environment\"\nradiance = 2.0", "kind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 3.0"));
+    let s = scene(
+        &furnace_scene("{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 0.4 }", "4.0", 0.0)
+            .replace("albedo = 1.0", "albedo = 0.7")
+            .replace(
+                "kind = \"environment\"\nradiance = 2.0",
+                "kind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 3.0",
+            ),
+    );
     let slim = render_with(&gpu, &s, SolverKind::Path, &[("path.spp", "512")], false);
     let full = render_with(&gpu, &s, SolverKind::Path, &[("path.spp", "512")], true);
     assert!(!slim.report.modelled.chromatic && !slim.report.modelled.anisotropic);

@@ -77,7 +77,8 @@ fn stability_sweep_wavefront_both_integrators() {
             }
         }
     }
-    let failed: Vec<&str> = out.iter().filter(|o| o.variant == "explicit" && !o.passed).map(|o| o.case.as_str()).collect();
+    let failed: Vec<&str> =
+        out.iter().filter(|o| o.variant == "explicit" && !o.passed).map(|o| o.case.as_str()).collect();
     eprintln!("{}", stability::table(&out));
     assert!(failed.contains(&"light inside, tau 1e1, albedo 0"), "explicit failures: {failed:?}");
     assert!(!failed.contains(&"light inside, tau 1e-3, albedo 0.99"), "explicit failures: {failed:?}");

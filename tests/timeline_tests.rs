@@ -9,14 +9,7 @@ const T: QueueRole = QueueRole::Trace;
 const D: QueueRole = QueueRole::Diffuse;
 
 fn pass(role: QueueRole, start_ns: i128, end_ns: i128) -> PassTiming {
-    PassTiming {
-        name: format!("{}@{start_ns}", role.name()),
-        role,
-        submission: 0,
-        start_ns,
-        end_ns,
-        host_clock: true,
-    }
+    PassTiming { name: format!("{}@{start_ns}", role.name()), role, submission: 0, start_ns, end_ns, host_clock: true }
 }
 
 fn timeline(passes: &[(QueueRole, i128, i128)]) -> Vec<PassTiming> {
@@ -28,22 +21,14 @@ fn per_queue(s: &TimelineSummary) -> (i128, i128, usize, usize) {
     assert_eq!(s.per_queue.len(), 2);
     assert_eq!(s.per_queue[0].role, T);
     assert_eq!(s.per_queue[1].role, D);
-    (
-        s.per_queue[0].busy_ns,
-        s.per_queue[1].busy_ns,
-        s.per_queue[0].passes,
-        s.per_queue[1].passes,
-    )
+    (s.per_queue[0].busy_ns, s.per_queue[1].busy_ns, s.per_queue[0].passes, s.per_queue[1].passes)
 }
 
 #[test]
 fn empty_timeline_is_all_zero_and_not_nan() {
     let s = summarize(&[]);
     assert_eq!(per_queue(&s), (0, 0, 0, 0));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (0, 0, 0, 0)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (0, 0, 0, 0));
     assert_eq!(s.overlap_fraction, 0.0);
 }
 
@@ -51,10 +36,7 @@ fn empty_timeline_is_all_zero_and_not_nan() {
 fn only_zero_length_passes_give_zero_fraction() {
     let s = summarize(&timeline(&[(T, 5, 5), (D, 5, 5), (D, 9, 9)]));
     assert_eq!(per_queue(&s), (0, 0, 1, 2));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (4, 0, 0, 0)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (4, 0, 0, 0));
     assert_eq!(s.overlap_fraction, 0.0);
 }
 
@@ -85,17 +67,9 @@ fn one_queue_disjoint_nested_touching_identical() {
 #[test]
 fn sequential_roles_do_not_overlap() {
     // trace round, diffuse round, trace round, ... back to back (touching at the boundaries).
-    let s = summarize(&timeline(&[
-        (T, 0, 10),
-        (D, 10, 25),
-        (T, 25, 30),
-        (D, 30, 50),
-    ]));
+    let s = summarize(&timeline(&[(T, 0, 10), (D, 10, 25), (T, 25, 30), (D, 30, 50)]));
     assert_eq!(per_queue(&s), (15, 35, 2, 2));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (50, 50, 0, 50)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (50, 50, 0, 50));
     assert_eq!(s.overlap_fraction, 0.0);
 }
 
@@ -103,10 +77,7 @@ fn sequential_roles_do_not_overlap() {
 fn fully_overlapping_roles_overlap_all_their_busy_time() {
     let s = summarize(&timeline(&[(T, 100, 200), (D, 100, 150), (D, 150, 200)]));
     assert_eq!(per_queue(&s), (100, 100, 1, 2));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (100, 100, 100, 200)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (100, 100, 100, 200));
     assert_eq!(s.overlap_fraction, 1.0);
 }
 
@@ -116,17 +87,9 @@ fn partial_overlap_by_hand() {
     // diffuse: [30,70) and [90,120)   -> busy 70
     // both busy: [30,40) + [60,70) + [90,100) = 30
     // union: [0,120) = 120; serial 40+40+40+30 = 150; fraction 30/120 = 0.25
-    let s = summarize(&timeline(&[
-        (T, 0, 40),
-        (T, 60, 100),
-        (D, 30, 70),
-        (D, 90, 120),
-    ]));
+    let s = summarize(&timeline(&[(T, 0, 40), (T, 60, 100), (D, 30, 70), (D, 90, 120)]));
     assert_eq!(per_queue(&s), (80, 70, 2, 2));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (120, 120, 30, 150)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (120, 120, 30, 150));
     assert_eq!(s.overlap_fraction, 0.25);
     // busy(T) + busy(D) = union + overlap (inclusion-exclusion)
     assert_eq!(80 + 70, s.union_busy_ns + s.overlap_ns);
@@ -136,18 +99,9 @@ fn partial_overlap_by_hand() {
 fn gaps_span_and_one_diffuse_interval_across_several_trace_intervals() {
     // trace: [0,10) [20,30) [40,50); diffuse: [5,45) plus a zero-length pass at 48.
     // overlap: [5,10) + [20,30) + [40,45) = 20; union [0,50) = 50; idle nowhere.
-    let s = summarize(&timeline(&[
-        (T, 0, 10),
-        (T, 20, 30),
-        (T, 40, 50),
-        (D, 5, 45),
-        (D, 48, 48),
-    ]));
+    let s = summarize(&timeline(&[(T, 0, 10), (T, 20, 30), (T, 40, 50), (D, 5, 45), (D, 48, 48)]));
     assert_eq!(per_queue(&s), (30, 40, 3, 2));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (50, 50, 20, 70)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (50, 50, 20, 70));
     assert_eq!(s.overlap_fraction, 0.4);
     // With a gap: the span counts it, the union does not.
     let s = summarize(&timeline(&[(T, 0, 10), (D, 1000, 1010)]));
@@ -156,14 +110,7 @@ fn gaps_span_and_one_diffuse_interval_across_several_trace_intervals() {
 
 #[test]
 fn order_of_input_does_not_matter() {
-    let sorted = timeline(&[
-        (T, 0, 40),
-        (D, 30, 70),
-        (T, 60, 100),
-        (D, 90, 120),
-        (T, 100, 100),
-        (D, 95, 110),
-    ]);
+    let sorted = timeline(&[(T, 0, 40), (D, 30, 70), (T, 60, 100), (D, 90, 120), (T, 100, 100), (D, 95, 110)]);
     let want = summarize(&sorted);
     let mut shuffled = sorted.clone();
     shuffled.reverse();
@@ -180,31 +127,19 @@ fn large_host_clock_values_are_exact() {
     // CLOCK_MONOTONIC-sized values far beyond f64's exact range when summed as i128.
     let base: i128 = 1 << 70;
     let s = summarize(&timeline(&[(T, base, base + 3), (D, base + 1, base + 2)]));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (3, 3, 1, 4)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (3, 3, 1, 4));
 }
 
 #[test]
 fn reversed_pass_counts_as_zero_length() {
     let s = summarize(&timeline(&[(T, 10, 5), (D, 0, 20)]));
     assert_eq!(per_queue(&s), (0, 20, 1, 1));
-    assert_eq!(
-        (s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns),
-        (20, 20, 0, 20)
-    );
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (20, 20, 0, 20));
 }
 
 fn trace_passes() -> Vec<PassTiming> {
     let t0: i128 = 1_700_000_000_123_456_789; // a host clock reading, in ns
-    let mut v = timeline(&[
-        (D, 2_500, 9_000),
-        (T, 0, 3_000),
-        (T, 3_000, 3_000),
-        (T, 4_000, 12_345),
-        (D, 9_000, 9_001),
-    ]);
+    let mut v = timeline(&[(D, 2_500, 9_000), (T, 0, 3_000), (T, 3_000, 3_000), (T, 4_000, 12_345), (D, 9_000, 9_001)]);
     for (i, p) in v.iter_mut().enumerate() {
         p.start_ns += t0;
         p.end_ns += t0;
@@ -219,30 +154,19 @@ fn check_chrome_trace(v: &Value, passes: &[PassTiming], meta: &Value) {
     assert_eq!(&v["otherData"], meta);
     let events = v["traceEvents"].as_array().expect("traceEvents array");
     let meta_events: Vec<&Value> = events.iter().filter(|e| e["ph"] == "M").collect();
-    let process = meta_events
-        .iter()
-        .find(|e| e["name"] == "process_name")
-        .expect("process_name");
-    assert_eq!(
-        (&process["pid"], &process["args"]["name"]),
-        (&json!(1), &json!("scatterlab GPU"))
-    );
+    let process = meta_events.iter().find(|e| e["name"] == "process_name").expect("process_name");
+    assert_eq!((&process["pid"], &process["args"]["name"]), (&json!(1), &json!("scatterlab GPU")));
     for (tid, name) in [(1, "trace"), (2, "diffuse")] {
         assert!(
-            meta_events.iter().any(|e| e["name"] == "thread_name"
-                && e["pid"] == 1
-                && e["tid"] == tid
-                && e["args"]["name"] == name),
+            meta_events
+                .iter()
+                .any(|e| e["name"] == "thread_name" && e["pid"] == 1 && e["tid"] == tid && e["args"]["name"] == name),
             "thread_name for tid {tid} = {name}"
         );
     }
     let xs: Vec<&Value> = events.iter().filter(|e| e["ph"] == "X").collect();
     assert_eq!(xs.len(), passes.len());
-    assert_eq!(
-        events.len(),
-        xs.len() + meta_events.len(),
-        "only X and M events"
-    );
+    assert_eq!(events.len(), xs.len() + meta_events.len(), "only X and M events");
     let t0 = passes.iter().map(|p| p.start_ns).min().unwrap_or(0);
     for p in passes {
         let e = xs
@@ -250,10 +174,7 @@ fn check_chrome_trace(v: &Value, passes: &[PassTiming], meta: &Value) {
             .find(|e| e["name"] == p.name.as_str() && e["args"]["submission"] == p.submission)
             .unwrap_or_else(|| panic!("no X event for {}", p.name));
         let tid = if p.role == T { 1 } else { 2 };
-        assert_eq!(
-            (&e["pid"], &e["tid"], &e["cat"]),
-            (&json!(1), &json!(tid), &json!(p.role.name()))
-        );
+        assert_eq!((&e["pid"], &e["tid"], &e["cat"]), (&json!(1), &json!(tid), &json!(p.role.name())));
         assert_eq!(e["args"]["host_clock"], p.host_clock);
         let ts = e["ts"].as_f64().expect("ts is a number");
         let dur = e["dur"].as_f64().expect("dur is a number");
@@ -262,10 +183,7 @@ fn check_chrome_trace(v: &Value, passes: &[PassTiming], meta: &Value) {
         assert_eq!(dur, (p.end_ns - p.start_ns) as f64 / 1000.0);
     }
     if !passes.is_empty() {
-        assert!(
-            xs.iter().any(|e| e["ts"] == 0.0),
-            "times are relative to the earliest start"
-        );
+        assert!(xs.iter().any(|e| e["ts"] == 0.0), "times are relative to the earliest start");
     }
 }
 
@@ -279,16 +197,8 @@ fn chrome_trace_round_trip() {
     let parsed: Value = serde_json::from_str(&text).unwrap();
     check_chrome_trace(&parsed, &passes, &meta);
     // Specific numbers: the diffuse pass starting 2.5 us after the first one lasts 6.5 us.
-    let d = parsed["traceEvents"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|e| e["args"]["submission"] == 1)
-        .unwrap();
-    assert_eq!(
-        (d["ts"].as_f64(), d["dur"].as_f64()),
-        (Some(2.5), Some(6.5))
-    );
+    let d = parsed["traceEvents"].as_array().unwrap().iter().find(|e| e["args"]["submission"] == 1).unwrap();
+    assert_eq!((d["ts"].as_f64(), d["dur"].as_f64()), (Some(2.5), Some(6.5)));
 }
 
 #[test]

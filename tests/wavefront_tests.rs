@@ -107,12 +107,18 @@ fn homogeneous_march_converges_to_eq5_at_each_integrators_order() {
         // Explicit Euler (eq. 6) from r_s: first order, halving Delta halves the error.
         for w in started.windows(2) {
             let order = (w[0].1 / w[1].1).ln() / (w[0].0 / w[1].0).ln();
-            eprintln!("  explicit from r_s = {start}: Delta {:.5} error {:.3e} -> {:.5} {:.3e}: order {order:.3}", w[0].0, w[0].1, w[1].0, w[1].1);
+            eprintln!(
+                "  explicit from r_s = {start}: Delta {:.5} error {:.3e} -> {:.5} {:.3e}: order {order:.3}",
+                w[0].0, w[0].1, w[1].0, w[1].1
+            );
             assert!((0.8..1.2).contains(&order), "explicit observed order {order}");
         }
         // From r = 0 the error does not shrink with the step (the growing mode of eq. 4 is
         // excited at the singular start by an amount independent of Delta).
-        assert!(from_zero[3] > 0.1 && from_zero[3] > 0.8 * from_zero[0], "explicit from r = 0 unexpectedly converges: {from_zero:?}");
+        assert!(
+            from_zero[3] > 0.1 && from_zero[3] > 0.8 * from_zero[0],
+            "explicit from r = 0 unexpectedly converges: {from_zero:?}"
+        );
     }
     assert_clean(&gpu);
 }
@@ -144,7 +150,10 @@ fn stability_extremes_both_integrators() {
                     let vol = wave_volume(&gpu, &sc, &gs, &set, None).unwrap();
                     let v: Vec<f32> = gpu.read_buffer_as(&vol.energy).unwrap();
                     let fluence_ok = v[..vol.geom.voxels() as usize].iter().all(|x| x.is_finite() && *x >= 0.0);
-                    assert!(v.iter().all(|x| x.is_finite()), "gathered volume not finite ({integ:?}, sigma_t {sigma_t}, albedo {albedo}, {lname})");
+                    assert!(
+                        v.iter().all(|x| x.is_finite()),
+                        "gathered volume not finite ({integ:?}, sigma_t {sigma_t}, albedo {albedo}, {lname})"
+                    );
                     assert!(fluence_ok, "gathered fluence negative");
                     let failed = f.negative_nodes + f.nonfinite_nodes > 0;
                     if integ == Integrator::Exponential {
@@ -154,9 +163,16 @@ fn stability_extremes_both_integrators() {
                     } else {
                         explicit_runs.push((sed, f.delta as f64 * layers as f64, failed));
                     }
-                    cells.push(if failed { format!("FAILS ({} neg, {} inf)", f.negative_nodes, f.nonfinite_nodes) } else { "ok".to_string() });
+                    cells.push(if failed {
+                        format!("FAILS ({} neg, {} inf)", f.negative_nodes, f.nonfinite_nodes)
+                    } else {
+                        "ok".to_string()
+                    });
                 }
-                table.push_str(&format!("{sigma_t:<9.0e} {albedo:<7} {lname:<13} {sed:<14.3e} {:<21} {}\n", cells[0], cells[1]));
+                table.push_str(&format!(
+                    "{sigma_t:<9.0e} {albedo:<7} {lname:<13} {sed:<14.3e} {:<21} {}\n",
+                    cells[0], cells[1]
+                ));
             }
         }
     }
@@ -207,8 +223,10 @@ fn hole_enclosed_by_absorber_stays_dark() {
             }
         }
     }
-    std::fs::write(dir.path().join("hole.vol"), write_vol([n, n, n], &data, Vec3::splat(-1.0), Vec3::splat(1.0))).unwrap();
-    let text = cube(2.0, 0.8, 0.0, [-0.1, 0.0, 0.0], 8).replace("{ kind = \"constant\" }", "{ kind = \"grid\", file = \"hole.vol\" }");
+    std::fs::write(dir.path().join("hole.vol"), write_vol([n, n, n], &data, Vec3::splat(-1.0), Vec3::splat(1.0)))
+        .unwrap();
+    let text = cube(2.0, 0.8, 0.0, [-0.1, 0.0, 0.0], 8)
+        .replace("{ kind = \"constant\" }", "{ kind = \"grid\", file = \"hole.vol\" }");
     let sc = Scene::from_str(&text, "hole.toml", dir.path(), &[], &LoadOptions::default()).unwrap();
     let gs = GpuScene::upload(&gpu, &sc, false).unwrap();
     let set = settings(128, 64, 128, Integrator::Exponential, 32);
@@ -228,10 +246,18 @@ fn hole_enclosed_by_absorber_stays_dark() {
         (p0 - (-2.0 * r).exp()) / (r * r)
     };
     let hole = centre + Vec3::new(0.01, 0.01, 0.01);
-    let mirror = Vec3::new(-0.75, 0.01, 0.01);   // the same distance on the other side, no shell
+    let mirror = Vec3::new(-0.75, 0.01, 0.01); // the same distance on the other side, no shell
     let (in_hole, open) = (fluence_at(hole), fluence_at(mirror));
-    eprintln!("hole: wavefront {in_hole:.4e}, homogeneous {:.4e}; open side: wavefront {open:.4e}, homogeneous {:.4e}", homogeneous(hole), homogeneous(mirror));
-    assert!(in_hole < 0.05 * homogeneous(hole), "the hole received {in_hole}, homogeneous solution {}", homogeneous(hole));
+    eprintln!(
+        "hole: wavefront {in_hole:.4e}, homogeneous {:.4e}; open side: wavefront {open:.4e}, homogeneous {:.4e}",
+        homogeneous(hole),
+        homogeneous(mirror)
+    );
+    assert!(
+        in_hole < 0.05 * homogeneous(hole),
+        "the hole received {in_hole}, homogeneous solution {}",
+        homogeneous(hole)
+    );
     assert!((open / homogeneous(mirror) - 1.0).abs() < 0.15, "open side {open} vs homogeneous {}", homogeneous(mirror));
     assert_clean(&gpu);
 }
@@ -295,7 +321,11 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
     assert!(e_warm < 0.5 * e_cold, "warm start is not closer: {e_warm} vs cold {e_cold}");
     assert!(same < 2e-3, "warm and cold starts converge to different images: relL2 {same}");
     // The warm start is built for D3Q6 and says so for D3Q18.
-    let err = try_render(&gpu, &sc, SolverKind::Lbl, &[("lbl.warm_start", "wavefront"), ("lbl.lattice", "d3q18")], false).err().expect("d3q18 warm start must be refused").to_string();
+    let err =
+        try_render(&gpu, &sc, SolverKind::Lbl, &[("lbl.warm_start", "wavefront"), ("lbl.lattice", "d3q18")], false)
+            .err()
+            .expect("d3q18 warm start must be refused")
+            .to_string();
     assert!(err.contains("lbl.warm_start") && err.contains("d3q6"), "{err}");
     assert_clean(&gpu);
 }
@@ -307,7 +337,17 @@ fn bench_ladder_runs_for_wavefront() {
     let gpu = gpu();
     let sc = cloud_with_light_inside(16);
     let reference = render(&gpu, &sc, SolverKind::Path, &[("path.spp", "256")]).image;
-    let (points, _) = scatterlab::measure::bench::bench_scene(&gpu, "cloud-inside", &sc, &reference, &[SolverKind::Wavefront], true, 1, &|_| {}).unwrap();
+    let (points, _) = scatterlab::measure::bench::bench_scene(
+        &gpu,
+        "cloud-inside",
+        &sc,
+        &reference,
+        &[SolverKind::Wavefront],
+        true,
+        1,
+        &|_| {},
+    )
+    .unwrap();
     assert_eq!(points.len(), 3);
     for p in &points {
         assert!(p.gpu_ms > 0.0 && p.metrics.rel_l2.is_finite() && p.metrics.nan_inf_count == 0, "{p:?}");

@@ -83,7 +83,10 @@ fn gpu_options(a: &GpuArgs) -> GpuOptions {
 fn check_validation(gpu: &Gpu) -> Result<()> {
     let n = gpu.validation_errors();
     if n > 0 {
-        bail!("the Vulkan validation layer reported {n} error(s), first: {}", gpu.validation_messages().first().cloned().unwrap_or_default());
+        bail!(
+            "the Vulkan validation layer reported {n} error(s), first: {}",
+            gpu.validation_messages().first().cloned().unwrap_or_default()
+        );
     }
     Ok(())
 }
@@ -173,7 +176,10 @@ fn render(a: RenderArgs) -> Result<()> {
         );
     }
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
-    bar.set_style(ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
     bar.set_message(format!("{} {}", a.solver.name(), a.scene.display()));
     let progress = |done: u64, total: u64| {
         bar.set_length(total);
@@ -185,7 +191,8 @@ fn render(a: RenderArgs) -> Result<()> {
         let mut seq_sets = solver_sets.clone();
         seq_sets.push(("lbl.schedule".into(), "sequential".into()));
         let seq_settings = Settings::new(&seq_sets);
-        let seq_req = RenderRequest { scene: &scene, settings: &seq_settings, force_full: a.model_all, progress: &progress };
+        let seq_req =
+            RenderRequest { scene: &scene, settings: &seq_settings, force_full: a.model_all, progress: &progress };
         let seq = solvers::render(&gpu, a.solver, &seq_req)?;
         Some((crate::measure::timeline::summarize(&seq.report.passes), seq.image))
     } else {
@@ -197,7 +204,10 @@ fn render(a: RenderArgs) -> Result<()> {
     let wall_s = started.elapsed().as_secs_f64();
     let nonfinite = out.image.nan_inf_count();
     if nonfinite > 0 {
-        bail!("solver {} produced {nonfinite} NaN/Inf values; nothing written (this is a bug: please report the scene)", a.solver.name());
+        bail!(
+            "solver {} produced {nonfinite} NaN/Inf values; nothing written (this is a bug: please report the scene)",
+            a.solver.name()
+        );
     }
 
     // Every output is first written under a staging name beside its final one; only when all
@@ -285,15 +295,28 @@ fn render(a: RenderArgs) -> Result<()> {
             let dims = &l["lattice"]["dims"];
             eprintln!(
                 "lbl: {}x{}x{} {} lattice, {} channel(s){}, {} rays, {} rounds, {} iterations ({})",
-                dims[0], dims[1], dims[2],
+                dims[0],
+                dims[1],
+                dims[2],
                 r.settings["lattice"].as_str().unwrap_or("?"),
                 l["channels"],
                 if l["channels"] == 1 { " (grey medium and lights)" } else { "" },
-                l["rays"], l["rounds"], l["iterations"],
+                l["rays"],
+                l["rounds"],
+                l["iterations"],
                 if l["converged"] == true { "converged" } else { "NOT converged" }
             );
-            let busy: Vec<String> = timeline.per_queue.iter().map(|q| format!("{} {:.1} ms ({} passes)", q.role, q.busy_ns as f64 * 1e-6, q.passes)).collect();
-            eprintln!("queues: busy {}; overlap {:.1}% of busy time{}", busy.join(", "), 100.0 * timeline.overlap_fraction, if info.mapping.shared() { " (one shared queue: no overlap possible)" } else { "" });
+            let busy: Vec<String> = timeline
+                .per_queue
+                .iter()
+                .map(|q| format!("{} {:.1} ms ({} passes)", q.role, q.busy_ns as f64 * 1e-6, q.passes))
+                .collect();
+            eprintln!(
+                "queues: busy {}; overlap {:.1}% of busy time{}",
+                busy.join(", "),
+                100.0 * timeline.overlap_fraction,
+                if info.mapping.shared() { " (one shared queue: no overlap possible)" } else { "" }
+            );
             if let Some((seq, seq_img)) = &sequential {
                 let ratio = seq.span_ns as f64 / timeline.span_ns.max(1) as f64;
                 let diff = output::compare(&out.image, seq_img).map(|m| m.rel_l2).unwrap_or(f64::NAN);
@@ -305,7 +328,11 @@ fn render(a: RenderArgs) -> Result<()> {
             }
         }
         if let Some(p) = &a.out {
-            eprintln!("wrote {} (linear RGB f32{})", p.display(), if out.variance.is_some() { ", + variance layer" } else { "" });
+            eprintln!(
+                "wrote {} (linear RGB f32{})",
+                p.display(),
+                if out.variance.is_some() { ", + variance layer" } else { "" }
+            );
         }
         if let Some(p) = &a.png {
             eprintln!("wrote {} (tone-mapped: {})", p.display(), output::TONEMAP_DESCRIPTION);
@@ -362,7 +389,11 @@ fn compare(a: CompareArgs) -> Result<()> {
 
 fn export(a: ExportArgs) -> Result<()> {
     if !a.mitsuba {
-        bail!("export: name the format: --mitsuba (the only one for now), e.g. scatterlab export --mitsuba {} {}", a.scene.display(), a.out.display());
+        bail!(
+            "export: name the format: --mitsuba (the only one for now), e.g. scatterlab export --mitsuba {} {}",
+            a.scene.display(),
+            a.out.display()
+        );
     }
     let sets = parse_sets(&a.set)?;
     if let Some((k, _)) = sets.iter().find(|(k, _)| !is_scene_key(k)) {
@@ -371,7 +402,11 @@ fn export(a: ExportArgs) -> Result<()> {
     check_output_path(&a.out, "--mitsuba", &["xml"])?;
     let vol = crate::scene::mitsuba::vol_path_for(&a.out);
     if vol.is_dir() {
-        bail!("--mitsuba {}: the grid's file name {} is taken by a directory; choose another name", a.out.display(), vol.display());
+        bail!(
+            "--mitsuba {}: the grid's file name {} is taken by a directory; choose another name",
+            a.out.display(),
+            vol.display()
+        );
     }
     let scene = Scene::load(&a.scene, &sets, &LoadOptions::default())?;
     let files = crate::scene::mitsuba::export_mitsuba(&scene, &a.out)?;
@@ -395,7 +430,10 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
         outln!("{}", serde_json::to_string_pretty(&list)?);
         return Ok(());
     }
-    let chosen = pick_device(&list, gpu.device.as_deref().or(std::env::var(crate::gpu::ENV_DEVICE).ok().as_deref()).filter(|s| !s.is_empty()))?;
+    let chosen = pick_device(
+        &list,
+        gpu.device.as_deref().or(std::env::var(crate::gpu::ENV_DEVICE).ok().as_deref()).filter(|s| !s.is_empty()),
+    )?;
     for d in &list {
         let mark = if Some(d.index) == chosen { "  <- scatterlab would use this one" } else { "" };
         outln!("[{}] {} ({}, Vulkan {}){mark}", d.index, d.name, d.device_type, d.api_version);
@@ -410,7 +448,13 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
             if f.transfer {
                 caps.push("transfer");
             }
-            outln!("    family {}: {} queue(s), {}, timestamps {} bits", f.index, f.queue_count, caps.join("+"), f.timestamp_valid_bits);
+            outln!(
+                "    family {}: {} queue(s), {}, timestamps {} bits",
+                f.index,
+                f.queue_count,
+                caps.join("+"),
+                f.timestamp_valid_bits
+            );
         }
         match &d.mapping {
             Some(m) => outln!("    roles: {}", m.describe()),
@@ -457,7 +501,8 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         let text = std::fs::read_to_string(p).map_err(|e| anyhow!("{}: cannot read scene file: {e}", p.display()))?;
         scenes.push((p.clone(), text, Scene::load(p, &sets, &LoadOptions::default())?));
     }
-    std::fs::create_dir_all(&a.out).map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", a.out.display()))?;
+    std::fs::create_dir_all(&a.out)
+        .map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", a.out.display()))?;
     let gpu = Gpu::new(&gpu_options(g))?;
     let info = gpu.info().clone();
     let bar = ProgressBar::new_spinner();
@@ -472,12 +517,16 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         let t = Instant::now();
         let (reference, cached) = b::reference(&gpu, scene, &key, a.ref_spp, &a.cache).map_err(|e| anyhow!(e))?;
         refs.push(json!({ "scene": name, "key": key, "spp": a.ref_spp, "cached": cached, "seconds": t.elapsed().as_secs_f64() }));
-        let (points, thr) = b::bench_scene(&gpu, &name, scene, &reference, &a.solvers, a.quick, a.repeats, &|m| bar.set_message(m.to_string())).map_err(|e| anyhow!(e))?;
+        let (points, thr) = b::bench_scene(&gpu, &name, scene, &reference, &a.solvers, a.quick, a.repeats, &|m| {
+            bar.set_message(m.to_string())
+        })
+        .map_err(|e| anyhow!(e))?;
         let svg_path = a.out.join(format!("{name}.svg"));
         output::write_text(&svg_path, b::svg(&format!("{name}: error vs GPU time on {}", info.name), &points))?;
         for k in &a.solvers {
             // The third rung: for `path`, enough samples that the difference is not all noise.
-            let (sb, fb, sm, fm, d) = b::slim_vs_full(&gpu, scene, *k, &b::ladder(*k, scene, true)[2].sets).map_err(|e| anyhow!(e))?;
+            let (sb, fb, sm, fm, d) =
+                b::slim_vs_full(&gpu, scene, *k, &b::ladder(*k, scene, true)[2].sets).map_err(|e| anyhow!(e))?;
             slim.push(json!({ "scene": name, "solver": k, "slim_bytes": sb, "full_bytes": fb, "slim_ms": sm, "full_ms": fm, "rel_l2_between": d }));
         }
         all_points.extend(points);
@@ -493,10 +542,29 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         "points": all_points, "throughput": all_thr, "slim_vs_full": slim,
     });
     output::write_json(&a.out.join("bench.json"), &doc)?;
-    outln!("{:<20} {:<7} {:<14} {:>10} {:>10} {:>9} {:>7}", "scene", "solver", "knob=value", "GPU ms", "relL2", "energy", "pareto");
+    outln!(
+        "{:<20} {:<7} {:<14} {:>10} {:>10} {:>9} {:>7}",
+        "scene",
+        "solver",
+        "knob=value",
+        "GPU ms",
+        "relL2",
+        "energy",
+        "pareto"
+    );
     for p in &all_points {
-        let kv = format!("{}={}", p.knob.split('.').nth(1).unwrap_or(&p.knob), p.value.chars().take(7).collect::<String>());
-        outln!("{:<20} {:<7} {:<14} {:>10.1} {:>10.4} {:>9.3} {:>7}", p.scene, p.solver.name(), kv, p.gpu_ms, p.metrics.rel_l2, p.metrics.energy_ratio, if p.pareto { "*" } else { "" });
+        let kv =
+            format!("{}={}", p.knob.split('.').nth(1).unwrap_or(&p.knob), p.value.chars().take(7).collect::<String>());
+        outln!(
+            "{:<20} {:<7} {:<14} {:>10.1} {:>10.4} {:>9.3} {:>7}",
+            p.scene,
+            p.solver.name(),
+            kv,
+            p.gpu_ms,
+            p.metrics.rel_l2,
+            p.metrics.energy_ratio,
+            if p.pareto { "*" } else { "" }
+        );
     }
     if a.throughput {
         outln!("\nthroughput on {} ({}):", info.name, info.driver_name);
@@ -506,9 +574,23 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         outln!("  (nominal memory bandwidth of this device: not known to scatterlab)");
     }
     for s_ in &slim {
-        outln!("model-only-what-is-needed {} {}: slim {} B / full {} B, {:.1} / {:.1} ms, images differ by relL2 {:.2e}", s_["scene"], s_["solver"], s_["slim_bytes"], s_["full_bytes"], s_["slim_ms"].as_f64().unwrap_or(0.0), s_["full_ms"].as_f64().unwrap_or(0.0), s_["rel_l2_between"].as_f64().unwrap_or(0.0));
+        outln!(
+            "model-only-what-is-needed {} {}: slim {} B / full {} B, {:.1} / {:.1} ms, images differ by relL2 {:.2e}",
+            s_["scene"],
+            s_["solver"],
+            s_["slim_bytes"],
+            s_["full_bytes"],
+            s_["slim_ms"].as_f64().unwrap_or(0.0),
+            s_["full_ms"].as_f64().unwrap_or(0.0),
+            s_["rel_l2_between"].as_f64().unwrap_or(0.0)
+        );
     }
-    eprintln!("wrote {}, {} and one SVG per scene in {}", csv_path.display(), a.out.join("bench.json").display(), a.out.display());
+    eprintln!(
+        "wrote {}, {} and one SVG per scene in {}",
+        csv_path.display(),
+        a.out.join("bench.json").display(),
+        a.out.display()
+    );
     Ok(())
 }
 
@@ -516,7 +598,8 @@ fn stability(kinds: &[SolverKind], slow: bool, out: &Path, g: &GpuArgs) -> Resul
     std::fs::create_dir_all(out).map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", out.display()))?;
     let gpu = Gpu::new(&gpu_options(g))?;
     let bar = ProgressBar::new_spinner();
-    let outcomes = crate::measure::stability::run(&gpu, kinds, slow, &|m| bar.set_message(m.to_string())).map_err(|e| anyhow!(e))?;
+    let outcomes = crate::measure::stability::run(&gpu, kinds, slow, &|m| bar.set_message(m.to_string()))
+        .map_err(|e| anyhow!(e))?;
     bar.finish_and_clear();
     check_validation(&gpu)?;
     outln!("{}", crate::measure::stability::table(&outcomes));
@@ -529,7 +612,11 @@ fn stability(kinds: &[SolverKind], slow: bool, out: &Path, g: &GpuArgs) -> Resul
     if failed > 0 {
         bail!("{failed} of {} stability checks failed (see the table)", outcomes.len());
     }
-    eprintln!("all {} stability checks passed{}", outcomes.len(), if slow { "" } else { " (slow cases skipped: --slow runs them)" });
+    eprintln!(
+        "all {} stability checks passed{}",
+        outcomes.len(),
+        if slow { "" } else { " (slow cases skipped: --slow runs them)" }
+    );
     Ok(())
 }
 
@@ -537,9 +624,14 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     let sets = parse_sets(sets)?;
     let scene = Scene::load(path, &sets, &LoadOptions::default())?;
     let f = scene.features();
-    let solvers: Vec<(SolverKind, u64)> = [SolverKind::Path, SolverKind::Single, SolverKind::Lbl, SolverKind::Wavefront].iter().map(|k| (*k, solvers::memory_estimate(*k, &scene))).collect();
+    let solvers: Vec<(SolverKind, u64)> =
+        [SolverKind::Path, SolverKind::Single, SolverKind::Lbl, SolverKind::Wavefront]
+            .iter()
+            .map(|k| (*k, solvers::memory_estimate(*k, &scene)))
+            .collect();
     if as_json {
-        let mem: serde_json::Map<String, serde_json::Value> = solvers.iter().map(|(k, b)| (k.name().to_string(), json!(b))).collect();
+        let mem: serde_json::Map<String, serde_json::Value> =
+            solvers.iter().map(|(k, b)| (k.name().to_string(), json!(b))).collect();
         outln!(
             "{}",
             serde_json::to_string_pretty(&json!({
@@ -553,7 +645,13 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     }
     let yn = |b: bool| if b { "yes" } else { "no" };
     outln!("scene        {}", path.display());
-    outln!("image        {} x {}, {} spp, seed {}", scene.render.width, scene.render.height, scene.render.spp, scene.render.seed);
+    outln!(
+        "image        {} x {}, {} spp, seed {}",
+        scene.render.width,
+        scene.render.height,
+        scene.render.spp,
+        scene.render.seed
+    );
     outln!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
     outln!("chromatic    {}", yn(f.chromatic));
     outln!("homogeneous  {}", yn(f.homogeneous));

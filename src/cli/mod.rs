@@ -10,7 +10,11 @@ use clap::{Args, Parser, Subcommand};
 use crate::solvers::SolverKind;
 
 #[derive(Parser, Debug)]
-#[command(name = "scatterlab", version, about = "Multiple scattering in participating media on any Vulkan device, headless.")]
+#[command(
+    name = "scatterlab",
+    version,
+    about = "Multiple scattering in participating media on any Vulkan device, headless."
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,

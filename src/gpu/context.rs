@@ -36,7 +36,8 @@ impl Default for GpuOptions {
     fn default() -> Self {
         let validate = std::env::var(ENV_VALIDATE).map(|v| v != "0" && !v.is_empty()).unwrap_or(false);
         let device = std::env::var(ENV_DEVICE).ok().filter(|s| !s.is_empty());
-        let secs = std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
+        let secs =
+            std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
         GpuOptions { validate, device, timeout: Duration::from_secs_f64(secs) }
     }
 }
@@ -209,7 +210,11 @@ fn has_extension(instance: &ash::Instance, pd: vk::PhysicalDevice, name: &CStr) 
 }
 
 /// The features every solver relies on; a device lacking one is refused up front.
-fn missing_features(instance: &ash::Instance, pd: vk::PhysicalDevice, props: &vk::PhysicalDeviceProperties) -> Vec<String> {
+fn missing_features(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+    props: &vk::PhysicalDeviceProperties,
+) -> Vec<String> {
     let mut missing = Vec::new();
     if props.api_version < vk::API_VERSION_1_3 {
         missing.push(format!("Vulkan 1.3 (device offers {})", version_string(props.api_version)));
@@ -254,7 +259,11 @@ fn load_entry() -> Result<ash::Entry> {
     unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))
 }
 
-fn create_instance(entry: &ash::Entry, validate: bool, log: &Arc<ValidationLog>) -> Result<(ash::Instance, Option<Box<Arc<ValidationLog>>>, bool)> {
+fn create_instance(
+    entry: &ash::Entry,
+    validate: bool,
+    log: &Arc<ValidationLog>,
+) -> Result<(ash::Instance, Option<Box<Arc<ValidationLog>>>, bool)> {
     let app = vk::ApplicationInfo::default()
         .application_name(c"scatterlab")
         .engine_name(c"scatterlab")
@@ -264,7 +273,8 @@ fn create_instance(entry: &ash::Entry, validate: bool, log: &Arc<ValidationLog>)
     let mut boxed = None;
     let mut debug = false;
     if validate {
-        let available = unsafe { entry.enumerate_instance_layer_properties() }.vk("vkEnumerateInstanceLayerProperties")?;
+        let available =
+            unsafe { entry.enumerate_instance_layer_properties() }.vk("vkEnumerateInstanceLayerProperties")?;
         if !available.iter().any(|l| l.layer_name_as_c_str().map(|n| n == VALIDATION_LAYER).unwrap_or(false)) {
             return Err(GpuError::NoValidationLayer);
         }
@@ -362,12 +372,17 @@ pub fn choose_device(list: &[DeviceSummary], wanted: Option<&str>) -> Result<Opt
         Some(w) => {
             let by_index = w.parse::<usize>().ok();
             let lw = w.to_lowercase();
-            list.iter().find(|c| Some(c.index) == by_index || c.name.to_lowercase().contains(&lw)).ok_or_else(|| GpuError::DeviceNotFound {
-                wanted: w.to_string(),
-                available: list.iter().map(|c| format!("{}: {}", c.index, c.name)).collect::<Vec<_>>().join(", "),
+            list.iter().find(|c| Some(c.index) == by_index || c.name.to_lowercase().contains(&lw)).ok_or_else(|| {
+                GpuError::DeviceNotFound {
+                    wanted: w.to_string(),
+                    available: list.iter().map(|c| format!("{}: {}", c.index, c.name)).collect::<Vec<_>>().join(", "),
+                }
             })?
         }
-        None => list.iter().min_by_key(|c| (!c.missing.is_empty(), type_rank_name(&c.device_type), c.index)).ok_or(GpuError::NoDevice)?,
+        None => list
+            .iter()
+            .min_by_key(|c| (!c.missing.is_empty(), type_rank_name(&c.device_type), c.index))
+            .ok_or(GpuError::NoDevice)?,
     };
     if let Some(first) = chosen.missing.first() {
         return Err(GpuError::MissingFeature {
@@ -432,7 +447,9 @@ impl Gpu {
         let priorities = [1.0f32; 2];
         let queue_infos: Vec<vk::DeviceQueueCreateInfo> = per_family
             .iter()
-            .map(|(f, n)| vk::DeviceQueueCreateInfo::default().queue_family_index(*f).queue_priorities(&priorities[..*n as usize]))
+            .map(|(f, n)| {
+                vk::DeviceQueueCreateInfo::default().queue_family_index(*f).queue_priorities(&priorities[..*n as usize])
+            })
             .collect();
 
         let float_atomics = has_extension(&instance, pd, ash::ext::shader_atomic_float::NAME) && {
@@ -478,12 +495,16 @@ impl Gpu {
         let make_role = |role: QueueRole| -> Result<RoleQueue> {
             let slot = mapping.slot(role);
             let queue = unsafe { device.get_device_queue(slot.family, slot.index) };
-            let mut ty = vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE).initial_value(0);
-            let timeline = unsafe { device.create_semaphore(&vk::SemaphoreCreateInfo::default().push_next(&mut ty), None) }
-                .vk("vkCreateSemaphore")?;
+            let mut ty =
+                vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE).initial_value(0);
+            let timeline =
+                unsafe { device.create_semaphore(&vk::SemaphoreCreateInfo::default().push_next(&mut ty), None) }
+                    .vk("vkCreateSemaphore")?;
             let pool = unsafe {
                 device.create_command_pool(
-                    &vk::CommandPoolCreateInfo::default().queue_family_index(slot.family).flags(vk::CommandPoolCreateFlags::TRANSIENT),
+                    &vk::CommandPoolCreateInfo::default()
+                        .queue_family_index(slot.family)
+                        .flags(vk::CommandPoolCreateFlags::TRANSIENT),
                     None,
                 )
             }
@@ -582,7 +603,13 @@ impl Gpu {
         let Some((du, _)) = &self.shared.debug_utils else { return false };
         let Ok(msg) = CString::new(text) else { return false };
         let data = vk::DebugUtilsMessengerCallbackDataEXT::default().message(&msg);
-        unsafe { du.submit_debug_utils_message(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR, vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION, &data) };
+        unsafe {
+            du.submit_debug_utils_message(
+                vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+                vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION,
+                &data,
+            )
+        };
         true
     }
 }

@@ -144,7 +144,13 @@ impl Gpu {
         Ok(b)
     }
 
-    fn raw_buffer(&self, name: &str, size: u64, usage: vk::BufferUsageFlags, location: MemoryLocation) -> Result<Buffer> {
+    fn raw_buffer(
+        &self,
+        name: &str,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        location: MemoryLocation,
+    ) -> Result<Buffer> {
         let s = &self.shared;
         let (mode, fams) = self.sharing(&s.sharing_families);
         let info = vk::BufferCreateInfo::default()
@@ -157,7 +163,13 @@ impl Gpu {
         let allocation = {
             let mut guard = s.allocator.lock().expect("allocator lock");
             let alloc = guard.as_mut().expect("allocator alive");
-            alloc.allocate(&AllocationCreateDesc { name, requirements, location, linear: true, allocation_scheme: AllocationScheme::GpuAllocatorManaged })
+            alloc.allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location,
+                linear: true,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            })
         };
         let allocation = match allocation {
             Ok(a) => a,
@@ -166,15 +178,28 @@ impl Gpu {
                 return Err(GpuError::Alloc { name: name.into(), bytes: size, reason: e.to_string() });
             }
         };
-        unsafe { s.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) }.vk("vkBindBufferMemory")?;
+        unsafe { s.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) }
+            .vk("vkBindBufferMemory")?;
         s.name_object(raw, name);
-        Ok(Buffer { inner: Arc::new(BufferInner { shared: s.clone(), raw, allocation: Some(allocation), size, name: name.into() }) })
+        Ok(Buffer {
+            inner: Arc::new(BufferInner {
+                shared: s.clone(),
+                raw,
+                allocation: Some(allocation),
+                size,
+                name: name.into(),
+            }),
+        })
     }
 
     fn staging(&self, name: &str, size: u64, location: MemoryLocation) -> Result<(Buffer, *mut u8)> {
         let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::empty(), location)?;
         let a = b.inner.allocation.as_ref().expect("allocated");
-        let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc { name: name.into(), bytes: size, reason: "staging memory is not host-visible".into() })?;
+        let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc {
+            name: name.into(),
+            bytes: size,
+            reason: "staging memory is not host-visible".into(),
+        })?;
         Ok((b, p.as_ptr() as *mut u8))
     }
 
@@ -192,7 +217,12 @@ impl Gpu {
     pub fn write_buffer(&self, b: &Buffer, offset: u64, bytes: &[u8]) -> Result<()> {
         let end = offset + bytes.len() as u64;
         if end > b.size() {
-            return Err(GpuError::OutOfRange { name: b.name().into(), offset, wanted: bytes.len() as u64, size: b.size() });
+            return Err(GpuError::OutOfRange {
+                name: b.name().into(),
+                offset,
+                wanted: bytes.len() as u64,
+                size: b.size(),
+            });
         }
         if bytes.is_empty() {
             return Ok(());
@@ -240,11 +270,20 @@ impl Gpu {
         let s = &self.shared;
         let maxd = s.info.max_image_dimension_3d;
         if dims.iter().any(|d| *d == 0 || *d > maxd) {
-            return Err(GpuError::Alloc { name: name.into(), bytes: 0, reason: format!("dims {dims:?} outside 1..={maxd} (maxImageDimension3D)") });
+            return Err(GpuError::Alloc {
+                name: name.into(),
+                bytes: 0,
+                reason: format!("dims {dims:?} outside 1..={maxd} (maxImageDimension3D)"),
+            });
         }
         let voxels: u64 = dims.iter().map(|d| *d as u64).product();
         if data.len() as u64 != voxels {
-            return Err(GpuError::OutOfRange { name: name.into(), offset: 0, wanted: data.len() as u64 * 4, size: voxels * 4 });
+            return Err(GpuError::OutOfRange {
+                name: name.into(),
+                offset: 0,
+                wanted: data.len() as u64 * 4,
+                size: voxels * 4,
+            });
         }
         let (mode, fams) = self.sharing(&s.sharing_families);
         let info = vk::ImageCreateInfo::default()
@@ -279,16 +318,35 @@ impl Gpu {
             }
         };
         unsafe { s.device.bind_image_memory(raw, allocation.memory(), allocation.offset()) }.vk("vkBindImageMemory")?;
-        let range = vk::ImageSubresourceRange { aspect_mask: vk::ImageAspectFlags::COLOR, base_mip_level: 0, level_count: 1, base_array_layer: 0, layer_count: 1 };
+        let range = vk::ImageSubresourceRange {
+            aspect_mask: vk::ImageAspectFlags::COLOR,
+            base_mip_level: 0,
+            level_count: 1,
+            base_array_layer: 0,
+            layer_count: 1,
+        };
         let view = unsafe {
             s.device.create_image_view(
-                &vk::ImageViewCreateInfo::default().image(raw).view_type(vk::ImageViewType::TYPE_3D).format(format.vk()).subresource_range(range),
+                &vk::ImageViewCreateInfo::default()
+                    .image(raw)
+                    .view_type(vk::ImageViewType::TYPE_3D)
+                    .format(format.vk())
+                    .subresource_range(range),
                 None,
             )
         }
         .vk("vkCreateImageView")?;
         s.name_object(raw, name);
-        let image = Image3d { inner: Arc::new(ImageInner { shared: s.clone(), raw, view, allocation: Some(allocation), dims, name: name.into() }) };
+        let image = Image3d {
+            inner: Arc::new(ImageInner {
+                shared: s.clone(),
+                raw,
+                view,
+                allocation: Some(allocation),
+                dims,
+                name: name.into(),
+            }),
+        };
 
         let (stage, p) = self.staging("staging volume upload", voxels * 4, MemoryLocation::CpuToGpu)?;
         unsafe { std::ptr::copy_nonoverlapping(data.as_ptr() as *const u8, p, data.len() * 4) };
@@ -304,9 +362,17 @@ impl Gpu {
                 .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
                 .image(raw)
                 .subresource_range(range);
-            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_dst)));
+            d.cmd_pipeline_barrier2(
+                cb,
+                &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_dst)),
+            );
             let region = vk::BufferImageCopy::default()
-                .image_subresource(vk::ImageSubresourceLayers { aspect_mask: vk::ImageAspectFlags::COLOR, mip_level: 0, base_array_layer: 0, layer_count: 1 })
+                .image_subresource(vk::ImageSubresourceLayers {
+                    aspect_mask: vk::ImageAspectFlags::COLOR,
+                    mip_level: 0,
+                    base_array_layer: 0,
+                    layer_count: 1,
+                })
                 .image_extent(vk::Extent3D { width: dims[0], height: dims[1], depth: dims[2] });
             d.cmd_copy_buffer_to_image(cb, src, raw, vk::ImageLayout::TRANSFER_DST_OPTIMAL, &[region]);
             let to_general = vk::ImageMemoryBarrier2::default()
@@ -320,7 +386,10 @@ impl Gpu {
                 .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
                 .image(raw)
                 .subresource_range(range);
-            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_general)));
+            d.cmd_pipeline_barrier2(
+                cb,
+                &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_general)),
+            );
         })?;
         Ok(image)
     }

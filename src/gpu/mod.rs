@@ -9,7 +9,9 @@ mod pipeline;
 mod queues;
 mod submit;
 
-pub use context::{choose_device, list_devices, DeviceInfo, DeviceSummary, Gpu, GpuOptions, ENV_DEVICE, ENV_TIMEOUT, ENV_VALIDATE};
+pub use context::{
+    choose_device, list_devices, DeviceInfo, DeviceSummary, Gpu, GpuOptions, ENV_DEVICE, ENV_TIMEOUT, ENV_VALIDATE,
+};
 pub use error::{GpuError, Result};
 pub use memory::{Buffer, Image3d, VolumeFormat};
 pub use pipeline::{reflect, BindingKind, Pipeline, Reflection, ShaderSource, Spec};

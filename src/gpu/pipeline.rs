@@ -56,13 +56,23 @@ pub fn reflect(src: &ShaderSource) -> Result<Reflection> {
             let kind = match info.ty {
                 rspirv_reflect::DescriptorType::STORAGE_BUFFER => BindingKind::StorageBuffer,
                 rspirv_reflect::DescriptorType::STORAGE_IMAGE => BindingKind::StorageImage,
-                other => return Err(err(format!("binding {index} has descriptor type {other:?}; only storage buffers and images are supported"))),
+                other => {
+                    return Err(err(format!(
+                        "binding {index} has descriptor type {other:?}; only storage buffers and images are supported"
+                    )))
+                }
             };
             bindings.insert(index, (kind, info.name));
         }
     }
-    let push_constant_bytes = r.get_push_constant_range().map_err(|e| err(format!("push-constant reflection failed: {e}")))?.map(|p| (p.offset + p.size) as usize).unwrap_or(0);
-    let (x, y, z) = r.get_compute_group_size().ok_or_else(|| err("no LocalSize execution mode (a fixed local_size is required)".into()))?;
+    let push_constant_bytes = r
+        .get_push_constant_range()
+        .map_err(|e| err(format!("push-constant reflection failed: {e}")))?
+        .map(|p| (p.offset + p.size) as usize)
+        .unwrap_or(0);
+    let (x, y, z) = r
+        .get_compute_group_size()
+        .ok_or_else(|| err("no LocalSize execution mode (a fixed local_size is required)".into()))?;
     Ok(Reflection { bindings, push_constant_bytes, workgroup_size: [x, y, z] })
 }
 
@@ -128,38 +138,60 @@ impl Gpu {
         let d = &s.device;
         let words = ash::util::read_spv(&mut std::io::Cursor::new(src.spirv))
             .map_err(|e| GpuError::Shader { shader: src.name.into(), reason: format!("cannot read SPIR-V: {e}") })?;
-        let module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }.vk("vkCreateShaderModule")?;
+        let module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
+            .vk("vkCreateShaderModule")?;
         let layout_bindings: Vec<vk::DescriptorSetLayoutBinding> = reflection
             .bindings
             .iter()
             .map(|(i, (k, _))| {
-                vk::DescriptorSetLayoutBinding::default().binding(*i).descriptor_type(k.vk()).descriptor_count(1).stage_flags(vk::ShaderStageFlags::COMPUTE)
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(*i)
+                    .descriptor_type(k.vk())
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
             })
             .collect();
         let set_layout = unsafe {
             d.create_descriptor_set_layout(
-                &vk::DescriptorSetLayoutCreateInfo::default().flags(vk::DescriptorSetLayoutCreateFlags::PUSH_DESCRIPTOR_KHR).bindings(&layout_bindings),
+                &vk::DescriptorSetLayoutCreateInfo::default()
+                    .flags(vk::DescriptorSetLayoutCreateFlags::PUSH_DESCRIPTOR_KHR)
+                    .bindings(&layout_bindings),
                 None,
             )
         }
         .vk("vkCreateDescriptorSetLayout")?;
-        let ranges = [vk::PushConstantRange { stage_flags: vk::ShaderStageFlags::COMPUTE, offset: 0, size: reflection.push_constant_bytes as u32 }];
+        let ranges = [vk::PushConstantRange {
+            stage_flags: vk::ShaderStageFlags::COMPUTE,
+            offset: 0,
+            size: reflection.push_constant_bytes as u32,
+        }];
         let set_layouts = [set_layout];
         let mut layout_info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts);
         if reflection.push_constant_bytes > 0 {
             layout_info = layout_info.push_constant_ranges(&ranges);
         }
         let layout = unsafe { d.create_pipeline_layout(&layout_info, None) }.vk("vkCreatePipelineLayout")?;
-        let entries: Vec<vk::SpecializationMapEntry> =
-            spec.iter().enumerate().map(|(i, (id, _))| vk::SpecializationMapEntry { constant_id: *id, offset: (i * 4) as u32, size: 4 }).collect();
+        let entries: Vec<vk::SpecializationMapEntry> = spec
+            .iter()
+            .enumerate()
+            .map(|(i, (id, _))| vk::SpecializationMapEntry { constant_id: *id, offset: (i * 4) as u32, size: 4 })
+            .collect();
         let data: Vec<u8> = spec.iter().flat_map(|(_, v)| v.bytes()).collect();
         let spec_info = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
-        let stage = vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main").specialization_info(&spec_info);
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(module)
+            .name(c"main")
+            .specialization_info(&spec_info);
         let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
         let pipeline = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
         unsafe { d.destroy_shader_module(module, None) };
         let pipeline = pipeline.map_err(|(_, e)| GpuError::Vk { call: "vkCreateComputePipelines", result: e })?[0];
         s.name_object(pipeline, src.name);
-        Ok(Pipeline { inner: Arc::new(PipelineInner { shared: s.clone(), pipeline, layout, set_layout }), name: src.name, reflection })
+        Ok(Pipeline {
+            inner: Arc::new(PipelineInner { shared: s.clone(), pipeline, layout, set_layout }),
+            name: src.name,
+            reflection,
+        })
     }
 }

@@ -126,7 +126,11 @@ pub fn map_roles(families: &[FamilyInfo]) -> Option<RoleMapping> {
         // Prefer a compute-only family for tracing (the heavier role), a general one for diffusion.
         let mut sorted = timed_families.clone();
         sorted.sort_by_key(|f| f.graphics);
-        return Some(RoleMapping { kind: MappingKind::TwoFamilies, trace: slot(sorted[0], 0), diffuse: slot(sorted[1], 0) });
+        return Some(RoleMapping {
+            kind: MappingKind::TwoFamilies,
+            trace: slot(sorted[0], 0),
+            diffuse: slot(sorted[1], 0),
+        });
     }
     let best = timed_families.first().copied().unwrap_or(&compute[0]);
     Some(RoleMapping { kind: MappingKind::Shared, trace: slot(best, 0), diffuse: slot(best, 0) })

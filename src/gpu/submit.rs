@@ -94,7 +94,14 @@ pub struct Pass {
 
 impl Pass {
     pub fn new(name: impl Into<String>, role: QueueRole, pipeline: &Pipeline) -> Pass {
-        Pass { name: name.into(), role, pipeline: pipeline.clone(), bindings: Vec::new(), push: Vec::new(), groups: [1, 1, 1] }
+        Pass {
+            name: name.into(),
+            role,
+            pipeline: pipeline.clone(),
+            bindings: Vec::new(),
+            push: Vec::new(),
+            groups: [1, 1, 1],
+        }
     }
     pub fn read(mut self, binding: u32, r: impl Into<Resource>) -> Pass {
         self.bindings.push(Bind { binding, access: Access::Read, resource: r.into() });
@@ -132,20 +139,38 @@ impl Pass {
                 return Err(err("bound twice".into()));
             }
             match refl.bindings.get(&b.binding) {
-                None => return Err(err(format!("{:?} is bound but shader {} declares no such binding", b.resource.name(), self.pipeline.name))),
+                None => {
+                    return Err(err(format!(
+                        "{:?} is bound but shader {} declares no such binding",
+                        b.resource.name(),
+                        self.pipeline.name
+                    )))
+                }
                 Some((kind, decl)) if *kind != b.resource.kind() => {
-                    return Err(err(format!("shader declares `{decl}` as {kind:?} but the pass binds {:?}, a {:?}", b.resource.name(), b.resource.kind())))
+                    return Err(err(format!(
+                        "shader declares `{decl}` as {kind:?} but the pass binds {:?}, a {:?}",
+                        b.resource.name(),
+                        b.resource.kind()
+                    )))
                 }
                 _ => {}
             }
         }
         for (index, (kind, decl)) in &refl.bindings {
             if !seen.contains(index) {
-                return Err(GpuError::Binding { pass: self.name.clone(), binding: *index, reason: format!("shader declares `{decl}` ({kind:?}) but the pass binds nothing there") });
+                return Err(GpuError::Binding {
+                    pass: self.name.clone(),
+                    binding: *index,
+                    reason: format!("shader declares `{decl}` ({kind:?}) but the pass binds nothing there"),
+                });
             }
         }
         if self.push.len() != refl.push_constant_bytes {
-            return Err(GpuError::PushConstants { pass: self.name.clone(), given: self.push.len(), expected: refl.push_constant_bytes });
+            return Err(GpuError::PushConstants {
+                pass: self.name.clone(),
+                given: self.push.len(),
+                expected: refl.push_constant_bytes,
+            });
         }
         Ok(())
     }
@@ -218,7 +243,11 @@ impl Gpu {
         for p in passes {
             p.check()?;
             if p.role != role {
-                return Err(GpuError::Binding { pass: p.name.clone(), binding: 0, reason: format!("pass is for role {} but was submitted on {role}", p.role) });
+                return Err(GpuError::Binding {
+                    pass: p.name.clone(),
+                    binding: 0,
+                    reason: format!("pass is for role {} but was submitted on {role}", p.role),
+                });
             }
         }
         let passes_owned = passes.to_vec();
@@ -226,83 +255,118 @@ impl Gpu {
         let s = self.shared.clone();
         let d = &s.device;
         let push = &s.push_descriptor;
-        let with_queries = s.info.queue_families.iter().any(|f| f.index == s.role(role).family && f.timestamp_valid_bits > 0) && !passes.is_empty();
-        self.record_and_submit(role, waits, names, passes_owned.iter().flat_map(|p| p.bindings.iter().map(|b| b.resource.clone())).collect(), passes_owned.iter().map(|p| p.pipeline.clone()).collect(), with_queries.then_some(passes.len() as u32 * 2), |cb, pool| unsafe {
-            let mut written: HashSet<u64> = HashSet::new();
-            let mut read: HashSet<u64> = HashSet::new();
-            for (i, p) in passes.iter().enumerate() {
-                // Barrier only where this pass touches what an earlier pass wrote (RAW, WAW) or
-                // writes what an earlier one read (WAR).
-                let hazard = p.bindings.iter().any(|b| written.contains(&b.resource.key()) || (b.access.writes() && read.contains(&b.resource.key())));
-                if hazard {
-                    let mb = vk::MemoryBarrier2::default()
-                        .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                        .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE | vk::AccessFlags2::SHADER_STORAGE_READ)
-                        .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                        .dst_access_mask(vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE);
-                    d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
-                    written.clear();
-                    read.clear();
-                }
-                for b in &p.bindings {
-                    if b.access.writes() {
-                        written.insert(b.resource.key());
-                    } else {
-                        read.insert(b.resource.key());
+        let with_queries =
+            s.info.queue_families.iter().any(|f| f.index == s.role(role).family && f.timestamp_valid_bits > 0)
+                && !passes.is_empty();
+        self.record_and_submit(
+            role,
+            waits,
+            names,
+            passes_owned.iter().flat_map(|p| p.bindings.iter().map(|b| b.resource.clone())).collect(),
+            passes_owned.iter().map(|p| p.pipeline.clone()).collect(),
+            with_queries.then_some(passes.len() as u32 * 2),
+            |cb, pool| unsafe {
+                let mut written: HashSet<u64> = HashSet::new();
+                let mut read: HashSet<u64> = HashSet::new();
+                for (i, p) in passes.iter().enumerate() {
+                    // Barrier only where this pass touches what an earlier pass wrote (RAW, WAW) or
+                    // writes what an earlier one read (WAR).
+                    let hazard = p.bindings.iter().any(|b| {
+                        written.contains(&b.resource.key()) || (b.access.writes() && read.contains(&b.resource.key()))
+                    });
+                    if hazard {
+                        let mb = vk::MemoryBarrier2::default()
+                            .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+                            .src_access_mask(
+                                vk::AccessFlags2::SHADER_STORAGE_WRITE | vk::AccessFlags2::SHADER_STORAGE_READ,
+                            )
+                            .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+                            .dst_access_mask(
+                                vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE,
+                            );
+                        d.cmd_pipeline_barrier2(
+                            cb,
+                            &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)),
+                        );
+                        written.clear();
+                        read.clear();
                     }
-                }
-                if let Some(du) = &s.debug_device {
-                    if let Ok(label) = std::ffi::CString::new(p.name.as_str()) {
-                        du.cmd_begin_debug_utils_label(cb, &vk::DebugUtilsLabelEXT::default().label_name(&label));
-                    }
-                }
-                if let Some(pool) = pool {
-                    d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::COMPUTE_SHADER, pool, 2 * i as u32);
-                }
-                d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, p.pipeline.inner.pipeline);
-                let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = p
-                    .bindings
-                    .iter()
-                    .map(|b| match &b.resource {
-                        Resource::Buffer(buf) => [vk::DescriptorBufferInfo { buffer: buf.raw(), offset: 0, range: vk::WHOLE_SIZE }],
-                        Resource::Image(_) => [vk::DescriptorBufferInfo::default()],
-                    })
-                    .collect();
-                let image_infos: Vec<[vk::DescriptorImageInfo; 1]> = p
-                    .bindings
-                    .iter()
-                    .map(|b| match &b.resource {
-                        Resource::Image(img) => [vk::DescriptorImageInfo { sampler: vk::Sampler::null(), image_view: img.inner.view, image_layout: vk::ImageLayout::GENERAL }],
-                        Resource::Buffer(_) => [vk::DescriptorImageInfo::default()],
-                    })
-                    .collect();
-                let writes: Vec<vk::WriteDescriptorSet> = p
-                    .bindings
-                    .iter()
-                    .enumerate()
-                    .map(|(j, b)| {
-                        let w = vk::WriteDescriptorSet::default().dst_binding(b.binding);
-                        match &b.resource {
-                            Resource::Buffer(_) => w.descriptor_type(vk::DescriptorType::STORAGE_BUFFER).buffer_info(&buffer_infos[j]),
-                            Resource::Image(_) => w.descriptor_type(vk::DescriptorType::STORAGE_IMAGE).image_info(&image_infos[j]),
+                    for b in &p.bindings {
+                        if b.access.writes() {
+                            written.insert(b.resource.key());
+                        } else {
+                            read.insert(b.resource.key());
                         }
-                    })
-                    .collect();
-                if !writes.is_empty() {
-                    push.cmd_push_descriptor_set(cb, vk::PipelineBindPoint::COMPUTE, p.pipeline.inner.layout, 0, &writes);
+                    }
+                    if let Some(du) = &s.debug_device {
+                        if let Ok(label) = std::ffi::CString::new(p.name.as_str()) {
+                            du.cmd_begin_debug_utils_label(cb, &vk::DebugUtilsLabelEXT::default().label_name(&label));
+                        }
+                    }
+                    if let Some(pool) = pool {
+                        d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::COMPUTE_SHADER, pool, 2 * i as u32);
+                    }
+                    d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, p.pipeline.inner.pipeline);
+                    let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = p
+                        .bindings
+                        .iter()
+                        .map(|b| match &b.resource {
+                            Resource::Buffer(buf) => {
+                                [vk::DescriptorBufferInfo { buffer: buf.raw(), offset: 0, range: vk::WHOLE_SIZE }]
+                            }
+                            Resource::Image(_) => [vk::DescriptorBufferInfo::default()],
+                        })
+                        .collect();
+                    let image_infos: Vec<[vk::DescriptorImageInfo; 1]> = p
+                        .bindings
+                        .iter()
+                        .map(|b| match &b.resource {
+                            Resource::Image(img) => [vk::DescriptorImageInfo {
+                                sampler: vk::Sampler::null(),
+                                image_view: img.inner.view,
+                                image_layout: vk::ImageLayout::GENERAL,
+                            }],
+                            Resource::Buffer(_) => [vk::DescriptorImageInfo::default()],
+                        })
+                        .collect();
+                    let writes: Vec<vk::WriteDescriptorSet> = p
+                        .bindings
+                        .iter()
+                        .enumerate()
+                        .map(|(j, b)| {
+                            let w = vk::WriteDescriptorSet::default().dst_binding(b.binding);
+                            match &b.resource {
+                                Resource::Buffer(_) => {
+                                    w.descriptor_type(vk::DescriptorType::STORAGE_BUFFER).buffer_info(&buffer_infos[j])
+                                }
+                                Resource::Image(_) => {
+                                    w.descriptor_type(vk::DescriptorType::STORAGE_IMAGE).image_info(&image_infos[j])
+                                }
+                            }
+                        })
+                        .collect();
+                    if !writes.is_empty() {
+                        push.cmd_push_descriptor_set(
+                            cb,
+                            vk::PipelineBindPoint::COMPUTE,
+                            p.pipeline.inner.layout,
+                            0,
+                            &writes,
+                        );
+                    }
+                    if !p.push.is_empty() {
+                        d.cmd_push_constants(cb, p.pipeline.inner.layout, vk::ShaderStageFlags::COMPUTE, 0, &p.push);
+                    }
+                    d.cmd_dispatch(cb, p.groups[0], p.groups[1], p.groups[2]);
+                    if let Some(pool) = pool {
+                        d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::COMPUTE_SHADER, pool, 2 * i as u32 + 1);
+                    }
+                    if s.debug_device.is_some() {
+                        s.debug_device.as_ref().unwrap().cmd_end_debug_utils_label(cb);
+                    }
                 }
-                if !p.push.is_empty() {
-                    d.cmd_push_constants(cb, p.pipeline.inner.layout, vk::ShaderStageFlags::COMPUTE, 0, &p.push);
-                }
-                d.cmd_dispatch(cb, p.groups[0], p.groups[1], p.groups[2]);
-                if let Some(pool) = pool {
-                    d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::COMPUTE_SHADER, pool, 2 * i as u32 + 1);
-                }
-                if s.debug_device.is_some() {
-                    s.debug_device.as_ref().unwrap().cmd_end_debug_utils_label(cb);
-                }
-            }
-        })
+            },
+        )
     }
 
     /// Record a command buffer with `record` and submit it on `role` with waits and a signal.
@@ -324,17 +388,38 @@ impl Gpu {
         for w in waits {
             let submitted = st.submitted[w.role.index()];
             if w.value > submitted {
-                return Err(GpuError::WaitBeforeSignal { role: role.to_string(), wait_role: w.role.to_string(), value: w.value, submitted });
+                return Err(GpuError::WaitBeforeSignal {
+                    role: role.to_string(),
+                    wait_role: w.role.to_string(),
+                    value: w.value,
+                    submitted,
+                });
             }
         }
-        let cb = unsafe { d.allocate_command_buffers(&vk::CommandBufferAllocateInfo::default().command_pool(rq.pool).command_buffer_count(1)) }
-            .vk("vkAllocateCommandBuffers")?[0];
+        let cb = unsafe {
+            d.allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default().command_pool(rq.pool).command_buffer_count(1),
+            )
+        }
+        .vk("vkAllocateCommandBuffers")?[0];
         let pool = match query_count {
-            Some(n) => Some(unsafe { d.create_query_pool(&vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(n), None) }.vk("vkCreateQueryPool")?),
+            Some(n) => Some(
+                unsafe {
+                    d.create_query_pool(
+                        &vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(n),
+                        None,
+                    )
+                }
+                .vk("vkCreateQueryPool")?,
+            ),
             None => None,
         };
         unsafe {
-            d.begin_command_buffer(cb, &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT)).vk("vkBeginCommandBuffer")?;
+            d.begin_command_buffer(
+                cb,
+                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+            )
+            .vk("vkBeginCommandBuffer")?;
             if let (Some(p), Some(n)) = (pool, query_count) {
                 d.cmd_reset_query_pool(cb, p, 0, n);
             }
@@ -352,11 +437,22 @@ impl Gpu {
         let value = st.submitted[role.index()] + 1;
         let wait_infos: Vec<vk::SemaphoreSubmitInfo> = waits
             .iter()
-            .map(|w| vk::SemaphoreSubmitInfo::default().semaphore(s.role(w.role).timeline).value(w.value).stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS))
+            .map(|w| {
+                vk::SemaphoreSubmitInfo::default()
+                    .semaphore(s.role(w.role).timeline)
+                    .value(w.value)
+                    .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+            })
             .collect();
-        let signal = [vk::SemaphoreSubmitInfo::default().semaphore(rq.timeline).value(value).stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)];
+        let signal = [vk::SemaphoreSubmitInfo::default()
+            .semaphore(rq.timeline)
+            .value(value)
+            .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)];
         let cbs = [vk::CommandBufferSubmitInfo::default().command_buffer(cb)];
-        let submit = vk::SubmitInfo2::default().wait_semaphore_infos(&wait_infos).command_buffer_infos(&cbs).signal_semaphore_infos(&signal);
+        let submit = vk::SubmitInfo2::default()
+            .wait_semaphore_infos(&wait_infos)
+            .command_buffer_infos(&cbs)
+            .signal_semaphore_infos(&signal);
         let calibration = if pool.is_some() { self.calibration() } else { None };
         unsafe { d.queue_submit2(rq.queue, &[submit], vk::Fence::null()) }.map_err(|e| match e {
             vk::Result::ERROR_DEVICE_LOST => GpuError::DeviceLost { passes: names.join(", ") },
@@ -364,15 +460,31 @@ impl Gpu {
         })?;
         st.submitted[role.index()] = value;
         let point = SyncPoint { role, value };
-        st.in_flight.push(InFlight { point, cb, queries: pool, names, _keep: keep, _pipelines: pipelines, calibration });
+        st.in_flight.push(InFlight {
+            point,
+            cb,
+            queries: pool,
+            names,
+            _keep: keep,
+            _pipelines: pipelines,
+            calibration,
+        });
         Ok(point)
     }
 
     /// Run a one-off command buffer on the trace role and wait for it (uploads, readbacks).
-    pub(crate) fn one_shot(&self, buffers: &[Buffer], images: &[Image3d], record: impl FnOnce(&ash::Device, vk::CommandBuffer)) -> Result<()> {
+    pub(crate) fn one_shot(
+        &self,
+        buffers: &[Buffer],
+        images: &[Image3d],
+        record: impl FnOnce(&ash::Device, vk::CommandBuffer),
+    ) -> Result<()> {
         let keep: Vec<Resource> = buffers.iter().map(Resource::from).chain(images.iter().map(Resource::from)).collect();
         let d = self.shared.device.clone();
-        let p = self.record_and_submit(QueueRole::Trace, &[], vec!["transfer".into()], keep, Vec::new(), None, |cb, _| record(&d, cb))?;
+        let p =
+            self.record_and_submit(QueueRole::Trace, &[], vec!["transfer".into()], keep, Vec::new(), None, |cb, _| {
+                record(&d, cb)
+            })?;
         self.wait(p)
     }
 
@@ -389,11 +501,18 @@ impl Gpu {
             Err(vk::Result::TIMEOUT) => {
                 let st = self.submit.lock().expect("submit lock");
                 let passes = st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>().join(", ");
-                Err(GpuError::Timeout { role: point.role.to_string(), value: point.value, seconds: started.elapsed().as_secs_f64(), passes })
+                Err(GpuError::Timeout {
+                    role: point.role.to_string(),
+                    value: point.value,
+                    seconds: started.elapsed().as_secs_f64(),
+                    passes,
+                })
             }
             Err(vk::Result::ERROR_DEVICE_LOST) => {
                 let st = self.submit.lock().expect("submit lock");
-                Err(GpuError::DeviceLost { passes: st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>().join(", ") })
+                Err(GpuError::DeviceLost {
+                    passes: st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>().join(", "),
+                })
             }
             Err(e) => Err(GpuError::Vk { call: "vkWaitSemaphores", result: e }),
         }
@@ -417,15 +536,25 @@ impl Gpu {
         let mut st = self.submit.lock().expect("submit lock");
         let mut reached = [0u64; 2];
         for role in QueueRole::ALL {
-            reached[role.index()] = unsafe { d.get_semaphore_counter_value(s.role(role).timeline) }.vk("vkGetSemaphoreCounterValue")?;
+            reached[role.index()] =
+                unsafe { d.get_semaphore_counter_value(s.role(role).timeline) }.vk("vkGetSemaphoreCounterValue")?;
         }
         let period = s.info.timestamp_period_ns as f64;
-        let (done, pending): (Vec<InFlight>, Vec<InFlight>) = std::mem::take(&mut st.in_flight).into_iter().partition(|f| f.point.value <= reached[f.point.role.index()]);
+        let (done, pending): (Vec<InFlight>, Vec<InFlight>) =
+            std::mem::take(&mut st.in_flight).into_iter().partition(|f| f.point.value <= reached[f.point.role.index()]);
         st.in_flight = pending;
         for f in done {
             if let Some(pool) = f.queries {
                 let mut ticks = vec![0u64; f.names.len() * 2];
-                unsafe { d.get_query_pool_results(pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT) }.vk("vkGetQueryPoolResults")?;
+                unsafe {
+                    d.get_query_pool_results(
+                        pool,
+                        0,
+                        &mut ticks,
+                        vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                    )
+                }
+                .vk("vkGetQueryPoolResults")?;
                 for (i, name) in f.names.iter().enumerate() {
                     let to_ns = |t: u64| -> i128 {
                         match f.calibration {
@@ -454,5 +583,3 @@ impl Gpu {
         std::mem::take(&mut self.submit.lock().expect("submit lock").timings)
     }
 }
-
-

@@ -30,10 +30,16 @@ pub struct Rung {
 /// Each solver's quality ladder, cheapest first. `quick` keeps the cheap end only.
 pub fn ladder(kind: SolverKind, scene: &Scene, quick: bool) -> Vec<Rung> {
     let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
-    let rung = |knob: &str, value: String| Rung { knob: knob.to_string(), value: value.clone(), sets: vec![(knob.to_string(), value)] };
+    let rung = |knob: &str, value: String| Rung {
+        knob: knob.to_string(),
+        value: value.clone(),
+        sets: vec![(knob.to_string(), value)],
+    };
     let mut v: Vec<Rung> = match kind {
         SolverKind::Path => [4u32, 16, 64, 256, 1024].iter().map(|s| rung("path.spp", s.to_string())).collect(),
-        SolverKind::Single => [16.0f32, 32.0, 64.0, 128.0, 256.0].iter().map(|d| rung("single.step", format!("{}", diag / d))).collect(),
+        SolverKind::Single => {
+            [16.0f32, 32.0, 64.0, 128.0, 256.0].iter().map(|d| rung("single.step", format!("{}", diag / d))).collect()
+        }
         SolverKind::Lbl => [16u32, 24, 32, 48, 64].iter().map(|g| rung("lbl.grid", g.to_string())).collect(),
         // Angular and radial resolution grow together (nu = 2 nv = layers / 2): the knob is
         // the layer count, the rays follow it.
@@ -42,7 +48,11 @@ pub fn ladder(kind: SolverKind, scene: &Scene, quick: bool) -> Vec<Rung> {
             .map(|l| Rung {
                 knob: "wavefront.layers".into(),
                 value: l.to_string(),
-                sets: vec![("wavefront.layers".into(), l.to_string()), ("wavefront.nu".into(), (l / 2).to_string()), ("wavefront.nv".into(), (l / 4).to_string())],
+                sets: vec![
+                    ("wavefront.layers".into(), l.to_string()),
+                    ("wavefront.nu".into(), (l / 2).to_string()),
+                    ("wavefront.nv".into(), (l / 4).to_string()),
+                ],
             })
             .collect(),
     };
@@ -80,10 +90,7 @@ pub struct Throughput {
 
 /// Indices on the Pareto front of (time, error): points no other point beats on both.
 pub fn pareto(points: &[(f64, f64)]) -> Vec<bool> {
-    points
-        .iter()
-        .map(|&(t, e)| !points.iter().any(|&(t2, e2)| t2 <= t && e2 <= e && (t2 < t || e2 < e)))
-        .collect()
+    points.iter().map(|&(t, e)| !points.iter().any(|&(t2, e2)| t2 <= t && e2 <= e && (t2 < t || e2 < e))).collect()
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -100,7 +107,13 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 /// Cache key of a reference: scene content (file text, overrides, grid data), engine
 /// version, device and driver, reference spp.
-pub fn reference_key(scene_text: &str, scene: &Scene, overrides: &[(String, String)], device: &DeviceInfo, spp: u32) -> String {
+pub fn reference_key(
+    scene_text: &str,
+    scene: &Scene,
+    overrides: &[(String, String)],
+    device: &DeviceInfo,
+    spp: u32,
+) -> String {
     let mut h = Sha256::new();
     h.update(scene_text.as_bytes());
     for (k, v) in overrides {
@@ -169,9 +182,22 @@ pub fn bench_scene(
             match kind {
                 SolverKind::Path => {
                     let steps = r.report.stats["tracking_steps"].as_f64().unwrap_or(0.0);
-                    let samples = (scene.render.width * scene.render.height) as f64 * rung.value.parse::<f64>().unwrap_or(0.0);
-                    thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("samples/s at {}={}", rung.knob, rung.value), value: samples / (g * 1e-3), unit: "1/s".into() });
-                    thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("path segments/s at {}={}", rung.knob, rung.value), value: steps / (g * 1e-3), unit: "1/s".into() });
+                    let samples =
+                        (scene.render.width * scene.render.height) as f64 * rung.value.parse::<f64>().unwrap_or(0.0);
+                    thr.push(Throughput {
+                        scene: name.into(),
+                        solver: kind,
+                        figure: format!("samples/s at {}={}", rung.knob, rung.value),
+                        value: samples / (g * 1e-3),
+                        unit: "1/s".into(),
+                    });
+                    thr.push(Throughput {
+                        scene: name.into(),
+                        solver: kind,
+                        figure: format!("path segments/s at {}={}", rung.knob, rung.value),
+                        value: steps / (g * 1e-3),
+                        unit: "1/s".into(),
+                    });
                 }
                 SolverKind::Lbl => {
                     let dims = &lbl["lattice"]["dims"];
@@ -181,11 +207,23 @@ pub fn bench_scene(
                     let ch = lbl["channels"].as_f64().unwrap_or(1.0);
                     if ms > 0.0 {
                         let ups = voxels * iters / (ms * 1e-3);
-                        thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("lattice voxel-updates/s at {}={}", rung.knob, rung.value), value: ups, unit: "1/s".into() });
+                        thr.push(Throughput {
+                            scene: name.into(),
+                            solver: kind,
+                            figure: format!("lattice voxel-updates/s at {}={}", rung.knob, rung.value),
+                            value: ups,
+                            unit: "1/s".into(),
+                        });
                         // Per voxel-update at least: 6 links read and written, 1 irradiance
                         // read-modify-write, 1 density read, 4 bytes each, per channel.
                         let bytes = (ch * (6.0 * 2.0 + 2.0) + 1.0) * 4.0;
-                        thr.push(Throughput { scene: name.into(), solver: kind, figure: format!("lattice effective bandwidth at {}={}", rung.knob, rung.value), value: ups * bytes / 1e9, unit: "GB/s".into() });
+                        thr.push(Throughput {
+                            scene: name.into(),
+                            solver: kind,
+                            figure: format!("lattice effective bandwidth at {}={}", rung.knob, rung.value),
+                            value: ups * bytes / 1e9,
+                            unit: "GB/s".into(),
+                        });
                     }
                 }
                 SolverKind::Single | SolverKind::Wavefront => {}
@@ -214,7 +252,12 @@ pub fn bench_scene(
 
 /// Slim against full modelling for one solver: the same scene with every optional feature
 /// forced on (`--model-all`). Returns (slim bytes, full bytes, slim ms, full ms, relL2 between).
-pub fn slim_vs_full(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)]) -> Result<(u64, u64, f64, f64, f64), String> {
+pub fn slim_vs_full(
+    gpu: &Gpu,
+    scene: &Scene,
+    kind: SolverKind,
+    sets: &[(String, String)],
+) -> Result<(u64, u64, f64, f64, f64), String> {
     let (a, _) = render(gpu, scene, kind, sets, false)?;
     let (b, _) = render(gpu, scene, kind, sets, true)?;
     let d = output::compare(&a.image, &b.image).map_err(|e| e.to_string())?.rel_l2;
@@ -256,12 +299,20 @@ fn esc(s: &str) -> String {
 /// without the CSV (axis labels, decades, legend, knob values beside points).
 pub fn svg(title: &str, points: &[Point]) -> String {
     let (w, h, ml, mr, mt, mb) = (720.0f64, 480.0f64, 70.0, 150.0, 40.0, 50.0);
-    let finite: Vec<&Point> = points.iter().filter(|p| p.gpu_ms > 0.0 && p.metrics.rel_l2 > 0.0 && p.metrics.rel_l2.is_finite()).collect();
+    let finite: Vec<&Point> =
+        points.iter().filter(|p| p.gpu_ms > 0.0 && p.metrics.rel_l2 > 0.0 && p.metrics.rel_l2.is_finite()).collect();
     let lx: Vec<f64> = finite.iter().map(|p| p.gpu_ms.log10()).collect();
     let ly: Vec<f64> = finite.iter().map(|p| p.metrics.rel_l2.log10()).collect();
-    let (x0, x1) = (lx.iter().cloned().fold(f64::INFINITY, f64::min).floor(), lx.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil());
-    let (y0, y1) = (ly.iter().cloned().fold(f64::INFINITY, f64::min).floor(), ly.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil());
-    let (x0, x1, y0, y1) = if finite.is_empty() { (0.0, 1.0, -1.0, 0.0) } else { (x0, x1.max(x0 + 1.0), y0, y1.max(y0 + 1.0)) };
+    let (x0, x1) = (
+        lx.iter().cloned().fold(f64::INFINITY, f64::min).floor(),
+        lx.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil(),
+    );
+    let (y0, y1) = (
+        ly.iter().cloned().fold(f64::INFINITY, f64::min).floor(),
+        ly.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil(),
+    );
+    let (x0, x1, y0, y1) =
+        if finite.is_empty() { (0.0, 1.0, -1.0, 0.0) } else { (x0, x1.max(x0 + 1.0), y0, y1.max(y0 + 1.0)) };
     let px = |v: f64| ml + (v - x0) / (x1 - x0) * (w - ml - mr);
     let py = |v: f64| h - mb - (v - y0) / (y1 - y0) * (h - mt - mb);
     let mut s = format!(
@@ -294,8 +345,12 @@ pub fn svg(title: &str, points: &[Point]) -> String {
     for (i, kind) in kinds.iter().enumerate() {
         let c = colours[i % colours.len()];
         let pts: Vec<&&Point> = finite.iter().filter(|p| p.solver == *kind).collect();
-        let path: Vec<String> = pts.iter().map(|p| format!("{:.1},{:.1}", px(p.gpu_ms.log10()), py(p.metrics.rel_l2.log10()))).collect();
-        s.push_str(&format!("<polyline points=\"{}\" fill=\"none\" stroke=\"{c}\" stroke-width=\"2\"/>\n", path.join(" ")));
+        let path: Vec<String> =
+            pts.iter().map(|p| format!("{:.1},{:.1}", px(p.gpu_ms.log10()), py(p.metrics.rel_l2.log10()))).collect();
+        s.push_str(&format!(
+            "<polyline points=\"{}\" fill=\"none\" stroke=\"{c}\" stroke-width=\"2\"/>\n",
+            path.join(" ")
+        ));
         for p in &pts {
             let (x, y) = (px(p.gpu_ms.log10()), py(p.metrics.rel_l2.log10()));
             s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"3.5\" fill=\"{c}\"><title>{} {}={}: {:.1} ms, relL2 {:.4}</title></circle>\n", kind.name(), p.knob, p.value, p.gpu_ms, p.metrics.rel_l2));
@@ -303,7 +358,12 @@ pub fn svg(title: &str, points: &[Point]) -> String {
                 s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/>\n"));
             }
             let short: String = p.value.chars().take(6).collect();
-            s.push_str(&format!("<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"9\" fill=\"#555\">{}</text>\n", x + 6.0, y - 6.0, esc(&short)));
+            s.push_str(&format!(
+                "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"9\" fill=\"#555\">{}</text>\n",
+                x + 6.0,
+                y - 6.0,
+                esc(&short)
+            ));
         }
         let ly = mt + 20.0 + 20.0 * i as f64;
         s.push_str(&format!("<line x1=\"{}\" y1=\"{ly:.1}\" x2=\"{}\" y2=\"{ly:.1}\" stroke=\"{c}\" stroke-width=\"3\"/><text x=\"{}\" y=\"{:.1}\">{}</text>\n", w - mr + 10.0, w - mr + 34.0, w - mr + 40.0, ly + 4.0, kind.name()));

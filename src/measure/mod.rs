@@ -10,7 +10,13 @@ use crate::solvers::{self, RenderOutput, RenderRequest, Settings, SolverKind};
 
 /// Render with solver knobs given as pairs, no progress, returning the output and the wall
 /// time in ms; errors as text (the commands print them on one line).
-pub(crate) fn render_timed(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)], force_full: bool) -> Result<(RenderOutput, f64), String> {
+pub(crate) fn render_timed(
+    gpu: &Gpu,
+    scene: &Scene,
+    kind: SolverKind,
+    sets: &[(String, String)],
+    force_full: bool,
+) -> Result<(RenderOutput, f64), String> {
     let settings = Settings::new(sets);
     let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
     let t = std::time::Instant::now();

@@ -109,13 +109,26 @@ pub fn cases() -> Vec<Case> {
     // stressed. Thick lossless bounds take `path` long, so those cases are slow.
     for tau in [1e-3f32, 10.0, 1e3, 1e4] {
         for albedo in [0.0f32, 0.99] {
-            v.push(mk(format!("light inside, tau {tau:e}, albedo {albedo}"), "light inside", albedo, tau, 0.0, Some([0.5 * h, 0.5 * h, 0.5 * h]), tau >= 1e3));
+            v.push(mk(
+                format!("light inside, tau {tau:e}, albedo {albedo}"),
+                "light inside",
+                albedo,
+                tau,
+                0.0,
+                Some([0.5 * h, 0.5 * h, 0.5 * h]),
+                tau >= 1e3,
+            ));
         }
     }
     v
 }
 
-fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(String, String)]) -> Result<solvers::RenderOutput, String> {
+fn render(
+    gpu: &Gpu,
+    scene: &Scene,
+    kind: SolverKind,
+    sets: &[(String, String)],
+) -> Result<solvers::RenderOutput, String> {
     super::render_timed(gpu, scene, kind, sets, false).map(|(r, _)| r)
 }
 
@@ -128,7 +141,12 @@ fn knobs(kind: SolverKind) -> Vec<(String, String)> {
     match kind {
         SolverKind::Path => vec![kv("path.spp", "64")],
         SolverKind::Single => vec![kv("single.env_dirs", "16")],
-        SolverKind::Lbl => vec![kv("lbl.grid", "16"), kv("lbl.rays", "4096"), kv("lbl.view_env_dirs", "16"), kv("lbl.max_iters", "4000")],
+        SolverKind::Lbl => vec![
+            kv("lbl.grid", "16"),
+            kv("lbl.rays", "4096"),
+            kv("lbl.view_env_dirs", "16"),
+            kv("lbl.max_iters", "4000"),
+        ],
         SolverKind::Wavefront => vec![kv("wavefront.grid", "16"), kv("wavefront.view_env_dirs", "16")],
     }
 }
@@ -157,13 +175,20 @@ fn variants(kind: SolverKind) -> Vec<(String, Vec<(String, String)>)> {
 }
 
 /// Run every case (skipping slow ones unless `include_slow`) for every solver.
-pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dyn Fn(&str)) -> Result<Vec<Outcome>, String> {
+pub fn run(
+    gpu: &Gpu,
+    solvers_: &[SolverKind],
+    include_slow: bool,
+    progress: &dyn Fn(&str),
+) -> Result<Vec<Outcome>, String> {
     let mut out = Vec::new();
     for case in cases() {
         if case.slow && !include_slow {
             continue;
         }
-        let scene = Scene::from_str(&scene_text(&case), &case.name, std::path::Path::new("."), &[], &LoadOptions::default()).map_err(|e| e.to_string())?;
+        let scene =
+            Scene::from_str(&scene_text(&case), &case.name, std::path::Path::new("."), &[], &LoadOptions::default())
+                .map_err(|e| e.to_string())?;
         // The lossless bound for point-light cases: the same scene with albedo 1, by `path`.
         let bound: Option<(Image, f64)> = match case.light {
             Some(_) => {
@@ -187,7 +212,10 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
             e.data.iter_mut().for_each(|v| *v = x);
             e
         });
-        let light_traced = !solvers::path::light_traced(&scene, "auto", solvers::path::DEFAULT_COLLISION_CAP).map_err(|e| e.to_string())?.0.is_empty();
+        let light_traced = !solvers::path::light_traced(&scene, "auto", solvers::path::DEFAULT_COLLISION_CAP)
+            .map_err(|e| e.to_string())?
+            .0
+            .is_empty();
         for (kind, (variant, knobs)) in solvers_.iter().flat_map(|k| variants(*k).into_iter().map(move |v| (k, v))) {
             if variant == CAMERA_PATHS && !light_traced {
                 continue; // the default already is camera paths alone
@@ -223,7 +251,13 @@ pub fn run(gpu: &Gpu, solvers_: &[SolverKind], include_slow: bool, progress: &dy
     Ok(out)
 }
 
-fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option<&(Image, f64)>, exact: Option<&Image>) -> Outcome {
+fn judge(
+    case: &Case,
+    kind: SolverKind,
+    r: &solvers::RenderOutput,
+    bound: Option<&(Image, f64)>,
+    exact: Option<&Image>,
+) -> Outcome {
     let img = &r.image;
     let finite = img.nan_inf_count() == 0;
     let non_negative = img.data.iter().all(|v| *v >= 0.0);
@@ -255,7 +289,8 @@ fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option
     let exact_error = exact.and_then(|e| crate::output::compare(img, e).ok()).map(|m| m.rel_l2);
     let mut notes = r.report.warnings.clone();
     let lbl = &r.report.stats["lbl"];
-    let (iterations, converged) = if kind == SolverKind::Lbl { (lbl["iterations"].as_u64(), lbl["converged"].as_bool()) } else { (None, None) };
+    let (iterations, converged) =
+        if kind == SolverKind::Lbl { (lbl["iterations"].as_u64(), lbl["converged"].as_bool()) } else { (None, None) };
     // Against an exact answer: `path` within 5 standard errors on every pixel; the pure
     // absorber is exact for the deterministic solvers; the furnace is reported for them (single
     // scattering alone is not meant to reach it), not judged. In a pure absorber of constant density under a radiance-1
@@ -280,7 +315,10 @@ fn judge(case: &Case, kind: SolverKind, r: &solvers::RenderOutput, bound: Option
     }
     // The wavefront march's own state went negative or non-finite (the gather clamps it, so
     // the image alone would not show it): a failure of the integrator.
-    let wf_failed = kind == SolverKind::Wavefront && r.report.stats["negative_nodes"].as_u64().unwrap_or(0) + r.report.stats["nonfinite_nodes"].as_u64().unwrap_or(0) > 0;
+    let wf_failed = kind == SolverKind::Wavefront
+        && r.report.stats["negative_nodes"].as_u64().unwrap_or(0)
+            + r.report.stats["nonfinite_nodes"].as_u64().unwrap_or(0)
+            > 0;
     Outcome {
         case: case.name.clone(),
         group: case.group,
@@ -336,7 +374,10 @@ pub fn csv(outcomes: &[Outcome]) -> String {
 
 /// The pass/fail table printed by the command.
 pub fn table(outcomes: &[Outcome]) -> String {
-    let mut s = format!("{:<36} {:<21} {:<5} {:>8} {:>10} {:>6} {}\n", "case", "solver", "ok", "over", "exact err", "iters", "notes");
+    let mut s = format!(
+        "{:<36} {:<21} {:<5} {:>8} {:>10} {:>6} {}\n",
+        "case", "solver", "ok", "over", "exact err", "iters", "notes"
+    );
     for o in outcomes {
         s.push_str(&format!(
             "{:<36} {:<21} {:<5} {:>8.1e} {:>10} {:>6} {}\n",

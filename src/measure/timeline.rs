@@ -90,15 +90,7 @@ fn intersection_length(a: &[(i128, i128)], b: &[(i128, i128)]) -> i128 {
 
 /// Busy time per role, overlap between the roles and the serial baseline of `timings`.
 pub fn summarize(timings: &[PassTiming]) -> TimelineSummary {
-    let role_union = |role: QueueRole| {
-        union(
-            timings
-                .iter()
-                .filter(|t| t.role == role)
-                .map(interval)
-                .collect(),
-        )
-    };
+    let role_union = |role: QueueRole| union(timings.iter().filter(|t| t.role == role).map(interval).collect());
     let unions: Vec<_> = QueueRole::ALL.iter().map(|&r| role_union(r)).collect();
     let per_queue = QueueRole::ALL
         .iter()
@@ -109,20 +101,13 @@ pub fn summarize(timings: &[PassTiming]) -> TimelineSummary {
             passes: timings.iter().filter(|t| t.role == role).count(),
         })
         .collect();
-    let span_ns = match (
-        timings.iter().map(|t| interval(t).0).min(),
-        timings.iter().map(|t| interval(t).1).max(),
-    ) {
+    let span_ns = match (timings.iter().map(|t| interval(t).0).min(), timings.iter().map(|t| interval(t).1).max()) {
         (Some(first), Some(last)) => last - first,
         _ => 0,
     };
     let union_busy_ns = length(&union(timings.iter().map(interval).collect()));
     let overlap_ns = intersection_length(&unions[0], &unions[1]);
-    let overlap_fraction = if union_busy_ns > 0 {
-        overlap_ns as f64 / union_busy_ns as f64
-    } else {
-        0.0
-    };
+    let overlap_fraction = if union_busy_ns > 0 { overlap_ns as f64 / union_busy_ns as f64 } else { 0.0 };
     let serial_ns = timings
         .iter()
         .map(|t| {
@@ -130,14 +115,7 @@ pub fn summarize(timings: &[PassTiming]) -> TimelineSummary {
             e - s
         })
         .sum();
-    TimelineSummary {
-        per_queue,
-        span_ns,
-        union_busy_ns,
-        overlap_ns,
-        overlap_fraction,
-        serial_ns,
-    }
+    TimelineSummary { per_queue, span_ns, union_busy_ns, overlap_ns, overlap_fraction, serial_ns }
 }
 
 /// Process id of the GPU in the Chrome trace.
@@ -174,7 +152,9 @@ pub fn chrome_trace(timings: &[PassTiming], meta: Value) -> Value {
     })];
     for role in QueueRole::ALL {
         let tid = trace_tid(role);
-        events.push(json!({ "name": "thread_name", "ph": "M", "pid": TRACE_PID, "tid": tid, "args": { "name": role.name() } }));
+        events.push(
+            json!({ "name": "thread_name", "ph": "M", "pid": TRACE_PID, "tid": tid, "args": { "name": role.name() } }),
+        );
         events.push(json!({ "name": "thread_sort_index", "ph": "M", "pid": TRACE_PID, "tid": tid, "args": { "sort_index": tid } }));
     }
     let t0 = timings.iter().map(|t| t.start_ns).min().unwrap_or(0);
@@ -193,10 +173,6 @@ pub fn chrome_trace(timings: &[PassTiming], meta: Value) -> Value {
 
 /// Write [`chrome_trace`] of `timings` to `path` atomically (open it in ui.perfetto.dev or
 /// chrome://tracing).
-pub fn write_chrome_trace(
-    path: &Path,
-    timings: &[PassTiming],
-    meta: Value,
-) -> Result<(), OutputError> {
+pub fn write_chrome_trace(path: &Path, timings: &[PassTiming], meta: Value) -> Result<(), OutputError> {
     write_json(path, &chrome_trace(timings, meta))
 }

@@ -19,13 +19,11 @@ where
     let tmp = temp_sibling(path)?;
     let result = write(&tmp).and_then(|()| {
         // Flush the data before the rename makes it visible under the final name.
-        fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(|source| OutputError::Io {
-                path: tmp.clone(),
-                action: "flush",
-                source,
-            })?;
+        fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|source| OutputError::Io {
+            path: tmp.clone(),
+            action: "flush",
+            source,
+        })?;
         fs::rename(&tmp, path).map_err(|source| OutputError::Io {
             path: path.to_owned(),
             action: "rename temporary file into place as",
@@ -58,11 +56,6 @@ fn temp_sibling(path: &Path) -> Result<PathBuf, OutputError> {
         });
     }
     let n = TEMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-    let tmp_name = format!(
-        ".{}.{}.{}.tmp",
-        name.to_string_lossy(),
-        std::process::id(),
-        n
-    );
+    let tmp_name = format!(".{}.{}.{}.tmp", name.to_string_lossy(), std::process::id(), n);
     Ok(dir.join(tmp_name))
 }

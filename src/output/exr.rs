@@ -9,8 +9,7 @@ use std::path::Path;
 
 use ::exr::prelude::traits::{ReadChannels, ReadLayers, WritableImage};
 use ::exr::prelude::{
-    read, AnyChannel, AnyChannels, Encoding, FlatSamples, Image as ExrImage, Layer,
-    LayerAttributes, SmallVec,
+    read, AnyChannel, AnyChannels, Encoding, FlatSamples, Image as ExrImage, Layer, LayerAttributes, SmallVec,
 };
 
 use super::{write_atomically, Image, OutputError};
@@ -53,16 +52,9 @@ pub fn write_exr(path: &Path, layers: &[(&str, &Image)]) -> Result<(), OutputErr
     let mut channels: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
     for (name, image) in layers {
         for (c, suffix) in ["R", "G", "B"].iter().enumerate() {
-            let channel_name = if name.is_empty() {
-                (*suffix).to_owned()
-            } else {
-                format!("{name}.{suffix}")
-            };
+            let channel_name = if name.is_empty() { (*suffix).to_owned() } else { format!("{name}.{suffix}") };
             let samples: Vec<f32> = image.data.iter().skip(c).step_by(3).copied().collect();
-            channels.push(AnyChannel::new(
-                channel_name.as_str(),
-                FlatSamples::F32(samples),
-            ));
+            channels.push(AnyChannel::new(channel_name.as_str(), FlatSamples::F32(samples)));
         }
     }
     let layer = Layer::new(
@@ -74,14 +66,11 @@ pub fn write_exr(path: &Path, layers: &[(&str, &Image)]) -> Result<(), OutputErr
     let exr_image = ExrImage::from_layer(layer);
 
     write_atomically(path, |tmp| {
-        exr_image
-            .write()
-            .to_file(tmp)
-            .map_err(|source| OutputError::Exr {
-                path: path.to_owned(),
-                action: "write",
-                source,
-            })
+        exr_image.write().to_file(tmp).map_err(|source| OutputError::Exr {
+            path: path.to_owned(),
+            action: "write",
+            source,
+        })
     })
 }
 
@@ -101,11 +90,7 @@ pub fn read_exr_layer(path: &Path, name: &str) -> Result<Image, OutputError> {
         .all_layers()
         .all_attributes()
         .from_file(path)
-        .map_err(|source| OutputError::Exr {
-            path: path.to_owned(),
-            action: "read",
-            source,
-        })?;
+        .map_err(|source| OutputError::Exr { path: path.to_owned(), action: "read", source })?;
 
     let wanted = |suffix: &str| -> String {
         if name.is_empty() {
@@ -117,20 +102,11 @@ pub fn read_exr_layer(path: &Path, name: &str) -> Result<Image, OutputError> {
     let mut available = Vec::new();
     for layer in &exr_image.layer_data {
         // A named part prefixes its channels with the part name, as OpenEXR 2 does.
-        let prefix = layer
-            .attributes
-            .layer_name
-            .as_ref()
-            .map(|n| format!("{n}."))
-            .unwrap_or_default();
+        let prefix = layer.attributes.layer_name.as_ref().map(|n| format!("{n}.")).unwrap_or_default();
         let full_name = |channel: &AnyChannel<FlatSamples>| format!("{prefix}{}", channel.name);
         let find = |suffix: &str| {
             let target = wanted(suffix);
-            layer
-                .channel_data
-                .list
-                .iter()
-                .find(|ch| full_name(ch) == target)
+            layer.channel_data.list.iter().find(|ch| full_name(ch) == target)
         };
         if let (Some(r), Some(g), Some(b)) = (find("R"), find("G"), find("B")) {
             let (w, h) = (layer.size.width(), layer.size.height());
@@ -141,24 +117,13 @@ pub fn read_exr_layer(path: &Path, name: &str) -> Result<Image, OutputError> {
                 data.push(g.value_by_flat_index(i).to_f32());
                 data.push(b.value_by_flat_index(i).to_f32());
             }
-            return Ok(Image {
-                width: w as u32,
-                height: h as u32,
-                data,
-            });
+            return Ok(Image { width: w as u32, height: h as u32, data });
         }
         available.extend(layer.channel_data.list.iter().map(full_name));
     }
-    Err(OutputError::MissingLayer {
-        path: path.to_owned(),
-        layer: name.to_owned(),
-        available: available.join(", "),
-    })
+    Err(OutputError::MissingLayer { path: path.to_owned(), layer: name.to_owned(), available: available.join(", ") })
 }
 
 fn invalid(path: &Path, reason: &str) -> OutputError {
-    OutputError::InvalidImage {
-        path: path.to_owned(),
-        reason: reason.to_owned(),
-    }
+    OutputError::InvalidImage { path: path.to_owned(), reason: reason.to_owned() }
 }

@@ -16,11 +16,7 @@ pub struct Image {
 impl Image {
     /// Black image of the given size.
     pub fn new(width: u32, height: u32) -> Self {
-        Self {
-            width,
-            height,
-            data: vec![0.0; 3 * width as usize * height as usize],
-        }
+        Self { width, height, data: vec![0.0; 3 * width as usize * height as usize] }
     }
 
     /// Image whose pixel `(x, y)` is `f(x, y)`.
@@ -31,11 +27,7 @@ impl Image {
                 data.extend_from_slice(&f(x, y));
             }
         }
-        Self {
-            width,
-            height,
-            data,
-        }
+        Self { width, height, data }
     }
 
     /// Number of pixels, `width * height`.
@@ -49,12 +41,7 @@ impl Image {
     }
 
     fn index(&self, x: u32, y: u32) -> usize {
-        assert!(
-            x < self.width && y < self.height,
-            "pixel ({x}, {y}) outside {}x{} image",
-            self.width,
-            self.height
-        );
+        assert!(x < self.width && y < self.height, "pixel ({x}, {y}) outside {}x{} image", self.width, self.height);
         3 * (y as usize * self.width as usize + x as usize)
     }
 
@@ -77,9 +64,7 @@ impl Image {
 
     /// Number of pixels with at least one NaN or infinite channel.
     pub fn nan_inf_count(&self) -> u64 {
-        self.pixels()
-            .filter(|p| p.iter().any(|v| !v.is_finite()))
-            .count() as u64
+        self.pixels().filter(|p| p.iter().any(|v| !v.is_finite())).count() as u64
     }
 
     /// Mean of each channel over all pixels, accumulated in f64. A NaN or infinite pixel

@@ -50,9 +50,7 @@ pub fn compare(a: &Image, reference: &Image) -> Result<Metrics, OutputError> {
     check_same_size(a, reference, "comparison")?;
     let bad_reference = reference.nan_inf_count();
     if bad_reference > 0 {
-        return Err(OutputError::NonFiniteReference {
-            count: bad_reference,
-        });
+        return Err(OutputError::NonFiniteReference { count: bad_reference });
     }
 
     let (mut sum_sq_diff, mut sum_sq_ref, mut sum_rel) = (0.0f64, 0.0f64, 0.0f64);
@@ -115,8 +113,7 @@ pub const ERROR_MAP_MIN: f32 = 1e-4;
 pub const ERROR_MAP_MAX: f32 = 1.0;
 
 /// How [`error_png`] maps error to colour, for captions and the CLI.
-pub const ERROR_MAP_DESCRIPTION: &str =
-    "per-pixel relative error e = mean_c|a - r| / (mean_c|r| + 1e-3), \
+pub const ERROR_MAP_DESCRIPTION: &str = "per-pixel relative error e = mean_c|a - r| / (mean_c|r| + 1e-3), \
      log10 scale from 1e-4 (dark purple) to 1 (yellow), viridis ramp, clamped at both ends; \
      NaN/Inf pixels magenta";
 
@@ -135,11 +132,7 @@ const VIRIDIS: [[f32; 3]; 9] = [
 
 /// Viridis colour at `t` in [0, 1] (piecewise linear between the nine stops).
 pub fn viridis(t: f32) -> [u8; 3] {
-    let t = if t.is_finite() {
-        t.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
+    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
     let s = t * (VIRIDIS.len() - 1) as f32;
     let i = (s.floor() as usize).min(VIRIDIS.len() - 2);
     let f = s - i as f32;
@@ -167,11 +160,7 @@ pub fn error_png(path: &Path, a: &Image, reference: &Image) -> Result<(), Output
         let diff: f32 = (0..3).map(|c| (pa[c] - pr[c]).abs()).sum::<f32>() / 3.0;
         let scale: f32 = pr.iter().map(|v| v.abs()).sum::<f32>() / 3.0;
         let e = diff / (scale + ERROR_MAP_EPSILON);
-        let t = if e > 0.0 {
-            (e.log10() - lo) / (hi - lo)
-        } else {
-            0.0
-        };
+        let t = if e > 0.0 { (e.log10() - lo) / (hi - lo) } else { 0.0 };
         rgb8.extend_from_slice(&viridis(t));
     }
     write_rgb8(path, a.width, a.height, &rgb8)

@@ -26,10 +26,7 @@ pub fn write_png_tonemapped(path: &Path, image: &Image, exposure: f32) -> Result
         if p.iter().any(|v| !v.is_finite()) {
             rgb8.extend_from_slice(&NON_FINITE_RGB8);
         } else {
-            rgb8.extend(
-                p.iter()
-                    .map(|&v| to_u8(srgb_oetf(aces_narkowicz(v.max(0.0) * scale)))),
-            );
+            rgb8.extend(p.iter().map(|&v| to_u8(srgb_oetf(aces_narkowicz(v.max(0.0) * scale)))));
         }
     }
     write_rgb8(path, image.width, image.height, &rgb8)
@@ -78,12 +75,7 @@ pub(super) fn check_writable(path: &Path, image: &Image) -> Result<(), OutputErr
 }
 
 /// Encode 8-bit RGB as PNG at `path`, atomically.
-pub(super) fn write_rgb8(
-    path: &Path,
-    width: u32,
-    height: u32,
-    rgb8: &[u8],
-) -> Result<(), OutputError> {
+pub(super) fn write_rgb8(path: &Path, width: u32, height: u32, rgb8: &[u8]) -> Result<(), OutputError> {
     write_atomically(path, |tmp| {
         ::image::save_buffer_with_format(
             tmp,
@@ -93,9 +85,6 @@ pub(super) fn write_rgb8(
             ::image::ExtendedColorType::Rgb8,
             ::image::ImageFormat::Png,
         )
-        .map_err(|source| OutputError::Png {
-            path: path.to_owned(),
-            source,
-        })
+        .map_err(|source| OutputError::Png { path: path.to_owned(), source })
     })
 }

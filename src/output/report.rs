@@ -9,10 +9,8 @@ use super::{write_atomically, OutputError};
 
 /// Write `value` as pretty-printed JSON (with a trailing newline) to `path`, atomically.
 pub fn write_json<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<(), OutputError> {
-    let mut text = serde_json::to_vec_pretty(value).map_err(|source| OutputError::Json {
-        path: path.to_owned(),
-        source,
-    })?;
+    let mut text =
+        serde_json::to_vec_pretty(value).map_err(|source| OutputError::Json { path: path.to_owned(), source })?;
     text.push(b'\n');
     write_text(path, &text)
 }
@@ -20,12 +18,10 @@ pub fn write_json<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<(), O
 /// Write bytes (CSV, SVG, JSON) to `path` atomically.
 pub fn write_text(path: &Path, text: impl AsRef<[u8]>) -> Result<(), OutputError> {
     write_atomically(path, |tmp| {
-        std::fs::File::create(tmp)
-            .and_then(|mut f| f.write_all(text.as_ref()))
-            .map_err(|source| OutputError::Io {
-                path: tmp.to_owned(),
-                action: "write",
-                source,
-            })
+        std::fs::File::create(tmp).and_then(|mut f| f.write_all(text.as_ref())).map_err(|source| OutputError::Io {
+            path: tmp.to_owned(),
+            action: "write",
+            source,
+        })
     })
 }

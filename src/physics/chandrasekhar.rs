@@ -96,10 +96,7 @@ impl HFunction {
     /// # Panics
     /// If `omega` is outside [0, 1] or the iteration fails to converge.
     pub fn new(omega: f64) -> Self {
-        assert!(
-            (0.0..=1.0).contains(&omega),
-            "single scattering albedo omega must lie in [0, 1], got {omega}"
-        );
+        assert!((0.0..=1.0).contains(&omega), "single scattering albedo omega must lie in [0, 1], got {omega}");
         let (x, w) = gauss_legendre(QUADRATURE_NODES);
         let mu: Vec<f64> = x.iter().map(|x| 0.5 * (x + 1.0)).collect();
         let wt: Vec<f64> = w.iter().map(|w| 0.5 * w).collect();
@@ -135,12 +132,7 @@ impl HFunction {
         for j in 0..mu.len() {
             weighted[j] = wt[j] * mu[j] * h[j];
         }
-        Self {
-            omega,
-            mu,
-            weighted,
-            iterations,
-        }
+        Self { omega, mu, weighted, iterations }
     }
 
     /// Single scattering albedo this H was solved for.
@@ -156,23 +148,14 @@ impl HFunction {
     /// H(mu) for `mu in [0, 1]` (clamped).
     pub fn eval(&self, mu: f64) -> f64 {
         let mu = mu.clamp(0.0, 1.0);
-        let integral: f64 = self
-            .mu
-            .iter()
-            .zip(&self.weighted)
-            .map(|(m, w)| w / (mu + m))
-            .sum();
+        let integral: f64 = self.mu.iter().zip(&self.weighted).map(|(m, w)| w / (mu + m)).sum();
         1.0 / ((1.0 - self.omega).sqrt() + 0.5 * self.omega * integral)
     }
 
     /// Moment `int_0^1 H(mu) mu^n dmu` by the same quadrature.
     pub fn moment(&self, n: i32) -> f64 {
         // weighted = w mu H, so divide one mu back out.
-        self.mu
-            .iter()
-            .zip(&self.weighted)
-            .map(|(m, w)| w * m.powi(n - 1))
-            .sum()
+        self.mu.iter().zip(&self.weighted).map(|(m, w)| w * m.powi(n - 1)).sum()
     }
 
     /// Plane albedo `1 - H(mu) sqrt(1 - omega)`: see
@@ -229,8 +212,7 @@ pub fn h_function_integral_representation(omega: f64, mu: f64) -> f64 {
     let one_minus = |t: f64| -> f64 {
         if t < 0.1 {
             let t2 = t * t;
-            (1.0 - omega)
-                + omega * t2 * (1.0 / 3.0 + t2 * (1.0 / 45.0 + t2 * (2.0 / 945.0 + t2 / 4725.0)))
+            (1.0 - omega) + omega * t2 * (1.0 / 3.0 + t2 * (1.0 / 45.0 + t2 * (2.0 / 945.0 + t2 / 4725.0)))
         } else {
             1.0 - omega * t / t.tan()
         }

@@ -57,10 +57,7 @@ pub const INV_FOUR_PI: f32 = 0.25 * std::f32::consts::FRAC_1_PI;
 /// Accurate for |g| up to 0.999 and `cos_theta` arbitrarily close to +-1; `cos_theta` is
 /// clamped to [-1, 1].
 pub fn hg_eval(g: f32, cos_theta: f32) -> f32 {
-    debug_assert!(
-        g.abs() < 1.0,
-        "asymmetry parameter g must lie in (-1, 1), got {g}"
-    );
+    debug_assert!(g.abs() < 1.0, "asymmetry parameter g must lie in (-1, 1), got {g}");
     let c = cos_theta.clamp(-1.0, 1.0);
     // 1 + g^2 - 2 g c as a sum of non-negative terms (see module docs).
     let denom = if g >= 0.0 {
@@ -87,10 +84,7 @@ pub fn hg_sample_cos(g: f32, u: f32) -> f32 {
 /// `(cos_theta, sin_theta^2)` of an HG sample; `sin^2 = (1 - c)(1 + c)` is formed from the
 /// factored `1 - c` of the forward lobe, so it keeps its digits when `c` is near +-1.
 fn hg_sample_cos_sin2(g: f32, u: f32) -> (f32, f32) {
-    debug_assert!(
-        g.abs() < 1.0,
-        "asymmetry parameter g must lie in (-1, 1), got {g}"
-    );
+    debug_assert!(g.abs() < 1.0, "asymmetry parameter g must lie in (-1, 1), got {g}");
     // Sample the forward lobe with |g| and mirror for g < 0: c(g, u) = -c(-g, 1 - u).
     let (ga, ua) = if g >= 0.0 { (g, u) } else { (-g, 1.0 - u) };
     let d = 1.0 - ga + 2.0 * ga * ua;

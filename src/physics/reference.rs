@@ -78,14 +78,12 @@ pub fn ray_sphere(origin: Vec3, dir: Vec3, center: Vec3, radius: f32) -> Option<
 
 /// Length (scene units) of the part of the ray `t >= 0` inside the box; 0 if it misses.
 pub fn chord_length_box(origin: Vec3, dir: Vec3, min: Vec3, max: Vec3) -> f32 {
-    ray_box(origin, dir, min, max)
-        .map_or(0.0, |(t0, t1)| ((t1 - t0.max(0.0)) * dir.length()).max(0.0))
+    ray_box(origin, dir, min, max).map_or(0.0, |(t0, t1)| ((t1 - t0.max(0.0)) * dir.length()).max(0.0))
 }
 
 /// Length (scene units) of the part of the ray `t >= 0` inside the sphere; 0 if it misses.
 pub fn chord_length_sphere(origin: Vec3, dir: Vec3, center: Vec3, radius: f32) -> f32 {
-    ray_sphere(origin, dir, center, radius)
-        .map_or(0.0, |(t0, t1)| ((t1 - t0.max(0.0)) * dir.length()).max(0.0))
+    ray_sphere(origin, dir, center, radius).map_or(0.0, |(t0, t1)| ((t1 - t0.max(0.0)) * dir.length()).max(0.0))
 }
 
 /// Chord of a sphere at distance `impact` from its centre: `2 sqrt(r^2 - b^2)`, 0 beyond.

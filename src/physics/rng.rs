@@ -18,10 +18,7 @@ impl Pcg32 {
     /// Seed the generator. `stream` selects one of 2^63 independent sequences.
     pub fn new(seed: u64, stream: u64) -> Self {
         // Seeding as in pcg32_srandom_r.
-        let mut rng = Self {
-            state: 0,
-            inc: (stream << 1) | 1,
-        };
+        let mut rng = Self { state: 0, inc: (stream << 1) | 1 };
         rng.next_u32();
         rng.state = rng.state.wrapping_add(seed);
         rng.next_u32();

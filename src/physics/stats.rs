@@ -160,27 +160,11 @@ pub fn sidak_alpha(alpha: f64, test_count: u32) -> f64 {
 ///
 /// Every interval is split at least `min_depth` times before the error estimate is trusted
 /// (so a narrow feature between the first five nodes is not missed), at most `max_depth`.
-pub fn adaptive_simpson<F: Fn(f64) -> f64>(
-    f: &F,
-    a: f64,
-    b: f64,
-    tol: f64,
-    min_depth: u32,
-    max_depth: u32,
-) -> f64 {
+pub fn adaptive_simpson<F: Fn(f64) -> f64>(f: &F, a: f64, b: f64, tol: f64, min_depth: u32, max_depth: u32) -> f64 {
     let m = 0.5 * (a + b);
     let (fa, fm, fb) = (f(a), f(m), f(b));
     let whole = (b - a) / 6.0 * (fa + 4.0 * fm + fb);
-    simpson_step(
-        f,
-        [a, m, b],
-        [fa, fm, fb],
-        whole,
-        tol,
-        0,
-        min_depth,
-        max_depth,
-    )
+    simpson_step(f, [a, m, b], [fa, fm, fb], whole, tol, 0, min_depth, max_depth)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -204,35 +188,13 @@ fn simpson_step<F: Fn(f64) -> f64>(
         return left + right + delta / 15.0;
     }
     let next = depth + 1;
-    simpson_step(
-        f,
-        [a, lm, m],
-        [fa, flm, fm],
-        left,
-        0.5 * tol,
-        next,
-        min_depth,
-        max_depth,
-    ) + simpson_step(
-        f,
-        [m, rm, b],
-        [fm, frm, fb],
-        right,
-        0.5 * tol,
-        next,
-        min_depth,
-        max_depth,
-    )
+    simpson_step(f, [a, lm, m], [fa, flm, fm], left, 0.5 * tol, next, min_depth, max_depth)
+        + simpson_step(f, [m, rm, b], [fm, frm, fb], right, 0.5 * tol, next, min_depth, max_depth)
 }
 
 /// Integral of `f(x, y)` over the rectangle `[x0, x1] x [y0, y1]` by nested adaptive
 /// Simpson, to absolute tolerance about `tol`.
-pub fn integrate_2d<F: Fn(f64, f64) -> f64>(
-    f: &F,
-    (x0, x1): (f64, f64),
-    (y0, y1): (f64, f64),
-    tol: f64,
-) -> f64 {
+pub fn integrate_2d<F: Fn(f64, f64) -> f64>(f: &F, (x0, x1): (f64, f64), (y0, y1): (f64, f64), tol: f64) -> f64 {
     // An error e in every inner integral adds at most e * (x1 - x0) to the outer one.
     let inner_tol = 0.1 * tol / (x1 - x0).abs().max(f64::MIN_POSITIVE);
     let inner = |x: f64| adaptive_simpson(&|y| f(x, y), y0, y1, inner_tol, 1, 30);
@@ -348,10 +310,7 @@ where
     let (x0, x1) = config.x_range;
     let (y0, y1) = config.y_range;
     let (nx, ny) = (config.x_res, config.y_res);
-    assert!(
-        nx > 0 && ny > 0 && x1 > x0 && y1 > y0,
-        "empty chi-square domain or histogram"
-    );
+    assert!(nx > 0 && ny > 0 && x1 > x0 && y1 > y0, "empty chi-square domain or histogram");
 
     // Histogram of the samples.
     let mut observed = vec![0.0f64; nx * ny];
@@ -359,8 +318,7 @@ where
     let mut rng = Pcg32::new(config.seed, 0);
     for _ in 0..config.sample_count {
         let [x, y] = sample(&mut rng);
-        let inside =
-            x.is_finite() && y.is_finite() && (x0..=x1).contains(&x) && (y0..=y1).contains(&y);
+        let inside = x.is_finite() && y.is_finite() && (x0..=x1).contains(&x) && (y0..=y1).contains(&y);
         if !inside {
             invalid_samples += 1;
             continue;
@@ -400,9 +358,7 @@ where
             if o > zero_pdf_threshold {
                 zero_pdf_samples += o as usize;
             }
-        } else if e < config.min_expected
-            || (pooled_expected > 0.0 && pooled_expected < config.min_expected)
-        {
+        } else if e < config.min_expected || (pooled_expected > 0.0 && pooled_expected < config.min_expected) {
             pooled_observed += o;
             pooled_expected += e;
         } else {
@@ -416,11 +372,7 @@ where
     }
     // The total count is fixed, which removes one degree of freedom.
     let dof = cells.saturating_sub(1);
-    let p_value = if dof >= 1 {
-        chi_square_p_value(statistic, dof)
-    } else {
-        0.0
-    };
+    let p_value = if dof >= 1 { chi_square_p_value(statistic, dof) } else { 0.0 };
 
     ChiSquareResult {
         statistic,
@@ -439,11 +391,7 @@ where
 /// [`orthonormal_basis`]: the coordinates of [`ChiSquareConfig::sphere`].
 pub fn spherical_coords(w: Vec3, axis: Vec3) -> [f64; 2] {
     let (b1, b2) = orthonormal_basis(axis);
-    let (x, y, z) = (
-        f64::from(w.dot(b1)),
-        f64::from(w.dot(b2)),
-        f64::from(w.dot(axis)),
-    );
+    let (x, y, z) = (f64::from(w.dot(b1)), f64::from(w.dot(b2)), f64::from(w.dot(axis)));
     // Normalise away the f32 rounding of w so cos_theta stays in [-1, 1].
     let len = (x * x + y * y + z * z).sqrt();
     [(z / len).clamp(-1.0, 1.0), y.atan2(x)]

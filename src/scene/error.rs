@@ -17,12 +17,7 @@ pub enum SceneError {
 
     /// The text is not valid TOML.
     #[error("{}:{line}:{column}: malformed TOML: {message}", .file.display())]
-    Syntax {
-        file: PathBuf,
-        line: usize,
-        column: usize,
-        message: String,
-    },
+    Syntax { file: PathBuf, line: usize, column: usize, message: String },
 
     /// A key the format does not know (a typo, or a key from another kind of light/camera).
     #[error("{}{}: unknown key `{key}`; {expected} (unknown keys are errors, not ignored)",
@@ -39,46 +34,24 @@ pub enum SceneError {
 
     /// A required key is absent.
     #[error("{}: missing required key `{key}`; {hint}", .file.display())]
-    MissingKey {
-        file: PathBuf,
-        key: String,
-        hint: String,
-    },
+    MissingKey { file: PathBuf, key: String, hint: String },
 
     /// A key is present but its value is wrong (type, range, or inconsistent with another key).
     #[error("{}: {field}: {message}", .file.display())]
-    Invalid {
-        file: PathBuf,
-        field: String,
-        message: String,
-    },
+    Invalid { file: PathBuf, field: String, message: String },
 
     /// A `--set key=value` override could not be applied.
     #[error("{}: override `{key}`: {message}", .file.display())]
-    Override {
-        file: PathBuf,
-        key: String,
-        message: String,
-    },
+    Override { file: PathBuf, key: String, message: String },
 
     /// The density grid file is missing, truncated, or holds something we cannot use.
     #[error("{}: medium.density.file `{}`: {message}", .file.display(), .grid.display())]
-    Grid {
-        file: PathBuf,
-        grid: PathBuf,
-        message: String,
-    },
+    Grid { file: PathBuf, grid: PathBuf, message: String },
 
     /// The density grid would not fit the memory budget (checked before reading it).
     #[error("{}: medium.density.file `{}`: grid {}x{}x{} needs {} of f32 data but the memory budget is {}; resample the grid or raise --memory-budget",
         .file.display(), .grid.display(), .dims[0], .dims[1], .dims[2], human_bytes(*.needed_bytes), human_bytes(*.budget_bytes))]
-    GridTooLarge {
-        file: PathBuf,
-        grid: PathBuf,
-        dims: [u64; 3],
-        needed_bytes: u64,
-        budget_bytes: u64,
-    },
+    GridTooLarge { file: PathBuf, grid: PathBuf, dims: [u64; 3], needed_bytes: u64, budget_bytes: u64 },
 }
 
 impl SceneError {
@@ -89,9 +62,7 @@ impl SceneError {
             | SceneError::MissingKey { key, .. }
             | SceneError::Override { key, .. } => Some(key),
             SceneError::Invalid { field, .. } => Some(field),
-            SceneError::Grid { .. } | SceneError::GridTooLarge { .. } => {
-                Some("medium.density.file")
-            }
+            SceneError::Grid { .. } | SceneError::GridTooLarge { .. } => Some("medium.density.file"),
             SceneError::Read { .. } | SceneError::Syntax { .. } => None,
         }
     }
@@ -118,10 +89,6 @@ pub(crate) fn human_bytes(bytes: u64) -> String {
 
 /// Collapse any multi-line text (toml's messages can span lines) into one line.
 pub(crate) fn one_line(text: &str) -> String {
-    let parts: Vec<&str> = text
-        .lines()
-        .map(str::trim)
-        .filter(|l| !l.is_empty())
-        .collect();
+    let parts: Vec<&str> = text.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
     parts.join("; ")
 }

@@ -16,10 +16,7 @@ impl Scene {
                 _ => false,
             }),
             homogeneous: matches!(m.density, Density::Constant),
-            has_environment: self
-                .lights
-                .iter()
-                .any(|l| matches!(l, Light::Environment { .. })),
+            has_environment: self.lights.iter().any(|l| matches!(l, Light::Environment { .. })),
             grid_dims: match &m.density {
                 Density::Grid(grid) => Some(grid.dims),
                 _ => None,

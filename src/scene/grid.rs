@@ -20,11 +20,7 @@ impl Grid {
         if nx == 0 || ny == 0 || nz == 0 {
             return 0.0;
         }
-        let (i, j, k) = (
-            u64::from(i.min(nx - 1)),
-            u64::from(j.min(ny - 1)),
-            u64::from(k.min(nz - 1)),
-        );
+        let (i, j, k) = (u64::from(i.min(nx - 1)), u64::from(j.min(ny - 1)), u64::from(k.min(nz - 1)));
         // Checked: a hand-built Grid may have dims that do not match its data.
         let index = k
             .checked_mul(u64::from(ny))
@@ -87,11 +83,7 @@ pub(crate) struct GridRequest<'a> {
 
 impl GridRequest<'_> {
     fn err(&self, message: impl Into<String>) -> SceneError {
-        SceneError::Grid {
-            file: self.scene_file.to_path_buf(),
-            grid: self.resolved.clone(),
-            message: message.into(),
-        }
+        SceneError::Grid { file: self.scene_file.to_path_buf(), grid: self.resolved.clone(), message: message.into() }
     }
 }
 
@@ -103,20 +95,14 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
     } else {
         ""
     };
-    let file = File::open(&req.resolved)
-        .map_err(|e| req.err(format!("cannot open grid file: {e}{hint}")))?;
-    let file_len = file
-        .metadata()
-        .map_err(|e| req.err(format!("cannot read grid file: {e}")))?
-        .len();
+    let file = File::open(&req.resolved).map_err(|e| req.err(format!("cannot open grid file: {e}{hint}")))?;
+    let file_len = file.metadata().map_err(|e| req.err(format!("cannot read grid file: {e}")))?.len();
     let mut reader = BufReader::with_capacity(1 << 16, file);
 
     // Mitsuba 3 .vol is recognised by its magic; anything else is raw f32 and needs dims.
     let mut magic = [0u8; 3];
     let is_vol = file_len >= 3 && {
-        reader
-            .read_exact(&mut magic)
-            .map_err(|e| req.err(format!("cannot read grid file: {e}")))?;
+        reader.read_exact(&mut magic).map_err(|e| req.err(format!("cannot read grid file: {e}")))?;
         &magic == b"VOL"
     };
 
@@ -146,9 +132,7 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
         let mut dims = [0u32; 3];
         for (axis, (&d, out)) in given.iter().zip(dims.iter_mut()).enumerate() {
             *out = u32::try_from(d).ok().filter(|&d| d > 0).ok_or_else(|| {
-                req.err(format!(
-                    "dims[{axis}] = {d} must be a positive voxel count (dims = [nx, ny, nz])"
-                ))
+                req.err(format!("dims[{axis}] = {d} must be a positive voxel count (dims = [nx, ny, nz])"))
             })?;
         }
         (dims, 0)
@@ -156,9 +140,7 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
 
     // Budget before reading: the grid is held as f32 in memory.
     // Saturating: three u32 resolutions can overflow u64 (a hostile header must not panic).
-    let voxels = dims
-        .iter()
-        .fold(1u64, |acc, &d| acc.saturating_mul(u64::from(d)));
+    let voxels = dims.iter().fold(1u64, |acc, &d| acc.saturating_mul(u64::from(d)));
     let needed = voxels.saturating_mul(4);
     if needed > req.opts.memory_budget_bytes {
         return Err(SceneError::GridTooLarge {
@@ -173,56 +155,35 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
     let expected = data_offset.saturating_add(needed);
     if file_len != expected {
         let what = if is_vol {
-            format!(
-                "a .vol of {}x{}x{} float32 voxels (48-byte header + data)",
-                dims[0], dims[1], dims[2]
-            )
+            format!("a .vol of {}x{}x{} float32 voxels (48-byte header + data)", dims[0], dims[1], dims[2])
         } else {
-            format!(
-                "a raw grid of dims = [{}, {}, {}] f32",
-                dims[0], dims[1], dims[2]
-            )
+            format!("a raw grid of dims = [{}, {}, {}] f32", dims[0], dims[1], dims[2])
         };
         let fix = if file_len < expected {
             "the file is truncated or dims are wrong"
         } else {
             "the file has extra bytes or dims are wrong"
         };
-        return Err(req.err(format!(
-            "{what} needs {expected} bytes but the file has {file_len} bytes; {fix}"
-        )));
+        return Err(req.err(format!("{what} needs {expected} bytes but the file has {file_len} bytes; {fix}")));
     }
 
     // Read the voxels in chunks (no second full-size copy) and check each one.
-    let count = usize::try_from(voxels)
-        .map_err(|_| req.err("grid too large for this platform's address space"))?;
+    let count = usize::try_from(voxels).map_err(|_| req.err("grid too large for this platform's address space"))?;
     let mut data = Vec::new();
-    data.try_reserve_exact(count)
-        .map_err(|_| req.err(format!("cannot allocate {needed} bytes for the grid")))?;
+    data.try_reserve_exact(count).map_err(|_| req.err(format!("cannot allocate {needed} bytes for the grid")))?;
     if !is_vol {
         // Raw files were only peeked at for the magic; start over.
-        let file = File::open(&req.resolved)
-            .map_err(|e| req.err(format!("cannot open grid file: {e}")))?;
+        let file = File::open(&req.resolved).map_err(|e| req.err(format!("cannot open grid file: {e}")))?;
         reader = BufReader::with_capacity(1 << 16, file);
     }
     let mut chunk = vec![0u8; 1 << 16];
     while data.len() < count {
         let n = ((count - data.len()) * 4).min(chunk.len());
-        reader
-            .read_exact(&mut chunk[..n])
-            .map_err(|e| req.err(format!("cannot read grid data: {e}")))?;
-        data.extend(
-            chunk[..n]
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-        );
+        reader.read_exact(&mut chunk[..n]).map_err(|e| req.err(format!("cannot read grid data: {e}")))?;
+        data.extend(chunk[..n].chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])));
     }
 
-    if let Some((index, &value)) = data
-        .iter()
-        .enumerate()
-        .find(|(_, v)| !v.is_finite() || **v < 0.0)
-    {
+    if let Some((index, &value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite() || **v < 0.0) {
         let (nx, ny) = (dims[0] as usize, dims[1] as usize);
         let (i, j, k) = (index % nx, (index / nx) % ny, index / (nx * ny));
         return Err(req.err(format!(
@@ -230,37 +191,20 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
         )));
     }
 
-    Ok(Grid {
-        dims,
-        data,
-        file: req.resolved.clone(),
-    })
+    Ok(Grid { dims, data, file: req.resolved.clone() })
 }
 
 /// Check a `.vol` header (after the magic) and return its resolution.
-fn read_vol_header(
-    req: &GridRequest,
-    reader: &mut impl Read,
-    file_len: u64,
-) -> Result<[u32; 3], SceneError> {
+fn read_vol_header(req: &GridRequest, reader: &mut impl Read, file_len: u64) -> Result<[u32; 3], SceneError> {
     if file_len < VOL_HEADER_BYTES {
         return Err(req.err(format!(
             "truncated .vol header: expected at least {VOL_HEADER_BYTES} bytes but the file has {file_len} bytes"
         )));
     }
     let mut rest = [0u8; (VOL_HEADER_BYTES - 3) as usize];
-    reader
-        .read_exact(&mut rest)
-        .map_err(|e| req.err(format!("cannot read .vol header: {e}")))?;
+    reader.read_exact(&mut rest).map_err(|e| req.err(format!("cannot read .vol header: {e}")))?;
     let version = rest[0];
-    let int = |offset: usize| {
-        i32::from_le_bytes([
-            rest[offset],
-            rest[offset + 1],
-            rest[offset + 2],
-            rest[offset + 3],
-        ])
-    };
+    let int = |offset: usize| i32::from_le_bytes([rest[offset], rest[offset + 1], rest[offset + 2], rest[offset + 3]]);
     let (encoding, xres, yres, zres, channels) = (int(1), int(5), int(9), int(13), int(17));
     if version != 3 {
         return Err(req.err(format!(
@@ -280,9 +224,7 @@ fn read_vol_header(
     let mut dims = [0u32; 3];
     for (axis, (&d, out)) in [xres, yres, zres].iter().zip(dims.iter_mut()).enumerate() {
         *out = u32::try_from(d).ok().filter(|&d| d > 0).ok_or_else(|| {
-            req.err(format!(
-                "bad .vol header: resolution[{axis}] = {d}, must be a positive voxel count"
-            ))
+            req.err(format!("bad .vol header: resolution[{axis}] = {d}, must be a positive voxel count"))
         })?;
     }
     Ok(dims)

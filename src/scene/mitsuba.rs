@@ -96,10 +96,7 @@ const SPHERE_SUBSAMPLES: u32 = 4;
 /// The `.vol` file written beside `xml_path` for a heterogeneous medium:
 /// `dir/NAME.xml` -> `dir/NAME.sigma_t.vol`.
 pub fn vol_path_for(xml_path: &Path) -> PathBuf {
-    let stem = xml_path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "scene".to_owned());
+    let stem = xml_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".to_owned());
     xml_path.with_file_name(format!("{stem}.sigma_t.vol"))
 }
 
@@ -145,14 +142,8 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
 pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, OutputError> {
     let plan = plan_medium(&scene.medium);
     let vol_path = vol_path_for(xml_path);
-    let vol_name = vol_path
-        .file_name()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let xml_name = xml_path
-        .file_name()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let vol_name = vol_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let xml_name = xml_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let xml = scene_xml(scene, &plan, &xml_name, &vol_name);
 
     let mut written = Vec::new();
@@ -205,21 +196,14 @@ struct GridPlan<'a> {
 fn plan_medium(m: &Medium) -> Plan<'_> {
     match &m.density {
         Density::Constant => Plan::Box,
-        Density::Sphere { center, radius } if sphere_fits(m, *center, *radius) => Plan::Sphere {
-            center: *center,
-            radius: *radius,
-        },
+        Density::Sphere { center, radius } if sphere_fits(m, *center, *radius) => {
+            Plan::Sphere { center: *center, radius: *radius }
+        }
         Density::Sphere { center, radius } => {
             let dims = sphere_grid_dims(m);
-            Plan::Grid(GridPlan {
-                dims,
-                density: rasterise_sphere(m, dims, *center, *radius).into(),
-            })
+            Plan::Grid(GridPlan { dims, density: rasterise_sphere(m, dims, *center, *radius).into() })
         }
-        Density::Grid(g) => Plan::Grid(GridPlan {
-            dims: g.dims,
-            density: std::borrow::Cow::Borrowed(&g.data),
-        }),
+        Density::Grid(g) => Plan::Grid(GridPlan { dims: g.dims, density: std::borrow::Cow::Borrowed(&g.data) }),
     }
 }
 
@@ -264,11 +248,7 @@ fn rasterise_sphere(m: &Medium, dims: [u32; 3], center: Vec3, radius: f32) -> Ve
 /// channels of `density * sigma_t` for a chromatic one. Streams, so a large grid is not
 /// copied in memory.
 fn write_vol_file(path: &Path, grid: &GridPlan, m: &Medium) -> Result<(), OutputError> {
-    let io = |source| OutputError::Io {
-        path: path.to_owned(),
-        action: "write",
-        source,
-    };
+    let io = |source| OutputError::Io { path: path.to_owned(), action: "write", source };
     let file = File::create(path).map_err(io)?;
     let mut w = BufWriter::with_capacity(1 << 16, file);
     let channels: i32 = if is_grey(m.sigma_t) { 1 } else { 3 };
@@ -466,22 +446,14 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str) -> Stri
 pub fn clip_planes(scene: &Scene) -> (f32, f32) {
     let m = &scene.medium;
     let o = scene.camera.origin;
-    let far_corner = Vec3::select(
-        (o - m.bounds_min).abs().cmpgt((o - m.bounds_max).abs()),
-        m.bounds_min,
-        m.bounds_max,
-    );
+    let far_corner = Vec3::select((o - m.bounds_min).abs().cmpgt((o - m.bounds_max).abs()), m.bounds_min, m.bounds_max);
     let l = o.distance(far_corner);
     (1e-6 * l, 10.0 * l)
 }
 
 fn sensor_xml(scene: &Scene, cam: &Camera, inside: bool, line: &mut dyn FnMut(usize, &str)) {
-    let lookat = format!(
-        r#"<lookat origin="{}" target="{}" up="{}"/>"#,
-        vec3(cam.origin),
-        vec3(cam.target),
-        vec3(cam.up)
-    );
+    let lookat =
+        format!(r#"<lookat origin="{}" target="{}" up="{}"/>"#, vec3(cam.origin), vec3(cam.target), vec3(cam.up));
     match cam.kind {
         CameraKind::Perspective { fov_deg } => {
             line(1, r#"<sensor type="perspective">"#);

@@ -6,10 +6,10 @@
 //! lengths in scene units, `sigma_t` in 1/unit, point-light intensity in W/sr, directional
 //! irradiance in W/m^2, environment radiance in W/(m^2 sr).
 
-pub mod mitsuba;
 mod error;
 mod features;
 mod grid;
+pub mod mitsuba;
 mod parse;
 
 use std::path::{Path, PathBuf};
@@ -136,9 +136,7 @@ pub struct LoadOptions {
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions {
-            memory_budget_bytes: 4 << 30,
-        }
+        LoadOptions { memory_budget_bytes: 4 << 30 }
     }
 }
 
@@ -163,15 +161,9 @@ impl Scene {
     /// "0.5")`, `("medium.sigma_t", "[1, 2, 3]")`, `("camera.kind", "\"orthographic\"")`) to
     /// the parsed TOML before validation, and validate. Relative grid paths resolve against
     /// the scene file's folder.
-    pub fn load(
-        path: &Path,
-        overrides: &[(String, String)],
-        opts: &LoadOptions,
-    ) -> Result<Scene, SceneError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
-            file: path.to_path_buf(),
-            source,
-        })?;
+    pub fn load(path: &Path, overrides: &[(String, String)], opts: &LoadOptions) -> Result<Scene, SceneError> {
+        let text =
+            std::fs::read_to_string(path).map_err(|source| SceneError::Read { file: path.to_path_buf(), source })?;
         let base_dir = match path.parent() {
             Some(dir) if !dir.as_os_str().is_empty() => dir,
             _ => Path::new("."),

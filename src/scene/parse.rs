@@ -11,8 +11,7 @@ use serde::Deserialize;
 use super::error::one_line;
 use super::grid::{load_grid, GridRequest};
 use super::{
-    Camera, CameraKind, Density, Light, LoadOptions, Medium, RenderSettings, Scene, SceneError,
-    MAX_IMAGE_SIZE,
+    Camera, CameraKind, Density, Light, LoadOptions, Medium, RenderSettings, Scene, SceneError, MAX_IMAGE_SIZE,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -95,31 +94,17 @@ fn default_density() -> RawDensity {
 #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
 enum RawDensity {
     Constant {},
-    Sphere {
-        center: [f32; 3],
-        radius: f32,
-    },
-    Grid {
-        file: String,
-        dims: Option<[i64; 3]>,
-    },
+    Sphere { center: [f32; 3], radius: f32 },
+    Grid { file: String, dims: Option<[i64; 3]> },
 }
 
 /// One `[[light]]`.
 #[derive(Deserialize)]
 #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
 enum RawLight {
-    Point {
-        position: [f32; 3],
-        intensity: Rgb,
-    },
-    Directional {
-        direction: [f32; 3],
-        irradiance: Rgb,
-    },
-    Environment {
-        radiance: Rgb,
-    },
+    Point { position: [f32; 3], intensity: Rgb },
+    Directional { direction: [f32; 3], irradiance: Rgb },
+    Environment { radiance: Rgb },
 }
 
 /// A colour: a scalar (splat) or `[r, g, b]`.
@@ -146,9 +131,7 @@ impl<'de> Deserialize<'de> for Rgb {
             fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Rgb, A::Error> {
                 let mut out = [0.0; 3];
                 for (i, slot) in out.iter_mut().enumerate() {
-                    *slot = seq
-                        .next_element::<f64>()?
-                        .ok_or_else(|| de::Error::invalid_length(i, &self))?;
+                    *slot = seq.next_element::<f64>()?.ok_or_else(|| de::Error::invalid_length(i, &self))?;
                 }
                 if seq.next_element::<de::IgnoredAny>()?.is_some() {
                     return Err(de::Error::invalid_length(4, &self));
@@ -173,13 +156,8 @@ pub(crate) fn parse_scene(
     overrides: &[(String, String)],
     opts: &LoadOptions,
 ) -> Result<Scene, SceneError> {
-    let ctx = Ctx {
-        file,
-        text,
-        overrides,
-    };
-    ctx.parse(base_dir, opts)
-        .map_err(|e| ctx.attribute_to_override(e))
+    let ctx = Ctx { file, text, overrides };
+    ctx.parse(base_dir, opts).map_err(|e| ctx.attribute_to_override(e))
 }
 
 struct Ctx<'a> {
@@ -207,9 +185,7 @@ impl Ctx<'_> {
         let raw: RawScene = root.try_into().map_err(|e| self.serde_error("", &e))?;
         let mut raw_lights = Vec::with_capacity(raw.light.len());
         for (i, value) in raw.light.into_iter().enumerate() {
-            let light: RawLight = value
-                .try_into()
-                .map_err(|e| self.serde_error(&format!("light[{i}]"), &e))?;
+            let light: RawLight = value.try_into().map_err(|e| self.serde_error(&format!("light[{i}]"), &e))?;
             raw_lights.push(light);
         }
 
@@ -252,18 +228,11 @@ impl Ctx<'_> {
                         ),
                     ));
                 }
-                Density::Sphere {
-                    center,
-                    radius: *radius,
-                }
+                Density::Sphere { center, radius: *radius }
             }
             RawDensity::Grid { file, dims } => {
                 let written = PathBuf::from(file);
-                let resolved = if written.is_absolute() {
-                    written.clone()
-                } else {
-                    base_dir.join(&written)
-                };
+                let resolved = if written.is_absolute() { written.clone() } else { base_dir.join(&written) };
                 let grid = load_grid(&GridRequest {
                     scene_file: self.file,
                     file_as_written: &written,
@@ -279,14 +248,7 @@ impl Ctx<'_> {
             source: self.file.to_path_buf(),
             render,
             camera,
-            medium: Medium {
-                bounds_min,
-                bounds_max,
-                sigma_t,
-                albedo,
-                g: m.g,
-                density,
-            },
+            medium: Medium { bounds_min, bounds_max, sigma_t, albedo, g: m.g, density },
             lights,
         })
     }
@@ -298,37 +260,16 @@ impl Ctx<'_> {
             u32::try_from(v)
                 .ok()
                 .filter(|v| (1..=MAX_IMAGE_SIZE).contains(v))
-                .ok_or_else(|| {
-                    self.invalid(
-                        field,
-                        format!("{v} pixels is out of range; use 1 ..= {MAX_IMAGE_SIZE}"),
-                    )
-                })
+                .ok_or_else(|| self.invalid(field, format!("{v} pixels is out of range; use 1 ..= {MAX_IMAGE_SIZE}")))
         };
         let width = size("render.width", r.width)?;
         let height = size("render.height", r.height)?;
-        let seed = u64::try_from(r.seed).map_err(|_| {
-            self.invalid("render.seed", format!("{} must be an integer >= 0", r.seed))
+        let seed = u64::try_from(r.seed)
+            .map_err(|_| self.invalid("render.seed", format!("{} must be an integer >= 0", r.seed)))?;
+        let spp = u32::try_from(r.spp).ok().filter(|&s| s >= 1).ok_or_else(|| {
+            self.invalid("render.spp", format!("{} samples per pixel is out of range; use 1 ..= {}", r.spp, u32::MAX))
         })?;
-        let spp = u32::try_from(r.spp)
-            .ok()
-            .filter(|&s| s >= 1)
-            .ok_or_else(|| {
-                self.invalid(
-                    "render.spp",
-                    format!(
-                        "{} samples per pixel is out of range; use 1 ..= {}",
-                        r.spp,
-                        u32::MAX
-                    ),
-                )
-            })?;
-        Ok(RenderSettings {
-            width,
-            height,
-            seed,
-            spp,
-        })
+        Ok(RenderSettings { width, height, seed, spp })
     }
 
     fn camera(&self, c: &RawCamera) -> Result<Camera, SceneError> {
@@ -336,43 +277,35 @@ impl Ctx<'_> {
         // projections); each is checked when present, and the kind's own one is required.
         if let Some(fov) = c.fov {
             if !(fov > 0.0 && fov < 180.0) {
-                return Err(self.invalid(
-                    "camera.fov",
-                    format!(
-                        "fov = {} degrees must lie strictly inside (0, 180)",
-                        num32(fov)
-                    ),
-                ));
+                return Err(self
+                    .invalid("camera.fov", format!("fov = {} degrees must lie strictly inside (0, 180)", num32(fov))));
             }
         }
         if let Some(extent) = c.extent {
             if !(extent.is_finite() && extent > 0.0) {
                 return Err(self.invalid(
                     "camera.extent",
-                    format!(
-                        "extent = {} must be a finite width > 0 in scene units",
-                        num32(extent)
-                    ),
+                    format!("extent = {} must be a finite width > 0 in scene units", num32(extent)),
                 ));
             }
         }
         let kind = match (c.kind.as_str(), c.fov, c.extent) {
             ("perspective", Some(fov_deg), _) => CameraKind::Perspective { fov_deg },
             ("orthographic", _, Some(extent)) => CameraKind::Orthographic { extent },
-            ("perspective", None, _) => {
-                return Err(SceneError::MissingKey {
-                    file: self.file.to_path_buf(),
-                    key: "camera.fov".into(),
-                    hint: "a perspective camera needs fov = <full field of view along the image x axis, degrees in (0, 180)>".into(),
-                })
-            }
-            ("orthographic", _, None) => {
-                return Err(SceneError::MissingKey {
-                    file: self.file.to_path_buf(),
-                    key: "camera.extent".into(),
-                    hint: "an orthographic camera needs extent = <width of the view along the image x axis, scene units, > 0>".into(),
-                })
-            }
+            ("perspective", None, _) => return Err(SceneError::MissingKey {
+                file: self.file.to_path_buf(),
+                key: "camera.fov".into(),
+                hint:
+                    "a perspective camera needs fov = <full field of view along the image x axis, degrees in (0, 180)>"
+                        .into(),
+            }),
+            ("orthographic", _, None) => return Err(SceneError::MissingKey {
+                file: self.file.to_path_buf(),
+                key: "camera.extent".into(),
+                hint:
+                    "an orthographic camera needs extent = <width of the view along the image x axis, scene units, > 0>"
+                        .into(),
+            }),
             (other, _, _) => {
                 return Err(self.invalid(
                     "camera.kind",
@@ -417,12 +350,7 @@ impl Ctx<'_> {
                 ),
             ));
         }
-        Ok(Camera {
-            kind,
-            origin,
-            target,
-            up,
-        })
+        Ok(Camera { kind, origin, target, up })
     }
 
     fn bounds(&self, b: &[[f32; 3]; 2]) -> Result<(Vec3, Vec3), SceneError> {
@@ -534,9 +462,7 @@ impl Ctx<'_> {
         });
         let corners: Vec<(f32, f32, f32)> = corners.collect();
         // Every corner outside the same half-space of the view volume?
-        let all = |outside: &dyn Fn(f32, f32, f32) -> bool| {
-            corners.iter().all(|&(x, y, z)| outside(x, y, z))
-        };
+        let all = |outside: &dyn Fn(f32, f32, f32) -> bool| corners.iter().all(|&(x, y, z)| outside(x, y, z));
         let hidden = match camera.kind {
             CameraKind::Perspective { fov_deg } => {
                 let tx = (fov_deg.to_radians() * 0.5).tan();
@@ -575,10 +501,7 @@ impl Ctx<'_> {
     fn vec3(&self, field: &str, v: [f32; 3]) -> Result<Vec3, SceneError> {
         let v = Vec3::from_array(v);
         if !v.is_finite() {
-            return Err(self.invalid(
-                field,
-                format!("{} has a non-finite component; use finite numbers", fmt3(v)),
-            ));
+            return Err(self.invalid(field, format!("{} has a non-finite component; use finite numbers", fmt3(v))));
         }
         Ok(v)
     }
@@ -586,14 +509,8 @@ impl Ctx<'_> {
     fn rgb_non_negative(&self, field: &str, rgb: Rgb, what: &str) -> Result<Vec3, SceneError> {
         for (c, &v) in rgb.0.iter().enumerate() {
             if !(v.is_finite() && (v as f32).is_finite()) || v < 0.0 {
-                return Err(self.invalid(
-                    field,
-                    format!(
-                        "{} channel is {}; {what} must be finite and >= 0",
-                        CHANNELS[c],
-                        num(v)
-                    ),
-                ));
+                return Err(self
+                    .invalid(field, format!("{} channel is {}; {what} must be finite and >= 0", CHANNELS[c], num(v))));
             }
         }
         Ok(Vec3::new(rgb.0[0] as f32, rgb.0[1] as f32, rgb.0[2] as f32))
@@ -602,24 +519,12 @@ impl Ctx<'_> {
     // -------------------------------------------------------------------- errors
 
     fn invalid(&self, field: &str, message: impl Into<String>) -> SceneError {
-        SceneError::Invalid {
-            file: self.file.to_path_buf(),
-            field: field.to_owned(),
-            message: message.into(),
-        }
+        SceneError::Invalid { file: self.file.to_path_buf(), field: field.to_owned(), message: message.into() }
     }
 
     fn syntax_error(&self, e: &toml::de::Error) -> SceneError {
-        let (line, column) = e
-            .span()
-            .map(|span| line_col(self.text, span.start))
-            .unwrap_or((1, 1));
-        SceneError::Syntax {
-            file: self.file.to_path_buf(),
-            line,
-            column,
-            message: one_line(e.message()),
-        }
+        let (line, column) = e.span().map(|span| line_col(self.text, span.start)).unwrap_or((1, 1));
+        SceneError::Syntax { file: self.file.to_path_buf(), line, column, message: one_line(e.message()) }
     }
 
     /// Turn a serde error from a `toml::Value` into a scene error naming the field. `prefix`
@@ -629,11 +534,8 @@ impl Ctx<'_> {
         // toml appends "in `a.b`" (the keys it unwound through) to its Display, not to
         // message(); that is the only place the path is available.
         let display = e.to_string();
-        let inner = display
-            .lines()
-            .rev()
-            .find_map(|l| l.strip_prefix("in `").and_then(|r| r.strip_suffix('`')))
-            .unwrap_or("");
+        let inner =
+            display.lines().rev().find_map(|l| l.strip_prefix("in `").and_then(|r| r.strip_suffix('`'))).unwrap_or("");
         let path = join_path(prefix, inner);
         let file = self.file.to_path_buf();
 
@@ -643,9 +545,7 @@ impl Ctx<'_> {
             let candidates: Vec<&str> = expected.split('`').skip(1).step_by(2).collect();
             let expected = match did_you_mean(name, &candidates) {
                 Some(best) => format!("did you mean `{best}`? {expected}"),
-                None if expected == "there are no fields" => {
-                    "this kind takes no other keys".to_owned()
-                }
+                None if expected == "there are no fields" => "this kind takes no other keys".to_owned(),
                 None => expected,
             };
             return SceneError::UnknownKey {
@@ -658,22 +558,14 @@ impl Ctx<'_> {
         if let Some(rest) = message.strip_prefix("missing field `") {
             let name = rest.split('`').next().unwrap_or(rest);
             let key = join_path(&path, name);
-            return SceneError::MissingKey {
-                hint: missing_hint(&path, name),
-                key,
-                file,
-            };
+            return SceneError::MissingKey { hint: missing_hint(&path, name), key, file };
         }
         if let Some(rest) = message.strip_prefix("unknown variant `") {
             let (name, tail) = rest.split_once('`').unwrap_or((rest, ""));
             return SceneError::Invalid {
                 file,
                 // The tag's own key is usually on the path already.
-                field: if path == "kind" || path.ends_with(".kind") {
-                    path
-                } else {
-                    join_path(&path, "kind")
-                },
+                field: if path == "kind" || path.ends_with(".kind") { path } else { join_path(&path, "kind") },
                 message: format!("unknown kind `{name}`; {}", tail.trim_start_matches(", ")),
             };
         }
@@ -686,15 +578,7 @@ impl Ctx<'_> {
         if path == "light" && message.contains("expected an array") {
             message.push_str("; write each light as a [[light]] table (double brackets)");
         }
-        SceneError::Invalid {
-            file,
-            field: if path.is_empty() {
-                "(top level)".into()
-            } else {
-                path
-            },
-            message,
-        }
+        SceneError::Invalid { file, field: if path.is_empty() { "(top level)".into() } else { path }, message }
     }
 
     /// An error caused by a `--set` value should say so: unknown keys become override
@@ -707,39 +591,21 @@ impl Ctx<'_> {
             })
         };
         match err {
-            SceneError::UnknownKey {
-                file,
-                key,
-                line,
-                expected,
-            } => match origin(&key) {
+            SceneError::UnknownKey { file, key, line, expected } => match origin(&key) {
                 Some((okey, _)) => SceneError::Override {
                     file,
                     key: okey.clone(),
                     message: format!("unknown key `{key}`; {expected}"),
                 },
-                None => SceneError::UnknownKey {
-                    file,
-                    key,
-                    line,
-                    expected,
-                },
+                None => SceneError::UnknownKey { file, key, line, expected },
             },
-            SceneError::Invalid {
-                file,
-                field,
-                message,
-            } => match origin(&field) {
+            SceneError::Invalid { file, field, message } => match origin(&field) {
                 Some((okey, value)) => SceneError::Invalid {
                     file,
                     message: format!("{message} (value from override {okey}={})", one_line(value)),
                     field,
                 },
-                None => SceneError::Invalid {
-                    file,
-                    field,
-                    message,
-                },
+                None => SceneError::Invalid { file, field, message },
             },
             other => other,
         }
@@ -785,8 +651,7 @@ fn join_path(a: &str, b: &str) -> String {
 fn related(a: &str, b: &str) -> bool {
     let within = |long: &str, short: &str| {
         long == short
-            || (long.starts_with(short)
-                && matches!(long.as_bytes().get(short.len()), Some(b'.') | Some(b'[')))
+            || (long.starts_with(short) && matches!(long.as_bytes().get(short.len()), Some(b'.') | Some(b'[')))
     };
     within(a, b) || within(b, a)
 }
@@ -794,9 +659,7 @@ fn related(a: &str, b: &str) -> bool {
 fn missing_hint(section: &str, name: &str) -> String {
     if name == "kind" {
         return match section {
-            "medium.density" => {
-                "add kind = \"constant\", \"sphere\" or \"grid\" to medium.density".into()
-            }
+            "medium.density" => "add kind = \"constant\", \"sphere\" or \"grid\" to medium.density".into(),
             s if s.starts_with("light") => {
                 format!("add kind = \"point\", \"directional\" or \"environment\" to {s}")
             }
@@ -807,11 +670,7 @@ fn missing_hint(section: &str, name: &str) -> String {
         let table = if name == "light" { "[[light]]" } else { name };
         return format!("add a [{table}] table (see docs/scene-format.md)");
     }
-    let table = if section.contains(['.', '[']) {
-        section.to_owned()
-    } else {
-        format!("[{section}]")
-    };
+    let table = if section.contains(['.', '[']) { section.to_owned() } else { format!("[{section}]") };
     format!("add {name} = ... to {table} (see docs/scene-format.md)")
 }
 
@@ -883,10 +742,7 @@ fn locate_key(text: &str, section: &str, key: &str) -> Option<usize> {
         }
         let in_section = match (&current, index) {
             (None, _) => section.is_empty(),
-            (Some(h), None) => {
-                !section.is_empty()
-                    && (h == top || h == section || h.starts_with(&format!("{top}.")))
-            }
+            (Some(h), None) => !section.is_empty() && (h == top || h == section || h.starts_with(&format!("{top}."))),
             (Some(h), Some(i)) => h == top && occurrence == i + 1,
         };
         if in_section && contains_key_assignment(trimmed, key) {
@@ -900,10 +756,7 @@ fn locate_key(text: &str, section: &str, key: &str) -> Option<usize> {
 fn contains_key_assignment(line: &str, key: &str) -> bool {
     let line = line.split('#').next().unwrap_or("");
     line.match_indices(key).any(|(at, _)| {
-        let before_ok = line[..at]
-            .chars()
-            .next_back()
-            .map_or(true, |c| c == '{' || c == ',' || c.is_whitespace());
+        let before_ok = line[..at].chars().next_back().map_or(true, |c| c == '{' || c == ',' || c.is_whitespace());
         let after = line[at + key.len()..].trim_start();
         before_ok && after.starts_with('=')
     })
@@ -965,13 +818,8 @@ fn parse_key(key: &str) -> Result<Vec<Segment>, String> {
             }
         }
         while let Some(r) = rest.strip_prefix('[') {
-            let (index, after) = r
-                .split_once(']')
-                .ok_or_else(|| format!("unclosed `[` in `{part}`"))?;
-            let index = index
-                .trim()
-                .parse::<usize>()
-                .map_err(|_| format!("`[{index}]` is not an array index"))?;
+            let (index, after) = r.split_once(']').ok_or_else(|| format!("unclosed `[` in `{part}`"))?;
+            let index = index.trim().parse::<usize>().map_err(|_| format!("`[{index}]` is not an array index"))?;
             segments.push(Segment::Index(index));
             rest = after;
         }
@@ -986,20 +834,15 @@ fn parse_key(key: &str) -> Result<Vec<Segment>, String> {
 fn parse_value(text: &str) -> Result<toml::Value, String> {
     let parsed = format!("v = {text}").parse::<toml::Table>();
     match parsed {
-        Ok(mut table) if table.len() == 1 => table
-            .remove("v")
-            .ok_or_else(|| format!("`{}` is not a TOML value", one_line(text))),
+        Ok(mut table) if table.len() == 1 => {
+            table.remove("v").ok_or_else(|| format!("`{}` is not a TOML value", one_line(text)))
+        }
         Ok(_) => Err(format!("`{}` is not a single TOML value", one_line(text))),
         Err(e) => {
             let word = text.trim();
             let bare = !word.is_empty()
-                && word
-                    .chars()
-                    .next()
-                    .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
-                && word
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || "-_./".contains(c));
+                && word.chars().next().is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                && word.chars().all(|c| c.is_ascii_alphanumeric() || "-_./".contains(c));
             if bare {
                 Ok(toml::Value::String(word.to_owned()))
             } else {
@@ -1027,9 +870,7 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
         current = match segment {
             Segment::Key(name) => {
                 let here = join_path(&walked, name);
-                let table = current
-                    .as_table_mut()
-                    .ok_or_else(|| format!("`{walked}` is not a table"))?;
+                let table = current.as_table_mut().ok_or_else(|| format!("`{walked}` is not a table"))?;
                 walked = here;
                 table.get_mut(name).ok_or_else(|| {
                     if walked.contains('.') {
@@ -1044,14 +885,10 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
                 })?
             }
             Segment::Index(i) => {
-                let array = current
-                    .as_array_mut()
-                    .ok_or_else(|| format!("`{walked}` is not an array"))?;
+                let array = current.as_array_mut().ok_or_else(|| format!("`{walked}` is not an array"))?;
                 let len = array.len();
                 walked = format!("{walked}[{i}]");
-                array
-                    .get_mut(*i)
-                    .ok_or_else(|| format!("`{walked}` does not exist ({})", count(len)))?
+                array.get_mut(*i).ok_or_else(|| format!("`{walked}` does not exist ({})", count(len)))?
             }
         };
     }
@@ -1063,13 +900,9 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
             table.insert(name.clone(), value);
         }
         Segment::Index(i) => {
-            let array = current
-                .as_array_mut()
-                .ok_or_else(|| format!("`{walked}` is not an array"))?;
+            let array = current.as_array_mut().ok_or_else(|| format!("`{walked}` is not an array"))?;
             let len = array.len();
-            let slot = array
-                .get_mut(*i)
-                .ok_or_else(|| format!("`{walked}[{i}]` does not exist ({})", count(len)))?;
+            let slot = array.get_mut(*i).ok_or_else(|| format!("`{walked}[{i}]` does not exist ({})", count(len)))?;
             *slot = value;
         }
     }

@@ -79,7 +79,11 @@ impl Modelled {
             "sphere" => 1,
             _ => 2,
         };
-        vec![(SPEC_DENSITY_KIND, Spec::U32(kind)), (SPEC_CHROMATIC, Spec::Bool(self.chromatic)), (SPEC_ANISOTROPIC, Spec::Bool(self.anisotropic))]
+        vec![
+            (SPEC_DENSITY_KIND, Spec::U32(kind)),
+            (SPEC_CHROMATIC, Spec::Bool(self.chromatic)),
+            (SPEC_ANISOTROPIC, Spec::Bool(self.anisotropic)),
+        ]
     }
 }
 
@@ -156,9 +160,15 @@ pub fn scene_block(scene: &Scene) -> (SceneHeader, Vec<GpuLight>) {
         .lights
         .iter()
         .map(|l| match l {
-            Light::Point { position, intensity } => GpuLight { pos_kind: v4(*position, LIGHT_POINT), value: v4(*intensity, 0.0) },
-            Light::Directional { direction, irradiance } => GpuLight { pos_kind: v4(direction.normalize(), LIGHT_DIRECTIONAL), value: v4(*irradiance, 0.0) },
-            Light::Environment { radiance } => GpuLight { pos_kind: [0.0, 0.0, 0.0, LIGHT_ENVIRONMENT], value: v4(*radiance, 0.0) },
+            Light::Point { position, intensity } => {
+                GpuLight { pos_kind: v4(*position, LIGHT_POINT), value: v4(*intensity, 0.0) }
+            }
+            Light::Directional { direction, irradiance } => {
+                GpuLight { pos_kind: v4(direction.normalize(), LIGHT_DIRECTIONAL), value: v4(*irradiance, 0.0) }
+            }
+            Light::Environment { radiance } => {
+                GpuLight { pos_kind: [0.0, 0.0, 0.0, LIGHT_ENVIRONMENT], value: v4(*radiance, 0.0) }
+            }
         })
         .collect();
     let header = SceneHeader {
@@ -186,7 +196,12 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
         Density::Sphere { .. } => "sphere",
         Density::Grid(_) => "grid",
     };
-    Modelled { density, chromatic: f.chromatic || force_full, anisotropic: f.anisotropic || force_full, forced_full: force_full }
+    Modelled {
+        density,
+        chromatic: f.chromatic || force_full,
+        anisotropic: f.anisotropic || force_full,
+        forced_full: force_full,
+    }
 }
 
 /// Bytes the scene occupies on the device (block, density volume, majorant grid).
@@ -195,7 +210,9 @@ pub fn scene_bytes(scene: &Scene) -> u64 {
     match &scene.medium.density {
         Density::Grid(g) => {
             let md = majorant_dims(g.dims, MAJORANT_CELL);
-            block + g.dims.iter().map(|d| *d as u64).product::<u64>() * 4 + md.iter().map(|d| *d as u64).product::<u64>() * 4
+            block
+                + g.dims.iter().map(|d| *d as u64).product::<u64>() * 4
+                + md.iter().map(|d| *d as u64).product::<u64>() * 4
         }
         _ => block + 4 + 4,
     }
@@ -218,11 +235,17 @@ impl GpuScene {
             Density::Grid(g) => {
                 let md = majorant_dims(g.dims, MAJORANT_CELL);
                 let maj = majorant_grid(g.dims, &g.data, md);
-                (gpu.image3d_with("density grid", g.dims, VolumeFormat::R32F, &g.data)?, gpu.buffer_with("majorant grid", &maj)?)
+                (
+                    gpu.image3d_with("density grid", g.dims, VolumeFormat::R32F, &g.data)?,
+                    gpu.buffer_with("majorant grid", &maj)?,
+                )
             }
             // Kernels specialised for analytic densities never read these; they are bound
             // because the shared layout declares them.
-            _ => (gpu.image3d_with("density (unused)", [1, 1, 1], VolumeFormat::R32F, &[0.0])?, gpu.buffer_with("majorant (unused)", &[0f32])?),
+            _ => (
+                gpu.image3d_with("density (unused)", [1, 1, 1], VolumeFormat::R32F, &[0.0])?,
+                gpu.buffer_with("majorant (unused)", &[0f32])?,
+            ),
         };
         Ok(GpuScene { block, density, majorant, modelled: modelled(scene, force_full), bytes: scene_bytes(scene) })
     }

@@ -67,9 +67,25 @@ impl Lattice {
     /// Link vectors, index 0 the rest (same order as LATTICE_DIR in lattice.glsl).
     pub fn dirs(self) -> Vec<[i64; 3]> {
         let all: [[i64; 3]; 19] = [
-            [0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
-            [1, 1, 0], [-1, -1, 0], [1, -1, 0], [-1, 1, 0], [1, 0, 1], [-1, 0, -1], [1, 0, -1], [-1, 0, 1],
-            [0, 1, 1], [0, -1, -1], [0, 1, -1], [0, -1, 1],
+            [0, 0, 0],
+            [1, 0, 0],
+            [-1, 0, 0],
+            [0, 1, 0],
+            [0, -1, 0],
+            [0, 0, 1],
+            [0, 0, -1],
+            [1, 1, 0],
+            [-1, -1, 0],
+            [1, -1, 0],
+            [-1, 1, 0],
+            [1, 0, 1],
+            [-1, 0, -1],
+            [1, 0, -1],
+            [-1, 0, 1],
+            [0, 1, 1],
+            [0, -1, -1],
+            [0, 1, -1],
+            [0, -1, 1],
         ];
         all[..=self.links() as usize].to_vec()
     }
@@ -289,7 +305,11 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
         };
         if let Some(s) = start {
             let s = s - d * (rng.next_f32() * step);
-            out.push(RayInit { pos_steps: [s.x, s.y, s.z, 0.0], dir_alive: [d.x, d.y, d.z, 1.0], power: [power.x, power.y, power.z, power.max_element()] });
+            out.push(RayInit {
+                pos_steps: [s.x, s.y, s.z, 0.0],
+                dir_alive: [d.x, d.y, d.z, 1.0],
+                power: [power.x, power.y, power.z, power.max_element()],
+            });
         }
     };
     let directional = |out: &mut Vec<RayInit>, dir: Vec3, e: Vec3, n: u32, rng: &mut Pcg32| {
@@ -331,7 +351,9 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
                     }
                 }
             }
-            Light::Directional { direction, irradiance } => directional(&mut out, direction.normalize(), *irradiance, m, &mut rng),
+            Light::Directional { direction, irradiance } => {
+                directional(&mut out, direction.normalize(), *irradiance, m, &mut rng)
+            }
             Light::Environment { radiance } => {
                 let k = env_lights.max(1);
                 let n = ((m * m / k) as f32).sqrt().ceil().max(8.0) as u32;
@@ -383,7 +405,10 @@ impl LblSettings {
         let lattice: Lattice = s.get("lbl", "lattice", Lattice::D3q6)?;
         let block: u32 = s.get("lbl", "block", 4)?;
         if ![2, 4, 8].contains(&block) {
-            return Err(bad("block", format!("{block}: block edge must be 2, 4 or 8 (a power of two for the workgroup reduction)")));
+            return Err(bad(
+                "block",
+                format!("{block}: block edge must be 2, 4 or 8 (a power of two for the workgroup reduction)"),
+            ));
         }
         let out = LblSettings {
             rays: s.get("lbl", "rays", 65536)?,
@@ -408,7 +433,10 @@ impl LblSettings {
             },
         };
         if out.warm_start.is_some() && out.lattice != Lattice::D3q6 {
-            return Err(bad("warm_start", "the wavefront warm start is built for the d3q6 lattice; use lbl.lattice=d3q6".into()));
+            return Err(bad(
+                "warm_start",
+                "the wavefront warm start is built for the d3q6 lattice; use lbl.lattice=d3q6".into(),
+            ));
         }
         if out.rays == 0 || out.rays > 1 << 22 {
             return Err(bad("rays", format!("{} must lie in 1..=4194304", out.rays)));
@@ -417,7 +445,10 @@ impl LblSettings {
             return Err(bad("k", format!("{} must lie in 1..=256", out.k)));
         }
         if !(out.step.is_finite() && out.step > 0.0 && out.step <= 4.0 * geom.lambda) {
-            return Err(bad("step", format!("{} must be positive and at most 4 voxels ({})", out.step, 4.0 * geom.lambda)));
+            return Err(bad(
+                "step",
+                format!("{} must be positive and at most 4 voxels ({})", out.step, 4.0 * geom.lambda),
+            ));
         }
         if !(1..=64).contains(&out.block_steps) {
             return Err(bad("block_steps", format!("{} must lie in 1..=64", out.block_steps)));
@@ -509,12 +540,25 @@ impl Diffuser {
     /// A zero lattice over `density` (one value per voxel). `medium` = (sigma_t rgb, albedo
     /// rgb, g), `lambda` the voxel edge in scene units.
     #[allow(clippy::too_many_arguments)]
-    pub fn new(gpu: &Gpu, spec: &[(u32, Spec)], density: Buffer, dims: [u32; 3], nch: u32, lattice: Lattice, medium: ([f32; 3], [f32; 3], f32), lambda: f32, block: u32, block_steps: u32) -> Result<Diffuser, SolverError> {
+    pub fn new(
+        gpu: &Gpu,
+        spec: &[(u32, Spec)],
+        density: Buffer,
+        dims: [u32; 3],
+        nch: u32,
+        lattice: Lattice,
+        medium: ([f32; 3], [f32; 3], f32),
+        lambda: f32,
+        block: u32,
+        block_steps: u32,
+    ) -> Result<Diffuser, SolverError> {
         let v: u64 = dims.iter().map(|d| *d as u64).product();
         let info = gpu.info();
         let block_voxels = (block as u64).pow(3);
         let shared_bytes = (lattice.links() as u64 + 2) * nch as u64 * block_voxels * 4;
-        if shared_bytes > info.max_compute_shared_memory as u64 || block_voxels > info.max_compute_workgroup_invocations as u64 {
+        if shared_bytes > info.max_compute_shared_memory as u64
+            || block_voxels > info.max_compute_workgroup_invocations as u64
+        {
             return Err(SolverError::Setting {
                 key: "lbl.block".into(),
                 reason: format!(
@@ -524,7 +568,12 @@ impl Diffuser {
             });
         }
         let mut spec = spec.to_vec();
-        spec.extend_from_slice(&[(SPEC_NCH, Spec::U32(nch)), (SPEC_BLOCK, Spec::U32(block)), (SPEC_WG, Spec::U32(block)), (SPEC_LINKS, Spec::U32(lattice.links()))]);
+        spec.extend_from_slice(&[
+            (SPEC_NCH, Spec::U32(nch)),
+            (SPEC_BLOCK, Spec::U32(block)),
+            (SPEC_WG, Spec::U32(block)),
+            (SPEC_LINKS, Spec::U32(lattice.links())),
+        ]);
         let pipeline = gpu.pipeline(&shaders::LBL_DIFFUSE, &spec)?;
         let state_bytes = (lattice.links() as u64 + 1) * nch as u64 * v * 4;
         let groups = [0, 1, 2].map(|a| dims[a].div_ceil(block));
@@ -536,7 +585,13 @@ impl Diffuser {
             states: [gpu.buffer("lbl lattice state A", state_bytes)?, gpu.buffer("lbl lattice state B", state_bytes)?],
             irr: gpu.buffer("lbl irradiance", nch as u64 * v * 4)?,
             tally: gpu.buffer("lbl diffuse tally", n_wg * nch as u64 * 16)?,
-            push: DiffusePush { dims: [dims[0], dims[1], dims[2], v as u32], sigma_t: [st[0], st[1], st[2], lambda], albedo: [al[0], al[1], al[2], g], inner_steps: 1, pad: [0; 3] },
+            push: DiffusePush {
+                dims: [dims[0], dims[1], dims[2], v as u32],
+                sigma_t: [st[0], st[1], st[2], lambda],
+                albedo: [al[0], al[1], al[2], g],
+                inner_steps: 1,
+                pad: [0; 3],
+            },
             groups,
             block_steps,
             dims,
@@ -600,10 +655,23 @@ impl Diffuser {
 /// medium filling the whole lattice, `iterations` steps; returns the time-integrated energy
 /// per voxel (one channel) and the energy book.
 #[allow(clippy::too_many_arguments)]
-pub fn diffuse_impulse(gpu: &Gpu, lattice: Lattice, dims: [u32; 3], sigma_t: f32, albedo: f32, g: f32, lambda: f32, block: u32, block_steps: u32, source: [u32; 3], iterations: u32) -> Result<(Vec<f32>, EnergyBook), SolverError> {
+pub fn diffuse_impulse(
+    gpu: &Gpu,
+    lattice: Lattice,
+    dims: [u32; 3],
+    sigma_t: f32,
+    albedo: f32,
+    g: f32,
+    lambda: f32,
+    block: u32,
+    block_steps: u32,
+    source: [u32; 3],
+    iterations: u32,
+) -> Result<(Vec<f32>, EnergyBook), SolverError> {
     let v: u64 = dims.iter().map(|d| *d as u64).product();
     let density = gpu.buffer_with("impulse density", &vec![1f32; v as usize])?;
-    let mut d = Diffuser::new(gpu, &[], density, dims, 1, lattice, ([sigma_t; 3], [albedo; 3], g), lambda, block, block_steps)?;
+    let mut d =
+        Diffuser::new(gpu, &[], density, dims, 1, lattice, ([sigma_t; 3], [albedo; 3], g), lambda, block, block_steps)?;
     let src = (source[0] + dims[0] * (source[1] + dims[1] * source[2])) as u64;
     gpu.write_buffer(d.state(), src * 4, bytemuck::bytes_of(&1f32))?;
     let mut left = iterations;
@@ -624,7 +692,13 @@ fn read_f32(gpu: &Gpu, b: &Buffer) -> Result<Vec<f32>, SolverError> {
 }
 
 /// Run marching, transfer and diffusion to convergence.
-pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, progress: &dyn Fn(u64, u64)) -> Result<LatticeResult, SolverError> {
+pub fn run_lattice(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    set: &LblSettings,
+    progress: &dyn Fn(u64, u64),
+) -> Result<LatticeResult, SolverError> {
     let geom = LatticeGeom::new(scene, set.grid);
     let v = geom.voxels();
     // Model only what the scene requires: one channel when the medium and every light are grey.
@@ -649,12 +723,19 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     };
     let p_resample = gpu.pipeline(&shaders::LBL_RESAMPLE, &gs.modelled.spec())?;
     let p_march = gpu.pipeline(&shaders::LBL_MARCH, &gs.modelled.spec())?;
-    let p_transfer = gpu.pipeline(if fixed { &shaders::LBL_TRANSFER_FIXED } else { &shaders::LBL_TRANSFER_FLOAT }, &spec_lattice(&[]))?;
+    let p_transfer = gpu.pipeline(
+        if fixed { &shaders::LBL_TRANSFER_FIXED } else { &shaders::LBL_TRANSFER_FLOAT },
+        &spec_lattice(&[]),
+    )?;
     let p_inject = gpu.pipeline(&shaders::LBL_INJECT, &spec_lattice(&[(SPEC_FIXED, Spec::Bool(fixed))]))?;
     let dims4 = [geom.dims[0], geom.dims[1], geom.dims[2], v as u32];
     let origin4 = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
     let density = gpu.buffer("lbl density", v * 4)?;
-    let p = gs.bind(Pass::new("lbl.resample", QueueRole::Trace, &p_resample)).write(3, &density).push(&GeomPush { dims: dims4, origin: origin4 }).cover(geom.dims);
+    let p = gs
+        .bind(Pass::new("lbl.resample", QueueRole::Trace, &p_resample))
+        .write(3, &density)
+        .push(&GeomPush { dims: dims4, origin: origin4 })
+        .cover(geom.dims);
     let pt = gpu.submit(QueueRole::Trace, &[p], &[])?;
     gpu.wait(pt)?;
 
@@ -668,7 +749,18 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
     let rhb = gpu.buffer("lbl ray history", ray_count as u64 * set.k as u64 * 16)?;
     let accum = gpu.buffer("lbl transfer sums", nch as u64 * v * 4)?;
     let m = &scene.medium;
-    let mut lattice = Diffuser::new(gpu, &gs.modelled.spec(), density.clone(), geom.dims, nch, set.lattice, (m.sigma_t.to_array(), m.albedo.to_array(), m.g), geom.lambda, set.block, set.block_steps)?;
+    let mut lattice = Diffuser::new(
+        gpu,
+        &gs.modelled.spec(),
+        density.clone(),
+        geom.dims,
+        nch,
+        set.lattice,
+        (m.sigma_t.to_array(), m.albedo.to_array(), m.g),
+        geom.lambda,
+        set.block,
+        set.block_steps,
+    )?;
     let inject_wg = v.div_ceil(64);
     let inject_tally = gpu.buffer("lbl inject tally", inject_wg * nch as u64 * 8)?;
 
@@ -704,7 +796,14 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
                 .bind(Pass::new("lbl.march", QueueRole::Trace, &p_march))
                 .read_write(3, &ray_buf)
                 .write(4, &rhb)
-                .push(&MarchPush { dims: [geom.dims[0], geom.dims[1], geom.dims[2], ray_count], origin: origin4, step: set.step, threshold: set.threshold, k: set.k, max_steps })
+                .push(&MarchPush {
+                    dims: [geom.dims[0], geom.dims[1], geom.dims[2], ray_count],
+                    origin: origin4,
+                    step: set.step,
+                    threshold: set.threshold,
+                    k: set.k,
+                    max_steps,
+                })
                 .cover([ray_count, 1, 1])],
             Step::Transfer(_) => {
                 let mut p = vec![Pass::new("lbl.transfer", QueueRole::Diffuse, &p_transfer)
@@ -748,7 +847,9 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
         probes = (0..v as usize).filter(|i| dens_host[*i] > 0.0).collect();
     }
     let irr = lattice.irradiance().clone();
-    let probe_sum = |irr_host: &[f32]| -> Vec<f64> { probes.iter().map(|p| (0..nch as usize).map(|c| irr_host[c * v as usize + p] as f64).sum()).collect() };
+    let probe_sum = |irr_host: &[f32]| -> Vec<f64> {
+        probes.iter().map(|p| (0..nch as usize).map(|c| irr_host[c * v as usize + p] as f64).sum()).collect()
+    };
     let chunk = 8 * set.block_steps;
     let mut prev = probe_sum(&read_f32(gpu, &irr)?);
     let mut converged = false;
@@ -761,7 +862,8 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
         let now = probe_sum(&read_f32(gpu, &irr)?);
         let done = (lattice.iterations - before) as f64;
         // Largest relative change per iteration over the probes that hold energy.
-        change = now.iter().zip(&prev).filter(|(n, _)| **n > 0.0).map(|(n, p)| (n - p).abs() / n / done).fold(0.0, f64::max);
+        change =
+            now.iter().zip(&prev).filter(|(n, _)| **n > 0.0).map(|(n, p)| (n - p).abs() / n / done).fold(0.0, f64::max);
         prev = now;
         if change < set.tol as f64 {
             converged = true;
@@ -784,11 +886,26 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
         }
     }
     let irradiance = read_f32(gpu, &irr)?;
-    let device_bytes = density.size() + ray_buf.size() + rhb.size() + accum.size() + inject_tally.size() + lattice.device_bytes();
+    let device_bytes =
+        density.size() + ray_buf.size() + rhb.size() + accum.size() + inject_tally.size() + lattice.device_bytes();
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
-        stats: LblStats { lattice: geom, channels: nch, rays: ray_count, rounds, iterations: lattice.iterations, converged, final_change: change, energy: book, schedule: set.schedule, deterministic: fixed, device_bytes, diffuse_ms: 0.0, warm_start: warm },
+        stats: LblStats {
+            lattice: geom,
+            channels: nch,
+            rays: ray_count,
+            rounds,
+            iterations: lattice.iterations,
+            converged,
+            final_change: change,
+            energy: book,
+            schedule: set.schedule,
+            deterministic: fixed,
+            device_bytes,
+            diffuse_ms: 0.0,
+            warm_start: warm,
+        },
     })
 }
 
@@ -805,7 +922,16 @@ pub fn run_lattice(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &LblSettings, p
 /// residual is signed, so the absorbed/leaked tallies no longer balance the deposits: the
 /// energy book is not kept under a warm start.
 #[allow(clippy::too_many_arguments)]
-fn warm_start(gpu: &Gpu, scene: &Scene, gs: &GpuScene, ws: &WavefrontSettings, geom: &LatticeGeom, nch: u32, lattice: &mut Diffuser, inject: impl Fn(&Diffuser) -> Pass) -> Result<(), SolverError> {
+fn warm_start(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    ws: &WavefrontSettings,
+    geom: &LatticeGeom,
+    nch: u32,
+    lattice: &mut Diffuser,
+    inject: impl Fn(&Diffuser) -> Pass,
+) -> Result<(), SolverError> {
     let vol = wave_volume(gpu, scene, gs, ws, Some(*geom))?;
     let wf: Vec<f32> = gpu.read_buffer_as(&vol.energy)?;
     let v = geom.voxels() as usize;
@@ -870,7 +996,14 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let gs = GpuScene::upload(gpu, scene, req.force_full)?;
     let mut lat = run_lattice(gpu, scene, &gs, &set, req.progress)?;
     let g = &lat.stats.lattice;
-    let ms = MsVolume { energy: &lat.irradiance_buffer, dims: g.dims, channels: lat.stats.channels, origin: g.origin, lambda: g.lambda, flux: false };
+    let ms = MsVolume {
+        energy: &lat.irradiance_buffer,
+        dims: g.dims,
+        channels: lat.stats.channels,
+        origin: g.origin,
+        lambda: g.lambda,
+        flux: false,
+    };
     let view = march_view(gpu, scene, &gs, &set.view, Some(&ms))?;
     let passes = gpu.take_timings();
     lat.stats.diffuse_ms = passes.iter().filter(|p| p.name == "lbl.diffuse").map(|p| p.duration_ms()).sum();
@@ -882,7 +1015,10 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
         ));
     }
     if view.nonfinite_pixels > 0 {
-        warnings.push(format!("{} pixels were not finite and were set to 0 (a bug: please report the scene)", view.nonfinite_pixels));
+        warnings.push(format!(
+            "{} pixels were not finite and were set to 0 (a bug: please report the scene)",
+            view.nonfinite_pixels
+        ));
     }
     let report = RenderReport {
         solver: SolverKind::Lbl,

@@ -121,7 +121,11 @@ pub fn memory_estimate(kind: SolverKind, scene: &Scene) -> u64 {
     let pixels = scene.render.width as u64 * scene.render.height as u64;
     gpu_scene::scene_bytes(scene)
         + match kind {
-            SolverKind::Path => pixels * (path::ACCUM_BYTES_PER_PIXEL + path::LIGHT_BYTES_PER_PIXEL) + 2 * resumable::STATS_WORDS * 4 + 16,
+            SolverKind::Path => {
+                pixels * (path::ACCUM_BYTES_PER_PIXEL + path::LIGHT_BYTES_PER_PIXEL)
+                    + 2 * resumable::STATS_WORDS * 4
+                    + 16
+            }
             SolverKind::Single => pixels * (16 + single::STATE_BYTES_PER_PIXEL) + resumable::STATS_WORDS * 4,
             SolverKind::Lbl => {
                 // Default knobs: 64 voxels along the longest side, 3 channels at most, 65536

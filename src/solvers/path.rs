@@ -99,7 +99,6 @@ pub const MAX_LIGHT_TRACED: usize = 32;
 /// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp).
 pub const STATE_BYTES_PER_PIXEL: u64 = 80;
 
-
 /// `u32::MAX` is "unbounded" for `max_depth`.
 pub const UNBOUNDED: u32 = u32::MAX;
 
@@ -143,12 +142,22 @@ pub fn light_depth(scene: &Scene, p: Vec3) -> (f64, f64) {
                 let d = Vec3::new(dx as f32, dy as f32, dz as f32).normalize();
                 // Distance to the box along d, then a midpoint-rule integral of the density.
                 let t_exit = (0..3)
-                    .map(|a| if d[a] > 0.0 { (m.bounds_max[a] - p[a]) / d[a] } else if d[a] < 0.0 { (m.bounds_min[a] - p[a]) / d[a] } else { f32::INFINITY })
+                    .map(|a| {
+                        if d[a] > 0.0 {
+                            (m.bounds_max[a] - p[a]) / d[a]
+                        } else if d[a] < 0.0 {
+                            (m.bounds_min[a] - p[a]) / d[a]
+                        } else {
+                            f32::INFINITY
+                        }
+                    })
                     .fold(f32::INFINITY, f32::min)
                     .max(0.0);
                 const STEPS: usize = 128;
                 let dt = t_exit / STEPS as f32;
-                let integral: f64 = (0..STEPS).map(|i| scene.density_at(p + d * (dt * (i as f32 + 0.5))) as f64).sum::<f64>() * dt as f64;
+                let integral: f64 =
+                    (0..STEPS).map(|i| scene.density_at(p + d * (dt * (i as f32 + 0.5))) as f64).sum::<f64>()
+                        * dt as f64;
                 tau_min = tau_min.min(integral * sigma_tr);
                 depth_sum += integral * m.sigma_t.max_element() as f64;
             }
@@ -165,11 +174,14 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
     // singularity at the camera that camera paths have at a point light (formally infinite
     // variance; measured: per-pixel errors far above camera paths'), so auto then leaves every
     // light to camera paths, which handle that case with equiangular sampling.
-    let pinhole_inside = matches!(scene.camera.kind, CameraKind::Perspective { .. }) && scene.inside_medium(scene.camera.origin);
+    let pinhole_inside =
+        matches!(scene.camera.kind, CameraKind::Perspective { .. }) && scene.inside_medium(scene.camera.origin);
     if !matches!(mode, "auto" | "on" | "off") {
         return Err(SolverError::Setting {
             key: "path.light_tracing".into(),
-            reason: format!("unknown value {mode:?}; give auto (point lights inside the medium), on (every point light) or off"),
+            reason: format!(
+                "unknown value {mode:?}; give auto (point lights inside the medium), on (every point light) or off"
+            ),
         });
     }
     let mut notes = Vec::new();
@@ -236,7 +248,10 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let light_batches: u32 = s.get("path", "light_batches", 16u32)?;
     s.check_all_used("path")?;
     if spp == 0 || batch == 0 || light_batches == 0 {
-        return Err(SolverError::Setting { key: "path.spp/path.batch/path.light_batches".into(), reason: "must be at least 1".into() });
+        return Err(SolverError::Setting {
+            key: "path.spp/path.batch/path.light_batches".into(),
+            reason: "must be at least 1".into(),
+        });
     }
     resumable::check_budget("path.budget", budget)?;
     let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
@@ -260,7 +275,9 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let light = if traced.is_empty() {
         None
     } else {
-        Some(light_paths(&common, scene, &traced, light_batches.min(spp), &|done| (req.progress)(offset + done, total))?)
+        Some(light_paths(&common, scene, &traced, light_batches.min(spp), &|done| {
+            (req.progress)(offset + done, total)
+        })?)
     };
 
     // The two kernels estimate disjoint sets of paths (partition by light): means and
@@ -423,7 +440,13 @@ fn typical_splat(scene: &Scene, power_sum: f64) -> f64 {
 
 /// Light paths (glsl/path/light.comp) from the lights in `traced`, `spp` per pixel, in
 /// `batches` independent batches whose spread gives the per-pixel variance.
-fn light_paths(c: &Common, scene: &Scene, traced: &[usize], batches: u32, progress: &dyn Fn(u64)) -> Result<Part, SolverError> {
+fn light_paths(
+    c: &Common,
+    scene: &Scene,
+    traced: &[usize],
+    batches: u32,
+    progress: &dyn Fn(u64),
+) -> Result<Part, SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
     let power_sum: f64 = traced
@@ -456,7 +479,11 @@ fn light_paths(c: &Common, scene: &Scene, traced: &[usize], batches: u32, progre
         sample_end += rounds;
         gpu.write_buffer(&splats, 0, &zeros)?;
         let (n, _) = resumable::run_until_done(gpu, "path", &stats, |slot| {
-            let push = LightPush { head: c.head(sample_end, slot), inv_quantum: inv_quantum as f32, power_sum: power_sum as f32 };
+            let push = LightPush {
+                head: c.head(sample_end, slot),
+                inv_quantum: inv_quantum as f32,
+                power_sum: power_sum as f32,
+            };
             gs.bind(Pass::new("path.light", QueueRole::Trace, &pipeline))
                 .read_write(3, &splats)
                 .read_write(4, &stats)
@@ -497,10 +524,18 @@ fn light_paths(c: &Common, scene: &Scene, traced: &[usize], batches: u32, progre
         let m = s1[i] / rounds_total;
         image.data[i] = m as f32;
         // Var(mean) = sum_b n_b (m_b - m)^2 / ((B - 1) N), with N = sum_b n_b rounds.
-        variance.data[i] = if batches > 1 { ((s2[i] - rounds_total * m * m).max(0.0) / ((batches - 1) as f64 * rounds_total)) as f32 } else { 0.0 };
+        variance.data[i] = if batches > 1 {
+            ((s2[i] - rounds_total * m * m).max(0.0) / ((batches - 1) as f64 * rounds_total)) as f32
+        } else {
+            0.0
+        };
     }
     let image_mean = t1 / rounds_total;
-    let mean_stderr = if batches > 1 { ((t2 - rounds_total * image_mean * image_mean).max(0.0) / ((batches - 1) as f64 * rounds_total)).sqrt() } else { 0.0 };
+    let mean_stderr = if batches > 1 {
+        ((t2 - rounds_total * image_mean * image_mean).max(0.0) / ((batches - 1) as f64 * rounds_total)).sqrt()
+    } else {
+        0.0
+    };
     let mut warnings = Vec::new();
     if st[0] > 0 {
         warnings.push(format!(

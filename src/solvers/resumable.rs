@@ -23,14 +23,22 @@ pub const DEFAULT_BUDGET: u32 = 4096;
 
 pub fn check_budget(key: &str, budget: u32) -> Result<(), SolverError> {
     if !(16..=LOOP_GUARD / 4).contains(&budget) {
-        return Err(SolverError::Setting { key: key.into(), reason: format!("{budget} must lie in 16..={}", LOOP_GUARD / 4) });
+        return Err(SolverError::Setting {
+            key: key.into(),
+            reason: format!("{budget} must lie in 16..={}", LOOP_GUARD / 4),
+        });
     }
     Ok(())
 }
 
 /// Submit rounds of `make_pass(slot)` until the last round reports no work left. Returns the
 /// number of dispatches and the final stats words.
-pub fn run_until_done(gpu: &Gpu, solver: &str, stats: &Buffer, make_pass: impl Fn(u32) -> Pass) -> Result<(u64, Vec<u32>), SolverError> {
+pub fn run_until_done(
+    gpu: &Gpu,
+    solver: &str,
+    stats: &Buffer,
+    make_pass: impl Fn(u32) -> Pass,
+) -> Result<(u64, Vec<u32>), SolverError> {
     let mut dispatches = 0u64;
     loop {
         gpu.write_buffer(stats, 12, &[0u8; ROUNDS_PER_SUBMIT as usize * 4])?;

@@ -27,7 +27,10 @@ impl Settings {
         self.used.borrow_mut().push(full.clone());
         match self.values.get(&full) {
             None => Ok(default),
-            Some(v) => v.trim().parse::<T>().map_err(|e| SolverError::Setting { key: full, reason: format!("cannot parse {v:?}: {e}") }),
+            Some(v) => v
+                .trim()
+                .parse::<T>()
+                .map_err(|e| SolverError::Setting { key: full, reason: format!("cannot parse {v:?}: {e}") }),
         }
     }
 
@@ -37,12 +40,18 @@ impl Settings {
         for k in self.values.keys() {
             if !k.starts_with(&format!("{solver}.")) {
                 let other = k.split('.').next().unwrap_or(k);
-                return Err(SolverError::Setting { key: k.clone(), reason: format!("is a setting of solver {other}, but this render uses solver {solver}") });
+                return Err(SolverError::Setting {
+                    key: k.clone(),
+                    reason: format!("is a setting of solver {other}, but this render uses solver {solver}"),
+                });
             }
             if !used.contains(k) {
                 let known: Vec<&String> = used.iter().filter(|u| u.starts_with(&format!("{solver}."))).collect();
                 let known = known.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ");
-                return Err(SolverError::Setting { key: k.clone(), reason: format!("unknown setting for solver {solver}; known: {known}") });
+                return Err(SolverError::Setting {
+                    key: k.clone(),
+                    reason: format!("unknown setting for solver {solver}; known: {known}"),
+                });
             }
         }
         Ok(())

@@ -4,7 +4,10 @@ use crate::gpu::ShaderSource;
 
 macro_rules! shader {
     ($name:literal) => {
-        ShaderSource { name: $name, spirv: include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/spirv/", $name, ".spv")) }
+        ShaderSource {
+            name: $name,
+            spirv: include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/spirv/", $name, ".spv")),
+        }
     };
 }
 
@@ -23,5 +26,18 @@ pub const WAVEFRONT_MARCH: ShaderSource = shader!("wavefront/march");
 pub const WAVEFRONT_GATHER: ShaderSource = shader!("wavefront/gather");
 
 /// Every shader, for reflection tests.
-pub const ALL: &[ShaderSource] =
-    &[PATH_TRACE, PATH_LIGHT, SINGLE_MARCH, PROBE_PHASE, LBL_RESAMPLE, LBL_MARCH, LBL_TRANSFER_FLOAT, LBL_TRANSFER_FIXED, LBL_INJECT, LBL_DIFFUSE, WAVEFRONT_RESAMPLE, WAVEFRONT_MARCH, WAVEFRONT_GATHER];
+pub const ALL: &[ShaderSource] = &[
+    PATH_TRACE,
+    PATH_LIGHT,
+    SINGLE_MARCH,
+    PROBE_PHASE,
+    LBL_RESAMPLE,
+    LBL_MARCH,
+    LBL_TRANSFER_FLOAT,
+    LBL_TRANSFER_FIXED,
+    LBL_INJECT,
+    LBL_DIFFUSE,
+    WAVEFRONT_RESAMPLE,
+    WAVEFRONT_MARCH,
+    WAVEFRONT_GATHER,
+];

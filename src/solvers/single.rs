@@ -78,7 +78,10 @@ impl ViewSettings {
         for (k, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
             let key = key(k);
             if !(x.is_finite() && x > 0.0) {
-                return Err(SolverError::Setting { key: format!("{solver}.{key}"), reason: format!("{x} must be a positive length in scene units") });
+                return Err(SolverError::Setting {
+                    key: format!("{solver}.{key}"),
+                    reason: format!("{x} must be a positive length in scene units"),
+                });
             }
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
             // length is bounded; camera-ray steps are resumable and only bounded for sanity.
@@ -86,12 +89,17 @@ impl ViewSettings {
             if diag / x > max_steps {
                 return Err(SolverError::Setting {
                     key: format!("{solver}.{key}"),
-                    reason: format!("{x} gives over {max_steps} steps across the medium's diagonal {diag}; use a larger step"),
+                    reason: format!(
+                        "{x} gives over {max_steps} steps across the medium's diagonal {diag}; use a larger step"
+                    ),
                 });
             }
         }
         if v.env_dirs == 0 || v.supersample == 0 || v.supersample > 16 {
-            return Err(SolverError::Setting { key: format!("{solver}.{}/{solver}.{}", key("env_dirs"), key("supersample")), reason: "env_dirs must be >= 1 and supersample in 1..=16".into() });
+            return Err(SolverError::Setting {
+                key: format!("{solver}.{}/{solver}.{}", key("env_dirs"), key("supersample")),
+                reason: "env_dirs must be >= 1 and supersample in 1..=16".into(),
+            });
         }
         Ok(v)
     }
@@ -123,7 +131,13 @@ pub struct ViewResult {
 
 /// March camera rays through the medium: single scattering with the exact phase function,
 /// plus, when `ms` is given, the multiply scattered in-scattering from it.
-pub fn march_view(gpu: &Gpu, scene: &Scene, gs: &GpuScene, v: &ViewSettings, ms: Option<&MsVolume>) -> Result<ViewResult, SolverError> {
+pub fn march_view(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    v: &ViewSettings,
+    ms: Option<&MsVolume>,
+) -> Result<ViewResult, SolverError> {
     let (w, h) = (scene.render.width, scene.render.height);
     let pipeline = gpu.pipeline(&shaders::SINGLE_MARCH, &gs.modelled.spec())?;
     let pixels = w as u64 * h as u64;
@@ -135,7 +149,12 @@ pub fn march_view(gpu: &Gpu, scene: &Scene, gs: &GpuScene, v: &ViewSettings, ms:
     let stats = gpu.buffer("view stats", resumable::STATS_WORDS * 4)?;
     let dummy;
     let (ms_buf, ms_dims, ms_origin, ms_flux) = match ms {
-        Some(m) => (m.energy, [m.dims[0], m.dims[1], m.dims[2], m.channels], [m.origin[0], m.origin[1], m.origin[2], m.lambda], m.flux as u32),
+        Some(m) => (
+            m.energy,
+            [m.dims[0], m.dims[1], m.dims[2], m.channels],
+            [m.origin[0], m.origin[1], m.origin[2], m.lambda],
+            m.flux as u32,
+        ),
         None => {
             dummy = gpu.buffer("no ms volume", 4)?;
             (&dummy, [0; 4], [0.0; 4], 0)
@@ -171,7 +190,13 @@ pub fn march_view(gpu: &Gpu, scene: &Scene, gs: &GpuScene, v: &ViewSettings, ms:
     for (i, p) in px.iter().enumerate() {
         image.data[3 * i..3 * i + 3].copy_from_slice(&p[..3]);
     }
-    Ok(ViewResult { image, dispatches, max_loop_iterations: st[2], nonfinite_pixels: st[0], device_bytes: out.size() + state.size() + stats.size() })
+    Ok(ViewResult {
+        image,
+        dispatches,
+        max_loop_iterations: st[2],
+        nonfinite_pixels: st[0],
+        device_bytes: out.size() + state.size() + stats.size(),
+    })
 }
 
 pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
@@ -191,7 +216,14 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
         gpu_ms: super::gpu_ms(&passes),
         passes,
         stats: json!({ "dispatches": view.dispatches, "max_loop_iterations": view.max_loop_iterations, "nonfinite_pixels": view.nonfinite_pixels }),
-        warnings: if view.nonfinite_pixels > 0 { vec![format!("{} pixels were not finite and were set to 0 (a bug: please report the scene)", view.nonfinite_pixels)] } else { Vec::new() },
+        warnings: if view.nonfinite_pixels > 0 {
+            vec![format!(
+                "{} pixels were not finite and were set to 0 (a bug: please report the scene)",
+                view.nonfinite_pixels
+            )]
+        } else {
+            Vec::new()
+        },
     };
     Ok(RenderOutput { image: view.image, variance: None, report })
 }

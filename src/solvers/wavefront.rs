@@ -100,7 +100,10 @@ impl WavefrontSettings {
         };
         let bad = |k: &str, reason: String| SolverError::Setting { key: format!("{solver}.{}", key(k)), reason };
         if !(4..=4096).contains(&out.nu) || !(2..=4096).contains(&out.nv) {
-            return Err(bad("nu/nv", format!("{} x {} rays: nu must lie in 4..=4096 and nv in 2..=4096", out.nu, out.nv)));
+            return Err(bad(
+                "nu/nv",
+                format!("{} x {} rays: nu must lie in 4..=4096 and nv in 2..=4096", out.nu, out.nv),
+            ));
         }
         if !(2..=MAX_LAYERS).contains(&out.layers) {
             return Err(bad("layers", format!("{} must lie in 2..={MAX_LAYERS}", out.layers)));
@@ -216,7 +219,15 @@ impl WaveKernels {
 
 /// Resample and march the spherical grid of one point light (eq. 4-6).
 #[allow(clippy::too_many_arguments)]
-pub fn trace_light(gpu: &Gpu, scene: &Scene, gs: &GpuScene, kernels: &WaveKernels, set: &WavefrontSettings, position: Vec3, intensity: Vec3) -> Result<WaveField, SolverError> {
+pub fn trace_light(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    kernels: &WaveKernels,
+    set: &WavefrontSettings,
+    position: Vec3,
+    intensity: Vec3,
+) -> Result<WaveField, SolverError> {
     let m = &scene.medium;
     let radius = (0..8)
         .map(|k| {
@@ -256,7 +267,10 @@ pub fn trace_light(gpu: &Gpu, scene: &Scene, gs: &GpuScene, kernels: &WaveKernel
     let stats = gpu.buffer("wavefront stats", 16)?;
     let push = f.push(set.integrator, set.explicit_start);
     let passes = vec![
-        gs.bind(Pass::new("wavefront.resample", QueueRole::Trace, &kernels.resample)).write(3, &f.shells).push(&push).cover([set.nu, set.nv, set.layers]),
+        gs.bind(Pass::new("wavefront.resample", QueueRole::Trace, &kernels.resample))
+            .write(3, &f.shells)
+            .push(&push)
+            .cover([set.nu, set.nv, set.layers]),
         gs.bind(Pass::new("wavefront.march", QueueRole::Trace, &kernels.march))
             .read(3, &f.shells)
             .write(4, &f.psi0)
@@ -290,13 +304,26 @@ pub struct WaveVolume {
 
 impl WaveVolume {
     pub fn ms(&self) -> MsVolume<'_> {
-        MsVolume { energy: &self.energy, dims: self.geom.dims, channels: self.channels, origin: self.geom.origin, lambda: self.geom.lambda, flux: true }
+        MsVolume {
+            energy: &self.energy,
+            dims: self.geom.dims,
+            channels: self.channels,
+            origin: self.geom.origin,
+            lambda: self.geom.lambda,
+            flux: true,
+        }
     }
 }
 
 /// Trace every point light inside the medium and gather onto a Cartesian grid of `set.grid`
 /// voxels along the box's longest side (the same geometry as `lbl`'s lattice), or onto `geom`.
-pub fn wave_volume(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSettings, geom: Option<LatticeGeom>) -> Result<WaveVolume, SolverError> {
+pub fn wave_volume(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    set: &WavefrontSettings,
+    geom: Option<LatticeGeom>,
+) -> Result<WaveVolume, SolverError> {
     let geom = geom.unwrap_or_else(|| LatticeGeom::new(scene, set.grid));
     let v = geom.voxels();
     let lights = traced_lights(scene);
@@ -306,7 +333,17 @@ pub fn wave_volume(gpu: &Gpu, scene: &Scene, gs: &GpuScene, set: &WavefrontSetti
     let energy = gpu.buffer("wavefront volume", v * 4 * channels as u64 * 4)?;
     let stats = gpu.buffer("wavefront gather stats", 16)?;
     let kernels = WaveKernels::new(gpu, gs)?;
-    let mut out = WaveVolume { energy, geom, channels, lights_traced: lights.len(), negative_nodes: 0, nonfinite_nodes: 0, failed_rays: 0, nonfinite_voxels: 0, device_bytes: 0 };
+    let mut out = WaveVolume {
+        energy,
+        geom,
+        channels,
+        lights_traced: lights.len(),
+        negative_nodes: 0,
+        nonfinite_nodes: 0,
+        failed_rays: 0,
+        nonfinite_voxels: 0,
+        device_bytes: 0,
+    };
     let mut field_bytes = 0;
     for (pos, intensity) in lights {
         let f = trace_light(gpu, scene, gs, &kernels, set, pos, intensity)?;
@@ -367,7 +404,10 @@ pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverErro
     let passes = gpu.take_timings();
     let mut warnings = warnings(scene, &set, &vol);
     if res.nonfinite_pixels > 0 {
-        warnings.push(format!("{} pixels were not finite and were set to 0 (a bug: please report the scene)", res.nonfinite_pixels));
+        warnings.push(format!(
+            "{} pixels were not finite and were set to 0 (a bug: please report the scene)",
+            res.nonfinite_pixels
+        ));
     }
     let mut settings = set.json();
     settings["view"] = view.json();
