@@ -5,8 +5,10 @@
 //! error fails the command) and is tiny (16x16, 4 spp) so the whole module stays fast on a
 //! CPU driver.
 //!
-//! Each test works in its own temporary folder: inputs (scenes, grids, images) at its top,
-//! outputs under `out/`. A failing command must leave the folder exactly as it found it.
+//! Each test, and each row of the tables of renders that must fail, works in its own
+//! temporary folder: inputs (scenes, grids, images) at its top, outputs under `out/`. A
+//! failing command must leave the folder exactly as it found it. Scenes are variants of the
+//! base scene shared with scene_tests ([`SceneText`] in common.rs).
 
 use std::ffi::OsStr;
 use std::fs;
@@ -16,59 +18,17 @@ use std::process::{Command, Output};
 use scatterlab::output::{read_exr, read_exr_layer, write_exr, Image};
 use scatterlab::scene::write_vol;
 
+use crate::common::SceneText;
+
 const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
 
 /// Flags that keep every render tiny.
 const TINY: [&str; 6] = ["--set", "render.width=16", "--set", "render.height=16", "--spp", "4"];
 
-/// A small valid scene (a constant-density cube lit by a point light); tests write broken
-/// variants of it with [`with`].
-const BASE: &str = r#"# test scene
-[render]
-width = 16
-height = 16
-seed = 3
-spp = 4
-
-[camera]
-kind = "perspective"
-origin = [0.0, 0.0, 4.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov = 30.0
-
-[medium]
-bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
-sigma_t = 2.0
-albedo = 0.8
-g = 0.0
-density = { kind = "constant" }
-
-[[light]]
-kind = "point"
-position = [1.0, 1.0, 1.0]
-intensity = 10.0
-"#;
-
-/// The lines of [`BASE`] that hold the light (removed for the no-lights case).
-const BASE_LIGHT: &str = "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n";
-
-/// [`BASE`] with `from` replaced by `to` (which must change something).
-#[track_caller]
-fn with(from: &str, to: &str) -> String {
-    assert!(BASE.contains(from), "test bug: BASE has no {from:?}");
-    BASE.replacen(from, to, 1)
-}
-
-/// [`BASE`] with a grid density read from `file`, optionally with `dims`.
-fn grid_scene(file: &str, dims: Option<[i64; 3]>) -> String {
-    let density = match dims {
-        Some([x, y, z]) => {
-            format!("density = {{ kind = \"grid\", file = \"{file}\", dims = [{x}, {y}, {z}] }}")
-        }
-        None => format!("density = {{ kind = \"grid\", file = \"{file}\" }}"),
-    };
-    with("density = { kind = \"constant\" }", &density)
+/// The shared base scene ([`SceneText::base`]) at the size [`TINY`] renders: 16x16, seed 3.
+/// Tests write broken variants of it.
+fn base() -> SceneText {
+    SceneText::base().set("render.width", "16").set("render.height", "16").set("render.seed", "3")
 }
 
 fn repo(rel: &str) -> PathBuf {
@@ -287,292 +247,424 @@ fn read_json(p: &Path) -> serde_json::Value {
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{} is not JSON: {e}\n{text}", p.display()))
 }
 
-// ------------------------------------------------------------------ scene files
+// ------------------------------------------------------------------ renders that must fail
 
-#[test]
-fn malformed_toml_names_file_and_line() {
-    let c = Case::new();
-    // Line 3 of BASE is `width = 16`.
-    let s = c.scene(&with("width = 16", "width = = 16"));
-    c.render_fails(&s, &TINY, &["scene.toml:3:", "malformed TOML"]);
-    // An unterminated string on line 9 (`kind = "perspective"`).
-    let s = c.scene(&with("kind = \"perspective\"", "kind = \"perspective"));
-    c.render_fails(&s, &TINY, &["scene.toml:9:", "malformed TOML"]);
-    // A key given twice.
-    let s = c.scene(&with("albedo = 0.8", "albedo = 0.8\nalbedo = 0.7"));
-    c.render_fails(&s, &TINY, &["scene.toml:", "malformed TOML", "albedo"]);
+/// One `render` that must fail as [`Case::render_fails`] checks (one `error: ` line with
+/// every needle, a clean non-zero exit, the folder left as it was): a row of the tables
+/// below, run in a folder of its own.
+struct Fails {
+    /// `what is tested/variant`, reported when the row fails.
+    name: String,
+    /// Written as `scene.toml`; `None` renders `nope.toml`, which does not exist.
+    scene: Option<SceneText>,
+    /// Input files written next to the scene.
+    files: Vec<(&'static str, Vec<u8>)>,
+    /// Copy the shipped `cloud64.vol` next to the scene.
+    cloud_grid: bool,
+    /// The arguments after the outputs: [`TINY`] unless the row says otherwise.
+    args: Vec<&'static str>,
+    /// What the one error line must contain.
+    needles: Vec<&'static str>,
 }
 
-#[test]
-fn unknown_keys_name_file_key_and_line() {
-    let c = Case::new();
-    let s = c.scene(&with("albedo = 0.8", "albdo = 0.8"));
-    let line = c.render_fails(&s, &TINY, &["scene.toml", "medium.albdo", "unknown key"]);
-    assert!(line.contains("albedo"), "no did-you-mean: {line}");
-    let s = c.scene(&with("intensity = 10.0", "intensity = 10.0\nintensty = 3.0"));
-    c.render_fails(&s, &TINY, &["scene.toml", "light[0].intensty", "unknown key"]);
-    let s = c.scene(&format!("{BASE}\n[extra]\nfoo = 1\n"));
-    c.render_fails(&s, &TINY, &["scene.toml", "extra", "unknown key"]);
+/// A row rendering `scene` with [`TINY`]; its error line must contain every needle.
+fn fails(name: impl Into<String>, scene: SceneText, needles: &[&'static str]) -> Fails {
+    Fails {
+        name: name.into(),
+        scene: Some(scene),
+        files: Vec::new(),
+        cloud_grid: false,
+        args: TINY.to_vec(),
+        needles: needles.to_vec(),
+    }
 }
 
-#[test]
-fn missing_keys_and_wrong_types_name_the_field() {
-    let c = Case::new();
-    let s = c.scene(&with("albedo = 0.8\n", ""));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", "missing"]);
-    let s = c.scene(&with("albedo = 0.8", "albedo = \"high\""));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", "expected"]);
-    let s = c.scene(&with("kind = \"point\"", "kind = \"spot\""));
-    c.render_fails(&s, &TINY, &["scene.toml", "light[0].kind", "spot"]);
+impl Fails {
+    /// Also write `bytes` as the input file `name`.
+    fn file(mut self, name: &'static str, bytes: impl Into<Vec<u8>>) -> Fails {
+        self.files.push((name, bytes.into()));
+        self
+    }
+
+    /// Also copy the shipped `cloud64.vol` next to the scene.
+    fn cloud_grid(mut self) -> Fails {
+        self.cloud_grid = true;
+        self
+    }
+
+    /// [`TINY`] and then `extra`.
+    fn and_args(mut self, extra: &[&'static str]) -> Fails {
+        self.args.extend_from_slice(extra);
+        self
+    }
+
+    /// `args` instead of [`TINY`].
+    fn only_args(mut self, args: &[&'static str]) -> Fails {
+        self.args = args.to_vec();
+        self
+    }
+
+    /// Render `nope.toml`, which does not exist, instead of a scene.
+    fn without_scene_file(mut self) -> Fails {
+        self.scene = None;
+        self
+    }
+
+    fn check(&self) {
+        let c = Case::new();
+        for (name, bytes) in &self.files {
+            c.write(name, bytes);
+        }
+        if self.cloud_grid {
+            c.cloud_grid();
+        }
+        let scene = match &self.scene {
+            Some(text) => c.scene(text),
+            None => c.path("nope.toml"),
+        };
+        c.render_fails(&scene, &self.args, &self.needles);
+    }
 }
 
-#[test]
-fn scene_file_missing() {
-    let c = Case::new();
-    let args = c.render_args(&c.path("nope.toml"), &TINY);
-    c.fails(args, &["nope.toml", "cannot read scene file", "No such file"]);
+/// Check every row, each in a fresh folder, then fail naming every row that failed (with its
+/// message), not just the first.
+fn check_all(rows: Vec<Fails>) {
+    let mut names: Vec<&str> = rows.iter().map(|r| r.name.as_str()).collect();
+    names.sort();
+    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+        panic!("test bug: two rows are named {:?}", w[0]);
+    }
+    let mut failed = Vec::new();
+    for row in &rows {
+        if let Err(e) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| row.check())) {
+            let msg = match (e.downcast_ref::<String>(), e.downcast_ref::<&str>()) {
+                (Some(s), _) => s.clone(),
+                (None, Some(s)) => s.to_string(),
+                (None, None) => "(a panic without a message)".to_string(),
+            };
+            failed.push(format!("{}: {msg}", row.name));
+        }
+    }
+    eprintln!("{} rows checked, {} failed", rows.len(), failed.len());
+    assert!(failed.is_empty(), "{} of {} rows failed:\n\n{}", failed.len(), rows.len(), failed.join("\n\n"));
 }
 
+/// Scene files that are not TOML, name keys or kinds that do not exist, lack a key, or are
+/// not there at all.
 #[test]
-fn grid_file_missing() {
-    let c = Case::new();
-    let s = c.scene(&grid_scene("nope.vol", None));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "nope.vol", "cannot open"]);
+fn render_rejects_malformed_scene_files() {
+    check_all(vec![
+        // Line 3 of the base is `width = 16`.
+        fails("malformed_toml/line 3", base().set("render.width", "= 16"), &["scene.toml:3:", "malformed TOML"]),
+        // An unterminated string on line 9 (`kind = "perspective"`).
+        fails(
+            "malformed_toml/unterminated string on line 9",
+            base().set("camera.kind", "\"perspective"),
+            &["scene.toml:9:", "malformed TOML"],
+        ),
+        fails(
+            "malformed_toml/key given twice",
+            base().insert_after("medium.albedo", "albedo = 0.7"),
+            &["scene.toml:", "malformed TOML", "albedo"],
+        ),
+        // The last needle is the did-you-mean.
+        fails(
+            "unknown_key/medium.albdo",
+            base().replace_line("medium.albedo", "albdo = 0.8"),
+            &["scene.toml", "medium.albdo", "unknown key", "albedo"],
+        ),
+        fails(
+            "unknown_key/light[0].intensty",
+            base().insert_after("light.intensity", "intensty = 3.0"),
+            &["scene.toml", "light[0].intensty", "unknown key"],
+        ),
+        fails(
+            "unknown_key/table extra",
+            base().append("\n[extra]\nfoo = 1\n"),
+            &["scene.toml", "extra", "unknown key"],
+        ),
+        fails("missing_key/medium.albedo", base().remove("medium.albedo"), &["scene.toml", "medium.albedo", "missing"]),
+        fails(
+            "wrong_type/medium.albedo",
+            base().set("medium.albedo", "\"high\""),
+            &["scene.toml", "medium.albedo", "expected"],
+        ),
+        fails(
+            "unknown_kind/light spot",
+            base().set("light.kind", "\"spot\""),
+            &["scene.toml", "light[0].kind", "spot"],
+        ),
+        fails("scene_file_missing", base(), &["nope.toml", "cannot read scene file", "No such file"])
+            .without_scene_file(),
+    ]);
 }
 
+/// Grid files that are missing, cut short, empty, of the wrong size for their dims, hold
+/// NaN, infinite or negative densities, or are too large for the memory budget.
 #[test]
-fn grid_file_truncated() {
-    let c = Case::new();
-    let full = fs::read(repo("scenes/cloud64.vol")).expect("cloud64.vol");
-    // Data cut short.
-    c.write("cut.vol", &full[..full.len() / 2]);
-    let s = c.scene(&grid_scene("cut.vol", None));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "truncated"]);
-    // Header cut short.
-    c.write("cut.vol", &full[..20]);
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "truncated .vol header"]);
-    // Empty file.
-    c.write("cut.vol", b"");
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol"]);
-}
-
-#[test]
-fn grid_dims_do_not_match_file_size() {
-    let c = Case::new();
-    // 4x4x4 raw f32 needs 256 bytes; give 100.
-    c.write("raw.f32", vec![0u8; 100]);
-    let s = c.scene(&grid_scene("raw.f32", Some([4, 4, 4])));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "raw.f32", "dims", "256 bytes", "100 bytes"]);
-    // Too many bytes.
-    c.write("raw.f32", f32_bytes(&[0.5; 65]));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "raw.f32", "extra bytes"]);
-    // Raw without dims.
-    let s = c.scene(&grid_scene("raw.f32", None));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "raw.f32", "dims"]);
-    // A zero dimension.
-    let s = c.scene(&grid_scene("raw.f32", Some([4, 0, 4])));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "dims[1]"]);
-    // dims that contradict a .vol header.
-    c.cloud_grid();
-    let s = c.scene(&grid_scene("cloud64.vol", Some([32, 32, 32])));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cloud64.vol", "disagrees", "64x64x64"]);
-}
-
-#[test]
-fn grid_nan_inf_negative_density() {
-    let c = Case::new();
-    let s = c.scene(&grid_scene("bad.vol", None));
+fn render_rejects_bad_grid_files() {
+    let cloud = fs::read(repo("scenes/cloud64.vol")).expect("cloud64.vol");
+    let mut rows = vec![
+        fails(
+            "grid_file_missing",
+            base().grid("nope.vol"),
+            &["scene.toml", "medium.density.file", "nope.vol", "cannot open"],
+        ),
+        fails(
+            "grid_file_truncated/data",
+            base().grid("cut.vol"),
+            &["scene.toml", "medium.density.file", "cut.vol", "truncated"],
+        )
+        .file("cut.vol", &cloud[..cloud.len() / 2]),
+        fails(
+            "grid_file_truncated/header",
+            base().grid("cut.vol"),
+            &["scene.toml", "medium.density.file", "cut.vol", "truncated .vol header"],
+        )
+        .file("cut.vol", &cloud[..20]),
+        fails("grid_file_truncated/empty", base().grid("cut.vol"), &["scene.toml", "medium.density.file", "cut.vol"])
+            .file("cut.vol", b""),
+        // An empty (fully truncated) grid file should be called empty, not "not a .vol file
+        // ... add dims" (which sends the user after the wrong fix).
+        fails(
+            "empty_grid_file_is_called_empty/0 bytes",
+            base().grid("cut.vol"),
+            &["scene.toml", "medium.density.file", "cut.vol", "empty"],
+        )
+        .file("cut.vol", b""),
+        fails(
+            "empty_grid_file_is_called_empty/2 bytes",
+            base().grid("cut.vol"),
+            &["scene.toml", "medium.density.file", "cut.vol", "truncated"],
+        )
+        .file("cut.vol", b"VO"),
+        // 4x4x4 raw f32 needs 256 bytes; give 100.
+        fails(
+            "grid_dims_do_not_match_file_size/too few bytes",
+            base().grid_with_dims("raw.f32", [4, 4, 4]),
+            &["scene.toml", "medium.density.file", "raw.f32", "dims", "256 bytes", "100 bytes"],
+        )
+        .file("raw.f32", vec![0u8; 100]),
+        fails(
+            "grid_dims_do_not_match_file_size/too many bytes",
+            base().grid_with_dims("raw.f32", [4, 4, 4]),
+            &["scene.toml", "medium.density.file", "raw.f32", "extra bytes"],
+        )
+        .file("raw.f32", f32_bytes(&[0.5; 65])),
+        fails(
+            "grid_dims_do_not_match_file_size/raw without dims",
+            base().grid("raw.f32"),
+            &["scene.toml", "medium.density.file", "raw.f32", "dims"],
+        )
+        .file("raw.f32", f32_bytes(&[0.5; 65])),
+        fails(
+            "grid_dims_do_not_match_file_size/a zero dimension",
+            base().grid_with_dims("raw.f32", [4, 0, 4]),
+            &["scene.toml", "medium.density.file", "dims[1]"],
+        )
+        .file("raw.f32", f32_bytes(&[0.5; 65])),
+        fails(
+            "grid_dims_do_not_match_file_size/dims contradict the .vol header",
+            base().grid_with_dims("cloud64.vol", [32, 32, 32]),
+            &["scene.toml", "medium.density.file", "cloud64.vol", "disagrees", "64x64x64"],
+        )
+        .cloud_grid(),
+    ];
     for (value, text) in [(f32::NAN, "NaN"), (f32::INFINITY, "inf"), (-1.0, "-1")] {
         // Voxel #5 of a 4^3 grid is (1, 1, 0).
-        c.write("bad.vol", vol_bytes(4, Some((5, value))));
-        c.render_fails(
-            &s,
-            &TINY,
-            &["scene.toml", "medium.density.file", "bad.vol", "voxel (1, 1, 0)", text, "finite and >= 0"],
+        rows.push(
+            fails(
+                format!("grid_nan_inf_negative_density/vol {text}"),
+                base().grid("bad.vol"),
+                &["scene.toml", "medium.density.file", "bad.vol", "voxel (1, 1, 0)", text, "finite and >= 0"],
+            )
+            .file("bad.vol", vol_bytes(4, Some((5, value)))),
         );
     }
     // The same in a raw grid.
     let mut data = vec![0.5f32; 8];
     data[7] = f32::NAN;
-    c.write("bad.f32", f32_bytes(&data));
-    let s = c.scene(&grid_scene("bad.f32", Some([2, 2, 2])));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "bad.f32", "voxel (1, 1, 1)", "NaN"]);
-}
-
-#[test]
-fn albedo_outside_unit_interval() {
-    let c = Case::new();
-    for (value, shown) in [("1.5", "1.5"), ("-0.1", "-0.1"), ("[0.5, 1.2, 0.5]", "1.2")] {
-        let s = c.scene(&with("albedo = 0.8", &format!("albedo = {value}")));
-        c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", shown, "outside [0, 1]"]);
-    }
-    let s = c.scene(&with("albedo = 0.8", "albedo = nan"));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.albedo", "NaN"]);
-}
-
-#[test]
-fn g_magnitude_one_or_more() {
-    let c = Case::new();
-    for value in ["1.0", "-1.0", "1.5", "inf"] {
-        let s = c.scene(&with("g = 0.0", &format!("g = {value}")));
-        c.render_fails(&s, &TINY, &["scene.toml", "medium.g", "(-1, 1)"]);
-    }
-}
-
-#[test]
-fn sigma_t_negative_or_not_finite() {
-    let c = Case::new();
-    for value in ["-1.0", "[1.0, -2.0, 1.0]", "nan", "inf"] {
-        let s = c.scene(&with("sigma_t = 2.0", &format!("sigma_t = {value}")));
-        c.render_fails(&s, &TINY, &["scene.toml", "medium.sigma_t", "finite and >= 0"]);
-    }
-}
-
-#[test]
-fn negative_light_intensity() {
-    let c = Case::new();
-    let s = c.scene(&with("intensity = 10.0", "intensity = -10.0"));
-    c.render_fails(&s, &TINY, &["scene.toml", "light[0].intensity", "finite and >= 0"]);
-}
-
-#[test]
-fn zero_size_image() {
-    let c = Case::new();
-    // In the file (no --set overriding it).
-    let s = c.scene(&with("width = 16", "width = 0"));
-    c.render_fails(&s, &["--spp", "4"], &["scene.toml", "render.width", "out of range"]);
-    let s = c.scene(&with("height = 16", "height = 0"));
-    c.render_fails(&s, &["--spp", "4"], &["scene.toml", "render.height", "out of range"]);
-    let s = c.scene(&with("width = 16", "width = -5"));
-    c.render_fails(&s, &["--spp", "4"], &["scene.toml", "render.width", "out of range"]);
-    // From --set: the message says the value came from the override.
-    let s = c.scene(BASE);
-    c.render_fails(
-        &s,
-        &["--set", "render.width=0", "--spp", "4"],
-        &["scene.toml", "render.width", "out of range", "override"],
+    rows.push(
+        fails(
+            "grid_nan_inf_negative_density/raw NaN",
+            base().grid_with_dims("bad.f32", [2, 2, 2]),
+            &["scene.toml", "medium.density.file", "bad.f32", "voxel (1, 1, 1)", "NaN"],
+        )
+        .file("bad.f32", f32_bytes(&data)),
     );
-    // Zero samples per pixel: the message names the flag the user typed.
-    c.render_fails(&s, &["--spp", "0"], &["--spp 0", "at least 1"]);
-}
-
-#[test]
-fn no_lights() {
-    let c = Case::new();
-    let s = c.scene(&with(BASE_LIGHT, ""));
-    c.render_fails(&s, &TINY, &["scene.toml", "light", "no lights"]);
-}
-
-#[test]
-fn camera_that_sees_nothing() {
-    let c = Case::new();
-    // Looking away from the medium.
-    let s = c.scene(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 8.0]"));
-    c.render_fails(&s, &TINY, &["scene.toml", "camera", "sees no part of the medium"]);
-    // Looking past it with a narrow view.
-    let s = c.scene(&with("target = [0.0, 0.0, 0.0]", "target = [5.0, 0.0, 0.0]").replace("fov = 30.0", "fov = 5.0"));
-    c.render_fails(&s, &TINY, &["scene.toml", "camera", "sees no part of the medium"]);
-    // No view direction at all.
-    let s = c.scene(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 4.0]"));
-    c.render_fails(&s, &TINY, &["scene.toml", "camera.target", "equals camera.origin"]);
-    // Up along the view.
-    let s = c.scene(&with("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 1.0]"));
-    c.render_fails(&s, &TINY, &["scene.toml", "camera.up", "parallel"]);
-    // Field of view out of range.
-    let s = c.scene(&with("fov = 30.0", "fov = 180.0"));
-    c.render_fails(&s, &TINY, &["scene.toml", "camera.fov", "(0, 180)"]);
-}
-
-#[test]
-fn grid_beyond_memory_budget() {
-    let c = Case::new();
-    c.cloud_grid();
-    let s = c.scene(&grid_scene("cloud64.vol", None));
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--memory-budget", "1K"]].concat(),
-        &["scene.toml", "medium.density.file", "cloud64.vol", "64x64x64", "memory budget", "--memory-budget"],
+    rows.push(
+        fails(
+            "grid_beyond_memory_budget/cloud under 1K",
+            base().grid("cloud64.vol"),
+            &["scene.toml", "medium.density.file", "cloud64.vol", "64x64x64", "memory budget", "--memory-budget"],
+        )
+        .cloud_grid()
+        .and_args(&["--memory-budget", "1K"]),
     );
     // A hostile header claiming 4096^3 voxels (256 GiB) is refused before any voxel is read,
     // under the default budget.
     let mut header = write_vol([4096, 4096, 4096], &[], glam::Vec3::splat(-0.5), glam::Vec3::splat(0.5));
     header.extend(f32_bytes(&[0.5; 16]));
-    c.write("huge.vol", header);
-    let s = c.scene(&grid_scene("huge.vol", None));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "huge.vol", "4096x4096x4096", "memory budget"]);
+    rows.push(
+        fails(
+            "grid_beyond_memory_budget/hostile header",
+            base().grid("huge.vol"),
+            &["scene.toml", "medium.density.file", "huge.vol", "4096x4096x4096", "memory budget"],
+        )
+        .file("huge.vol", header),
+    );
+    check_all(rows);
 }
 
+/// Values out of range: albedo, g, sigma_t, light intensity, image size, spp, no lights, a
+/// camera that sees nothing.
 #[test]
-fn memory_budget_syntax() {
-    let c = Case::new();
-    let s = c.scene(BASE);
-    c.render_fails(&s, &[&TINY[..], &["--memory-budget", "lots"]].concat(), &["--memory-budget", "lots"]);
-    c.render_fails(&s, &[&TINY[..], &["--memory-budget", "0"]].concat(), &["--memory-budget", "positive"]);
+fn render_rejects_bad_scene_values() {
+    let mut rows = Vec::new();
+    for (value, shown) in [("1.5", "1.5"), ("-0.1", "-0.1"), ("[0.5, 1.2, 0.5]", "1.2")] {
+        rows.push(fails(
+            format!("albedo_outside_unit_interval/{value}"),
+            base().set("medium.albedo", value),
+            &["scene.toml", "medium.albedo", shown, "outside [0, 1]"],
+        ));
+    }
+    rows.push(fails(
+        "albedo_outside_unit_interval/nan",
+        base().set("medium.albedo", "nan"),
+        &["scene.toml", "medium.albedo", "NaN"],
+    ));
+    for value in ["1.0", "-1.0", "1.5", "inf"] {
+        rows.push(fails(
+            format!("g_magnitude_one_or_more/{value}"),
+            base().set("medium.g", value),
+            &["scene.toml", "medium.g", "(-1, 1)"],
+        ));
+    }
+    for value in ["-1.0", "[1.0, -2.0, 1.0]", "nan", "inf"] {
+        rows.push(fails(
+            format!("sigma_t_negative_or_not_finite/{value}"),
+            base().set("medium.sigma_t", value),
+            &["scene.toml", "medium.sigma_t", "finite and >= 0"],
+        ));
+    }
+    rows.extend([
+        fails(
+            "negative_light_intensity",
+            base().set("light.intensity", "-10.0"),
+            &["scene.toml", "light[0].intensity", "finite and >= 0"],
+        ),
+        // In the file (no --set overriding it).
+        fails(
+            "zero_size_image/width = 0",
+            base().set("render.width", "0"),
+            &["scene.toml", "render.width", "out of range"],
+        )
+        .only_args(&["--spp", "4"]),
+        fails(
+            "zero_size_image/height = 0",
+            base().set("render.height", "0"),
+            &["scene.toml", "render.height", "out of range"],
+        )
+        .only_args(&["--spp", "4"]),
+        fails(
+            "zero_size_image/width = -5",
+            base().set("render.width", "-5"),
+            &["scene.toml", "render.width", "out of range"],
+        )
+        .only_args(&["--spp", "4"]),
+        // From --set: the message says the value came from the override.
+        fails(
+            "zero_size_image/--set render.width=0",
+            base(),
+            &["scene.toml", "render.width", "out of range", "override"],
+        )
+        .only_args(&["--set", "render.width=0", "--spp", "4"]),
+        // Zero samples per pixel: the message names the flag the user typed.
+        fails("zero_size_image/--spp 0", base(), &["--spp 0", "at least 1"]).only_args(&["--spp", "0"]),
+        fails("no_lights", base().without_light(), &["scene.toml", "light", "no lights"]),
+        // Looking away from the medium.
+        fails(
+            "camera_that_sees_nothing/looking away",
+            base().set("camera.target", "[0.0, 0.0, 8.0]"),
+            &["scene.toml", "camera", "sees no part of the medium"],
+        ),
+        // Looking past it with a narrow view.
+        fails(
+            "camera_that_sees_nothing/looking past",
+            base().set("camera.target", "[5.0, 0.0, 0.0]").set("camera.fov", "5.0"),
+            &["scene.toml", "camera", "sees no part of the medium"],
+        ),
+        // No view direction at all.
+        fails(
+            "camera_that_sees_nothing/target at the origin",
+            base().set("camera.target", "[0.0, 0.0, 4.0]"),
+            &["scene.toml", "camera.target", "equals camera.origin"],
+        ),
+        // Up along the view.
+        fails(
+            "camera_that_sees_nothing/up along the view",
+            base().set("camera.up", "[0.0, 0.0, 1.0]"),
+            &["scene.toml", "camera.up", "parallel"],
+        ),
+        // Field of view out of range.
+        fails(
+            "camera_that_sees_nothing/fov 180",
+            base().set("camera.fov", "180.0"),
+            &["scene.toml", "camera.fov", "(0, 180)"],
+        ),
+    ]);
+    check_all(rows);
 }
 
-// ------------------------------------------------------------------ --set
-
+/// Bad flags on a good scene: --memory-budget, --set (unknown keys, syntax, values, a knob of
+/// the other solver), --device.
 #[test]
-fn unknown_set_keys() {
-    let c = Case::new();
-    let s = c.scene(BASE);
-    let line = c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "medium.albdo=1"]].concat(),
-        &["scene.toml", "medium.albdo", "unknown key"],
-    );
-    assert!(line.contains("albedo"), "no did-you-mean: {line}");
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "path.nope=1"]].concat(),
-        &["--set path.nope", "unknown setting", "path"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "single.step=0.01"]].concat(),
-        &["--set single.step", "solver single", "solver path"],
-    );
-    c.render_fails(&s, &[&TINY[..], &["--set", "nope=1"]].concat(), &["--set nope", "unknown key"]);
-    c.render_fails(&s, &[&TINY[..], &["--set", "mesh.file=1"]].concat(), &["--set mesh.file", "unknown key"]);
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "light[3].intensity=1"]].concat(),
-        &["scene.toml", "light[3]", "does not exist"],
-    );
-    // The other way round: a path knob while rendering with single.
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--solver", "single", "--set", "path.max_depth=1"]].concat(),
-        &["--set path.max_depth", "solver path", "solver single"],
-    );
-}
-
-#[test]
-fn bad_set_syntax() {
-    let c = Case::new();
-    let s = c.scene(BASE);
-    c.render_fails(&s, &[&TINY[..], &["--set", "medium.albedo"]].concat(), &["--set", "medium.albedo", "KEY=VALUE"]);
-    c.render_fails(&s, &[&TINY[..], &["--set", "=0.5"]].concat(), &["--set", "KEY=VALUE"]);
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "medium.albedo=[0.5,"]].concat(),
-        &["scene.toml", "medium.albedo", "not a TOML value"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "medium.albedo=2"]].concat(),
-        &["scene.toml", "medium.albedo", "outside [0, 1]", "override"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "path.max_depth=lots"]].concat(),
-        &["--set path.max_depth", "unbounded"],
-    );
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "path.batch=lots"]].concat(),
-        &["--set path.batch", "cannot parse", "lots"],
-    );
+fn render_rejects_bad_flags() {
+    check_all(vec![
+        fails("memory_budget_syntax/lots", base(), &["--memory-budget", "lots"]).and_args(&["--memory-budget", "lots"]),
+        fails("memory_budget_syntax/0", base(), &["--memory-budget", "positive"]).and_args(&["--memory-budget", "0"]),
+        // The last needle is the did-you-mean.
+        fails("unknown_set_keys/medium.albdo", base(), &["scene.toml", "medium.albdo", "unknown key", "albedo"])
+            .and_args(&["--set", "medium.albdo=1"]),
+        fails("unknown_set_keys/path.nope", base(), &["--set path.nope", "unknown setting", "path"])
+            .and_args(&["--set", "path.nope=1"]),
+        fails("unknown_set_keys/single.step", base(), &["--set single.step", "solver single", "solver path"])
+            .and_args(&["--set", "single.step=0.01"]),
+        fails("unknown_set_keys/nope", base(), &["--set nope", "unknown key"]).and_args(&["--set", "nope=1"]),
+        fails("unknown_set_keys/mesh.file", base(), &["--set mesh.file", "unknown key"])
+            .and_args(&["--set", "mesh.file=1"]),
+        fails("unknown_set_keys/light[3]", base(), &["scene.toml", "light[3]", "does not exist"])
+            .and_args(&["--set", "light[3].intensity=1"]),
+        // The other way round: a path knob while rendering with single.
+        fails(
+            "unknown_set_keys/path knob with single",
+            base(),
+            &["--set path.max_depth", "solver path", "solver single"],
+        )
+        .and_args(&["--solver", "single", "--set", "path.max_depth=1"]),
+        fails("bad_set_syntax/no =", base(), &["--set", "medium.albedo", "KEY=VALUE"])
+            .and_args(&["--set", "medium.albedo"]),
+        fails("bad_set_syntax/no key", base(), &["--set", "KEY=VALUE"]).and_args(&["--set", "=0.5"]),
+        fails("bad_set_syntax/not a TOML value", base(), &["scene.toml", "medium.albedo", "not a TOML value"])
+            .and_args(&["--set", "medium.albedo=[0.5,"]),
+        fails(
+            "bad_set_syntax/value out of range",
+            base(),
+            &["scene.toml", "medium.albedo", "outside [0, 1]", "override"],
+        )
+        .and_args(&["--set", "medium.albedo=2"]),
+        fails("bad_set_syntax/path.max_depth=lots", base(), &["--set path.max_depth", "unbounded"])
+            .and_args(&["--set", "path.max_depth=lots"]),
+        fails("bad_set_syntax/path.batch=lots", base(), &["--set path.batch", "cannot parse", "lots"])
+            .and_args(&["--set", "path.batch=lots"]),
+        // A solver knob that does not parse should show the value it got.
+        fails("bad_solver_knob_value_is_shown", base(), &["--set path.max_depth", "lots", "unbounded"])
+            .and_args(&["--set", "path.max_depth=lots"]),
+        fails("device_that_does_not_exist/name", base(), &["--device", "nonexistent", "available"])
+            .and_args(&["--device", "nonexistent"]),
+        fails("device_that_does_not_exist/index", base(), &["--device", "99", "available"])
+            .and_args(&["--device", "99"]),
+    ]);
 }
 
 // ------------------------------------------------------------------ outputs and devices
@@ -580,7 +672,7 @@ fn bad_set_syntax() {
 #[test]
 fn no_output_requested() {
     let c = Case::new();
-    let s = c.scene(BASE);
+    let s = c.scene(&base());
     c.fails(
         [&["render", s.to_str().unwrap(), "--validate", "-q"][..], &TINY[..]].concat(),
         &["no output requested", "--out"],
@@ -590,7 +682,7 @@ fn no_output_requested() {
 #[test]
 fn output_directory_missing() {
     let c = Case::new();
-    let s = c.scene(BASE);
+    let s = c.scene(&base());
     for (flag, name) in [("--out", "x.exr"), ("--png", "x.png"), ("--json", "x.json")] {
         let p = c.path(&format!("missing/{name}"));
         c.fails(
@@ -623,7 +715,7 @@ fn output_directory_missing() {
 #[test]
 fn output_with_wrong_extension() {
     let c = Case::new();
-    let s = c.scene(BASE);
+    let s = c.scene(&base());
     for (flag, name, want) in [
         ("--out", "out/x.png", ".exr"),
         ("--png", "out/x.jpg", ".png"),
@@ -657,50 +749,18 @@ fn errors_name_their_cause_once() {
     c.fails(["compare", junk.to_str().unwrap(), a.to_str().unwrap()], &["junk.exr", "EXR"]);
 }
 
-/// An empty (fully truncated) grid file should be called empty, not "not a .vol file ...
-/// add dims" (which sends the user after the wrong fix).
-#[test]
-fn empty_grid_file_is_called_empty() {
-    let c = Case::new();
-    c.write("cut.vol", b"");
-    let s = c.scene(&grid_scene("cut.vol", None));
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "empty"]);
-    c.write("cut.vol", b"VO");
-    c.render_fails(&s, &TINY, &["scene.toml", "medium.density.file", "cut.vol", "truncated"]);
-}
-
-/// A solver knob that does not parse should show the value it got.
-#[test]
-fn bad_solver_knob_value_is_shown() {
-    let c = Case::new();
-    let s = c.scene(BASE);
-    c.render_fails(
-        &s,
-        &[&TINY[..], &["--set", "path.max_depth=lots"]].concat(),
-        &["--set path.max_depth", "lots", "unbounded"],
-    );
-}
-
 /// An output that can only fail when written (a folder sits where the JSON should go): the
 /// images written before it must not stay behind as if the render had succeeded.
 #[test]
 fn late_output_failure_leaves_nothing_behind() {
     let c = Case::new();
-    let s = c.scene(BASE);
+    let s = c.scene(&base());
     fs::create_dir(c.path("out/x.json")).expect("dir");
     let before = c.listing();
     let out = c.render(&s, &TINY);
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     assert_eq!(before, c.listing(), "outputs or temporary files left behind after: {stderr}");
     one_error_line(&out, &["x.json"]);
-}
-
-#[test]
-fn device_that_does_not_exist() {
-    let c = Case::new();
-    let s = c.scene(BASE);
-    c.render_fails(&s, &[&TINY[..], &["--device", "nonexistent"]].concat(), &["--device", "nonexistent", "available"]);
-    c.render_fails(&s, &[&TINY[..], &["--device", "99"]].concat(), &["--device", "99", "available"]);
 }
 
 #[test]
@@ -861,7 +921,7 @@ fn render_single_writes_exr_png_json() {
 #[test]
 fn render_over_existing_outputs_replaces_them() {
     let c = Case::new();
-    let s = c.scene(BASE);
+    let s = c.scene(&base());
     for name in ["out/x.exr", "out/x.png", "out/x.json"] {
         fs::write(c.path(name), "old").expect("old file");
     }
@@ -875,7 +935,7 @@ fn render_over_existing_outputs_replaces_them() {
 fn render_grid_scene_within_budget() {
     let c = Case::new();
     c.cloud_grid();
-    let s = c.scene(&grid_scene("cloud64.vol", None));
+    let s = c.scene(&base().grid("cloud64.vol"));
     succeeded(&c.render(&s, &[&TINY[..], &["--memory-budget", "2M"]].concat()));
     let doc = read_json(&c.path("out/x.json"));
     assert_eq!(doc["validation"]["errors"], 0, "{doc}");
@@ -931,7 +991,7 @@ fn scene_info_cloud() {
 #[test]
 fn scene_info_bad_scene() {
     let c = Case::new();
-    let s = c.scene(&with("g = 0.0", "g = 1.0"));
+    let s = c.scene(&base().set("medium.g", "1.0"));
     c.fails(["scene", "info", s.to_str().unwrap()], &["scene.toml", "medium.g", "(-1, 1)"]);
     c.fails(["scene", "info", s.to_str().unwrap(), "--set", "medium.g"], &["--set", "KEY=VALUE"]);
     let missing = c.path("nope.toml");

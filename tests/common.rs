@@ -126,3 +126,196 @@ pub fn assert_agree(
     eprintln!("{what}: {bad} of {n} values beyond 4 sigma");
     assert!(bad * 100 <= 2 * n, "{what}: {bad} of {n} values differ by more than 4 sigma");
 }
+
+// ---- Scene text builder shared by cli_tests and scene_tests ----
+
+/// The base scene: a constant-density unit cube (sigma_t 2, albedo 0.8, isotropic) seen
+/// head-on by a 30 degree perspective camera, lit by one point light. Line 1 is blank, so
+/// `[render]` is line 2, `width` line 3, `spp` line 6 and the camera's `kind` line 9 (tests
+/// quote these line numbers in expected errors).
+const BASE_SCENE: &str = r#"
+[render]
+width = 32
+height = 32
+seed = 7
+spp = 4
+
+[camera]
+kind = "perspective"
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 30.0
+
+[medium]
+bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+sigma_t = 2.0
+albedo = 0.8
+g = 0.0
+density = { kind = "constant" }
+
+[[light]]
+kind = "point"
+position = [1.0, 1.0, 1.0]
+intensity = 10.0
+"#;
+
+/// A scene file's text: [`SceneText::base`] edited one key or table at a time, e.g.
+/// `SceneText::base().set("medium.albedo", "1.5")` or `SceneText::base().without_light()`.
+///
+/// Keys are named as error messages name them: `render.width`, `camera.fov`,
+/// `medium.density`, `light.kind` (the base's one `[[light]]`). Every edit must apply: a key
+/// or text the scene lacks, or a key it has twice, is a bug in the test and panics. The text
+/// derefs to `str`, so `&scene` goes wherever a `&str` does.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneText(String);
+
+impl SceneText {
+    /// The base scene (see [`BASE_SCENE`]): 32x32 pixels, seed 7, 4 spp.
+    pub fn base() -> SceneText {
+        SceneText(BASE_SCENE.to_string())
+    }
+
+    /// `key = value` in place of the key's line.
+    #[track_caller]
+    pub fn set(self, key: &str, value: &str) -> SceneText {
+        let name = key.rsplit('.').next().unwrap_or(key);
+        self.replace_line(key, &format!("{name} = {value}"))
+    }
+
+    /// `line` (one or more lines, without the final newline) in place of the key's line:
+    /// a renamed key, broken syntax, another key instead.
+    #[track_caller]
+    pub fn replace_line(self, key: &str, line: &str) -> SceneText {
+        let range = self.key_line(key);
+        self.splice(range, &format!("{line}\n"))
+    }
+
+    /// `lines` (without the final newline) inserted after the key's line.
+    #[track_caller]
+    pub fn insert_after(self, key: &str, lines: &str) -> SceneText {
+        let range = self.key_line(key);
+        self.splice(range.end..range.end, &format!("{lines}\n"))
+    }
+
+    /// Remove a key's line (`medium.albedo`) or a whole table (`camera`, `light`): its header
+    /// and keys, up to the blank line that follows it.
+    #[track_caller]
+    pub fn remove(self, key_or_table: &str) -> SceneText {
+        let range = match self.table(key_or_table) {
+            Some(range) => range,
+            None => self.key_line(key_or_table),
+        };
+        self.splice(range, "")
+    }
+
+    /// The medium's density as the inline table `table`, e.g. `{ kind = "sphere", ... }`.
+    #[track_caller]
+    pub fn density(self, table: &str) -> SceneText {
+        self.set("medium.density", table)
+    }
+
+    /// A grid density read from `file` (a `.vol` file, whose header gives the dims).
+    #[track_caller]
+    pub fn grid(self, file: &str) -> SceneText {
+        self.density(&format!("{{ kind = \"grid\", file = \"{file}\" }}"))
+    }
+
+    /// A grid density read from `file` with explicit `dims` (a raw grid, or a `.vol` whose
+    /// header they must match).
+    #[track_caller]
+    pub fn grid_with_dims(self, file: &str, [x, y, z]: [i64; 3]) -> SceneText {
+        self.density(&format!("{{ kind = \"grid\", file = \"{file}\", dims = [{x}, {y}, {z}] }}"))
+    }
+
+    /// No `[[light]]` table at all.
+    #[track_caller]
+    pub fn without_light(self) -> SceneText {
+        self.remove("light")
+    }
+
+    /// Another `[[light]]` table with the keys `body`, before the base's point light (so it
+    /// is `light[0]` and the point light `light[1]`).
+    #[track_caller]
+    pub fn prepend_light(self, body: &str) -> SceneText {
+        self.replace("[[light]]", &format!("[[light]]\n{body}\n\n[[light]]"))
+    }
+
+    /// `text` added at the end of the file.
+    pub fn append(mut self, text: &str) -> SceneText {
+        self.0.push_str(text);
+        self
+    }
+
+    /// The first `from` replaced by `to`: for edits the other methods do not cover.
+    #[track_caller]
+    pub fn replace(self, from: &str, to: &str) -> SceneText {
+        assert!(self.0.contains(from), "test bug: the scene has no {from:?}:\n{}", self.0);
+        SceneText(self.0.replacen(from, to, 1))
+    }
+
+    fn splice(mut self, range: std::ops::Range<usize>, with: &str) -> SceneText {
+        self.0.replace_range(range, with);
+        self
+    }
+
+    /// The lines with their byte ranges (newline included) and the table each is in.
+    fn lines(&self) -> Vec<(std::ops::Range<usize>, &str, String)> {
+        let mut out = Vec::new();
+        let (mut at, mut table) = (0, String::new());
+        for line in self.0.split_inclusive('\n') {
+            let t = line.trim();
+            if t.starts_with('[') && t.ends_with(']') {
+                table = t.trim_matches(|c| c == '[' || c == ']').to_string();
+            }
+            out.push((at..at + line.len(), t, table.clone()));
+            at += line.len();
+        }
+        out
+    }
+
+    /// The byte range of the one line that sets `key` (`table.name`, or `name` before any table).
+    #[track_caller]
+    fn key_line(&self, key: &str) -> std::ops::Range<usize> {
+        let found: Vec<_> = self
+            .lines()
+            .into_iter()
+            .filter(|(_, t, table)| {
+                let Some((name, _)) = t.split_once('=') else { return false };
+                let full = if table.is_empty() { name.trim().to_string() } else { format!("{table}.{}", name.trim()) };
+                !t.starts_with('[') && !t.starts_with('#') && full == key
+            })
+            .map(|(range, _, _)| range)
+            .collect();
+        match found.as_slice() {
+            [one] => one.clone(),
+            _ => panic!("test bug: the scene sets {key:?} {} times, not once:\n{}", found.len(), self.0),
+        }
+    }
+
+    /// The byte range of the table `name`, header to last key, if the scene has it (once).
+    #[track_caller]
+    fn table(&self, name: &str) -> Option<std::ops::Range<usize>> {
+        let lines = self.lines();
+        let headers: Vec<usize> = (0..lines.len())
+            .filter(|&i| lines[i].1.starts_with('[') && lines[i].1.trim_matches(|c| c == '[' || c == ']') == name)
+            .collect();
+        match headers.as_slice() {
+            [] => None,
+            [h] => {
+                let end = (h + 1..lines.len())
+                    .find(|&i| lines[i].1.is_empty() || lines[i].1.starts_with('['))
+                    .map_or(self.0.len(), |i| lines[i].0.start);
+                Some(lines[*h].0.start..end)
+            }
+            _ => panic!("test bug: the scene has {} tables {name:?}, not one:\n{}", headers.len(), self.0),
+        }
+    }
+}
+
+impl std::ops::Deref for SceneText {
+    type Target = str;
+    fn deref(&self) -> &str {
+        &self.0
+    }
+}

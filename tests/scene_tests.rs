@@ -7,40 +7,13 @@ use scatterlab::scene::{
     is_scene_key, write_vol, CameraKind, Density, Features, Grid, Light, LoadOptions, Scene, SceneError,
 };
 
+use crate::common::SceneText;
+
 // ---------------------------------------------------------------------------- helpers
 
-/// A small valid scene; tests derive broken ones from it with `with`.
-const BASE: &str = r#"
-[render]
-width = 32
-height = 32
-seed = 7
-spp = 4
-
-[camera]
-kind = "perspective"
-origin = [0.0, 0.0, 4.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov = 30.0
-
-[medium]
-bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
-sigma_t = 2.0
-albedo = 0.8
-g = 0.0
-density = { kind = "constant" }
-
-[[light]]
-kind = "point"
-position = [1.0, 1.0, 1.0]
-intensity = 10.0
-"#;
-
-/// `BASE` with `from` replaced by `to` (which must occur).
-fn with(from: &str, to: &str) -> String {
-    assert!(BASE.contains(from), "test bug: `{from}` not in BASE");
-    BASE.replacen(from, to, 1)
+/// The shared base scene ([`SceneText::base`]): tests derive broken ones from it.
+fn base() -> SceneText {
+    SceneText::base()
 }
 
 fn scenes_dir() -> PathBuf {
@@ -81,11 +54,7 @@ fn err_of(text: &str) -> String {
 }
 
 fn with_overrides(overrides: &[(&str, &str)]) -> Result<Scene, SceneError> {
-    parse_in(BASE, Path::new("."), overrides, &LoadOptions::default())
-}
-
-fn grid_scene(density: &str) -> String {
-    with(r#"density = { kind = "constant" }"#, density)
+    parse_in(&base(), Path::new("."), overrides, &LoadOptions::default())
 }
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) {
@@ -104,19 +73,20 @@ fn vol(dims: [u32; 3], data: &[f32]) -> Vec<u8> {
     write_vol(dims, data, Vec3::ZERO, Vec3::ONE)
 }
 
-fn grid_error(files: &[(&str, Vec<u8>)], density: &str, opts: &LoadOptions) -> String {
+/// The error of `scene` loaded from a folder that holds `files`.
+fn grid_error(files: &[(&str, Vec<u8>)], scene: &SceneText, opts: &LoadOptions) -> String {
     let dir = tempfile::tempdir().expect("tempdir");
     for (name, bytes) in files {
         write(dir.path(), name, bytes);
     }
-    message(parse_in(&grid_scene(density), dir.path(), &[], opts))
+    message(parse_in(scene, dir.path(), &[], opts))
 }
 
 // ---------------------------------------------------------------------------- the base
 
 #[test]
 fn scene_base_is_valid_and_typed() {
-    let s = parse(BASE).expect("BASE loads");
+    let s = parse(&base()).expect("the base scene loads");
     assert_eq!(s.source, PathBuf::from("scene.toml"));
     assert_eq!((s.render.width, s.render.height, s.render.seed, s.render.spp), (32, 32, 7, 4));
     assert_eq!(s.camera.kind, CameraKind::Perspective { fov_deg: 30.0 });
@@ -128,12 +98,12 @@ fn scene_base_is_valid_and_typed() {
 
 #[test]
 fn scene_defaults_for_optional_keys() {
-    let text = BASE
-        .replace("seed = 7\n", "")
-        .replace("spp = 4\n", "")
-        .replace("g = 0.0\n", "")
-        .replace("density = { kind = \"constant\" }\n", "")
-        .replace("up = [0.0, 1.0, 0.0]\n", "");
+    let text = base()
+        .remove("render.seed")
+        .remove("render.spp")
+        .remove("medium.g")
+        .remove("medium.density")
+        .remove("camera.up");
     let s = parse(&text).expect("optional keys may be omitted");
     assert_eq!((s.render.seed, s.render.spp), (1, 256));
     assert_eq!(s.medium.g, 0.0);
@@ -143,10 +113,9 @@ fn scene_defaults_for_optional_keys() {
 
 #[test]
 fn scene_rgb_values_and_direction_normalised() {
-    let text = with("sigma_t = 2.0", "sigma_t = [1, 2, 3]").replace(
-        "[[light]]\nkind = \"point\"",
-        "[[light]]\nkind = \"directional\"\ndirection = [0, 0, -2]\nirradiance = [1, 0.5, 0]\n\n[[light]]\nkind = \"point\"",
-    );
+    let text = base()
+        .set("medium.sigma_t", "[1, 2, 3]")
+        .prepend_light("kind = \"directional\"\ndirection = [0, 0, -2]\nirradiance = [1, 0.5, 0]");
     let s = parse(&text).expect("loads");
     assert_eq!(s.medium.sigma_t, Vec3::new(1.0, 2.0, 3.0));
     assert_eq!(
@@ -158,13 +127,13 @@ fn scene_rgb_values_and_direction_normalised() {
 
 #[test]
 fn scene_camera_inside_medium_is_allowed() {
-    let text = with("origin = [0.0, 0.0, 4.0]", "origin = [0.0, 0.0, 0.2]");
+    let text = base().set("camera.origin", "[0.0, 0.0, 0.2]");
     parse(&text).expect("a camera inside the medium is fine");
 }
 
 #[test]
 fn scene_camera_basis_matches_image_axes() {
-    let s = parse(BASE).expect("loads");
+    let s = parse(&base()).expect("loads");
     let (right, up, forward) = s.camera.basis();
     assert!((right - Vec3::X).length() < 1e-6);
     assert!((up - Vec3::Y).length() < 1e-6);
@@ -175,13 +144,13 @@ fn scene_camera_basis_matches_image_axes() {
 
 #[test]
 fn scene_error_malformed_toml_gives_line() {
-    let msg = err_of(&with("spp = 4", "spp = = 4"));
+    let msg = err_of(&base().set("render.spp", "= 4"));
     assert_mentions(&msg, &["malformed TOML", "scene.toml:6:"]);
 }
 
 #[test]
 fn scene_error_unknown_key_names_key_line_and_suggestion() {
-    let text = with("albedo = 0.8", "albdo = 0.8");
+    let text = base().replace_line("medium.albedo", "albdo = 0.8");
     let line = text.lines().position(|l| l.starts_with("albdo")).unwrap() + 1;
     let msg = err_of(&text);
     assert_mentions(&msg, &["unknown key `medium.albdo`", &format!("scene.toml:{line}:"), "did you mean `albedo`"]);
@@ -189,42 +158,41 @@ fn scene_error_unknown_key_names_key_line_and_suggestion() {
 
 #[test]
 fn scene_error_unknown_key_in_sections_and_lights() {
-    let msg = err_of(&with("[render]", "[rendr]\nwidth = 1\n\n[render]"));
+    let msg = err_of(&base().replace("[render]", "[rendr]\nwidth = 1\n\n[render]"));
     assert_mentions(&msg, &["unknown key `rendr`", "render"]);
-    let msg = err_of(&with("intensity = 10.0", "intensity = 10.0\ncolour = 1"));
+    let msg = err_of(&base().insert_after("light.intensity", "colour = 1"));
     assert_mentions(&msg, &["unknown key `light[0].colour`"]);
-    let msg = err_of(&grid_scene(r#"density = { kind = "sphere", center = [0, 0, 0], radius = 0.3, radios = 1 }"#));
+    let msg = err_of(&base().density(r#"{ kind = "sphere", center = [0, 0, 0], radius = 0.3, radios = 1 }"#));
     assert_mentions(&msg, &["unknown key `medium.density.radios`"]);
-    let msg = err_of(&grid_scene(r#"density = { kind = "constant", radius = 1 }"#));
+    let msg = err_of(&base().density(r#"{ kind = "constant", radius = 1 }"#));
     assert_mentions(&msg, &["unknown key `medium.density.radius`"]);
 }
 
 #[test]
 fn scene_error_missing_required_key() {
-    let msg = err_of(&with("width = 32\n", ""));
+    let msg = err_of(&base().remove("render.width"));
     assert_mentions(&msg, &["missing required key `render.width`"]);
-    let msg = err_of(&with("sigma_t = 2.0\n", ""));
+    let msg = err_of(&base().remove("medium.sigma_t"));
     assert_mentions(&msg, &["missing required key `medium.sigma_t`"]);
-    let msg = err_of(&with("fov = 30.0\n", ""));
+    let msg = err_of(&base().remove("camera.fov"));
     assert_mentions(&msg, &["missing required key `camera.fov`", "perspective"]);
-    let msg = err_of(&with("kind = \"point\"\n", ""));
+    let msg = err_of(&base().remove("light.kind"));
     assert_mentions(&msg, &["missing required key `light[0].kind`", "directional"]);
-    let camera_block = "[camera]\nkind = \"perspective\"\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 30.0\n";
-    let msg = err_of(&with(camera_block, ""));
+    let msg = err_of(&base().remove("camera"));
     assert_mentions(&msg, &["missing required key `camera`", "[camera]"]);
 }
 
 #[test]
 fn scene_error_wrong_types_and_kinds() {
-    let msg = err_of(&with("width = 32", "width = \"wide\""));
+    let msg = err_of(&base().set("render.width", "\"wide\""));
     assert_mentions(&msg, &["render.width", "invalid type", "expected an integer"]);
-    let msg = err_of(&with("sigma_t = 2.0", "sigma_t = [1, 2]"));
+    let msg = err_of(&base().set("medium.sigma_t", "[1, 2]"));
     assert_mentions(&msg, &["medium.sigma_t", "3 numbers"]);
-    let msg = err_of(&with("kind = \"point\"", "kind = \"spot\""));
+    let msg = err_of(&base().set("light.kind", "\"spot\""));
     assert_mentions(&msg, &["scene.toml: light[0].kind: unknown kind `spot`", "directional"]);
-    let msg = err_of(&with("kind = \"perspective\"", "kind = \"fisheye\""));
+    let msg = err_of(&base().set("camera.kind", "\"fisheye\""));
     assert_mentions(&msg, &["camera.kind", "fisheye", "orthographic"]);
-    let msg = err_of(&BASE.replace("[[light]]", "[light]"));
+    let msg = err_of(&base().replace("[[light]]", "[light]"));
     assert_mentions(&msg, &["light", "[[light]]"]);
 }
 
@@ -235,7 +203,7 @@ fn scene_error_albedo_each_channel() {
     for (value, channel) in
         [("[1.2, 0.5, 0.5]", "red"), ("[0.5, 1.2, 0.5]", "green"), ("[0.5, 0.5, -0.1]", "blue"), ("-0.5", "red")]
     {
-        let msg = err_of(&with("albedo = 0.8", &format!("albedo = {value}")));
+        let msg = err_of(&base().set("medium.albedo", value));
         assert_mentions(&msg, &["medium.albedo", channel, "[0, 1]"]);
     }
 }
@@ -243,7 +211,7 @@ fn scene_error_albedo_each_channel() {
 #[test]
 fn scene_error_g_out_of_range() {
     for g in ["1.0", "-1.0", "1.5", "nan"] {
-        let msg = err_of(&with("g = 0.0", &format!("g = {g}")));
+        let msg = err_of(&base().set("medium.g", g));
         assert_mentions(&msg, &["medium.g", "(-1, 1)"]);
     }
 }
@@ -251,7 +219,7 @@ fn scene_error_g_out_of_range() {
 #[test]
 fn scene_error_sigma_t_negative_or_non_finite() {
     for (value, channel) in [("-1.0", "red"), ("nan", "red"), ("[1, inf, 1]", "green"), ("[1, 1, 1e300]", "blue")] {
-        let msg = err_of(&with("sigma_t = 2.0", &format!("sigma_t = {value}")));
+        let msg = err_of(&base().set("medium.sigma_t", value));
         assert_mentions(&msg, &["medium.sigma_t", channel, "finite and >= 0"]);
         assert!(!msg.contains("00000"), "huge numbers are written compactly: {msg}");
     }
@@ -259,101 +227,93 @@ fn scene_error_sigma_t_negative_or_non_finite() {
 
 #[test]
 fn scene_error_image_size_and_spp() {
-    for (from, to, field) in [
-        ("width = 32", "width = 0", "render.width"),
-        ("height = 32", "height = 0", "render.height"),
-        ("width = 32", "width = 20000", "render.width"),
-        ("height = 32", "height = -4", "render.height"),
-    ] {
-        let msg = err_of(&with(from, to));
+    for (field, value) in
+        [("render.width", "0"), ("render.height", "0"), ("render.width", "20000"), ("render.height", "-4")]
+    {
+        let msg = err_of(&base().set(field, value));
         assert_mentions(&msg, &[field, "16384"]);
     }
-    let msg = err_of(&with("spp = 4", "spp = 0"));
+    let msg = err_of(&base().set("render.spp", "0"));
     assert_mentions(&msg, &["render.spp", "out of range"]);
-    let msg = err_of(&with("seed = 7", "seed = -1"));
+    let msg = err_of(&base().set("render.seed", "-1"));
     assert_mentions(&msg, &["render.seed", ">= 0"]);
 }
 
 #[test]
 fn scene_error_no_lights() {
-    let at = BASE.find("[[light]]").unwrap();
-    let msg = err_of(&BASE[..at]);
+    let msg = err_of(&base().without_light());
     assert_mentions(&msg, &["no lights", "[[light]]"]);
 }
 
 #[test]
 fn scene_error_light_values() {
-    let msg = err_of(&with("intensity = 10.0", "intensity = -1.0"));
+    let msg = err_of(&base().set("light.intensity", "-1.0"));
     assert_mentions(&msg, &["light[0].intensity", "finite and >= 0"]);
-    let msg = err_of(&with("intensity = 10.0", "intensity = [1, nan, 1]"));
+    let msg = err_of(&base().set("light.intensity", "[1, nan, 1]"));
     assert_mentions(&msg, &["light[0].intensity", "green"]);
-    let msg = err_of(&with("position = [1.0, 1.0, 1.0]", "position = [1.0, inf, 1.0]"));
+    let msg = err_of(&base().set("light.position", "[1.0, inf, 1.0]"));
     assert_mentions(&msg, &["light[0].position", "non-finite"]);
-    let directional =
-        |body: &str| BASE.replace("[[light]]", &format!("[[light]]\nkind = \"directional\"\n{body}\n\n[[light]]"));
+    let directional = |body: &str| base().prepend_light(&format!("kind = \"directional\"\n{body}"));
     let msg = err_of(&directional("direction = [0, -1, 0]\nirradiance = -2"));
     assert_mentions(&msg, &["light[0].irradiance", "finite and >= 0"]);
     let msg = err_of(&directional("direction = [0, 0, 0]\nirradiance = 1"));
     assert_mentions(&msg, &["light[0].direction", "zero-length"]);
-    let env = BASE.replace("[[light]]", "[[light]]\nkind = \"environment\"\nradiance = [1, 1, -0.5]\n\n[[light]]");
+    let env = base().prepend_light("kind = \"environment\"\nradiance = [1, 1, -0.5]");
     assert_mentions(&err_of(&env), &["light[0].radiance", "blue", ">= 0"]);
 }
 
 #[test]
 fn scene_error_camera_geometry() {
-    let msg = err_of(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 4.0]"));
+    let msg = err_of(&base().set("camera.target", "[0.0, 0.0, 4.0]"));
     assert_mentions(&msg, &["camera.target", "equals camera.origin"]);
-    let msg = err_of(&with("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 2.0]"));
+    let msg = err_of(&base().set("camera.up", "[0.0, 0.0, 2.0]"));
     assert_mentions(&msg, &["camera.up", "parallel", "e.g. [0, 1, 0]"]);
-    let msg = err_of(&with("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 0.0]"));
+    let msg = err_of(&base().set("camera.up", "[0.0, 0.0, 0.0]"));
     assert_mentions(&msg, &["camera.up", "zero-length"]);
     for fov in ["0.0", "180.0", "-5", "nan"] {
-        let msg = err_of(&with("fov = 30.0", &format!("fov = {fov}")));
+        let msg = err_of(&base().set("camera.fov", fov));
         assert_mentions(&msg, &["camera.fov", "(0, 180)"]);
     }
     for extent in ["0.0", "-1.0", "inf"] {
-        let text = with("kind = \"perspective\"", "kind = \"orthographic\"")
-            .replace("fov = 30.0", &format!("extent = {extent}"));
+        let text =
+            base().set("camera.kind", "\"orthographic\"").replace_line("camera.fov", &format!("extent = {extent}"));
         assert_mentions(&err_of(&text), &["camera.extent", "> 0"]);
     }
-    let text = with("kind = \"perspective\"", "kind = \"orthographic\"");
+    let text = base().set("camera.kind", "\"orthographic\"");
     assert_mentions(&err_of(&text), &["missing required key `camera.extent`", "orthographic"]);
 }
 
 #[test]
 fn scene_error_camera_sees_no_part_of_medium() {
     // Looking away from the box.
-    let msg = err_of(&with("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 8.0]"));
+    let msg = err_of(&base().set("camera.target", "[0.0, 0.0, 8.0]"));
     assert_mentions(&msg, &["camera", "sees no part of the medium", "target = [0, 0, 0]"]);
     // Looking past it: narrow fov aimed well to the side.
-    let msg = err_of(&with("target = [0.0, 0.0, 0.0]", "target = [3.0, 0.0, 0.0]").replace("fov = 30.0", "fov = 5.0"));
+    let msg = err_of(&base().set("camera.target", "[3.0, 0.0, 0.0]").set("camera.fov", "5.0"));
     assert_mentions(&msg, &["sees no part of the medium"]);
     // Orthographic, offset sideways by more than the view width.
-    let ortho = with("kind = \"perspective\"", "kind = \"orthographic\"")
-        .replace("fov = 30.0", "extent = 1.0")
-        .replace("origin = [0.0, 0.0, 4.0]", "origin = [3.0, 0.0, 4.0]")
-        .replace("target = [0.0, 0.0, 0.0]", "target = [3.0, 0.0, 0.0]");
+    let ortho = base()
+        .set("camera.kind", "\"orthographic\"")
+        .replace_line("camera.fov", "extent = 1.0")
+        .set("camera.origin", "[3.0, 0.0, 4.0]")
+        .set("camera.target", "[3.0, 0.0, 0.0]");
     assert_mentions(&err_of(&ortho), &["sees no part of the medium"]);
     // Grazing the box with the edge of the view is still seeing it.
-    let edge = with("target = [0.0, 0.0, 0.0]", "target = [1.4, 0.0, 0.0]");
+    let edge = base().set("camera.target", "[1.4, 0.0, 0.0]");
     parse(&edge).expect("a box at the edge of the view is visible");
 }
 
 #[test]
 fn scene_error_bounds_and_sphere() {
-    let msg = err_of(&with(
-        "bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]",
-        "bounds = [[-0.5, 0.5, -0.5], [0.5, 0.5, 0.5]]",
-    ));
+    let msg = err_of(&base().set("medium.bounds", "[[-0.5, 0.5, -0.5], [0.5, 0.5, 0.5]]"));
     assert_mentions(&msg, &["medium.bounds", "on y"]);
-    let msg = err_of(&with("bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]", "bounds = [[1, 1, 1], [0, 0, 0]]"));
+    let msg = err_of(&base().set("medium.bounds", "[[1, 1, 1], [0, 0, 0]]"));
     assert_mentions(&msg, &["medium.bounds", "less than max"]);
     for radius in ["0.0", "-0.3", "nan"] {
-        let msg =
-            err_of(&grid_scene(&format!(r#"density = {{ kind = "sphere", center = [0, 0, 0], radius = {radius} }}"#)));
+        let msg = err_of(&base().density(&format!(r#"{{ kind = "sphere", center = [0, 0, 0], radius = {radius} }}"#)));
         assert_mentions(&msg, &["medium.density.radius", "> 0"]);
     }
-    let msg = err_of(&grid_scene(r#"density = { kind = "sphere", center = [3, 0, 0], radius = 1 }"#));
+    let msg = err_of(&base().density(r#"{ kind = "sphere", center = [3, 0, 0], radius = 1 }"#));
     assert_mentions(&msg, &["medium.density", "does not overlap"]);
 }
 
@@ -361,7 +321,7 @@ fn scene_error_bounds_and_sphere() {
 
 #[test]
 fn scene_error_missing_grid_file() {
-    let msg = grid_error(&[], r#"density = { kind = "grid", file = "nope.vol" }"#, &LoadOptions::default());
+    let msg = grid_error(&[], &base().grid("nope.vol"), &LoadOptions::default());
     assert_mentions(&msg, &["medium.density.file", "nope.vol", "cannot open", "resolved against the scene file"]);
 }
 
@@ -369,25 +329,21 @@ fn scene_error_missing_grid_file() {
 fn scene_error_raw_grid_size_mismatch() {
     let msg = grid_error(
         &[("g.f32", f32_bytes(&[0.5; 25]))],
-        r#"density = { kind = "grid", file = "g.f32", dims = [4, 4, 4] }"#,
+        &base().grid_with_dims("g.f32", [4, 4, 4]),
         &LoadOptions::default(),
     );
     assert_mentions(&msg, &["needs 256 bytes", "has 100 bytes", "truncated"]);
     let msg = grid_error(
         &[("g.f32", f32_bytes(&[0.5; 65]))],
-        r#"density = { kind = "grid", file = "g.f32", dims = [4, 4, 4] }"#,
+        &base().grid_with_dims("g.f32", [4, 4, 4]),
         &LoadOptions::default(),
     );
     assert_mentions(&msg, &["needs 256 bytes", "has 260 bytes"]);
-    let msg = grid_error(
-        &[("g.f32", f32_bytes(&[0.5; 64]))],
-        r#"density = { kind = "grid", file = "g.f32" }"#,
-        &LoadOptions::default(),
-    );
+    let msg = grid_error(&[("g.f32", f32_bytes(&[0.5; 64]))], &base().grid("g.f32"), &LoadOptions::default());
     assert_mentions(&msg, &["no dims", "dims = [nx, ny, nz]"]);
     let msg = grid_error(
         &[("g.f32", f32_bytes(&[0.5; 64]))],
-        r#"density = { kind = "grid", file = "g.f32", dims = [4, 0, 16] }"#,
+        &base().grid_with_dims("g.f32", [4, 0, 16]),
         &LoadOptions::default(),
     );
     assert_mentions(&msg, &["dims[1] = 0", "positive"]);
@@ -395,7 +351,7 @@ fn scene_error_raw_grid_size_mismatch() {
 
 #[test]
 fn scene_error_vol_truncated_and_bad_headers() {
-    let density = r#"density = { kind = "grid", file = "g.vol" }"#;
+    let density = &base().grid("g.vol");
     let good = vol([2, 3, 4], &ramp(24));
     let opts = LoadOptions::default();
 
@@ -422,13 +378,13 @@ fn scene_error_vol_truncated_and_bad_headers() {
     negative_res[12..16].copy_from_slice(&(-3i32).to_le_bytes());
     assert_mentions(&grid_error(&[("g.vol", negative_res)], density, &opts), &["resolution[1] = -3"]);
 
-    let with_dims = r#"density = { kind = "grid", file = "g.vol", dims = [2, 3, 5] }"#;
+    let with_dims = &base().grid_with_dims("g.vol", [2, 3, 5]);
     assert_mentions(&grid_error(&[("g.vol", good)], with_dims, &opts), &["disagrees with the .vol header", "2x3x4"]);
 }
 
 #[test]
 fn scene_error_bad_voxel_values_name_the_voxel() {
-    let density = r#"density = { kind = "grid", file = "g.vol" }"#;
+    let density = &base().grid("g.vol");
     for bad in [f32::NAN, f32::INFINITY, -0.25] {
         let mut data = ramp(24);
         data[1 + 2 * 2 + 3 * 6] = bad; // voxel (1, 2, 3) of 2x3x4
@@ -442,28 +398,17 @@ fn scene_error_grid_over_memory_budget_checked_before_reading() {
     // The header claims 2048^3 voxels (32 GiB) but the file has no data: the budget check
     // must come first, so the message is about memory, not the file size.
     let header_only = write_vol([2048, 2048, 2048], &[], Vec3::ZERO, Vec3::ONE);
-    let msg = grid_error(
-        &[("big.vol", header_only)],
-        r#"density = { kind = "grid", file = "big.vol" }"#,
-        &LoadOptions::default(),
-    );
+    let msg = grid_error(&[("big.vol", header_only)], &base().grid("big.vol"), &LoadOptions::default());
     assert_mentions(&msg, &["2048x2048x2048", "32.0 GiB", "4.0 GiB", "resample the grid or raise --memory-budget"]);
 
     // Resolutions whose product overflows u64 are "too large", not a panic.
     let absurd = write_vol([i32::MAX as u32; 3], &[], Vec3::ZERO, Vec3::ONE);
-    let msg = grid_error(
-        &[("absurd.vol", absurd)],
-        r#"density = { kind = "grid", file = "absurd.vol" }"#,
-        &LoadOptions::default(),
-    );
+    let msg = grid_error(&[("absurd.vol", absurd)], &base().grid("absurd.vol"), &LoadOptions::default());
     assert_mentions(&msg, &["2147483647x2147483647x2147483647", "resample the grid"]);
 
     let small_budget = LoadOptions { memory_budget_bytes: 1000 };
-    let msg = grid_error(
-        &[("g.f32", f32_bytes(&[0.5; 512]))],
-        r#"density = { kind = "grid", file = "g.f32", dims = [8, 8, 8] }"#,
-        &small_budget,
-    );
+    let msg =
+        grid_error(&[("g.f32", f32_bytes(&[0.5; 512]))], &base().grid_with_dims("g.f32", [8, 8, 8]), &small_budget);
     assert_mentions(&msg, &["8x8x8", "2048 bytes", "1000 B", "resample the grid or raise --memory-budget"]);
 }
 
@@ -472,7 +417,7 @@ fn scene_vol_round_trip() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = ramp(24);
     write(dir.path(), "g.vol", &vol([2, 3, 4], &data));
-    let text = grid_scene(r#"density = { kind = "grid", file = "g.vol", dims = [2, 3, 4] }"#);
+    let text = base().grid_with_dims("g.vol", [2, 3, 4]);
     let s = parse_in(&text, dir.path(), &[], &LoadOptions::default()).expect("vol loads");
     let Density::Grid(grid) = &s.medium.density else { panic!("not a grid") };
     assert_eq!(grid.dims, [2, 3, 4]);
@@ -490,8 +435,7 @@ fn scene_raw_grid_round_trip_and_scene_file_relative_paths() {
     let data = ramp(24);
     write(&dir.path().join("grids"), "g.f32", &f32_bytes(&data));
     let scene_path = dir.path().join("s.toml");
-    std::fs::write(&scene_path, grid_scene(r#"density = { kind = "grid", file = "grids/g.f32", dims = [2, 3, 4] }"#))
-        .unwrap();
+    std::fs::write(&scene_path, base().grid_with_dims("grids/g.f32", [2, 3, 4]).as_bytes()).unwrap();
     let s = Scene::load(&scene_path, &[], &LoadOptions::default()).expect("raw grid loads");
     assert_eq!(s.source, scene_path);
     let Density::Grid(grid) = &s.medium.density else { panic!("not a grid") };
@@ -574,10 +518,11 @@ fn scene_density_at_maps_bounds_and_is_zero_outside() {
     let dir = tempfile::tempdir().expect("tempdir");
     let g = test_grid();
     write(dir.path(), "g.vol", &vol(g.dims, &g.data));
-    let text = grid_scene(r#"density = { kind = "grid", file = "g.vol" }"#)
-        .replace("bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]", "bounds = [[0, 0, 0], [3, 2, 4]]")
-        .replace("target = [0.0, 0.0, 0.0]", "target = [1.5, 1.0, 2.0]")
-        .replace("origin = [0.0, 0.0, 4.0]", "origin = [1.5, 1.0, 12.0]");
+    let text = base()
+        .grid("g.vol")
+        .set("medium.bounds", "[[0, 0, 0], [3, 2, 4]]")
+        .set("camera.target", "[1.5, 1.0, 2.0]")
+        .set("camera.origin", "[1.5, 1.0, 12.0]");
     let s = parse_in(&text, dir.path(), &[], &LoadOptions::default()).expect("loads");
     // With bounds [0,3]x[0,2]x[0,4], voxel (i,j,k) is centred at (i,j,k) + 0.5.
     assert!((s.density_at(Vec3::new(2.5, 0.5, 1.5)) - g.at(2, 0, 1)).abs() < 1e-5);
@@ -585,12 +530,11 @@ fn scene_density_at_maps_bounds_and_is_zero_outside() {
     assert_eq!(s.density_at(Vec3::new(1.0, 1.0, 4.01)), 0.0);
     assert_eq!(s.max_density(), 23.0);
 
-    let sphere =
-        parse(&grid_scene(r#"density = { kind = "sphere", center = [0.1, 0, 0], radius = 0.3 }"#)).expect("loads");
+    let sphere = parse(&base().density(r#"{ kind = "sphere", center = [0.1, 0, 0], radius = 0.3 }"#)).expect("loads");
     assert_eq!(sphere.density_at(Vec3::new(0.35, 0.0, 0.0)), 1.0);
     assert_eq!(sphere.density_at(Vec3::new(-0.25, 0.0, 0.0)), 0.0);
     assert_eq!(sphere.max_density(), 1.0);
-    let constant = parse(BASE).expect("loads");
+    let constant = parse(&base()).expect("loads");
     assert_eq!(constant.density_at(Vec3::splat(0.49)), 1.0);
     assert_eq!(constant.density_at(Vec3::splat(0.51)), 0.0);
 }
@@ -690,9 +634,10 @@ fn scene_never_panics_on_odd_input() {
         };
         assert!(!msg.contains('\n'), "{text:?} gave a multi-line error: {msg:?}");
     }
-    for tail in ["sigma_t = 1e39", "sigma_t = [0, 0, 0]\nalbedo = 0"] {
-        let text = with("sigma_t = 2.0", tail);
-        let _ = parse(&text.replace("albedo = 0.8\n", if tail.contains("albedo") { "" } else { "albedo = 0.8\n" }));
+    for text in
+        [base().set("medium.sigma_t", "1e39"), base().set("medium.sigma_t", "[0, 0, 0]").set("medium.albedo", "0")]
+    {
+        let _ = parse(&text);
     }
 }
 
@@ -870,10 +815,10 @@ fn scene_mutated_inputs_never_panic_and_errors_stay_one_line() {
     let alphabet = b"[]{}=,.\"'#\n -+0123456789einfa_kxyz";
     let dir = tempfile::tempdir().expect("tempdir");
     let good_vol = vol([2, 3, 4], &ramp(24));
-    let grid_text = grid_scene(r#"density = { kind = "grid", file = "g.vol" }"#);
+    let grid_text = base().grid("g.vol");
     for round in 0..10_000 {
         // Text: a few random byte edits of the base scene.
-        let mut bytes = BASE.as_bytes().to_vec();
+        let mut bytes = base().as_bytes().to_vec();
         for _ in 0..1 + rng.below(4) {
             let at = rng.below(bytes.len());
             let c = alphabet[rng.below(alphabet.len())];
