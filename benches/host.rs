@@ -16,8 +16,8 @@ use scatterlab::gpu::reflect;
 use scatterlab::physics::rng::Pcg32;
 use scatterlab::scene::{Density, Grid, LoadOptions, Scene};
 use scatterlab::solvers::gpu_scene::{majorant_dims, majorant_grid, MAJORANT_CELL};
-use scatterlab::solvers::lbl::{lattice_content, raymaps, Lattice, LatticeGeom};
-use scatterlab::solvers::shaders;
+use scatterlab::solvers::lattice::{lattice_content, Lattice, LatticeGeom};
+use scatterlab::solvers::marching::raymaps;
 
 fn scene_path(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)
@@ -107,17 +107,18 @@ fn grid_work(c: &mut Criterion) {
 fn reflection(c: &mut Criterion) {
     let mut g = c.benchmark_group("reflect");
     g.warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1)).sample_size(20);
-    for src in shaders::ALL {
+    let kernels = scatterlab::solvers::kernels();
+    for src in kernels.iter().map(|k| &k.shader) {
         g.throughput(Throughput::Bytes(src.spirv.len() as u64));
         g.bench_with_input(BenchmarkId::from_parameter(src.name), src, |b, src| {
             b.iter(|| reflect(black_box(src)).unwrap())
         });
     }
     // Every shader once, as a pipeline cache miss on all of them would cost.
-    g.throughput(Throughput::Bytes(shaders::ALL.iter().map(|s| s.spirv.len() as u64).sum()));
+    g.throughput(Throughput::Bytes(kernels.iter().map(|k| k.shader.spirv.len() as u64).sum()));
     g.bench_function("all", |b| {
         b.iter(|| {
-            for src in shaders::ALL {
+            for src in kernels.iter().map(|k| &k.shader) {
                 black_box(reflect(black_box(src)).unwrap());
             }
         })

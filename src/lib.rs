@@ -1,8 +1,10 @@
 //! scatterlab: multiple scattering in heterogeneous participating media on any Vulkan device.
 //!
-//! Layers, each importing only those below it (see `docs/architecture.md`):
-//! `measure` -> `solvers` -> `scene`, `physics` -> `gpu`, `output`.
+//! Layers, each importing only those below it (`docs/architecture.md`):
+//! `cli` -> `measure` -> `solvers` -> `scene`, `physics` -> `gpu`, `output`.
 //! `gpu` is the only module with `unsafe` Vulkan calls and knows nothing of scenes or physics.
+//! Solvers implement one interface (`solvers::Solver`) and are registered by one line in
+//! `solvers::SOLVERS`; `cli` and `measure` know them only through it.
 
 pub mod cli;
 pub mod gpu;

@@ -1,8 +1,8 @@
 //! `scatterlab bench` end to end on a tiny scene: every ladder point measured, CSV columns and
 //! numbers sane, Pareto front right on a constructed example, SVG well formed.
 
+use crate::common::{LBL, PATH, SINGLE};
 use scatterlab::measure::bench;
-use scatterlab::solvers::SolverKind;
 
 use crate::common::{assert_clean, gpu, render, scene};
 
@@ -41,8 +41,8 @@ irradiance = 2.0
 fn bench_walks_every_ladder_and_writes_sane_outputs() {
     let gpu = gpu();
     let s = scene(TINY);
-    let reference = render(&gpu, &s, SolverKind::Path, &[("path.spp", "512")]).image;
-    let kinds = [SolverKind::Path, SolverKind::Single, SolverKind::Lbl];
+    let reference = render(&gpu, &s, PATH, &[("render.spp", "512")]).image;
+    let kinds = [PATH, SINGLE, LBL];
     let (points, thr) = bench::bench_scene(&gpu, "tiny", &s, &reference, &kinds, true, 1, &|_| {}).unwrap();
     assert_eq!(points.len(), 9, "three quick rungs per solver");
     for p in &points {
@@ -50,7 +50,7 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
         assert!(p.metrics.rel_l2.is_finite() && p.metrics.nan_inf_count == 0, "{p:?}");
     }
     // path's error falls with spp; the front holds at least the cheapest and the best point.
-    let path: Vec<f64> = points.iter().filter(|p| p.solver == SolverKind::Path).map(|p| p.metrics.rel_l2).collect();
+    let path: Vec<f64> = points.iter().filter(|p| p.solver == "path").map(|p| p.metrics.rel_l2).collect();
     assert!(path[2] < path[0], "{path:?}");
     assert!(points.iter().any(|p| p.pareto));
     let best = points.iter().min_by(|a, b| a.metrics.rel_l2.total_cmp(&b.metrics.rel_l2)).unwrap();
@@ -101,7 +101,7 @@ fn slim_lbl_allocates_less_and_agrees() {
     let gpu = gpu();
     let s = scene(TINY);
     let sets = vec![("lbl.grid".to_string(), "16".to_string()), ("lbl.rays".to_string(), "4096".to_string())];
-    let (slim, full, _, _, diff) = bench::slim_vs_full(&gpu, &s, SolverKind::Lbl, &sets).unwrap();
+    let (slim, full, _, _, diff) = bench::slim_vs_full(&gpu, &s, LBL, &sets).unwrap();
     assert!(slim < full, "slim {slim} bytes, full {full}");
     assert!(diff < 1e-5, "slim and full images differ by relL2 {diff}");
     assert_clean(&gpu);

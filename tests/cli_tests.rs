@@ -626,7 +626,7 @@ fn render_rejects_bad_flags() {
         // The last needle is the did-you-mean.
         fails("unknown_set_keys/medium.albdo", base(), &["scene.toml", "medium.albdo", "unknown key", "albedo"])
             .and_args(&["--set", "medium.albdo=1"]),
-        fails("unknown_set_keys/path.nope", base(), &["--set path.nope", "unknown setting", "path"])
+        fails("unknown_set_keys/path.nope", base(), &["--set path.nope", "unknown knob", "path", "max_depth"])
             .and_args(&["--set", "path.nope=1"]),
         fails("unknown_set_keys/single.step", base(), &["--set single.step", "solver single", "solver path"])
             .and_args(&["--set", "single.step=0.01"]),
@@ -655,11 +655,36 @@ fn render_rejects_bad_flags() {
         .and_args(&["--set", "medium.albedo=2"]),
         fails("bad_set_syntax/path.max_depth=lots", base(), &["--set path.max_depth", "unbounded"])
             .and_args(&["--set", "path.max_depth=lots"]),
-        fails("bad_set_syntax/path.batch=lots", base(), &["--set path.batch", "cannot parse", "lots"])
+        fails("bad_set_syntax/path.batch=lots", base(), &["--set path.batch", "not an integer", "lots"])
             .and_args(&["--set", "path.batch=lots"]),
         // A solver knob that does not parse should show the value it got.
         fails("bad_solver_knob_value_is_shown", base(), &["--set path.max_depth", "lots", "unbounded"])
             .and_args(&["--set", "path.max_depth=lots"]),
+        // Solver flags stand for knobs: a solver without the knob is told which have it.
+        fails("solver_flags/max-depth with lbl", base(), &["--max-depth", "max_depth knob", "(path)", "lbl"])
+            .and_args(&["--solver", "lbl", "--max-depth", "2"]),
+        fails("solver_flags/schedule with path", base(), &["--schedule", "schedule knob", "(lbl)", "path"])
+            .and_args(&["--schedule", "sequential"]),
+        fails("solver_flags/deterministic with single", base(), &["--deterministic", "(lbl)", "single"]).and_args(&[
+            "--solver",
+            "single",
+            "--deterministic",
+        ]),
+        fails("solver_flags/compare-schedules with wavefront", base(), &["--compare-schedules", "(lbl)"]).and_args(&[
+            "--solver",
+            "wavefront",
+            "--compare-schedules",
+        ]),
+        // A knob out of its range, and one of a mode the render does not use.
+        fails("knob_range/lbl.grid=1", base(), &["--set lbl.grid", "2..=512", "scatterlab knobs lbl"]).and_args(&[
+            "--solver",
+            "lbl",
+            "--set",
+            "lbl.grid=1",
+        ]),
+        fails("knob_unused/lbl.wavefront_nu", base(), &["--set lbl.wavefront_nu", "does not use", "warm_start"])
+            .and_args(&["--solver", "lbl", "--set", "lbl.wavefront_nu=16", "--set", "lbl.grid=8"]),
+        fails("knob_renamed/path.spp", base(), &["--set path.spp", "render.spp"]).and_args(&["--set", "path.spp=8"]),
         fails("device_that_does_not_exist/name", base(), &["--device", "nonexistent", "available"])
             .and_args(&["--device", "nonexistent"]),
         fails("device_that_does_not_exist/index", base(), &["--device", "99", "available"])
@@ -910,7 +935,7 @@ fn render_sphere(solver: &str) -> serde_json::Value {
 #[test]
 fn render_path_writes_exr_png_json() {
     let doc = render_sphere("path");
-    assert_eq!(doc["settings"]["spp"], 4, "--spp not applied: {doc}");
+    assert_eq!(doc["stats"]["spp"], 4, "--spp not applied: {doc}");
 }
 
 #[test]

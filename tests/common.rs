@@ -4,8 +4,14 @@ use std::path::Path;
 
 use scatterlab::gpu::{Gpu, GpuOptions};
 use scatterlab::output::Image;
-use scatterlab::scene::{LoadOptions, Scene};
-use scatterlab::solvers::{self, RenderOutput, RenderRequest, Settings, SolverError, SolverKind};
+use scatterlab::scene::{is_scene_key, LoadOptions, Scene};
+use scatterlab::solvers::{RenderOutput, RenderRequest, Settings, Solver, SolverError};
+
+/// The registered solvers, by name, for tests that run one.
+pub const PATH: &dyn Solver = &scatterlab::solvers::path::Path;
+pub const SINGLE: &dyn Solver = &scatterlab::solvers::single::Single;
+pub const LBL: &dyn Solver = &scatterlab::solvers::lbl::Lbl;
+pub const WAVEFRONT: &dyn Solver = &scatterlab::solvers::wavefront::Wavefront;
 
 /// The device every GPU test uses, validation layer on. A missing device or layer fails the
 /// test: a test never passes for want of a device.
@@ -27,28 +33,31 @@ pub fn scene(text: &str) -> Scene {
         .unwrap_or_else(|e| panic!("test scene invalid: {e}"))
 }
 
-/// A render with its error (or warnings) left to the caller.
+/// A render with its error (or warnings) left to the caller. `sets` holds solver knobs
+/// (`lbl.grid`) and `render.*` scene keys (`render.spp`), as a bench ladder does.
 pub fn try_render(
     gpu: &Gpu,
     scene: &Scene,
-    kind: SolverKind,
+    solver: &dyn Solver,
     sets: &[(&str, &str)],
     force_full: bool,
 ) -> Result<RenderOutput, SolverError> {
     let pairs: Vec<(String, String)> = sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
-    let settings = Settings::new(&pairs);
-    let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
-    solvers::render(gpu, kind, &req)
+    let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = pairs.into_iter().partition(|(k, _)| is_scene_key(k));
+    let scene = scene.with_overrides(&scene_sets).unwrap_or_else(|e| panic!("test bug: {e}"));
+    let settings = Settings::new(&knob_sets);
+    let req = RenderRequest { scene: &scene, settings: &settings, force_full, progress: &|_, _| {} };
+    solver.render(gpu, &req)
 }
 
 pub fn render_with(
     gpu: &Gpu,
     scene: &Scene,
-    kind: SolverKind,
+    solver: &dyn Solver,
     sets: &[(&str, &str)],
     force_full: bool,
 ) -> RenderOutput {
-    let out = try_render(gpu, scene, kind, sets, force_full).unwrap_or_else(|e| panic!("render failed: {e}"));
+    let out = try_render(gpu, scene, solver, sets, force_full).unwrap_or_else(|e| panic!("render failed: {e}"));
     assert_eq!(out.image.nan_inf_count(), 0, "NaN/Inf in the image");
     if let Some(v) = &out.variance {
         assert_eq!(v.nan_inf_count(), 0, "NaN/Inf in the variance");
@@ -58,8 +67,8 @@ pub fn render_with(
     out
 }
 
-pub fn render(gpu: &Gpu, scene: &Scene, kind: SolverKind, sets: &[(&str, &str)]) -> RenderOutput {
-    render_with(gpu, scene, kind, sets, false)
+pub fn render(gpu: &Gpu, scene: &Scene, solver: &dyn Solver, sets: &[(&str, &str)]) -> RenderOutput {
+    render_with(gpu, scene, solver, sets, false)
 }
 
 /// Mean over all pixels and channels, and the standard error of that mean from the
@@ -96,7 +105,7 @@ pub fn worst_z(img: &Image, var: &Image, exact: impl Fn(usize) -> f64, eps: f64)
 /// to many). Counting the light part's per-pixel variance in both is conservative.
 pub fn render_mean_and_stderr(out: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
     let (m, se_cam) = mean_and_stderr(&out.image, out.variance.as_ref().unwrap());
-    let se_lt = out.light_traced_mean_stderr();
+    let se_lt = out.report.stats.correlated_mean_stderr;
     (m, (se_cam * se_cam + se_lt * se_lt).sqrt())
 }
 

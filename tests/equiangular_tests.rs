@@ -2,8 +2,10 @@
 //! MIS with distance sampling (`path.equiangular`, default on): it must stay unbiased (agree
 //! with plain distance sampling) and tame the variance of a point light inside the medium.
 
+use crate::common::PATH;
 use scatterlab::output::Image;
-use scatterlab::solvers::{RenderOutput, SolverKind};
+use scatterlab::solvers::path::PathStats;
+use scatterlab::solvers::RenderOutput;
 
 use crate::common::{assert_agree, assert_clean, gpu, render, scene};
 
@@ -44,10 +46,13 @@ fn assert_eq_agrees(what: &str, eq: &RenderOutput, dist: &RenderOutput) {
 fn with_eq(gpu: &scatterlab::gpu::Gpu, text: &str, eq: bool, spp: &str, extra: &[(&str, &str)]) -> RenderOutput {
     // Camera paths only: these tests are about equiangular sampling, which light tracing
     // (path.light_tracing, tests/light_tracing_tests.rs) would otherwise take over.
-    let mut sets =
-        vec![("path.spp", spp), ("path.equiangular", if eq { "true" } else { "false" }), ("path.light_tracing", "off")];
+    let mut sets = vec![
+        ("render.spp", spp),
+        ("path.equiangular", if eq { "true" } else { "false" }),
+        ("path.light_tracing", "off"),
+    ];
     sets.extend_from_slice(extra);
-    let out = render(gpu, &scene(text), SolverKind::Path, &sets);
+    let out = render(gpu, &scene(text), PATH, &sets);
     assert_eq!(out.report.settings["equiangular"], serde_json::json!(eq));
     out
 }
@@ -125,7 +130,11 @@ fn equiangular_light_inside_cloud_error_close_to_light_outside() {
         let run = |text: &str, eq: bool| {
             let out = with_eq(&gpu, text, eq, spp, &[]);
             let e = relative_error(&out.image, out.variance.as_ref().unwrap());
-            (e, out.image.mean().iter().sum::<f64>() / 3.0, out.report.stats["samples_per_second"].as_f64().unwrap())
+            (
+                e,
+                out.image.mean().iter().sum::<f64>() / 3.0,
+                out.report.detail::<PathStats>().unwrap().samples_per_second,
+            )
         };
         let (in_eq, m_in, sps_eq) = run(&inside, true);
         let (out_eq, m_out, _) = run(&outside, true);

@@ -3,46 +3,14 @@
 
 use scatterlab::gpu::{reflect, BindingKind, GpuError, Pass, QueueRole, SyncPoint};
 use scatterlab::solvers::gpu_scene::{majorant_dims, majorant_grid, SceneHeader};
-use scatterlab::solvers::path::{LightPush, PathPush};
-use scatterlab::solvers::shaders;
-use scatterlab::solvers::single::SinglePush;
+use scatterlab::solvers::probes::{PhasePush as ProbePush, PHASE};
+use scatterlab::solvers::{path, view};
 
 use crate::common::{assert_clean, gpu};
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct ProbePush {
-    pub g: f32,
-    pub count: u32,
-    pub eval_count: u32,
-    pub seed: u32,
-}
-
 #[test]
-fn push_constant_structs_match_reflection() {
-    let cases = [
-        (shaders::PATH_TRACE, std::mem::size_of::<PathPush>()),
-        (shaders::PATH_LIGHT, std::mem::size_of::<LightPush>()),
-        (shaders::SINGLE_MARCH, std::mem::size_of::<SinglePush>()),
-        (shaders::PROBE_PHASE, std::mem::size_of::<ProbePush>()),
-    ];
-    for (src, size) in cases {
-        let r = reflect(&src).unwrap();
-        assert_eq!(
-            r.push_constant_bytes, size,
-            "{}: Rust push-constant struct size differs from the shader's block",
-            src.name
-        );
-    }
-}
-
-#[test]
-fn every_shader_reflects_and_scene_kernels_share_a_layout() {
-    for src in shaders::ALL {
-        let r = reflect(src).unwrap_or_else(|e| panic!("{}: {e}", src.name));
-        assert!(r.workgroup_size.iter().all(|w| *w >= 1));
-    }
-    for src in [shaders::PATH_TRACE, shaders::SINGLE_MARCH] {
+fn scene_kernels_share_a_layout() {
+    for src in [path::TRACE.shader, view::MARCH.shader] {
         let r = reflect(&src).unwrap();
         assert_eq!(r.bindings[&0].0, BindingKind::StorageBuffer, "{}: binding 0 is the scene block", src.name);
         assert_eq!(r.bindings[&1].0, BindingKind::StorageImage, "{}: binding 1 is the density volume", src.name);
@@ -55,7 +23,7 @@ fn every_shader_reflects_and_scene_kernels_share_a_layout() {
 #[test]
 fn pass_bindings_are_checked_against_reflection() {
     let gpu = gpu();
-    let p = gpu.pipeline(&shaders::PROBE_PHASE, &[]).unwrap();
+    let p = gpu.pipeline(&PHASE, &[]).unwrap();
     let a = gpu.buffer("a", 64).unwrap();
     let push = ProbePush { g: 0.0, count: 0, eval_count: 0, seed: 0 };
     // Missing binding 2.
@@ -84,7 +52,7 @@ fn pass_bindings_are_checked_against_reflection() {
 #[test]
 fn a_wait_before_its_signal_is_refused_not_deadlocked() {
     let gpu = gpu();
-    let p = gpu.pipeline(&shaders::PROBE_PHASE, &[]).unwrap();
+    let p = gpu.pipeline(&PHASE, &[]).unwrap();
     let a = gpu.buffer("a", 64).unwrap();
     let push = ProbePush { g: 0.0, count: 0, eval_count: 0, seed: 0 };
     let pass = Pass::new("probe", QueueRole::Diffuse, &p).write(0, &a).read(1, &a).write(2, &a).push(&push);
@@ -100,7 +68,7 @@ fn a_wait_before_its_signal_is_refused_not_deadlocked() {
 #[test]
 fn roles_chain_through_timeline_semaphores() {
     let gpu = gpu();
-    let p = gpu.pipeline(&shaders::PROBE_PHASE, &[]).unwrap();
+    let p = gpu.pipeline(&PHASE, &[]).unwrap();
     let n = 256u32;
     let cos: Vec<f32> = (0..n).map(|i| -1.0 + 2.0 * i as f32 / (n - 1) as f32).collect();
     let cos_buf = gpu.buffer_with("cos", &cos).unwrap();

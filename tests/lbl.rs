@@ -4,9 +4,11 @@
 
 use std::collections::VecDeque;
 
+use crate::common::{LBL, PATH, SINGLE};
 use scatterlab::gpu::QueueRole;
-use scatterlab::solvers::lbl::{diffuse_impulse, plan, Lattice, Planned, Schedule, Step};
-use scatterlab::solvers::SolverKind;
+use scatterlab::solvers::lattice::{EnergyBook, Lattice, LatticeParams};
+use scatterlab::solvers::lbl::{plan, LblStats, Planned, Step};
+use scatterlab::solvers::{Schedule, SolverError};
 
 use crate::common::{assert_clean, gpu, render, scene};
 
@@ -107,6 +109,35 @@ fn fake_queue_detects_wait_before_signal() {
     assert!(run_fake(&bad, true, dur).is_err());
 }
 
+/// The lattice part's impulse bench with the medium as scalars.
+#[allow(clippy::too_many_arguments)]
+fn diffuse_impulse(
+    gpu: &scatterlab::gpu::Gpu,
+    lattice: Lattice,
+    dims: [u32; 3],
+    sigma_t: f32,
+    albedo: f32,
+    g: f32,
+    lambda: f32,
+    block: u32,
+    block_steps: u32,
+    source: [u32; 3],
+    iterations: u32,
+) -> Result<(Vec<f32>, EnergyBook), SolverError> {
+    let p = LatticeParams {
+        dims,
+        nch: 1,
+        lattice,
+        sigma_t: [sigma_t; 3],
+        albedo: [albedo; 3],
+        g,
+        lambda,
+        block,
+        block_steps,
+    };
+    scatterlab::solvers::lattice::diffuse_impulse(gpu, &p, source, iterations)
+}
+
 /// Diffusion limit: an impulse in a large homogeneous lattice integrates in time to the Green's
 /// function of de/dt = D lap e - mu e with the lattice's own coefficients, D = (1+c)/(6(1-c))
 /// voxels^2 per step for the persistence c = (1 - kappa_t) / (1 - kappa_a) of a surviving
@@ -132,7 +163,7 @@ fn lattice_matches_the_diffusion_green_function() {
             Lattice::D3q6 => (-(1.0 - kt).ln(), 1.0 - ka / kt),
             Lattice::D3q18 => {
                 let st = -(1.0 - kt).ln() * ell / 1.5;
-                let sa = -(1.0 - ka).ln() / ell;
+                let sa = -(1.0f64 - ka).ln() / ell;
                 (st, 1.0 - sa / st)
             }
         };
@@ -231,7 +262,7 @@ fn blocked_and_global_lattices_agree_after_convergence() {
                 let e = diffuse_impulse(&gpu, lattice, dims, 0.4, 0.95, 0.3, 1.0, block, steps, [5, 9, 8], 8)
                     .err()
                     .expect("refused");
-                assert!(e.to_string().contains("lbl.block") && e.to_string().contains("shared memory"), "{e}");
+                assert!(e.to_string().contains("block 8") && e.to_string().contains("shared memory"), "{e}");
                 continue;
             }
             let blocked = run(block, steps);
@@ -280,13 +311,13 @@ fn with(extra: &[(&'static str, &'static str)]) -> Vec<(&'static str, &'static s
 fn concurrent_and_sequential_schedules_agree() {
     let gpu = gpu();
     let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
-    let a = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "concurrent")]));
-    let b = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "sequential")]));
+    let a = render(&gpu, &s, LBL, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "concurrent")]));
+    let b = render(&gpu, &s, LBL, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "sequential")]));
     assert!(a.image.data == b.image.data, "deterministic mode: schedules must give identical images");
-    let c = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "concurrent")]));
+    let c = render(&gpu, &s, LBL, &with(&[("lbl.deterministic", "true"), ("lbl.schedule", "concurrent")]));
     assert!(a.image.data == c.image.data, "deterministic mode: two runs must be identical");
     if gpu.info().float_atomics {
-        let f = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.schedule", "sequential")]));
+        let f = render(&gpu, &s, LBL, &with(&[("lbl.schedule", "sequential")]));
         let m = scatterlab::output::compare(&f.image, &a.image).unwrap();
         assert!(m.rel_l2 < 1e-4, "float-atomic transfer vs fixed point: relL2 {}", m.rel_l2);
     }
@@ -297,12 +328,12 @@ fn concurrent_and_sequential_schedules_agree() {
 fn no_albedo_lbl_equals_single() {
     let gpu = gpu();
     let s = scene(&SPHERE.replace("ALBEDO", "0.0"));
-    let l = render(&gpu, &s, SolverKind::Lbl, &with(&[]));
-    let v = render(&gpu, &s, SolverKind::Single, &[("single.env_dirs", "16"), ("single.supersample", "1")]);
+    let l = render(&gpu, &s, LBL, &with(&[]));
+    let v = render(&gpu, &s, SINGLE, &[("single.env_dirs", "16"), ("single.supersample", "1")]);
     assert!(l.image.data == v.image.data, "albedo 0: nothing to diffuse, lbl must be single");
     let s = scene(&SPHERE.replace("ALBEDO", "0.02"));
-    let l = render(&gpu, &s, SolverKind::Lbl, &with(&[]));
-    let v = render(&gpu, &s, SolverKind::Single, &[("single.env_dirs", "16"), ("single.supersample", "1")]);
+    let l = render(&gpu, &s, LBL, &with(&[]));
+    let v = render(&gpu, &s, SINGLE, &[("single.env_dirs", "16"), ("single.supersample", "1")]);
     let m = scatterlab::output::compare(&l.image, &v.image).unwrap();
     assert!(m.rel_l2 < 2e-3, "albedo 0.02: lbl vs single relL2 {}", m.rel_l2);
     assert_clean(&gpu);
@@ -312,9 +343,9 @@ fn no_albedo_lbl_equals_single() {
 fn lbl_beats_single_against_path_at_albedo_09() {
     let gpu = gpu();
     let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
-    let reference = render(&gpu, &s, SolverKind::Path, &[]);
-    let l = render(&gpu, &s, SolverKind::Lbl, &with(&[("lbl.grid", "32"), ("lbl.rays", "16384")]));
-    let v = render(&gpu, &s, SolverKind::Single, &[]);
+    let reference = render(&gpu, &s, PATH, &[]);
+    let l = render(&gpu, &s, LBL, &with(&[("lbl.grid", "32"), ("lbl.rays", "16384")]));
+    let v = render(&gpu, &s, SINGLE, &[]);
     let el = scatterlab::output::compare(&l.image, &reference.image).unwrap();
     let es = scatterlab::output::compare(&v.image, &reference.image).unwrap();
     eprintln!(
@@ -322,8 +353,10 @@ fn lbl_beats_single_against_path_at_albedo_09() {
         s.render.spp, el.rel_l2, el.energy_ratio, es.rel_l2, es.energy_ratio
     );
     assert!(el.rel_l2 < 0.5 * es.rel_l2, "lbl {} must be well closer to path than single {}", el.rel_l2, es.rel_l2);
-    let stats = &l.report.stats["lbl"];
-    assert_eq!(stats["converged"], true);
-    assert!(stats["energy"]["injected"][0].as_f64().unwrap() > 0.0);
+    let stats = l.report.detail::<LblStats>().expect("lbl stats");
+    assert!(stats.converged);
+    assert!(stats.energy.injected[0] > 0.0);
+    let c = l.report.stats.convergence.expect("lbl reports its convergence");
+    assert!(c.converged && c.iterations == stats.iterations as u64 && c.final_change < c.tolerance);
     assert_clean(&gpu);
 }

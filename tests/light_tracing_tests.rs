@@ -5,9 +5,11 @@
 //! meet issue 5's target: with the point light inside the cloud, the per-pixel error at equal
 //! spp within 2x of the error with the light outside.
 
+use crate::common::PATH;
 use scatterlab::output::Image;
+use scatterlab::solvers::path::PathStats;
 use scatterlab::solvers::path::DEFAULT_COLLISION_CAP;
-use scatterlab::solvers::{RenderOutput, SolverKind};
+use scatterlab::solvers::RenderOutput;
 
 use crate::common::{assert_agree, assert_clean, gpu, render, render_mean_and_stderr, scene, try_render};
 
@@ -42,9 +44,9 @@ const PERSPECTIVE: &str = "origin = [0.0, 0.3, 3.0]\ntarget = [0.0, 0.0, 0.0]\nf
 const SPHERE: &str = r#"{ kind = "sphere", center = [0.0, 0.0, 0.0], radius = 0.5 }"#;
 
 fn render_lt(gpu: &scatterlab::gpu::Gpu, text: &str, mode: &str, spp: &str, extra: &[(&str, &str)]) -> RenderOutput {
-    let mut sets = vec![("path.spp", spp), ("path.light_tracing", mode)];
+    let mut sets = vec![("render.spp", spp), ("path.light_tracing", mode)];
     sets.extend_from_slice(extra);
-    render(gpu, &scene(text), SolverKind::Path, &sets)
+    render(gpu, &scene(text), PATH, &sets)
 }
 
 /// Light tracing against camera paths (common::assert_agree; the light-traced per-pixel
@@ -60,14 +62,14 @@ fn light_tracing_agrees_with_camera_paths_perspective() {
     // (max_depth bounds light paths exactly as camera paths: both count scattering events).
     let grey = small_scene(PERSPECTIVE, SPHERE, "3.0", "0.8", 0.0, "");
     let lt = render_lt(&gpu, &grey, "auto", "256", &[]);
-    assert_eq!(lt.report.settings["light_traced"], serde_json::json!([0]));
-    assert!(lt.report.stats.get("light_paths").is_some());
+    assert_eq!(lt.report.detail::<PathStats>().unwrap().light_traced, vec![0]);
+    assert!(lt.report.detail::<PathStats>().unwrap().light_paths.is_some());
     assert!(
-        lt.report.stats.get("tracking_steps").is_none(),
+        lt.report.detail::<PathStats>().unwrap().camera.is_none(),
         "no camera paths are needed when every light is light traced"
     );
     let cam = render_lt(&gpu, &grey, "off", "1024", &[]);
-    assert_eq!(cam.report.settings["light_traced"], serde_json::json!([]));
+    assert_eq!(cam.report.detail::<PathStats>().unwrap().light_traced, Vec::<usize>::new());
     assert_lt_agrees("grey isotropic", &lt, &cam);
 
     let chroma = small_scene(PERSPECTIVE, SPHERE, "[2.0, 4.0, 8.0]", "[0.9, 0.7, 0.5]", 0.5, "");
@@ -112,7 +114,7 @@ fn light_tracing_agrees_with_camera_paths_orthographic_and_camera_inside() {
         "",
     );
     let auto = render_lt(&gpu, &inside, "auto", "16", &[]);
-    assert_eq!(auto.report.settings["light_traced"], serde_json::json!([]));
+    assert_eq!(auto.report.detail::<PathStats>().unwrap().light_traced, Vec::<usize>::new());
     let lt = render_lt(&gpu, &inside, "on", "256", &[]);
     let cam = render_lt(&gpu, &inside, "off", "1024", &[]);
     let ((ml, sel), (mc, sec)) = (render_mean_and_stderr(&lt), render_mean_and_stderr(&cam));
@@ -145,10 +147,11 @@ radiance = [0.05, 0.05, 0.08]
 "#;
     let text = small_scene(PERSPECTIVE, SPHERE, "3.0", "0.8", 0.3, extra);
     let auto = render_lt(&gpu, &text, "auto", "256", &[]);
-    assert_eq!(auto.report.settings["light_traced"], serde_json::json!([0, 1]));
-    assert!(auto.report.stats.get("tracking_steps").is_some() && auto.report.stats.get("light_paths").is_some());
+    assert_eq!(auto.report.detail::<PathStats>().unwrap().light_traced, vec![0, 1]);
+    let st = auto.report.detail::<PathStats>().unwrap();
+    assert!(st.camera.is_some() && st.light_paths.is_some());
     let on = render_lt(&gpu, &text, "on", "256", &[]);
-    assert_eq!(on.report.settings["light_traced"], serde_json::json!([0, 1, 2]));
+    assert_eq!(on.report.detail::<PathStats>().unwrap().light_traced, vec![0, 1, 2]);
     let cam = render_lt(&gpu, &text, "off", "1024", &[]);
     assert_lt_agrees("auto: two lights traced, two on camera paths", &auto, &cam);
     assert_lt_agrees("on: three lights traced", &on, &cam);
@@ -173,10 +176,8 @@ fn light_tracing_is_deterministic_and_rejects_bad_knobs() {
     for (key, value, wanted) in
         [("path.light_tracing", "maybe", "path.light_tracing"), ("path.light_batches", "0", "path.light_batches")]
     {
-        let err = try_render(&gpu, &scene(&text), SolverKind::Path, &[(key, value)], false)
-            .err()
-            .expect("must be refused")
-            .to_string();
+        let err =
+            try_render(&gpu, &scene(&text), PATH, &[(key, value)], false).err().expect("must be refused").to_string();
         assert!(err.contains(wanted), "{key}={value}: {err}");
     }
     assert_clean(&gpu);
@@ -193,8 +194,8 @@ fn light_tracing_auto_declines_lights_too_deep_to_escape() {
     let sc = scene(&deep);
     let (_, events) = scatterlab::solvers::path::light_depth(&sc, glam::Vec3::new(0.12, -0.08, 0.1));
     assert!(events > 1e5, "{events}");
-    let out = try_render(&gpu, &sc, SolverKind::Path, &[("path.spp", "1")], false).unwrap();
-    assert_eq!(out.report.settings["light_traced"], serde_json::json!([]));
+    let out = try_render(&gpu, &sc, PATH, &[("render.spp", "1")], false).unwrap();
+    assert_eq!(out.report.detail::<PathStats>().unwrap().light_traced, Vec::<usize>::new());
     assert!(
         out.report
             .warnings
@@ -266,8 +267,8 @@ fn light_inside_cloud_error_within_2x_of_light_outside() {
     let ref_in = r(&reseed(&inside), "auto", "4096");
     let ref_out = r(&reseed(&outside), "auto", "4096");
     assert_eq!(
-        ref_out.report.settings["light_traced"],
-        serde_json::json!([]),
+        ref_out.report.detail::<PathStats>().unwrap().light_traced,
+        Vec::<usize>::new(),
         "the outside light stays on camera paths"
     );
     let lt_in = r(&inside, "auto", "128");

@@ -7,16 +7,15 @@ use glam::Vec3;
 use scatterlab::gpu::{Gpu, Pass, QueueRole};
 use scatterlab::physics::phase::hg_eval;
 use scatterlab::physics::stats::{chi_square_test, spherical_coords, ChiSquareConfig};
-use scatterlab::solvers::shaders;
+use scatterlab::solvers::probes::{PhasePush as ProbePush, PHASE};
 
 use crate::common::{assert_clean, gpu};
-use crate::gpu_core::ProbePush;
 
 const G_VALUES: [f32; 6] = [-0.95, -0.5, 0.0, 0.3, 0.8, 0.95];
 
 /// (samples as (direction, pdf), evaluations at `cos_in`) from the device.
 fn probe(gpu: &Gpu, g: f32, count: u32, cos_in: &[f32]) -> (Vec<[f32; 4]>, Vec<f32>) {
-    let p = gpu.pipeline(&shaders::PROBE_PHASE, &[]).unwrap();
+    let p = gpu.pipeline(&PHASE, &[]).unwrap();
     let samples = gpu.buffer("phase samples", count as u64 * 16).unwrap();
     let cos_buf = gpu.buffer_with("cos in", cos_in).unwrap();
     let eval = gpu.buffer("phase eval", cos_in.len() as u64 * 4).unwrap();

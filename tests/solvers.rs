@@ -1,9 +1,9 @@
 //! Solvers `path` and `single` against exact answers, each other and published values.
 //! Monte Carlo results are judged statistically with the variance image.
 
+use crate::common::{PATH, SINGLE};
 use scatterlab::physics::chandrasekhar::HFunction;
 use scatterlab::physics::reference::ray_sphere;
-use scatterlab::solvers::SolverKind;
 
 use crate::common::{assert_clean, gpu, mean_and_stderr, render, render_with, scene, worst_z};
 
@@ -72,7 +72,7 @@ fn pure_absorber_single_is_exact_per_pixel() {
     let gpu = gpu();
     let s = scene(&absorber_scene(""));
     // `single` with 4x4 supersampling at the same subpixel positions as the CPU reference.
-    let out = render(&gpu, &s, SolverKind::Single, &[("single.supersample", "4")]);
+    let out = render(&gpu, &s, SINGLE, &[("single.supersample", "4")]);
     let exact = absorber_exact(4);
     for (i, (v, e)) in out.image.data.iter().zip(&exact).enumerate() {
         assert!((*v as f64 - e).abs() <= 2e-5 + 1e-4 * e, "pixel value {i}: {v} vs exact {e}");
@@ -84,7 +84,7 @@ fn pure_absorber_single_is_exact_per_pixel() {
 fn pure_absorber_path_matches_per_pixel_statistically() {
     let gpu = gpu();
     let s = scene(&absorber_scene(""));
-    let out = render(&gpu, &s, SolverKind::Path, &[("path.spp", "1024")]);
+    let out = render(&gpu, &s, PATH, &[("render.spp", "1024")]);
     let var = out.variance.as_ref().unwrap();
     let exact = absorber_exact(16);
     let (z, i) = worst_z(&out.image, var, |i| exact[i], 2e-3);
@@ -133,7 +133,7 @@ fn furnace_returns_the_environment_everywhere() {
     ];
     for (density, sigma_t, g) in cases {
         let s = scene(&furnace_scene(density, sigma_t, g));
-        let out = render(&gpu, &s, SolverKind::Path, &[]);
+        let out = render(&gpu, &s, PATH, &[]);
         let var = out.variance.as_ref().unwrap();
         let (z, i) = worst_z(&out.image, var, |_| 2.0, 1e-3);
         assert!(z < 5.5, "{density} sigma_t {sigma_t}: pixel value {i} = {} (z = {z:.2})", out.image.data[i]);
@@ -148,10 +148,10 @@ fn furnace_returns_the_environment_everywhere() {
 fn absorption_never_creates_energy() {
     let gpu = gpu();
     let text = scatterlab_scene_point_and_sun(0.95, "1.0");
-    let lossless = render(&gpu, &scene(&text), SolverKind::Path, &[]);
+    let lossless = render(&gpu, &scene(&text), PATH, &[]);
     for albedo in ["0.9", "[0.2, 0.6, 0.99]"] {
         let s = scene(&scatterlab_scene_point_and_sun(0.95, albedo));
-        let out = render(&gpu, &s, SolverKind::Path, &[]);
+        let out = render(&gpu, &s, PATH, &[]);
         let (va, vb) = (out.variance.as_ref().unwrap(), lossless.variance.as_ref().unwrap());
         for i in 0..out.image.data.len() {
             let sd = ((va.data[i] + vb.data[i]) as f64).sqrt();
@@ -161,7 +161,7 @@ fn absorption_never_creates_energy() {
             );
         }
         assert!(out.image.mean().iter().sum::<f64>() < lossless.image.mean().iter().sum::<f64>());
-        let single = render(&gpu, &s, SolverKind::Single, &[]);
+        let single = render(&gpu, &s, SINGLE, &[]);
         assert!(single.image.mean().iter().sum::<f64>() <= lossless.image.mean().iter().sum::<f64>());
     }
     assert_clean(&gpu);
@@ -203,19 +203,15 @@ fn single_converges_to_path_depth_one() {
     let gpu = gpu();
     let text = scatterlab_scene_point_and_sun(0.5, "[0.9, 0.7, 0.5]");
     let s = scene(&text);
-    let reference = render(&gpu, &s, SolverKind::Path, &[("path.max_depth", "1"), ("path.spp", "2048")]);
+    let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("render.spp", "2048")]);
     let var = reference.variance.as_ref().unwrap();
     // Noise floor of the reference's relL2: sqrt(sum var) / ||ref||.
     let norm = reference.image.data.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
     let noise = var.data.iter().map(|v| *v as f64).sum::<f64>().sqrt() / norm;
     let mut errs = Vec::new();
     for step in ["0.1", "0.03", "0.005"] {
-        let out = render(
-            &gpu,
-            &s,
-            SolverKind::Single,
-            &[("single.step", step), ("single.supersample", "4"), ("single.jitter", "1")],
-        );
+        let out =
+            render(&gpu, &s, SINGLE, &[("single.step", step), ("single.supersample", "4"), ("single.jitter", "1")]);
         let m = scatterlab::output::compare(&out.image, &reference.image).unwrap();
         errs.push(m.rel_l2);
     }
@@ -231,15 +227,15 @@ fn single_converges_to_path_depth_one() {
 fn same_seed_same_image_other_seed_other_image() {
     let gpu = gpu();
     let s = scene(&scatterlab_scene_point_and_sun(0.3, "0.8"));
-    let a = render(&gpu, &s, SolverKind::Path, &[("path.spp", "16")]);
-    let b = render(&gpu, &s, SolverKind::Path, &[("path.spp", "16"), ("path.batch", "5")]);
+    let a = render(&gpu, &s, PATH, &[("render.spp", "16")]);
+    let b = render(&gpu, &s, PATH, &[("render.spp", "16"), ("path.batch", "5")]);
     assert!(a.image.data == b.image.data, "same seed, different batch split: images differ");
     let mut s2 = s.clone();
     s2.render.seed = 99;
-    let c = render(&gpu, &s2, SolverKind::Path, &[("path.spp", "16")]);
+    let c = render(&gpu, &s2, PATH, &[("render.spp", "16")]);
     assert!(a.image.data != c.image.data);
-    let d = render(&gpu, &s, SolverKind::Single, &[]);
-    let e = render(&gpu, &s, SolverKind::Single, &[]);
+    let d = render(&gpu, &s, SINGLE, &[]);
+    let e = render(&gpu, &s, SINGLE, &[]);
     assert!(d.image.data == e.image.data);
     assert_clean(&gpu);
 }
@@ -279,10 +275,10 @@ radiance = 0.3
 "#
         )
     };
-    let chroma = render(&gpu, &scene(&make(format!("{sig:?}"), format!("{alb:?}"))), SolverKind::Path, &[]);
+    let chroma = render(&gpu, &scene(&make(format!("{sig:?}"), format!("{alb:?}"))), PATH, &[]);
     let cv = chroma.variance.as_ref().unwrap();
     for c in 0..3 {
-        let grey = render(&gpu, &scene(&make(sig[c].to_string(), alb[c].to_string())), SolverKind::Path, &[]);
+        let grey = render(&gpu, &scene(&make(sig[c].to_string(), alb[c].to_string())), PATH, &[]);
         let gv = grey.variance.as_ref().unwrap();
         let (mut diff, mut var) = (0.0f64, 0.0f64);
         for p in 0..(16 * 16) {
@@ -308,15 +304,15 @@ fn slim_and_full_models_agree() {
                 "kind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 3.0",
             ),
     );
-    let slim = render_with(&gpu, &s, SolverKind::Path, &[("path.spp", "512")], false);
-    let full = render_with(&gpu, &s, SolverKind::Path, &[("path.spp", "512")], true);
+    let slim = render_with(&gpu, &s, PATH, &[("render.spp", "512")], false);
+    let full = render_with(&gpu, &s, PATH, &[("render.spp", "512")], true);
     assert!(!slim.report.modelled.chromatic && !slim.report.modelled.anisotropic);
     assert!(full.report.modelled.chromatic && full.report.modelled.anisotropic);
     let (ms, ses) = mean_and_stderr(&slim.image, slim.variance.as_ref().unwrap());
     let (mf, sef) = mean_and_stderr(&full.image, full.variance.as_ref().unwrap());
     assert!((ms - mf).abs() < 4.0 * (ses * ses + sef * sef).sqrt(), "slim {ms} vs full {mf}");
-    let a = render_with(&gpu, &s, SolverKind::Single, &[], false);
-    let b = render_with(&gpu, &s, SolverKind::Single, &[], true);
+    let a = render_with(&gpu, &s, SINGLE, &[], false);
+    let b = render_with(&gpu, &s, SINGLE, &[], true);
     let m = scatterlab::output::compare(&a.image, &b.image).unwrap();
     assert!(m.rel_l2 < 1e-5, "single slim vs full relL2 {}", m.rel_l2);
     assert_clean(&gpu);
@@ -356,7 +352,7 @@ radiance = 1.0
 "#
         );
         let s = scene(&text);
-        let out = render(&gpu, &s, SolverKind::Path, &[]);
+        let out = render(&gpu, &s, PATH, &[]);
         let (m, se) = mean_and_stderr(&out.image, out.variance.as_ref().unwrap());
         let exact = 1.0 - h.eval(mu) * (1.0 - omega).sqrt();
         eprintln!("half-space omega {omega} mu {mu}: path {m:.5} +- {se:.5}, Chandrasekhar {exact:.5}");

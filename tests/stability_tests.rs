@@ -2,15 +2,15 @@
 //! the solvers meet the hard requirements (finite, non-negative; `path` and `single` never
 //! brighter than the lossless bound and exact on the pure absorber).
 
+use crate::common::{LBL, PATH, SINGLE, WAVEFRONT};
 use scatterlab::measure::stability;
-use scatterlab::solvers::SolverKind;
 
 use crate::common::{assert_clean, gpu};
 
 #[test]
 fn stability_sweep_path_and_single_pass_everything() {
     let gpu = gpu();
-    let out = stability::run(&gpu, &[SolverKind::Path, SolverKind::Single], false, &|_| {}).unwrap();
+    let out = stability::run(&gpu, &[PATH, SINGLE], false, &|_| {}).unwrap();
     let cases = stability::cases().iter().filter(|c| !c.slow).count();
     // `path` also runs camera paths alone where its default light-traces: the lights at a voxel
     // centre and corner, and the light inside at tau 10 (not the light on the boundary, and not
@@ -21,7 +21,7 @@ fn stability_sweep_path_and_single_pass_everything() {
     assert!(!camera.contains(&"light on the boundary") && !camera.contains(&"light outside"));
     assert_eq!(out.len(), 2 * cases + camera.len());
     for o in &out {
-        assert!(o.passed, "{} / {}: {:?}", o.case, o.solver.name(), o);
+        assert!(o.passed, "{} / {}: {:?}", o.case, o.solver, o);
     }
     // The pure absorber and the furnace were checked against their exact answers by both.
     assert_eq!(out.iter().filter(|o| o.exact_error.is_some()).count(), 4);
@@ -42,7 +42,7 @@ fn stability_sweep_path_and_single_pass_everything() {
 #[test]
 fn stability_sweep_lbl_hard_requirements() {
     let gpu = gpu();
-    let out = stability::run(&gpu, &[SolverKind::Lbl], false, &|_| {}).unwrap();
+    let out = stability::run(&gpu, &[LBL], false, &|_| {}).unwrap();
     for o in &out {
         assert!(o.finite && o.non_negative, "{}: {:?}", o.case, o);
         assert_eq!(o.converged, Some(true), "{}: lattice did not converge", o.case);
@@ -65,7 +65,7 @@ fn stability_sweep_lbl_hard_requirements() {
 #[test]
 fn stability_sweep_wavefront_both_integrators() {
     let gpu = gpu();
-    let out = stability::run(&gpu, &[SolverKind::Wavefront], false, &|_| {}).unwrap();
+    let out = stability::run(&gpu, &[WAVEFRONT], false, &|_| {}).unwrap();
     let cases = stability::cases().iter().filter(|c| !c.slow).count();
     assert_eq!(out.len(), 2 * cases);
     for o in &out {

@@ -12,6 +12,7 @@ mod light_tracing_tests;
 mod output_tests;
 mod phase_gpu;
 mod physics_tests;
+mod registry_tests;
 mod scene_tests;
 mod solvers;
 mod stability_tests;

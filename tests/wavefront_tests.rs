@@ -2,13 +2,14 @@
 //! homogeneous solution (eq. 5), both integrators at the extremes, the paper's "hole" case,
 //! and the rendered image against `path` with the light inside the cloud.
 
+use crate::common::{LBL, PATH, SINGLE, WAVEFRONT};
 use glam::Vec3;
 use scatterlab::gpu::Gpu;
 use scatterlab::output::compare;
 use scatterlab::scene::{write_vol, LoadOptions, Scene};
 use scatterlab::solvers::gpu_scene::GpuScene;
-use scatterlab::solvers::wavefront::{trace_light, wave_volume, Integrator, WaveField, WaveKernels, WavefrontSettings};
-use scatterlab::solvers::SolverKind;
+use scatterlab::solvers::lbl::LblStats;
+use scatterlab::solvers::wave_field::{trace_light, wave_volume, Integrator, WaveField, WaveKernels, WaveSettings};
 
 use crate::common::{assert_clean, gpu, render, scene, try_render};
 
@@ -29,11 +30,11 @@ fn cloud_with_light_inside(res: u32) -> Scene {
     Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap()
 }
 
-fn settings(nu: u32, nv: u32, layers: u32, integrator: Integrator, grid: u32) -> WavefrontSettings {
-    WavefrontSettings { nu, nv, layers, integrator, grid, explicit_start: 0.0 }
+fn settings(nu: u32, nv: u32, layers: u32, integrator: Integrator, grid: u32) -> WaveSettings {
+    WaveSettings { nu, nv, layers, integrator, grid, explicit_start: 0.0 }
 }
 
-fn field(gpu: &Gpu, sc: &Scene, set: &WavefrontSettings) -> (WaveField, Vec<[f32; 4]>, Vec<[f32; 4]>) {
+fn field(gpu: &Gpu, sc: &Scene, set: &WaveSettings) -> (WaveField, Vec<[f32; 4]>, Vec<[f32; 4]>) {
     let gs = GpuScene::upload(gpu, sc, false).unwrap();
     let (pos, intensity) = match sc.lights[0] {
         scatterlab::scene::Light::Point { position, intensity } => (position, intensity),
@@ -195,7 +196,7 @@ fn stability_extremes_both_integrators() {
     // The exponential integrator's whole render stays finite and non-negative at the stiffest corner too.
     for (sigma_t, albedo) in [(1e4f32, 0.5f32), (1e-3, 1.0), (1e4, 1.0)] {
         let sc = scene(&cube(sigma_t, albedo, 0.0, [0.0, 0.0, 0.0], 8));
-        let out = render(&gpu, &sc, SolverKind::Wavefront, &[("wavefront.grid", "16"), ("wavefront.layers", "64")]);
+        let out = render(&gpu, &sc, WAVEFRONT, &[("wavefront.grid", "16"), ("wavefront.layers", "64")]);
         assert!(out.image.data.iter().all(|x| x.is_finite() && *x >= 0.0));
     }
     assert_clean(&gpu);
@@ -268,9 +269,9 @@ fn hole_enclosed_by_absorber_stays_dark() {
 fn light_inside_cloud_beats_the_direct_term() {
     let gpu = gpu();
     let sc = cloud_with_light_inside(24);
-    let reference = render(&gpu, &sc, SolverKind::Path, &[("path.spp", "1024")]);
-    let wf = render(&gpu, &sc, SolverKind::Wavefront, &[]);
-    let direct = render(&gpu, &sc, SolverKind::Single, &[]);
+    let reference = render(&gpu, &sc, PATH, &[("render.spp", "1024")]);
+    let wf = render(&gpu, &sc, WAVEFRONT, &[]);
+    let direct = render(&gpu, &sc, SINGLE, &[]);
     let e_wf = compare(&wf.image, &reference.image).unwrap();
     let e_single = compare(&direct.image, &reference.image).unwrap();
     let (_, se) = crate::common::mean_and_stderr(&reference.image, reference.variance.as_ref().unwrap());
@@ -281,7 +282,7 @@ fn light_inside_cloud_beats_the_direct_term() {
     assert!(e_wf.rel_l2 < 0.6 * e_single.rel_l2, "wavefront {} vs direct term {}", e_wf.rel_l2, e_single.rel_l2);
     // The paper's explicit scheme on the same scene: it goes negative on some rays (reported as
     // a warning, clamped by the gather) and stays finite.
-    let ex = try_render(&gpu, &sc, SolverKind::Wavefront, &[("wavefront.integrator", "explicit")], false).unwrap();
+    let ex = try_render(&gpu, &sc, WAVEFRONT, &[("wavefront.integrator", "explicit")], false).unwrap();
     let e_ex = compare(&ex.image, &reference.image).unwrap();
     eprintln!("explicit: relL2 {:.3}, warnings {:?}", e_ex.rel_l2, ex.report.warnings);
     assert_eq!(ex.image.nan_inf_count(), 0);
@@ -300,9 +301,9 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
     let run = |extra: &[(&str, &str)]| {
         let mut sets = vec![("lbl.grid", "24"), ("lbl.rays", "8192")];
         sets.extend_from_slice(extra);
-        try_render(&gpu, &sc, SolverKind::Lbl, &sets, false).unwrap()
+        try_render(&gpu, &sc, LBL, &sets, false).unwrap()
     };
-    let iters = |r: &scatterlab::solvers::RenderOutput| r.report.stats["lbl"]["iterations"].as_u64().unwrap();
+    let iters = |r: &scatterlab::solvers::RenderOutput| r.report.detail::<LblStats>().unwrap().iterations;
     let converged = run(&[("lbl.tol", "1e-6")]);
     let warm_converged = run(&[("lbl.tol", "1e-6"), ("lbl.warm_start", "wavefront")]);
     let same = compare(&warm_converged.image, &converged.image).unwrap().rel_l2;
@@ -317,15 +318,14 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
         iters(&converged),
         iters(&warm_converged)
     );
-    assert!(warm.report.stats["lbl"]["warm_start"].as_bool().unwrap());
+    assert!(warm.report.detail::<LblStats>().unwrap().warm_start);
     assert!(e_warm < 0.5 * e_cold, "warm start is not closer: {e_warm} vs cold {e_cold}");
     assert!(same < 2e-3, "warm and cold starts converge to different images: relL2 {same}");
     // The warm start is built for D3Q6 and says so for D3Q18.
-    let err =
-        try_render(&gpu, &sc, SolverKind::Lbl, &[("lbl.warm_start", "wavefront"), ("lbl.lattice", "d3q18")], false)
-            .err()
-            .expect("d3q18 warm start must be refused")
-            .to_string();
+    let err = try_render(&gpu, &sc, LBL, &[("lbl.warm_start", "wavefront"), ("lbl.lattice", "d3q18")], false)
+        .err()
+        .expect("d3q18 warm start must be refused")
+        .to_string();
     assert!(err.contains("lbl.warm_start") && err.contains("d3q6"), "{err}");
     assert_clean(&gpu);
 }
@@ -336,18 +336,10 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
 fn bench_ladder_runs_for_wavefront() {
     let gpu = gpu();
     let sc = cloud_with_light_inside(16);
-    let reference = render(&gpu, &sc, SolverKind::Path, &[("path.spp", "256")]).image;
-    let (points, _) = scatterlab::measure::bench::bench_scene(
-        &gpu,
-        "cloud-inside",
-        &sc,
-        &reference,
-        &[SolverKind::Wavefront],
-        true,
-        1,
-        &|_| {},
-    )
-    .unwrap();
+    let reference = render(&gpu, &sc, PATH, &[("render.spp", "256")]).image;
+    let (points, _) =
+        scatterlab::measure::bench::bench_scene(&gpu, "cloud-inside", &sc, &reference, &[WAVEFRONT], true, 1, &|_| {})
+            .unwrap();
     assert_eq!(points.len(), 3);
     for p in &points {
         assert!(p.gpu_ms > 0.0 && p.metrics.rel_l2.is_finite() && p.metrics.nan_inf_count == 0, "{p:?}");

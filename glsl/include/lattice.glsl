@@ -1,4 +1,4 @@
-// lattice.glsl: the Lattice-Boltzmann lighting lattice of solver `lbl` (thesis 4.5, eq. 4.4-4.5;
+// lattice.glsl: the Lattice-Boltzmann lighting lattice (solvers/lattice.rs, used by `lbl`; thesis 4.5,
 // Geist et al. 2004 for the lattice; section 2.2.3).
 //
 // D3Q6 + rest (thesis 4.5), or Geist's D3Q18 + rest (section 2.2.3): distribution 0 is the rest

@@ -2,12 +2,19 @@
 //! run it, and turn any error into one line on stderr and a non-zero exit code.
 
 mod commands;
+mod render;
 
 use std::path::PathBuf;
 
+use clap::builder::PossibleValuesParser;
 use clap::{Args, Parser, Subcommand};
 
-use crate::solvers::SolverKind;
+use crate::solvers::{self, Schedule};
+
+/// `--solver`'s values: every registered solver.
+fn solver_names() -> PossibleValuesParser {
+    PossibleValuesParser::new(solvers::names())
+}
 
 #[derive(Parser, Debug)]
 #[command(
@@ -51,9 +58,9 @@ pub enum Command {
         /// Scene files.
         #[arg(required = true)]
         scenes: Vec<PathBuf>,
-        /// Solvers to bench (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl,wavefront")]
-        solvers: Vec<SolverKind>,
+        /// Solvers to bench (comma-separated; default: every solver).
+        #[arg(long, value_delimiter = ',', value_parser = solver_names())]
+        solvers: Vec<String>,
         /// Output directory (created if missing).
         #[arg(long, default_value = "bench")]
         out: PathBuf,
@@ -82,9 +89,9 @@ pub enum Command {
     /// finite, non-negative, never brighter than the lossless bound, exact where an exact
     /// answer is cheap. Prints a pass/fail table, writes CSV and JSON, fails on any failure.
     Stability {
-        /// Solvers to sweep (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "path,single,lbl,wavefront")]
-        solvers: Vec<SolverKind>,
+        /// Solvers to sweep (comma-separated; default: every solver).
+        #[arg(long, value_delimiter = ',', value_parser = solver_names())]
+        solvers: Vec<String>,
         /// Also run the cases marked slow (optical thickness 1e3 and 1e4).
         #[arg(long)]
         slow: bool,
@@ -102,6 +109,16 @@ pub enum Command {
         #[command(subcommand)]
         command: SceneCommand,
     },
+    /// Every knob of every solver (or of one): default, range and meaning, as `--set
+    /// solver.knob=value` takes them.
+    Knobs {
+        /// Only this solver's knobs.
+        #[arg(value_parser = solver_names())]
+        solver: Option<String>,
+        /// Print the Markdown reference (docs/knobs.md) instead of text.
+        #[arg(long)]
+        markdown: bool,
+    },
 }
 
 #[derive(Subcommand, Debug)]
@@ -109,7 +126,8 @@ pub enum SceneCommand {
     /// What physics a scene requires and the device memory each solver would allocate.
     Info {
         scene: PathBuf,
-        /// Override scene keys (`medium.albedo=0.5`).
+        /// Override scene keys (`medium.albedo=0.5`) or set solver knobs for the memory
+        /// estimate (`lbl.grid=128`).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
         #[arg(long)]
@@ -121,13 +139,14 @@ pub enum SceneCommand {
 pub struct RenderArgs {
     /// Scene file (TOML, format v1: docs/scene-format.md).
     pub scene: PathBuf,
-    #[arg(long, value_enum, default_value = "path")]
-    pub solver: SolverKind,
-    /// Samples per pixel for `path` (overrides render.spp).
+    /// The solver (`scatterlab knobs` lists each one's knobs).
+    #[arg(long, default_value = "path", value_parser = solver_names())]
+    pub solver: String,
+    /// Samples per pixel of Monte Carlo solvers (the same as `--set render.spp=N`).
     #[arg(long)]
     pub spp: Option<u32>,
-    /// Scattering events per path for `path` (1 = single scattering; default unbounded);
-    /// the same as `--set path.max_depth=N`.
+    /// Scattering events per path (1 = single scattering): `--set <solver>.max_depth=N`
+    /// for a solver with that knob (`path`).
     #[arg(long)]
     pub max_depth: Option<u32>,
     /// Seed of every random choice (overrides render.seed).
@@ -152,14 +171,16 @@ pub struct RenderArgs {
     /// Model every feature (chromatic tracking, HG phase) even where the scene needs none.
     #[arg(long)]
     pub model_all: bool,
-    /// `lbl`: overlap tracing round n with diffusion of round n-1 (concurrent), or not.
+    /// Overlap the work of the two queue roles (concurrent) or not: `--set <solver>.schedule=`
+    /// for a solver with concurrent work (`lbl`).
     #[arg(long, value_enum)]
-    pub schedule: Option<crate::solvers::lbl::Schedule>,
-    /// `lbl`: run both schedules and print the sequential/concurrent time ratio (the image
-    /// written is the concurrent one).
+    pub schedule: Option<Schedule>,
+    /// Run both schedules and print the sequential/concurrent time ratio (the image written
+    /// is the concurrent one); for a solver with a `schedule` knob.
     #[arg(long)]
     pub compare_schedules: bool,
-    /// `lbl`: deterministic transfer (fixed-point integer atomics): bit-identical images.
+    /// Deterministic order of floating-point accumulation (bit-identical images):
+    /// `--set <solver>.deterministic=true` for a solver with that knob (`lbl`).
     #[arg(long)]
     pub deterministic: bool,
     /// Per-queue GPU timeline as Chrome-trace/Perfetto JSON (open in ui.perfetto.dev).

@@ -14,6 +14,6 @@ pub use context::{
 };
 pub use error::{GpuError, Result};
 pub use memory::{Buffer, Image3d, VolumeFormat};
-pub use pipeline::{reflect, BindingKind, Pipeline, Reflection, ShaderSource, Spec};
+pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, Reflection, ShaderSource, Spec, SpecKind};
 pub use queues::{map_roles, FamilyInfo, MappingKind, QueueRole, QueueSlot, RoleMapping};
 pub use submit::{Access, Bind, Pass, PassTiming, Resource, SyncPoint};

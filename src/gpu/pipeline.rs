@@ -39,7 +39,55 @@ impl BindingKind {
 pub struct Reflection {
     pub bindings: BTreeMap<u32, (BindingKind, String)>,
     pub push_constant_bytes: usize,
+    /// The workgroup size as compiled (a `local_size_*_id` dimension shows its default).
     pub workgroup_size: [u32; 3],
+    /// Specialization constants (`layout(constant_id = N)`), by id.
+    pub spec_constants: BTreeMap<u32, SpecKind>,
+}
+
+/// The type of a specialization constant, as the shader declares it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum SpecKind {
+    Bool,
+    U32,
+    I32,
+    F32,
+}
+
+/// What Rust knows of a compute kernel: the shader and the interface facts its passes rely on
+/// (push-constant block size, the specialization constants it sets). Each is checked against
+/// the SPIR-V: the spec ids whenever a pipeline is built ([`Gpu::pipeline`]), the push size at
+/// every submission (`Pass::check`), and both for every kernel of every solver by a
+/// reflection test without a device ([`Kernel::check`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Kernel {
+    pub shader: ShaderSource,
+    /// `size_of` the `#[repr(C)]` push-constant struct its passes push (0: none).
+    pub push_bytes: usize,
+    /// Every specialization constant its pipelines set, with its type.
+    pub spec: &'static [(u32, SpecKind)],
+}
+
+impl Kernel {
+    /// Check the declared facts against the shader's reflection.
+    pub fn check(&self) -> Result<()> {
+        let err = |reason: String| GpuError::Shader { shader: self.shader.name.into(), reason };
+        let r = reflect(&self.shader)?;
+        if r.push_constant_bytes != self.push_bytes {
+            return Err(err(format!(
+                "Rust pushes {} bytes of push constants but the shader declares {}",
+                self.push_bytes, r.push_constant_bytes
+            )));
+        }
+        let declared: BTreeMap<u32, SpecKind> = self.spec.iter().copied().collect();
+        if declared != r.spec_constants {
+            return Err(err(format!(
+                "Rust sets specialization constants {declared:?} but the shader declares {:?}",
+                r.spec_constants
+            )));
+        }
+        Ok(())
+    }
 }
 
 /// Read descriptor bindings (set 0 only), push-constant size and workgroup size.
@@ -73,7 +121,46 @@ pub fn reflect(src: &ShaderSource) -> Result<Reflection> {
     let (x, y, z) = r
         .get_compute_group_size()
         .ok_or_else(|| err("no LocalSize execution mode (a fixed local_size is required)".into()))?;
-    Ok(Reflection { bindings, push_constant_bytes, workgroup_size: [x, y, z] })
+    let spec_constants = spec_constants(&r.0).map_err(err)?;
+    Ok(Reflection { bindings, push_constant_bytes, workgroup_size: [x, y, z], spec_constants })
+}
+
+/// Every `SpecId` decoration of the module and the type of the constant it decorates.
+fn spec_constants(m: &rspirv_reflect::rspirv::dr::Module) -> std::result::Result<BTreeMap<u32, SpecKind>, String> {
+    use rspirv_reflect::rspirv::dr::Operand;
+    use rspirv_reflect::spirv::{Decoration, Op};
+    let mut out = BTreeMap::new();
+    for a in m.annotations.iter().filter(|a| a.class.opcode == Op::Decorate) {
+        let (
+            Some(Operand::IdRef(target)),
+            Some(Operand::Decoration(Decoration::SpecId)),
+            Some(Operand::LiteralBit32(id)),
+        ) = (a.operands.first(), a.operands.get(1), a.operands.get(2))
+        else {
+            continue;
+        };
+        let constant = m
+            .types_global_values
+            .iter()
+            .find(|i| i.result_id == Some(*target))
+            .ok_or_else(|| format!("SpecId {id} decorates %{target}, which is not a global constant"))?;
+        let kind = match constant.class.opcode {
+            Op::SpecConstantTrue | Op::SpecConstantFalse => SpecKind::Bool,
+            Op::SpecConstant => {
+                let ty = constant.result_type.ok_or_else(|| format!("spec constant {id} has no type"))?;
+                let ty = m.types_global_values.iter().find(|i| i.result_id == Some(ty));
+                match ty.map(|t| (t.class.opcode, t.operands.as_slice())) {
+                    Some((Op::TypeInt, [Operand::LiteralBit32(32), Operand::LiteralBit32(0)])) => SpecKind::U32,
+                    Some((Op::TypeInt, [Operand::LiteralBit32(32), Operand::LiteralBit32(1)])) => SpecKind::I32,
+                    Some((Op::TypeFloat, [Operand::LiteralBit32(32), ..])) => SpecKind::F32,
+                    other => return Err(format!("spec constant {id} has an unsupported type {other:?}")),
+                }
+            }
+            other => return Err(format!("SpecId {id} decorates an {other:?}, not a specialization constant")),
+        };
+        out.insert(*id, kind);
+    }
+    Ok(out)
 }
 
 /// A specialization constant value (`layout(constant_id = N) const ...`), 4 bytes each.
@@ -86,6 +173,15 @@ pub enum Spec {
 }
 
 impl Spec {
+    pub fn kind(self) -> SpecKind {
+        match self {
+            Spec::Bool(_) => SpecKind::Bool,
+            Spec::U32(_) => SpecKind::U32,
+            Spec::I32(_) => SpecKind::I32,
+            Spec::F32(_) => SpecKind::F32,
+        }
+    }
+
     fn bytes(self) -> [u8; 4] {
         match self {
             Spec::Bool(b) => (b as u32).to_ne_bytes(),
@@ -131,9 +227,24 @@ impl Pipeline {
 }
 
 impl Gpu {
-    /// Build a compute pipeline with the given specialization constants `(constant_id, value)`.
-    pub fn pipeline(&self, src: &ShaderSource, spec: &[(u32, Spec)]) -> Result<Pipeline> {
+    /// Build a compute pipeline of `kernel` with the given specialization constants
+    /// `(constant_id, value)`: exactly the ones the kernel declares, each declared by the
+    /// shader with the same type (a mismatch is an error naming the shader, never a silent
+    /// default).
+    pub fn pipeline(&self, kernel: &Kernel, spec: &[(u32, Spec)]) -> Result<Pipeline> {
+        let src = &kernel.shader;
         let reflection = reflect(src)?;
+        let given: BTreeMap<u32, SpecKind> = spec.iter().map(|(id, v)| (*id, v.kind())).collect();
+        let declared: BTreeMap<u32, SpecKind> = kernel.spec.iter().copied().collect();
+        if given != declared || given != reflection.spec_constants || given.len() != spec.len() {
+            return Err(GpuError::Shader {
+                shader: src.name.into(),
+                reason: format!(
+                    "pipeline built with specialization constants {given:?}; the kernel declares {declared:?} and the shader {:?}",
+                    reflection.spec_constants
+                ),
+            });
+        }
         let s = &self.shared;
         let d = &s.device;
         let words = ash::util::read_spv(&mut std::io::Cursor::new(src.spirv))

@@ -3,8 +3,8 @@
 //!
 //! Per scene: the `path` reference at high spp, cached on disk under a key of the scene's
 //! content (scene text, grid data, overrides), engine version, device and reference spp; then
-//! each solver walks its own quality ladder (spp for `path`, step for `single`, grid resolution
-//! for `lbl`). Each point: GPU time (sum of pass timestamps) and wall time, medians over
+//! each solver walks its own quality ladder ([`Solver::ladder`]: samples per pixel for `path`,
+//! step for `single`, grid resolution for `lbl`...). Each point: GPU time (sum of pass timestamps) and wall time, medians over
 //! repeats, and the metrics of `output::compare` against the reference. Results: CSV, JSON
 //! (device, driver, queue mapping, versions, settings) and one SVG plot per scene of relL2
 //! against GPU time on log-log axes, one line per solver, the Pareto front marked.
@@ -17,45 +17,14 @@ use sha2::{Digest, Sha256};
 use crate::gpu::{DeviceInfo, Gpu};
 use crate::output::{self, Image, Metrics};
 use crate::scene::{Density, Scene};
-use crate::solvers::SolverKind;
+use crate::solvers::{self, Rung, Solver};
 
-/// One rung of a solver's quality ladder.
-#[derive(Clone, Debug, Serialize)]
-pub struct Rung {
-    pub knob: String,
-    pub value: String,
-    pub sets: Vec<(String, String)>,
-}
+use super::render_with as render;
 
-/// Each solver's quality ladder, cheapest first. `quick` keeps the cheap end only.
-pub fn ladder(kind: SolverKind, scene: &Scene, quick: bool) -> Vec<Rung> {
-    let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
-    let rung = |knob: &str, value: String| Rung {
-        knob: knob.to_string(),
-        value: value.clone(),
-        sets: vec![(knob.to_string(), value)],
-    };
-    let mut v: Vec<Rung> = match kind {
-        SolverKind::Path => [4u32, 16, 64, 256, 1024].iter().map(|s| rung("path.spp", s.to_string())).collect(),
-        SolverKind::Single => {
-            [16.0f32, 32.0, 64.0, 128.0, 256.0].iter().map(|d| rung("single.step", format!("{}", diag / d))).collect()
-        }
-        SolverKind::Lbl => [16u32, 24, 32, 48, 64].iter().map(|g| rung("lbl.grid", g.to_string())).collect(),
-        // Angular and radial resolution grow together (nu = 2 nv = layers / 2): the knob is
-        // the layer count, the rays follow it.
-        SolverKind::Wavefront => [32u32, 64, 128, 256, 512]
-            .iter()
-            .map(|l| Rung {
-                knob: "wavefront.layers".into(),
-                value: l.to_string(),
-                sets: vec![
-                    ("wavefront.layers".into(), l.to_string()),
-                    ("wavefront.nu".into(), (l / 2).to_string()),
-                    ("wavefront.nv".into(), (l / 4).to_string()),
-                ],
-            })
-            .collect(),
-    };
+/// A solver's quality ladder on `scene`, cheapest first; `quick` keeps the cheap end (three
+/// rungs).
+pub fn ladder(solver: &dyn Solver, scene: &Scene, quick: bool) -> Vec<Rung> {
+    let mut v = solver.ladder(scene);
     if quick {
         v.truncate(3);
     }
@@ -66,7 +35,7 @@ pub fn ladder(kind: SolverKind, scene: &Scene, quick: bool) -> Vec<Rung> {
 #[derive(Clone, Debug, Serialize)]
 pub struct Point {
     pub scene: String,
-    pub solver: SolverKind,
+    pub solver: &'static str,
     pub knob: String,
     pub value: String,
     pub gpu_ms: f64,
@@ -82,7 +51,7 @@ pub struct Point {
 #[derive(Clone, Debug, Serialize)]
 pub struct Throughput {
     pub scene: String,
-    pub solver: SolverKind,
+    pub solver: &'static str,
     pub figure: String,
     pub value: f64,
     pub unit: String,
@@ -127,8 +96,6 @@ pub fn reference_key(
     h.finalize().iter().take(12).map(|b| format!("{b:02x}")).collect()
 }
 
-use super::render_timed as render;
-
 /// The cached `path` reference for a scene, rendering it when missing. Returns the image and
 /// whether it came from the cache.
 pub fn reference(gpu: &Gpu, scene: &Scene, key: &str, spp: u32, cache: &Path) -> Result<(Image, bool), String> {
@@ -138,7 +105,7 @@ pub fn reference(gpu: &Gpu, scene: &Scene, key: &str, spp: u32, cache: &Path) ->
             return Ok((img, true));
         }
     }
-    let (r, _) = render(gpu, scene, SolverKind::Path, &[("path.spp".into(), spp.to_string())], false)?;
+    let (r, _) = render(gpu, scene, solvers::reference(), &[("render.spp".into(), spp.to_string())], false)?;
     std::fs::create_dir_all(cache).map_err(|e| format!("cannot create cache {}: {e}", cache.display()))?;
     let mut layers: Vec<(&str, &Image)> = vec![("", &r.image)];
     if let Some(v) = &r.variance {
@@ -155,89 +122,47 @@ pub fn bench_scene(
     name: &str,
     scene: &Scene,
     reference: &Image,
-    kinds: &[SolverKind],
+    solvers: &[&dyn Solver],
     quick: bool,
     repeats: u32,
     progress: &dyn Fn(&str),
 ) -> Result<(Vec<Point>, Vec<Throughput>), String> {
     let mut points = Vec::new();
     let mut thr = Vec::new();
-    for &kind in kinds {
-        for rung in ladder(kind, scene, quick) {
-            progress(&format!("{name}: {} {}={}", kind.name(), rung.knob, rung.value));
+    for &solver in solvers {
+        for rung in ladder(solver, scene, quick) {
+            progress(&format!("{name}: {} {}={}", solver.name(), rung.knob, rung.value));
             let mut gpu_ms = Vec::new();
             let mut wall_ms = Vec::new();
             let mut last = None;
             for _ in 0..repeats.max(1) {
-                let (r, wall) = render(gpu, scene, kind, &rung.sets, false)?;
+                let (r, wall) = render(gpu, scene, solver, &rung.sets, false)?;
                 gpu_ms.push(r.report.gpu_ms);
                 wall_ms.push(wall);
                 last = Some(r);
             }
             let r = last.expect("at least one repeat");
             let metrics = output::compare(&r.image, reference).map_err(|e| e.to_string())?;
-            let lbl = &r.report.stats["lbl"];
-            let g = median(gpu_ms);
-            // Throughput at the most expensive rung is the figure a device comparison wants.
-            match kind {
-                SolverKind::Path => {
-                    let steps = r.report.stats["tracking_steps"].as_f64().unwrap_or(0.0);
-                    let samples =
-                        (scene.render.width * scene.render.height) as f64 * rung.value.parse::<f64>().unwrap_or(0.0);
-                    thr.push(Throughput {
-                        scene: name.into(),
-                        solver: kind,
-                        figure: format!("samples/s at {}={}", rung.knob, rung.value),
-                        value: samples / (g * 1e-3),
-                        unit: "1/s".into(),
-                    });
-                    thr.push(Throughput {
-                        scene: name.into(),
-                        solver: kind,
-                        figure: format!("path segments/s at {}={}", rung.knob, rung.value),
-                        value: steps / (g * 1e-3),
-                        unit: "1/s".into(),
-                    });
-                }
-                SolverKind::Lbl => {
-                    let dims = &lbl["lattice"]["dims"];
-                    let voxels = (0..3).map(|a| dims[a].as_f64().unwrap_or(0.0)).product::<f64>();
-                    let iters = lbl["iterations"].as_f64().unwrap_or(0.0);
-                    let ms = lbl["diffuse_ms"].as_f64().unwrap_or(0.0);
-                    let ch = lbl["channels"].as_f64().unwrap_or(1.0);
-                    if ms > 0.0 {
-                        let ups = voxels * iters / (ms * 1e-3);
-                        thr.push(Throughput {
-                            scene: name.into(),
-                            solver: kind,
-                            figure: format!("lattice voxel-updates/s at {}={}", rung.knob, rung.value),
-                            value: ups,
-                            unit: "1/s".into(),
-                        });
-                        // Per voxel-update at least: 6 links read and written, 1 irradiance
-                        // read-modify-write, 1 density read, 4 bytes each, per channel.
-                        let bytes = (ch * (6.0 * 2.0 + 2.0) + 1.0) * 4.0;
-                        thr.push(Throughput {
-                            scene: name.into(),
-                            solver: kind,
-                            figure: format!("lattice effective bandwidth at {}={}", rung.knob, rung.value),
-                            value: ups * bytes / 1e9,
-                            unit: "GB/s".into(),
-                        });
-                    }
-                }
-                SolverKind::Single | SolverKind::Wavefront => {}
+            let stats = &r.report.stats;
+            for f in &stats.throughput {
+                thr.push(Throughput {
+                    scene: name.into(),
+                    solver: solver.name(),
+                    figure: format!("{} at {}={}", f.figure, rung.knob, rung.value),
+                    value: f.value,
+                    unit: f.unit.clone(),
+                });
             }
             points.push(Point {
                 scene: name.into(),
-                solver: kind,
+                solver: solver.name(),
                 knob: rung.knob.clone(),
                 value: rung.value.clone(),
-                gpu_ms: g,
+                gpu_ms: median(gpu_ms),
                 wall_ms: median(wall_ms),
                 metrics,
-                iterations: lbl["iterations"].as_u64(),
-                converged: lbl["converged"].as_bool(),
+                iterations: stats.convergence.map(|c| c.iterations),
+                converged: stats.convergence.map(|c| c.converged),
                 device_bytes: r.report.device_bytes,
                 pareto: false,
             });
@@ -255,11 +180,11 @@ pub fn bench_scene(
 pub fn slim_vs_full(
     gpu: &Gpu,
     scene: &Scene,
-    kind: SolverKind,
+    solver: &dyn Solver,
     sets: &[(String, String)],
 ) -> Result<(u64, u64, f64, f64, f64), String> {
-    let (a, _) = render(gpu, scene, kind, sets, false)?;
-    let (b, _) = render(gpu, scene, kind, sets, true)?;
+    let (a, _) = render(gpu, scene, solver, sets, false)?;
+    let (b, _) = render(gpu, scene, solver, sets, true)?;
     let d = output::compare(&a.image, &b.image).map_err(|e| e.to_string())?.rel_l2;
     Ok((a.report.device_bytes, b.report.device_bytes, a.report.gpu_ms, b.report.gpu_ms, d))
 }
@@ -271,7 +196,7 @@ pub fn csv(points: &[Point]) -> String {
         s.push_str(&format!(
             "\"{}\",{},{},{},{:.3},{:.3},{:.6e},{:.6e},{:.6e},{:.6},{:.6e},{},{},{},{},{}\n",
             p.scene,
-            p.solver.name(),
+            p.solver,
             p.knob,
             p.value,
             p.gpu_ms,
@@ -336,7 +261,7 @@ pub fn svg(title: &str, points: &[Point]) -> String {
         (mt + h - mb) / 2.0
     ));
     let colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"];
-    let mut kinds: Vec<SolverKind> = Vec::new();
+    let mut kinds: Vec<&str> = Vec::new();
     for p in &finite {
         if !kinds.contains(&p.solver) {
             kinds.push(p.solver);
@@ -353,7 +278,7 @@ pub fn svg(title: &str, points: &[Point]) -> String {
         ));
         for p in &pts {
             let (x, y) = (px(p.gpu_ms.log10()), py(p.metrics.rel_l2.log10()));
-            s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"3.5\" fill=\"{c}\"><title>{} {}={}: {:.1} ms, relL2 {:.4}</title></circle>\n", kind.name(), p.knob, p.value, p.gpu_ms, p.metrics.rel_l2));
+            s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"3.5\" fill=\"{c}\"><title>{} {}={}: {:.1} ms, relL2 {:.4}</title></circle>\n", kind, p.knob, p.value, p.gpu_ms, p.metrics.rel_l2));
             if p.pareto {
                 s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/>\n"));
             }
@@ -366,12 +291,124 @@ pub fn svg(title: &str, points: &[Point]) -> String {
             ));
         }
         let ly = mt + 20.0 + 20.0 * i as f64;
-        s.push_str(&format!("<line x1=\"{}\" y1=\"{ly:.1}\" x2=\"{}\" y2=\"{ly:.1}\" stroke=\"{c}\" stroke-width=\"3\"/><text x=\"{}\" y=\"{:.1}\">{}</text>\n", w - mr + 10.0, w - mr + 34.0, w - mr + 40.0, ly + 4.0, kind.name()));
+        s.push_str(&format!("<line x1=\"{}\" y1=\"{ly:.1}\" x2=\"{}\" y2=\"{ly:.1}\" stroke=\"{c}\" stroke-width=\"3\"/><text x=\"{}\" y=\"{:.1}\">{}</text>\n", w - mr + 10.0, w - mr + 34.0, w - mr + 40.0, ly + 4.0, kind));
     }
     let ly = mt + 20.0 + 20.0 * kinds.len() as f64;
     s.push_str(&format!("<circle cx=\"{}\" cy=\"{ly:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\">Pareto front</text>\n", w - mr + 22.0, w - mr + 40.0, ly + 4.0));
     s.push_str("</svg>\n");
     s
+}
+
+/// A scene to bench: its name (the file stem), its file text (part of the reference's cache
+/// key) and the scene as loaded.
+pub struct BenchScene {
+    pub name: String,
+    pub text: String,
+    pub scene: Scene,
+}
+
+/// What `bench` runs.
+pub struct BenchConfig<'a> {
+    pub solvers: &'a [&'a dyn Solver],
+    /// Samples per pixel of the reference.
+    pub ref_spp: u32,
+    /// Renders per point; times are medians.
+    pub repeats: u32,
+    /// The cheap end of each ladder only.
+    pub quick: bool,
+    /// Scene overrides the scenes were loaded with (part of the cache key).
+    pub overrides: &'a [(String, String)],
+    /// Where references are cached.
+    pub cache: &'a Path,
+}
+
+/// The reference a scene was measured against.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferenceInfo {
+    pub scene: String,
+    pub key: String,
+    pub spp: u32,
+    pub cached: bool,
+    pub seconds: f64,
+}
+
+/// Slim against full modelling of one solver on one scene (`--model-all`).
+#[derive(Clone, Debug, Serialize)]
+pub struct SlimVsFull {
+    pub scene: String,
+    pub solver: &'static str,
+    pub slim_bytes: u64,
+    pub full_bytes: u64,
+    pub slim_ms: f64,
+    pub full_ms: f64,
+    pub rel_l2_between: f64,
+}
+
+/// Everything a bench run measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchResult {
+    pub references: Vec<ReferenceInfo>,
+    pub points: Vec<Point>,
+    pub throughput: Vec<Throughput>,
+    pub slim_vs_full: Vec<SlimVsFull>,
+    /// One SVG plot per scene: (scene name, SVG text).
+    #[serde(skip)]
+    pub plots: Vec<(String, String)>,
+}
+
+/// Bench every scene: its cached reference, every solver's ladder, the plot, and slim against
+/// full modelling at each solver's third rung (for `path`, enough samples that the difference
+/// is not all noise).
+pub fn run(
+    gpu: &Gpu,
+    scenes: &[BenchScene],
+    cfg: &BenchConfig,
+    progress: &dyn Fn(&str),
+) -> Result<BenchResult, String> {
+    let info = gpu.info().clone();
+    let mut out = BenchResult {
+        references: Vec::new(),
+        points: Vec::new(),
+        throughput: Vec::new(),
+        slim_vs_full: Vec::new(),
+        plots: Vec::new(),
+    };
+    for s in scenes {
+        let key = reference_key(&s.text, &s.scene, cfg.overrides, &info, cfg.ref_spp);
+        progress(&format!("{}: {} reference at {} spp", s.name, solvers::reference().name(), cfg.ref_spp));
+        let t = std::time::Instant::now();
+        let (reference, cached) = reference(gpu, &s.scene, &key, cfg.ref_spp, cfg.cache)?;
+        out.references.push(ReferenceInfo {
+            scene: s.name.clone(),
+            key,
+            spp: cfg.ref_spp,
+            cached,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        let (points, thr) =
+            bench_scene(gpu, &s.name, &s.scene, &reference, cfg.solvers, cfg.quick, cfg.repeats, progress)?;
+        out.plots.push((s.name.clone(), svg(&format!("{}: error vs GPU time on {}", s.name, info.name), &points)));
+        for &solver in cfg.solvers {
+            let rung = ladder(solver, &s.scene, true)
+                .into_iter()
+                .nth(2)
+                .ok_or_else(|| format!("solver {}'s bench ladder has fewer than three rungs", solver.name()))?;
+            progress(&format!("{}: {} slim vs full modelling", s.name, solver.name()));
+            let (sb, fb, sm, fm, d) = slim_vs_full(gpu, &s.scene, solver, &rung.sets)?;
+            out.slim_vs_full.push(SlimVsFull {
+                scene: s.name.clone(),
+                solver: solver.name(),
+                slim_bytes: sb,
+                full_bytes: fb,
+                slim_ms: sm,
+                full_ms: fm,
+                rel_l2_between: d,
+            });
+        }
+        out.points.extend(points);
+        out.throughput.extend(thr);
+    }
+    Ok(out)
 }
 
 /// Default cache directory for references.

@@ -1,25 +1,31 @@
-//! Measurement: what the GPU did and how long it took (timelines, overlap, serial baseline).
+//! Measurement: what the GPU did and how long it took (timelines, overlap, serial baseline),
+//! and the commands that walk solvers over scenes (`bench`, `stability`). Solvers are reached
+//! only through [`crate::solvers::Solver`]: nothing here names one.
 
 pub mod bench;
 pub mod stability;
 pub mod timeline;
 
 use crate::gpu::Gpu;
-use crate::scene::Scene;
-use crate::solvers::{self, RenderOutput, RenderRequest, Settings, SolverKind};
+use crate::scene::{is_scene_key, Scene};
+use crate::solvers::{RenderOutput, RenderRequest, Settings, Solver};
 
-/// Render with solver knobs given as pairs, no progress, returning the output and the wall
-/// time in ms; errors as text (the commands print them on one line).
-pub(crate) fn render_timed(
+/// Render with `sets` applied, no progress, returning the output and the wall time in ms;
+/// errors as text (the commands print them on one line). Scene keys among `sets` (a ladder's
+/// `render.spp`) apply to a copy of the scene ([`Scene::with_overrides`]), the rest are the
+/// solver's knobs.
+pub fn render_with(
     gpu: &Gpu,
     scene: &Scene,
-    kind: SolverKind,
+    solver: &dyn Solver,
     sets: &[(String, String)],
     force_full: bool,
 ) -> Result<(RenderOutput, f64), String> {
-    let settings = Settings::new(sets);
-    let req = RenderRequest { scene, settings: &settings, force_full, progress: &|_, _| {} };
+    let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = sets.iter().cloned().partition(|(k, _)| is_scene_key(k));
+    let scene = scene.with_overrides(&scene_sets).map_err(|e| e.to_string())?;
+    let settings = Settings::new(&knob_sets);
+    let req = RenderRequest { scene: &scene, settings: &settings, force_full, progress: &|_, _| {} };
     let t = std::time::Instant::now();
-    let r = solvers::render(gpu, kind, &req).map_err(|e| e.to_string())?;
+    let r = solver.render(gpu, &req).map_err(|e| e.to_string())?;
     Ok((r, t.elapsed().as_secs_f64() * 1e3))
 }

@@ -11,7 +11,8 @@
 //! - with a point light, output must be finite and non-negative, and its total not brighter
 //!   than the total of the same case with albedo 1 (the lossless bound, by `path`) beyond the
 //!   statistical error of both.
-//! `path` is judged with its variance image (a pixel fails only beyond 5 standard errors plus
+//!
+//! Monte Carlo solvers (`path`) are judged with its variance image (a pixel fails only beyond 5 standard errors plus
 //! a small absolute floor). Cases marked `slow` are run by the command, not by the test suite.
 
 use glam::Vec3;
@@ -20,7 +21,7 @@ use serde::Serialize;
 use crate::gpu::Gpu;
 use crate::output::Image;
 use crate::scene::{LoadOptions, Scene};
-use crate::solvers::{self, SolverKind};
+use crate::solvers::{self, Solver};
 
 /// One sweep case: a scene text and what it checks.
 #[derive(Clone, Debug, Serialize)]
@@ -41,8 +42,9 @@ pub struct Case {
 pub struct Outcome {
     pub case: String,
     pub group: &'static str,
-    pub solver: SolverKind,
-    /// Which variant of the solver (the wavefront integrator), empty when it has one.
+    pub solver: &'static str,
+    /// Which variant of the solver ([`Solver::stability`]: the wavefront integrator), empty
+    /// for the solver as it is.
     pub variant: String,
     pub passed: bool,
     pub finite: bool,
@@ -126,58 +128,16 @@ pub fn cases() -> Vec<Case> {
 fn render(
     gpu: &Gpu,
     scene: &Scene,
-    kind: SolverKind,
+    solver: &dyn Solver,
     sets: &[(String, String)],
 ) -> Result<solvers::RenderOutput, String> {
-    super::render_timed(gpu, scene, kind, sets, false).map(|(r, _)| r)
-}
-
-/// `path`'s variant with light tracing off.
-const CAMERA_PATHS: &str = "camera paths";
-
-/// Knobs for each solver that keep the sweep cheap on a CPU device.
-fn knobs(kind: SolverKind) -> Vec<(String, String)> {
-    let kv = |k: &str, v: &str| (k.to_string(), v.to_string());
-    match kind {
-        SolverKind::Path => vec![kv("path.spp", "64")],
-        SolverKind::Single => vec![kv("single.env_dirs", "16")],
-        SolverKind::Lbl => vec![
-            kv("lbl.grid", "16"),
-            kv("lbl.rays", "4096"),
-            kv("lbl.view_env_dirs", "16"),
-            kv("lbl.max_iters", "4000"),
-        ],
-        SolverKind::Wavefront => vec![kv("wavefront.grid", "16"), kv("wavefront.view_env_dirs", "16")],
-    }
-}
-
-/// The variants of a solver the sweep judges separately: both wavefront integrators; for
-/// `path`, its default and, where that light-traces (a point light inside the medium), camera
-/// paths alone, so both of its estimators meet the extremes.
-fn variants(kind: SolverKind) -> Vec<(String, Vec<(String, String)>)> {
-    let base = knobs(kind);
-    match kind {
-        SolverKind::Path => {
-            let mut camera = base.clone();
-            camera.push(("path.light_tracing".to_string(), "off".to_string()));
-            vec![(String::new(), base), (CAMERA_PATHS.to_string(), camera)]
-        }
-        SolverKind::Wavefront => ["exponential", "explicit"]
-            .iter()
-            .map(|i| {
-                let mut k = base.clone();
-                k.push(("wavefront.integrator".to_string(), i.to_string()));
-                (i.to_string(), k)
-            })
-            .collect(),
-        _ => vec![(String::new(), base)],
-    }
+    super::render_with(gpu, scene, solver, sets, false).map(|(r, _)| r)
 }
 
 /// Run every case (skipping slow ones unless `include_slow`) for every solver.
 pub fn run(
     gpu: &Gpu,
-    solvers_: &[SolverKind],
+    solvers_: &[&dyn Solver],
     include_slow: bool,
     progress: &dyn Fn(&str),
 ) -> Result<Vec<Outcome>, String> {
@@ -189,12 +149,13 @@ pub fn run(
         let scene =
             Scene::from_str(&scene_text(&case), &case.name, std::path::Path::new("."), &[], &LoadOptions::default())
                 .map_err(|e| e.to_string())?;
-        // The lossless bound for point-light cases: the same scene with albedo 1, by `path`.
+        // The lossless bound for point-light cases: the same scene with albedo 1, by the
+        // reference solver.
         let bound: Option<(Image, f64)> = match case.light {
             Some(_) => {
                 let mut lossless = scene.clone();
                 lossless.medium.albedo = Vec3::ONE;
-                let r = render(gpu, &lossless, SolverKind::Path, &[("path.spp".into(), "256".into())])?;
+                let r = render(gpu, &lossless, solvers::reference(), &[("render.spp".into(), "256".into())])?;
                 let v = r.total_variance();
                 Some((r.image, v))
             }
@@ -212,52 +173,41 @@ pub fn run(
             e.data.iter_mut().for_each(|v| *v = x);
             e
         });
-        let light_traced = !solvers::path::light_traced(&scene, "auto", solvers::path::DEFAULT_COLLISION_CAP)
-            .map_err(|e| e.to_string())?
-            .0
-            .is_empty();
-        for (kind, (variant, knobs)) in solvers_.iter().flat_map(|k| variants(*k).into_iter().map(move |v| (k, v))) {
-            if variant == CAMERA_PATHS && !light_traced {
-                continue; // the default already is camera paths alone
+        for &solver in solvers_ {
+            for variant in solver.stability().into_iter().filter(|v| (v.applies)(&scene)) {
+                progress(&format!("{} / {}", case.name, solver.name()));
+                let r = match render(gpu, &scene, solver, &variant.sets) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        out.push(Outcome {
+                            case: case.name.clone(),
+                            group: case.group,
+                            solver: solver.name(),
+                            variant: variant.name.clone(),
+                            passed: false,
+                            finite: false,
+                            non_negative: false,
+                            energy_ok: false,
+                            max_over_bound: f64::NAN,
+                            exact_error: None,
+                            iterations: None,
+                            converged: None,
+                            gpu_ms: 0.0,
+                            notes: vec![format!("error: {e}")],
+                        });
+                        continue;
+                    }
+                };
+                let mut o = judge(&case, &r, bound.as_ref(), exact.as_ref());
+                o.variant = variant.name;
+                out.push(o);
             }
-            progress(&format!("{} / {}", case.name, kind.name()));
-            let r = match render(gpu, &scene, *kind, &knobs) {
-                Ok(r) => r,
-                Err(e) => {
-                    out.push(Outcome {
-                        case: case.name.clone(),
-                        group: case.group,
-                        solver: *kind,
-                        variant: variant.clone(),
-                        passed: false,
-                        finite: false,
-                        non_negative: false,
-                        energy_ok: false,
-                        max_over_bound: f64::NAN,
-                        exact_error: None,
-                        iterations: None,
-                        converged: None,
-                        gpu_ms: 0.0,
-                        notes: vec![format!("error: {e}")],
-                    });
-                    continue;
-                }
-            };
-            let mut o = judge(&case, *kind, &r, bound.as_ref(), exact.as_ref());
-            o.variant = variant;
-            out.push(o);
         }
     }
     Ok(out)
 }
 
-fn judge(
-    case: &Case,
-    kind: SolverKind,
-    r: &solvers::RenderOutput,
-    bound: Option<&(Image, f64)>,
-    exact: Option<&Image>,
-) -> Outcome {
+fn judge(case: &Case, r: &solvers::RenderOutput, bound: Option<&(Image, f64)>, exact: Option<&Image>) -> Outcome {
     let img = &r.image;
     let finite = img.nan_inf_count() == 0;
     let non_negative = img.data.iter().all(|v| *v >= 0.0);
@@ -288,43 +238,41 @@ fn judge(
     };
     let exact_error = exact.and_then(|e| crate::output::compare(img, e).ok()).map(|m| m.rel_l2);
     let mut notes = r.report.warnings.clone();
-    let lbl = &r.report.stats["lbl"];
-    let (iterations, converged) =
-        if kind == SolverKind::Lbl { (lbl["iterations"].as_u64(), lbl["converged"].as_bool()) } else { (None, None) };
-    // Against an exact answer: `path` within 5 standard errors on every pixel; the pure
-    // absorber is exact for the deterministic solvers; the furnace is reported for them (single
-    // scattering alone is not meant to reach it), not judged. In a pure absorber of constant density under a radiance-1
-    // environment each path sample is 1 or 0 (it escapes or not), so its variance is exactly
-    // e (1 - e) per sample: used where the sample variance is 0 (all samples alike).
-    let spp = r.report.settings["spp"].as_f64().unwrap_or(1.0).max(1.0);
-    let exact_ok = match (exact, kind) {
-        (Some(e), SolverKind::Path) => (0..img.data.len()).all(|i| {
+    let stats = &r.report.stats;
+    let (iterations, converged) = (stats.convergence.map(|c| c.iterations), stats.convergence.map(|c| c.converged));
+    // Against an exact answer: a Monte Carlo solver within 5 standard errors on every pixel;
+    // the pure absorber is exact for the deterministic solvers; the furnace is reported for
+    // them (single scattering alone is not meant to reach it), not judged. In a pure absorber
+    // of constant density under a radiance-1 environment each path sample is 1 or 0 (it
+    // escapes or not), so its variance is exactly e (1 - e) per sample: used where the sample
+    // variance is 0 (all samples alike).
+    let exact_ok = match (exact, stats.spp) {
+        (Some(e), Some(spp)) => (0..img.data.len()).all(|i| {
             let ev = e.data[i] as f64;
-            let sd = var(i).max(ev * (1.0 - ev) / spp).sqrt();
+            let sd = var(i).max(ev * (1.0 - ev) / spp.max(1) as f64).sqrt();
             (img.data[i] as f64 - ev).abs() <= 5.0 * sd + 1e-3
         }),
-        (Some(_), _) if case.albedo == 0.0 => exact_error.is_some_and(|e| e < 1e-4),
-        (Some(_), _) => true,
+        (Some(_), None) if case.albedo == 0.0 => exact_error.is_some_and(|e| e < 1e-4),
+        (Some(_), None) => true,
         (None, _) => true,
     };
     if !exact_ok {
         notes.push("differs from the exact answer".into());
     }
     if converged == Some(false) {
-        notes.push("lattice did not converge".into());
+        notes.push("did not converge".into());
     }
-    // The wavefront march's own state went negative or non-finite (the gather clamps it, so
-    // the image alone would not show it): a failure of the integrator.
-    let wf_failed = kind == SolverKind::Wavefront
-        && r.report.stats["negative_nodes"].as_u64().unwrap_or(0)
-            + r.report.stats["nonfinite_nodes"].as_u64().unwrap_or(0)
-            > 0;
+    // The solver's own state went negative or non-finite (cleaned before the image, so the
+    // image alone would not show it: the wavefront integrator's nodes): a failure.
+    if stats.faults > 0 {
+        notes.push(format!("{} internal values went negative or non-finite", stats.faults));
+    }
     Outcome {
         case: case.name.clone(),
         group: case.group,
-        solver: kind,
+        solver: r.report.solver,
         variant: String::new(),
-        passed: finite && non_negative && energy_ok && exact_ok && !wf_failed,
+        passed: finite && non_negative && energy_ok && exact_ok && stats.faults == 0,
         finite,
         non_negative,
         energy_ok,
@@ -341,9 +289,9 @@ impl Outcome {
     /// `solver` or `solver/variant`.
     pub fn label(&self) -> String {
         if self.variant.is_empty() {
-            self.solver.name().to_string()
+            self.solver.to_string()
         } else {
-            format!("{}/{}", self.solver.name(), self.variant)
+            format!("{}/{}", self.solver, self.variant)
         }
     }
 }

@@ -176,3 +176,46 @@ pub fn chrome_trace(timings: &[PassTiming], meta: Value) -> Value {
 pub fn write_chrome_trace(path: &Path, timings: &[PassTiming], meta: Value) -> Result<(), OutputError> {
     write_json(path, &chrome_trace(timings, meta))
 }
+
+/// The same render under both schedules of a solver with concurrent work (a `schedule` knob):
+/// their timelines, the sequential/concurrent span ratio (the concurrency gain) and how far
+/// apart the images are.
+#[derive(Clone, Debug, Serialize)]
+pub struct ScheduleComparison {
+    pub sequential: TimelineSummary,
+    pub concurrent: TimelineSummary,
+    /// Sequential span over concurrent span.
+    pub gain: f64,
+    /// relL2 between the two images (the schedules must agree to floating-point tolerance).
+    pub images_rel_l2: f64,
+}
+
+/// Render `req` with `solver` under `schedule=sequential` and then `schedule=concurrent`;
+/// returns the concurrent render (the one kept) and the comparison. The solver must have a
+/// `schedule` knob, and the request must not set it.
+pub fn compare_schedules(
+    gpu: &crate::gpu::Gpu,
+    solver: &dyn crate::solvers::Solver,
+    req: &crate::solvers::RenderRequest,
+) -> Result<(crate::solvers::RenderOutput, ScheduleComparison), crate::solvers::SolverError> {
+    use crate::solvers::{RenderRequest, Schedule, SolverError};
+    let key = format!("{}.schedule", solver.name());
+    if !solver.knobs().iter().any(|k| k.name == "schedule") {
+        return Err(SolverError::Unsupported(format!(
+            "solver {} has no queue schedule to compare (no {key} knob)",
+            solver.name()
+        )));
+    }
+    let run = |schedule: Schedule| {
+        let settings = req.settings.with(&key, schedule.name());
+        let r = RenderRequest { settings: &settings, ..*req };
+        solver.render(gpu, &r)
+    };
+    let seq = run(Schedule::Sequential)?;
+    let out = run(Schedule::Concurrent)?;
+    let sequential = summarize(&seq.report.passes);
+    let concurrent = summarize(&out.report.passes);
+    let gain = sequential.span_ns as f64 / concurrent.span_ns.max(1) as f64;
+    let images_rel_l2 = crate::output::compare(&out.image, &seq.image).map(|m| m.rel_l2).unwrap_or(f64::NAN);
+    Ok((out, ScheduleComparison { sequential, concurrent, gain, images_rel_l2 }))
+}

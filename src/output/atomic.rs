@@ -59,3 +59,67 @@ fn temp_sibling(path: &Path) -> Result<PathBuf, OutputError> {
     let tmp_name = format!(".{}.{}.{}.tmp", name.to_string_lossy(), std::process::id(), n);
     Ok(dir.join(tmp_name))
 }
+
+/// Outputs that appear together or not at all (an image, its PNG, its metrics JSON): each is
+/// first written in full under a hidden staging name beside its final one; only when every
+/// one is written does [`Staging::commit`] rename them into place. On any failure, or when
+/// dropped uncommitted, nothing staged is left behind and nothing already placed stays.
+#[derive(Debug, Default)]
+pub struct Staging {
+    /// (staging path, final path), in the order staged.
+    staged: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Staging {
+    pub fn new() -> Staging {
+        Staging::default()
+    }
+
+    /// Write `path`'s content (by `write`, given the staging path) under its staging name.
+    pub fn stage<F>(&mut self, path: &Path, write: F) -> Result<(), OutputError>
+    where
+        F: FnOnce(&Path) -> Result<(), OutputError>,
+    {
+        let tmp = staging_path(path);
+        self.staged.push((tmp.clone(), path.to_owned()));
+        write(&tmp)
+    }
+
+    /// Rename every staged output into place; on a failure, remove what was placed and what
+    /// is still staged, and return the error.
+    pub fn commit(mut self) -> Result<(), OutputError> {
+        let staged = std::mem::take(&mut self.staged);
+        for (i, (tmp, fin)) in staged.iter().enumerate() {
+            if let Err(source) = fs::rename(tmp, fin) {
+                for (_, placed) in &staged[..i] {
+                    let _ = fs::remove_file(placed);
+                }
+                for (left, _) in &staged[i..] {
+                    let _ = fs::remove_file(left);
+                }
+                return Err(OutputError::Io {
+                    path: fin.clone(),
+                    action: "move the finished output into place as",
+                    source,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.staged {
+            let _ = fs::remove_file(tmp);
+        }
+    }
+}
+
+/// `dir/.name.partial.ext`: same directory (so the final rename is atomic), same extension
+/// (so writers that look at it still work), hidden.
+fn staging_path(p: &Path) -> PathBuf {
+    let name = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = p.extension().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    p.with_file_name(format!(".{name}.partial.{ext}"))
+}

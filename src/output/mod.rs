@@ -13,7 +13,7 @@ pub mod metrics;
 pub mod png;
 pub mod report;
 
-pub use self::atomic::write_atomically;
+pub use self::atomic::{write_atomically, Staging};
 pub use self::error::OutputError;
 pub use self::exr::{read_exr, read_exr_layer, write_exr};
 pub use self::image::Image;

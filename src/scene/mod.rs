@@ -186,6 +186,43 @@ impl Scene {
     }
 }
 
+impl Scene {
+    /// This scene with `render.*` keys overridden (`render.spp`, `render.width`,
+    /// `render.height`, `render.seed`), validated as in a scene file: for measurements that
+    /// vary them on a loaded scene (a bench ladder's samples per pixel). Other keys change
+    /// what the scene is and must go through [`Scene::load`].
+    pub fn with_overrides(&self, overrides: &[(String, String)]) -> Result<Scene, SceneError> {
+        let mut out = self.clone();
+        for (key, value) in overrides {
+            let bad = |message: String| SceneError::Override { file: self.source.clone(), key: key.clone(), message };
+            let int = |max: u64| -> Result<u64, SceneError> {
+                value
+                    .trim()
+                    .parse::<u64>()
+                    .ok()
+                    .filter(|v| (1..=max).contains(v))
+                    .ok_or_else(|| bad(format!("{value:?} is out of range; use an integer in 1 ..= {max}")))
+            };
+            match key.as_str() {
+                "render.spp" => out.render.spp = int(u32::MAX as u64)? as u32,
+                "render.width" => out.render.width = int(MAX_IMAGE_SIZE as u64)? as u32,
+                "render.height" => out.render.height = int(MAX_IMAGE_SIZE as u64)? as u32,
+                "render.seed" => {
+                    out.render.seed =
+                        value.trim().parse().map_err(|_| bad(format!("{value:?} must be an integer >= 0")))?
+                }
+                _ => {
+                    return Err(bad(
+                        "only render.spp, render.width, render.height and render.seed can be applied to a loaded scene"
+                            .into(),
+                    ))
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// True if a `--set` key belongs to the scene (first segment `render`, `camera`, `medium` or
 /// `light`) rather than to a solver (`path.max_depth`).
 pub fn is_scene_key(key: &str) -> bool {

@@ -5,7 +5,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use serde::Serialize;
 
-use crate::gpu::{Buffer, Gpu, Image3d, Pass, Spec, VolumeFormat};
+use crate::gpu::{Buffer, Gpu, Image3d, Pass, Spec, SpecKind, VolumeFormat};
 use crate::scene::{CameraKind, Density, Light, Scene};
 
 use super::SolverError;
@@ -39,10 +39,15 @@ pub const LIGHT_POINT: f32 = 0.0;
 pub const LIGHT_DIRECTIONAL: f32 = 1.0;
 pub const LIGHT_ENVIRONMENT: f32 = 2.0;
 
-/// Specialisation constant ids shared by every kernel that includes scene.glsl.
+/// Specialisation constant ids shared by every kernel that includes scene.glsl (its
+/// `constant_id`s; every kernel's declaration is checked against its SPIR-V).
 pub const SPEC_DENSITY_KIND: u32 = 0;
 pub const SPEC_CHROMATIC: u32 = 1;
 pub const SPEC_ANISOTROPIC: u32 = 2;
+
+/// The specialisation constants of [`Modelled::spec`], as a kernel declares them.
+pub const SCENE_SPEC: &[(u32, SpecKind)] =
+    &[(SPEC_DENSITY_KIND, SpecKind::U32), (SPEC_CHROMATIC, SpecKind::Bool), (SPEC_ANISOTROPIC, SpecKind::Bool)];
 
 /// What a render modelled and what it skipped (DESIGN.md: "model only what a scene requires").
 #[derive(Clone, Debug, Serialize)]

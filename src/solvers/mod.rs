@@ -1,24 +1,57 @@
 //! Solvers: each turns a scene into radiance toward the camera, in the same units as `path`,
 //! by describing passes for the `gpu` layer. They never record barriers or semaphore waits.
+//!
+//! Every solver implements [`Solver`], which carries everything the rest of the program needs
+//! from it (knobs, render, memory estimate, bench ladder, stability variants, summary lines,
+//! kernels, typed stats), and is registered by one line in [`SOLVERS`]. The CLI and `measure`
+//! know solvers only through this interface. Parts that several solvers share live in their
+//! own files and never import a solver: [`gpu_scene`] (the scene on the device), [`view`] (the
+//! camera-ray march), [`marching`] (photon marching into voxel sums), [`lattice`] (the
+//! Lattice-Boltzmann lattice), [`wave_field`] (spherical-layer wavefront tracing),
+//! [`resumable`] (kernels that yield under llvmpipe's loop limit) and [`knobs`].
+//! `docs/architecture.md` has the checklist for adding a solver.
+
+/// An embedded, compiled shader: `glsl/<folder>/<pass>.comp` as `spirv/<folder>/<pass>.spv`
+/// (compiled by `tools/build-shaders`).
+macro_rules! shader {
+    ($name:literal) => {
+        crate::gpu::ShaderSource {
+            name: $name,
+            spirv: include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/spirv/", $name, ".spv")),
+        }
+    };
+}
 
 pub mod gpu_scene;
+pub mod knobs;
+pub mod lattice;
+pub mod marching;
+pub mod probes;
+pub mod resumable;
+pub mod view;
+pub mod wave_field;
+
 pub mod lbl;
 pub mod path;
-pub mod resumable;
-pub mod settings;
-pub mod shaders;
 pub mod single;
 pub mod wavefront;
+
+use std::any::Any;
+use std::sync::Arc;
 
 use serde::Serialize;
 use thiserror::Error;
 
-use crate::gpu::{Gpu, GpuError, PassTiming};
+use crate::gpu::{Gpu, GpuError, Kernel, PassTiming};
 use crate::output::Image;
 use crate::scene::Scene;
 
 pub use gpu_scene::Modelled;
-pub use settings::Settings;
+pub use knobs::{Knob, Knobs, Range, Settings};
+
+/// Every solver this build ships, in the order they are listed and benched. Adding a solver
+/// is one line here (plus its own file and shader folder): `docs/architecture.md`.
+pub static SOLVERS: &[&dyn Solver] = &[&path::Path, &single::Single, &lbl::Lbl, &wavefront::Wavefront];
 
 #[derive(Debug, Error)]
 #[non_exhaustive]
@@ -31,29 +64,135 @@ pub enum SolverError {
     Unsupported(String),
 }
 
-/// The solvers this build ships.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum SolverKind {
-    /// Volumetric path tracer: the unbiased ground truth.
-    Path,
-    /// Single scattering by ray marching: the direct term.
-    Single,
-    /// Photon marching + Lattice-Boltzmann diffusion on concurrent queues (thesis ch. 4).
-    Lbl,
-    /// Wavefront tracing of homogeneous spherical layers around point lights (wavefront paper).
-    Wavefront,
+/// A solver: a way of computing radiance toward the camera, with its own knobs and its own
+/// idea of quality. Implementations are unit structs registered in [`SOLVERS`].
+pub trait Solver: Sync {
+    /// Its name on the command line and the prefix of its knobs (`--solver lbl`,
+    /// `--set lbl.grid=32`).
+    fn name(&self) -> &'static str;
+    /// One line: what it computes, and from which paper.
+    fn about(&self) -> &'static str;
+    /// The unbiased ground truth the others are measured against (exactly one solver).
+    fn is_reference(&self) -> bool {
+        false
+    }
+    /// Every knob with its default, range and meaning: the one place they are written.
+    fn knobs(&self) -> Vec<Knob>;
+    /// Every compute kernel its passes may run (checked against SPIR-V reflection in tests).
+    fn kernels(&self) -> Vec<Kernel>;
+    /// Render the scene. Knobs come from `req.settings` through [`RenderRequest::knobs`].
+    fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError>;
+    /// Device bytes a render of `scene` with these knobs would allocate (`scene info`).
+    fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError>;
+    /// Its quality ladder for `bench`, cheapest first (at least three rungs: `--quick` keeps
+    /// three).
+    fn ladder(&self, scene: &Scene) -> Vec<Rung>;
+    /// How `stability` runs it: at least one variant; each judged separately.
+    fn stability(&self) -> Vec<Variant>;
+    /// Lines for the terminal after a render, beyond what every render prints.
+    fn summary(&self, _report: &RenderReport) -> Vec<String> {
+        Vec::new()
+    }
 }
 
-impl SolverKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            SolverKind::Path => "path",
-            SolverKind::Single => "single",
-            SolverKind::Lbl => "lbl",
-            SolverKind::Wavefront => "wavefront",
+/// One rung of a quality ladder: the knob it turns (a full key: `lbl.grid`, or the scene's
+/// `render.spp`), its value, and every key it sets.
+#[derive(Clone, Debug, Serialize)]
+pub struct Rung {
+    pub knob: String,
+    pub value: String,
+    pub sets: Vec<(String, String)>,
+}
+
+impl Rung {
+    /// A rung that sets one key.
+    pub fn one(knob: &str, value: impl ToString) -> Rung {
+        let value = value.to_string();
+        Rung { knob: knob.to_string(), value: value.clone(), sets: vec![(knob.to_string(), value)] }
+    }
+}
+
+/// A way `stability` runs a solver.
+#[derive(Clone, Debug)]
+pub struct Variant {
+    /// Empty for the solver as it is; else what this variant changes (`explicit`).
+    pub name: String,
+    /// Keys it sets: knobs that keep the sweep cheap on a CPU device, and what makes the
+    /// variant (scene keys such as `render.spp` are allowed).
+    pub sets: Vec<(String, String)>,
+    /// Whether it runs on a scene (`path`'s camera-paths variant only where its default
+    /// light-traces: elsewhere the two are the same render).
+    pub applies: fn(&Scene) -> bool,
+}
+
+impl Variant {
+    pub fn new(name: &str, sets: &[(&str, &str)]) -> Variant {
+        Variant {
+            name: name.to_string(),
+            sets: sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
+            applies: |_| true,
         }
     }
+}
+
+/// Whether a solver's work on two queue roles may overlap (DESIGN.md, "Queues and schedule"):
+/// a solver with concurrent work has a `schedule` knob taking these values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Schedule {
+    /// Work on the two roles overlaps (thesis Fig. 4.1: tracing round n runs while diffusion
+    /// of round n-1 runs).
+    Concurrent,
+    /// The same passes, each waiting for the other role: no overlap.
+    Sequential,
+}
+
+impl Schedule {
+    pub fn name(self) -> &'static str {
+        match self {
+            Schedule::Concurrent => "concurrent",
+            Schedule::Sequential => "sequential",
+        }
+    }
+}
+
+impl std::str::FromStr for Schedule {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "concurrent" => Ok(Schedule::Concurrent),
+            "sequential" => Ok(Schedule::Sequential),
+            _ => Err(format!("unknown schedule {s:?}; use concurrent or sequential")),
+        }
+    }
+}
+
+/// The registered solver called `name`.
+pub fn find(name: &str) -> Result<&'static dyn Solver, SolverError> {
+    SOLVERS.iter().copied().find(|s| s.name() == name).ok_or_else(|| {
+        SolverError::Unsupported(format!("unknown solver {name:?}; this build has {}", names().join(", ")))
+    })
+}
+
+/// The names of every registered solver.
+pub fn names() -> Vec<&'static str> {
+    SOLVERS.iter().map(|s| s.name()).collect()
+}
+
+/// Every kernel of every registered solver and of the test probes, each shader once.
+pub fn kernels() -> Vec<Kernel> {
+    let mut out: Vec<Kernel> = Vec::new();
+    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(probes::kernels()) {
+        if !out.iter().any(|o| o.shader.name == k.shader.name) {
+            out.push(k);
+        }
+    }
+    out
+}
+
+/// The ground truth (`path`).
+pub fn reference() -> &'static dyn Solver {
+    *SOLVERS.iter().find(|s| s.is_reference()).expect("one registered solver is the reference")
 }
 
 /// Everything a render needs besides the scene.
@@ -67,6 +206,13 @@ pub struct RenderRequest<'a> {
     pub progress: &'a dyn Fn(u64, u64),
 }
 
+impl RenderRequest<'_> {
+    /// The solver's knob values, checked against its table.
+    pub fn knobs(&self, solver: &dyn Solver) -> Result<Knobs, SolverError> {
+        self.settings.knobs(solver.name(), solver.knobs())
+    }
+}
+
 /// A finished render: the image, its per-pixel variance where the solver is Monte Carlo, and
 /// what was done to make it.
 pub struct RenderOutput {
@@ -77,72 +223,165 @@ pub struct RenderOutput {
 
 impl RenderOutput {
     /// The variance of the sum of every pixel value (all channels), for judging image totals:
-    /// the per-pixel variances where pixels are independent (camera paths), plus the
-    /// light-traced part's own, from its batches (one light path adds to many pixels, so its
-    /// pixels covary; counting its per-pixel variances too is conservative). 0 for
-    /// deterministic solvers.
+    /// the per-pixel variances where pixels are independent (camera paths), plus the part
+    /// whose pixels covary (`path`'s light-traced part, from its batches; counting its
+    /// per-pixel variances too is conservative). 0 for deterministic solvers.
     pub fn total_variance(&self) -> f64 {
         let per_pixel: f64 = self.variance.as_ref().map_or(0.0, |v| v.data.iter().map(|x| *x as f64).sum());
         let n = self.image.data.len() as f64;
-        per_pixel + (n * self.light_traced_mean_stderr()).powi(2)
-    }
-
-    /// The standard error of the image mean (over pixels and channels) of `path`'s
-    /// light-traced part, from its batches; 0 when nothing was light traced.
-    pub fn light_traced_mean_stderr(&self) -> f64 {
-        self.report.stats.get("light_paths").and_then(|l| l["image_mean_stderr"].as_f64()).unwrap_or(0.0)
+        per_pixel + (n * self.report.stats.correlated_mean_stderr).powi(2)
     }
 }
 
+/// What a render did, beside the image.
 #[derive(Clone, Debug, Serialize)]
 pub struct RenderReport {
-    pub solver: SolverKind,
+    pub solver: &'static str,
+    /// The knobs it ran with, defaults included (`Knobs::json`).
     pub settings: serde_json::Value,
     pub modelled: Modelled,
     pub device_bytes: u64,
     pub passes: Vec<PassTiming>,
     pub gpu_ms: f64,
-    pub stats: serde_json::Value,
+    pub stats: Stats,
     pub warnings: Vec<String>,
 }
 
-/// Run `kind` on the scene.
-pub fn render(gpu: &Gpu, kind: SolverKind, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
-    match kind {
-        SolverKind::Path => path::render(gpu, req),
-        SolverKind::Single => single::render(gpu, req),
-        SolverKind::Lbl => lbl::render(gpu, req),
-        SolverKind::Wavefront => wavefront::render(gpu, req),
+impl RenderReport {
+    /// The report of a finished render: takes the GPU's pass timings.
+    pub fn finish(
+        gpu: &Gpu,
+        solver: &dyn Solver,
+        knobs: &Knobs,
+        modelled: Modelled,
+        device_bytes: u64,
+        stats: Stats,
+    ) -> RenderReport {
+        let passes = gpu.take_timings();
+        RenderReport {
+            solver: solver.name(),
+            settings: knobs.json(),
+            modelled,
+            device_bytes,
+            gpu_ms: passes.iter().map(|p| p.duration_ms()).sum(),
+            passes,
+            stats,
+            warnings: Vec::new(),
+        }
+    }
+
+    /// The solver's own stats, typed (`report.detail::<lbl::LblStats>()`).
+    pub fn detail<T: 'static>(&self) -> Option<&T> {
+        // Through the trait object: `Arc<dyn Detail>` is itself a `Detail` (the blanket impl),
+        // and method lookup on the Arc would downcast the Arc.
+        let detail: &dyn Detail = self.stats.detail.as_ref();
+        detail.as_any().downcast_ref::<T>()
     }
 }
 
-/// Device memory a solver would allocate for this scene, in bytes (for `scene info`).
-pub fn memory_estimate(kind: SolverKind, scene: &Scene) -> u64 {
-    let pixels = scene.render.width as u64 * scene.render.height as u64;
-    gpu_scene::scene_bytes(scene)
-        + match kind {
-            SolverKind::Path => {
-                pixels * (path::ACCUM_BYTES_PER_PIXEL + path::LIGHT_BYTES_PER_PIXEL)
-                    + 2 * resumable::STATS_WORDS * 4
-                    + 16
-            }
-            SolverKind::Single => pixels * (16 + single::STATE_BYTES_PER_PIXEL) + resumable::STATS_WORDS * 4,
-            SolverKind::Lbl => {
-                // Default knobs: 64 voxels along the longest side, 3 channels at most, 65536
-                // rays per light with 16 history slots, plus the view march.
-                let g = lbl::LatticeGeom::new(scene, 64).voxels();
-                let rays = 65536 * scene.lights.len() as u64;
-                g * 4 * (1 + 2 * 7 * 3 + 3 + 3) + rays * (48 + 16 * 16) + pixels * (16 + single::STATE_BYTES_PER_PIXEL)
-            }
-            SolverKind::Wavefront => {
-                // Default knobs: 64 x 32 rays x 129 nodes x 3 vec4 + shells, a 64-voxel
-                // Cartesian volume with 3 channels of fluence and flux, plus the view march.
-                let g = lbl::LatticeGeom::new(scene, 64).voxels();
-                64 * 32 * (129 * 48 + 128 * 4) + g * 4 * 12 + pixels * (16 + single::STATE_BYTES_PER_PIXEL)
-            }
-        }
+/// What every render reports, typed: `measure` reads these fields, never JSON.
+#[derive(Clone, Debug, Serialize)]
+pub struct Stats {
+    /// Iterative solvers: how the iteration ended.
+    pub convergence: Option<Convergence>,
+    /// Monte Carlo solvers: samples per pixel.
+    pub spp: Option<u32>,
+    /// The standard error of the image mean (over pixels and channels) beyond what the
+    /// per-pixel variances give: the part of a Monte Carlo image whose pixels covary
+    /// (`path`'s light-traced part). 0 otherwise.
+    pub correlated_mean_stderr: f64,
+    /// Internal values that went negative or non-finite and were cleaned up before they reached
+    /// the image (so the image alone does not show them): a failure for `stability`.
+    pub faults: u64,
+    /// Throughput figures of this render (samples/s, lattice voxel-updates/s, ...).
+    pub throughput: Vec<Figure>,
+    /// The solver's own stats (serialised as they are; typed via [`RenderReport::detail`]).
+    pub detail: Arc<dyn Detail>,
 }
 
-pub(crate) fn gpu_ms(passes: &[PassTiming]) -> f64 {
-    passes.iter().map(|p| p.duration_ms()).sum()
+impl Stats {
+    pub fn new(detail: impl Detail) -> Stats {
+        Stats {
+            convergence: None,
+            spp: None,
+            correlated_mean_stderr: 0.0,
+            faults: 0,
+            throughput: Vec::new(),
+            detail: Arc::new(detail),
+        }
+    }
+}
+
+/// How an iterative solve ended.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Convergence {
+    pub iterations: u64,
+    pub converged: bool,
+    /// The change measure at the last check, beside the tolerance it was held to.
+    pub final_change: f64,
+    pub tolerance: f64,
+}
+
+/// A throughput figure: what, how much, in what unit.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Figure {
+    pub figure: String,
+    pub value: f64,
+    pub unit: String,
+}
+
+/// A solver's own stats: any serialisable type (a struct per solver).
+pub trait Detail: erased_serde::Serialize + Any + std::fmt::Debug + Send + Sync {
+    fn as_any(&self) -> &dyn Any;
+}
+
+impl<T: Serialize + Any + std::fmt::Debug + Send + Sync> Detail for T {
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
+erased_serde::serialize_trait_object!(Detail);
+
+/// Device memory a solver would allocate for this scene with these knob settings (its own
+/// among them; the others' are ignored), in bytes.
+pub fn memory_estimate(solver: &dyn Solver, scene: &Scene, settings: &Settings) -> Result<u64, SolverError> {
+    let knobs = settings.only(solver.name()).knobs(solver.name(), solver.knobs())?;
+    solver.memory_estimate(scene, &knobs)
+}
+
+/// The memory estimate of each of `solvers` for `scene` (`scene info`).
+pub fn memory_table(
+    scene: &Scene,
+    solvers: &[&dyn Solver],
+    settings: &Settings,
+) -> Result<Vec<(&'static str, u64)>, SolverError> {
+    solvers.iter().map(|s| Ok((s.name(), memory_estimate(*s, scene, settings)?))).collect()
+}
+
+/// Check knob settings for any of `solvers` before work starts: every key names one of them
+/// and a knob of its table, with a value in range.
+pub fn check_settings(settings: &Settings, solvers: &[&dyn Solver]) -> Result<(), SolverError> {
+    for (key, _) in settings.pairs() {
+        let owner = key.split('.').next().unwrap_or("");
+        if !solvers.iter().any(|s| s.name() == owner) {
+            let names: Vec<&str> = solvers.iter().map(|s| s.name()).collect();
+            return Err(SolverError::Setting {
+                key: key.to_string(),
+                reason: format!(
+                    "unknown key; scene keys start with render., camera., medium. or light., solver knobs with a solver name ({})",
+                    names.join(", ")
+                ),
+            });
+        }
+    }
+    for s in solvers {
+        settings.only(s.name()).knobs(s.name(), s.knobs())?;
+    }
+    Ok(())
+}
+
+/// The warning every solver gives when its image had non-finite pixels zeroed.
+pub(crate) fn nonfinite_warning(pixels: u32) -> Option<String> {
+    (pixels > 0).then(|| format!("{pixels} pixels were not finite and were set to 0 (a bug: please report the scene)"))
 }

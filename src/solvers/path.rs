@@ -3,46 +3,46 @@
 //! environment, spectral tracking for chromatic media, Russian roulette; progressive
 //! accumulation in batches, with the per-pixel variance of the mean beside the mean.
 //!
-//! Knobs (`--set path.KEY=VALUE`):
-//! - `max_depth`: scattering events per path (default unbounded; 1 = single scattering);
-//! - `batch`: samples per pixel between progress updates (default: about 2^20 pixel-samples);
-//! - `budget`: loop iterations per invocation per dispatch (default 4096; the kernel is
-//!   resumable, see glsl/include/budget.glsl: llvmpipe silently ends every loop of an
-//!   invocation after 65535 iterations, and real GPUs' watchdogs dislike long dispatches);
-//! - `collision_cap`: safety cap on tentative collisions per path (default 2^20); a path that
-//!   hits it is dropped and counted, and the count is reported as a warning (it biases low).
-//! - `equiangular`: `true` (default) samples every point light also by equiangular sampling
-//!   along each ray segment in the medium (Kulla & Fajardo 2012, "Importance sampling
-//!   techniques for path tracing in participating media"), combined by MIS (power heuristic)
-//!   with next-event estimation from the distance-sampled scattering point; this tames the
-//!   1/r^2 variance of a point light inside the medium. `false` is plain distance sampling.
-//!   Both are unbiased; directional and environment lights are unaffected.
-//! - `light_tracing`: which point lights are rendered by light paths (glsl/path/light.comp)
-//!   instead of camera paths: `auto` (default) those strictly inside the medium, unless a
-//!   pinhole camera is inside it too or the light is so deep in a nearly lossless medium that
-//!   its paths would not get out within the collision cap (then a warning names it) or in
-//!   optically thin surroundings (`THIN_DEPTH`), `on` every point light, `off` none. A light-traced light is skipped by the camera paths, so the
-//!   image is a partition of the paths by light, and the two estimates add (means and
-//!   variances) without MIS. A point light deep inside a scattering medium is the case camera
-//!   paths handle worst (deep-penetration noise: they reach the light's neighbourhood only by
-//!   rare long random walks; equiangular sampling fixes the 1/r^2 spikes, not that) and
-//!   light paths best: measured in docs/measurements.md. At most 32 lights (the first 32)
-//!   can be light traced. "spp" is the same budget for both: `spp` light paths per pixel.
-//! - `light_batches`: independent batches the light paths are split into (default 16, at most
-//!   spp); the per-pixel variance of a light-traced image comes from the spread of the batch
-//!   images, since one light path adds to many pixels.
+//! Samples per pixel are the scene's `render.spp` (`--spp N`). Knobs: `scatterlab knobs path`
+//! (max depth, batch, budget, collision cap, equiangular sampling, light tracing).
+//!
+//! Equiangular sampling (`equiangular`, default on) samples every point light also along each
+//! ray segment in the medium (Kulla & Fajardo 2012, "Importance sampling techniques for path
+//! tracing in participating media"), combined by MIS (power heuristic) with next-event
+//! estimation from the distance-sampled scattering point: it tames the 1/r^2 variance of a
+//! point light inside the medium. Both are unbiased; directional and environment lights are
+//! unaffected.
+//!
+//! Light tracing (`light_tracing`): which point lights are rendered by light paths
+//! (glsl/path/light.comp) instead of camera paths: `auto` (default) those strictly inside the
+//! medium, unless a pinhole camera is inside it too or the light is so deep in a nearly
+//! lossless medium that its paths would not get out within the collision cap (then a warning
+//! names it) or in optically thin surroundings (`THIN_DEPTH`); `on` every point light, `off`
+//! none. A light-traced light is skipped by the camera paths, so the image is a partition of
+//! the paths by light, and the two estimates add (means and variances) without MIS. A point
+//! light deep inside a scattering medium is the case camera paths handle worst
+//! (deep-penetration noise: they reach the light's neighbourhood only by rare long random
+//! walks; equiangular sampling fixes the 1/r^2 spikes, not that) and light paths best:
+//! measured in docs/measurements.md. At most 32 lights (the first 32) can be light traced.
+//! "spp" is the same budget for both: `spp` light paths per pixel, split into `light_batches`
+//! independent batches whose spread gives the per-pixel variance (one light path adds to many
+//! pixels).
 
 use bytemuck::{Pod, Zeroable};
-use serde_json::json;
-
-use crate::gpu::{Gpu, Pass, QueueRole};
-use crate::output::Image;
 use glam::Vec3;
+use serde::Serialize;
 
+use crate::gpu::{Gpu, Kernel, Pass, QueueRole};
+use crate::output::Image;
 use crate::scene::{CameraKind, Light, Scene};
 
-use super::gpu_scene::GpuScene;
-use super::{resumable, shaders, RenderOutput, RenderReport, RenderRequest, SolverError, SolverKind};
+use super::gpu_scene::{self, GpuScene, SCENE_SPEC};
+use super::{
+    resumable, Figure, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats,
+    Variant,
+};
+
+pub struct Path;
 
 /// Per pixel: sum of L and the sample count, then sum of L^2 (two vec4), plus the path state.
 pub const ACCUM_BYTES_PER_PIXEL: u64 = 32 + STATE_BYTES_PER_PIXEL;
@@ -83,6 +83,11 @@ pub struct LightPush {
     /// Sum of the mean intensities (W/sr) of the light-traced lights.
     pub power_sum: f32,
 }
+
+pub const TRACE: Kernel =
+    Kernel { shader: shader!("path/trace"), push_bytes: std::mem::size_of::<PathPush>(), spec: SCENE_SPEC };
+pub const LIGHT: Kernel =
+    Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: SCENE_SPEC };
 
 /// Per path slot of the light kernel: the 64-bit fixed-point splat sums (3 channels x 2
 /// words) of its pixel and the resumable state (`LightState`, 64 bytes).
@@ -224,106 +229,227 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
     Ok((traced, notes))
 }
 
-pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
-    let scene = req.scene;
-    let s = req.settings;
-    let (w, h) = (scene.render.width, scene.render.height);
-    let pixels = w as u64 * h as u64;
-    let spp: u32 = s.get("path", "spp", scene.render.spp)?;
-    let max_depth_raw: String = s.get("path", "max_depth", "unbounded".to_string())?;
-    let max_depth = if max_depth_raw == "unbounded" {
+/// `path`'s own stats.
+#[derive(Clone, Debug, Serialize)]
+pub struct PathStats {
+    /// Lights rendered by light paths (indices into the scene's lights).
+    pub light_traced: Vec<usize>,
+    /// Camera paths, when any light was left to them.
+    pub camera: Option<CameraStats>,
+    /// Light paths, when any light was traced from the light side.
+    pub light_paths: Option<LightStats>,
+    pub samples_per_second: f64,
+}
+
+/// What the camera-path kernel did.
+#[derive(Clone, Debug, Serialize)]
+pub struct CameraStats {
+    pub truncated_paths: u64,
+    pub dispatches: u64,
+    pub max_loop_iterations: u32,
+    /// Counted in 32 bits on the GPU per render; wraps past 4e9 (a lower bound then).
+    pub tracking_steps: u32,
+}
+
+/// What the light-path kernel did.
+#[derive(Clone, Debug, Serialize)]
+pub struct LightStats {
+    pub paths: f64,
+    pub batches: u32,
+    /// The light-traced part's image mean (over pixels and channels), from the batches, and
+    /// its standard error.
+    pub image_mean: f64,
+    pub image_mean_stderr: f64,
+    pub truncated_paths: u32,
+    pub clamped_splats: u32,
+    pub splats: u32,
+    pub dispatches: u64,
+    pub max_loop_iterations: u32,
+    pub tracking_steps: u32,
+}
+
+/// `path.max_depth` as the kernels take it (`unbounded` is `UNBOUNDED`).
+fn max_depth(k: &Knobs) -> Result<u32, SolverError> {
+    let raw: String = k.get("max_depth")?;
+    Ok(if raw == "unbounded" {
         UNBOUNDED
     } else {
-        max_depth_raw.parse::<u32>().map_err(|e| SolverError::Setting {
-            key: "path.max_depth".into(),
-            reason: format!("cannot parse {max_depth_raw:?}: {e}; give a count of scattering events or `unbounded`"),
-        })?
-    };
-    let default_batch = ((1u64 << 20) / pixels.max(1)).clamp(1, 1024) as u32;
-    let batch: u32 = s.get("path", "batch", default_batch)?;
-    let budget: u32 = s.get("path", "budget", resumable::DEFAULT_BUDGET)?;
-    let collision_cap: u32 = s.get("path", "collision_cap", DEFAULT_COLLISION_CAP)?;
-    let equiangular: bool = s.get("path", "equiangular", true)?;
-    let lt_mode: String = s.get("path", "light_tracing", "auto".to_string())?;
-    let light_batches: u32 = s.get("path", "light_batches", 16u32)?;
-    s.check_all_used("path")?;
-    if spp == 0 || batch == 0 || light_batches == 0 {
-        return Err(SolverError::Setting {
-            key: "path.spp/path.batch/path.light_batches".into(),
-            reason: "must be at least 1".into(),
+        raw.parse::<u32>().map_err(|e| k.invalid("max_depth", e.to_string()))?
+    })
+}
+
+impl Solver for Path {
+    fn name(&self) -> &'static str {
+        "path"
+    }
+
+    fn about(&self) -> &'static str {
+        "volumetric path tracer with NEE, equiangular sampling and light tracing: the unbiased ground truth"
+    }
+
+    fn is_reference(&self) -> bool {
+        true
+    }
+
+    fn knobs(&self) -> Vec<Knob> {
+        vec![
+            Knob::fixed(
+                "max_depth",
+                "unbounded",
+                Range::IntOr { min: 0, max: (UNBOUNDED - 1) as u64, word: "unbounded" },
+                "scattering events per path (1: single scattering)",
+            ),
+            Knob::derived(
+                "batch",
+                "about 2^20 pixel-samples, 1 to 1024 spp",
+                Range::int(1, u32::MAX as u64),
+                "samples per pixel between progress updates",
+            ),
+            resumable::budget_knob(),
+            Knob::fixed(
+                "collision_cap",
+                "1048576",
+                Range::int(1, u32::MAX as u64),
+                "tentative collisions per path at most; a path that hits it is dropped, counted and warned of (biases low)",
+            ),
+            Knob::fixed(
+                "equiangular",
+                "true",
+                Range::Bool,
+                "also sample point lights by equiangular sampling along each ray, combined by MIS (Kulla & Fajardo 2012)",
+            ),
+            Knob::fixed(
+                "light_tracing",
+                "auto",
+                Range::Choice(&["auto", "on", "off"]),
+                "point lights rendered by light paths: auto (inside the medium, where it pays), on (all), off (none)",
+            ),
+            Knob::fixed(
+                "light_batches",
+                "16",
+                Range::int(1, u32::MAX as u64),
+                "independent batches of light paths (at most spp), whose spread gives the variance",
+            ),
+        ]
+    }
+
+    fn kernels(&self) -> Vec<Kernel> {
+        vec![TRACE, LIGHT]
+    }
+
+    fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
+        let scene = req.scene;
+        let k = req.knobs(self)?;
+        let (w, h) = (scene.render.width, scene.render.height);
+        let pixels = w as u64 * h as u64;
+        let spp = scene.render.spp;
+        let max_depth = max_depth(&k)?;
+        let default_batch = ((1u64 << 20) / pixels.max(1)).clamp(1, 1024) as u32;
+        let batch: u32 = k.get_or("batch", default_batch)?;
+        let budget: u32 = k.get("budget")?;
+        let collision_cap: u32 = k.get("collision_cap")?;
+        let equiangular: bool = k.get("equiangular")?;
+        let lt_mode: String = k.get("light_tracing")?;
+        let light_batches: u32 = k.get("light_batches")?;
+        k.finish()?;
+        let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
+        let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
+        // Camera paths are needed for every light not traced from the light side.
+        let camera_lights = scene.lights.len() - traced.len();
+
+        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+        let seed = scene.render.seed;
+        let kernels = (camera_lights > 0) as u64 + (!traced.is_empty()) as u64;
+        let total = spp as u64 * kernels.max(1);
+        (req.progress)(0, total);
+
+        let common = Common { gpu, gs: &gs, w, h, spp, budget, seed, max_depth, collision_cap, light_mask };
+        let camera = if camera_lights > 0 || traced.is_empty() {
+            Some(camera_paths(&common, batch, equiangular, &|done| (req.progress)(done, total))?)
+        } else {
+            None
+        };
+        let offset = if camera.is_some() { spp as u64 } else { 0 };
+        let light = if traced.is_empty() {
+            None
+        } else {
+            Some(light_paths(&common, scene, &traced, light_batches.min(spp), &|done| {
+                (req.progress)(offset + done, total)
+            })?)
+        };
+
+        // The two kernels estimate disjoint sets of paths (partition by light): means and
+        // variances (independent estimates) add.
+        let mut image = Image::new(w, h);
+        let mut variance = Image::new(w, h);
+        let mut warnings = lt_notes;
+        let mut device_bytes = gs.bytes;
+        for part in [camera.as_ref().map(|c| &c.0), light.as_ref().map(|l| &l.0)].into_iter().flatten() {
+            for (a, b) in image.data.iter_mut().zip(&part.image.data) {
+                *a += b;
+            }
+            for (a, b) in variance.data.iter_mut().zip(&part.variance.data) {
+                *a += b;
+            }
+            warnings.extend(part.warnings.iter().cloned());
+            device_bytes += part.device_bytes;
+        }
+        let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device_bytes, Stats::new(()));
+        let seconds = report.gpu_ms * 1e-3;
+        let per_second = |x: f64| if seconds > 0.0 { x / seconds } else { 0.0 };
+        let samples = (pixels * spp as u64) as f64;
+        let steps = camera.as_ref().map_or(0, |c| c.1.tracking_steps) as f64
+            + light.as_ref().map_or(0, |l| l.1.tracking_steps) as f64;
+        let mut stats = Stats::new(PathStats {
+            light_traced: traced,
+            camera: camera.as_ref().map(|c| c.1.clone()),
+            light_paths: light.as_ref().map(|l| l.1.clone()),
+            samples_per_second: per_second(samples),
         });
+        stats.spp = Some(spp);
+        stats.correlated_mean_stderr = light.as_ref().map_or(0.0, |l| l.1.image_mean_stderr);
+        stats.throughput = vec![
+            Figure { figure: "samples/s".into(), value: per_second(samples), unit: "1/s".into() },
+            Figure { figure: "path segments/s".into(), value: per_second(steps), unit: "1/s".into() },
+        ];
+        report.stats = stats;
+        report.warnings = warnings;
+        Ok(RenderOutput { image, variance: Some(variance), report })
     }
-    resumable::check_budget("path.budget", budget)?;
-    let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
-    let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
-    // Camera paths are needed for every light not traced from the light side.
-    let camera_lights = scene.lights.len() - traced.len();
 
-    let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-    let seed = scene.render.seed;
-    let kernels = (camera_lights > 0) as u64 + (!traced.is_empty()) as u64;
-    let total = spp as u64 * kernels.max(1);
-    (req.progress)(0, total);
+    fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
+        let pixels = scene.render.width as u64 * scene.render.height as u64;
+        let mode: String = knobs.get("light_tracing")?;
+        let (traced, _) = light_traced(scene, &mode, knobs.get("collision_cap")?)?;
+        let stats = resumable::STATS_WORDS * 4;
+        let camera = if traced.len() < scene.lights.len() || traced.is_empty() {
+            pixels * (32 + STATE_BYTES_PER_PIXEL) + stats
+        } else {
+            0
+        };
+        let light = if traced.is_empty() { 0 } else { pixels * LIGHT_BYTES_PER_PIXEL + stats + 16 };
+        Ok(gpu_scene::scene_bytes(scene) + camera + light)
+    }
 
-    let common = Common { gpu, gs: &gs, w, h, spp, budget, seed, max_depth, collision_cap, light_mask };
-    let camera = if camera_lights > 0 || traced.is_empty() {
-        Some(camera_paths(&common, batch, equiangular, &|done| (req.progress)(done, total))?)
-    } else {
-        None
-    };
-    let offset = if camera.is_some() { spp as u64 } else { 0 };
-    let light = if traced.is_empty() {
-        None
-    } else {
-        Some(light_paths(&common, scene, &traced, light_batches.min(spp), &|done| {
-            (req.progress)(offset + done, total)
-        })?)
-    };
+    fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
+        [4u32, 16, 64, 256, 1024].iter().map(|s| Rung::one("render.spp", s)).collect()
+    }
 
-    // The two kernels estimate disjoint sets of paths (partition by light): means and
-    // variances (independent estimates) add.
-    let mut image = Image::new(w, h);
-    let mut variance = Image::new(w, h);
-    let mut warnings = lt_notes;
-    let mut stats = serde_json::Map::new();
-    let mut device_bytes = gs.bytes;
-    for part in [camera.as_ref(), light.as_ref()].into_iter().flatten() {
-        for (a, b) in image.data.iter_mut().zip(&part.image.data) {
-            *a += b;
+    fn stability(&self) -> Vec<Variant> {
+        // Where the default light-traces (a point light inside the medium), camera paths alone
+        // too, so both of its estimators meet the extremes.
+        let mut camera = Variant::new("camera paths", &[("render.spp", "64"), ("path.light_tracing", "off")]);
+        camera.applies = |scene| light_traced(scene, "auto", DEFAULT_COLLISION_CAP).is_ok_and(|(t, _)| !t.is_empty());
+        vec![Variant::new("", &[("render.spp", "64")]), camera]
+    }
+
+    fn summary(&self, report: &RenderReport) -> Vec<String> {
+        let Some(p) = report.detail::<PathStats>() else { return Vec::new() };
+        if p.light_traced.is_empty() {
+            return Vec::new();
         }
-        for (a, b) in variance.data.iter_mut().zip(&part.variance.data) {
-            *a += b;
-        }
-        warnings.extend(part.warnings.iter().cloned());
-        device_bytes += part.device_bytes;
+        vec![format!("path: light {:?} rendered by light paths, the rest by camera paths", p.light_traced)]
     }
-    let passes = gpu.take_timings();
-    let gpu_ms = super::gpu_ms(&passes);
-    if let Some(c) = &camera {
-        stats.extend(c.stats.as_object().cloned().unwrap_or_default());
-    }
-    if let Some(l) = &light {
-        stats.insert("light_paths".into(), l.stats.clone());
-    }
-    stats.insert(
-        "samples_per_second".into(),
-        json!(if gpu_ms > 0.0 { (pixels * spp as u64) as f64 / (gpu_ms * 1e-3) } else { 0.0 }),
-    );
-    let report = RenderReport {
-        solver: SolverKind::Path,
-        settings: json!({
-            "spp": spp, "max_depth": if max_depth == UNBOUNDED { json!("unbounded") } else { json!(max_depth) }, "batch": batch,
-            "budget": budget, "collision_cap": collision_cap, "equiangular": equiangular, "seed": seed,
-            "light_tracing": lt_mode, "light_traced": traced, "light_batches": light_batches.min(spp),
-        }),
-        modelled: gs.modelled.clone(),
-        device_bytes,
-        gpu_ms,
-        passes,
-        stats: serde_json::Value::Object(stats),
-        warnings,
-    };
-    Ok(RenderOutput { image, variance: Some(variance), report })
 }
 
 /// What both kernels share.
@@ -359,16 +485,20 @@ impl Common<'_> {
 struct Part {
     image: Image,
     variance: Image,
-    stats: serde_json::Value,
     warnings: Vec<String>,
     device_bytes: u64,
 }
 
 /// Camera paths (glsl/path/trace.comp) for every light not in `c.light_mask`.
-fn camera_paths(c: &Common, batch: u32, equiangular: bool, progress: &dyn Fn(u64)) -> Result<Part, SolverError> {
+fn camera_paths(
+    c: &Common,
+    batch: u32,
+    equiangular: bool,
+    progress: &dyn Fn(u64),
+) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
-    let pipeline = gpu.pipeline(&shaders::PATH_TRACE, &gs.modelled.spec())?;
+    let pipeline = gpu.pipeline(&TRACE, &gs.modelled.spec())?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
     let stats = gpu.buffer("path stats", resumable::STATS_WORDS * 4)?;
@@ -400,19 +530,11 @@ fn camera_paths(c: &Common, batch: u32, equiangular: bool, progress: &dyn Fn(u64
             c.collision_cap
         ));
     }
-    Ok(Part {
-        image,
-        variance,
-        stats: json!({
-            "truncated_paths": truncated,
-            "dispatches": dispatches,
-            "max_loop_iterations": st[2],
-            // Counted in 32 bits on the GPU per render; wraps past 4e9 (reported as a lower bound).
-            "tracking_steps": st[1],
-        }),
-        warnings,
-        device_bytes: accum.size() + state.size() + stats.size(),
-    })
+    let part = Part { image, variance, warnings, device_bytes: accum.size() + state.size() + stats.size() };
+    Ok((
+        part,
+        CameraStats { truncated_paths: truncated, dispatches, max_loop_iterations: st[2], tracking_steps: st[1] },
+    ))
 }
 
 /// The typical size of one camera connection of a light path, W/(m^2 sr) per path: the
@@ -446,7 +568,7 @@ fn light_paths(
     traced: &[usize],
     batches: u32,
     progress: &dyn Fn(u64),
-) -> Result<Part, SolverError> {
+) -> Result<(Part, LightStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
     let power_sum: f64 = traced
@@ -457,7 +579,7 @@ fn light_paths(
         })
         .sum();
     let inv_quantum = QUANTA_PER_TYPICAL_SPLAT / typical_splat(scene, power_sum);
-    let pipeline = gpu.pipeline(&shaders::PATH_LIGHT, &gs.modelled.spec())?;
+    let pipeline = gpu.pipeline(&LIGHT, &gs.modelled.spec())?;
     let splats = gpu.buffer("light splats", pixels * 24)?;
     let state = gpu.buffer("light path state", pixels * 64)?;
     let stats = gpu.buffer("light path stats", resumable::STATS_WORDS * 4)?;
@@ -546,23 +668,21 @@ fn light_paths(
     if ls[0] > 0 {
         warnings.push(format!("{} light-path splats exceeded 2^16 times the typical splat and were clamped; the image is biased low there", ls[0]));
     }
-    Ok(Part {
-        image,
-        variance,
-        stats: json!({
-            "paths": n_total,
-            "batches": batches,
-            // Of the light-traced part's image mean (over pixels and channels), from the batches.
-            "image_mean": image_mean,
-            "image_mean_stderr": mean_stderr,
-            "truncated_paths": st[0],
-            "clamped_splats": ls[0],
-            "splats": ls[2],
-            "dispatches": dispatches,
-            "max_loop_iterations": st[2],
-            "tracking_steps": st[1],
-        }),
-        warnings,
-        device_bytes: splats.size() + state.size() + stats.size() + lstats.size(),
-    })
+    let part =
+        Part { image, variance, warnings, device_bytes: splats.size() + state.size() + stats.size() + lstats.size() };
+    Ok((
+        part,
+        LightStats {
+            paths: n_total,
+            batches,
+            image_mean,
+            image_mean_stderr: mean_stderr,
+            truncated_paths: st[0],
+            clamped_splats: ls[0],
+            splats: ls[2],
+            dispatches,
+            max_loop_iterations: st[2],
+            tracking_steps: st[1],
+        },
+    ))
 }

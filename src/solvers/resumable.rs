@@ -10,7 +10,7 @@
 
 use crate::gpu::{Buffer, Gpu, Pass, QueueRole};
 
-use super::SolverError;
+use super::{Knob, Range, SolverError};
 
 /// Dispatches per submission; each reports its unfinished invocations in its own counter.
 pub const ROUNDS_PER_SUBMIT: u32 = 4;
@@ -18,17 +18,14 @@ pub const ROUNDS_PER_SUBMIT: u32 = 4;
 pub const STATS_WORDS: u64 = 3 + ROUNDS_PER_SUBMIT as u64;
 /// Own-counted loop iterations past which llvmpipe's shared loop limiter (65535) may fire.
 pub const LOOP_GUARD: u32 = 60000;
-/// Default loop budget per invocation per dispatch.
-pub const DEFAULT_BUDGET: u32 = 4096;
-
-pub fn check_budget(key: &str, budget: u32) -> Result<(), SolverError> {
-    if !(16..=LOOP_GUARD / 4).contains(&budget) {
-        return Err(SolverError::Setting {
-            key: key.into(),
-            reason: format!("{budget} must lie in 16..={}", LOOP_GUARD / 4),
-        });
-    }
-    Ok(())
+/// The `budget` knob of every solver with resumable kernels.
+pub fn budget_knob() -> Knob {
+    Knob::fixed(
+        "budget",
+        "4096",
+        Range::int(16, (LOOP_GUARD / 4) as u64),
+        "loop iterations per invocation per dispatch of a resumable kernel (llvmpipe ends loops past 65535)",
+    )
 }
 
 /// Submit rounds of `make_pass(slot)` until the last round reports no work left. Returns the

@@ -2,378 +2,50 @@
 //! Liktor, Umenhoffer, Toth, "Fast approximation of multiple scattering in inhomogeneous
 //! participating media"; `../shared/papers/wavefront-diffusion-szirmay-kalos.md`).
 //!
-//! Per point light inside the medium: the medium is resampled onto a spherical grid around the
-//! light (`glsl/wavefront/resample.comp`, section 2.1), every ray of the grid is marched w-layer
-//! by w-layer carrying the power measures psi0 = r^2 phi and psi1 = r^2 E of the diffusion
-//! equations in spherical symmetry (eq. 4) together with the optical depth of the direct term
-//! (`march.comp`), and the result is gathered back onto a Cartesian grid as the multiply
-//! scattered fluence and vector irradiance (`gather.comp`: the wavefront's total minus its
-//! direct term). The view pass is `single`'s march: exact single scattering plus the two-term
-//! in-scattering from that volume (end of section 2.1).
+//! Around every point light inside the medium the shared part [`super::wave_field`] marches a
+//! spherical grid layer by layer (eq. 4-6) and gathers the multiply scattered fluence and
+//! vector irradiance onto a Cartesian volume; the view pass ([`super::view`]) adds exact single
+//! scattering and the two-term in-scattering from that volume (end of section 2.1). Point
+//! lights outside the medium, directional and environment lights contribute their exact
+//! single scattering only, and the render says so in a warning.
 //!
-//! What the method assumes: a point light *inside* scattering medium (section 2: "a single
-//! point light source in the origin"). Its initial values are the homogeneous infinite-medium
-//! solution at the light (eq. 5). A point light outside the medium, or in a spot of zero
-//! density, would start a diffusion solution in vacuum (psi0 stays 0, then goes negative at
-//! the medium's surface under eq. 6), so the solver does not trace those: they, and
-//! directional and environment lights, contribute their exact single scattering only, and the
-//! render carries a warning saying so.
-//!
-//! Knobs (`--set wavefront.KEY=VALUE`):
-//! - `nu`, `nv`: rays in azimuth and in cos(theta) (default 64 x 32, uniform in solid angle);
-//! - `layers`: radial steps from the light to the farthest corner of the box (default 128);
-//! - `integrator`: `exponential` (default; stable and non-negative for any step) or
-//!   `explicit` (the paper's eq. 6: from r = 0 it does not converge to the homogeneous
-//!   solution in an absorbing medium, and it goes negative once sigma_e R passes about 2.5:
-//!   reported; see glsl/wavefront/march.comp);
-//! - `explicit_start`: radius (scene units) over which `explicit` starts from the homogeneous
-//!   solution at the light (eq. 5) instead of from r = 0 (default 0, the paper's scheme);
-//! - `grid`: Cartesian voxels along the medium's longest side for the gathered volume
-//!   (default 64);
-//! - the view march's `view_step`, `view_shadow_step`, `view_env_dirs`, `view_supersample`,
-//!   `view_jitter`, `view_budget` (as `single`'s knobs).
+//! Knobs: the wave field's (`nu`, `nv`, `layers`, `integrator`, `explicit_start`, `grid`) and
+//! the view march's as `view_*` (`scatterlab knobs wavefront`).
 
-use bytemuck::{Pod, Zeroable};
-use glam::Vec3;
 use serde::Serialize;
-use serde_json::json;
 
-use crate::gpu::{Buffer, Gpu, Pass, Pipeline, QueueRole};
-use crate::scene::{is_grey, Light, Scene};
+use crate::gpu::{Gpu, Kernel};
+use crate::scene::Scene;
 
-use super::gpu_scene::GpuScene;
-use super::lbl::LatticeGeom;
-use super::single::{march_view, MsVolume, ViewSettings};
-use super::{shaders, RenderOutput, RenderReport, RenderRequest, Settings, SolverError, SolverKind};
+use super::gpu_scene::{self, GpuScene};
+use super::lattice::LatticeGeom;
+use super::view::{self, ViewSettings};
+use super::wave_field::{self, wave_volume, WaveSettings, WaveVolume};
+use super::{Knob, Knobs, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats, Variant};
 
-/// How psi0 and psi1 are advanced across a shell.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Integrator {
-    /// The paper's eq. 6: explicit Euler, first order in Delta, unstable for stiff shells.
-    Explicit,
-    /// The shell's exact homogeneous solution (decaying mode), carrying the power psi1:
-    /// exact for homogeneous media, finite and non-negative for any step.
-    Exponential,
-}
+pub struct Wavefront;
 
-impl std::str::FromStr for Integrator {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "explicit" => Ok(Integrator::Explicit),
-            "exponential" => Ok(Integrator::Exponential),
-            _ => Err(format!("unknown integrator {s:?}; use exponential or explicit")),
-        }
-    }
-}
-
-/// Parsed knobs.
-#[derive(Clone, Debug)]
-pub struct WavefrontSettings {
-    pub nu: u32,
-    pub nv: u32,
-    pub layers: u32,
-    pub integrator: Integrator,
-    pub grid: u32,
-    /// `explicit` only: radius (scene units) over which the homogeneous solution at the light
-    /// (eq. 5) stands in before eq. 6 takes over; 0 = the paper's start at r = 0.
-    pub explicit_start: f32,
-}
-
-/// Most radial layers: the march is one loop per ray (llvmpipe ends every loop of an
-/// invocation after 65535 iterations; docs/lavapipe.md).
-pub const MAX_LAYERS: u32 = 16384;
-
-impl WavefrontSettings {
-    /// Read `<solver>.<prefix>nu` etc. (`wavefront` uses no prefix; `lbl`'s warm start reads
-    /// `lbl.wavefront_nu` and so on).
-    pub fn parse(s: &Settings, solver: &str, prefix: &str) -> Result<WavefrontSettings, SolverError> {
-        let key = |k: &str| format!("{prefix}{k}");
-        let out = WavefrontSettings {
-            nu: s.get(solver, &key("nu"), 64)?,
-            nv: s.get(solver, &key("nv"), 32)?,
-            layers: s.get(solver, &key("layers"), 128)?,
-            integrator: s.get(solver, &key("integrator"), Integrator::Exponential)?,
-            grid: s.get(solver, &key("grid"), 64)?,
-            explicit_start: s.get(solver, &key("explicit_start"), 0.0)?,
-        };
-        let bad = |k: &str, reason: String| SolverError::Setting { key: format!("{solver}.{}", key(k)), reason };
-        if !(4..=4096).contains(&out.nu) || !(2..=4096).contains(&out.nv) {
-            return Err(bad(
-                "nu/nv",
-                format!("{} x {} rays: nu must lie in 4..=4096 and nv in 2..=4096", out.nu, out.nv),
-            ));
-        }
-        if !(2..=MAX_LAYERS).contains(&out.layers) {
-            return Err(bad("layers", format!("{} must lie in 2..={MAX_LAYERS}", out.layers)));
-        }
-        if !(out.explicit_start.is_finite() && out.explicit_start >= 0.0) {
-            return Err(bad("explicit_start", format!("{} must be a radius >= 0 in scene units", out.explicit_start)));
-        }
-        if !(2..=1024).contains(&out.grid) {
-            return Err(bad("grid", format!("{} must lie in 2..=1024", out.grid)));
-        }
-        Ok(out)
-    }
-
-    pub fn json(&self) -> serde_json::Value {
-        json!({ "nu": self.nu, "nv": self.nv, "layers": self.layers, "integrator": self.integrator, "grid": self.grid, "explicit_start": self.explicit_start })
-    }
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct WavePush {
-    light: [f32; 4],
-    intensity: [f32; 4],
-    dims: [u32; 4],
-    cart_dims: [u32; 4],
-    cart_origin: [f32; 4],
-}
-
-/// Push-constant sizes, for the reflection test.
-pub fn push_sizes() -> [(crate::gpu::ShaderSource, usize); 3] {
-    let n = std::mem::size_of::<WavePush>();
-    [(shaders::WAVEFRONT_RESAMPLE, n), (shaders::WAVEFRONT_MARCH, n), (shaders::WAVEFRONT_GATHER, n)]
-}
-
-/// The spherical grid of one light on the GPU.
-pub struct WaveField {
-    pub position: Vec3,
-    pub intensity: Vec3,
-    /// Distance from the light to the farthest corner of the medium's box (scene units).
-    pub radius: f32,
-    /// Radial step Delta = radius / layers.
-    pub delta: f32,
-    pub nu: u32,
-    pub nv: u32,
-    pub layers: u32,
-    pub psi0: Buffer,
-    pub psi1: Buffer,
-    pub tau: Buffer,
-    pub shells: Buffer,
-    /// Nodes with a negative psi value, with a non-finite one, rays with either.
-    pub negative_nodes: u64,
-    pub nonfinite_nodes: u64,
-    pub failed_rays: u64,
-}
-
-impl WaveField {
-    /// Node index (layer-major, as `wf_node` in glsl/include/wavefront.glsl).
-    pub fn node(&self, i: u32, j: u32, n: u32) -> usize {
-        (n as usize * self.nv as usize + j as usize) * self.nu as usize + i as usize
-    }
-    /// Direction of ray (i, j): alpha = 2 pi u, theta = arccos(1 - 2 v) at the cell centre.
-    pub fn direction(&self, i: u32, j: u32) -> Vec3 {
-        let u = (i as f32 + 0.5) / self.nu as f32;
-        let v = (j as f32 + 0.5) / self.nv as f32;
-        let alpha = 2.0 * std::f32::consts::PI * u;
-        let ct = 1.0 - 2.0 * v;
-        let st = (1.0 - ct * ct).max(0.0).sqrt();
-        Vec3::new(alpha.cos() * st, alpha.sin() * st, ct)
-    }
-    pub fn device_bytes(&self) -> u64 {
-        self.psi0.size() + self.psi1.size() + self.tau.size() + self.shells.size()
-    }
-    fn push(&self, integrator: Integrator, explicit_start: f32) -> WavePush {
-        WavePush {
-            light: [self.position.x, self.position.y, self.position.z, self.delta],
-            intensity: [self.intensity.x, self.intensity.y, self.intensity.z, explicit_start],
-            dims: [self.nu, self.nv, self.layers, if integrator == Integrator::Exponential { 1 } else { 0 }],
-            cart_dims: [0; 4],
-            cart_origin: [0.0; 4],
-        }
-    }
-}
-
-/// Point lights the method applies to: inside the box, on non-zero density (section 2).
-pub fn traced_lights(scene: &Scene) -> Vec<(Vec3, Vec3)> {
-    scene
-        .lights
-        .iter()
-        .filter_map(|l| match *l {
-            Light::Point { position, intensity } if scene.inside_medium(position) => Some((position, intensity)),
-            _ => None,
-        })
-        .collect()
-}
-
-/// The solver's three pipelines, built once per render and shared by every light.
-pub struct WaveKernels {
-    resample: Pipeline,
-    march: Pipeline,
-    gather: Pipeline,
-}
-
-impl WaveKernels {
-    pub fn new(gpu: &Gpu, gs: &GpuScene) -> Result<WaveKernels, SolverError> {
-        let spec = gs.modelled.spec();
-        Ok(WaveKernels {
-            resample: gpu.pipeline(&shaders::WAVEFRONT_RESAMPLE, &spec)?,
-            march: gpu.pipeline(&shaders::WAVEFRONT_MARCH, &spec)?,
-            gather: gpu.pipeline(&shaders::WAVEFRONT_GATHER, &[])?,
-        })
-    }
-}
-
-/// Resample and march the spherical grid of one point light (eq. 4-6).
-#[allow(clippy::too_many_arguments)]
-pub fn trace_light(
-    gpu: &Gpu,
-    scene: &Scene,
-    gs: &GpuScene,
-    kernels: &WaveKernels,
-    set: &WavefrontSettings,
-    position: Vec3,
-    intensity: Vec3,
-) -> Result<WaveField, SolverError> {
-    let m = &scene.medium;
-    let radius = (0..8)
-        .map(|k| {
-            let c = Vec3::new(
-                if k & 1 == 0 { m.bounds_min.x } else { m.bounds_max.x },
-                if k & 2 == 0 { m.bounds_min.y } else { m.bounds_max.y },
-                if k & 4 == 0 { m.bounds_min.z } else { m.bounds_max.z },
-            );
-            c.distance(position)
-        })
-        .fold(0.0f32, f32::max);
-    let rays = set.nu as u64 * set.nv as u64;
-    let nodes = rays * (set.layers as u64 + 1);
-    let max = gpu.info().max_storage_buffer_range;
-    if nodes * 16 > max {
-        return Err(SolverError::Setting {
-            key: "wavefront.nu/nv/layers".into(),
-            reason: format!("{} x {} rays x {} layers needs {} bytes per buffer, over this device's maxStorageBufferRange {max}; use fewer rays or layers", set.nu, set.nv, set.layers, nodes * 16),
-        });
-    }
-    let mut f = WaveField {
-        position,
-        intensity,
-        radius,
-        delta: radius / set.layers as f32,
-        nu: set.nu,
-        nv: set.nv,
-        layers: set.layers,
-        psi0: gpu.buffer("wavefront psi0", nodes * 16)?,
-        psi1: gpu.buffer("wavefront psi1", nodes * 16)?,
-        tau: gpu.buffer("wavefront tau", nodes * 16)?,
-        shells: gpu.buffer("wavefront shells", rays * set.layers as u64 * 4)?,
-        negative_nodes: 0,
-        nonfinite_nodes: 0,
-        failed_rays: 0,
-    };
-    let stats = gpu.buffer("wavefront stats", 16)?;
-    let push = f.push(set.integrator, set.explicit_start);
-    let passes = vec![
-        gs.bind(Pass::new("wavefront.resample", QueueRole::Trace, &kernels.resample))
-            .write(3, &f.shells)
-            .push(&push)
-            .cover([set.nu, set.nv, set.layers]),
-        gs.bind(Pass::new("wavefront.march", QueueRole::Trace, &kernels.march))
-            .read(3, &f.shells)
-            .write(4, &f.psi0)
-            .write(5, &f.psi1)
-            .write(6, &f.tau)
-            .read_write(7, &stats)
-            .push(&push)
-            .cover([set.nu, set.nv, 1]),
-    ];
-    let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
-    gpu.wait(point)?;
-    let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
-    f.negative_nodes = st[0] as u64;
-    f.nonfinite_nodes = st[1] as u64;
-    f.failed_rays = st[2] as u64;
-    Ok(f)
-}
-
-/// The multiply scattered volume gathered from every traced light, in `MsVolume`'s layout.
-pub struct WaveVolume {
-    pub energy: Buffer,
-    pub geom: LatticeGeom,
-    pub channels: u32,
+/// `wavefront`'s own stats.
+#[derive(Clone, Debug, Serialize)]
+pub struct WavefrontStats {
     pub lights_traced: usize,
+    pub channels: u32,
+    /// The Cartesian volume the field was gathered onto.
+    pub cartesian: LatticeGeom,
+    /// Grid nodes where the integrator went negative or non-finite, the rays with either, and
+    /// the voxels zeroed for it.
     pub negative_nodes: u64,
     pub nonfinite_nodes: u64,
     pub failed_rays: u64,
     pub nonfinite_voxels: u64,
-    pub device_bytes: u64,
-}
-
-impl WaveVolume {
-    pub fn ms(&self) -> MsVolume<'_> {
-        MsVolume {
-            energy: &self.energy,
-            dims: self.geom.dims,
-            channels: self.channels,
-            origin: self.geom.origin,
-            lambda: self.geom.lambda,
-            flux: true,
-        }
-    }
-}
-
-/// Trace every point light inside the medium and gather onto a Cartesian grid of `set.grid`
-/// voxels along the box's longest side (the same geometry as `lbl`'s lattice), or onto `geom`.
-pub fn wave_volume(
-    gpu: &Gpu,
-    scene: &Scene,
-    gs: &GpuScene,
-    set: &WavefrontSettings,
-    geom: Option<LatticeGeom>,
-) -> Result<WaveVolume, SolverError> {
-    let geom = geom.unwrap_or_else(|| LatticeGeom::new(scene, set.grid));
-    let v = geom.voxels();
-    let lights = traced_lights(scene);
-    let grey_lights = lights.iter().all(|(_, c)| is_grey(*c));
-    // Model only what the scene requires: one channel for a grey medium under grey lights.
-    let channels: u32 = if gs.modelled.chromatic || !grey_lights { 3 } else { 1 };
-    let energy = gpu.buffer("wavefront volume", v * 4 * channels as u64 * 4)?;
-    let stats = gpu.buffer("wavefront gather stats", 16)?;
-    let kernels = WaveKernels::new(gpu, gs)?;
-    let mut out = WaveVolume {
-        energy,
-        geom,
-        channels,
-        lights_traced: lights.len(),
-        negative_nodes: 0,
-        nonfinite_nodes: 0,
-        failed_rays: 0,
-        nonfinite_voxels: 0,
-        device_bytes: 0,
-    };
-    let mut field_bytes = 0;
-    for (pos, intensity) in lights {
-        let f = trace_light(gpu, scene, gs, &kernels, set, pos, intensity)?;
-        out.negative_nodes += f.negative_nodes;
-        out.nonfinite_nodes += f.nonfinite_nodes;
-        out.failed_rays += f.failed_rays;
-        field_bytes = field_bytes.max(f.device_bytes());
-        let mut push = f.push(set.integrator, set.explicit_start);
-        push.cart_dims = [geom.dims[0], geom.dims[1], geom.dims[2], channels];
-        push.cart_origin = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
-        let pass = Pass::new("wavefront.gather", QueueRole::Trace, &kernels.gather)
-            .read(0, &f.psi0)
-            .read(1, &f.psi1)
-            .read(2, &f.tau)
-            .read_write(3, &out.energy)
-            .read_write(4, &stats)
-            .push(&push)
-            .cover(geom.dims);
-        let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
-        gpu.wait(point)?;
-    }
-    let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
-    out.nonfinite_voxels = st[0] as u64;
-    out.device_bytes = out.energy.size() + stats.size() + field_bytes;
-    Ok(out)
+    pub dispatches: u64,
+    pub max_loop_iterations: u32,
+    pub nonfinite_pixels: u32,
 }
 
 /// Warnings a wavefront result carries: lights the method does not trace, and where the
 /// explicit integrator failed.
-pub fn warnings(scene: &Scene, set: &WavefrontSettings, vol: &WaveVolume) -> Vec<String> {
+fn warnings(scene: &Scene, set: &WaveSettings, vol: &WaveVolume) -> Vec<String> {
     let mut w = Vec::new();
     let untraced = scene.lights.len() - vol.lights_traced;
     if untraced > 0 {
@@ -390,47 +62,102 @@ pub fn warnings(scene: &Scene, set: &WavefrontSettings, vol: &WaveVolume) -> Vec
     w
 }
 
-pub fn render(gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
-    let scene = req.scene;
-    let set = WavefrontSettings::parse(req.settings, "wavefront", "")?;
-    let view = ViewSettings::parse(req.settings, "wavefront", "view_", scene)?;
-    req.settings.check_all_used("wavefront")?;
-    let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-    (req.progress)(0, 2);
-    let vol = wave_volume(gpu, scene, &gs, &set, None)?;
-    (req.progress)(1, 2);
-    let res = march_view(gpu, scene, &gs, &view, Some(&vol.ms()))?;
-    (req.progress)(2, 2);
-    let passes = gpu.take_timings();
-    let mut warnings = warnings(scene, &set, &vol);
-    if res.nonfinite_pixels > 0 {
-        warnings.push(format!(
-            "{} pixels were not finite and were set to 0 (a bug: please report the scene)",
-            res.nonfinite_pixels
-        ));
+impl Solver for Wavefront {
+    fn name(&self) -> &'static str {
+        "wavefront"
     }
-    let mut settings = set.json();
-    settings["view"] = view.json();
-    let report = RenderReport {
-        solver: SolverKind::Wavefront,
-        settings,
-        modelled: gs.modelled.clone(),
-        device_bytes: gs.bytes + vol.device_bytes + res.device_bytes,
-        gpu_ms: super::gpu_ms(&passes),
-        passes,
-        stats: json!({
-            "lights_traced": vol.lights_traced,
-            "channels": vol.channels,
-            "cartesian": vol.geom,
-            "negative_nodes": vol.negative_nodes,
-            "nonfinite_nodes": vol.nonfinite_nodes,
-            "failed_rays": vol.failed_rays,
-            "nonfinite_voxels": vol.nonfinite_voxels,
-            "dispatches": res.dispatches,
-            "max_loop_iterations": res.max_loop_iterations,
-            "nonfinite_pixels": res.nonfinite_pixels,
-        }),
-        warnings,
-    };
-    Ok(RenderOutput { image: res.image, variance: None, report })
+
+    fn about(&self) -> &'static str {
+        "wavefront tracing of homogeneous spherical layers around point lights inside the medium (Szirmay-Kalos et al.)"
+    }
+
+    fn knobs(&self) -> Vec<Knob> {
+        let mut k = wave_field::knobs();
+        k.extend(view::knobs().into_iter().map(|k| k.prefixed("view_")));
+        k
+    }
+
+    fn kernels(&self) -> Vec<Kernel> {
+        let mut k = wave_field::kernels();
+        k.push(view::MARCH);
+        k
+    }
+
+    fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
+        let scene = req.scene;
+        let k = req.knobs(self)?;
+        let set = WaveSettings::parse(&k, "")?;
+        let view = ViewSettings::parse(&k, "view_", scene)?;
+        k.finish()?;
+        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+        (req.progress)(0, 2);
+        let vol = wave_volume(gpu, scene, &gs, &set, None)?;
+        (req.progress)(1, 2);
+        let res = view::march(gpu, scene, &gs, &view, Some(&vol.ms()))?;
+        (req.progress)(2, 2);
+        let mut stats = Stats::new(WavefrontStats {
+            lights_traced: vol.lights_traced,
+            channels: vol.channels,
+            cartesian: vol.geom,
+            negative_nodes: vol.negative_nodes,
+            nonfinite_nodes: vol.nonfinite_nodes,
+            failed_rays: vol.failed_rays,
+            nonfinite_voxels: vol.nonfinite_voxels,
+            dispatches: res.dispatches,
+            max_loop_iterations: res.max_loop_iterations,
+            nonfinite_pixels: res.nonfinite_pixels,
+        });
+        // The march's own state went negative or non-finite (the gather clamps it, so the
+        // image alone would not show it): a failure of the integrator.
+        stats.faults = vol.negative_nodes + vol.nonfinite_nodes + res.nonfinite_pixels as u64;
+        let bytes = gs.bytes + vol.device_bytes + res.device_bytes;
+        let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, stats);
+        report.warnings = warnings(scene, &set, &vol);
+        report.warnings.extend(super::nonfinite_warning(res.nonfinite_pixels));
+        Ok(RenderOutput { image: res.image, variance: None, report })
+    }
+
+    fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
+        let set = WaveSettings::parse(knobs, "")?;
+        let geom = LatticeGeom::new(scene, set.grid);
+        Ok(gpu_scene::scene_bytes(scene) + set.device_bytes(&geom) + view::device_bytes(scene))
+    }
+
+    fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
+        // Angular and radial resolution grow together (nu = 2 nv = layers / 2): the knob is
+        // the layer count, the rays follow it.
+        [32u32, 64, 128, 256, 512]
+            .iter()
+            .map(|l| Rung {
+                knob: "wavefront.layers".into(),
+                value: l.to_string(),
+                sets: vec![
+                    ("wavefront.layers".into(), l.to_string()),
+                    ("wavefront.nu".into(), (l / 2).to_string()),
+                    ("wavefront.nv".into(), (l / 4).to_string()),
+                ],
+            })
+            .collect()
+    }
+
+    fn stability(&self) -> Vec<Variant> {
+        ["exponential", "explicit"]
+            .iter()
+            .map(|i| {
+                Variant::new(
+                    i,
+                    &[("wavefront.grid", "16"), ("wavefront.view_env_dirs", "16"), ("wavefront.integrator", i)],
+                )
+            })
+            .collect()
+    }
+
+    fn summary(&self, report: &RenderReport) -> Vec<String> {
+        let Some(s) = report.detail::<WavefrontStats>() else { return Vec::new() };
+        let d = s.cartesian.dims;
+        vec![format!(
+            "wavefront: {} point light(s) traced, gathered onto {}x{}x{} voxels, {} channel(s)",
+            s.lights_traced, d[0], d[1], d[2], s.channels
+        )]
+    }
 }

@@ -1,5 +1,5 @@
 #version 460
-// lbl/diffuse: Lattice-Boltzmann diffusion of the deposited once-scattered energy (thesis 4.5,
+// lattice/diffuse: Lattice-Boltzmann diffusion of the deposited once-scattered energy (thesis 4.5,
 // eq. 4.4-4.5), blockwise: one workgroup owns a block of B^3 voxels and runs `inner_steps`
 // lattice steps on it in shared memory (thesis Fig. 4.5). Energy that crosses a block face
 // during the dispatch is summed per link and handed to the neighbour block through the state

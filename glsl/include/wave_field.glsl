@@ -1,4 +1,4 @@
-// wavefront.glsl: the spherical grid of the wavefront solver around one point light
+// wave_field.glsl: the spherical grid of wavefront tracing (solvers/wave_field.rs) around one point light
 // (Szirmay-Kalos et al., "Fast approximation of multiple scattering in inhomogeneous
 // participating media", section 2.1). Ray (i, j) of nu x nv has direction
 //   alpha = 2 pi u, theta = arccos(1 - 2 v), u = (i + 1/2) / nu, v = (j + 1/2) / nv,

@@ -1,5 +1,5 @@
 #version 460
-// wavefront/march: every ray of the spherical grid marched w-layer by w-layer (paper section
+// wave_field/march: every ray of the spherical grid marched w-layer by w-layer (paper section
 // 2.1), carrying the power measures psi0 = r^2 phi and psi1 = r^2 E (eq. 4) and, in the same
 // pass, the optical depth tau of the direct term (direct fluence Phi e^-tau / r^2).
 // Initial values from the homogeneous solution (eq. 5): psi0(0) = 0, psi1(0) = Phi. Shell n
@@ -33,7 +33,7 @@
 #define DENSITY_BINDING 1
 #define MAJORANT_BINDING 2
 #include "../include/scene.glsl"
-#include "../include/wavefront.glsl"
+#include "../include/wave_field.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 layout(std430, binding = 3) readonly buffer Shells { float shell_density[]; };

@@ -1,5 +1,5 @@
 #version 460
-// lbl/inject: move the round's summed deposits into the lattice's rest distribution (emitted
+// lattice/inject: move the round's summed deposits into the lattice's rest distribution (emitted
 // isotropically at the next lattice step) and clear the sums. Keeps a per-workgroup,
 // Kahan-compensated tally of the energy injected, for the conservation check.
 #extension GL_GOOGLE_include_directive : require

@@ -1,5 +1,5 @@
 #version 460
-// wavefront/resample: the medium resampled onto the spherical grid around the light (paper
+// wave_field/resample: the medium resampled onto the spherical grid around the light (paper
 // section 2.1): the density at the middle of shell n of ray (i, j), 0 outside the box.
 #extension GL_GOOGLE_include_directive : require
 
@@ -7,7 +7,7 @@
 #define DENSITY_BINDING 1
 #define MAJORANT_BINDING 2
 #include "../include/scene.glsl"
-#include "../include/wavefront.glsl"
+#include "../include/wave_field.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 layout(std430, binding = 3) writeonly buffer Shells { float shell_density[]; };   // [wf_node(ray, n)], n < layers

@@ -1,5 +1,5 @@
 #version 460
-// lbl/transfer_float: accumulate the Ray History Buffer into the per-voxel deposit sums with
+// marching/transfer_float: accumulate the Ray History Buffer into the per-voxel deposit sums with
 // float atomics (thesis 4.4.4; VK_EXT_shader_atomic_float). Fast; the order of additions, and
 // so the low bits of the result, may differ between runs. lbl/transfer_fixed is the
 // deterministic alternative.

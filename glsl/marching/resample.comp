@@ -1,5 +1,5 @@
 #version 460
-// lbl/resample: the medium's density at the centre of every lattice voxel (the grid the lattice
+// marching/resample: the medium's density at the centre of every lattice voxel (the grid the lattice
 // runs on, `lbl.grid` voxels along the longest side of the medium's box; 0 outside the box).
 #extension GL_GOOGLE_include_directive : require
 

@@ -1,5 +1,5 @@
 #version 460
-// lbl/march: photon marching (thesis 4.4, Fig. 4.4): each invocation advances one light ray
+// marching/march: photon marching (thesis 4.4, Fig. 4.4): each invocation advances one light ray
 // by `k` fixed steps of length `step` and writes what it deposits into its k slots of the Ray
 // History Buffer. Deposit per step and channel (eq. 4.3 in its energy-conserving form):
 //   deposit = P (1 - exp(-sigma_t(x_mid) step)) albedo,   P <- P exp(-sigma_t(x_mid) step)

@@ -1,6 +1,7 @@
 #version 460
-// single/march: the direct (single-scattering) term by camera-ray marching (thesis 1.3.6 and
-// 2.5). Along the camera ray, in steps of at most `step` (scene units):
+// view/march: the view pass shared by solvers (solvers/view.rs): the direct (single-scattering)
+// term by camera-ray marching (thesis 1.3.6 and 2.5), plus, when a solver supplies one, the
+// multiply scattered in-scattering from its volume. Along the camera ray, in steps of at most `step` (scene units):
 //   L = T(0, t_far) L_env
 //     + sum_steps T(0, t_i) albedo (1 - exp(-sigma_t dt)) sum_lights p(cos) L_i T_shadow
 // i.e. the single-scattering integral of eq. 1.24 with the extinction held constant within a
@@ -35,10 +36,10 @@ struct MarchState {
     vec4 sum;      // sum over finished subsamples
 };
 layout(std430, binding = 5) buffer State { MarchState state[]; };
-// Solvers `lbl` and `wavefront`: the multiply scattered energy per voxel ([c * V + v]); the
-// fluence is that over lambda^2 (thesis 4.6.2). With ms_flux = 1 (`wavefront`) the vector
-// irradiance E lambda^2 follows at [C V + (3 c + a) V + v] for C channels. Unused
-// (ms_dims.x = 0) for `single`.
+// The multiply scattered energy per voxel ([c * V + v]) of a solver's volume (`lbl`'s lattice,
+// `wavefront`'s gathered field); the fluence is that over lambda^2 (thesis 4.6.2). With
+// ms_flux = 1 the vector irradiance E lambda^2 follows at [C V + (3 c + a) V + v] for C
+// channels (the two-term expansion). Unused (ms_dims.x = 0) for single scattering alone.
 layout(std430, binding = 6) readonly buffer MsVolume { float ms_energy[]; };
 
 layout(push_constant) uniform Push {
@@ -54,8 +55,8 @@ layout(push_constant) uniform Push {
     uint ms_flux;        // 1: the volume carries the vector irradiance after the fluence
     uint pad1;
     uint pad2;
-    uvec4 ms_dims;       // lbl: lattice voxels xyz (0: no multiple-scattering volume), w = channels
-    vec4 ms_origin;      // lbl: lattice min corner, w = lambda (voxel edge)
+    uvec4 ms_dims;       // volume voxels xyz (x = 0: no multiple-scattering volume), w = channels
+    vec4 ms_origin;      // volume min corner, w = lambda (voxel edge)
 } pc;
 
 // Multiply scattered radiance scattered at p toward the camera (travelling along -d), per

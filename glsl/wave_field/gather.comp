@@ -1,5 +1,5 @@
 #version 460
-// wavefront/gather: back to the Cartesian grid (end of paper section 2.1). At every voxel
+// wave_field/gather: back to the Cartesian grid (end of paper section 2.1). At every voxel
 // centre x, at distance r and direction w_x from the light, the wavefront's fluence and
 // vector irradiance are psi0 / r^2 and psi1 / r^2 w_x (trilinear in the spherical grid). The
 // view pass adds the exact single-scattering term itself, so what is stored here is the
@@ -11,11 +11,11 @@
 // Near the light diffusion theory underestimates the 1/r^2 direct term (phi ~ 1/r there), so
 // phi_ms is clamped at 0 rather than made negative. A voxel containing the light is
 // evaluated at r = lambda / 2 (its own size): the point value at r = 0 is singular.
-// Stored as in `lbl` (MsVolume in glsl/single/march.comp): energy = phi lambda^2 at [c V + v],
+// Stored as in `lbl` (MsVolume in glsl/view/march.comp): energy = phi lambda^2 at [c V + v],
 // then the flux E lambda^2 at [C V + (3 c + a) V + v] for C channels. Sums over lights (one
 // dispatch per light, in order: deterministic).
 #extension GL_GOOGLE_include_directive : require
-#include "../include/wavefront.glsl"
+#include "../include/wave_field.glsl"
 
 layout(local_size_x = 4, local_size_y = 4, local_size_z = 4) in;
 layout(std430, binding = 0) readonly buffer Psi0 { vec4 psi0[]; };

@@ -1,5 +1,5 @@
 #version 460
-// lbl/transfer_fixed: the deterministic transfer. Deposits are added as 32-bit fixed-point
+// marching/transfer_fixed: the deterministic transfer. Deposits are added as 32-bit fixed-point
 // integers (integer addition is associative, so any order gives the same bits):
 // q = round(deposit * scale), with scale = 2^30 / (largest total source power of a channel),
 // so no voxel's sum can overflow within a round; resolution ~1e-9 of the total power.

@@ -1,0 +1,511 @@
+//! Shared part: the Lattice-Boltzmann lighting lattice (thesis 4.5, eq. 4.4-4.5; Geist et al.
+//! 2004; section 2.2.3 for D3Q18), on a Cartesian voxel grid over the medium's box
+//! ([`LatticeGeom`], which other parts use for their volumes too). [`Diffuser`] holds the
+//! lattice state and runs its steps (glsl/lattice/diffuse.comp, blockwise), [`Injector`] moves
+//! summed deposits into its rest distribution (glsl/lattice/inject.comp), and
+//! [`Diffuser::iterate`] runs it to convergence. Used by `lbl`.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::gpu::{Buffer, DeviceInfo, Gpu, Kernel, Pass, Pipeline, QueueRole, Spec, SpecKind};
+use crate::scene::Scene;
+
+use super::SolverError;
+
+/// Specialisation constant ids of glsl/include/lattice.glsl and the lattice kernels.
+pub const SPEC_NCH: u32 = 3;
+const SPEC_BLOCK: u32 = 4;
+const SPEC_WG: u32 = 5;
+const SPEC_FIXED: u32 = 6;
+pub const SPEC_LINKS: u32 = 7;
+
+/// The specialisation constants of lattice.glsl (channels, links), as kernels declare them.
+pub const LATTICE_SPEC: &[(u32, SpecKind)] = &[(SPEC_NCH, SpecKind::U32), (SPEC_LINKS, SpecKind::U32)];
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct InjectPush {
+    voxels: u32,
+    inv_scale: f32,
+    pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct DiffusePush {
+    dims: [u32; 4],
+    sigma_t: [f32; 4],
+    albedo: [f32; 4],
+    inner_steps: u32,
+    pad: [u32; 3],
+}
+
+pub const DIFFUSE: Kernel = Kernel {
+    shader: shader!("lattice/diffuse"),
+    push_bytes: std::mem::size_of::<DiffusePush>(),
+    spec: &[
+        (SPEC_NCH, SpecKind::U32),
+        (SPEC_BLOCK, SpecKind::U32),
+        (SPEC_WG, SpecKind::U32),
+        (SPEC_LINKS, SpecKind::U32),
+    ],
+};
+pub const INJECT: Kernel = Kernel {
+    shader: shader!("lattice/inject"),
+    push_bytes: std::mem::size_of::<InjectPush>(),
+    spec: &[(SPEC_NCH, SpecKind::U32), (SPEC_FIXED, SpecKind::Bool), (SPEC_LINKS, SpecKind::U32)],
+};
+
+/// The lattice's links besides the rest (glsl/include/lattice.glsl).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Lattice {
+    /// 6 axial links + rest (thesis 4.5).
+    D3q6,
+    /// Geist's 6 axial + 12 face-diagonal links + rest (section 2.2.3).
+    D3q18,
+}
+
+impl Lattice {
+    pub fn name(self) -> &'static str {
+        match self {
+            Lattice::D3q6 => "d3q6",
+            Lattice::D3q18 => "d3q18",
+        }
+    }
+
+    pub fn links(self) -> u32 {
+        match self {
+            Lattice::D3q6 => 6,
+            Lattice::D3q18 => 18,
+        }
+    }
+
+    /// Link vectors, index 0 the rest (same order as LATTICE_DIR in lattice.glsl).
+    pub fn dirs(self) -> Vec<[i64; 3]> {
+        let all: [[i64; 3]; 19] = [
+            [0, 0, 0],
+            [1, 0, 0],
+            [-1, 0, 0],
+            [0, 1, 0],
+            [0, -1, 0],
+            [0, 0, 1],
+            [0, 0, -1],
+            [1, 1, 0],
+            [-1, -1, 0],
+            [1, -1, 0],
+            [-1, 1, 0],
+            [1, 0, 1],
+            [-1, 0, -1],
+            [1, 0, -1],
+            [-1, 0, 1],
+            [0, 1, 1],
+            [0, -1, -1],
+            [0, 1, -1],
+            [0, -1, 1],
+        ];
+        all[..=self.links() as usize].to_vec()
+    }
+
+    /// Mean path length of a step in voxels (the time a step stands for): 1 (D3Q6),
+    /// (1 + sqrt 2) / 2 (D3Q18). The lattice's fluence weights each arrival by its link length.
+    pub fn mean_link_length(self) -> f64 {
+        match self {
+            Lattice::D3q6 => 1.0,
+            Lattice::D3q18 => (1.0 + std::f64::consts::SQRT_2) / 2.0,
+        }
+    }
+
+    /// Mean square distance per step, in voxels^2: 1 (D3Q6), 1.5 (D3Q18, half its energy on
+    /// sqrt 2 links).
+    pub fn mean_square_step(self) -> f64 {
+        match self {
+            Lattice::D3q6 => 1.0,
+            Lattice::D3q18 => 1.5,
+        }
+    }
+
+    /// Bytes of one state buffer: every link and the rest, per channel and voxel.
+    pub fn state_bytes(self, nch: u32, voxels: u64) -> u64 {
+        (self.links() as u64 + 1) * nch as u64 * voxels * 4
+    }
+}
+
+impl std::str::FromStr for Lattice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "d3q6" => Ok(Lattice::D3q6),
+            "d3q18" => Ok(Lattice::D3q18),
+            _ => Err(format!("unknown lattice {s:?}; use d3q6 or d3q18")),
+        }
+    }
+}
+
+/// A Cartesian voxel grid over the medium's box: `dims` cubic voxels of edge `lambda` from
+/// `origin` (the medium's min corner), `grid` voxels along the box's longest side.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct LatticeGeom {
+    pub dims: [u32; 3],
+    pub origin: [f32; 3],
+    pub lambda: f32,
+}
+
+impl LatticeGeom {
+    pub fn new(scene: &Scene, grid: u32) -> LatticeGeom {
+        let ext = scene.medium.bounds_max - scene.medium.bounds_min;
+        let lambda = ext.max_element() / grid as f32;
+        let dims = [0, 1, 2].map(|a| ((ext[a] / lambda) - 1e-4).ceil().max(1.0) as u32);
+        LatticeGeom { dims, origin: scene.medium.bounds_min.to_array(), lambda }
+    }
+    pub fn voxels(&self) -> u64 {
+        self.dims.iter().map(|d| *d as u64).product()
+    }
+    pub fn min(&self) -> Vec3 {
+        Vec3::from(self.origin)
+    }
+    pub fn max(&self) -> Vec3 {
+        self.min() + Vec3::new(self.dims[0] as f32, self.dims[1] as f32, self.dims[2] as f32) * self.lambda
+    }
+    /// `dims` with the voxel count as w (push-constant layout of the grid kernels).
+    pub fn dims4(&self) -> [u32; 4] {
+        [self.dims[0], self.dims[1], self.dims[2], self.voxels() as u32]
+    }
+    /// `origin` with `lambda` as w (push-constant layout of the grid kernels).
+    pub fn origin4(&self) -> [f32; 4] {
+        [self.origin[0], self.origin[1], self.origin[2], self.lambda]
+    }
+}
+
+/// Energy bookkeeping of the lattice, per channel (W, summed in double precision).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct EnergyBook {
+    pub injected: [f64; 3],
+    pub absorbed: [f64; 3],
+    pub leaked: [f64; 3],
+    pub remaining: [f64; 3],
+}
+
+impl EnergyBook {
+    /// |injected - absorbed - leaked - remaining| / injected, worst channel.
+    pub fn imbalance(&self) -> f64 {
+        (0..3)
+            .map(|c| {
+                let inj = self.injected[c];
+                if inj <= 0.0 {
+                    0.0
+                } else {
+                    (inj - self.absorbed[c] - self.leaked[c] - self.remaining[c]).abs() / inj
+                }
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Whether a block of edge `block` fits this device's shared memory and workgroup size with
+/// `nch` channels of `lattice`; why not otherwise.
+pub fn check_block(info: &DeviceInfo, lattice: Lattice, nch: u32, block: u32) -> Result<(), String> {
+    let block_voxels = (block as u64).pow(3);
+    let shared_bytes = (lattice.links() as u64 + 2) * nch as u64 * block_voxels * 4;
+    if shared_bytes > info.max_compute_shared_memory as u64
+        || block_voxels > info.max_compute_workgroup_invocations as u64
+    {
+        return Err(format!(
+            "block {block} with {:?} and {nch} channel(s) needs {shared_bytes} bytes of shared memory and {block_voxels} invocations; this device offers {} and {}; use a smaller block",
+            lattice, info.max_compute_shared_memory, info.max_compute_workgroup_invocations
+        ));
+    }
+    Ok(())
+}
+
+/// What a lattice diffuses through.
+#[derive(Clone, Copy, Debug)]
+pub struct LatticeParams {
+    pub dims: [u32; 3],
+    pub nch: u32,
+    pub lattice: Lattice,
+    /// Extinction (1/unit) and albedo per channel, HG g: the medium's.
+    pub sigma_t: [f32; 3],
+    pub albedo: [f32; 3],
+    pub g: f32,
+    /// Voxel edge, scene units.
+    pub lambda: f32,
+    /// Block edge b (2, 4 or 8) and lattice steps per dispatch within a block (1: global).
+    pub block: u32,
+    pub block_steps: u32,
+}
+
+/// The lattice and its diffusion passes: state ping-pong, time-integrated energy, tallies.
+pub struct Diffuser {
+    pipeline: Pipeline,
+    density: Buffer,
+    states: [Buffer; 2],
+    irr: Buffer,
+    tally: Buffer,
+    push: DiffusePush,
+    groups: [u32; 3],
+    block_steps: u32,
+    dims: [u32; 3],
+    nch: u32,
+    lattice: Lattice,
+    /// The state the next step reads (and injection adds to).
+    pub cur: usize,
+    pub iterations: u32,
+}
+
+impl Diffuser {
+    /// A zero lattice over `density` (one value per voxel, multiplying the extinction).
+    pub fn new(gpu: &Gpu, density: Buffer, p: &LatticeParams) -> Result<Diffuser, SolverError> {
+        let v: u64 = p.dims.iter().map(|d| *d as u64).product();
+        check_block(gpu.info(), p.lattice, p.nch, p.block).map_err(SolverError::Unsupported)?;
+        let spec = [
+            (SPEC_NCH, Spec::U32(p.nch)),
+            (SPEC_BLOCK, Spec::U32(p.block)),
+            (SPEC_WG, Spec::U32(p.block)),
+            (SPEC_LINKS, Spec::U32(p.lattice.links())),
+        ];
+        let pipeline = gpu.pipeline(&DIFFUSE, &spec)?;
+        let state_bytes = p.lattice.state_bytes(p.nch, v);
+        let groups = [0, 1, 2].map(|a| p.dims[a].div_ceil(p.block));
+        let n_wg = groups.iter().map(|x| *x as u64).product::<u64>();
+        let (st, al) = (p.sigma_t, p.albedo);
+        Ok(Diffuser {
+            pipeline,
+            density,
+            states: [gpu.buffer("lattice state A", state_bytes)?, gpu.buffer("lattice state B", state_bytes)?],
+            irr: gpu.buffer("lattice irradiance", p.nch as u64 * v * 4)?,
+            tally: gpu.buffer("lattice diffuse tally", n_wg * p.nch as u64 * 16)?,
+            push: DiffusePush {
+                dims: [p.dims[0], p.dims[1], p.dims[2], v as u32],
+                sigma_t: [st[0], st[1], st[2], p.lambda],
+                albedo: [al[0], al[1], al[2], p.g],
+                inner_steps: 1,
+                pad: [0; 3],
+            },
+            groups,
+            block_steps: p.block_steps,
+            dims: p.dims,
+            nch: p.nch,
+            lattice: p.lattice,
+            cur: 0,
+            iterations: 0,
+        })
+    }
+
+    pub fn state(&self) -> &Buffer {
+        &self.states[self.cur]
+    }
+
+    pub fn device_bytes(&self) -> u64 {
+        self.states[0].size() + self.states[1].size() + self.irr.size() + self.tally.size()
+    }
+
+    /// The time-integrated energy per voxel and channel ([c * V + v]).
+    pub fn irradiance(&self) -> &Buffer {
+        &self.irr
+    }
+
+    /// Passes for `count` more lattice steps, `block_steps` per dispatch.
+    pub fn passes(&mut self, count: u32) -> Vec<Pass> {
+        let mut passes = Vec::new();
+        let mut left = count;
+        while left > 0 {
+            let inner = left.min(self.block_steps);
+            let push = DiffusePush { inner_steps: inner, ..self.push };
+            passes.push(
+                Pass::new("lattice.diffuse", QueueRole::Diffuse, &self.pipeline)
+                    .read(0, &self.density)
+                    .read(1, &self.states[self.cur])
+                    .write(2, &self.states[1 - self.cur])
+                    .read_write(3, &self.irr)
+                    .read_write(4, &self.tally)
+                    .push(&push)
+                    .groups(self.groups),
+            );
+            self.cur = 1 - self.cur;
+            self.iterations += inner;
+            left -= inner;
+        }
+        passes
+    }
+
+    /// Run to convergence: the relative change per iteration of the time-integrated energy at
+    /// sparse probe voxels (every `max(4, dims/8)`-th voxel where `density` is > 0, or every
+    /// such voxel when none falls on the sparse set) falls under `tol`, checked every
+    /// `8 block_steps` iterations, or `max_iters` iterations in all are reached. Returns
+    /// whether it converged and the last change.
+    pub fn iterate(
+        &mut self,
+        gpu: &Gpu,
+        density: &[f32],
+        tol: f32,
+        max_iters: u32,
+    ) -> Result<(bool, f64), SolverError> {
+        let [nx, ny, nz] = self.dims.map(|d| d as usize);
+        let v = nx * ny * nz;
+        let stride = 4usize.max(nx.max(ny).max(nz) / 8);
+        let mut probes: Vec<usize> = Vec::new();
+        for z in (stride / 2..nz).step_by(stride) {
+            for y in (stride / 2..ny).step_by(stride) {
+                for x in (stride / 2..nx).step_by(stride) {
+                    let i = x + nx * (y + ny * z);
+                    if density[i] > 0.0 {
+                        probes.push(i);
+                    }
+                }
+            }
+        }
+        if probes.is_empty() {
+            probes = (0..v).filter(|i| density[*i] > 0.0).collect();
+        }
+        let nch = self.nch as usize;
+        let probe_sum = |irr: &[f32]| -> Vec<f64> {
+            probes.iter().map(|p| (0..nch).map(|c| irr[c * v + p] as f64).sum()).collect()
+        };
+        let irr = self.irr.clone();
+        let chunk = 8 * self.block_steps;
+        let mut prev = probe_sum(&read_f32(gpu, &irr)?);
+        let mut change = f64::INFINITY;
+        while self.iterations < max_iters {
+            let before = self.iterations;
+            let passes = self.passes(chunk.min(max_iters - self.iterations));
+            let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+            gpu.wait(point)?;
+            let now = probe_sum(&read_f32(gpu, &irr)?);
+            let done = (self.iterations - before) as f64;
+            // Largest relative change per iteration over the probes that hold energy.
+            change = now
+                .iter()
+                .zip(&prev)
+                .filter(|(n, _)| **n > 0.0)
+                .map(|(n, p)| (n - p).abs() / n / done)
+                .fold(0.0, f64::max);
+            prev = now;
+            if change < tol as f64 {
+                return Ok((true, change));
+            }
+        }
+        Ok((false, change))
+    }
+
+    /// Absorbed and leaked energy so far, and what is still moving, per channel.
+    pub fn book(&self, gpu: &Gpu) -> Result<EnergyBook, SolverError> {
+        let mut book = EnergyBook::default();
+        let dt: Vec<[f32; 4]> = gpu.read_buffer_as(&self.tally)?;
+        for (i, t) in dt.iter().enumerate() {
+            book.absorbed[i % self.nch as usize] += t[0] as f64 - t[1] as f64;
+            book.leaked[i % self.nch as usize] += t[2] as f64 - t[3] as f64;
+        }
+        book.remaining = lattice_content(&read_f32(gpu, self.state())?, self.dims, self.nch, self.lattice);
+        Ok(book)
+    }
+}
+
+/// Moves summed deposits (per channel and voxel: floats, or fixed point of `scale` quanta per
+/// unit) into the lattice's rest distribution and clears the sums, tallying what it injected.
+pub struct Injector {
+    pipeline: Pipeline,
+    tally: Buffer,
+    voxels: u32,
+    nch: u32,
+    inv_scale: f32,
+}
+
+impl Injector {
+    pub fn new(gpu: &Gpu, p: &LatticeParams, fixed: bool, scale: f32) -> Result<Injector, SolverError> {
+        let spec =
+            [(SPEC_NCH, Spec::U32(p.nch)), (SPEC_FIXED, Spec::Bool(fixed)), (SPEC_LINKS, Spec::U32(p.lattice.links()))];
+        let voxels: u64 = p.dims.iter().map(|d| *d as u64).product();
+        Ok(Injector {
+            pipeline: gpu.pipeline(&INJECT, &spec)?,
+            tally: gpu.buffer("lattice inject tally", voxels.div_ceil(64) * p.nch as u64 * 8)?,
+            voxels: voxels as u32,
+            nch: p.nch,
+            inv_scale: 1.0 / scale,
+        })
+    }
+
+    /// Inject `sums` into the lattice's current state.
+    pub fn pass(&self, sums: &Buffer, lattice: &Diffuser) -> Pass {
+        Pass::new("lattice.inject", QueueRole::Diffuse, &self.pipeline)
+            .read_write(0, sums)
+            .read_write(1, lattice.state())
+            .read_write(2, &self.tally)
+            .push(&InjectPush { voxels: self.voxels, inv_scale: self.inv_scale, pad: [0; 2] })
+            .cover([self.voxels, 1, 1])
+    }
+
+    /// Energy injected so far, per channel.
+    pub fn injected(&self, gpu: &Gpu) -> Result<[f64; 3], SolverError> {
+        let mut out = [0f64; 3];
+        let it: Vec<[f32; 2]> = gpu.read_buffer_as(&self.tally)?;
+        for (i, t) in it.iter().enumerate() {
+            out[i % self.nch as usize] += t[0] as f64 - t[1] as f64;
+        }
+        Ok(out)
+    }
+
+    pub fn device_bytes(&self) -> u64 {
+        self.tally.size()
+    }
+}
+
+/// Energy still moving in a lattice state: every rest value, and every outgoing link whose
+/// destination is inside (links leaving the lattice were tallied as leaked when produced).
+pub fn lattice_content(state: &[f32], dims: [u32; 3], nch: u32, lattice: Lattice) -> [f64; 3] {
+    let [nx, ny, nz] = dims.map(|d| d as i64);
+    let v = (nx * ny * nz) as usize;
+    let dirs: Vec<(i64, i64, i64)> = lattice.dirs().iter().map(|d| (d[0], d[1], d[2])).collect();
+    let mut out = [0f64; 3];
+    for (c, total) in out.iter_mut().enumerate().take(nch as usize) {
+        for (i, d) in dirs.iter().enumerate() {
+            let base = (i * nch as usize + c) * v;
+            for z in 0..nz {
+                for y in 0..ny {
+                    for x in 0..nx {
+                        let (tx, ty, tz) = (x + d.0, y + d.1, z + d.2);
+                        if i == 0 || (0..nx).contains(&tx) && (0..ny).contains(&ty) && (0..nz).contains(&tz) {
+                            *total += state[base + (x + nx * (y + ny * z)) as usize] as f64;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Test bench for the lattice alone: unit energy deposited at `source` in a homogeneous
+/// medium filling the whole lattice (`p.sigma_t[0]`, `p.albedo[0]`, one channel),
+/// `iterations` steps; returns the time-integrated energy per voxel and the energy book.
+pub fn diffuse_impulse(
+    gpu: &Gpu,
+    p: &LatticeParams,
+    source: [u32; 3],
+    iterations: u32,
+) -> Result<(Vec<f32>, EnergyBook), SolverError> {
+    let dims = p.dims;
+    let v: u64 = dims.iter().map(|d| *d as u64).product();
+    let density = gpu.buffer_with("impulse density", &vec![1f32; v as usize])?;
+    let p = LatticeParams { nch: 1, ..*p };
+    let mut d = Diffuser::new(gpu, density, &p)?;
+    let src = (source[0] + dims[0] * (source[1] + dims[1] * source[2])) as u64;
+    gpu.write_buffer(d.state(), src * 4, bytemuck::bytes_of(&1f32))?;
+    let mut left = iterations;
+    while left > 0 {
+        let n = left.min(256);
+        let passes = d.passes(n);
+        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+        gpu.wait(point)?;
+        left -= n;
+    }
+    let mut book = d.book(gpu)?;
+    book.injected = [1.0, 0.0, 0.0];
+    Ok((read_f32(gpu, d.irradiance())?, book))
+}
+
+pub(crate) fn read_f32(gpu: &Gpu, b: &Buffer) -> Result<Vec<f32>, SolverError> {
+    Ok(gpu.read_buffer_as(b)?)
+}

@@ -1,0 +1,340 @@
+//! Shared part: photon marching (thesis 4.4). The medium's density is resampled onto a voxel
+//! grid (glsl/marching/resample.comp); every light becomes a raymap of straight rays
+//! ([`raymaps`], 4.4.1); each round advances every ray by `k` fixed steps and writes what it
+//! deposits (the power scattered out of the beam: the once-scattered source) into its k slots
+//! of the Ray History Buffer (glsl/marching/march.comp, Fig. 4.4); a transfer adds a round's
+//! history into per-voxel sums, by float atomics or, deterministically, in fixed point
+//! (glsl/marching/transfer_*.comp, 4.4.4). What consumes the sums is the caller's: `lbl`
+//! injects them into its lattice.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole, Spec};
+use crate::physics::geometry::ray_box;
+use crate::physics::phase::orthonormal_basis;
+use crate::physics::rng::Pcg32;
+use crate::scene::{Light, Scene};
+
+use super::gpu_scene::{GpuScene, SCENE_SPEC};
+use super::lattice::{LatticeGeom, LATTICE_SPEC, SPEC_LINKS, SPEC_NCH};
+use super::{Knob, Knobs, Range, SolverError};
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GeomPush {
+    dims: [u32; 4],
+    origin: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct MarchPush {
+    dims: [u32; 4],
+    origin: [f32; 4],
+    step: f32,
+    threshold: f32,
+    k: u32,
+    max_steps: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct TransferPush {
+    entries: u32,
+    voxels: u32,
+    scale: f32,
+    pad: u32,
+}
+
+pub const RESAMPLE: Kernel =
+    Kernel { shader: shader!("marching/resample"), push_bytes: std::mem::size_of::<GeomPush>(), spec: SCENE_SPEC };
+pub const MARCH: Kernel =
+    Kernel { shader: shader!("marching/march"), push_bytes: std::mem::size_of::<MarchPush>(), spec: SCENE_SPEC };
+pub const TRANSFER_FLOAT: Kernel = Kernel {
+    shader: shader!("marching/transfer_float"),
+    push_bytes: std::mem::size_of::<TransferPush>(),
+    spec: LATTICE_SPEC,
+};
+pub const TRANSFER_FIXED: Kernel = Kernel {
+    shader: shader!("marching/transfer_fixed"),
+    push_bytes: std::mem::size_of::<TransferPush>(),
+    spec: LATTICE_SPEC,
+};
+
+/// Every kernel of this part.
+pub fn kernels() -> Vec<Kernel> {
+    vec![RESAMPLE, MARCH, TRANSFER_FLOAT, TRANSFER_FIXED]
+}
+
+/// Bytes of one ray's start and state (`Ray` in glsl/marching/march.comp).
+const RAY_BYTES: u64 = std::mem::size_of::<RayInit>() as u64;
+
+/// One light ray's start: position, unit direction, power per channel (W).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct RayInit {
+    pub pos_steps: [f32; 4],
+    pub dir_alive: [f32; 4],
+    pub power: [f32; 4],
+}
+
+/// Marching's knobs (a solver lists them among its own).
+pub fn knobs() -> Vec<Knob> {
+    vec![
+        Knob::fixed("rays", "65536", Range::int(1, 1 << 22), "light rays per light (raymap size, thesis 4.4.1)"),
+        Knob::fixed("k", "16", Range::int(1, 256), "Ray History Buffer slots per ray per round (steps per round)"),
+        Knob::derived(
+            "step",
+            "half a voxel",
+            Range::positive(),
+            "photon-marching step in scene units (at most 4 voxels)",
+        ),
+        Knob::fixed(
+            "threshold",
+            "1e-4",
+            Range::open_unit(),
+            "a ray dies when its power falls below this fraction of its start",
+        ),
+        Knob::fixed(
+            "env_lights",
+            "14",
+            Range::int(1, 4096),
+            "directional raymaps standing in for an environment light (spherical Fibonacci set)",
+        ),
+    ]
+}
+
+/// Marching's knobs, parsed.
+#[derive(Clone, Copy, Debug)]
+pub struct MarchSettings {
+    pub rays: u32,
+    pub k: u32,
+    pub step: f32,
+    pub threshold: f32,
+    pub env_lights: u32,
+}
+
+impl MarchSettings {
+    /// Read the knobs for a grid of voxel edge `lambda` (the step's default and bound).
+    pub fn parse(k: &Knobs, lambda: f32) -> Result<MarchSettings, SolverError> {
+        let out = MarchSettings {
+            rays: k.get("rays")?,
+            k: k.get("k")?,
+            step: k.get_or("step", lambda * 0.5)?,
+            threshold: k.get("threshold")?,
+            env_lights: k.get("env_lights")?,
+        };
+        if out.step > 4.0 * lambda {
+            return Err(k.invalid("step", format!("{} must be at most 4 voxels ({})", out.step, 4.0 * lambda)));
+        }
+        Ok(out)
+    }
+
+    /// Device bytes of rays and history for `lights` lights (an estimate: raymaps round the
+    /// ray count up to a square, an environment adds its directional raymaps).
+    pub fn device_bytes(&self, lights: usize) -> u64 {
+        self.rays as u64 * lights as u64 * (RAY_BYTES + self.k as u64 * 16)
+    }
+}
+
+/// The raymaps of every light (thesis 4.4.1): `rays` rays per light, each carrying its share of
+/// the light's power, started where it enters the grid, backed off by a jitter of up to one
+/// step against aliasing. Point lights cover the solid angle the grid subtends (all
+/// directions from inside); directional lights cover the grid's projection; an environment
+/// becomes `env_lights` directional lights of irradiance L 4 pi / K from a spherical Fibonacci
+/// set (an approximation the note in `docs/lbl.md` quantifies).
+pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, step: f32, seed: u64) -> Vec<RayInit> {
+    let (lo, hi) = (geom.min(), geom.max());
+    let centre = 0.5 * (lo + hi);
+    let radius = 0.5 * (hi - lo).length();
+    let mut rng = Pcg32::new(seed, 0x1b1);
+    let m = (rays as f32).sqrt().ceil().max(1.0) as u32;
+    let mut out = Vec::new();
+    // Start a ray where it enters the grid (or at its origin from inside), backed off by a
+    // random fraction of a step.
+    let push = |out: &mut Vec<RayInit>, o: Vec3, d: Vec3, power: Vec3, from_inside: bool, rng: &mut Pcg32| {
+        let start = if from_inside {
+            Some(o)
+        } else {
+            ray_box(o, d, lo, hi).filter(|(_, t1)| *t1 > 0.0).map(|(t0, _)| o + d * t0.max(0.0))
+        };
+        if let Some(s) = start {
+            let s = s - d * (rng.next_f32() * step);
+            out.push(RayInit {
+                pos_steps: [s.x, s.y, s.z, 0.0],
+                dir_alive: [d.x, d.y, d.z, 1.0],
+                power: [power.x, power.y, power.z, power.max_element()],
+            });
+        }
+    };
+    let directional = |out: &mut Vec<RayInit>, dir: Vec3, e: Vec3, n: u32, rng: &mut Pcg32| {
+        let (b1, b2) = orthonormal_basis(dir);
+        let side = 2.0 * radius;
+        let per = e * (side * side / (n * n) as f32);
+        for i in 0..n {
+            for j in 0..n {
+                let u = (i as f32 + rng.next_f32()) / n as f32 - 0.5;
+                let v = (j as f32 + rng.next_f32()) / n as f32 - 0.5;
+                let o = centre - dir * (radius * 1.01) + b1 * (u * side) + b2 * (v * side);
+                push(out, o, dir, per, false, rng);
+            }
+        }
+    };
+    for light in &scene.lights {
+        match light {
+            Light::Point { position, intensity } => {
+                let to_c = centre - *position;
+                let dist = to_c.length();
+                let inside = dist <= radius;
+                // Solid angle covered: the whole sphere from inside, else the bounding cone.
+                let cos_max = if inside { -1.0 } else { (1.0 - (radius / dist).powi(2)).max(0.0).sqrt() };
+                let omega = 2.0 * std::f32::consts::PI * (1.0 - cos_max);
+                let axis = if inside { Vec3::Z } else { to_c / dist };
+                let (b1, b2) = orthonormal_basis(axis);
+                let per = *intensity * (omega / (m * m) as f32);
+                let from_inside = position.cmpge(lo).all() && position.cmple(hi).all();
+                for i in 0..m {
+                    for j in 0..m {
+                        // Stratified, uniform in solid angle over the cap cos_theta >= cos_max.
+                        let u = (i as f32 + rng.next_f32()) / m as f32;
+                        let v = (j as f32 + rng.next_f32()) / m as f32;
+                        let ct = 1.0 - u * (1.0 - cos_max);
+                        let st = (1.0 - ct * ct).max(0.0).sqrt();
+                        let phi = 2.0 * std::f32::consts::PI * v;
+                        let d = (b1 * (st * phi.cos()) + b2 * (st * phi.sin()) + axis * ct).normalize();
+                        push(&mut out, *position, d, per, from_inside, &mut rng);
+                    }
+                }
+            }
+            Light::Directional { direction, irradiance } => {
+                directional(&mut out, direction.normalize(), *irradiance, m, &mut rng)
+            }
+            Light::Environment { radiance } => {
+                let k = env_lights.max(1);
+                let n = ((m * m / k) as f32).sqrt().ceil().max(8.0) as u32;
+                for i in 0..k {
+                    let z = 1.0 - (2.0 * i as f32 + 1.0) / k as f32;
+                    let r = (1.0 - z * z).max(0.0).sqrt();
+                    let phi = 2.399_963_2 * i as f32;
+                    let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                    directional(&mut out, d, *radiance * (4.0 * std::f32::consts::PI / k as f32), n, &mut rng);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Photon marching on one voxel grid: the resampled density, the rays, the Ray History
+/// Buffer and the per-voxel deposit sums, with the passes that advance and transfer them.
+pub struct Marcher {
+    pub geom: LatticeGeom,
+    /// The medium's density at every voxel centre (0 outside the medium).
+    pub density: Buffer,
+    pub rays: Buffer,
+    pub history: Buffer,
+    /// Deposit sums per channel and voxel ([c * V + v]): float bits, or fixed point of
+    /// `scale` quanta per W when `fixed`.
+    pub sums: Buffer,
+    pub ray_count: u32,
+    /// Rounds of `k` steps until every ray has crossed the grid's diagonal.
+    pub rounds: u32,
+    pub fixed: bool,
+    /// Fixed-point quanta per W: a voxel's sum within a round never exceeds the total power.
+    pub scale: f32,
+    set: MarchSettings,
+    max_steps: u32,
+    march: Pipeline,
+    transfer: Pipeline,
+}
+
+impl Marcher {
+    /// Resample the density onto `geom`, build the raymaps and the buffers for `nch` channels.
+    /// `fixed`: deterministic fixed-point transfer instead of float atomics.
+    pub fn new(
+        gpu: &Gpu,
+        scene: &Scene,
+        gs: &GpuScene,
+        geom: LatticeGeom,
+        set: &MarchSettings,
+        nch: u32,
+        fixed: bool,
+    ) -> Result<Marcher, SolverError> {
+        let v = geom.voxels();
+        // Transfer kernels include lattice.glsl for the channel count; they never read links.
+        let links = super::lattice::Lattice::D3q6.links();
+        let transfer_spec = [(SPEC_NCH, Spec::U32(nch)), (SPEC_LINKS, Spec::U32(links))];
+        let resample = gpu.pipeline(&RESAMPLE, &gs.modelled.spec())?;
+        let march = gpu.pipeline(&MARCH, &gs.modelled.spec())?;
+        let transfer = gpu.pipeline(if fixed { &TRANSFER_FIXED } else { &TRANSFER_FLOAT }, &transfer_spec)?;
+        let density = gpu.buffer("marching density", v * 4)?;
+        let p = gs
+            .bind(Pass::new("marching.resample", QueueRole::Trace, &resample))
+            .write(3, &density)
+            .push(&GeomPush { dims: geom.dims4(), origin: geom.origin4() })
+            .cover(geom.dims);
+        let pt = gpu.submit(QueueRole::Trace, &[p], &[])?;
+        gpu.wait(pt)?;
+
+        let rays = raymaps(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
+        let ray_count = rays.len() as u32;
+        if ray_count == 0 {
+            return Err(SolverError::Unsupported("no light ray reaches the medium's box; check the lights".into()));
+        }
+        let total_power: f64 = (0..3).map(|c| rays.iter().map(|r| r.power[c] as f64).sum::<f64>()).fold(0.0, f64::max);
+        let ray_buf = gpu.buffer_with("marching rays", &rays)?;
+        let history = gpu.buffer("marching ray history", ray_count as u64 * set.k as u64 * 16)?;
+        let sums = gpu.buffer("marching deposit sums", nch as u64 * v * 4)?;
+        let diag = (geom.max() - geom.min()).length();
+        let max_steps = (diag / set.step).ceil() as u32 + 2;
+        let rounds = max_steps.div_ceil(set.k);
+        let scale = if total_power > 0.0 { ((1u64 << 30) as f64 / total_power) as f32 } else { 1.0 };
+        Ok(Marcher {
+            geom,
+            density,
+            rays: ray_buf,
+            history,
+            sums,
+            ray_count,
+            rounds,
+            fixed,
+            scale,
+            set: *set,
+            max_steps,
+            march,
+            transfer,
+        })
+    }
+
+    /// One round: every ray advances `k` steps, writing its deposits into the history.
+    pub fn march_pass(&self, gs: &GpuScene) -> Pass {
+        let g = &self.geom;
+        gs.bind(Pass::new("marching.march", QueueRole::Trace, &self.march))
+            .read_write(3, &self.rays)
+            .write(4, &self.history)
+            .push(&MarchPush {
+                dims: [g.dims[0], g.dims[1], g.dims[2], self.ray_count],
+                origin: g.origin4(),
+                step: self.set.step,
+                threshold: self.set.threshold,
+                k: self.set.k,
+                max_steps: self.max_steps,
+            })
+            .cover([self.ray_count, 1, 1])
+    }
+
+    /// Add the last round's history into the sums, on queue role `role`.
+    pub fn transfer_pass(&self, role: QueueRole) -> Pass {
+        let entries = self.ray_count * self.set.k;
+        Pass::new("marching.transfer", role, &self.transfer)
+            .read(0, &self.history)
+            .read_write(1, &self.sums)
+            .push(&TransferPush { entries, voxels: self.geom.voxels() as u32, scale: self.scale, pad: 0 })
+            .cover([entries, 1, 1])
+    }
+
+    pub fn device_bytes(&self) -> u64 {
+        self.density.size() + self.rays.size() + self.history.size() + self.sums.size()
+    }
+}

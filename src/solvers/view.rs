@@ -1,0 +1,210 @@
+//! Shared part: the view pass (glsl/view/march.comp). Camera rays march through the medium and
+//! collect exact single scattering (shadow transmittance to each light, the exact phase
+//! function; thesis 1.3.6 and 2.5) plus, when a solver supplies one, the multiply scattered
+//! in-scattering from its volume ([`MsVolume`]: `lbl`'s lattice, `wavefront`'s gathered
+//! field). `single` is this pass alone.
+//!
+//! Knobs ([`knobs`]): `single` reads them as they are (`single.step`), solvers with knobs of
+//! their own under the prefix `view_` (`lbl.view_step`).
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
+use crate::output::Image;
+use crate::scene::Scene;
+
+use super::gpu_scene::{GpuScene, SCENE_SPEC};
+use super::{resumable, Knob, Knobs, Range, SolverError};
+
+/// Push constants of glsl/view/march.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ViewPush {
+    pub step: f32,
+    pub shadow_step: f32,
+    pub env_dirs: u32,
+    pub jitter: u32,
+    pub seed_lo: u32,
+    pub seed_hi: u32,
+    pub supersample: u32,
+    pub budget: u32,
+    pub slot: u32,
+    /// 1: the multiple-scattering volume carries the vector irradiance after the fluence.
+    pub ms_flux: u32,
+    pub pad: [u32; 2],
+    /// Volume voxels xyz and channels (x = 0: no multiple-scattering volume).
+    pub ms_dims: [u32; 4],
+    /// Volume min corner and voxel edge lambda.
+    pub ms_origin: [f32; 4],
+}
+
+pub const MARCH: Kernel =
+    Kernel { shader: shader!("view/march"), push_bytes: std::mem::size_of::<ViewPush>(), spec: SCENE_SPEC };
+
+/// Per-pixel resumable march state (`MarchState` in glsl/view/march.comp).
+pub const STATE_BYTES_PER_PIXEL: u64 = 64;
+/// Longest shadow march (steps across the medium's diagonal) a single loop may take.
+pub const MAX_SHADOW_STEPS: f32 = 16384.0;
+
+/// Device bytes of the view pass at this image size.
+pub fn device_bytes(scene: &Scene) -> u64 {
+    let pixels = scene.render.width as u64 * scene.render.height as u64;
+    pixels * (16 + STATE_BYTES_PER_PIXEL) + resumable::STATS_WORDS * 4
+}
+
+/// The view march's knobs (unprefixed; solvers add `view_`).
+pub fn knobs() -> Vec<Knob> {
+    vec![
+        Knob::derived(
+            "step",
+            "1/128 of the medium's diagonal",
+            Range::positive(),
+            "camera-ray step in scene units (at most 1e7 steps across the medium)",
+        ),
+        Knob::derived(
+            "shadow_step",
+            "the camera-ray step",
+            Range::positive(),
+            "shadow-ray step in scene units (at most 16384 steps across the medium: one loop)",
+        ),
+        Knob::fixed(
+            "env_dirs",
+            "16",
+            Range::int(1, 4096),
+            "quadrature directions for environment in-scattering (each costs a shadow march per camera step)",
+        ),
+        Knob::fixed("supersample", "1", Range::int(1, 16), "n x n subpixel rays per pixel, box filter"),
+        Knob::fixed("jitter", "0", Range::int(0, 1), "1 jitters step origins per pixel (noise instead of banding)"),
+        resumable::budget_knob(),
+    ]
+}
+
+/// The camera-ray march's knobs, parsed.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewSettings {
+    pub step: f32,
+    pub shadow_step: f32,
+    pub env_dirs: u32,
+    pub supersample: u32,
+    pub jitter: u32,
+    pub budget: u32,
+}
+
+impl ViewSettings {
+    /// Read `<prefix>step` etc., with defaults scaled to the medium.
+    pub fn parse(k: &Knobs, prefix: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
+        let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
+        let key = |n: &str| format!("{prefix}{n}");
+        let step: f32 = k.get_or(&key("step"), diag / 128.0)?;
+        let v = ViewSettings {
+            step,
+            shadow_step: k.get_or(&key("shadow_step"), step)?,
+            env_dirs: k.get(&key("env_dirs"))?,
+            supersample: k.get(&key("supersample"))?,
+            jitter: k.get(&key("jitter"))?,
+            budget: k.get(&key("budget"))?,
+        };
+        for (name, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
+            // A shadow march runs in one loop (it cannot be split across dispatches), so its
+            // length is bounded; camera-ray steps are resumable and only bounded for sanity.
+            let max_steps = if name == "shadow_step" { MAX_SHADOW_STEPS } else { 1e7 };
+            if diag / x > max_steps {
+                return Err(k.invalid(
+                    &key(name),
+                    format!("{x} gives over {max_steps} steps across the medium's diagonal {diag}; use a larger step"),
+                ));
+            }
+        }
+        Ok(v)
+    }
+}
+
+/// A multiply scattered energy volume for the view pass (glsl/view/march.comp's `MsVolume`).
+pub struct MsVolume<'a> {
+    pub energy: &'a Buffer,
+    pub dims: [u32; 3],
+    pub channels: u32,
+    pub origin: [f32; 3],
+    pub lambda: f32,
+    /// The vector irradiance follows the fluence (`wavefront`'s two-term expansion).
+    pub flux: bool,
+}
+
+/// What one view march did.
+pub struct ViewResult {
+    pub image: Image,
+    pub dispatches: u64,
+    pub max_loop_iterations: u32,
+    pub nonfinite_pixels: u32,
+    pub device_bytes: u64,
+}
+
+/// March camera rays through the medium: single scattering with the exact phase function,
+/// plus, when `ms` is given, the multiply scattered in-scattering from it.
+pub fn march(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    v: &ViewSettings,
+    ms: Option<&MsVolume>,
+) -> Result<ViewResult, SolverError> {
+    let (w, h) = (scene.render.width, scene.render.height);
+    let pipeline = gpu.pipeline(&MARCH, &gs.modelled.spec())?;
+    let pixels = w as u64 * h as u64;
+    let out = gpu.buffer("view radiance", pixels * 16)?;
+    // Every pixel starts at subsample 0, step 0, with transmittance 1.
+    let mut init = [0f32; 16];
+    init[..3].copy_from_slice(&[1.0; 3]);
+    let state = gpu.buffer_with("view state", &vec![init; pixels as usize])?;
+    let stats = gpu.buffer("view stats", resumable::STATS_WORDS * 4)?;
+    let dummy;
+    let (ms_buf, ms_dims, ms_origin, ms_flux) = match ms {
+        Some(m) => (
+            m.energy,
+            [m.dims[0], m.dims[1], m.dims[2], m.channels],
+            [m.origin[0], m.origin[1], m.origin[2], m.lambda],
+            m.flux as u32,
+        ),
+        None => {
+            dummy = gpu.buffer("no ms volume", 4)?;
+            (&dummy, [0; 4], [0.0; 4], 0)
+        }
+    };
+    let seed = scene.render.seed;
+    let (dispatches, st) = resumable::run_until_done(gpu, "view", &stats, |slot| {
+        let push = ViewPush {
+            step: v.step,
+            shadow_step: v.shadow_step,
+            env_dirs: v.env_dirs,
+            jitter: v.jitter,
+            seed_lo: seed as u32,
+            seed_hi: (seed >> 32) as u32,
+            supersample: v.supersample,
+            budget: v.budget,
+            slot,
+            ms_flux,
+            pad: [0; 2],
+            ms_dims,
+            ms_origin,
+        };
+        gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline))
+            .write(3, &out)
+            .read_write(4, &stats)
+            .read_write(5, &state)
+            .read(6, ms_buf)
+            .push(&push)
+            .cover([w, h, 1])
+    })?;
+    let px: Vec<[f32; 4]> = gpu.read_buffer_as(&out)?;
+    let mut image = Image::new(w, h);
+    for (i, p) in px.iter().enumerate() {
+        image.data[3 * i..3 * i + 3].copy_from_slice(&p[..3]);
+    }
+    Ok(ViewResult {
+        image,
+        dispatches,
+        max_loop_iterations: st[2],
+        nonfinite_pixels: st[0],
+        device_bytes: out.size() + state.size() + stats.size(),
+    })
+}

@@ -1,0 +1,378 @@
+//! Shared part: wavefront tracing of homogeneous spherical layers (Szirmay-Kalos, Liktor,
+//! Umenhoffer, Toth, "Fast approximation of multiple scattering in inhomogeneous participating
+//! media"; `../shared/papers/wavefront-diffusion-szirmay-kalos.md`).
+//!
+//! Per point light inside the medium: the medium is resampled onto a spherical grid around the
+//! light (glsl/wave_field/resample.comp, section 2.1), every ray of the grid is marched
+//! w-layer by w-layer carrying the power measures psi0 = r^2 phi and psi1 = r^2 E of the
+//! diffusion equations in spherical symmetry (eq. 4) together with the optical depth of the
+//! direct term (march.comp), and the result is gathered back onto a Cartesian grid as the
+//! multiply scattered fluence and vector irradiance (gather.comp: the wavefront's total minus
+//! its direct term). Used by the `wavefront` solver and by `lbl`'s warm start.
+//!
+//! What the method assumes: a point light *inside* scattering medium (section 2: "a single
+//! point light source in the origin"). Its initial values are the homogeneous infinite-medium
+//! solution at the light (eq. 5). A point light outside the medium, or in a spot of zero
+//! density, would start a diffusion solution in vacuum (psi0 stays 0, then goes negative at
+//! the medium's surface under eq. 6), so such lights are not traced ([`traced_lights`]).
+//!
+//! Integrators: `exponential` (default; stable and non-negative for any step) or `explicit`
+//! (the paper's eq. 6: from r = 0 it does not converge to the homogeneous solution in an
+//! absorbing medium, and it goes negative once sigma_e R passes about 2.5: reported; see
+//! glsl/wave_field/march.comp).
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
+use crate::scene::{is_grey, Light, Scene};
+
+use super::gpu_scene::{GpuScene, SCENE_SPEC};
+use super::lattice::LatticeGeom;
+use super::view::MsVolume;
+use super::{Knob, Knobs, Range, SolverError};
+
+/// How psi0 and psi1 are advanced across a shell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Integrator {
+    /// The paper's eq. 6: explicit Euler, first order in Delta, unstable for stiff shells.
+    Explicit,
+    /// The shell's exact homogeneous solution (decaying mode), carrying the power psi1:
+    /// exact for homogeneous media, finite and non-negative for any step.
+    Exponential,
+}
+
+impl std::str::FromStr for Integrator {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "explicit" => Ok(Integrator::Explicit),
+            "exponential" => Ok(Integrator::Exponential),
+            _ => Err(format!("unknown integrator {s:?}; use exponential or explicit")),
+        }
+    }
+}
+
+/// Parsed knobs.
+#[derive(Clone, Copy, Debug)]
+pub struct WaveSettings {
+    pub nu: u32,
+    pub nv: u32,
+    pub layers: u32,
+    pub integrator: Integrator,
+    pub grid: u32,
+    /// `explicit` only: radius (scene units) over which the homogeneous solution at the light
+    /// (eq. 5) stands in before eq. 6 takes over; 0 = the paper's start at r = 0.
+    pub explicit_start: f32,
+}
+
+/// Most radial layers: the march is one loop per ray (llvmpipe ends every loop of an
+/// invocation after 65535 iterations; docs/lavapipe.md).
+pub const MAX_LAYERS: u32 = 16384;
+
+/// The knobs of wavefront tracing (unprefixed; `lbl`'s warm start lists them as `wavefront_*`).
+pub fn knobs() -> Vec<Knob> {
+    vec![
+        Knob::fixed("nu", "64", Range::int(4, 4096), "rays of the spherical grid in azimuth"),
+        Knob::fixed("nv", "32", Range::int(2, 4096), "rays of the spherical grid in cos(theta) (uniform in solid angle)"),
+        Knob::fixed(
+            "layers",
+            "128",
+            Range::int(2, MAX_LAYERS as u64),
+            "radial steps from the light to the farthest corner of the box",
+        ),
+        Knob::fixed(
+            "integrator",
+            "exponential",
+            Range::Choice(&["exponential", "explicit"]),
+            "exponential: exact per shell, stable and non-negative; explicit: the paper's eq. 6",
+        ),
+        Knob::fixed(
+            "explicit_start",
+            "0",
+            Range::non_negative(),
+            "explicit only: radius (scene units) over which the homogeneous solution at the light (eq. 5) stands in; 0 = the paper's start at r = 0",
+        ),
+        Knob::fixed("grid", "64", Range::int(2, 1024), "Cartesian voxels along the box's longest side for the gathered volume"),
+    ]
+}
+
+impl WaveSettings {
+    /// Read `<prefix>nu` etc.
+    pub fn parse(k: &Knobs, prefix: &str) -> Result<WaveSettings, SolverError> {
+        let key = |n: &str| format!("{prefix}{n}");
+        Ok(WaveSettings {
+            nu: k.get(&key("nu"))?,
+            nv: k.get(&key("nv"))?,
+            layers: k.get(&key("layers"))?,
+            integrator: k.get(&key("integrator"))?,
+            grid: k.get(&key("grid"))?,
+            explicit_start: k.get(&key("explicit_start"))?,
+        })
+    }
+
+    /// Device bytes of one light's spherical grid and the gathered volume on `geom`.
+    pub fn device_bytes(&self, geom: &LatticeGeom) -> u64 {
+        let rays = self.nu as u64 * self.nv as u64;
+        rays * ((self.layers as u64 + 1) * 48 + self.layers as u64 * 4) + geom.voxels() * 4 * 12 + 16
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct WavePush {
+    light: [f32; 4],
+    intensity: [f32; 4],
+    dims: [u32; 4],
+    cart_dims: [u32; 4],
+    cart_origin: [f32; 4],
+}
+
+const PUSH_BYTES: usize = std::mem::size_of::<WavePush>();
+pub const RESAMPLE: Kernel =
+    Kernel { shader: shader!("wave_field/resample"), push_bytes: PUSH_BYTES, spec: SCENE_SPEC };
+pub const MARCH: Kernel = Kernel { shader: shader!("wave_field/march"), push_bytes: PUSH_BYTES, spec: SCENE_SPEC };
+pub const GATHER: Kernel = Kernel { shader: shader!("wave_field/gather"), push_bytes: PUSH_BYTES, spec: &[] };
+
+/// Every kernel of this part.
+pub fn kernels() -> Vec<Kernel> {
+    vec![RESAMPLE, MARCH, GATHER]
+}
+
+/// The spherical grid of one light on the GPU.
+pub struct WaveField {
+    pub position: Vec3,
+    pub intensity: Vec3,
+    /// Distance from the light to the farthest corner of the medium's box (scene units).
+    pub radius: f32,
+    /// Radial step Delta = radius / layers.
+    pub delta: f32,
+    pub nu: u32,
+    pub nv: u32,
+    pub layers: u32,
+    pub psi0: Buffer,
+    pub psi1: Buffer,
+    pub tau: Buffer,
+    pub shells: Buffer,
+    /// Nodes with a negative psi value, with a non-finite one, rays with either.
+    pub negative_nodes: u64,
+    pub nonfinite_nodes: u64,
+    pub failed_rays: u64,
+}
+
+impl WaveField {
+    /// Node index (layer-major, as `wf_node` in glsl/include/wave_field.glsl).
+    pub fn node(&self, i: u32, j: u32, n: u32) -> usize {
+        (n as usize * self.nv as usize + j as usize) * self.nu as usize + i as usize
+    }
+    /// Direction of ray (i, j): alpha = 2 pi u, theta = arccos(1 - 2 v) at the cell centre.
+    pub fn direction(&self, i: u32, j: u32) -> Vec3 {
+        let u = (i as f32 + 0.5) / self.nu as f32;
+        let v = (j as f32 + 0.5) / self.nv as f32;
+        let alpha = 2.0 * std::f32::consts::PI * u;
+        let ct = 1.0 - 2.0 * v;
+        let st = (1.0 - ct * ct).max(0.0).sqrt();
+        Vec3::new(alpha.cos() * st, alpha.sin() * st, ct)
+    }
+    pub fn device_bytes(&self) -> u64 {
+        self.psi0.size() + self.psi1.size() + self.tau.size() + self.shells.size()
+    }
+    fn push(&self, integrator: Integrator, explicit_start: f32) -> WavePush {
+        WavePush {
+            light: [self.position.x, self.position.y, self.position.z, self.delta],
+            intensity: [self.intensity.x, self.intensity.y, self.intensity.z, explicit_start],
+            dims: [self.nu, self.nv, self.layers, if integrator == Integrator::Exponential { 1 } else { 0 }],
+            cart_dims: [0; 4],
+            cart_origin: [0.0; 4],
+        }
+    }
+}
+
+/// Point lights the method applies to: inside the box, on non-zero density (section 2).
+pub fn traced_lights(scene: &Scene) -> Vec<(Vec3, Vec3)> {
+    scene
+        .lights
+        .iter()
+        .filter_map(|l| match *l {
+            Light::Point { position, intensity } if scene.inside_medium(position) => Some((position, intensity)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The solver's three pipelines, built once per render and shared by every light.
+pub struct WaveKernels {
+    resample: Pipeline,
+    march: Pipeline,
+    gather: Pipeline,
+}
+
+impl WaveKernels {
+    pub fn new(gpu: &Gpu, gs: &GpuScene) -> Result<WaveKernels, SolverError> {
+        let spec = gs.modelled.spec();
+        Ok(WaveKernels {
+            resample: gpu.pipeline(&RESAMPLE, &spec)?,
+            march: gpu.pipeline(&MARCH, &spec)?,
+            gather: gpu.pipeline(&GATHER, &[])?,
+        })
+    }
+}
+
+/// Resample and march the spherical grid of one point light (eq. 4-6).
+#[allow(clippy::too_many_arguments)]
+pub fn trace_light(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    kernels: &WaveKernels,
+    set: &WaveSettings,
+    position: Vec3,
+    intensity: Vec3,
+) -> Result<WaveField, SolverError> {
+    let m = &scene.medium;
+    let radius = (0..8)
+        .map(|k| {
+            let c = Vec3::new(
+                if k & 1 == 0 { m.bounds_min.x } else { m.bounds_max.x },
+                if k & 2 == 0 { m.bounds_min.y } else { m.bounds_max.y },
+                if k & 4 == 0 { m.bounds_min.z } else { m.bounds_max.z },
+            );
+            c.distance(position)
+        })
+        .fold(0.0f32, f32::max);
+    let rays = set.nu as u64 * set.nv as u64;
+    let nodes = rays * (set.layers as u64 + 1);
+    let max = gpu.info().max_storage_buffer_range;
+    if nodes * 16 > max {
+        return Err(SolverError::Unsupported(format!(
+            "wavefront tracing: {} x {} rays x {} layers needs {} bytes per buffer, over this device's maxStorageBufferRange {max}; use fewer rays (nu, nv) or layers",
+            set.nu,
+            set.nv,
+            set.layers,
+            nodes * 16
+        )));
+    }
+    let mut f = WaveField {
+        position,
+        intensity,
+        radius,
+        delta: radius / set.layers as f32,
+        nu: set.nu,
+        nv: set.nv,
+        layers: set.layers,
+        psi0: gpu.buffer("wave field psi0", nodes * 16)?,
+        psi1: gpu.buffer("wave field psi1", nodes * 16)?,
+        tau: gpu.buffer("wave field tau", nodes * 16)?,
+        shells: gpu.buffer("wave field shells", rays * set.layers as u64 * 4)?,
+        negative_nodes: 0,
+        nonfinite_nodes: 0,
+        failed_rays: 0,
+    };
+    let stats = gpu.buffer("wave field stats", 16)?;
+    let push = f.push(set.integrator, set.explicit_start);
+    let passes = vec![
+        gs.bind(Pass::new("wave_field.resample", QueueRole::Trace, &kernels.resample))
+            .write(3, &f.shells)
+            .push(&push)
+            .cover([set.nu, set.nv, set.layers]),
+        gs.bind(Pass::new("wave_field.march", QueueRole::Trace, &kernels.march))
+            .read(3, &f.shells)
+            .write(4, &f.psi0)
+            .write(5, &f.psi1)
+            .write(6, &f.tau)
+            .read_write(7, &stats)
+            .push(&push)
+            .cover([set.nu, set.nv, 1]),
+    ];
+    let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+    gpu.wait(point)?;
+    let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
+    f.negative_nodes = st[0] as u64;
+    f.nonfinite_nodes = st[1] as u64;
+    f.failed_rays = st[2] as u64;
+    Ok(f)
+}
+
+/// The multiply scattered volume gathered from every traced light, in `MsVolume`'s layout.
+pub struct WaveVolume {
+    pub energy: Buffer,
+    pub geom: LatticeGeom,
+    pub channels: u32,
+    pub lights_traced: usize,
+    pub negative_nodes: u64,
+    pub nonfinite_nodes: u64,
+    pub failed_rays: u64,
+    pub nonfinite_voxels: u64,
+    pub device_bytes: u64,
+}
+
+impl WaveVolume {
+    pub fn ms(&self) -> MsVolume<'_> {
+        MsVolume {
+            energy: &self.energy,
+            dims: self.geom.dims,
+            channels: self.channels,
+            origin: self.geom.origin,
+            lambda: self.geom.lambda,
+            flux: true,
+        }
+    }
+}
+
+/// Trace every point light inside the medium and gather onto a Cartesian grid of `set.grid`
+/// voxels along the box's longest side (the same geometry as `lbl`'s lattice), or onto `geom`.
+pub fn wave_volume(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    set: &WaveSettings,
+    geom: Option<LatticeGeom>,
+) -> Result<WaveVolume, SolverError> {
+    let geom = geom.unwrap_or_else(|| LatticeGeom::new(scene, set.grid));
+    let v = geom.voxels();
+    let lights = traced_lights(scene);
+    let grey_lights = lights.iter().all(|(_, c)| is_grey(*c));
+    // Model only what the scene requires: one channel for a grey medium under grey lights.
+    let channels: u32 = if gs.modelled.chromatic || !grey_lights { 3 } else { 1 };
+    let energy = gpu.buffer("wave field volume", v * 4 * channels as u64 * 4)?;
+    let stats = gpu.buffer("wave field gather stats", 16)?;
+    let kernels = WaveKernels::new(gpu, gs)?;
+    let mut out = WaveVolume {
+        energy,
+        geom,
+        channels,
+        lights_traced: lights.len(),
+        negative_nodes: 0,
+        nonfinite_nodes: 0,
+        failed_rays: 0,
+        nonfinite_voxels: 0,
+        device_bytes: 0,
+    };
+    let mut field_bytes = 0;
+    for (pos, intensity) in lights {
+        let f = trace_light(gpu, scene, gs, &kernels, set, pos, intensity)?;
+        out.negative_nodes += f.negative_nodes;
+        out.nonfinite_nodes += f.nonfinite_nodes;
+        out.failed_rays += f.failed_rays;
+        field_bytes = field_bytes.max(f.device_bytes());
+        let mut push = f.push(set.integrator, set.explicit_start);
+        push.cart_dims = [geom.dims[0], geom.dims[1], geom.dims[2], channels];
+        push.cart_origin = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
+        let pass = Pass::new("wave_field.gather", QueueRole::Trace, &kernels.gather)
+            .read(0, &f.psi0)
+            .read(1, &f.psi1)
+            .read(2, &f.tau)
+            .read_write(3, &out.energy)
+            .read_write(4, &stats)
+            .push(&push)
+            .cover(geom.dims);
+        let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
+        gpu.wait(point)?;
+    }
+    let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
+    out.nonfinite_voxels = st[0] as u64;
+    out.device_bytes = out.energy.size() + stats.size() + field_bytes;
+    Ok(out)
+}

@@ -1,0 +1,363 @@
+//! The solver interface: every registered solver supplies every entry of it, every kernel's
+//! declared interface matches its SPIR-V, the knob reference is current, and a solver that is
+//! not in the registry at all (a tiny CPU-only fake) is picked up by `bench`, `stability`,
+//! the memory table and the knob reference with no code of its own there.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use scatterlab::gpu::{reflect, Gpu, Kernel};
+use scatterlab::measure::{bench, stability};
+use scatterlab::output::Image;
+use scatterlab::physics::reference::chord_length_box;
+use scatterlab::scene::{is_scene_key, CameraKind, Light, Scene};
+use scatterlab::solvers::gpu_scene::modelled;
+use scatterlab::solvers::{
+    self, knobs, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Settings, Solver, SolverError,
+    Stats, Variant, SOLVERS,
+};
+
+use crate::common::{assert_clean, gpu, render, scene, PATH, SINGLE};
+
+/// A constant-density cube under a uniform environment, seen face on: every camera ray crosses
+/// one unit of medium (the stability sweep's geometry).
+const CUBE: &str = r#"
+[render]
+width = 12
+height = 12
+seed = 5
+spp = 16
+[camera]
+kind = "orthographic"
+origin = [0.0, 0.0, 3.0]
+target = [0.0, 0.0, 0.0]
+extent = 0.6
+[medium]
+bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+sigma_t = 2.0
+albedo = 0.0
+g = 0.0
+density = { kind = "constant" }
+[[light]]
+kind = "environment"
+radiance = 1.0
+"#;
+
+/// A solver that is in no registry: the pure absorber on the CPU. Each pixel is the
+/// environment's radiance times the transmittance of its central camera ray,
+/// exp(-sigma_t chord) (constant density only: exact for it, and it says so otherwise). It
+/// ignores scattering and every other light, which is what `stability` must notice.
+struct Absorber;
+
+impl Solver for Absorber {
+    fn name(&self) -> &'static str {
+        "absorber"
+    }
+    fn about(&self) -> &'static str {
+        "test fake: transmitted environment only, on the CPU"
+    }
+    fn knobs(&self) -> Vec<Knob> {
+        vec![Knob::fixed("gain", "1", Range::positive(), "multiplies the image (1: the exact absorber)")]
+    }
+    fn kernels(&self) -> Vec<Kernel> {
+        Vec::new()
+    }
+    fn render(&self, _gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
+        let k = req.knobs(self)?;
+        let gain: f32 = k.get("gain")?;
+        k.finish()?;
+        let s = req.scene;
+        if !matches!(s.medium.density, scatterlab::scene::Density::Constant) {
+            return Err(SolverError::Unsupported("absorber: constant density only".into()));
+        }
+        let env: f32 = s
+            .lights
+            .iter()
+            .map(|l| match l {
+                Light::Environment { radiance } => radiance.x,
+                _ => 0.0,
+            })
+            .sum();
+        let (w, h) = (s.render.width, s.render.height);
+        let (right, up, forward) = s.camera.basis();
+        let mut image = Image::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let u = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
+                let v = 1.0 - (y as f32 + 0.5) / h as f32 * 2.0;
+                let aspect = h as f32 / w as f32;
+                let (o, d) = match s.camera.kind {
+                    CameraKind::Orthographic { extent } => {
+                        (s.camera.origin + right * (u * extent / 2.0) + up * (v * aspect * extent / 2.0), forward)
+                    }
+                    CameraKind::Perspective { fov_deg } => {
+                        let t = (fov_deg.to_radians() / 2.0).tan();
+                        (s.camera.origin, (forward + right * (u * t) + up * (v * aspect * t)).normalize())
+                    }
+                };
+                let chord = chord_length_box(o, d, s.medium.bounds_min, s.medium.bounds_max);
+                let t = (-s.medium.sigma_t * chord).exp();
+                let p = 3 * (y * w + x) as usize;
+                image.data[p..p + 3].copy_from_slice(&(t * env * gain).to_array());
+            }
+        }
+        let report = RenderReport {
+            solver: self.name(),
+            settings: k.json(),
+            modelled: modelled(s, req.force_full),
+            device_bytes: 0,
+            passes: Vec::new(),
+            gpu_ms: 0.0,
+            stats: Stats::new(()),
+            warnings: Vec::new(),
+        };
+        Ok(RenderOutput { image, variance: None, report })
+    }
+    fn memory_estimate(&self, _scene: &Scene, _knobs: &Knobs) -> Result<u64, SolverError> {
+        Ok(0)
+    }
+    fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
+        ["0.25", "0.5", "1"].iter().map(|g| Rung::one("absorber.gain", g)).collect()
+    }
+    fn stability(&self) -> Vec<Variant> {
+        vec![Variant::new("", &[]), Variant::new("half", &[("absorber.gain", "0.5")])]
+    }
+}
+
+static FAKE: &dyn Solver = &Absorber;
+
+/// Every registered solver supplies every entry of the interface, with values that hold up.
+#[test]
+fn every_registered_solver_supplies_the_whole_interface() {
+    let s = scene(CUBE);
+    let names: BTreeSet<&str> = SOLVERS.iter().map(|s| s.name()).collect();
+    assert_eq!(names.len(), SOLVERS.len(), "solver names are unique");
+    assert_eq!(SOLVERS.iter().filter(|s| s.is_reference()).count(), 1, "exactly one reference solver");
+    assert!(solvers::reference().is_reference());
+    for solver in SOLVERS {
+        let name = solver.name();
+        assert!(!solver.about().is_empty(), "{name}: about");
+        assert_eq!(solvers::find(name).unwrap().name(), name);
+        let table = solver.knobs();
+        assert!(!table.is_empty(), "{name}: no knobs");
+        let knob_names: BTreeSet<&str> = table.iter().map(|k| k.name.as_str()).collect();
+        assert_eq!(knob_names.len(), table.len(), "{name}: knob names are unique");
+        for k in &table {
+            assert!(!k.doc.is_empty(), "{name}.{}: no doc", k.name);
+            if let knobs::Default::Fixed(d) = &k.default {
+                k.range.check(d).unwrap_or_else(|e| panic!("{name}.{}: default {d} out of its range: {e}", k.name));
+            }
+        }
+        // Every knob at its default resolves for this scene, and a memory estimate follows.
+        let defaults = Knobs::defaults(name, table.clone());
+        let bytes = solver.memory_estimate(&s, &defaults).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(bytes > 0, "{name}: a memory estimate of 0 bytes");
+        assert!(!solver.kernels().is_empty(), "{name}: no kernels");
+        let ladder = solver.ladder(&s);
+        assert!(ladder.len() >= 3, "{name}: a ladder of {} rungs (bench --quick keeps three)", ladder.len());
+        for rung in &ladder {
+            assert!(rung.sets.iter().any(|(k, _)| k == &rung.knob), "{name}: rung {} does not set its knob", rung.knob);
+            check_sets(*solver, &rung.sets);
+        }
+        let variants = solver.stability();
+        assert!(!variants.is_empty(), "{name}: no stability variant");
+        for v in &variants {
+            check_sets(*solver, &v.sets);
+        }
+    }
+}
+
+/// Keys a ladder or variant sets are scene `render.*` keys the measurements can apply, or
+/// knobs of this solver with values in range.
+fn check_sets(solver: &dyn Solver, sets: &[(String, String)]) {
+    let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = sets.iter().cloned().partition(|(k, _)| is_scene_key(k));
+    scene(CUBE).with_overrides(&scene_sets).unwrap_or_else(|e| panic!("{}: {e}", solver.name()));
+    Settings::new(&knob_sets).knobs(solver.name(), solver.knobs()).unwrap_or_else(|e| panic!("{}: {e}", solver.name()));
+}
+
+/// Spec-constant ids and push-constant sizes of every kernel of every solver (and of the test
+/// probes) agree with the SPIR-V, and every compiled shader belongs to some kernel.
+#[test]
+fn every_kernel_matches_its_spirv_and_every_shader_is_used() {
+    let mut used = BTreeSet::new();
+    for k in &solvers::kernels() {
+        k.check().unwrap_or_else(|e| panic!("{e}"));
+        let r = reflect(&k.shader).unwrap();
+        assert!(r.workgroup_size.iter().all(|w| *w >= 1), "{}", k.shader.name);
+        used.insert(k.shader.name.to_string());
+    }
+    let spirv = Path::new(env!("CARGO_MANIFEST_DIR")).join("spirv");
+    let mut shipped = BTreeSet::new();
+    for dir in std::fs::read_dir(&spirv).unwrap() {
+        let dir = dir.unwrap().path();
+        for f in std::fs::read_dir(&dir).unwrap() {
+            let f = f.unwrap().path();
+            let folder = dir.file_name().unwrap().to_string_lossy().into_owned();
+            shipped.insert(format!("{folder}/{}", f.file_stem().unwrap().to_string_lossy()));
+        }
+    }
+    assert_eq!(used, shipped, "kernels declared by solvers vs shaders in spirv/");
+}
+
+/// A declared interface that disagrees with the shader is caught, at the check and when a
+/// pipeline is built.
+#[test]
+fn a_wrong_kernel_declaration_is_refused() {
+    use scatterlab::gpu::{Spec, SpecKind};
+    let mut k = solvers::view::MARCH;
+    k.push_bytes += 4;
+    let e = k.check().unwrap_err().to_string();
+    assert!(e.contains("view/march") && e.contains("push constants"), "{e}");
+    let mut k = solvers::view::MARCH;
+    k.spec = &[(0, SpecKind::U32), (1, SpecKind::Bool)];
+    let e = k.check().unwrap_err().to_string();
+    assert!(e.contains("specialization constants"), "{e}");
+    let gpu = gpu();
+    // Built with an id the shader does not declare, or with a wrong type.
+    let spec = [(0, Spec::U32(0)), (1, Spec::Bool(false)), (2, Spec::Bool(false)), (9, Spec::U32(1))];
+    let e = gpu.pipeline(&solvers::view::MARCH, &spec).err().expect("refused").to_string();
+    assert!(e.contains("view/march") && e.contains("specialization"), "{e}");
+    let spec = [(0, Spec::U32(0)), (1, Spec::U32(0)), (2, Spec::Bool(false))];
+    assert!(gpu.pipeline(&solvers::view::MARCH, &spec).is_err());
+    assert_clean(&gpu);
+}
+
+/// `docs/knobs.md` is the knob reference generated from the tables (`scatterlab knobs
+/// --markdown`): regenerate it when a knob changes.
+#[test]
+fn the_knob_reference_is_current() {
+    let want = knobs::reference_markdown(SOLVERS);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/knobs.md");
+    let have = std::fs::read_to_string(&path).unwrap_or_default();
+    assert!(
+        have.trim_end() == want.trim_end(),
+        "docs/knobs.md is stale: run `tools/scatterlab knobs --markdown > docs/knobs.md`"
+    );
+    for s in SOLVERS {
+        for k in s.knobs() {
+            assert!(want.contains(&format!("`{}.{}`", s.name(), k.name)));
+        }
+    }
+}
+
+/// `--set` is checked against the tables: unknown knobs, other solvers' knobs, values out of
+/// range, and knobs set but unused by the render, each with a message naming the key.
+#[test]
+fn knob_settings_are_checked_against_the_table() {
+    let bad = |pairs: &[(&str, &str)], solver: &dyn Solver| {
+        let p: Vec<(String, String)> = pairs.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        Settings::new(&p).knobs(solver.name(), solver.knobs()).expect_err("refused").to_string()
+    };
+    let lbl = solvers::find("lbl").unwrap();
+    let e = bad(&[("lbl.grd", "32")], lbl);
+    assert!(e.contains("lbl.grd") && e.contains("unknown knob") && e.contains("grid"), "{e}");
+    let e = bad(&[("path.max_depth", "1")], lbl);
+    assert!(e.contains("path.max_depth") && e.contains("solver path") && e.contains("lbl"), "{e}");
+    let e = bad(&[("lbl.grid", "1")], lbl);
+    assert!(e.contains("lbl.grid") && e.contains("2..=512"), "{e}");
+    let e = bad(&[("lbl.tol", "1")], lbl);
+    assert!(e.contains("lbl.tol") && e.contains("(0, 1)"), "{e}");
+    let e = bad(&[("lbl.lattice", "d3q19")], lbl);
+    assert!(e.contains("d3q6, d3q18"), "{e}");
+    let e = bad(&[("path.spp", "64")], PATH);
+    assert!(e.contains("path.spp") && e.contains("render.spp"), "{e}");
+    let e = bad(&[("absorber.gain", "-1")], FAKE);
+    assert!(e.contains("absorber.gain") && e.contains("(0, inf)"), "{e}");
+    // Set, in range, but not used by this render: a knob of a mode not chosen.
+    let gpu = gpu();
+    let s = scene(CUBE);
+    let sets = [("lbl.wavefront_nu", "16"), ("lbl.grid", "8"), ("lbl.rays", "256")];
+    let e = crate::common::try_render(&gpu, &s, lbl, &sets, false).err().expect("refused").to_string();
+    assert!(e.contains("lbl.wavefront_nu") && e.contains("does not use"), "{e}");
+    // The report's settings are the knobs the render ran with, defaults included.
+    let out = render(&gpu, &s, SINGLE, &[("single.env_dirs", "8")]);
+    assert_eq!(out.report.settings["env_dirs"], 8);
+    assert_eq!(out.report.settings["supersample"], 1);
+    assert!(out.report.settings["step"].as_f64().unwrap() > 0.0, "the derived step is recorded");
+    assert_clean(&gpu);
+}
+
+/// A solver in no registry is picked up by bench, stability, the memory table and the knob
+/// reference: none of them has code of its own for any solver.
+#[test]
+fn a_fake_solver_is_picked_up_everywhere() {
+    let gpu = gpu();
+    let s = scene(CUBE);
+    // Bench walks its ladder beside a real solver, against the reference.
+    let reference = render(&gpu, &s, PATH, &[("render.spp", "4096")]).image;
+    let (points, _) = bench::bench_scene(&gpu, "cube", &s, &reference, &[FAKE, SINGLE], true, 1, &|_| {}).unwrap();
+    let fake: Vec<_> = points.iter().filter(|p| p.solver == "absorber").collect();
+    assert_eq!(fake.len(), 3);
+    assert_eq!(fake.iter().map(|p| p.value.as_str()).collect::<Vec<_>>(), ["0.25", "0.5", "1"]);
+    // At gain 1 it is exact here (a pure absorber): the error is the reference's noise alone
+    // (each path sample is 0 or 1 with p = exp(-2): relL2 ~ 0.04, energy ~ 0.003 per sigma).
+    let exact = fake.iter().find(|p| p.value == "1").unwrap();
+    assert!(exact.metrics.rel_l2 < 0.1 && (exact.metrics.energy_ratio - 1.0).abs() < 0.015, "{:?}", exact.metrics);
+    assert!((fake[0].metrics.energy_ratio - 0.25).abs() < 0.01, "{:?}", fake[0].metrics);
+    // Stability runs both of its variants on every case and judges them like any solver:
+    // exact on the pure absorber, caught at half gain there.
+    let outcomes = stability::run(&gpu, &[FAKE], false, &|_| {}).unwrap();
+    let cases = stability::cases().iter().filter(|c| !c.slow).count();
+    assert_eq!(outcomes.len(), 2 * cases);
+    let albedo0 = |variant: &str| {
+        outcomes.iter().find(|o| o.case == "albedo 0" && o.variant == variant).expect("albedo 0 outcome").clone()
+    };
+    assert!(albedo0("").passed && albedo0("").exact_error.unwrap() < 1e-4, "{:?}", albedo0(""));
+    assert!(!albedo0("half").passed && albedo0("half").notes.iter().any(|n| n.contains("exact")));
+    assert!(outcomes.iter().all(|o| o.solver == "absorber"));
+    // The memory table and the knob reference list it.
+    let table = solvers::memory_table(&s, &[FAKE, SINGLE], &Settings::default()).unwrap();
+    assert_eq!(table.iter().map(|t| t.0).collect::<Vec<_>>(), ["absorber", "single"]);
+    assert!(knobs::reference_markdown(&[FAKE]).contains("| `absorber.gain` | `1` |"));
+    assert_clean(&gpu);
+}
+
+/// Ladders may set `render.*` scene keys; nothing else can be applied to a loaded scene.
+#[test]
+fn render_keys_apply_to_a_loaded_scene() {
+    let s = scene(CUBE);
+    let o = |k: &str, v: &str| vec![(k.to_string(), v.to_string())];
+    assert_eq!(s.with_overrides(&o("render.spp", "64")).unwrap().render.spp, 64);
+    assert_eq!(s.with_overrides(&o("render.width", "7")).unwrap().render.width, 7);
+    let e = s.with_overrides(&o("render.spp", "0")).unwrap_err().to_string();
+    assert!(e.contains("render.spp") && e.contains("out of range"), "{e}");
+    let e = s.with_overrides(&o("medium.albedo", "0.5")).unwrap_err().to_string();
+    assert!(e.contains("medium.albedo") && e.contains("render.spp"), "{e}");
+}
+
+/// No solver imports another solver, no shared part imports a solver, and the CLI and
+/// `measure` name no solver: everything goes through the interface (read from the sources).
+#[test]
+fn no_code_outside_a_solver_names_it() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let names: Vec<&str> = SOLVERS.iter().map(|s| s.name()).collect();
+    let read = |dir: &str| -> Vec<(String, String)> {
+        let mut out = Vec::new();
+        for e in std::fs::read_dir(root.join(dir)).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "rs") {
+                out.push((p.file_stem().unwrap().to_string_lossy().into_owned(), std::fs::read_to_string(&p).unwrap()));
+            }
+        }
+        out
+    };
+    let mut offences = Vec::new();
+    for (file, text) in read("solvers") {
+        for n in &names {
+            let own = file == *n || file == "mod";
+            if !own && (text.contains(&format!("super::{n}::")) || text.contains(&format!("super::{n}}}"))) {
+                offences.push(format!("src/solvers/{file}.rs imports solver {n}"));
+            }
+        }
+    }
+    for dir in ["cli", "measure"] {
+        for (file, text) in read(dir) {
+            for n in &names {
+                if text.contains(&format!("solvers::{n}::")) || text.contains(&format!("\"{n}.")) {
+                    offences.push(format!("src/{dir}/{file}.rs names solver {n}"));
+                }
+            }
+        }
+    }
+    assert!(offences.is_empty(), "{offences:#?}");
+}
