@@ -521,7 +521,11 @@ fn camera_and_point_light_inside_the_medium_reference_it() {
         "scenes/anisotropic-cube.toml",
         &[
             ("camera.origin", "[0.1, 0.2, 0.45]"),
-            ("light", "[{ kind = \"point\", position = [0.0, 0.0, 0.0], intensity = [1.0, 2.0, 3.0] }, { kind = \"point\", position = [2.0, 0.0, 0.0], intensity = 1.0 }]"),
+            (
+                "light",
+                "[{ kind = \"point\", position = [0.0, 0.0, 0.0], intensity = [1.0, 2.0, 3.0] }, { kind = \
+                \"point\", position = [2.0, 0.0, 0.0], intensity = 1.0 }]",
+            ),
         ],
     );
     let (_dir, xml, _files) = export_and_check(&scene);

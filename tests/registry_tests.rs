@@ -151,8 +151,8 @@ fn every_registered_solver_supplies_the_whole_interface() {
         // Every knob at its default resolves for this scene, and a memory estimate follows.
         let defaults = Knobs::defaults(name, table.clone());
         let bytes = solver.memory_estimate(&s, &defaults).unwrap_or_else(|e| panic!("{name}: {e}"));
-        assert!(bytes > 0, "{name}: a memory estimate of 0 bytes");
-        assert!(!solver.kernels().is_empty(), "{name}: no kernels");
+        // A solver with kernels allocates device memory; only a CPU-only one may estimate 0.
+        assert!(bytes > 0 || solver.kernels().is_empty(), "{name}: runs kernels but estimates 0 bytes");
         let ladder = solver.ladder(&s);
         assert!(ladder.len() >= 3, "{name}: a ladder of {} rungs (bench --quick keeps three)", ladder.len());
         for rung in &ladder {

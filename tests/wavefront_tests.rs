@@ -104,7 +104,10 @@ fn homogeneous_march_converges_to_eq5_at_each_integrators_order() {
             let (f, p0, p1) = field(&gpu, &sc, &set);
             started.push((f.delta as f64, worst_error(&f, &p0, &p1, st, al, gg, start as f64)));
         }
-        eprintln!("sigma_t {sigma_t} albedo {albedo} g {g}: explicit from r = 0, worst error per layer count: {from_zero:.3?}");
+        eprintln!(
+            "sigma_t {sigma_t} albedo {albedo} g {g}: explicit from r = 0, worst error per layer count: \
+            {from_zero:.3?}"
+        );
         // Explicit Euler (eq. 6) from r_s: first order, halving Delta halves the error.
         for w in started.windows(2) {
             let order = (w[0].1 / w[1].1).ln() / (w[0].0 / w[1].0).ln();
@@ -158,7 +161,12 @@ fn stability_extremes_both_integrators() {
                     assert!(fluence_ok, "gathered fluence negative");
                     let failed = f.negative_nodes + f.nonfinite_nodes > 0;
                     if integ == Integrator::Exponential {
-                        assert!(!failed, "exponential integrator failed at sigma_t {sigma_t}, albedo {albedo}, {lname}: {} negative, {} non-finite nodes", f.negative_nodes, f.nonfinite_nodes);
+                        assert!(
+                            !failed,
+                            "exponential integrator failed at sigma_t {sigma_t}, albedo {albedo}, \
+                            {lname}: {} negative, {} non-finite nodes",
+                            f.negative_nodes, f.nonfinite_nodes
+                        );
                         let most = p1.iter().map(|p| p[0]).fold(0.0f32, f32::max);
                         assert!(most <= 1.0 + 1e-6, "power created: psi1 reaches {most} > Phi = 1");
                     } else {
@@ -276,7 +284,8 @@ fn light_inside_cloud_beats_the_direct_term() {
     let e_single = compare(&direct.image, &reference.image).unwrap();
     let (_, se) = crate::common::mean_and_stderr(&reference.image, reference.variance.as_ref().unwrap());
     eprintln!(
-        "light inside the cloud, 24x24: wavefront relL2 {:.3} (energy {:.3}), single relL2 {:.3} (energy {:.3}); reference mean stderr {se:.2e}",
+        "light inside the cloud, 24x24: wavefront relL2 {:.3} (energy {:.3}), single relL2 {:.3} (energy {:.3}); \
+            reference mean stderr {se:.2e}",
         e_wf.rel_l2, e_wf.energy_ratio, e_single.rel_l2, e_single.energy_ratio
     );
     assert!(e_wf.rel_l2 < 0.6 * e_single.rel_l2, "wavefront {} vs direct term {}", e_wf.rel_l2, e_single.rel_l2);
@@ -314,7 +323,8 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
     let e_cold = compare(&cold.image, &converged.image).unwrap().rel_l2;
     let e_warm = compare(&warm.image, &converged.image).unwrap().rel_l2;
     eprintln!(
-        "lbl after 64 iterations: cold relL2 {e_cold:.3e}, warm {e_warm:.3e} (to the converged image); to tol 1e-6: cold {} iterations, warm {}; converged images differ by relL2 {same:.2e}",
+        "lbl after 64 iterations: cold relL2 {e_cold:.3e}, warm {e_warm:.3e} (to the converged image); to tol 1e-6: \
+            cold {} iterations, warm {}; converged images differ by relL2 {same:.2e}",
         iters(&converged),
         iters(&warm_converged)
     );

@@ -157,7 +157,10 @@ fn export(a: ExportArgs) -> Result<()> {
     }
     let sets = parse_sets(&a.set)?;
     if let Some((k, _)) = sets.iter().find(|(k, _)| !is_scene_key(k)) {
-        bail!("--set {k}: export writes the scene only; keys start with render., camera., medium. or light. (solver knobs do not apply)");
+        bail!(
+            "--set {k}: export writes the scene only; keys start with render., camera., medium. or light. (solver \
+            knobs do not apply)"
+        );
     }
     check_output_path(&a.out, "--mitsuba", &["xml"])?;
     let vol = crate::scene::mitsuba::vol_path_for(&a.out);

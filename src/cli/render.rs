@@ -92,7 +92,10 @@ fn require_knob(solver: &dyn Solver, flag: &str, knob: &str) -> Result<()> {
 /// Every output path is checked before any work.
 fn check_outputs(a: &RenderArgs) -> Result<()> {
     if a.out.is_none() && a.png.is_none() && a.json.is_none() && a.trace.is_none() {
-        bail!("no output requested; give --out image.exr and/or --png image.png (and --json metrics.json, --trace trace.json)");
+        bail!(
+            "no output requested; give --out image.exr and/or --png image.png (and --json metrics.json, --trace \
+            trace.json)"
+        );
     }
     for (p, flag, ext) in
         [(&a.out, "--out", "exr"), (&a.png, "--png", "png"), (&a.json, "--json", "json"), (&a.trace, "--trace", "json")]
@@ -242,7 +245,8 @@ fn print_summary(
     }
     if let Some(c) = comparison {
         eprintln!(
-            "schedules: sequential {:.1} ms, concurrent {:.1} ms (GPU span): concurrency gain {:.3}x{}; images differ by relL2 {:.2e}",
+            "schedules: sequential {:.1} ms, concurrent {:.1} ms (GPU span): concurrency gain {:.3}x{}; images differ \
+                by relL2 {:.2e}",
             c.sequential.span_ns as f64 * 1e-6,
             c.concurrent.span_ns as f64 * 1e-6,
             c.gain,

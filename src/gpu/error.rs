@@ -5,21 +5,36 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 #[non_exhaustive]
 pub enum GpuError {
-    #[error("cannot load the Vulkan loader ({0}); install it with `tools/setup-deps` (Debian: apt-get install libvulkan1 mesa-vulkan-drivers)")]
+    #[error(
+        "cannot load the Vulkan loader ({0}); install it with `tools/setup-deps` (Debian: apt-get install \
+        libvulkan1 mesa-vulkan-drivers)"
+    )]
     Loader(String),
-    #[error("no Vulkan device found; install a driver (CPU fallback: apt-get install mesa-vulkan-drivers) or run `tools/setup-deps`")]
+    #[error(
+        "no Vulkan device found; install a driver (CPU fallback: apt-get install mesa-vulkan-drivers) or run \
+        `tools/setup-deps`"
+    )]
     NoDevice,
     #[error("no Vulkan device matches --device {wanted:?}; available: {available}")]
     DeviceNotFound { wanted: String, available: String },
     #[error("device {device:?} lacks required feature {feature}; {hint}")]
     MissingFeature { device: String, feature: String, hint: String },
-    #[error("validation layer VK_LAYER_KHRONOS_validation requested but not installed; install it with `apt-get install vulkan-validationlayers` or run without --validate")]
+    #[error(
+        "validation layer VK_LAYER_KHRONOS_validation requested but not installed; install it with `apt-get \
+        install vulkan-validationlayers` or run without --validate"
+    )]
     NoValidationLayer,
     #[error("Vulkan call {call} failed: {result:?}")]
     Vk { call: &'static str, result: ash::vk::Result },
-    #[error("GPU memory allocation for {name:?} ({bytes} bytes) failed: {reason}; lower the grid or image size or --memory-budget")]
+    #[error(
+        "GPU memory allocation for {name:?} ({bytes} bytes) failed: {reason}; lower the grid or image size or \
+        --memory-budget"
+    )]
     Alloc { name: String, bytes: u64, reason: String },
-    #[error("buffer {name:?} of {bytes} bytes exceeds this device's maxStorageBufferRange of {max} bytes; split the data or lower the resolution")]
+    #[error(
+        "buffer {name:?} of {bytes} bytes exceeds this device's maxStorageBufferRange of {max} bytes; split the \
+        data or lower the resolution"
+    )]
     BindingTooLarge { name: String, bytes: u64, max: u64 },
     #[error("shader {shader:?}: {reason}")]
     Shader { shader: String, reason: String },
@@ -27,11 +42,20 @@ pub enum GpuError {
     Binding { pass: String, binding: u32, reason: String },
     #[error("pass {pass:?}: push constants are {given} bytes but the shader declares {expected}")]
     PushConstants { pass: String, given: usize, expected: usize },
-    #[error("host-order rule broken: a submission on role {role} waits on {wait_role} value {value}, but only {submitted} was submitted; submitting it would deadlock a shared queue")]
+    #[error(
+        "host-order rule broken: a submission on role {role} waits on {wait_role} value {value}, but only \
+        {submitted} was submitted; submitting it would deadlock a shared queue"
+    )]
     WaitBeforeSignal { role: String, wait_role: String, value: u64, submitted: u64 },
-    #[error("GPU wait on role {role} for value {value} timed out after {seconds:.0} s (last passes: {passes}); the work may be too large per batch or the device hung; raise SCATTERLAB_GPU_TIMEOUT or lower the batch size")]
+    #[error(
+        "GPU wait on role {role} for value {value} timed out after {seconds:.0} s (last passes: {passes}); the \
+        work may be too large per batch or the device hung; raise SCATTERLAB_GPU_TIMEOUT or lower the batch size"
+    )]
     Timeout { role: String, value: u64, seconds: f64, passes: String },
-    #[error("device lost while running passes {passes}; the driver reset the GPU (work too long per batch, or a shader fault)")]
+    #[error(
+        "device lost while running passes {passes}; the driver reset the GPU (work too long per batch, or a \
+        shader fault)"
+    )]
     DeviceLost { passes: String },
     #[error("buffer {name:?}: read of {wanted} bytes at offset {offset} is outside its {size} bytes")]
     OutOfRange { name: String, offset: u64, wanted: u64, size: u64 },

@@ -240,7 +240,8 @@ impl Gpu {
             return Err(GpuError::Shader {
                 shader: src.name.into(),
                 reason: format!(
-                    "pipeline built with specialization constants {given:?}; the kernel declares {declared:?} and the shader {:?}",
+                    "pipeline built with specialization constants {given:?}; the kernel declares {declared:?} and the \
+                        shader {:?}",
                     reflection.spec_constants
                 ),
             });

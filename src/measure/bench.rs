@@ -241,20 +241,34 @@ pub fn svg(title: &str, points: &[Point]) -> String {
     let px = |v: f64| ml + (v - x0) / (x1 - x0) * (w - ml - mr);
     let py = |v: f64| h - mb - (v - y0) / (y1 - y0) * (h - mt - mb);
     let mut s = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"{w}\" height=\"{h}\" fill=\"white\"/>\n<text x=\"{}\" y=\"22\" font-size=\"15\">{}</text>\n",
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" \
+            font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"{w}\" height=\"{h}\" fill=\"white\"/>\n<text \
+            x=\"{}\" y=\"22\" font-size=\"15\">{}</text>\n",
         ml,
         esc(title)
     );
     for d in (x0 as i32)..=(x1 as i32) {
         let x = px(d as f64);
-        s.push_str(&format!("<line x1=\"{x:.1}\" y1=\"{mt}\" x2=\"{x:.1}\" y2=\"{}\" stroke=\"#ddd\"/><text x=\"{x:.1}\" y=\"{}\" text-anchor=\"middle\">1e{d}</text>\n", h - mb, h - mb + 16.0));
+        s.push_str(&format!(
+            "<line x1=\"{x:.1}\" y1=\"{mt}\" x2=\"{x:.1}\" y2=\"{}\" stroke=\"#ddd\"/><text \
+            x=\"{x:.1}\" y=\"{}\" text-anchor=\"middle\">1e{d}</text>\n",
+            h - mb,
+            h - mb + 16.0
+        ));
     }
     for d in (y0 as i32)..=(y1 as i32) {
         let y = py(d as f64);
-        s.push_str(&format!("<line x1=\"{ml}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"{}\" y=\"{:.1}\" text-anchor=\"end\">1e{d}</text>\n", w - mr, ml - 6.0, y + 4.0));
+        s.push_str(&format!(
+            "<line x1=\"{ml}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"{}\" \
+            y=\"{:.1}\" text-anchor=\"end\">1e{d}</text>\n",
+            w - mr,
+            ml - 6.0,
+            y + 4.0
+        ));
     }
     s.push_str(&format!(
-        "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">GPU time (ms, log)</text>\n<text x=\"16\" y=\"{:.1}\" transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">relL2 vs path reference (log)</text>\n",
+        "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">GPU time (ms, log)</text>\n<text x=\"16\" y=\"{:.1}\" \
+            transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">relL2 vs path reference (log)</text>\n",
         (ml + w - mr) / 2.0,
         h - 10.0,
         (mt + h - mb) / 2.0,
@@ -278,7 +292,11 @@ pub fn svg(title: &str, points: &[Point]) -> String {
         ));
         for p in &pts {
             let (x, y) = (px(p.gpu_ms.log10()), py(p.metrics.rel_l2.log10()));
-            s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"3.5\" fill=\"{c}\"><title>{} {}={}: {:.1} ms, relL2 {:.4}</title></circle>\n", kind, p.knob, p.value, p.gpu_ms, p.metrics.rel_l2));
+            s.push_str(&format!(
+                "<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"3.5\" fill=\"{c}\"><title>{} {}={}: {:.1} \
+                ms, relL2 {:.4}</title></circle>\n",
+                kind, p.knob, p.value, p.gpu_ms, p.metrics.rel_l2
+            ));
             if p.pareto {
                 s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/>\n"));
             }
@@ -291,10 +309,24 @@ pub fn svg(title: &str, points: &[Point]) -> String {
             ));
         }
         let ly = mt + 20.0 + 20.0 * i as f64;
-        s.push_str(&format!("<line x1=\"{}\" y1=\"{ly:.1}\" x2=\"{}\" y2=\"{ly:.1}\" stroke=\"{c}\" stroke-width=\"3\"/><text x=\"{}\" y=\"{:.1}\">{}</text>\n", w - mr + 10.0, w - mr + 34.0, w - mr + 40.0, ly + 4.0, kind));
+        s.push_str(&format!(
+            "<line x1=\"{}\" y1=\"{ly:.1}\" x2=\"{}\" y2=\"{ly:.1}\" stroke=\"{c}\" \
+            stroke-width=\"3\"/><text x=\"{}\" y=\"{:.1}\">{}</text>\n",
+            w - mr + 10.0,
+            w - mr + 34.0,
+            w - mr + 40.0,
+            ly + 4.0,
+            kind
+        ));
     }
     let ly = mt + 20.0 + 20.0 * kinds.len() as f64;
-    s.push_str(&format!("<circle cx=\"{}\" cy=\"{ly:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/><text x=\"{}\" y=\"{:.1}\">Pareto front</text>\n", w - mr + 22.0, w - mr + 40.0, ly + 4.0));
+    s.push_str(&format!(
+        "<circle cx=\"{}\" cy=\"{ly:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/><text x=\"{}\" \
+        y=\"{:.1}\">Pareto front</text>\n",
+        w - mr + 22.0,
+        w - mr + 40.0,
+        ly + 4.0
+    ));
     s.push_str("</svg>\n");
     s
 }

@@ -76,7 +76,8 @@ fn scene_text(c: &Case) -> String {
     format!(
         "[render]\nwidth = {RES}\nheight = {RES}\nseed = 9\nspp = 64\n\
          [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 0.6\n\
-         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = {sigma_t}\nalbedo = {}\ng = {}\ndensity = {{ kind = \"constant\" }}\n{light}",
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = {sigma_t}\nalbedo = {}\ng = {}\ndensity = {{ kind = \"constant\" \
+             }}\n{light}",
         c.albedo, c.g
     )
 }

@@ -82,7 +82,10 @@ pub enum OutputError {
     },
 
     /// The reference image holds NaN or infinite pixels, so no error can be measured.
-    #[error("reference image has {count} non-finite (NaN/Inf) pixels; re-render or repair the reference before comparing against it")]
+    #[error(
+        "reference image has {count} non-finite (NaN/Inf) pixels; re-render or repair the reference before \
+        comparing against it"
+    )]
     NonFiniteReference {
         /// Number of pixels with a non-finite channel.
         count: u64,

@@ -49,7 +49,8 @@ pub enum SceneError {
     Grid { file: PathBuf, grid: PathBuf, message: String },
 
     /// The density grid would not fit the memory budget (checked before reading it).
-    #[error("{}: medium.density.file `{}`: grid {}x{}x{} needs {} of f32 data but the memory budget is {}; resample the grid or raise --memory-budget",
+    #[error("{}: medium.density.file `{}`: grid {}x{}x{} needs {} of f32 data but the memory budget is {}; resample \
+        the grid or raise --memory-budget",
         .file.display(), .grid.display(), .dims[0], .dims[1], .dims[2], human_bytes(*.needed_bytes), human_bytes(*.budget_bytes))]
     GridTooLarge { file: PathBuf, grid: PathBuf, dims: [u64; 3], needed_bytes: u64, budget_bytes: u64 },
 }

@@ -111,7 +111,8 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
         if let Some(given) = req.dims {
             if given.map(|d| d as u64) != dims.map(u64::from) || given.iter().any(|&d| d < 0) {
                 return Err(req.err(format!(
-                    "dims = [{}, {}, {}] disagrees with the .vol header ({}x{}x{}); remove dims (a .vol file carries its own size)",
+                    "dims = [{}, {}, {}] disagrees with the .vol header ({}x{}x{}); remove dims (a .vol file carries \
+                        its own size)",
                     given[0], given[1], given[2], dims[0], dims[1], dims[2]
                 )));
             }
@@ -121,12 +122,14 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
         let Some(given) = req.dims else {
             if file_len < VOL_HEADER_BYTES {
                 return Err(req.err(format!(
-                    "file is {} ({file_len} bytes): too short for a Mitsuba .vol header ({VOL_HEADER_BYTES} bytes) or any grid; the file is truncated or not a grid",
+                    "file is {} ({file_len} bytes): too short for a Mitsuba .vol header ({VOL_HEADER_BYTES} bytes) or \
+                        any grid; the file is truncated or not a grid",
                     if file_len == 0 { "empty" } else { "truncated" }
                 )));
             }
             return Err(req.err(
-                "not a Mitsuba .vol file (no 'VOL' magic) and no dims given; for a raw little-endian f32 grid add dims = [nx, ny, nz]",
+                "not a Mitsuba .vol file (no 'VOL' magic) and no dims given; for a raw little-endian f32 grid add \
+                    dims = [nx, ny, nz]",
             ));
         };
         let mut dims = [0u32; 3];
@@ -187,7 +190,8 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
         let (nx, ny) = (dims[0] as usize, dims[1] as usize);
         let (i, j, k) = (index % nx, (index / nx) % ny, index / (nx * ny));
         return Err(req.err(format!(
-            "voxel ({i}, {j}, {k}) (value #{index}, x fastest) is {value}; densities must be finite and >= 0, fix the grid"
+            "voxel ({i}, {j}, {k}) (value #{index}, x fastest) is {value}; densities must be finite and >= 0, fix the \
+                grid"
         )));
     }
 
@@ -218,7 +222,8 @@ fn read_vol_header(req: &GridRequest, reader: &mut impl Read, file_len: u64) -> 
     }
     if channels != 1 {
         return Err(req.err(format!(
-            "bad .vol header: {channels} channels, only 1-channel density grids are supported; export a single density channel"
+            "bad .vol header: {channels} channels, only 1-channel density grids are supported; export a single \
+                density channel"
         )));
     }
     let mut dims = [0u32; 3];

@@ -122,7 +122,9 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
         if !sphere_fits(&scene.medium, center, radius) {
             let [nx, ny, nz] = sphere_grid_dims(&scene.medium);
             w.push(format!(
-                "the sphere density is clipped by the medium bounds, which Mitsuba cannot express with shapes; it is exported as a {nx}x{ny}x{nz} voxel grid of the sphere's coverage, so its surface is smoothed over about one voxel"
+                "the sphere density is clipped by the medium bounds, which Mitsuba cannot express with shapes; it is \
+                    exported as a {nx}x{ny}x{nz} voxel grid of the sphere's coverage, so its surface is smoothed over \
+                    about one voxel"
             ));
         }
     }

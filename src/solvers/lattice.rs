@@ -213,7 +213,8 @@ pub fn check_block(info: &DeviceInfo, lattice: Lattice, nch: u32, block: u32) ->
         || block_voxels > info.max_compute_workgroup_invocations as u64
     {
         return Err(format!(
-            "block {block} with {:?} and {nch} channel(s) needs {shared_bytes} bytes of shared memory and {block_voxels} invocations; this device offers {} and {}; use a smaller block",
+            "block {block} with {:?} and {nch} channel(s) needs {shared_bytes} bytes of shared memory and \
+                {block_voxels} invocations; this device offers {} and {}; use a smaller block",
             lattice, info.max_compute_shared_memory, info.max_compute_workgroup_invocations
         ));
     }

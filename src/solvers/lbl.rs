@@ -133,7 +133,8 @@ impl Solver for Lbl {
         ls.view_dispatches = view.dispatches;
         if !ls.converged {
             report.warnings.push(format!(
-                "lbl: the lattice did not converge in {} iterations (relative change {:.2e} per iteration, tolerance {:.1e}); raise lbl.max_iters or lbl.tol",
+                "lbl: the lattice did not converge in {} iterations (relative change {:.2e} per iteration, tolerance \
+                    {:.1e}); raise lbl.max_iters or lbl.tol",
                 ls.iterations, ls.final_change, set.tol
             ));
         }
@@ -362,7 +363,8 @@ pub fn run_lattice(
         return Err(SolverError::Setting {
             key: "lbl.grid".into(),
             reason: format!(
-                "a {}x{}x{} lattice with {nch} channel(s) needs {state_bytes} bytes per state buffer, over this device's maxStorageBufferRange {}; lower lbl.grid",
+                "a {}x{}x{} lattice with {nch} channel(s) needs {state_bytes} bytes per state buffer, over this \
+                    device's maxStorageBufferRange {}; lower lbl.grid",
                 geom.dims[0], geom.dims[1], geom.dims[2], info.max_storage_buffer_range
             ),
         });

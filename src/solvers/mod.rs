@@ -369,7 +369,8 @@ pub fn check_settings(settings: &Settings, solvers: &[&dyn Solver]) -> Result<()
             return Err(SolverError::Setting {
                 key: key.to_string(),
                 reason: format!(
-                    "unknown key; scene keys start with render., camera., medium. or light., solver knobs with a solver name ({})",
+                    "unknown key; scene keys start with render., camera., medium. or light., solver knobs with a \
+                        solver name ({})",
                     names.join(", ")
                 ),
             });

@@ -213,7 +213,9 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
                     // short (biased low) after costing the cap each: leave such a light to
                     // camera paths, and say so.
                     notes.push(format!(
-                        "light {i} is too deep for light tracing (about {events:.0} scattering events to escape, past path.collision_cap / 16); camera paths render it, expect deep-penetration noise; --set path.light_tracing=on forces light paths"
+                        "light {i} is too deep for light tracing (about {events:.0} scattering events to escape, past \
+                            path.collision_cap / 16); camera paths render it, expect deep-penetration noise; --set \
+                            path.light_tracing=on forces light paths"
                     ));
                     false
                 } else {
@@ -310,13 +312,15 @@ impl Solver for Path {
                 "collision_cap",
                 "1048576",
                 Range::int(1, u32::MAX as u64),
-                "tentative collisions per path at most; a path that hits it is dropped, counted and warned of (biases low)",
+                "tentative collisions per path at most; a path that hits it is dropped, counted and warned of (biases \
+                    low)",
             ),
             Knob::fixed(
                 "equiangular",
                 "true",
                 Range::Bool,
-                "also sample point lights by equiangular sampling along each ray, combined by MIS (Kulla & Fajardo 2012)",
+                "also sample point lights by equiangular sampling along each ray, combined by MIS (Kulla & Fajardo \
+                    2012)",
             ),
             Knob::fixed(
                 "light_tracing",
@@ -525,7 +529,8 @@ fn camera_paths(
     let mut warnings = Vec::new();
     if truncated > 0 {
         warnings.push(format!(
-            "{truncated} of {} camera paths hit the collision cap ({}) and were dropped; the image is biased low there; raise path.collision_cap",
+            "{truncated} of {} camera paths hit the collision cap ({}) and were dropped; the image is biased low \
+                there; raise path.collision_cap",
             pixels * c.spp as u64,
             c.collision_cap
         ));
@@ -635,7 +640,8 @@ fn light_paths(
     let ls: Vec<u32> = gpu.read_buffer_as(&lstats)?;
     if ls[1] > 0 {
         return Err(SolverError::Unsupported(format!(
-            "path: {} light-traced pixel sums overflowed their 64-bit fixed point within a batch; the image would be wrong; raise path.light_batches (now {batches})",
+            "path: {} light-traced pixel sums overflowed their 64-bit fixed point within a batch; the image would be \
+                wrong; raise path.light_batches (now {batches})",
             ls[1]
         )));
     }
@@ -661,12 +667,17 @@ fn light_paths(
     let mut warnings = Vec::new();
     if st[0] > 0 {
         warnings.push(format!(
-            "{} of {n_total} light paths hit the collision cap ({}) or produced a non-finite splat and were cut short; the image is biased low there; raise path.collision_cap",
+            "{} of {n_total} light paths hit the collision cap ({}) or produced a non-finite splat and were cut \
+                short; the image is biased low there; raise path.collision_cap",
             st[0], c.collision_cap
         ));
     }
     if ls[0] > 0 {
-        warnings.push(format!("{} light-path splats exceeded 2^16 times the typical splat and were clamped; the image is biased low there", ls[0]));
+        warnings.push(format!(
+            "{} light-path splats exceeded 2^16 times the typical splat and were clamped; the image \
+            is biased low there",
+            ls[0]
+        ));
     }
     let part =
         Part { image, variance, warnings, device_bytes: splats.size() + state.size() + stats.size() + lstats.size() };

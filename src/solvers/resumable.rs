@@ -46,7 +46,8 @@ pub fn run_until_done(
         let st: Vec<u32> = gpu.read_buffer_as(stats)?;
         if st[2] >= LOOP_GUARD {
             return Err(SolverError::Unsupported(format!(
-                "{solver}: one invocation ran {} loop iterations in a dispatch, past the {LOOP_GUARD} at which llvmpipe silently ends loops; lower {solver}.budget",
+                "{solver}: one invocation ran {} loop iterations in a dispatch, past the {LOOP_GUARD} at which \
+                    llvmpipe silently ends loops; lower {solver}.budget",
                 st[2]
             )));
         }

@@ -76,7 +76,13 @@ pub const MAX_LAYERS: u32 = 16384;
 pub fn knobs() -> Vec<Knob> {
     vec![
         Knob::fixed("nu", "64", Range::int(4, 4096), "rays of the spherical grid in azimuth"),
-        Knob::fixed("nv", "32", Range::int(2, 4096), "rays of the spherical grid in cos(theta) (uniform in solid angle)"),
+        Knob::fixed(
+            "nv",
+            "32",
+            Range::int(2, 4096),
+            "rays of the spherical grid in cos(theta) (uniform in solid \
+            angle)",
+        ),
         Knob::fixed(
             "layers",
             "128",
@@ -93,9 +99,16 @@ pub fn knobs() -> Vec<Knob> {
             "explicit_start",
             "0",
             Range::non_negative(),
-            "explicit only: radius (scene units) over which the homogeneous solution at the light (eq. 5) stands in; 0 = the paper's start at r = 0",
+            "explicit only: radius (scene units) over which the homogeneous solution at the light (eq. 5) stands in; \
+                0 = the paper's start at r = 0",
         ),
-        Knob::fixed("grid", "64", Range::int(2, 1024), "Cartesian voxels along the box's longest side for the gathered volume"),
+        Knob::fixed(
+            "grid",
+            "64",
+            Range::int(2, 1024),
+            "Cartesian voxels along the box's longest side for the \
+            gathered volume",
+        ),
     ]
 }
 
@@ -247,7 +260,8 @@ pub fn trace_light(
     let max = gpu.info().max_storage_buffer_range;
     if nodes * 16 > max {
         return Err(SolverError::Unsupported(format!(
-            "wavefront tracing: {} x {} rays x {} layers needs {} bytes per buffer, over this device's maxStorageBufferRange {max}; use fewer rays (nu, nv) or layers",
+            "wavefront tracing: {} x {} rays x {} layers needs {} bytes per buffer, over this device's \
+                maxStorageBufferRange {max}; use fewer rays (nu, nv) or layers",
             set.nu,
             set.nv,
             set.layers,

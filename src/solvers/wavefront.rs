@@ -50,12 +50,14 @@ fn warnings(scene: &Scene, set: &WaveSettings, vol: &WaveVolume) -> Vec<String> 
     let untraced = scene.lights.len() - vol.lights_traced;
     if untraced > 0 {
         w.push(format!(
-            "wavefront: {untraced} light(s) are not point lights inside the medium (the method assumes the light inside, paper section 2); they contribute single scattering only"
+            "wavefront: {untraced} light(s) are not point lights inside the medium (the method assumes the light \
+                inside, paper section 2); they contribute single scattering only"
         ));
     }
     if vol.negative_nodes + vol.nonfinite_nodes > 0 {
         w.push(format!(
-            "wavefront: the {:?} integrator went negative at {} and non-finite at {} grid nodes ({} rays); {} voxels were zeroed; use wavefront.integrator=exponential or more wavefront.layers",
+            "wavefront: the {:?} integrator went negative at {} and non-finite at {} grid nodes ({} rays); {} voxels \
+                were zeroed; use wavefront.integrator=exponential or more wavefront.layers",
             set.integrator, vol.negative_nodes, vol.nonfinite_nodes, vol.failed_rays, vol.nonfinite_voxels
         ));
     }
