@@ -361,3 +361,53 @@ fn no_code_outside_a_solver_names_it() {
     }
     assert!(offences.is_empty(), "{offences:#?}");
 }
+
+/// `scene info`'s estimate is what a render allocates, byte for byte, for every registered
+/// solver: on a grey scene under an environment and on a chromatic one with a point light
+/// inside the medium (light tracing, a traced wave field, three lattice channels).
+#[test]
+fn memory_estimates_equal_what_renders_allocate() {
+    let gpu = gpu();
+    let inside =
+        CUBE.replace("sigma_t = 2.0", "sigma_t = [2.0, 3.0, 4.0]").replace("albedo = 0.0", "albedo = 0.8").replace(
+            "kind = \"environment\"\nradiance = 1.0",
+            "kind = \"point\"\nposition = [0.1, 0.0, 0.0]\nintensity = 1.0",
+        );
+    let knobs: Vec<(String, String)> = [
+        ("render.spp", "4"),
+        ("lbl.grid", "8"),
+        ("lbl.rays", "256"),
+        ("lbl.max_iters", "64"),
+        ("wavefront.grid", "8"),
+        ("wavefront.nu", "8"),
+        ("wavefront.nv", "4"),
+        ("wavefront.layers", "16"),
+    ]
+    .iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect();
+    for (what, text) in [("grey, environment", CUBE.to_string()), ("chromatic, light inside", inside)] {
+        let s = scene(&text);
+        for solver in SOLVERS {
+            let own: Vec<(String, String)> = knobs
+                .iter()
+                .filter(|(k, _)| k.starts_with(&format!("{}.", solver.name())) || k.starts_with("render."))
+                .cloned()
+                .collect();
+            let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = own.iter().cloned().partition(|(k, _)| is_scene_key(k));
+            let estimate =
+                solvers::memory_estimate(*solver, &s.with_overrides(&scene_sets).unwrap(), &Settings::new(&knob_sets))
+                    .unwrap();
+            let sets: Vec<(&str, &str)> = own.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+            let out = crate::common::try_render(&gpu, &s, *solver, &sets, false).unwrap();
+            assert_eq!(
+                estimate,
+                out.report.device_bytes,
+                "{what}: {} estimates {estimate} bytes, allocates {}",
+                solver.name(),
+                out.report.device_bytes
+            );
+        }
+    }
+    assert_clean(&gpu);
+}

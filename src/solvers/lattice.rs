@@ -238,6 +238,27 @@ pub struct LatticeParams {
     pub block_steps: u32,
 }
 
+impl LatticeParams {
+    pub fn voxels(&self) -> u64 {
+        self.dims.iter().map(|d| *d as u64).product()
+    }
+    /// Workgroups (blocks) per axis.
+    fn groups(&self) -> [u32; 3] {
+        [0, 1, 2].map(|a| self.dims[a].div_ceil(self.block))
+    }
+    /// Device bytes of a [`Diffuser`]: two states, the irradiance, the per-block tallies.
+    pub fn diffuser_bytes(&self) -> u64 {
+        let n_wg = self.groups().iter().map(|x| *x as u64).product::<u64>();
+        2 * self.lattice.state_bytes(self.nch, self.voxels())
+            + self.nch as u64 * self.voxels() * 4
+            + n_wg * self.nch as u64 * 16
+    }
+    /// Device bytes of an [`Injector`]: its per-workgroup tallies.
+    pub fn injector_bytes(&self) -> u64 {
+        self.voxels().div_ceil(64) * self.nch as u64 * 8
+    }
+}
+
 /// The lattice and its diffusion passes: state ping-pong, time-integrated energy, tallies.
 pub struct Diffuser {
     pipeline: Pipeline,
@@ -269,7 +290,7 @@ impl Diffuser {
         ];
         let pipeline = gpu.pipeline(&DIFFUSE, &spec)?;
         let state_bytes = p.lattice.state_bytes(p.nch, v);
-        let groups = [0, 1, 2].map(|a| p.dims[a].div_ceil(p.block));
+        let groups = p.groups();
         let n_wg = groups.iter().map(|x| *x as u64).product::<u64>();
         let (st, al) = (p.sigma_t, p.albedo);
         Ok(Diffuser {
@@ -421,7 +442,7 @@ impl Injector {
         let voxels: u64 = p.dims.iter().map(|d| *d as u64).product();
         Ok(Injector {
             pipeline: gpu.pipeline(&INJECT, &spec)?,
-            tally: gpu.buffer("lattice inject tally", voxels.div_ceil(64) * p.nch as u64 * 8)?,
+            tally: gpu.buffer("lattice inject tally", p.injector_bytes())?,
             voxels: voxels as u32,
             nch: p.nch,
             inv_scale: 1.0 / scale,

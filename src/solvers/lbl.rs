@@ -164,14 +164,17 @@ impl Solver for Lbl {
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
         let set = LblSettings::parse(knobs, scene)?;
         let geom = LatticeGeom::new(scene, set.grid);
-        let v = geom.voxels();
-        let nch = LblSettings::channels(scene, scene.features().chromatic);
-        // Two lattice states, the irradiance, the density and the deposit sums.
-        let lattice = 2 * set.lattice.state_bytes(nch, v) + v * 4 * (1 + 2 * nch as u64);
-        let warm = set.warm_start.map_or(0, |w| w.device_bytes(&geom));
+        let chromatic = gpu_scene::modelled(scene, false).chromatic;
+        let p = lattice_params(scene, &set, &geom, LblSettings::channels(scene, chromatic));
+        // The raymaps are cheap on the host: count the rays exactly (misses are dropped).
+        let m = &set.march;
+        let rays = marching::raymaps(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed).len() as u64;
+        // A warm start's wave field lives only while the lattice is seeded; it counts at peak.
+        let warm = set.warm_start.map_or(0, |w| w.device_bytes(scene, chromatic, &geom));
         Ok(gpu_scene::scene_bytes(scene)
-            + lattice
-            + set.march.device_bytes(scene.lights.len())
+            + m.device_bytes(&geom, rays, p.nch)
+            + p.diffuser_bytes()
+            + p.injector_bytes()
             + warm
             + view::device_bytes(scene))
     }
@@ -346,6 +349,22 @@ pub struct LatticeResult {
     pub stats: LblStats,
 }
 
+/// The lattice over `geom` for this scene and these knobs.
+fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32) -> LatticeParams {
+    let m = &scene.medium;
+    LatticeParams {
+        dims: geom.dims,
+        nch,
+        lattice: set.lattice,
+        sigma_t: m.sigma_t.to_array(),
+        albedo: m.albedo.to_array(),
+        g: m.g,
+        lambda: geom.lambda,
+        block: set.block,
+        block_steps: set.block_steps,
+    }
+}
+
 /// Run marching, transfer and diffusion to convergence.
 pub fn run_lattice(
     gpu: &Gpu,
@@ -374,18 +393,7 @@ pub fn run_lattice(
     // Float atomics are the fast path where the device has them; fixed point is deterministic.
     let fixed = set.deterministic || !info.float_atomics;
     let marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed)?;
-    let m = &scene.medium;
-    let params = LatticeParams {
-        dims: geom.dims,
-        nch,
-        lattice: set.lattice,
-        sigma_t: m.sigma_t.to_array(),
-        albedo: m.albedo.to_array(),
-        g: m.g,
-        lambda: geom.lambda,
-        block: set.block,
-        block_steps: set.block_steps,
-    };
+    let params = lattice_params(scene, set, &geom, nch);
     let mut lattice = Diffuser::new(gpu, marcher.density.clone(), &params)?;
     let injector = Injector::new(gpu, &params, fixed, marcher.scale)?;
     let rounds = marcher.rounds;

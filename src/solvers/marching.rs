@@ -131,10 +131,10 @@ impl MarchSettings {
         Ok(out)
     }
 
-    /// Device bytes of rays and history for `lights` lights (an estimate: raymaps round the
-    /// ray count up to a square, an environment adds its directional raymaps).
-    pub fn device_bytes(&self, lights: usize) -> u64 {
-        self.rays as u64 * lights as u64 * (RAY_BYTES + self.k as u64 * 16)
+    /// Device bytes of a [`Marcher`] on `geom` with `ray_count` rays (as [`raymaps`] makes
+    /// them) and `nch` channels: density, rays, history, sums.
+    pub fn device_bytes(&self, geom: &LatticeGeom, ray_count: u64, nch: u32) -> u64 {
+        geom.voxels() * 4 * (1 + nch as u64) + ray_count * (RAY_BYTES + self.k as u64 * 16)
     }
 }
 

@@ -126,10 +126,14 @@ impl WaveSettings {
         })
     }
 
-    /// Device bytes of one light's spherical grid and the gathered volume on `geom`.
-    pub fn device_bytes(&self, geom: &LatticeGeom) -> u64 {
+    /// Device bytes of [`wave_volume`] on `geom`: the gathered volume (fluence and flux per
+    /// channel) and, when any light is traced, one light's spherical grid at a time.
+    pub fn device_bytes(&self, scene: &Scene, chromatic: bool, geom: &LatticeGeom) -> u64 {
+        let lights = traced_lights(scene);
+        let volume = geom.voxels() * 4 * volume_channels(&lights, chromatic) as u64 * 4 + 16;
         let rays = self.nu as u64 * self.nv as u64;
-        rays * ((self.layers as u64 + 1) * 48 + self.layers as u64 * 4) + geom.voxels() * 4 * 12 + 16
+        let field = rays * ((self.layers as u64 + 1) * 48 + self.layers as u64 * 4);
+        volume + if lights.is_empty() { 0 } else { field }
     }
 }
 
@@ -200,6 +204,16 @@ impl WaveField {
             cart_dims: [0; 4],
             cart_origin: [0.0; 4],
         }
+    }
+}
+
+/// Channels of the gathered volume: one for a grey medium under grey traced lights (model only
+/// what the scene requires), else three.
+fn volume_channels(lights: &[(Vec3, Vec3)], chromatic: bool) -> u32 {
+    if chromatic || !lights.iter().all(|(_, c)| is_grey(*c)) {
+        3
+    } else {
+        1
     }
 }
 
@@ -347,9 +361,7 @@ pub fn wave_volume(
     let geom = geom.unwrap_or_else(|| LatticeGeom::new(scene, set.grid));
     let v = geom.voxels();
     let lights = traced_lights(scene);
-    let grey_lights = lights.iter().all(|(_, c)| is_grey(*c));
-    // Model only what the scene requires: one channel for a grey medium under grey lights.
-    let channels: u32 = if gs.modelled.chromatic || !grey_lights { 3 } else { 1 };
+    let channels = volume_channels(&lights, gs.modelled.chromatic);
     let energy = gpu.buffer("wave field volume", v * 4 * channels as u64 * 4)?;
     let stats = gpu.buffer("wave field gather stats", 16)?;
     let kernels = WaveKernels::new(gpu, gs)?;

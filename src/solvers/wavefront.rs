@@ -122,7 +122,8 @@ impl Solver for Wavefront {
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
         let set = WaveSettings::parse(knobs, "")?;
         let geom = LatticeGeom::new(scene, set.grid);
-        Ok(gpu_scene::scene_bytes(scene) + set.device_bytes(&geom) + view::device_bytes(scene))
+        let chromatic = gpu_scene::modelled(scene, false).chromatic;
+        Ok(gpu_scene::scene_bytes(scene) + set.device_bytes(scene, chromatic, &geom) + view::device_bytes(scene))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
