@@ -452,7 +452,9 @@ impl Solver for Path {
         if p.light_traced.is_empty() {
             return Vec::new();
         }
-        vec![format!("path: light {:?} rendered by light paths, the rest by camera paths", p.light_traced)]
+        let traced: Vec<String> = p.light_traced.iter().map(|i| i.to_string()).collect();
+        let camera = if p.camera.is_some() { "; every other light by camera paths" } else { "" };
+        vec![format!("path: light {} by light paths{camera}", traced.join(", "))]
     }
 }
 
