@@ -9,6 +9,7 @@ mod export_tests;
 mod gpu_core;
 mod lbl;
 mod light_tracing_tests;
+mod octaves_tests;
 mod output_tests;
 mod phase_gpu;
 mod physics_tests;

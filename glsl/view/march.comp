@@ -1,7 +1,8 @@
 #version 460
 // view/march: the view pass shared by solvers (solvers/view.rs): the direct (single-scattering)
 // term by camera-ray marching (thesis 1.3.6 and 2.5), plus, when a solver supplies one, the
-// multiply scattered in-scattering from its volume. Along the camera ray, in steps of at most `step` (scene units):
+// multiply scattered in-scattering from its volume. Along the camera ray, in steps of at most
+// `step` (scene units):
 //   L = T(0, t_far) L_env
 //     + sum_steps T(0, t_i) albedo (1 - exp(-sigma_t dt)) sum_lights p(cos) L_i T_shadow
 // i.e. the single-scattering integral of eq. 1.24 with the extinction held constant within a
@@ -12,6 +13,13 @@
 // Resumable (budget.glsl): the state of a pixel's march (subsample, step, light unit and the
 // partial sums) lives in a buffer; each dispatch does one shadow march per loop iteration
 // until its budget is spent, and the host re-dispatches until every pixel is done.
+//
+// Octaves (solver `octaves`, OCTAVES > 1): the production multiple-scattering approximation
+// of Wrenninge, Kulla, Lundqvist ("Oz: the Great and Volumetric", SIGGRAPH 2013 talk;
+// Hillaire 2016, Frostbite course): p(cos) T_shadow becomes
+//   sum_{i < N} b^i p(cos; g c^i) T_shadow^(a^i),   T^(a^i) = exp(-a^i tau_light),
+// octave 0 being exact single scattering. With OCTAVES = 1 (every other solver) the code is
+// the single-scattering term unchanged.
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
@@ -23,6 +31,9 @@
 #include "../include/budget.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+
+// Octaves of the multiple-scattering approximation (1: single scattering alone), at most 8.
+layout(constant_id = 8) const uint OCTAVES = 1u;
 
 layout(std430, binding = 3) buffer Radiance { vec4 radiance[]; };
 // [0] pixels whose value was not finite (zeroed, reported), [2] most own-counted loop
@@ -57,6 +68,7 @@ layout(push_constant) uniform Push {
     uint pad2;
     uvec4 ms_dims;       // volume voxels xyz (x = 0: no multiple-scattering volume), w = channels
     vec4 ms_origin;      // volume min corner, w = lambda (voxel edge)
+    vec4 octave;         // octaves: attenuation a, contribution b, eccentricity c, w = 1: bounded
 } pc;
 
 // Multiply scattered radiance scattered at p toward the camera (travelling along -d), per
@@ -161,8 +173,7 @@ float mean_inv_r2(vec3 o, vec3 d, float t0, float t1, vec3 l) {
 // quadrature. Dividing by it makes the quadrature conserve energy for any phase function; a
 // strongly peaked HG (|g| near 1) otherwise lets one direction near the peak carry far more
 // than the whole sphere does.
-float env_norm(vec3 d) {
-    float g = scene.albedo.w;
+float env_norm_g(vec3 d, float g) {
     float s = 0.0;
     for (uint k = 0u; k < pc.env_dirs; ++k) {
         iters++;
@@ -171,9 +182,58 @@ float env_norm(vec3 d) {
     return s * (4.0 * PI / float(pc.env_dirs));
 }
 
+float env_norm(vec3 d) { return env_norm_g(d, scene.albedo.w); }
+
+// Octaves: the phase-weighted transmittance toward a light at cosine `c` through optical
+// depth `tau`, sum_{i < N} b^i p(c; g c^i) exp(-a^i tau) / n_i, where n_i is octave i's
+// environment quadrature norm (`onorm`, as `norm` for single scattering; 1 for point and
+// directional lights, whose phase is evaluated exactly).
+//
+// The published sum creates energy in optically thin media: every octave is first order in
+// the optical depth like single scattering, so as tau -> 0 the sum tends to (1 + b + b^2 ...)
+// times single scattering (1.875x at b = 0.5, N = 4) where true multiple scattering vanishes
+// as tau^2. `bounded` (pc.octave.w = 1, the default) weights octave i also by
+// (1 - exp(-albedo tau_chord))^i, with tau_chord the optical depth of the whole chord through
+// p along the light's direction (toward the light and away from it): the chance that light
+// crossing the medium there is scattered i more times. Deep in or behind a thick medium it is
+// 1 (the published sum), in a thin medium of order (albedo tau)^i, as i + 1-fold scattering is.
+vec3 octave_sum(float g, float c, vec3 tau, vec3 tau_chord, bool env, float onorm[8]) {
+    vec3 s = vec3(0.0);
+    float a = 1.0, b = 1.0, gi = g;
+    vec3 w = vec3(1.0);
+    vec3 scattered = pc.octave.w != 0.0 ? scene.albedo.xyz * (vec3(1.0) - exp(-tau_chord)) : vec3(1.0);
+    for (uint i = 0u; i < OCTAVES; ++i) {
+        iters++;
+        s += b * w * phase_eval(gi, c) * exp(-a * tau) / (env ? onorm[i] : 1.0);
+        a *= pc.octave.x;
+        b *= pc.octave.y;
+        gi *= pc.octave.z;
+        w *= scattered;
+    }
+    return s;
+}
+
+// Octaves: the optical depth toward the light (tau, up to `dist`) and of the whole chord
+// through p along it (tau plus the depth from p away from the light), the latter only for the
+// bounded form.
+vec3 octave_light(float g, float c, vec3 p, vec3 wi, float dist, bool env, float onorm[8]) {
+    vec3 tau = optical_depth(p, wi, dist);
+    vec3 chord = pc.octave.w != 0.0 ? tau + optical_depth(p, -wi, INF) : tau;
+    return octave_sum(g, c, tau, chord, env, onorm);
+}
+
+// The environment quadrature norm of every octave's phase function (g c^i) for direction d.
+void octave_norms(vec3 d, out float onorm[8]) {
+    float gi = scene.albedo.w;
+    for (uint i = 0u; i < 8u; ++i) {
+        onorm[i] = (i < OCTAVES && ANISOTROPIC) ? env_norm_g(d, gi) : 1.0;
+        gi *= pc.octave.z;
+    }
+}
+
 // In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T, for the step
 // [t0, t1] of the camera ray o + d t that p samples.
-vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float norm) {
+vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float norm, float onorm[8]) {
     float g = scene.albedo.w;
     for (uint i = 0u; i < scene.image.z; ++i) {
         iters++;
@@ -187,13 +247,21 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float no
             if (dist2 <= 0.0) return vec3(0.0);
             float dist = sqrt(dist2);
             vec3 wi = to / dist;
-            return phase_eval(g, dot(d, wi)) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz) * exp(-optical_depth(p, wi, dist));
+            if (OCTAVES == 1u) {
+                return phase_eval(g, dot(d, wi)) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz) * exp(-optical_depth(p, wi, dist));
+            }
+            return octave_light(g, dot(d, wi), p, wi, dist, false, onorm) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
-            return phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-optical_depth(p, wi, INF));
+            if (OCTAVES == 1u) return phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-optical_depth(p, wi, INF));
+            return octave_light(g, dot(d, wi), p, wi, INF, false, onorm) * li.value.rgb;
         } else {
             vec3 wi = fibonacci_dir(j, pc.env_dirs);
-            return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-optical_depth(p, wi, INF)) * (4.0 * PI / float(pc.env_dirs)) / norm;
+            if (OCTAVES == 1u) {
+                return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-optical_depth(p, wi, INF)) * (4.0 * PI / float(pc.env_dirs)) / norm;
+            }
+            // Each octave's quadrature is normalised by its own phase function's sum.
+            return li.value.rgb * octave_light(g, dot(d, wi), p, wi, INF, true, onorm) * (4.0 * PI / float(pc.env_dirs));
         }
     }
     return vec3(0.0);
@@ -215,6 +283,10 @@ void main() {
     float norm = st.sum.w;   // env_norm of the current subsample ray; 0 until computed
     uint ss = max(pc.supersample, 1u);
     uint total = ss * ss;
+    // Octaves' environment quadrature norms of the current subsample ray, recomputed once per
+    // ray and per dispatch (not kept in the state).
+    float onorm[8] = float[8](1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0);
+    uint onorm_k = 0xffffffffu;
 
     vec3 env = vec3(0.0);
     for (uint l = 0u; l < scene.image.z; ++l) {
@@ -248,8 +320,12 @@ void main() {
         vec3 p = o + d * (a + (float(i) + offset) * dt);
         if (j < units) {
             if (norm == 0.0) norm = env_norm(d);
+            if (OCTAVES > 1u && onorm_k != k) {
+                octave_norms(d, onorm);
+                onorm_k = k;
+            }
             float t0 = a + float(i) * dt;
-            S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm);
+            S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm, onorm);
             j++;
             continue;
         }

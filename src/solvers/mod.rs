@@ -32,6 +32,7 @@ pub mod view;
 pub mod wave_field;
 
 pub mod lbl;
+pub mod octaves;
 pub mod path;
 pub mod single;
 pub mod wavefront;
@@ -51,7 +52,8 @@ pub use knobs::{Knob, Knobs, Range, Settings};
 
 /// Every solver this build ships, in the order they are listed and benched. Adding a solver
 /// is one line here (plus its own file and shader folder): `docs/architecture.md`.
-pub static SOLVERS: &[&dyn Solver] = &[&path::Path, &single::Single, &lbl::Lbl, &wavefront::Wavefront];
+pub static SOLVERS: &[&dyn Solver] =
+    &[&path::Path, &single::Single, &lbl::Lbl, &wavefront::Wavefront, &octaves::OctavesSolver];
 
 #[derive(Debug, Error)]
 #[non_exhaustive]

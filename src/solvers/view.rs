@@ -9,11 +9,11 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
+use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole, Spec, SpecKind};
 use crate::output::Image;
 use crate::scene::Scene;
 
-use super::gpu_scene::{GpuScene, SCENE_SPEC};
+use super::gpu_scene::GpuScene;
 use super::{resumable, Knob, Knobs, Range, SolverError};
 
 /// Push constants of glsl/view/march.comp.
@@ -36,10 +36,47 @@ pub struct ViewPush {
     pub ms_dims: [u32; 4],
     /// Volume min corner and voxel edge lambda.
     pub ms_origin: [f32; 4],
+    /// Octaves: attenuation a, contribution b, eccentricity c, unused.
+    pub octave: [f32; 4],
 }
 
-pub const MARCH: Kernel =
-    Kernel { shader: shader!("view/march"), push_bytes: std::mem::size_of::<ViewPush>(), spec: SCENE_SPEC };
+/// Specialisation constant: octaves of the multiple-scattering approximation (1: none).
+const SPEC_OCTAVES: u32 = 8;
+/// Most octaves the kernel sums.
+pub const MAX_OCTAVES: u32 = 8;
+
+pub const MARCH: Kernel = Kernel {
+    shader: shader!("view/march"),
+    push_bytes: std::mem::size_of::<ViewPush>(),
+    spec: &[
+        (super::gpu_scene::SPEC_DENSITY_KIND, SpecKind::U32),
+        (super::gpu_scene::SPEC_CHROMATIC, SpecKind::Bool),
+        (super::gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
+        (SPEC_OCTAVES, SpecKind::U32),
+    ],
+};
+
+/// The octave approximation of multiple scattering in the view pass (Wrenninge et al. 2013):
+/// light i's phase-weighted transmittance p(cos; g) T becomes
+/// sum_{k < n} b^k p(cos; g c^k) T^(a^k) (times (albedo (1 - T_chord))^k when `bounded`).
+/// `SINGLE` (n = 1) is single scattering.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Octaves {
+    pub n: u32,
+    /// Attenuation: octave k sees the light through a^k of the optical depth.
+    pub a: f32,
+    /// Contribution: octave k is weighted b^k.
+    pub b: f32,
+    /// Eccentricity: octave k scatters with g c^k.
+    pub c: f32,
+    /// Octave k also weighted by (albedo (1 - exp(-tau_chord)))^k, so that no energy is created
+    /// (glsl/view/march.comp, `octave_sum`); false: the published sum.
+    pub bounded: bool,
+}
+
+impl Octaves {
+    pub const SINGLE: Octaves = Octaves { n: 1, a: 1.0, b: 1.0, c: 1.0, bounded: false };
+}
 
 /// Per-pixel resumable march state (`MarchState` in glsl/view/march.comp).
 pub const STATE_BYTES_PER_PIXEL: u64 = 64;
@@ -88,6 +125,8 @@ pub struct ViewSettings {
     pub supersample: u32,
     pub jitter: u32,
     pub budget: u32,
+    /// Single scattering unless a solver sets octaves (`octaves`).
+    pub octaves: Octaves,
 }
 
 impl ViewSettings {
@@ -103,6 +142,7 @@ impl ViewSettings {
             supersample: k.get(&key("supersample"))?,
             jitter: k.get(&key("jitter"))?,
             budget: k.get(&key("budget"))?,
+            octaves: Octaves::SINGLE,
         };
         for (name, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
@@ -149,7 +189,10 @@ pub fn march(
     ms: Option<&MsVolume>,
 ) -> Result<ViewResult, SolverError> {
     let (w, h) = (scene.render.width, scene.render.height);
-    let pipeline = gpu.pipeline(&MARCH, &gs.modelled.spec())?;
+    let mut spec = gs.modelled.spec();
+    spec.push((SPEC_OCTAVES, Spec::U32(v.octaves.n.clamp(1, MAX_OCTAVES))));
+    let pipeline = gpu.pipeline(&MARCH, &spec)?;
+    let o = v.octaves;
     let pixels = w as u64 * h as u64;
     let out = gpu.buffer("view radiance", pixels * 16)?;
     // Every pixel starts at subsample 0, step 0, with transmittance 1.
@@ -186,6 +229,7 @@ pub fn march(
             pad: [0; 2],
             ms_dims,
             ms_origin,
+            octave: [o.a, o.b, o.c, if o.bounded { 1.0 } else { 0.0 }],
         };
         gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline))
             .write(3, &out)
