@@ -16,6 +16,54 @@ fn pareto_front_on_a_constructed_example() {
     assert_eq!(bench::pareto(&[(1.0, 1.0), (1.0, 1.0)]), vec![true, true]);
 }
 
+/// The speed-up at equal error on a constructed curve: the reference solver's error is exactly
+/// sqrt(K / spp + noise^2) at GPU time t1 spp, so an approximate point of true error e in time
+/// T must get t1 K / e^2 / T; the reference's own points get none, and a point below the
+/// reference's noise gets none.
+#[test]
+fn speedup_at_equal_error_on_a_constructed_curve() {
+    use scatterlab::output::Metrics;
+    let (k, t1, noise) = (0.36f64, 2.5f64, 0.01f64);
+    let point = |solver: &'static str, spp: Option<u32>, rel_l2: f64, gpu_ms: f64| bench::Point {
+        scene: "s".into(),
+        solver,
+        knob: "k".into(),
+        value: "v".into(),
+        gpu_ms,
+        wall_ms: gpu_ms,
+        metrics: Metrics {
+            rel_l2,
+            rel_mse: 0.0,
+            rmse: 0.0,
+            energy_ratio: 1.0,
+            max_abs_error: 0.0,
+            nan_inf_count: 0,
+            pixels: 1,
+        },
+        iterations: None,
+        converged: None,
+        device_bytes: 0,
+        pareto: false,
+        spp,
+        rel_l2_denoised: 0.0,
+        speedup: None,
+    };
+    let mut pts: Vec<bench::Point> = [4u32, 16, 64, 256, 1024]
+        .iter()
+        .map(|&s| point("path", Some(s), (k / s as f64 + noise * noise).sqrt(), t1 * s as f64))
+        .collect();
+    let e = 0.03f64;
+    pts.push(point("lbl", None, (e * e + noise * noise).sqrt(), 40.0));
+    pts.push(point("single", None, 0.5 * noise, 1.0));
+    bench::speedups(&mut pts, "path", noise);
+    assert!(pts[..5].iter().all(|p| p.speedup.is_none()));
+    let want = t1 * k / (e * e) / 40.0;
+    let got = pts[5].speedup.expect("a speed-up for lbl");
+    assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
+    assert!((pts[5].rel_l2_denoised - e).abs() < 1e-12);
+    assert!(pts[6].speedup.is_none() && pts[6].rel_l2_denoised == 0.0, "below the reference's noise");
+}
+
 const TINY: &str = r#"
 [render]
 width = 16

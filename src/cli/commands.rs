@@ -298,27 +298,39 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
     });
     output::write_json(&a.out.join("bench.json"), &doc)?;
     outln!(
-        "{:<20} {:<9} {:<14} {:>10} {:>10} {:>9} {:>7}",
+        "{:<20} {:<9} {:<14} {:>10} {:>10} {:>10} {:>9} {:>8} {:>7}",
         "scene",
         "solver",
         "knob=value",
         "GPU ms",
         "relL2",
+        "denoised",
         "energy",
+        "speedup",
         "pareto"
     );
     for p in &result.points {
         let kv =
             format!("{}={}", p.knob.split('.').nth(1).unwrap_or(&p.knob), p.value.chars().take(7).collect::<String>());
         outln!(
-            "{:<20} {:<9} {:<14} {:>10.1} {:>10.4} {:>9.3} {:>7}",
+            "{:<20} {:<9} {:<14} {:>10.1} {:>10.4} {:>10.4} {:>9.3} {:>8} {:>7}",
             p.scene,
             p.solver,
             kv,
             p.gpu_ms,
             p.metrics.rel_l2,
+            p.rel_l2_denoised,
             p.metrics.energy_ratio,
+            p.speedup.map(|x| format!("{x:.2}x")).unwrap_or_else(|| "-".into()),
             if p.pareto { "*" } else { "" }
+        );
+    }
+    for r in &result.references {
+        outln!(
+            "reference {}: {} spp, its own noise relL2 {:.4} (removed in `denoised`; speed-up = the reference solver's GPU time to that error / the point's)",
+            r.scene,
+            r.spp,
+            r.noise
         );
     }
     if a.throughput {

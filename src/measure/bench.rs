@@ -45,6 +45,14 @@ pub struct Point {
     pub converged: Option<bool>,
     pub device_bytes: u64,
     pub pareto: bool,
+    /// Monte Carlo solvers: samples per pixel of this render.
+    pub spp: Option<u32>,
+    /// relL2 with the reference's own noise removed: sqrt(max(relL2^2 - noise^2, 0)).
+    pub rel_l2_denoised: f64,
+    /// Approximate solvers: the reference solver's GPU time to the same (denoised) error,
+    /// along its 1/sqrt(spp) curve, over this point's GPU time ([`speedups`]); None for the
+    /// reference solver itself or an error below what its curve resolves.
+    pub speedup: Option<f64>,
 }
 
 /// Figures of merit a GPU engineer compares across devices.
@@ -96,13 +104,34 @@ pub fn reference_key(
     h.finalize().iter().take(12).map(|b| format!("{b:02x}")).collect()
 }
 
-/// The cached `path` reference for a scene, rendering it when missing. Returns the image and
-/// whether it came from the cache.
-pub fn reference(gpu: &Gpu, scene: &Scene, key: &str, spp: u32, cache: &Path) -> Result<(Image, bool), String> {
+/// A reference image and the variance of each of its pixel means.
+pub struct Reference {
+    pub image: Image,
+    pub variance: Option<Image>,
+}
+
+impl Reference {
+    /// The relL2 the reference's own noise adds to any comparison with it:
+    /// sqrt(sum of pixel variances) / ||reference|| (the expected ||r - r_true|| / ||r||).
+    pub fn noise(&self) -> f64 {
+        let norm2: f64 = self.image.data.iter().map(|v| (*v as f64).powi(2)).sum();
+        let var: f64 = self.variance.as_ref().map_or(0.0, |v| v.data.iter().map(|x| *x as f64).sum());
+        if norm2 > 0.0 {
+            (var / norm2).sqrt()
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The cached reference for a scene (the reference solver at `spp`), rendering it when
+/// missing. Returns it and whether it came from the cache.
+pub fn reference(gpu: &Gpu, scene: &Scene, key: &str, spp: u32, cache: &Path) -> Result<(Reference, bool), String> {
     let file = cache.join(format!("ref-{key}.exr"));
     if let Ok(img) = output::read_exr(&file) {
         if (img.width, img.height) == (scene.render.width, scene.render.height) {
-            return Ok((img, true));
+            let variance = output::read_exr_layer(&file, "variance").ok();
+            return Ok((Reference { image: img, variance }, true));
         }
     }
     let (r, _) = render(gpu, scene, solvers::reference(), &[("render.spp".into(), spp.to_string())], false)?;
@@ -112,7 +141,39 @@ pub fn reference(gpu: &Gpu, scene: &Scene, key: &str, spp: u32, cache: &Path) ->
         layers.push(("variance", v));
     }
     output::write_exr(&file, &layers).map_err(|e| e.to_string())?;
-    Ok((r.image, false))
+    Ok((Reference { image: r.image, variance: r.variance }, false))
+}
+
+/// The speed-up at equal error of every approximate point of one scene against the reference
+/// solver's points (DESIGN.md, "Measuring the trade"). With `noise` the reference's own relL2
+/// noise, a point's error is denoised as e = sqrt(max(relL2^2 - noise^2, 0)). The reference
+/// solver's error falls as e(s)^2 = K / s with samples per pixel s (Monte Carlo), so K is
+/// fitted from its points (median of s e(s)^2 over those above the noise), its GPU time is
+/// t(s) = t1 s (least squares through the origin), and reaching error e takes it
+/// t1 K / e^2. The speed-up of a point is that time over the point's GPU time. Points with
+/// e = 0 (error below the reference's noise) get none: the comparison cannot resolve them.
+pub fn speedups(points: &mut [Point], reference_solver: &str, noise: f64) {
+    for p in points.iter_mut() {
+        p.rel_l2_denoised = (p.metrics.rel_l2.powi(2) - noise * noise).max(0.0).sqrt();
+    }
+    let curve: Vec<(f64, f64, f64)> = points
+        .iter()
+        .filter(|p| p.solver == reference_solver)
+        .filter_map(|p| p.spp.map(|s| (s as f64, p.gpu_ms, p.rel_l2_denoised)))
+        .collect();
+    let mut ks: Vec<f64> = curve.iter().filter(|c| c.2 > 0.0).map(|(s, _, e)| s * e * e).collect();
+    let (sum_st, sum_ss) = curve.iter().fold((0.0, 0.0), |(a, b), (s, t, _)| (a + s * t, b + s * s));
+    if ks.is_empty() || sum_ss <= 0.0 {
+        return;
+    }
+    ks.sort_by(|a, b| a.total_cmp(b));
+    let k = ks[ks.len() / 2];
+    let t1 = sum_st / sum_ss;
+    for p in points.iter_mut().filter(|p| p.solver != reference_solver) {
+        if p.rel_l2_denoised > 0.0 && p.gpu_ms > 0.0 {
+            p.speedup = Some(t1 * k / p.rel_l2_denoised.powi(2) / p.gpu_ms);
+        }
+    }
 }
 
 /// Walk every solver's ladder on one scene.
@@ -165,6 +226,9 @@ pub fn bench_scene(
                 converged: stats.convergence.map(|c| c.converged),
                 device_bytes: r.report.device_bytes,
                 pareto: false,
+                spp: stats.spp,
+                rel_l2_denoised: metrics.rel_l2,
+                speedup: None,
             });
         }
     }
@@ -190,11 +254,14 @@ pub fn slim_vs_full(
 }
 
 pub fn csv(points: &[Point]) -> String {
-    let mut s = String::from("scene,solver,knob,value,gpu_ms,wall_ms,rel_l2,rel_mse,rmse,energy_ratio,max_abs_error,nan_inf_count,iterations,converged,device_bytes,pareto\n");
+    let mut s = String::from(
+        "scene,solver,knob,value,gpu_ms,wall_ms,rel_l2,rel_l2_denoised,speedup,rel_mse,rmse,energy_ratio,max_abs_error,\
+         nan_inf_count,iterations,converged,device_bytes,pareto\n",
+    );
     for p in points {
         let m = &p.metrics;
         s.push_str(&format!(
-            "\"{}\",{},{},{},{:.3},{:.3},{:.6e},{:.6e},{:.6e},{:.6},{:.6e},{},{},{},{},{}\n",
+            "\"{}\",{},{},{},{:.3},{:.3},{:.6e},{:.6e},{},{:.6e},{:.6e},{:.6},{:.6e},{},{},{},{},{}\n",
             p.scene,
             p.solver,
             p.knob,
@@ -202,6 +269,8 @@ pub fn csv(points: &[Point]) -> String {
             p.gpu_ms,
             p.wall_ms,
             m.rel_l2,
+            p.rel_l2_denoised,
+            p.speedup.map(|x| format!("{x:.4}")).unwrap_or_default(),
             m.rel_mse,
             m.rmse,
             m.energy_ratio,
@@ -362,6 +431,8 @@ pub struct ReferenceInfo {
     pub spp: u32,
     pub cached: bool,
     pub seconds: f64,
+    /// The relL2 its own noise adds to every comparison ([`Reference::noise`]).
+    pub noise: f64,
 }
 
 /// Slim against full modelling of one solver on one scene (`--model-all`).
@@ -410,15 +481,18 @@ pub fn run(
         progress(&format!("{}: {} reference at {} spp", s.name, solvers::reference().name(), cfg.ref_spp));
         let t = std::time::Instant::now();
         let (reference, cached) = reference(gpu, &s.scene, &key, cfg.ref_spp, cfg.cache)?;
+        let noise = reference.noise();
         out.references.push(ReferenceInfo {
             scene: s.name.clone(),
             key,
             spp: cfg.ref_spp,
             cached,
             seconds: t.elapsed().as_secs_f64(),
+            noise,
         });
-        let (points, thr) =
-            bench_scene(gpu, &s.name, &s.scene, &reference, cfg.solvers, cfg.quick, cfg.repeats, progress)?;
+        let (mut points, thr) =
+            bench_scene(gpu, &s.name, &s.scene, &reference.image, cfg.solvers, cfg.quick, cfg.repeats, progress)?;
+        speedups(&mut points, solvers::reference().name(), noise);
         out.plots.push((s.name.clone(), svg(&format!("{}: error vs GPU time on {}", s.name, info.name), &points)));
         for &solver in cfg.solvers {
             let rung = ladder(solver, &s.scene, true)
