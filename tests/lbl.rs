@@ -160,7 +160,10 @@ fn lattice_matches_the_diffusion_green_function() {
         // Invert the kernel's coefficients (glsl/include/lattice.glsl) for sigma_t and albedo.
         let ell = lattice.mean_link_length();
         let (sigma_t, albedo) = match lattice {
-            Lattice::D3q6 => (-(1.0 - kt).ln(), 1.0 - ka / kt),
+            Lattice::D3q6 => {
+                let st = -(1.0f64 - kt).ln();
+                (st, 1.0 - (-(1.0f64 - ka).ln()) / st)
+            }
             Lattice::D3q18 => {
                 let st = -(1.0 - kt).ln() * ell / 1.5;
                 let sa = -(1.0f64 - ka).ln() / ell;
@@ -172,7 +175,7 @@ fn lattice_matches_the_diffusion_green_function() {
                 .unwrap();
         // The coefficients the kernel used, from the f32 inputs.
         let ka = match lattice {
-            Lattice::D3q6 => kt * (1.0 - albedo as f32 as f64),
+            Lattice::D3q6 => 1.0 - (-(sigma_t as f32 as f64) * (1.0 - albedo as f32 as f64)).exp(),
             Lattice::D3q18 => 1.0 - (-(sigma_t as f32 as f64) * (1.0 - albedo as f32 as f64) * ell).exp(),
         };
         let persist = (1.0 - kt) / (1.0 - ka);
