@@ -10,6 +10,7 @@ mod gpu_core;
 mod lbl;
 mod light_tracing_tests;
 mod output_tests;
+mod path_extremes_tests;
 mod phase_gpu;
 mod physics_tests;
 mod registry_tests;
