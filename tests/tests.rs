@@ -11,6 +11,7 @@ mod lbl;
 mod light_tracing_tests;
 mod octaves_tests;
 mod output_tests;
+mod path_extremes_tests;
 mod phase_gpu;
 mod physics_tests;
 mod registry_tests;

@@ -2,6 +2,16 @@
 // (path/trace: camera paths; path/light: light paths): delta/spectral tracking to the next
 // real scattering, ratio tracking of the transmittance, and the phase function as the scene's
 // specialisation selects it. Needs scene.glsl, rng.glsl, phase.glsl and budget.glsl first.
+//
+// Both tracking loops are resumable (budget.glsl): one free flight or one transmittance can
+// need any number of tentative collisions (about sigma_maj times the distance: 1e7 through a
+// medium of optical thickness 1e7), far more than llvmpipe lets one invocation run in a
+// dispatch (65535 loop iterations). So the loop in progress lives in `trk`, checks the budget
+// before every iteration, and when it is spent returns "paused" with `trk_paused` set; the
+// kernel saves `trk` (track_save) with the rest of its state, and the next dispatch, having
+// reached the same tracking call again, resumes it exactly where it stopped (track_start with
+// `trk_resume` set loads the saved words instead of starting afresh). Every value is restored
+// bit for bit, so an image does not depend on where the dispatches split the work.
 #ifndef SCATTERLAB_TRACKING
 #define SCATTERLAB_TRACKING
 
@@ -14,81 +24,193 @@ uint collisions;
 uint collision_cap;
 bool truncated;
 
-// Ratio tracking (Novak et al. 2014) of the transmittance from p along w over [0, t_far]:
-// T *= sigma_n / sigma_maj per tentative collision, per channel; unbiased for each channel
-// since sigma_maj >= max channel sigma_t. Russian roulette on small T stays unbiased.
-vec3 transmittance(vec3 p, vec3 w, float t_far, inout uvec2 rng) {
+// Own-counted loop iterations (budget.glsl `iters`) past which a tracking loop pauses: the
+// kernel's budget.
+uint iter_limit;
+
+// The tracking loop in progress along the ray s.org + t s.dir.
+struct Tracker {
+    Segments s;    // the majorant segments still ahead
+    float t;       // distance of the current tentative collision
+    float t1;      // end of the current segment
+    float smaj;    // the current segment's majorant
+    bool in_seg;   // within a segment (t, t1, smaj valid); else the next segment is fetched
+    float r;       // free-flight distance sampled but too short to move t (see track_next)
+    vec3 T;        // ratio tracking: the transmittance so far
+};
+Tracker trk;
+
+// The saved word with the flags: majorant cells y and z in 14 bits each (the host refuses
+// grids of 16384 majorant cells or more along y or z: path::MAX_MAJORANT_CELLS), then the flags.
+const uint CELL_MASK = 0x3fffu;
+const uint IN_SEG_BIT = 1u << 30u;
+const uint DONE_BIT = 1u << 31u;
+
+// The kernel loads a paused tracker's saved words here and sets trk_resume; the next
+// track_start resumes it. trk_paused: the tracker paused in this dispatch (save it).
+vec4 trk_saved[3];
+bool trk_resume = false;
+bool trk_paused = false;
+
+// Begin tracking along p + t w over the medium's interval (clipped to t_far when `clip`), or,
+// when a paused tracker is waiting (trk_resume), resume it: the caller reaches the same call
+// with the same ray, so the parts of the tracker that follow from the ray (segments_begin's
+// steps) are recomputed identically and only its progress is loaded.
+void track_start(vec3 p, vec3 w, float t_far, bool clip) {
     vec2 iv = medium_interval(p, w);
     iv.x = max(iv.x, 0.0);
-    iv.y = min(iv.y, t_far);
-    vec3 T = vec3(1.0);
-    Segments s = segments_begin(p, w, iv.x, iv.y);
-    float t0, t1, smaj;
-    while (segments_next(s, t0, t1, smaj)) {
-        iters++;
-        if (smaj <= 0.0) continue;
-        float t = t0;
-        while (true) {
-            iters++;
-            t -= log(1.0 - rnd(rng)) / smaj;
-            if (t >= t1) break;
-            collisions++;
-            vec3 st = scene.sigma_t.xyz * density_at(p + w * t);
-            T *= max(vec3(0.0), smaj - st) / smaj;
-            float m = max3(T);
-            if (m < 0.1) {
-                if (rnd(rng) >= 0.5) return vec3(0.0);
-                T *= 2.0;
-            }
-            if (collisions > collision_cap) { truncated = true; return vec3(0.0); }
+    if (clip) iv.y = min(iv.y, t_far);
+    trk.s = segments_begin(p, w, iv.x, iv.y);
+    trk.t = 0.0;
+    trk.t1 = 0.0;
+    trk.smaj = 0.0;
+    trk.in_seg = false;
+    trk.r = 0.0;
+    trk.T = vec3(1.0);
+    if (trk_resume) {
+        trk_resume = false;
+        vec4 a = trk_saved[0], b = trk_saved[1], c = trk_saved[2];
+        uint bits = floatBitsToUint(c.w);
+        trk.t = a.x;
+        trk.in_seg = (bits & IN_SEG_BIT) != 0u;
+        trk.smaj = a.z;
+        trk.r = a.w;
+        // Within a grid segment the DDA's t_min equals the segment's end; outside one, the
+        // slot holds t_min (segments_next in scene.glsl advances them together).
+        if (trk.in_seg) {
+            trk.t1 = a.y;
+            trk.s.t_min = a.y;
+        } else {
+            trk.s.t_min = a.y;
         }
+        trk.s.done = (bits & DONE_BIT) != 0u;
+        trk.s.next_t = b.xyz;
+        trk.s.cell = ivec3(floatBitsToInt(b.w), int(bits & CELL_MASK), int((bits >> 14u) & CELL_MASK));
+        trk.T = c.xyz;
     }
-    return T;
 }
 
-// Delta/spectral tracking to the next real scattering event. Returns true and sets `t_hit`
-// on a scattering; false when the path escapes (beta then weights the escape) or dies (beta 0).
-bool next_scatter(vec3 o, vec3 d, inout vec3 beta, inout uvec2 rng, out float t_hit) {
-    vec2 iv = medium_interval(o, d);
-    iv.x = max(iv.x, 0.0);
-    Segments s = segments_begin(o, d, iv.x, iv.y);
-    float t0, t1, smaj;
-    while (segments_next(s, t0, t1, smaj)) {
-        iters++;
-        if (smaj <= 0.0) continue;
-        float t = t0;
-        while (true) {
+// The words that track_start loads to resume `trk` (zeros when no tracking loop paused).
+void track_save(out vec4 a, out vec4 b, out vec4 c) {
+    a = vec4(0.0);
+    b = vec4(0.0);
+    c = vec4(0.0);
+    if (!trk_paused) return;
+    // A cell index outside the grid only ever comes with `done`, when it is not read again.
+    uint bits = (trk.in_seg ? IN_SEG_BIT : 0u) | (trk.s.done ? DONE_BIT : 0u) | (uint(trk.s.cell.y) & CELL_MASK)
+              | ((uint(trk.s.cell.z) & CELL_MASK) << 14u);
+    a = vec4(trk.t, trk.in_seg ? trk.t1 : trk.s.t_min, trk.smaj, trk.r);
+    b = vec4(trk.s.next_t, intBitsToFloat(trk.s.cell.x));
+    c = vec4(trk.T, uintBitsToFloat(bits));
+}
+
+// Fetch the next tentative collision of `trk`: returns 1 with trk.t set, 0 when the ray has
+// left the medium, -1 when the budget is spent (paused before drawing anything).
+int track_next(inout uvec2 rng) {
+    float t0;
+    while (true) {
+        if (iters >= iter_limit) {
+            trk_paused = true;
+            return -1;
+        }
+        if (!trk.in_seg) {
+            if (!segments_next(trk.s, t0, trk.t1, trk.smaj)) return 0;
             iters++;
-            t -= log(1.0 - rnd(rng)) / smaj;
-            if (t >= t1) break;
-            collisions++;
-            if (collisions > collision_cap) { truncated = true; beta = vec3(0.0); return false; }
-            vec3 st = scene.sigma_t.xyz * density_at(o + d * t);
-            vec3 ss = st * scene.albedo.xyz;
-            vec3 sn = max(vec3(0.0), smaj - st);
-            if (!CHROMATIC) {
-                // Grey: scatter with probability sigma_s / (sigma_s + sigma_n); absorption is
-                // carried by the weight (sigma_maj - sigma_a) / sigma_maj, the same on both branches.
-                float denom = ss.x + sn.x;
-                if (denom <= 0.0) { beta = vec3(0.0); return false; }
-                beta *= denom / smaj;
-                if (rnd(rng) * denom < ss.x) { t_hit = t; return true; }
-            } else {
-                // Spectral tracking, history-aware probabilities (Kutz 2017, eq. 15-16).
-                float ws = avg3(beta * ss);
-                float wn = avg3(beta * sn);
-                if (ws + wn <= 0.0) { beta = vec3(0.0); return false; }
-                float ps = ws / (ws + wn);
-                if (rnd(rng) < ps) {
-                    beta *= ss / (smaj * ps);
-                    t_hit = t;
-                    return true;
-                }
-                beta *= sn / (smaj * (1.0 - ps));
+            if (trk.smaj <= 0.0) continue;
+            trk.t = t0;
+            trk.r = 0.0;
+            trk.in_seg = true;
+        }
+        iters++;
+        float dt = log(1.0 - rnd(rng)) / trk.smaj;
+        float tn = trk.t - dt;
+        if (tn == trk.t) {
+            // The free path is below half an ulp of t (sigma_maj t beyond ~1e7): t would stall
+            // at the same point for ever. Such steps add up in r until they move t.
+            trk.r -= dt;
+            tn = trk.t + trk.r;
+            if (tn != trk.t) trk.r = 0.0;
+        } else {
+            trk.r = 0.0;
+        }
+        trk.t = tn;
+        if (trk.t < trk.t1) return 1;
+        trk.in_seg = false;
+    }
+    return 0;
+}
+
+// Ratio tracking (Novak et al. 2014) of the transmittance along the ray track_start began, up
+// to its t_far: T *= sigma_n / sigma_maj per tentative collision, per channel; unbiased for
+// each channel since sigma_maj >= max channel sigma_t. Russian roulette on small T stays
+// unbiased. Returns false when it paused; true when trk.T is the transmittance.
+bool transmittance_run(inout uvec2 rng) {
+    while (true) {
+        int r = track_next(rng);
+        if (r < 0) return false;
+        if (r == 0) return true;
+        collisions++;
+        vec3 st = scene.sigma_t.xyz * density_at(trk.s.org + trk.s.dir * trk.t);
+        trk.T *= max(vec3(0.0), trk.smaj - st) / trk.smaj;
+        float m = max3(trk.T);
+        if (m < 0.1) {
+            if (rnd(rng) >= 0.5) {
+                trk.T = vec3(0.0);
+                return true;
             }
+            trk.T *= 2.0;
+        }
+        if (collisions > collision_cap) {
+            truncated = true;
+            trk.T = vec3(0.0);
+            return true;
         }
     }
-    return false;
+    return true;
+}
+
+// Outcomes of scatter_run.
+const int FLIGHT_PAUSED = -1;
+const int FLIGHT_ESCAPED = 0;     // left the medium (beta weights the escape) or died (beta 0)
+const int FLIGHT_SCATTERED = 1;   // a real scattering at t_hit
+
+// Delta/spectral tracking to the next real scattering event along the ray track_start began
+// (with clip false). Sets `t_hit` on a scattering.
+int scatter_run(inout vec3 beta, inout uvec2 rng, out float t_hit) {
+    t_hit = 0.0;
+    while (true) {
+        int r = track_next(rng);
+        if (r < 0) return FLIGHT_PAUSED;
+        if (r == 0) return FLIGHT_ESCAPED;
+        float t = trk.t;
+        float smaj = trk.smaj;
+        collisions++;
+        if (collisions > collision_cap) { truncated = true; beta = vec3(0.0); return FLIGHT_ESCAPED; }
+        vec3 st = scene.sigma_t.xyz * density_at(trk.s.org + trk.s.dir * t);
+        vec3 ss = st * scene.albedo.xyz;
+        vec3 sn = max(vec3(0.0), smaj - st);
+        if (!CHROMATIC) {
+            // Grey: scatter with probability sigma_s / (sigma_s + sigma_n); absorption is
+            // carried by the weight (sigma_maj - sigma_a) / sigma_maj, the same on both branches.
+            float denom = ss.x + sn.x;
+            if (denom <= 0.0) { beta = vec3(0.0); return FLIGHT_ESCAPED; }
+            beta *= denom / smaj;
+            if (rnd(rng) * denom < ss.x) { t_hit = t; return FLIGHT_SCATTERED; }
+        } else {
+            // Spectral tracking, history-aware probabilities (Kutz 2017, eq. 15-16).
+            float ws = avg3(beta * ss);
+            float wn = avg3(beta * sn);
+            if (ws + wn <= 0.0) { beta = vec3(0.0); return FLIGHT_ESCAPED; }
+            float ps = ws / (ws + wn);
+            if (rnd(rng) < ps) {
+                beta *= ss / (smaj * ps);
+                t_hit = t;
+                return FLIGHT_SCATTERED;
+            }
+            beta *= sn / (smaj * (1.0 - ps));
+        }
+    }
+    return FLIGHT_ESCAPED;
 }
 
 // Power heuristic (Veach 1997) for two strategies with one sample each.

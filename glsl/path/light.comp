@@ -21,8 +21,9 @@
 // Determinism: splats are added as 64-bit fixed-point integers (two 32-bit words with an
 // explicit carry), so the order in which invocations add them does not change a bit; the
 // rounding to the quantum is dithered with the path's own random numbers, so it is unbiased.
-// One invocation = one path slot; resumable like path/trace (budget.glsl): a path's state is
-// saved when the loop budget is spent and the host re-dispatches until every slot has traced
+// One invocation = one path slot; resumable like path/trace (budget.glsl): a path's state, and
+// a free flight or camera connection in progress, is saved when the loop budget is spent
+// (tracking.glsl) and the host re-dispatches until every slot has traced
 // its paths [0, sample_end).
 #extension GL_GOOGLE_include_directive : require
 
@@ -47,8 +48,15 @@ struct LightState {
     vec4 o_light;      // position, index of the path's light (uint bits)
     vec4 d_depth;      // direction, scattering events so far (uint bits)
     vec4 beta_key;     // throughput relative to the emitted weight, rng stream key (uint bits)
-    uvec4 k_flags;     // next path index, flags (1 in flight, 2 truncated), collisions, rng counter
+    uvec4 k_flags;     // next path index, flags (FLAG_*, and the event's step), collisions, rng counter
+    vec4 trk_a;        // the paused tracking loop (tracking.glsl, track_save)
+    vec4 trk_b;
+    vec4 trk_c;
 };
+const uint FLAG_IN_FLIGHT = 1u;
+const uint FLAG_TRUNCATED = 2u;
+const uint FLAG_TRACKING = 4u;   // a tracking loop paused (resume it)
+const uint FLAG_SPLAT = 8u;      // the event's free flight is done: o is the scattering point, splat from there
 layout(std430, binding = 5) buffer State { LightState state[]; };
 // [0] splats clamped to the fixed-point range, [1] 64-bit sums that overflowed, [2] splats.
 layout(std430, binding = 6) buffer LightStats { uint lstats[]; };
@@ -90,8 +98,9 @@ void add_fixed(uint w, float v, float u) {
 }
 
 // Connect the scattering point x (reached along d_in, throughput beta in W per path) to the
-// camera and add the contribution to the pixel x projects into.
-void splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
+// camera and add the contribution to the pixel x projects into. Returns false when the
+// transmittance to the camera paused (the call is repeated with the same arguments to resume).
+bool splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
     vec3 F = scene.cam_forward.xyz;
     vec3 R = scene.cam_right.xyz;
     vec3 U = scene.cam_up.xyz;
@@ -100,7 +109,7 @@ void splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
     float aspect = float(res.y) / float(res.x);
     vec3 v = x - scene.cam_origin.xyz;
     float z = dot(v, F);
-    if (!(z > 0.0)) return;
+    if (!(z > 0.0)) return true;
     vec2 plane;
     vec3 w_cam;          // propagation direction from x toward the camera
     float t_cam;         // distance to the camera (pinhole) or its plane (orthographic)
@@ -122,12 +131,14 @@ void splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
     vec2 ndc = vec2(plane.x / k, plane.y / (k * aspect));
     // Pixel coordinates as camera_ray maps them: px.x = (ndc.x + 1) / 2 * width, row 0 at the top.
     vec2 pxf = vec2((ndc.x + 1.0) * 0.5 * float(res.x), (1.0 - ndc.y) * 0.5 * float(res.y));
-    if (!(pxf.x >= 0.0 && pxf.y >= 0.0 && pxf.x < float(res.x) && pxf.y < float(res.y))) return;
+    if (!(pxf.x >= 0.0 && pxf.y >= 0.0 && pxf.x < float(res.x) && pxf.y < float(res.y))) return true;
     uvec2 px = min(uvec2(pxf), res - 1u);
-    vec3 T = transmittance(x, w_cam, t_cam, rng);
-    if (max3(T) <= 0.0) return;
+    track_start(x, w_cam, t_cam, true);
+    if (!transmittance_run(rng)) return false;
+    vec3 T = trk.T;
+    if (max3(T) <= 0.0) return true;
     vec3 c = beta * T * (phase_eval(scene.albedo.w, dot(d_in, w_cam)) * W) * pc.inv_quantum;
-    if (any(isnan(c)) || any(isinf(c))) { truncated = true; return; }
+    if (any(isnan(c)) || any(isinf(c))) { truncated = true; return true; }
     uint base = 6u * (px.y * res.x + px.x);
     splat_count++;
     for (uint ch = 0u; ch < 3u; ++ch) {
@@ -135,26 +146,43 @@ void splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
         if (q > SPLAT_MAX) { q = SPLAT_MAX; splat_clamped++; }
         if (q > 0.0) add_fixed(base + 2u * ch, q, rnd(rng));
     }
+    return true;
 }
 
+// Outcomes of advance().
+const int EVENT_NEXT = 0;     // the path goes on
+const int EVENT_ENDED = 1;    // the path has ended
+const int EVENT_PAUSED = 2;   // the budget is spent; the event resumes in the next dispatch
+
+// Whether the event in flight has done its free flight (o is then the scattering point).
+bool ev_splat = false;
+
 // One event of a light path: free flight to the next scattering, the camera connection
-// there and a new direction. Returns true when the path has ended.
-bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, vec3 emitted, inout uint depth, inout uvec2 rng) {
-    float t_hit;
-    if (!next_scatter(o, d, beta, rng, t_hit)) return true;
-    depth++;
-    if (depth > pc.max_depth) return true;
-    vec3 p = o + d * t_hit;
-    splat(p, d, beta * emitted, rng);
-    o = p;
+// there and a new direction. Resumable (tracking.glsl): a paused free flight resumes from the
+// same ray (o, d); once it has scattered, o moves to the scattering point and a paused camera
+// connection resumes from there.
+int advance(inout vec3 o, inout vec3 d, inout vec3 beta, vec3 emitted, inout uint depth, inout uvec2 rng) {
+    if (!ev_splat) {
+        float t_hit;
+        track_start(o, d, INF, false);
+        int r = scatter_run(beta, rng, t_hit);
+        if (r == FLIGHT_PAUSED) return EVENT_PAUSED;
+        if (r == FLIGHT_ESCAPED) return EVENT_ENDED;
+        depth++;
+        if (depth > pc.max_depth) return EVENT_ENDED;
+        o = o + d * t_hit;
+        ev_splat = true;
+    }
+    if (!splat(o, d, beta * emitted, rng)) return EVENT_PAUSED;
+    ev_splat = false;
     d = phase_sample(scene.albedo.w, d, rnd2(rng));
     // Russian roulette as in path/trace; beta is relative to the emitted weight, so it starts at 1.
     if (depth >= 3u) {
         float q = min(1.0, max3(beta));
-        if (rnd(rng) >= q) return true;
+        if (rnd(rng) >= q) return EVENT_ENDED;
         beta /= q;
     }
-    return false;
+    return EVENT_NEXT;
 }
 
 // The emitted weight of a path from light i: intensity / (pdf of the light * pdf of the
@@ -170,6 +198,7 @@ void main() {
     if (px.x >= res.x || px.y >= res.y) return;
     uint slot_index = px.y * res.x + px.x;
     collision_cap = pc.collision_cap;
+    iter_limit = pc.budget;
     LightState st = state[slot_index];
     vec3 o = st.o_light.xyz;
     uint light = floatBitsToUint(st.o_light.w);
@@ -178,8 +207,13 @@ void main() {
     vec3 beta = st.beta_key.xyz;
     uvec2 rng = uvec2(floatBitsToUint(st.beta_key.w), st.k_flags.w);
     uint k = st.k_flags.x;
-    bool in_flight = (st.k_flags.y & 1u) != 0u;
-    truncated = (st.k_flags.y & 2u) != 0u;
+    bool in_flight = (st.k_flags.y & FLAG_IN_FLIGHT) != 0u;
+    truncated = (st.k_flags.y & FLAG_TRUNCATED) != 0u;
+    trk_resume = (st.k_flags.y & FLAG_TRACKING) != 0u;
+    ev_splat = (st.k_flags.y & FLAG_SPLAT) != 0u;
+    trk_saved[0] = st.trk_a;
+    trk_saved[1] = st.trk_b;
+    trk_saved[2] = st.trk_c;
     collisions = st.k_flags.z;
     uint trunc_count = 0u;
     uint segs0 = collisions;
@@ -212,10 +246,15 @@ void main() {
             segs0 = 0u;
             truncated = false;
             in_flight = true;
+            ev_splat = false;
         }
         iters++;
-        bool ended = max3(beta) <= 0.0 || advance(o, d, beta, emitted_weight(light), depth, rng);
-        if (truncated) ended = true;
+        // A paused event (a free flight or a camera connection) is resumed whatever beta is.
+        bool fresh = !ev_splat && !trk_resume;
+        int r = fresh && max3(beta) <= 0.0 ? EVENT_ENDED : advance(o, d, beta, emitted_weight(light), depth, rng);
+        if (r == EVENT_PAUSED) break;
+        ev_splat = false;
+        bool ended = r == EVENT_ENDED || truncated;
         if (ended) {
             if (truncated) trunc_count++;
             segs += collisions - segs0 + 1u;
@@ -226,9 +265,12 @@ void main() {
         }
     }
     if (in_flight) segs += collisions - segs0;
-    uint flags = (in_flight ? 1u : 0u) | (truncated ? 2u : 0u);
+    uint flags = (in_flight ? FLAG_IN_FLIGHT : 0u) | (truncated ? FLAG_TRUNCATED : 0u)
+               | (trk_paused ? FLAG_TRACKING : 0u) | (ev_splat ? FLAG_SPLAT : 0u);
+    vec4 ta, tb, tc;
+    track_save(ta, tb, tc);
     state[slot_index] = LightState(vec4(o, uintBitsToFloat(light)), vec4(d, uintBitsToFloat(depth)),
-                                   vec4(beta, uintBitsToFloat(rng.x)), uvec4(k, flags, collisions, rng.y));
+                                   vec4(beta, uintBitsToFloat(rng.x)), uvec4(k, flags, collisions, rng.y), ta, tb, tc);
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);

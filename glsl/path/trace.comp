@@ -6,8 +6,10 @@
 // and unbiased Russian roulette. Chromatic media use spectral tracking (Kutz et al. 2017,
 // "Spectral and decomposition tracking", sec. 5) with absorption folded into the weights,
 // so no channel is shortcut. One invocation = one pixel. The kernel is resumable (budget.glsl):
-// each dispatch advances the pixel's current path by whole scattering events until its loop
-// budget is spent, then saves the path state; the host re-dispatches until every pixel has
+// each dispatch advances the pixel's current path until its loop budget is spent, pausing
+// inside an event where need be (within a free flight, a transmittance or a loop over the
+// lights: one free flight through optical thickness 1e7 can take 1e7 tentative collisions),
+// then saves the path state with the event's progress; the host re-dispatches until every pixel has
 // finished samples [0, sample_end). Every finished sample adds L and L^2 to the pixel's sums
 // (mean and variance of the mean on the host), always in sample order: deterministic.
 // Point lights (with pc.equiangular) are also sampled by equiangular sampling along every
@@ -39,8 +41,18 @@ struct PathState {
     vec4 d_depth;      // ray direction, scattering events so far (uint bits)
     vec4 beta_key;     // throughput, rng stream key (uint bits)
     vec4 L_coll;       // radiance gathered so far, tentative collisions so far (uint bits)
-    uvec4 k_flight;    // next sample index, 1 while a path is in flight, truncated flag, rng counter
+    uvec4 k_flight;    // next sample index, flags (FLAG_*, and the event's progress), ev_s (float bits), rng counter
+    vec4 ev_v;         // the event's vector ev_v, unused
+    vec4 trk_a;        // the paused tracking loop (tracking.glsl, track_save)
+    vec4 trk_b;
+    vec4 trk_c;
 };
+// The flags word: bit 0 a path is in flight, 1 it was truncated, 2 a tracking loop paused,
+// 3 ev_eq_on, 4-6 ev_step, 8-9 ev_sub, 12-31 ev_light (the host refuses 2^20 lights or more).
+const uint FLAG_IN_FLIGHT = 1u;
+const uint FLAG_TRUNCATED = 2u;
+const uint FLAG_TRACKING = 4u;
+const uint FLAG_EQ_ON = 8u;
 layout(std430, binding = 5) buffer State { PathState state[]; };
 
 layout(push_constant) uniform Push {
@@ -110,19 +122,42 @@ float eq_weight(Equiangular e, vec3 o, vec3 d, float t_in, float t) {
     return mis_power(pe, pd);
 }
 
+// Progress of the event (advance) in flight, so that a paused event resumes where it stopped
+// (the tracking loops pause when the budget is spent: tracking.glsl). Saved in the state.
+const uint EV_START = 0u;    // nothing of the event done yet
+const uint EV_EQ = 1u;       // equiangular sampling, at point light ev_light (sub-step ev_sub)
+const uint EV_FLIGHT = 2u;   // the free flight (trk)
+const uint EV_ESCAPE = 3u;   // the path escaped: environment lights from ev_light on
+const uint EV_NEE = 4u;      // next-event estimation, at light ev_light (sub-step ev_sub)
+uint ev_step = EV_START;
+uint ev_light = 0u;
+// 0: light ev_light not begun; EV_EQ: 1 camera-ray transmittance, 2 light transmittance in
+// progress; EV_NEE: 1 shadow transmittance in progress.
+uint ev_sub = 0u;
+bool ev_eq_on = false;       // equiangular sampling is on for this event (fixed at its start)
+float ev_s = 0.0;            // EV_EQ: the light's uniform u; EV_NEE: the scattering distance t_hit
+vec3 ev_v = vec3(0.0);       // EV_EQ: the camera-ray transmittance; EV_NEE: the environment's direction
+
 // The equiangular estimate for every point light along the ray (o, d) over [t_in, t_out],
 // added to L with throughput beta (the throughput at the ray's origin). Transmittances by
-// ratio tracking, so unbiased per channel, chromatic media included.
-void equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inout vec3 L, inout uvec2 rng) {
+// ratio tracking, so unbiased per channel, chromatic media included. Returns false when it
+// paused (resumes at ev_light, ev_sub).
+bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inout vec3 L, inout uvec2 rng) {
     uint light_count = scene.image.z;
     float g = scene.albedo.w;
-    for (uint i = 0u; i < light_count; ++i) {
-        iters++;
+    for (; ev_light < light_count; ev_light++, ev_sub = 0u) {
+        uint i = ev_light;
+        if (ev_sub == 0u) {
+            if (iters >= iter_limit) return false;
+            iters++;
+        }
         Light li = scene.lights[i];
         if (uint(li.pos_kind.w) != LIGHT_POINT || !camera_side(i)) continue;
         vec3 c = li.pos_kind.xyz;
         Equiangular e = eq_setup(o, d, t_in, t_out, c);
-        float u = rnd(rng);   // drawn for every point light, so the stream does not depend on e.ok
+        // Drawn for every point light, so the stream does not depend on e.ok.
+        if (ev_sub == 0u) ev_s = rnd(rng);
+        float u = ev_s;
         if (!e.ok) continue;
         float t = clamp(e.delta + e.D * tan(mix(e.th_a, e.th_b, u)), t_in, t_out);
         float pdf = eq_pdf(e, t);
@@ -136,49 +171,90 @@ void equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
         vec3 wi = to / dist;
         float w = eq_weight(e, o, d, t_in, t);
         if (w <= 0.0) continue;
-        vec3 Tcam = transmittance(o, d, t, rng);
-        if (max3(Tcam) <= 0.0) continue;
-        vec3 Tl = transmittance(x, wi, dist, rng);
+        if (ev_sub <= 1u) {
+            ev_sub = 1u;
+            track_start(o, d, t, true);
+            if (!transmittance_run(rng)) return false;
+            ev_v = trk.T;
+            if (max3(ev_v) <= 0.0) continue;
+            ev_sub = 2u;
+        }
+        track_start(x, wi, dist, true);
+        if (!transmittance_run(rng)) return false;
+        vec3 Tcam = ev_v;
+        vec3 Tl = trk.T;
         L += beta * Tcam * ss * phase_eval(g, dot(d, wi)) * Tl * li.value.rgb / dist2 * (w / pdf);
     }
+    return true;
 }
 
+// Outcomes of advance().
+const int EVENT_NEXT = 0;     // the path goes on
+const int EVENT_ENDED = 1;    // the path has ended
+const int EVENT_PAUSED = 2;   // the budget is spent; the event resumes in the next dispatch
+
 // One event of a path: free flight to the next scattering (next-event estimation and a new
-// direction there) or to its escape. Returns true when the path has ended.
-bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uint depth, inout float pdf_dir, inout uvec2 rng) {
+// direction there) or to its escape. Resumable: o, d, beta, depth and pdf_dir change only
+// where the event can no longer pause.
+int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uint depth, inout float pdf_dir, inout uvec2 rng) {
     uint light_count = scene.image.z;
     float g = scene.albedo.w;
-    // The ray's segment in the medium, as next_scatter sees it; kept for the MIS weights.
+    // The ray's segment in the medium, as the free flight sees it; kept for the MIS weights.
     vec2 seg = medium_interval(o, d);
     seg.x = max(seg.x, 0.0);
-    // Equiangular sampling only where a scattering vertex here would be allowed
-    // (depth + 1 <= max_depth), exactly where the distance-sampled NEE below happens.
-    bool eq_on = pc.equiangular != 0u && depth < pc.max_depth && seg.x < seg.y;
-    if (eq_on && max3(beta) > 0.0) equiangular_lights(o, d, seg.x, seg.y, beta, L, rng);
-    vec3 o_seg = o;
-    vec3 d_seg = d;
-    float t_hit;
-    bool scattered = next_scatter(o, d, beta, rng, t_hit);
-    if (!scattered) {
+    if (ev_step == EV_START) {
+        // Equiangular sampling only where a scattering vertex here would be allowed
+        // (depth + 1 <= max_depth), exactly where the distance-sampled NEE below happens.
+        ev_eq_on = pc.equiangular != 0u && depth < pc.max_depth && seg.x < seg.y;
+        ev_step = ev_eq_on && max3(beta) > 0.0 ? EV_EQ : EV_FLIGHT;
+        ev_light = 0u;
+        ev_sub = 0u;
+    }
+    if (ev_step == EV_EQ) {
+        if (!equiangular_lights(o, d, seg.x, seg.y, beta, L, rng)) return EVENT_PAUSED;
+        ev_step = EV_FLIGHT;
+    }
+    if (ev_step == EV_FLIGHT) {
+        track_start(o, d, INF, false);
+        float t_hit;
+        int r = scatter_run(beta, rng, t_hit);
+        if (r == FLIGHT_PAUSED) return EVENT_PAUSED;
+        ev_light = 0u;
+        ev_sub = 0u;
+        if (r == FLIGHT_ESCAPED) {
+            ev_step = EV_ESCAPE;
+        } else {
+            depth++;
+            if (depth > pc.max_depth) return EVENT_ENDED;
+            ev_s = t_hit;
+            ev_step = EV_NEE;
+        }
+    }
+    if (ev_step == EV_ESCAPE) {
         if (max3(beta) > 0.0) {
-            for (uint i = 0u; i < light_count; ++i) {
+            for (; ev_light < light_count; ev_light++) {
+                if (iters >= iter_limit) return EVENT_PAUSED;
                 iters++;
-                if (uint(scene.lights[i].pos_kind.w) != LIGHT_ENVIRONMENT) continue;
+                if (uint(scene.lights[ev_light].pos_kind.w) != LIGHT_ENVIRONMENT) continue;
                 // The camera ray sees the environment directly; later escapes share the
                 // environment with its next-event estimate by MIS.
                 float w = depth == 0u ? 1.0 : mis_power(pdf_dir, INV_4PI);
-                L += beta * scene.lights[i].value.rgb * w;
+                L += beta * scene.lights[ev_light].value.rgb * w;
             }
         }
-        return true;
+        return EVENT_ENDED;
     }
-    depth++;
-    if (depth > pc.max_depth) return true;
-    vec3 p = o + d * t_hit;
 
-    // Next-event estimation toward every light, transmittance by ratio tracking.
-    for (uint i = 0u; i < light_count; ++i) {
-        iters++;
+    // EV_NEE: next-event estimation toward every light from the scattering point, transmittance
+    // by ratio tracking. The free flight's ray is still (o, d).
+    float t_hit = ev_s;
+    vec3 p = o + d * t_hit;
+    for (; ev_light < light_count; ev_light++, ev_sub = 0u) {
+        uint i = ev_light;
+        if (ev_sub == 0u) {
+            if (iters >= iter_limit) return EVENT_PAUSED;
+            iters++;
+        }
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
         if (kind == LIGHT_POINT) {
@@ -191,19 +267,29 @@ bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout ui
             // The distance-sampling share of the MIS with equiangular sampling (w_d = 1 - w_eq
             // for the same ray and t; 1 when equiangular sampling is off).
             float w = 1.0;
-            if (eq_on) w = 1.0 - eq_weight(eq_setup(o_seg, d_seg, seg.x, seg.y, li.pos_kind.xyz), o_seg, d_seg, seg.x, t_hit);
+            if (ev_eq_on) w = 1.0 - eq_weight(eq_setup(o, d, seg.x, seg.y, li.pos_kind.xyz), o, d, seg.x, t_hit);
             if (w <= 0.0) continue;
-            vec3 T = transmittance(p, wi, dist, rng);
+            ev_sub = 1u;
+            track_start(p, wi, dist, true);
+            if (!transmittance_run(rng)) return EVENT_PAUSED;
+            vec3 T = trk.T;
             L += beta * T * phase_eval(g, dot(d, wi)) * li.value.rgb / dist2 * w;
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
-            vec3 T = transmittance(p, wi, INF, rng);
+            ev_sub = 1u;
+            track_start(p, wi, INF, true);
+            if (!transmittance_run(rng)) return EVENT_PAUSED;
+            vec3 T = trk.T;
             L += beta * T * phase_eval(g, dot(d, wi)) * li.value.rgb;
         } else {
             // Uniform direction: the importance sampling of a constant environment.
-            vec3 wi = uniform_sphere(rnd2(rng));
+            if (ev_sub == 0u) ev_v = uniform_sphere(rnd2(rng));
+            vec3 wi = ev_v;
             float ph = phase_eval(g, dot(d, wi));
-            vec3 T = transmittance(p, wi, INF, rng);
+            ev_sub = 1u;
+            track_start(p, wi, INF, true);
+            if (!transmittance_run(rng)) return EVENT_PAUSED;
+            vec3 T = trk.T;
             L += beta * T * ph * li.value.rgb / INV_4PI * mis_power(INV_4PI, ph);
         }
     }
@@ -217,10 +303,10 @@ bool advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout ui
     // Russian roulette on the throughput; dividing by the survival probability keeps it unbiased.
     if (depth >= 3u) {
         float q = min(1.0, max3(beta));
-        if (rnd(rng) >= q) return true;
+        if (rnd(rng) >= q) return EVENT_ENDED;
         beta /= q;
     }
-    return false;
+    return EVENT_NEXT;
 }
 
 void main() {
@@ -229,6 +315,7 @@ void main() {
     if (px.x >= res.x || px.y >= res.y) return;
     uint pixel = px.y * res.x + px.x;
     collision_cap = pc.collision_cap;
+    iter_limit = pc.budget;
     PathState st = state[pixel];
     vec3 o = st.o_pdf.xyz;
     float pdf_dir = st.o_pdf.w;
@@ -239,8 +326,19 @@ void main() {
     vec3 L = st.L_coll.xyz;
     collisions = floatBitsToUint(st.L_coll.w);
     uint k = st.k_flight.x;
-    bool in_flight = st.k_flight.y != 0u;
-    truncated = st.k_flight.z != 0u;
+    uint flags = st.k_flight.y;
+    bool in_flight = (flags & FLAG_IN_FLIGHT) != 0u;
+    truncated = (flags & FLAG_TRUNCATED) != 0u;
+    trk_resume = (flags & FLAG_TRACKING) != 0u;
+    ev_eq_on = (flags & FLAG_EQ_ON) != 0u;
+    ev_step = (flags >> 4u) & 7u;
+    ev_sub = (flags >> 8u) & 3u;
+    ev_light = flags >> 12u;
+    ev_s = uintBitsToFloat(st.k_flight.z);
+    ev_v = st.ev_v.xyz;
+    trk_saved[0] = st.trk_a;
+    trk_saved[1] = st.trk_b;
+    trk_saved[2] = st.trk_c;
     uint trunc_count = 0u;
     uint segs0 = collisions;
     uint segs = 0u;
@@ -259,10 +357,13 @@ void main() {
             segs0 = 0u;
             truncated = false;
             in_flight = true;
+            ev_step = EV_START;
         }
         iters++;
-        bool ended = advance(o, d, beta, L, depth, pdf_dir, rng);
-        if (truncated) ended = true;
+        int r = advance(o, d, beta, L, depth, pdf_dir, rng);
+        if (r == EVENT_PAUSED) break;
+        ev_step = EV_START;
+        bool ended = r == EVENT_ENDED || truncated;
         if (ended) {
             // Never let a NaN/Inf leave the pass; count it with the truncations so it is reported.
             if (any(isnan(L)) || any(isinf(L))) { L = vec3(0.0); truncated = true; }
@@ -277,8 +378,13 @@ void main() {
         }
     }
     if (in_flight) segs += collisions - segs0;
+    flags = (in_flight ? FLAG_IN_FLIGHT : 0u) | (truncated ? FLAG_TRUNCATED : 0u) | (trk_paused ? FLAG_TRACKING : 0u)
+          | (ev_eq_on ? FLAG_EQ_ON : 0u) | (ev_step << 4u) | (ev_sub << 8u) | (ev_light << 12u);
+    vec4 ta, tb, tc;
+    track_save(ta, tb, tc);
     state[pixel] = PathState(vec4(o, pdf_dir), vec4(d, uintBitsToFloat(depth)), vec4(beta, uintBitsToFloat(rng.x)),
-                             vec4(L, uintBitsToFloat(collisions)), uvec4(k, in_flight ? 1u : 0u, truncated ? 1u : 0u, rng.y));
+                             vec4(L, uintBitsToFloat(collisions)), uvec4(k, flags, floatBitsToUint(ev_s), rng.y),
+                             vec4(ev_v, 0.0), ta, tb, tc);
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);

@@ -125,6 +125,10 @@ pub struct Variant {
     /// Whether it runs on a scene (`path`'s camera-paths variant only where its default
     /// light-traces: elsewhere the two are the same render).
     pub applies: fn(&Scene) -> bool,
+    /// A comparison variant: a scheme kept to compare against (`wavefront`'s explicit
+    /// integrator, the paper's eq. 6), judged and shown like any other but expected to fail
+    /// somewhere; its failures are marked expected and not counted against the sweep.
+    pub comparison: bool,
 }
 
 impl Variant {
@@ -133,6 +137,7 @@ impl Variant {
             name: name.to_string(),
             sets: sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
             applies: |_| true,
+            comparison: false,
         }
     }
 }

@@ -90,8 +90,11 @@ pub const LIGHT: Kernel =
     Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: SCENE_SPEC };
 
 /// Per path slot of the light kernel: the 64-bit fixed-point splat sums (3 channels x 2
-/// words) of its pixel and the resumable state (`LightState`, 64 bytes).
-pub const LIGHT_BYTES_PER_PIXEL: u64 = 24 + 64;
+/// words) of its pixel and the resumable state (`LightState`).
+pub const LIGHT_BYTES_PER_PIXEL: u64 = 24 + LIGHT_STATE_BYTES;
+/// Per path slot: the resumable light-path state (`LightState` in glsl/path/light.comp: the
+/// path, and a tracking loop paused mid-flight).
+pub const LIGHT_STATE_BYTES: u64 = 112;
 /// Splats of a typical size are this many fixed-point quanta (2^24): ~7 significant digits.
 const QUANTA_PER_TYPICAL_SPLAT: f64 = 16_777_216.0;
 /// Mean optical depth around a light below which `auto` leaves it to camera paths.
@@ -101,8 +104,14 @@ pub const DEFAULT_COLLISION_CAP: u32 = 1 << 20;
 /// Lights beyond this index are never light traced (the mask is one 32-bit word).
 pub const MAX_LIGHT_TRACED: usize = 32;
 
-/// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp).
-pub const STATE_BYTES_PER_PIXEL: u64 = 80;
+/// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp: the path, the progress
+/// of its current event, and a tracking loop paused mid-flight).
+pub const STATE_BYTES_PER_PIXEL: u64 = 144;
+/// The kernels keep the index of the light an event is at in 20 bits.
+pub const MAX_LIGHTS: usize = 1 << 20;
+/// A paused tracking loop keeps its majorant cell along y and z in 14 bits each
+/// (glsl/include/tracking.glsl); no device's 3D images reach that many voxels (4 per cell).
+pub const MAX_MAJORANT_CELLS: u32 = 1 << 14;
 
 /// `u32::MAX` is "unbounded" for `max_depth`.
 pub const UNBOUNDED: u32 = u32::MAX;
@@ -170,6 +179,42 @@ pub fn light_depth(scene: &Scene, p: Vec3) -> (f64, f64) {
     }
     let absorbed_after = 1.0 / (1.0 - m.albedo.max_element() as f64).max(1e-12);
     (depth_sum / 26.0, (0.5 * tau_min * tau_min).min(absorbed_after))
+}
+
+/// Free paths shorter than this many float32 steps of position (at the medium's largest
+/// coordinate) are not resolved by the path vertices.
+pub const RESOLVED_STEPS: f64 = 8.0;
+
+/// A warning when the medium's shortest mean free path is below what 32-bit vertex positions
+/// resolve (`RESOLVED_STEPS` float steps at the medium's largest coordinate), or None.
+///
+/// A vertex cannot move less than one float step, so a random walk whose free paths are
+/// shorter stalls in place near the surface, where it leaves whenever its direction points
+/// out: reflectance comes out too high (never above the lossless case, since energy is still
+/// conserved per event). Measured on a unit cube at the origin (coordinates 0.5, float step
+/// 6e-8), albedo 0.99, against Chandrasekhar's half-space value 0.753 (256 spp, +-0.009):
+/// sigma_t 1e6 0.739, 4e6 0.744, 8e6 0.779, 1.6e7 0.847, 1e8 0.953. The free flights
+/// themselves stay correct at any thickness (tracking.glsl accumulates sub-step flights).
+pub fn position_resolution_note(scene: &Scene) -> Option<String> {
+    let m = &scene.medium;
+    let majorant = m.sigma_t.max_element() as f64 * scene.max_density() as f64;
+    if !(majorant > 0.0) {
+        return None;
+    }
+    let free_path = 1.0 / majorant;
+    let extent = m.bounds_min.abs().max(m.bounds_max.abs()).max_element() as f64;
+    let step = extent * f32::EPSILON as f64;
+    if free_path >= RESOLVED_STEPS * step {
+        return None;
+    }
+    Some(format!(
+        "the mean free path ({free_path:.1e}) is shorter than {RESOLVED_STEPS} float32 steps of position at this \
+            medium's coordinates ({step:.1e} each; an extinction beyond {:.1e} per unit here): path vertices cannot \
+            resolve the random walk, so scattering near the surface is quantised and the image biased bright (at \
+            most the lossless albedo-1 result; pure absorption stays exact); a float32 limit that scaling the \
+            scene does not move: lower sigma_t (a medium this opaque looks the same at a lower one)",
+        1.0 / (RESOLVED_STEPS * step)
+    ))
 }
 
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
@@ -356,6 +401,26 @@ impl Solver for Path {
         let lt_mode: String = k.get("light_tracing")?;
         let light_batches: u32 = k.get("light_batches")?;
         k.finish()?;
+        if scene.lights.len() >= MAX_LIGHTS {
+            return Err(SolverError::Unsupported(format!(
+                "path: {} lights; the path kernels index lights in 20 bits, so at most {} (merge lights or use \
+                    an environment)",
+                scene.lights.len(),
+                MAX_LIGHTS - 1
+            )));
+        }
+        if let Some(g) = scene.features().grid_dims {
+            let md = gpu_scene::majorant_dims(g, gpu_scene::MAJORANT_CELL);
+            if md[1] >= MAX_MAJORANT_CELLS || md[2] >= MAX_MAJORANT_CELLS {
+                return Err(SolverError::Unsupported(format!(
+                    "path: a grid of {} x {} x {} voxels; the path kernels take at most {} voxels along y and z",
+                    g[0],
+                    g[1],
+                    g[2],
+                    (MAX_MAJORANT_CELLS - 1) * gpu_scene::MAJORANT_CELL
+                )));
+            }
+        }
         let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
         let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
         // Camera paths are needed for every light not traced from the light side.
@@ -386,7 +451,8 @@ impl Solver for Path {
         // variances (independent estimates) add.
         let mut image = Image::new(w, h);
         let mut variance = Image::new(w, h);
-        let mut warnings = lt_notes;
+        let mut warnings: Vec<String> = position_resolution_note(scene).into_iter().collect();
+        warnings.extend(lt_notes);
         let mut device_bytes = gs.bytes;
         for part in [camera.as_ref().map(|c| &c.0), light.as_ref().map(|l| &l.0)].into_iter().flatten() {
             for (a, b) in image.data.iter_mut().zip(&part.image.data) {
@@ -588,7 +654,7 @@ fn light_paths(
     let inv_quantum = QUANTA_PER_TYPICAL_SPLAT / typical_splat(scene, power_sum);
     let pipeline = gpu.pipeline(&LIGHT, &gs.modelled.spec())?;
     let splats = gpu.buffer("light splats", pixels * 24)?;
-    let state = gpu.buffer("light path state", pixels * 64)?;
+    let state = gpu.buffer("light path state", pixels * LIGHT_STATE_BYTES)?;
     let stats = gpu.buffer("light path stats", resumable::STATS_WORDS * 4)?;
     let lstats = gpu.buffer("light splat stats", 16)?;
     let zeros = vec![0u8; splats.size() as usize];

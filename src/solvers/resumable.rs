@@ -45,9 +45,13 @@ pub fn run_until_done(
         dispatches += ROUNDS_PER_SUBMIT as u64;
         let st: Vec<u32> = gpu.read_buffer_as(stats)?;
         if st[2] >= LOOP_GUARD {
+            // Every loop of a resumable kernel pauses at the budget (the path kernels inside a
+            // free flight too: glsl/include/tracking.glsl), so this is a kernel bug, not a scene
+            // the user could have avoided; it is still refused rather than return a wrong image.
             return Err(SolverError::Unsupported(format!(
                 "{solver}: one invocation ran {} loop iterations in a dispatch, past the {LOOP_GUARD} at which \
-                    llvmpipe silently ends loops; lower {solver}.budget",
+                    llvmpipe silently ends loops: a kernel loop that does not pause at its budget (please report it \
+                    with the scene); a lower {solver}.budget may avoid it",
                 st[2]
             )));
         }
