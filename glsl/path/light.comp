@@ -70,6 +70,8 @@ layout(push_constant) uniform Push {
     uint collision_cap;   // safety cap on tentative collisions per path (reported, not silent)
     uint slot;            // which active counter this dispatch reports into
     uint light_traced;    // bit i: light i is traced from here
+    uint rr_depth;        // Russian roulette from this many scattering events on
+    float rr_threshold;   // ... for throughput below this (survival max(beta) / threshold)
     float inv_quantum;    // fixed-point quanta per unit of splat (W/(m^2 sr) per path)
     float power_sum;      // sum over light-traced lights of their mean intensity (W/sr)
 } pc;
@@ -177,8 +179,8 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, vec3 emitted, inout uin
     ev_splat = false;
     d = phase_sample(scene.albedo.w, d, rnd2(rng));
     // Russian roulette as in path/trace; beta is relative to the emitted weight, so it starts at 1.
-    if (depth >= 3u) {
-        float q = min(1.0, max3(beta));
+    if (depth >= pc.rr_depth) {
+        float q = min(1.0, max3(beta) / pc.rr_threshold);
         if (rnd(rng) >= q) return EVENT_ENDED;
         beta /= q;
     }

@@ -64,7 +64,9 @@ layout(push_constant) uniform Push {
     uint collision_cap;   // safety cap on tentative collisions per path (reported, not silent)
     uint slot;            // which active counter this dispatch reports into
     uint light_traced;    // bit i: light i is rendered by light paths (path/light); camera paths skip it
-    uint equiangular;     // 1: equiangular sampling of point lights + MIS; 0: distance sampling only
+    uint rr_depth;        // Russian roulette from this many scattering events on
+    float rr_threshold;   // ... for throughput below this (survival max(beta) / threshold)
+    uint equiangular;     // bit i: point light i also sampled by equiangular sampling + MIS
 } pc;
 
 // Whether camera paths estimate light i (a light-traced light is left wholly to path/light,
@@ -138,6 +140,10 @@ bool ev_eq_on = false;       // equiangular sampling is on for this event (fixed
 float ev_s = 0.0;            // EV_EQ: the light's uniform u; EV_NEE: the scattering distance t_hit
 vec3 ev_v = vec3(0.0);       // EV_EQ: the camera-ray transmittance; EV_NEE: the environment's direction
 
+// Whether point light i is also sampled by equiangular sampling (the host decides per light:
+// where its 1/r^2 varies strongly over the medium, path.equiangular).
+bool eq_light(uint i) { return i < 32u && ((pc.equiangular >> i) & 1u) != 0u; }
+
 // The equiangular estimate for every point light along the ray (o, d) over [t_in, t_out],
 // added to L with throughput beta (the throughput at the ray's origin). Transmittances by
 // ratio tracking, so unbiased per channel, chromatic media included. Returns false when it
@@ -152,7 +158,7 @@ bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
             iters++;
         }
         Light li = scene.lights[i];
-        if (uint(li.pos_kind.w) != LIGHT_POINT || !camera_side(i)) continue;
+        if (uint(li.pos_kind.w) != LIGHT_POINT || !camera_side(i) || !eq_light(i)) continue;
         vec3 c = li.pos_kind.xyz;
         Equiangular e = eq_setup(o, d, t_in, t_out, c);
         // Drawn for every point light, so the stream does not depend on e.ok.
@@ -267,7 +273,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
             // The distance-sampling share of the MIS with equiangular sampling (w_d = 1 - w_eq
             // for the same ray and t; 1 when equiangular sampling is off).
             float w = 1.0;
-            if (ev_eq_on) w = 1.0 - eq_weight(eq_setup(o, d, seg.x, seg.y, li.pos_kind.xyz), o, d, seg.x, t_hit);
+            if (ev_eq_on && eq_light(i)) w = 1.0 - eq_weight(eq_setup(o, d, seg.x, seg.y, li.pos_kind.xyz), o, d, seg.x, t_hit);
             if (w <= 0.0) continue;
             ev_sub = 1u;
             track_start(p, wi, dist, true);
@@ -301,8 +307,8 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     d = wo;
 
     // Russian roulette on the throughput; dividing by the survival probability keeps it unbiased.
-    if (depth >= 3u) {
-        float q = min(1.0, max3(beta));
+    if (depth >= pc.rr_depth) {
+        float q = min(1.0, max3(beta) / pc.rr_threshold);
         if (rnd(rng) >= q) return EVENT_ENDED;
         beta /= q;
     }

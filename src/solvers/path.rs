@@ -62,6 +62,10 @@ pub struct PathPushHead {
     pub slot: u32,
     /// Bit i: light i is rendered by light paths, and camera paths skip it.
     pub light_traced: u32,
+    /// Russian roulette from this many scattering events on ...
+    pub rr_depth: u32,
+    /// ... for throughput below this: survival probability max(beta) / rr_threshold.
+    pub rr_threshold: f32,
 }
 
 /// Push constants of glsl/path/trace.comp.
@@ -69,7 +73,7 @@ pub struct PathPushHead {
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct PathPush {
     pub head: PathPushHead,
-    /// 1: equiangular sampling of point lights combined with distance sampling by MIS.
+    /// Bit i: point light i also sampled by equiangular sampling, combined by MIS.
     pub equiangular: u32,
 }
 
@@ -217,6 +221,43 @@ pub fn position_resolution_note(scene: &Scene) -> Option<String> {
     ))
 }
 
+/// Equiangular sampling pays where a point light's 1/r^2 varies strongly over the medium:
+/// `auto` takes the lights whose farthest and nearest distances to the medium's box differ by
+/// more than this factor (a light inside or touching the box always).
+pub const EQUIANGULAR_RATIO: f32 = 4.0;
+
+/// The point lights `path.equiangular` samples by equiangular sampling too, as a bit mask
+/// (lights 0..32).
+pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
+    let m = &scene.medium;
+    let mut mask = 0u32;
+    for (i, l) in scene.lights.iter().enumerate().take(32) {
+        let Light::Point { position, .. } = l else { continue };
+        let take = match mode {
+            "on" | "true" => true,
+            "off" | "false" => false,
+            _ => {
+                let nearest = (position.clamp(m.bounds_min, m.bounds_max) - *position).length();
+                let farthest = (0..8)
+                    .map(|k| {
+                        let c = Vec3::new(
+                            if k & 1 == 0 { m.bounds_min.x } else { m.bounds_max.x },
+                            if k & 2 == 0 { m.bounds_min.y } else { m.bounds_max.y },
+                            if k & 4 == 0 { m.bounds_min.z } else { m.bounds_max.z },
+                        );
+                        (c - *position).length()
+                    })
+                    .fold(0.0f32, f32::max);
+                farthest > EQUIANGULAR_RATIO * nearest
+            }
+        };
+        if take {
+            mask |= 1 << i;
+        }
+    }
+    mask
+}
+
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
 /// note for each light `auto` declined although it is inside the medium.
 pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Vec<usize>, Vec<String>), SolverError> {
@@ -362,10 +403,23 @@ impl Solver for Path {
             ),
             Knob::fixed(
                 "equiangular",
-                "true",
-                Range::Bool,
+                "auto",
+                Range::Choice(&["auto", "on", "off", "true", "false"]),
                 "also sample point lights by equiangular sampling along each ray, combined by MIS (Kulla & Fajardo \
-                    2012)",
+                 2012): auto where the light's 1/r^2 varies more than 16x over the medium (inside it or close to it), \
+                 on (true) every point light, off (false) none",
+            ),
+            Knob::fixed(
+                "rr_depth",
+                "3",
+                Range::int(1, u32::MAX as u64),
+                "Russian roulette from this many scattering events on",
+            ),
+            Knob::fixed(
+                "rr_threshold",
+                "1",
+                Range::Real { min: 0.0, max: 1.0, min_open: true, max_open: false },
+                "Russian roulette only for throughput below this (survival max(beta) / rr_threshold)",
             ),
             Knob::fixed(
                 "light_tracing",
@@ -397,7 +451,10 @@ impl Solver for Path {
         let batch: u32 = k.get_or("batch", default_batch)?;
         let budget: u32 = k.get("budget")?;
         let collision_cap: u32 = k.get("collision_cap")?;
-        let equiangular: bool = k.get("equiangular")?;
+        let eq_mode: String = k.get("equiangular")?;
+        let equiangular = equiangular_lights(scene, &eq_mode);
+        let rr_depth: u32 = k.get("rr_depth")?;
+        let rr_threshold: f32 = k.get("rr_threshold")?;
         let lt_mode: String = k.get("light_tracing")?;
         let light_batches: u32 = k.get("light_batches")?;
         k.finish()?;
@@ -432,7 +489,20 @@ impl Solver for Path {
         let total = spp as u64 * kernels.max(1);
         (req.progress)(0, total);
 
-        let common = Common { gpu, gs: &gs, w, h, spp, budget, seed, max_depth, collision_cap, light_mask };
+        let common = Common {
+            gpu,
+            gs: &gs,
+            w,
+            h,
+            spp,
+            budget,
+            seed,
+            max_depth,
+            collision_cap,
+            light_mask,
+            rr_depth,
+            rr_threshold,
+        };
         let camera = if camera_lights > 0 || traced.is_empty() {
             Some(camera_paths(&common, batch, equiangular, &|done| (req.progress)(done, total))?)
         } else {
@@ -536,6 +606,8 @@ struct Common<'a> {
     max_depth: u32,
     collision_cap: u32,
     light_mask: u32,
+    rr_depth: u32,
+    rr_threshold: f32,
 }
 
 impl Common<'_> {
@@ -549,6 +621,8 @@ impl Common<'_> {
             collision_cap: self.collision_cap,
             slot,
             light_traced: self.light_mask,
+            rr_depth: self.rr_depth,
+            rr_threshold: self.rr_threshold,
         }
     }
 }
@@ -565,7 +639,7 @@ struct Part {
 fn camera_paths(
     c: &Common,
     batch: u32,
-    equiangular: bool,
+    equiangular: u32,
     progress: &dyn Fn(u64),
 ) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
@@ -579,7 +653,7 @@ fn camera_paths(
     while sample_end < c.spp {
         sample_end = sample_end.saturating_add(batch).min(c.spp);
         let (n, _) = resumable::run_until_done(gpu, "path", &stats, |slot| {
-            let push = PathPush { head: c.head(sample_end, slot), equiangular: equiangular as u32 };
+            let push = PathPush { head: c.head(sample_end, slot), equiangular };
             gs.bind(Pass::new("path.trace", QueueRole::Trace, &pipeline))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
