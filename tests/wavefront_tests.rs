@@ -1,6 +1,7 @@
 //! Solver `wavefront` (wavefront paper): the spherical-layer march against the analytic
-//! homogeneous solution (eq. 5), both integrators at the extremes, the paper's "hole" case,
-//! and the rendered image against `path` with the light inside the cloud.
+//! homogeneous solution (eq. 5) and, with the extrapolated boundary, against the closed form
+//! in a homogeneous sphere; both integrators at the extremes, the paper's "hole" case, and the
+//! rendered image against `path` with the light inside the cloud and inside a thick cube.
 
 use crate::common::{LBL, PATH, SINGLE, WAVEFRONT};
 use glam::Vec3;
@@ -9,7 +10,9 @@ use scatterlab::output::compare;
 use scatterlab::scene::{write_vol, LoadOptions, Scene};
 use scatterlab::solvers::gpu_scene::GpuScene;
 use scatterlab::solvers::lbl::LblStats;
-use scatterlab::solvers::wave_field::{trace_light, wave_volume, Integrator, WaveField, WaveKernels, WaveSettings};
+use scatterlab::solvers::wave_field::{
+    trace_light, wave_volume, Boundary, Integrator, WaveField, WaveKernels, WaveSettings,
+};
 
 use crate::common::{assert_clean, gpu, render, scene, try_render};
 
@@ -30,8 +33,9 @@ fn cloud_with_light_inside(res: u32) -> Scene {
     Scene::load(std::path::Path::new("scenes/point-light-in-cloud.toml"), &small, &LoadOptions::default()).unwrap()
 }
 
+/// The solver's defaults but the given resolution and integrator (the extrapolated boundary).
 fn settings(nu: u32, nv: u32, layers: u32, integrator: Integrator, grid: u32) -> WaveSettings {
-    WaveSettings { nu, nv, layers, integrator, grid, explicit_start: 0.0 }
+    WaveSettings { nu, nv, layers, integrator, boundary: Boundary::Extrapolated, grid, explicit_start: 0.0 }
 }
 
 fn field(gpu: &Gpu, sc: &Scene, set: &WaveSettings) -> (WaveField, Vec<[f32; 4]>, Vec<[f32; 4]>) {
@@ -53,6 +57,36 @@ fn analytic(sigma_t: f64, albedo: f64, g: f64, r: f64) -> (f64, f64) {
     let str_ = sigma_t - sigma_t * albedo * g;
     let se = (3.0 * sigma_t * (1.0 - albedo) * str_).sqrt();
     (3.0 * str_ * r * (-se * r).exp(), (-se * r).exp() * (se * r + 1.0))
+}
+
+/// The extrapolated-boundary solution (glsl/wave_field/march.comp, integrator 2) in a
+/// homogeneous sphere of radius `rx` around a light of intensity Phi = 1: phi = (a e^{-se r} +
+/// b e^{se r}) / r, so r phi = u and psi1 = (u - r u') / (3 sigma_t'), with psi1(0) = 1 and
+/// psi0 / psi1 = Z at rx, Z = min(2 tanh(xb) / xb, 3 sigma_t' rx / (se rx + 1)) (the plane-parallel
+/// extrapolation layer, bounded by the infinite medium), xb = 2 sqrt((1 - albedo) / (3 (1 -
+/// albedo g))). Returns (psi0, psi1) at r <= rx.
+fn bounded(sigma_t: f64, albedo: f64, g: f64, rx: f64, r: f64) -> (f64, f64) {
+    let s = sigma_t * (1.0 - albedo * g);
+    let se = (3.0 * sigma_t * (1.0 - albedo) * s).sqrt();
+    let xb = 2.0 * ((1.0 - albedo) / (3.0 * (1.0 - albedo * g))).sqrt();
+    let z = (2.0 * xb.tanh() / xb).min(3.0 * s * rx / (se * rx + 1.0));
+    // r u(rx) = Z psi1(rx): a e^{-se rx} k1 + b e^{se rx} k2 = 0, so b = beta e^{-2 se rx} a.
+    let k1 = rx - z * (1.0 + se * rx) / (3.0 * s);
+    let k2 = rx - z * (1.0 - se * rx) / (3.0 * s);
+    let b_over_a = -k1 / k2 * (-2.0 * se * rx).exp();
+    let a = 3.0 * s / (1.0 + b_over_a); // psi1(0) = (a + b) / (3 sigma_t') = 1
+    let (em, ep) = ((-se * r).exp(), b_over_a * (se * r).exp());
+    (r * a * (em + ep), a * (em * (1.0 + se * r) + ep * (1.0 - se * r)) / (3.0 * s))
+}
+
+/// The spherical form of the extrapolated boundary, phi = 0 at R_b = rx + 2 D itself:
+/// r phi = A sinh(se (R_b - r)), psi1(0) = 1. Returns psi0 at r.
+fn sinh_form(sigma_t: f64, albedo: f64, g: f64, rx: f64, r: f64) -> f64 {
+    let s = sigma_t * (1.0 - albedo * g);
+    let se = (3.0 * sigma_t * (1.0 - albedo) * s).sqrt();
+    let rb = rx + 2.0 / (3.0 * s);
+    // psi1(0) = A sinh(se R_b) / (3 sigma_t') = 1; psi0 = r A sinh(se (R_b - r)), as a ratio of sinh.
+    3.0 * s * r * ((-se * r).exp() - (-se * (2.0 * rb - r)).exp()) / (1.0 - (-2.0 * se * rb).exp())
 }
 
 /// Largest relative error of psi0 and psi1 over every ray's nodes with r0 < r <= 1 (inside
@@ -78,8 +112,8 @@ fn worst_error(f: &WaveField, p0: &[[f32; 4]], p1: &[[f32; 4]], sigma_t: f64, al
     worst
 }
 
-/// Homogeneous infinite medium: the exponential integrator reproduces eq. 5 at every node for
-/// every step; the paper's explicit eq. 6 converges at first order once started from the
+/// Homogeneous infinite medium: the exponential integrator with `boundary = infinite`
+/// reproduces eq. 5 at every node for every step; the paper's explicit eq. 6 converges at first order once started from the
 /// homogeneous solution at a fixed radius, and (documented) does not converge from r = 0.
 #[test]
 fn homogeneous_march_converges_to_eq5_at_each_integrators_order() {
@@ -94,7 +128,10 @@ fn homogeneous_march_converges_to_eq5_at_each_integrators_order() {
             // The exponential integrator is the shell's exact solution: exact at every node
             // of a homogeneous medium whatever the step: f32 round-off only, one rounding per
             // shell (about 1e-7 each, so the bound grows with the layer count).
-            let (f, p0, p1) = field(&gpu, &sc, &settings(8, 4, layers, Integrator::Exponential, 8));
+            // eq. 5 is the infinite medium's solution: the march without the boundary.
+            let infinite =
+                WaveSettings { boundary: Boundary::Infinite, ..settings(8, 4, layers, Integrator::Exponential, 8) };
+            let (f, p0, p1) = field(&gpu, &sc, &infinite);
             let e = worst_error(&f, &p0, &p1, st, al, gg, 0.0);
             assert!(e < 1e-6 + 1e-7 * layers as f64, "exponential integrator off eq. 5 by {e:.2e} at {layers} layers");
             let mut set = settings(8, 4, layers, Integrator::Explicit, 8);
@@ -123,6 +160,61 @@ fn homogeneous_march_converges_to_eq5_at_each_integrators_order() {
             from_zero[3] > 0.1 && from_zero[3] > 0.8 * from_zero[0],
             "explicit from r = 0 unexpectedly converges: {from_zero:?}"
         );
+    }
+    assert_clean(&gpu);
+}
+
+/// The extrapolated boundary in a homogeneous sphere around the light (density "sphere" of
+/// radius 0.8 in the box [-1, 1]^3, 0 outside): every node of every ray equals the closed
+/// form (`bounded`) to f32 round-off, from optically thin (tau' 0.4, where the infinite-medium
+/// bound sets Z) to thick (tau' 160); for the thick spheres the plane-parallel extrapolation
+/// layer agrees with the spherical sinh form phi = 0 at R + 2 D to first order in 2 D / R.
+#[test]
+fn extrapolated_boundary_matches_the_closed_form_in_a_homogeneous_sphere() {
+    let gpu = gpu();
+    let radius = 0.8f64;
+    for (sigma_t, albedo, g) in [(20.0f32, 0.95f32, 0.0f32), (10.0, 0.9, 0.5), (200.0, 0.99, 0.0), (0.5, 0.9, 0.0)] {
+        let text = cube(sigma_t, albedo, g, [0.0, 0.0, 0.0], 8).replace(
+            "{ kind = \"constant\" }",
+            &format!("{{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = {radius} }}"),
+        );
+        let sc = scene(&text);
+        let (f, p0, p1) = field(&gpu, &sc, &settings(8, 4, 256, Integrator::Exponential, 8));
+        assert_eq!(f.negative_nodes + f.nonfinite_nodes, 0);
+        // The exit: the outer end of the last shell whose middle lies in the sphere.
+        let delta = f.delta as f64;
+        let last = ((radius / delta - 0.5).ceil() as u32).saturating_sub(1);
+        assert!(((last as f64 + 0.5) * delta - radius).abs() > 0.05 * delta, "a shell middle on the surface");
+        let rx = (last + 1) as f64 * delta;
+        let (st, al, gg) = (sigma_t as f64, albedo as f64, g as f64);
+        let (mut worst, mut sinh_gap) = (0.0f64, 0.0f64);
+        for n in 1..=last + 1 {
+            let r = n as f64 * delta;
+            let (a0, a1) = bounded(st, al, gg, rx, r);
+            for j in 0..f.nv {
+                for i in 0..f.nu {
+                    let k = f.node(i, j, n);
+                    worst = worst.max((p0[k][0] as f64 - a0).abs() / a0).max((p1[k][0] as f64 - a1).abs() / a1);
+                }
+            }
+            sinh_gap = sinh_gap.max((sinh_form(st, al, gg, rx, r) / a0 - 1.0).abs());
+        }
+        let d2 = 2.0 / (3.0 * st * (1.0 - al * gg));
+        eprintln!(
+            "sphere sigma_t {sigma_t} albedo {albedo} g {g}: march vs closed form {worst:.2e}; sinh form differs by \
+                {sinh_gap:.2e} (2 D / R = {:.2e})",
+            d2 / rx
+        );
+        assert!(worst < 2e-4, "extrapolated boundary off its closed form by {worst:.2e}");
+        // Where the sphere is optically thick the boundary matters: the infinite medium keeps
+        // more at the exit (in the thin one the infinite medium's Z is the bound, so equal).
+        let (inf0, _) = analytic(st, al, gg, rx);
+        if st * (1.0 - al * gg) * rx > 1.0 {
+            assert!(bounded(st, al, gg, rx, rx).0 < 0.9 * inf0);
+        }
+        if d2 / rx < 0.05 {
+            assert!(sinh_gap < 2.0 * d2 / rx, "plane-parallel vs spherical extrapolation: {sinh_gap:.2e}");
+        }
     }
     assert_clean(&gpu);
 }
@@ -247,11 +339,30 @@ fn hole_enclosed_by_absorber_stays_dark() {
         let k = i.x as usize + n as usize * (i.y as usize + n as usize * i.z as usize);
         v[k] as f64 / (lambda * lambda) as f64
     };
-    // The homogeneous diffusion solution (eq. 5, medium of density 1 everywhere) minus the
-    // direct term: what a homogeneous initialisation would put there.
+    // The homogeneous diffusion solution (medium of density 1 everywhere, with the
+    // extrapolated boundary where the ray leaves the box, as the march has it; `bounded`)
+    // minus the direct term: what a homogeneous initialisation would put there. (Before the
+    // boundary this was the infinite medium's eq. 5.)
+    let light = Vec3::new(-0.1, 0.0, 0.0);
     let homogeneous = |p: Vec3| {
-        let r = p.distance(Vec3::new(-0.1, 0.0, 0.0)) as f64;
-        let (p0, _) = analytic(2.0, 0.8, 0.0, r);
+        let r = p.distance(light) as f64;
+        let d = (p - light) / r as f32;
+        // Distance from the light to the box along the ray, rounded up to the shell grid.
+        let exit = [0, 1, 2]
+            .iter()
+            .map(|&a| {
+                if d[a] > 0.0 {
+                    (1.0 - light[a]) / d[a]
+                } else if d[a] < 0.0 {
+                    (-1.0 - light[a]) / d[a]
+                } else {
+                    f32::INFINITY
+                }
+            })
+            .fold(f32::INFINITY, f32::min) as f64;
+        let delta = (Vec3::ONE - light).length() as f64 / 128.0;
+        let rx = ((exit / delta - 0.5).ceil()) * delta;
+        let (p0, _) = bounded(2.0, 0.8, 0.0, rx, r);
         (p0 - (-2.0 * r).exp()) / (r * r)
     };
     let hole = centre + Vec3::new(0.01, 0.01, 0.01);
@@ -289,6 +400,13 @@ fn light_inside_cloud_beats_the_direct_term() {
         e_wf.rel_l2, e_wf.energy_ratio, e_single.rel_l2, e_single.energy_ratio
     );
     assert!(e_wf.rel_l2 < 0.6 * e_single.rel_l2, "wavefront {} vs direct term {}", e_wf.rel_l2, e_single.rel_l2);
+    // The extrapolated boundary: the image's energy within 5% of path's (measured 0.98 at
+    // 64 x 64; docs/wavefront.md). The infinite medium keeps the light that leaks out (1.23).
+    let infinite = render(&gpu, &sc, WAVEFRONT, &[("wavefront.boundary", "infinite")]);
+    let e_inf = compare(&infinite.image, &reference.image).unwrap();
+    eprintln!("infinite medium: relL2 {:.3} (energy {:.3})", e_inf.rel_l2, e_inf.energy_ratio);
+    assert!((e_wf.energy_ratio - 1.0).abs() < 0.05, "wavefront energy {} of path's", e_wf.energy_ratio);
+    assert!(e_inf.energy_ratio > 1.15 && e_wf.rel_l2 < e_inf.rel_l2, "{e_inf:?}");
     // The paper's explicit scheme on the same scene: it goes negative on some rays (reported as
     // a warning, clamped by the gather) and stays finite.
     let ex = try_render(&gpu, &sc, WAVEFRONT, &[("wavefront.integrator", "explicit")], false).unwrap();
@@ -296,6 +414,63 @@ fn light_inside_cloud_beats_the_direct_term() {
     eprintln!("explicit: relL2 {:.3}, warnings {:?}", e_ex.rel_l2, ex.report.warnings);
     assert_eq!(ex.image.nan_inf_count(), 0);
     assert!(ex.image.data.iter().all(|x| *x >= 0.0));
+    assert_clean(&gpu);
+}
+
+/// scenes/cloud.toml (g = 0.6) lit by a point light in its core instead of its sun and sky,
+/// at 24 x 24: with the extrapolated boundary the wavefront image's energy is within 5% of
+/// path's (measured 0.97 at 64 x 64).
+#[test]
+fn extrapolated_boundary_energy_on_a_forward_scattering_cloud() {
+    let gpu = gpu();
+    let text = std::fs::read_to_string("scenes/cloud.toml").unwrap();
+    let text = format!(
+        "{}[[light]]\nkind = \"point\"\nposition = [0.1, 0.05, -0.05]\nintensity = 4.0\n",
+        &text[..text.find("# Sun").unwrap()]
+    );
+    let small = [("render.width".to_string(), "24".to_string()), ("render.height".to_string(), "24".to_string())];
+    let sc =
+        Scene::from_str(&text, "cloud-light.toml", std::path::Path::new("scenes"), &small, &LoadOptions::default())
+            .unwrap();
+    let reference = render(&gpu, &sc, PATH, &[("render.spp", "1024")]);
+    let wf = render(&gpu, &sc, WAVEFRONT, &[]);
+    let e = compare(&wf.image, &reference.image).unwrap();
+    eprintln!("g = 0.6 cloud, light inside, 24x24: wavefront relL2 {:.3}, energy {:.3}", e.rel_l2, e.energy_ratio);
+    assert!((e.energy_ratio - 1.0).abs() < 0.05, "wavefront energy {} of path's", e.energy_ratio);
+    assert_clean(&gpu);
+}
+
+/// A homogeneous cube of optical thickness 20 (edge 1, sigma_t 20) with the light inside, seen
+/// in perspective (three faces, their edges and corners), albedo 0.95 and 0.99: the extrapolated
+/// boundary brings the energy from 1.49 and 2.66 times path's (the infinite medium) to 1.10 and
+/// 1.22, relL2 from 0.45 and 1.39 to 0.09 and 0.22 (24 x 24, against 8192 spp; path at 2048 spp
+/// is within 0.5% of that in energy). What is left is the method's per-ray spherical symmetry:
+/// a ray towards an edge or a corner sees a sphere of that distance and leaks as through a
+/// surface normal to it, so edges and corners come out too bright (faces within a few %), the
+/// more so the less is absorbed (1.02 at albedo 0.9).
+#[test]
+fn extrapolated_boundary_energy_in_a_thick_cube() {
+    let gpu = gpu();
+    for (albedo, most) in [(0.95f32, 1.15f64), (0.99, 1.3)] {
+        let sc = scene(&format!(
+            "[render]\nwidth = 24\nheight = 24\nseed = 5\nspp = 64\n\
+             [camera]\nkind = \"perspective\"\norigin = [0.9, 1.2, 3.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 30.0\n\
+             [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 20.0\nalbedo = {albedo}\ng = 0.0\n\
+             density = {{ kind = \"constant\" }}\n\
+             [[light]]\nkind = \"point\"\nposition = [0.03, -0.02, 0.01]\nintensity = 10.0\n"
+        ));
+        let reference = render(&gpu, &sc, PATH, &[("render.spp", "2048")]);
+        let wf = render(&gpu, &sc, WAVEFRONT, &[]);
+        let inf = render(&gpu, &sc, WAVEFRONT, &[("wavefront.boundary", "infinite")]);
+        let e = compare(&wf.image, &reference.image).unwrap();
+        let e_inf = compare(&inf.image, &reference.image).unwrap();
+        eprintln!(
+            "cube sigma_t 20, albedo {albedo}: extrapolated relL2 {:.3} energy {:.3}; infinite relL2 {:.3} energy {:.3}",
+            e.rel_l2, e.energy_ratio, e_inf.rel_l2, e_inf.energy_ratio
+        );
+        assert!(e.energy_ratio > 0.95 && e.energy_ratio < most, "extrapolated energy {}", e.energy_ratio);
+        assert!(e_inf.energy_ratio > 1.4 && e.rel_l2 < 0.5 * e_inf.rel_l2, "infinite medium {e_inf:?}");
+    }
     assert_clean(&gpu);
 }
 
@@ -329,7 +504,10 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
         iters(&warm_converged)
     );
     assert!(warm.report.detail::<LblStats>().unwrap().warm_start);
-    assert!(e_warm < 0.5 * e_cold, "warm start is not closer: {e_warm} vs cold {e_cold}");
+    // Measured 0.59 from the extrapolated-boundary field (0.39 from the infinite-medium field
+    // it replaced, so this bound was 0.5); to tol 1e-6 both fields take 129 iterations against
+    // the cold start's 144 (docs/wavefront.md).
+    assert!(e_warm < 0.7 * e_cold, "warm start is not closer: {e_warm} vs cold {e_cold}");
     assert!(same < 2e-3, "warm and cold starts converge to different images: relL2 {same}");
     // The warm start is built for D3Q6 and says so for D3Q18.
     let err = try_render(&gpu, &sc, LBL, &[("lbl.warm_start", "wavefront"), ("lbl.lattice", "d3q18")], false)

@@ -12,7 +12,8 @@
 layout(push_constant) uniform Push {
     vec4 light;          // light position (scene units), w = Delta (radial step)
     vec4 intensity;      // rgb radiant intensity Phi (W/sr), w = explicit: start radius (see march)
-    uvec4 dims;          // nu, nv, layers, integrator (0 explicit eq. 6, 1 exponential)
+    uvec4 dims;          // nu, nv, layers, integrator (0 explicit eq. 6, 1 exponential in an infinite
+                         // medium, 2 exponential with the extrapolated boundary; march.comp)
     uvec4 cart_dims;     // gather: Cartesian voxels xyz, w = channels written
     vec4 cart_origin;    // gather: Cartesian min corner, w = voxel edge lambda
 } pc;

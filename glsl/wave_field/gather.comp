@@ -6,8 +6,14 @@
 // multiply scattered part: the wavefront's total minus the direct term it carried in the same
 // march (direct fluence Phi e^-tau / r^2, flowing along w_x):
 //   phi_ms = max(0, psi0 / r^2 - Phi e^-tau / r^2)
-//   E_ms   = (psi1 / r^2 - Phi e^-tau / r^2) w_x, its length clamped to phi_ms / 3 so the
-//            two-term radiance phi / 4pi + 3 E.w / 4pi is never negative.
+//   E_ms   = (psi1 / r^2 - Phi e^-tau / r^2) w_x, its length clamped to phi_ms (the flux of
+//            any radiance distribution is at most its fluence). Not to phi_ms / 3, where the
+//            two-term radiance phi / 4pi + 3 E.w / 4pi would stay non-negative in every
+//            direction: at the medium's boundary diffusion theory has |E| = phi / 2 (Marshak,
+//            phi = 2 E; march.comp), and cutting it to phi / 3 took a third of the forward
+//            in-scattering 3 g E away there (measured: the g = 0.3 cloud 10% too dark). What
+//            reads the volume clamps its own use at 0: the view's phase-weighted in-scattering
+//            phi + 3 g E.(-d) (glsl/view/march.comp) and lbl's warm-start links phi / 6 + E.e / 2.
 // Near the light diffusion theory underestimates the 1/r^2 direct term (phi ~ 1/r there), so
 // phi_ms is clamped at 0 rather than made negative. A voxel containing the light is
 // evaluated at r = lambda / 2 (its own size): the point value at r = 0 is singular.
@@ -81,7 +87,7 @@ void main() {
         float inv_r2 = 1.0 / (r * r);
         vec3 direct = pc.intensity.rgb * exp(-s.t) * inv_r2;
         phi = max(vec3(0.0), s.p0 * inv_r2 - direct);
-        e = clamp(s.p1 * inv_r2 - direct, -phi / 3.0, phi / 3.0);
+        e = clamp(s.p1 * inv_r2 - direct, -phi, phi);
     }
     uint C = pc.cart_dims.w;
     float l2 = lambda * lambda;

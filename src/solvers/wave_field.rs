@@ -19,7 +19,11 @@
 //! Integrators: `exponential` (default; stable and non-negative for any step) or `explicit`
 //! (the paper's eq. 6: from r = 0 it does not converge to the homogeneous solution in an
 //! absorbing medium, and it goes negative once sigma_e R passes about 2.5: reported; see
-//! glsl/wave_field/march.comp).
+//! glsl/wave_field/march.comp). The exponential integrator solves each ray with diffusion
+//! theory's extrapolated boundary where the ray leaves the medium (`boundary = extrapolated`,
+//! default: both exponential modes per shell, a backward and a forward sweep) or, as the paper
+//! does, in an infinite medium (`boundary = infinite`: each shell's decaying mode, 23% too
+//! bright on the light-inside cloud because the light that leaks out is kept).
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -55,6 +59,30 @@ impl std::str::FromStr for Integrator {
     }
 }
 
+/// What the exponential integrator assumes beyond the medium.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Boundary {
+    /// Diffusion theory's extrapolated boundary: phi = 0 a distance 2 D beyond where each ray
+    /// leaves the medium, solved exactly for the ray's layer-wise homogeneous shells (both
+    /// exponential modes per shell; glsl/wave_field/march.comp). Light leaks out.
+    Extrapolated,
+    /// The paper's infinite medium: each shell's decaying mode alone (eq. 5); nothing leaks
+    /// out, so a bounded medium comes out too bright.
+    Infinite,
+}
+
+impl std::str::FromStr for Boundary {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "extrapolated" => Ok(Boundary::Extrapolated),
+            "infinite" => Ok(Boundary::Infinite),
+            _ => Err(format!("unknown boundary {s:?}; use extrapolated or infinite")),
+        }
+    }
+}
+
 /// Parsed knobs.
 #[derive(Clone, Copy, Debug)]
 pub struct WaveSettings {
@@ -62,14 +90,18 @@ pub struct WaveSettings {
     pub nv: u32,
     pub layers: u32,
     pub integrator: Integrator,
+    /// `exponential` only: the medium's boundary (the explicit scheme is the paper's
+    /// infinite-medium march).
+    pub boundary: Boundary,
     pub grid: u32,
     /// `explicit` only: radius (scene units) over which the homogeneous solution at the light
     /// (eq. 5) stands in before eq. 6 takes over; 0 = the paper's start at r = 0.
     pub explicit_start: f32,
 }
 
-/// Most radial layers: the march is one loop per ray (llvmpipe ends every loop of an
-/// invocation after 65535 iterations; docs/lavapipe.md).
+/// Most radial layers: the march walks each ray at most three times in one invocation (the
+/// extrapolated boundary's exit search, backward and forward sweeps; llvmpipe ends every loop
+/// of an invocation after 65535 iterations in all; docs/lavapipe.md).
 pub const MAX_LAYERS: u32 = 16384;
 
 /// The knobs of wavefront tracing (unprefixed; `lbl`'s warm start lists them as `wavefront_*`).
@@ -94,6 +126,13 @@ pub fn knobs() -> Vec<Knob> {
             "exponential",
             Range::Choice(&["exponential", "explicit"]),
             "exponential: exact per shell, stable and non-negative; explicit: the paper's eq. 6",
+        ),
+        Knob::fixed(
+            "boundary",
+            "extrapolated",
+            Range::Choice(&["extrapolated", "infinite"]),
+            "exponential only: extrapolated: phi = 0 at 2 D beyond where each ray leaves the medium (light leaks out); \
+                infinite: the paper's infinite medium (nothing leaks; too bright)",
         ),
         Knob::fixed(
             "explicit_start",
@@ -121,6 +160,7 @@ impl WaveSettings {
             nv: k.get(&key("nv"))?,
             layers: k.get(&key("layers"))?,
             integrator: k.get(&key("integrator"))?,
+            boundary: k.get(&key("boundary"))?,
             grid: k.get(&key("grid"))?,
             explicit_start: k.get(&key("explicit_start"))?,
         })
@@ -196,11 +236,18 @@ impl WaveField {
     pub fn device_bytes(&self) -> u64 {
         self.psi0.size() + self.psi1.size() + self.tau.size() + self.shells.size()
     }
-    fn push(&self, integrator: Integrator, explicit_start: f32) -> WavePush {
+    fn push(&self, set: &WaveSettings) -> WavePush {
+        // The march's integrator (glsl/wave_field/march.comp): 0 explicit eq. 6, 1 exponential
+        // in an infinite medium, 2 exponential with the extrapolated boundary.
+        let integrator = match (set.integrator, set.boundary) {
+            (Integrator::Explicit, _) => 0,
+            (Integrator::Exponential, Boundary::Infinite) => 1,
+            (Integrator::Exponential, Boundary::Extrapolated) => 2,
+        };
         WavePush {
             light: [self.position.x, self.position.y, self.position.z, self.delta],
-            intensity: [self.intensity.x, self.intensity.y, self.intensity.z, explicit_start],
-            dims: [self.nu, self.nv, self.layers, if integrator == Integrator::Exponential { 1 } else { 0 }],
+            intensity: [self.intensity.x, self.intensity.y, self.intensity.z, set.explicit_start],
+            dims: [self.nu, self.nv, self.layers, integrator],
             cart_dims: [0; 4],
             cart_origin: [0.0; 4],
         }
@@ -299,7 +346,7 @@ pub fn trace_light(
         failed_rays: 0,
     };
     let stats = gpu.buffer("wave field stats", 16)?;
-    let push = f.push(set.integrator, set.explicit_start);
+    let push = f.push(set);
     let passes = vec![
         gs.bind(Pass::new("wave_field.resample", QueueRole::Trace, &kernels.resample))
             .write(3, &f.shells)
@@ -307,8 +354,8 @@ pub fn trace_light(
             .cover([set.nu, set.nv, set.layers]),
         gs.bind(Pass::new("wave_field.march", QueueRole::Trace, &kernels.march))
             .read(3, &f.shells)
-            .write(4, &f.psi0)
-            .write(5, &f.psi1)
+            .read_write(4, &f.psi0)
+            .read_write(5, &f.psi1)
             .write(6, &f.tau)
             .read_write(7, &stats)
             .push(&push)
@@ -383,7 +430,7 @@ pub fn wave_volume(
         out.nonfinite_nodes += f.nonfinite_nodes;
         out.failed_rays += f.failed_rays;
         field_bytes = field_bytes.max(f.device_bytes());
-        let mut push = f.push(set.integrator, set.explicit_start);
+        let mut push = f.push(set);
         push.cart_dims = [geom.dims[0], geom.dims[1], geom.dims[2], channels];
         push.cart_origin = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
         let pass = Pass::new("wave_field.gather", QueueRole::Trace, &kernels.gather)

@@ -9,7 +9,7 @@
 //! lights outside the medium, directional and environment lights contribute their exact
 //! single scattering only, and the render says so in a warning.
 //!
-//! Knobs: the wave field's (`nu`, `nv`, `layers`, `integrator`, `explicit_start`, `grid`) and
+//! Knobs: the wave field's (`nu`, `nv`, `layers`, `integrator`, `boundary`, `explicit_start`, `grid`) and
 //! the view march's as `view_*` (`scatterlab knobs wavefront`).
 
 use serde::Serialize;
