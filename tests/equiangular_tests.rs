@@ -46,14 +46,11 @@ fn assert_eq_agrees(what: &str, eq: &RenderOutput, dist: &RenderOutput) {
 fn with_eq(gpu: &scatterlab::gpu::Gpu, text: &str, eq: bool, spp: &str, extra: &[(&str, &str)]) -> RenderOutput {
     // Camera paths only: these tests are about equiangular sampling, which light tracing
     // (path.light_tracing, tests/light_tracing_tests.rs) would otherwise take over.
-    let mut sets = vec![
-        ("render.spp", spp),
-        ("path.equiangular", if eq { "true" } else { "false" }),
-        ("path.light_tracing", "off"),
-    ];
+    let mut sets =
+        vec![("render.spp", spp), ("path.equiangular", if eq { "on" } else { "off" }), ("path.light_tracing", "off")];
     sets.extend_from_slice(extra);
     let out = render(gpu, &scene(text), PATH, &sets);
-    assert_eq!(out.report.settings["equiangular"], serde_json::json!(eq));
+    assert_eq!(out.report.settings["equiangular"], if eq { "on" } else { "off" });
     out
 }
 
@@ -154,4 +151,25 @@ fn equiangular_light_inside_cloud_error_close_to_light_outside() {
         }
     }
     assert_clean(&gpu);
+}
+
+/// `path.equiangular=auto` samples a point light by equiangular sampling where its 1/r^2 varies
+/// by more than 16x over the medium's box: inside it or close to it, not far outside.
+#[test]
+fn equiangular_auto_takes_the_lights_near_the_medium() {
+    use scatterlab::solvers::path::equiangular_lights;
+    let text = |p: &str| {
+        format!(
+            "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = \
+                30.0\n[medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 4.0\nalbedo = 0.9\ndensity \
+                = {{ kind = \"constant\" }}\n[[light]]\nkind = \"point\"\nposition = {p}\nintensity = \
+                1.0\n[[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = \
+                1.0\n[[light]]\nkind = \"point\"\nposition = [0.0, 0.0, 0.0]\nintensity = 1.0\n"
+        )
+    };
+    // Far outside (nearest 0.87, farthest 2.6: 3x) -> off; just outside a face -> on; inside -> on.
+    assert_eq!(equiangular_lights(&scene(&text("[1.0, 1.0, 1.0]")), "auto"), 0b100);
+    assert_eq!(equiangular_lights(&scene(&text("[0.0, 0.55, 0.0]")), "auto"), 0b101);
+    assert_eq!(equiangular_lights(&scene(&text("[1.0, 1.0, 1.0]")), "on"), 0b101);
+    assert_eq!(equiangular_lights(&scene(&text("[1.0, 1.0, 1.0]")), "false"), 0);
 }
