@@ -411,9 +411,10 @@ impl Solver for Path {
             ),
             Knob::fixed(
                 "rr_depth",
-                "3",
+                "5",
                 Range::int(1, u32::MAX as u64),
-                "Russian roulette from this many scattering events on",
+                "Russian roulette from this many scattering events on (5, as Mitsuba 3's volpath: on the issue-11 \
+                 sphere 18% more efficient than 3)",
             ),
             Knob::fixed(
                 "rr_threshold",
