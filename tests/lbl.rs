@@ -134,6 +134,7 @@ fn diffuse_impulse(
         lambda,
         block,
         block_steps,
+        escape: scatterlab::solvers::lattice::Escape::None,
     };
     scatterlab::solvers::lattice::diffuse_impulse(gpu, &p, source, iterations)
 }

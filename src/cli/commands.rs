@@ -294,7 +294,7 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
     let doc = json!({
         "scatterlab": env!("CARGO_PKG_VERSION"), "device": info, "references": result.references, "quick": a.quick,
         "repeats": a.repeats, "ladders": ladders, "points": result.points, "throughput": result.throughput,
-        "slim_vs_full": result.slim_vs_full,
+        "slim_vs_full": result.slim_vs_full, "skipped": result.skipped,
     });
     output::write_json(&a.out.join("bench.json"), &doc)?;
     outln!(
@@ -324,6 +324,9 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
             p.speedup.map(|x| format!("{x:.2}x")).unwrap_or_else(|| "-".into()),
             if p.pareto { "*" } else { "" }
         );
+    }
+    for k in &result.skipped {
+        outln!("{} {}: skipped, {}", k.scene, k.solver, k.why);
     }
     for r in &result.references {
         outln!(

@@ -39,7 +39,9 @@ struct DiffusePush {
     sigma_t: [f32; 4],
     albedo: [f32; 4],
     inner_steps: u32,
-    pad: [u32; 3],
+    /// First-flight escape weights (D3Q6): 0 none, 1 at the box's faces, 2 also at zero density.
+    escape: u32,
+    pad: [u32; 2],
 }
 
 pub const DIFFUSE: Kernel = Kernel {
@@ -144,6 +146,41 @@ impl std::str::FromStr for Lattice {
     }
 }
 
+/// Where a D3Q6 lattice scatters toward vacuum with the voxel's first-flight escape
+/// probability (glsl/lattice/diffuse.comp) instead of one sixth.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Escape {
+    /// Nowhere: six equal beams everywhere.
+    None,
+    /// At the faces of the lattice's box, where the medium is cut by its flat bounds.
+    Box,
+    /// Also toward zero-density voxels (a voxelised surface's staircase: too much).
+    All,
+}
+
+impl Escape {
+    fn code(self) -> u32 {
+        match self {
+            Escape::None => 0,
+            Escape::Box => 1,
+            Escape::All => 2,
+        }
+    }
+}
+
+impl std::str::FromStr for Escape {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "none" => Ok(Escape::None),
+            "box" => Ok(Escape::Box),
+            "all" => Ok(Escape::All),
+            _ => Err(format!("unknown escape {s:?}; use none, box or all")),
+        }
+    }
+}
+
 /// A Cartesian voxel grid over the medium's box: `dims` cubic voxels of edge `lambda` from
 /// `origin` (the medium's min corner), `grid` voxels along the box's longest side.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -236,6 +273,8 @@ pub struct LatticeParams {
     /// Block edge b (2, 4 or 8) and lattice steps per dispatch within a block (1: global).
     pub block: u32,
     pub block_steps: u32,
+    /// First-flight escape weights at the medium's boundary (D3Q6; glsl/lattice/diffuse.comp).
+    pub escape: Escape,
 }
 
 impl LatticeParams {
@@ -304,7 +343,8 @@ impl Diffuser {
                 sigma_t: [st[0], st[1], st[2], p.lambda],
                 albedo: [al[0], al[1], al[2], p.g],
                 inner_steps: 1,
-                pad: [0; 3],
+                escape: p.escape.code(),
+                pad: [0; 2],
             },
             groups,
             block_steps: p.block_steps,

@@ -96,6 +96,13 @@ impl Solver for Lbl {
                 "start the lattice from the wavefront field (its knobs as wavefront_*; d3q6 only)",
             ),
             Knob::fixed(
+                "escape",
+                "box",
+                Range::Choice(&["none", "box", "all"]),
+                "d3q6: scatter toward vacuum with the voxel's first-flight escape probability instead of 1/6, at the \
+                 box's faces (box), also toward zero-density voxels (all: too much on voxelised curves), or nowhere",
+            ),
+            Knob::fixed(
                 "cascade",
                 "0",
                 Range::int(0, 6),
@@ -281,6 +288,8 @@ pub struct LblSettings {
     pub warm_start: Option<WaveSettings>,
     /// Coarse levels of the cascadic start ([`cascade`]): 0 = none.
     pub cascade: u32,
+    /// First-flight escape weights at the medium's boundary (D3Q6).
+    pub escape: lattice::Escape,
 }
 
 impl LblSettings {
@@ -305,6 +314,7 @@ impl LblSettings {
                 _ => None,
             },
             cascade: 0,
+            escape: k.get("escape")?,
         };
         let lattice = out.lattice;
         let mut out = LblSettings { cascade: k.get("cascade")?, ..out };
@@ -393,6 +403,7 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         lambda: geom.lambda,
         block: set.block,
         block_steps: set.block_steps,
+        escape: set.escape,
     }
 }
 

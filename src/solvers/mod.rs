@@ -91,6 +91,11 @@ pub trait Solver: Sync {
     fn ladder(&self, scene: &Scene) -> Vec<Rung>;
     /// How `stability` runs it: at least one variant; each judged separately.
     fn stability(&self) -> Vec<Variant>;
+    /// Why the method does not apply to this scene, if it does not (`bench` skips it there
+    /// and says why, rather than plotting another solver's result under its name).
+    fn inapplicable(&self, _scene: &Scene) -> Option<String> {
+        None
+    }
     /// Lines for the terminal after a render, beyond what every render prints.
     fn summary(&self, _report: &RenderReport) -> Vec<String> {
         Vec::new()

@@ -159,6 +159,12 @@ impl Solver for Wavefront {
             .collect()
     }
 
+    fn inapplicable(&self, scene: &Scene) -> Option<String> {
+        wave_field::traced_lights(scene).is_empty().then(|| {
+            "no point light inside the medium: the method traces none, and renders single scattering only".to_string()
+        })
+    }
+
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<WavefrontStats>() else { return Vec::new() };
         let d = s.cartesian.dims;
