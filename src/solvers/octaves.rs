@@ -29,25 +29,14 @@
 //! `OCTAVES` as a specialisation constant): no state beyond the view march. Knobs: `n`, `a`,
 //! `b`, `c` and the view march's as `view_*` (`scatterlab knobs octaves`).
 
-use serde::Serialize;
-
 use crate::gpu::{Gpu, Kernel};
 use crate::scene::Scene;
 
-use super::gpu_scene::{self, GpuScene};
+use super::gpu_scene;
 use super::view::{self, Octaves, ViewSettings, MAX_OCTAVES};
-use super::{Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats, Variant};
+use super::{Knob, Knobs, Range, RenderOutput, RenderRequest, Rung, Solver, SolverError, Variant};
 
 pub struct OctavesSolver;
-
-/// `octaves`' own stats.
-#[derive(Clone, Debug, Serialize)]
-pub struct OctavesStats {
-    pub octaves: u32,
-    pub dispatches: u64,
-    pub max_loop_iterations: u32,
-    pub nonfinite_pixels: u32,
-}
 
 impl OctavesSolver {
     fn parse(k: &Knobs, scene: &Scene) -> Result<ViewSettings, SolverError> {
@@ -114,20 +103,7 @@ impl Solver for OctavesSolver {
         let k = req.knobs(self)?;
         let v = Self::parse(&k, scene)?;
         k.finish()?;
-        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-        (req.progress)(0, 1);
-        let view = view::march(gpu, scene, &gs, &v, None)?;
-        (req.progress)(1, 1);
-        let mut stats = Stats::new(OctavesStats {
-            octaves: v.octaves.n,
-            dispatches: view.dispatches,
-            max_loop_iterations: view.max_loop_iterations,
-            nonfinite_pixels: view.nonfinite_pixels,
-        });
-        stats.faults = view.nonfinite_pixels as u64;
-        let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), gs.bytes + view.device_bytes, stats);
-        report.warnings.extend(super::nonfinite_warning(view.nonfinite_pixels));
-        Ok(RenderOutput { image: view.image, variance: None, report })
+        view::render_alone(gpu, self, req, &k, &v)
     }
 
     fn memory_estimate(&self, scene: &Scene, _knobs: &Knobs) -> Result<u64, SolverError> {

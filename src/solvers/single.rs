@@ -3,24 +3,14 @@
 //! multiple-scattering volume. It converges to `path --set path.max_depth=1` as the step
 //! shrinks (tests/solvers.rs). Knobs: the view march's, unprefixed (`scatterlab knobs single`).
 
-use serde::Serialize;
-
 use crate::gpu::{Gpu, Kernel};
 use crate::scene::Scene;
 
-use super::gpu_scene::{self, GpuScene};
+use super::gpu_scene;
 use super::view::{self, ViewSettings};
-use super::{Knob, Knobs, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats, Variant};
+use super::{Knob, Knobs, RenderOutput, RenderRequest, Rung, Solver, SolverError, Variant};
 
 pub struct Single;
-
-/// `single`'s own stats.
-#[derive(Clone, Debug, Serialize)]
-pub struct SingleStats {
-    pub dispatches: u64,
-    pub max_loop_iterations: u32,
-    pub nonfinite_pixels: u32,
-}
 
 impl Solver for Single {
     fn name(&self) -> &'static str {
@@ -44,19 +34,7 @@ impl Solver for Single {
         let k = req.knobs(self)?;
         let v = ViewSettings::parse(&k, "", scene)?;
         k.finish()?;
-        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-        (req.progress)(0, 1);
-        let view = view::march(gpu, scene, &gs, &v, None)?;
-        (req.progress)(1, 1);
-        let mut stats = Stats::new(SingleStats {
-            dispatches: view.dispatches,
-            max_loop_iterations: view.max_loop_iterations,
-            nonfinite_pixels: view.nonfinite_pixels,
-        });
-        stats.faults = view.nonfinite_pixels as u64;
-        let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), gs.bytes + view.device_bytes, stats);
-        report.warnings.extend(super::nonfinite_warning(view.nonfinite_pixels));
-        Ok(RenderOutput { image: view.image, variance: None, report })
+        view::render_alone(gpu, self, req, &k, &v)
     }
 
     fn memory_estimate(&self, scene: &Scene, _knobs: &Knobs) -> Result<u64, SolverError> {

@@ -13,8 +13,10 @@ use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole, Spec, SpecKind};
 use crate::output::Image;
 use crate::scene::Scene;
 
+use serde::Serialize;
+
 use super::gpu_scene::GpuScene;
-use super::{resumable, Knob, Knobs, Range, SolverError};
+use super::{resumable, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Solver, SolverError, Stats};
 
 /// Push constants of glsl/view/march.comp.
 #[repr(C)]
@@ -251,4 +253,40 @@ pub fn march(
         nonfinite_pixels: st[0],
         device_bytes: out.size() + state.size() + stats.size(),
     })
+}
+
+/// What a solver that is the view pass alone reports (`single`, `octaves`).
+#[derive(Clone, Debug, Serialize)]
+pub struct ViewStats {
+    /// Octaves of the multiple-scattering approximation (1: single scattering).
+    pub octaves: u32,
+    pub dispatches: u64,
+    pub max_loop_iterations: u32,
+    pub nonfinite_pixels: u32,
+}
+
+/// A render that is the view pass alone, with settings `v` read from `k` (`single`,
+/// `octaves`): upload the scene, march, report.
+pub fn render_alone(
+    gpu: &Gpu,
+    solver: &dyn Solver,
+    req: &RenderRequest,
+    k: &Knobs,
+    v: &ViewSettings,
+) -> Result<RenderOutput, SolverError> {
+    let scene = req.scene;
+    let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+    (req.progress)(0, 1);
+    let view = march(gpu, scene, &gs, v, None)?;
+    (req.progress)(1, 1);
+    let mut stats = Stats::new(ViewStats {
+        octaves: v.octaves.n,
+        dispatches: view.dispatches,
+        max_loop_iterations: view.max_loop_iterations,
+        nonfinite_pixels: view.nonfinite_pixels,
+    });
+    stats.faults = view.nonfinite_pixels as u64;
+    let mut report = RenderReport::finish(gpu, solver, k, gs.modelled.clone(), gs.bytes + view.device_bytes, stats);
+    report.warnings.extend(super::nonfinite_warning(view.nonfinite_pixels));
+    Ok(RenderOutput { image: view.image, variance: None, report })
 }
