@@ -14,6 +14,9 @@
 //   irradiance(v) += sum_i in_i l_i  (arrived energy times the path it travelled, l_i = 1 or
 //                                  sqrt 2 voxels: the fluence integral, up to
 //                                  the factor 1/lambda^2 applied in the view pass)
+//   flux(v) += sum_i in_i l_i e_i / |e_i| = sum_i in_i e_i   (with pc.flux: the vector
+//                                  irradiance, the first moment the view pass's two-term
+//                                  expansion scatters toward the camera)
 //   absorbed += (kappa_t - kappa_s) S;  leaked += out_i where v + e_i leaves the lattice.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/lattice.glsl"
@@ -25,7 +28,8 @@ layout(constant_id = 5) const uint WG = 4u;  // = B (a separate id: local_size_*
 layout(std430, binding = 0) readonly buffer Density { float density[]; };  // resampled medium, per voxel
 layout(std430, binding = 1) readonly buffer StateIn { float fin[]; };
 layout(std430, binding = 2) writeonly buffer StateOut { float fout[]; };
-layout(std430, binding = 3) buffer Irradiance { float irr[]; };             // [c * V + v]
+// [c * V + v], then with pc.flux the flux [NCH V + (3 c + axis) V + v].
+layout(std430, binding = 3) buffer Irradiance { float irr[]; };
 // Per workgroup and channel, Kahan-compensated running sums: absorbed (sum, comp), leaked (sum, comp).
 layout(std430, binding = 4) buffer Tally { vec4 tally[]; };
 
@@ -35,7 +39,7 @@ layout(push_constant) uniform Push {
     vec4 albedo;         // rgb, w = g
     uint inner_steps;
     uint escape;         // first-flight escape weights (D3Q6): 0 none, 1 at the box's faces, 2 also at zero density
-    uint pad1;
+    uint flux;           // 1: integrate the flux too
     uint pad2;
 } pc;
 
@@ -124,6 +128,7 @@ void main() {
     float absorbed[3] = float[3](0.0, 0.0, 0.0);
     float leaked[3] = float[3](0.0, 0.0, 0.0);
     float irr_add[3] = float[3](0.0, 0.0, 0.0);
+    vec3 flux_add[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
 
     for (uint s = 0u; s < pc.inner_steps; ++s) {
         for (uint c = 0u; c < NCH; ++c) {
@@ -145,6 +150,7 @@ void main() {
                 in_[i - 1u] = x;
                 S += x;
                 irr_add[c] += x * link_length(i);
+                if (pc.flux != 0u) flux_add[c] += x * vec3(LATTICE_DIR[i]);
             }
             float r = (s == 0u && inside) ? fin[c * V + v] : 0.0;
             absorbed[c] += (kt[c] - ks[c]) * S;
@@ -176,6 +182,8 @@ void main() {
                 fout[(i * NCH + c) * V + v] = stays ? out_last[k] : out_face[k];
             }
             irr[c * V + v] += irr_add[c];
+            if (pc.flux != 0u)
+                for (uint a = 0u; a < 3u; ++a) irr[(NCH + 3u * c + a) * V + v] += flux_add[c][a];
         }
     }
 

@@ -9,13 +9,21 @@
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 0) readonly buffer History { uvec4 rhb[]; };
-layout(std430, binding = 1) buffer Accum { float acc[]; };   // [c * V + v]
+// [c V + v] deposits; with pc.directed then [NCH V + (3 c + a) V + v] fluxes (lattice/inject).
+layout(std430, binding = 1) buffer Accum { float acc[]; };
+// The rays' state (marching/march.comp): straight rays keep their direction.
+struct Ray { vec4 pos_steps; vec4 dir_alive; vec4 power; };
+layout(std430, binding = 2) readonly buffer Rays { Ray rays[]; };
 
 layout(push_constant) uniform Push {
-    uint entries;   // rays * k
-    uint voxels;    // V
-    float scale;    // unused here (fixed-point scale of the deterministic variant)
-    uint pad;
+    uint entries;    // rays * k
+    uint voxels;     // V
+    float scale;     // unused here (fixed-point scale of the deterministic variant)
+    uint k;          // history slots per ray: entry e belongs to ray e / k
+    uint directed;   // 1: also sum each deposit's flux (deposit times the ray's direction)
+    uint pad0;
+    uint pad1;
+    uint pad2;
 } pc;
 
 void main() {
@@ -28,5 +36,10 @@ void main() {
         atomicAdd(acc[s.x], dep.x);
     } else {
         for (uint c = 0u; c < 3u; ++c) atomicAdd(acc[c * pc.voxels + s.x], dep[c]);
+    }
+    if (pc.directed != 0u) {
+        vec3 d = rays[e / pc.k].dir_alive.xyz;
+        for (uint c = 0u; c < NCH; ++c)
+            for (uint a = 0u; a < 3u; ++a) atomicAdd(acc[(NCH + 3u * c + a) * pc.voxels + s.x], dep[c] * d[a]);
     }
 }

@@ -27,9 +27,11 @@ pub const LATTICE_SPEC: &[(u32, SpecKind)] = &[(SPEC_NCH, SpecKind::U32), (SPEC_
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 struct InjectPush {
-    voxels: u32,
+    dims: [u32; 4],
     inv_scale: f32,
-    pad: [u32; 2],
+    g: f32,
+    directed: u32,
+    pad: u32,
 }
 
 #[repr(C)]
@@ -41,7 +43,9 @@ struct DiffusePush {
     inner_steps: u32,
     /// First-flight escape weights (D3Q6): 0 none, 1 at the box's faces, 2 also at zero density.
     escape: u32,
-    pad: [u32; 2],
+    /// 1: also integrate the net flux (vector irradiance) after the energy.
+    flux: u32,
+    pad: u32,
 }
 
 pub const DIFFUSE: Kernel = Kernel {
@@ -275,6 +279,12 @@ pub struct LatticeParams {
     pub block_steps: u32,
     /// First-flight escape weights at the medium's boundary (D3Q6; glsl/lattice/diffuse.comp).
     pub escape: Escape,
+    /// Inject the once-scattered light with its first moment g F (glsl/lattice/inject.comp):
+    /// the deposit sums carry fluxes. Only for anisotropic media.
+    pub directed: bool,
+    /// Integrate the net flux (vector irradiance) beside the energy (glsl/lattice/diffuse.comp),
+    /// for the view pass's two-term expansion. Only for anisotropic media.
+    pub flux: bool,
 }
 
 impl LatticeParams {
@@ -289,8 +299,13 @@ impl LatticeParams {
     pub fn diffuser_bytes(&self) -> u64 {
         let n_wg = self.groups().iter().map(|x| *x as u64).product::<u64>();
         2 * self.lattice.state_bytes(self.nch, self.voxels())
-            + self.nch as u64 * self.voxels() * 4
+            + self.irradiance_floats() * 4
             + n_wg * self.nch as u64 * 16
+    }
+    /// Floats of the time-integrated field: energy per channel and voxel, then with `flux` the
+    /// flux (three per channel and voxel).
+    pub fn irradiance_floats(&self) -> u64 {
+        self.nch as u64 * self.voxels() * if self.flux { 4 } else { 1 }
     }
     /// Device bytes of an [`Injector`]: its per-workgroup tallies.
     pub fn injector_bytes(&self) -> u64 {
@@ -336,7 +351,7 @@ impl Diffuser {
             pipeline,
             density,
             states: [gpu.buffer("lattice state A", state_bytes)?, gpu.buffer("lattice state B", state_bytes)?],
-            irr: gpu.buffer("lattice irradiance", p.nch as u64 * v * 4)?,
+            irr: gpu.buffer("lattice irradiance", p.irradiance_floats() * 4)?,
             tally: gpu.buffer("lattice diffuse tally", n_wg * p.nch as u64 * 16)?,
             push: DiffusePush {
                 dims: [p.dims[0], p.dims[1], p.dims[2], v as u32],
@@ -344,7 +359,8 @@ impl Diffuser {
                 albedo: [al[0], al[1], al[2], p.g],
                 inner_steps: 1,
                 escape: p.escape.code(),
-                pad: [0; 2],
+                flux: p.flux as u32,
+                pad: 0,
             },
             groups,
             block_steps: p.block_steps,
@@ -364,7 +380,8 @@ impl Diffuser {
         self.states[0].size() + self.states[1].size() + self.irr.size() + self.tally.size()
     }
 
-    /// The time-integrated energy per voxel and channel ([c * V + v]).
+    /// The time-integrated energy per voxel and channel ([c * V + v]), then with
+    /// [`LatticeParams::flux`] the flux ([nch V + (3 c + axis) V + v]).
     pub fn irradiance(&self) -> &Buffer {
         &self.irr
     }
@@ -426,6 +443,7 @@ impl Diffuser {
         let probe_sum = |irr: &[f32]| -> Vec<f64> {
             probes.iter().map(|p| (0..nch).map(|c| irr[c * v + p] as f64).sum()).collect()
         };
+        // The energies only: the probes never look at the flux after them.
         let irr = self.irr.clone();
         let chunk = 8 * self.block_steps;
         let mut prev = probe_sum(&read_f32(gpu, &irr)?);
@@ -466,13 +484,17 @@ impl Diffuser {
 }
 
 /// Moves summed deposits (per channel and voxel: floats, or fixed point of `scale` quanta per
-/// unit) into the lattice's rest distribution and clears the sums, tallying what it injected.
+/// unit) into the lattice's rest distribution, or with [`LatticeParams::directed`] partly into
+/// its axial links (their first moment), clears the sums, and tallies what it injected.
 pub struct Injector {
     pipeline: Pipeline,
     tally: Buffer,
+    dims: [u32; 3],
     voxels: u32,
     nch: u32,
     inv_scale: f32,
+    g: f32,
+    directed: bool,
 }
 
 impl Injector {
@@ -483,9 +505,12 @@ impl Injector {
         Ok(Injector {
             pipeline: gpu.pipeline(&INJECT, &spec)?,
             tally: gpu.buffer("lattice inject tally", p.injector_bytes())?,
+            dims: p.dims,
             voxels: voxels as u32,
             nch: p.nch,
             inv_scale: 1.0 / scale,
+            g: p.g,
+            directed: p.directed,
         })
     }
 
@@ -495,7 +520,13 @@ impl Injector {
             .read_write(0, sums)
             .read_write(1, lattice.state())
             .read_write(2, &self.tally)
-            .push(&InjectPush { voxels: self.voxels, inv_scale: self.inv_scale, pad: [0; 2] })
+            .push(&InjectPush {
+                dims: [self.dims[0], self.dims[1], self.dims[2], self.voxels],
+                inv_scale: self.inv_scale,
+                g: self.g,
+                directed: self.directed as u32,
+                pad: 0,
+            })
             .cover([self.voxels, 1, 1])
     }
 

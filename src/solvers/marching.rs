@@ -44,7 +44,11 @@ struct TransferPush {
     entries: u32,
     voxels: u32,
     scale: f32,
-    pad: u32,
+    /// History slots per ray.
+    k: u32,
+    /// 1: also sum each deposit's flux (glsl/lattice/inject.comp).
+    directed: u32,
+    pad: [u32; 3],
 }
 
 pub const RESAMPLE: Kernel =
@@ -132,9 +136,10 @@ impl MarchSettings {
     }
 
     /// Device bytes of a [`Marcher`] on `geom` with `ray_count` rays (as [`raymaps`] makes
-    /// them) and `nch` channels: density, rays, history, sums.
-    pub fn device_bytes(&self, geom: &LatticeGeom, ray_count: u64, nch: u32) -> u64 {
-        geom.voxels() * 4 * (1 + nch as u64) + ray_count * (RAY_BYTES + self.k as u64 * 16)
+    /// them) and `nch` channels: density, rays, history, sums (with the deposits' fluxes when
+    /// `directed`).
+    pub fn device_bytes(&self, geom: &LatticeGeom, ray_count: u64, nch: u32, directed: bool) -> u64 {
+        geom.voxels() * 4 * (1 + sum_slots(nch, directed)) + ray_count * (RAY_BYTES + self.k as u64 * 16)
     }
 }
 
@@ -226,6 +231,12 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
     out
 }
 
+/// Floats per voxel of the deposit sums: one per channel, and with `directed` the deposit's flux
+/// (three per channel) after them.
+fn sum_slots(nch: u32, directed: bool) -> u64 {
+    nch as u64 * if directed { 4 } else { 1 }
+}
+
 /// Photon marching on one voxel grid: the resampled density, the rays, the Ray History
 /// Buffer and the per-voxel deposit sums, with the passes that advance and transfer them.
 pub struct Marcher {
@@ -235,8 +246,10 @@ pub struct Marcher {
     pub rays: Buffer,
     pub history: Buffer,
     /// Deposit sums per channel and voxel ([c * V + v]): float bits, or fixed point of
-    /// `scale` quanta per W when `fixed`.
+    /// `scale` quanta per W when `fixed`; when `directed`, each voxel's deposit flux (deposit
+    /// times beam direction, [nch V + (3 c + axis) V + v]) follows.
     pub sums: Buffer,
+    pub directed: bool,
     pub ray_count: u32,
     /// Rounds of `k` steps until every ray has crossed the grid's diagonal.
     pub rounds: u32,
@@ -251,7 +264,9 @@ pub struct Marcher {
 
 impl Marcher {
     /// Resample the density onto `geom`, build the raymaps and the buffers for `nch` channels.
-    /// `fixed`: deterministic fixed-point transfer instead of float atomics.
+    /// `fixed`: deterministic fixed-point transfer instead of float atomics. `directed`: also
+    /// sum the deposits' fluxes (the first moment of anisotropic media's once-scattered light).
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         gpu: &Gpu,
         scene: &Scene,
@@ -260,6 +275,7 @@ impl Marcher {
         set: &MarchSettings,
         nch: u32,
         fixed: bool,
+        directed: bool,
     ) -> Result<Marcher, SolverError> {
         let v = geom.voxels();
         // Transfer kernels include lattice.glsl for the channel count; they never read links.
@@ -285,7 +301,7 @@ impl Marcher {
         let total_power: f64 = (0..3).map(|c| rays.iter().map(|r| r.power[c] as f64).sum::<f64>()).fold(0.0, f64::max);
         let ray_buf = gpu.buffer_with("marching rays", &rays)?;
         let history = gpu.buffer("marching ray history", ray_count as u64 * set.k as u64 * 16)?;
-        let sums = gpu.buffer("marching deposit sums", nch as u64 * v * 4)?;
+        let sums = gpu.buffer("marching deposit sums", sum_slots(nch, directed) * v * 4)?;
         let diag = (geom.max() - geom.min()).length();
         let max_steps = (diag / set.step).ceil() as u32 + 2;
         let rounds = max_steps.div_ceil(set.k);
@@ -296,6 +312,7 @@ impl Marcher {
             rays: ray_buf,
             history,
             sums,
+            directed,
             ray_count,
             rounds,
             fixed,
@@ -330,7 +347,15 @@ impl Marcher {
         Pass::new("marching.transfer", role, &self.transfer)
             .read(0, &self.history)
             .read_write(1, &self.sums)
-            .push(&TransferPush { entries, voxels: self.geom.voxels() as u32, scale: self.scale, pad: 0 })
+            .read(2, &self.rays)
+            .push(&TransferPush {
+                entries,
+                voxels: self.geom.voxels() as u32,
+                scale: self.scale,
+                k: self.set.k,
+                directed: self.directed as u32,
+                pad: [0; 3],
+            })
             .cover([entries, 1, 1])
     }
 

@@ -168,8 +168,26 @@ pub struct MsVolume<'a> {
     pub channels: u32,
     pub origin: [f32; 3],
     pub lambda: f32,
-    /// The vector irradiance follows the fluence (`wavefront`'s two-term expansion).
-    pub flux: bool,
+    /// What follows the fluence, and how the view pass scatters it.
+    pub flux: FluxUse,
+}
+
+/// How the view pass scatters a volume's multiply scattered light toward the camera
+/// (glsl/view/march.comp, `ms_inscatter`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FluxUse {
+    /// The fluence alone, isotropically: phi / 4 pi.
+    None,
+    /// The vector irradiance E follows; the two-term expansion phi / 4pi + 3 g E.w / 4pi,
+    /// clamped at 0 (`wavefront`).
+    TwoTerm,
+    /// The vector irradiance of a D3Q6/D3Q18 lattice follows; the field is taken as a
+    /// Henyey-Greenstein lobe about E of mean cosine k = |E| |E^|_1 / phi (the lattice's
+    /// links carry a flow along E^ with |E| / phi = 1 / |E^|_1 at most), so scattering it by
+    /// HG(g) gives phi HG(g k) exactly (HG's Legendre coefficients multiply), non-negative for
+    /// any field (`lbl`).
+    Lobe,
 }
 
 /// What one view march did.

@@ -391,7 +391,7 @@ impl WaveVolume {
             channels: self.channels,
             origin: self.geom.origin,
             lambda: self.geom.lambda,
-            flux: true,
+            flux: super::view::FluxUse::TwoTerm,
         }
     }
 }
