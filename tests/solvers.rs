@@ -360,3 +360,27 @@ radiance = 1.0
     }
     assert_clean(&gpu);
 }
+
+/// The view pass's shadow volume (view_shadow=volume, the default for grid densities) against
+/// marching every shadow ray, on the cloud (sun, and a sky of 16 quadrature directions, both
+/// depth directions for the bounded octaves): the same image up to the interpolation of the
+/// optical depth between voxel centres (measured 0.0033 relL2 at 128 x 128 for `single`).
+#[test]
+fn shadow_volume_matches_marched_shadows_on_the_cloud() {
+    let gpu = gpu();
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cloud.toml");
+    let sets: Vec<(String, String)> =
+        [("render.width", "32"), ("render.height", "32")].iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    let s = scatterlab::scene::Scene::load(&path, &sets, &scatterlab::scene::LoadOptions::default()).unwrap();
+    let octaves: &dyn scatterlab::solvers::Solver = &scatterlab::solvers::octaves::OctavesSolver;
+    for (solver, key) in [(SINGLE, "single.shadow"), (octaves, "octaves.view_shadow")] {
+        let vol = render(&gpu, &s, solver, &[(key, "volume")]);
+        let auto = render(&gpu, &s, solver, &[]);
+        assert!(vol.image.data == auto.image.data, "{key}: auto must take the volume for a grid density");
+        let march = render(&gpu, &s, solver, &[(key, "march")]);
+        let m = scatterlab::output::compare(&vol.image, &march.image).unwrap();
+        eprintln!("{key}: volume vs march relL2 {:.5}, energy {:.5}", m.rel_l2, m.energy_ratio);
+        assert!(m.rel_l2 < 0.01 && (m.energy_ratio - 1.0).abs() < 0.005, "{key}: {m:?}");
+    }
+    assert_clean(&gpu);
+}

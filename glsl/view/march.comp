@@ -29,6 +29,7 @@
 #include "../include/rng.glsl"
 #include "../include/phase.glsl"
 #include "../include/budget.glsl"
+#include "../include/view.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
@@ -52,6 +53,11 @@ layout(std430, binding = 5) buffer State { MarchState state[]; };
 // ms_flux = 1 the vector irradiance E lambda^2 follows at [C V + (3 c + a) V + v] for C
 // channels (the two-term expansion). Unused (ms_dims.x = 0) for single scattering alone.
 layout(std430, binding = 6) readonly buffer MsVolume { float ms_energy[]; };
+// The shadow volume (view/shadow.comp; pc.shadow_dims.x = 0: none, march every shadow ray):
+// per light unit j the density integral toward the light ([S j V + v]) and, for the bounded
+// octaves (S = pc.shadow_dims.w = 2), away from it ([(2 j + 1) V + v]) at the density grid's
+// voxel centres.
+layout(std430, binding = 7) readonly buffer ShadowDepth { float sdepth[]; };
 
 layout(push_constant) uniform Push {
     float step;          // camera-ray step, scene units
@@ -69,6 +75,7 @@ layout(push_constant) uniform Push {
     uvec4 ms_dims;       // volume voxels xyz (x = 0: no multiple-scattering volume), w = channels
     vec4 ms_origin;      // volume min corner, w = lambda (voxel edge)
     vec4 octave;         // octaves: attenuation a, contribution b, eccentricity c, w = 1: bounded
+    uvec4 shadow_dims;   // shadow volume voxels xyz (the density grid's; x = 0: none), w = depths per unit
 } pc;
 
 // Multiply scattered radiance scattered at p toward the camera (travelling along -d), per
@@ -134,29 +141,39 @@ float phase_eval(float g, float c) { return ANISOTROPIC ? hg_eval(g, c) : INV_4P
 // Optical depth (per channel) from p along w over [0, t_far], by the same piecewise-constant
 // rule; exact for constant and sphere media where the chord is integrated analytically.
 vec3 optical_depth(vec3 p, vec3 w, float t_far) {
-    vec2 iv = medium_interval(p, w);
-    float a = max(iv.x, 0.0);
-    float b = min(iv.y, t_far);
-    if (!(a < b)) return vec3(0.0);
-    if (DENSITY_KIND != DENSITY_GRID) return scene.sigma_t.xyz * (b - a);
-    float len = b - a;
-    uint n = max(1u, uint(ceil(len / pc.shadow_step)));
-    float dt = len / float(n);
-    float tau = 0.0;
-    for (uint i = 0u; i < n; ++i) {
-        iters++;
-        tau += density_at(p + w * (a + (float(i) + 0.5) * dt));
+    if (DENSITY_KIND != DENSITY_GRID) {
+        vec2 iv = medium_interval(p, w);
+        float a = max(iv.x, 0.0);
+        float b = min(iv.y, t_far);
+        return a < b ? scene.sigma_t.xyz * (b - a) : vec3(0.0);
     }
-    return scene.sigma_t.xyz * (tau * dt);
+    return scene.sigma_t.xyz * density_depth(p, w, t_far, pc.shadow_step);
 }
 
-// Spherical Fibonacci direction i of n (uniform quadrature weight 4 pi / n).
-vec3 fibonacci_dir(uint i, uint n) {
-    float golden = 2.39996322972865332;   // pi (3 - sqrt 5)
-    float z = 1.0 - (2.0 * float(i) + 1.0) / float(n);
-    float r = sqrt(max(0.0, 1.0 - z * z));
-    float phi = golden * float(i);
-    return vec3(r * cos(phi), r * sin(phi), z);
+// The optical depth from p toward light unit `unit` (side 0, up to `dist`) or away from it
+// (side 1, to the medium's end): from the shadow volume, trilinear between voxel centres
+// (clamped at the outer half voxel, as the density), or marched where there is none.
+vec3 unit_depth(uint unit, uint side, vec3 p, vec3 w, float dist) {
+    if (pc.shadow_dims.x == 0u) return optical_depth(p, side == 0u ? w : -w, side == 0u ? dist : INF);
+    ivec3 n = ivec3(pc.shadow_dims.xyz);
+    uint V = pc.shadow_dims.x * pc.shadow_dims.y * pc.shadow_dims.z;
+    uint base = (pc.shadow_dims.w * unit + side) * V;
+    vec3 g = (p - scene.bounds_min.xyz) / (scene.bounds_max.xyz - scene.bounds_min.xyz) * vec3(n) - 0.5;
+    g = clamp(g, vec3(0.0), vec3(n - 1));
+    ivec3 i0 = ivec3(floor(g));
+    ivec3 i1 = min(i0 + 1, n - 1);
+    vec3 f = g - vec3(i0);
+    float c000 = sdepth[base + uint(i0.x + n.x * (i0.y + n.y * i0.z))];
+    float c100 = sdepth[base + uint(i1.x + n.x * (i0.y + n.y * i0.z))];
+    float c010 = sdepth[base + uint(i0.x + n.x * (i1.y + n.y * i0.z))];
+    float c110 = sdepth[base + uint(i1.x + n.x * (i1.y + n.y * i0.z))];
+    float c001 = sdepth[base + uint(i0.x + n.x * (i0.y + n.y * i1.z))];
+    float c101 = sdepth[base + uint(i1.x + n.x * (i0.y + n.y * i1.z))];
+    float c011 = sdepth[base + uint(i0.x + n.x * (i1.y + n.y * i1.z))];
+    float c111 = sdepth[base + uint(i1.x + n.x * (i1.y + n.y * i1.z))];
+    iters++;
+    return scene.sigma_t.xyz * mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y),
+                                   mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
 }
 
 // Light units per step: one per point or directional light, env_dirs per environment.
@@ -231,9 +248,9 @@ vec3 octave_sum(float g, float c, vec3 tau, vec3 tau_chord, bool env, float onor
 // Octaves: the optical depth toward the light (tau, up to `dist`) and of the whole chord
 // through p along it (tau plus the depth from p away from the light), the latter only for the
 // bounded form.
-vec3 octave_light(float g, float c, vec3 p, vec3 wi, float dist, bool env, float onorm[8]) {
-    vec3 tau = optical_depth(p, wi, dist);
-    vec3 chord = pc.octave.w != 0.0 ? tau + optical_depth(p, -wi, INF) : tau;
+vec3 octave_light(uint unit, float g, float c, vec3 p, vec3 wi, float dist, bool env, float onorm[8]) {
+    vec3 tau = unit_depth(unit, 0u, p, wi, dist);
+    vec3 chord = pc.octave.w != 0.0 ? tau + unit_depth(unit, 1u, p, wi, dist) : tau;
     return octave_sum(g, c, tau, chord, env, onorm);
 }
 
@@ -250,6 +267,7 @@ void octave_norms(vec3 d, out float onorm[8]) {
 // [t0, t1] of the camera ray o + d t that p samples.
 vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float norm, float onorm[8]) {
     float g = scene.albedo.w;
+    uint unit = j;
     for (uint i = 0u; i < scene.image.z; ++i) {
         iters++;
         Light li = scene.lights[i];
@@ -263,20 +281,20 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float no
             float dist = sqrt(dist2);
             vec3 wi = to / dist;
             if (OCTAVES == 1u) {
-                return phase_eval(g, dot(d, wi)) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz) * exp(-optical_depth(p, wi, dist));
+                return phase_eval(g, dot(d, wi)) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz) * exp(-unit_depth(unit, 0u, p, wi, dist));
             }
-            return octave_light(g, dot(d, wi), p, wi, dist, false, onorm) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
+            return octave_light(unit, g, dot(d, wi), p, wi, dist, false, onorm) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
-            if (OCTAVES == 1u) return phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-optical_depth(p, wi, INF));
-            return octave_light(g, dot(d, wi), p, wi, INF, false, onorm) * li.value.rgb;
+            if (OCTAVES == 1u) return phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-unit_depth(unit, 0u, p, wi, INF));
+            return octave_light(unit, g, dot(d, wi), p, wi, INF, false, onorm) * li.value.rgb;
         } else {
             vec3 wi = fibonacci_dir(j, pc.env_dirs);
             if (OCTAVES == 1u) {
-                return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-optical_depth(p, wi, INF)) * (4.0 * PI / float(pc.env_dirs)) / norm;
+                return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-unit_depth(unit, 0u, p, wi, INF)) * (4.0 * PI / float(pc.env_dirs)) / norm;
             }
             // Each octave's quadrature is normalised by its own phase function's sum.
-            return li.value.rgb * octave_light(g, dot(d, wi), p, wi, INF, true, onorm) * (4.0 * PI / float(pc.env_dirs));
+            return li.value.rgb * octave_light(unit, g, dot(d, wi), p, wi, INF, true, onorm) * (4.0 * PI / float(pc.env_dirs));
         }
     }
     return vec3(0.0);

@@ -134,7 +134,7 @@ impl Solver for Lbl {
 
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = marching::kernels();
-        k.extend([lattice::DIFFUSE, lattice::INJECT, view::MARCH]);
+        k.extend([lattice::DIFFUSE, lattice::INJECT, view::MARCH, view::SHADOW]);
         k.extend(wave_field::kernels());
         k
     }
@@ -206,7 +206,7 @@ impl Solver for Lbl {
             + p.diffuser_bytes()
             + p.injector_bytes()
             + warm
-            + view::device_bytes(scene))
+            + view::device_bytes(scene, &set.view))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {

@@ -95,7 +95,7 @@ impl Solver for OctavesSolver {
     }
 
     fn kernels(&self) -> Vec<Kernel> {
-        vec![view::MARCH]
+        vec![view::MARCH, view::SHADOW]
     }
 
     fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
@@ -106,8 +106,9 @@ impl Solver for OctavesSolver {
         view::render_alone(gpu, self, req, &k, &v)
     }
 
-    fn memory_estimate(&self, scene: &Scene, _knobs: &Knobs) -> Result<u64, SolverError> {
-        Ok(gpu_scene::scene_bytes(scene) + view::device_bytes(scene))
+    fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
+        let v = Self::parse(knobs, scene)?;
+        Ok(gpu_scene::scene_bytes(scene) + view::device_bytes(scene, &v))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {

@@ -26,7 +26,7 @@ impl Solver for Single {
     }
 
     fn kernels(&self) -> Vec<Kernel> {
-        vec![view::MARCH]
+        vec![view::MARCH, view::SHADOW]
     }
 
     fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
@@ -37,8 +37,9 @@ impl Solver for Single {
         view::render_alone(gpu, self, req, &k, &v)
     }
 
-    fn memory_estimate(&self, scene: &Scene, _knobs: &Knobs) -> Result<u64, SolverError> {
-        Ok(gpu_scene::scene_bytes(scene) + view::device_bytes(scene))
+    fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
+        let v = ViewSettings::parse(knobs, "", scene)?;
+        Ok(gpu_scene::scene_bytes(scene) + view::device_bytes(scene, &v))
     }
 
     fn ladder(&self, scene: &Scene) -> Vec<Rung> {

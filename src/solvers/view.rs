@@ -40,6 +40,80 @@ pub struct ViewPush {
     pub ms_origin: [f32; 4],
     /// Octaves: attenuation a, contribution b, eccentricity c, unused.
     pub octave: [f32; 4],
+    /// Shadow volume voxels xyz (x = 0: none; every shadow ray is marched), w = depths per
+    /// unit and voxel (1 or 2).
+    pub shadow_dims: [u32; 4],
+}
+
+/// Push constants of glsl/view/shadow.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct ShadowPush {
+    shadow_step: f32,
+    env_dirs: u32,
+    units: u32,
+    /// 2: also the depth away from each unit (the bounded octaves' chord); 1: toward it only.
+    sides: u32,
+}
+
+pub const SHADOW: Kernel = Kernel {
+    shader: shader!("view/shadow"),
+    push_bytes: std::mem::size_of::<ShadowPush>(),
+    spec: super::gpu_scene::SCENE_SPEC,
+};
+
+/// How the view pass finds the optical depth toward each light unit (`view_shadow`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shadow {
+    /// A shadow march per camera-ray step and light unit (exact to the midpoint rule).
+    March,
+    /// The shadow volume: the depth toward each unit precomputed at the density grid's voxel
+    /// centres (glsl/view/shadow.comp) and read trilinearly. Grid densities only (constant and
+    /// sphere media integrate their chords analytically already).
+    Volume,
+}
+
+impl Shadow {
+    /// The mode `auto` / `volume` / `march` resolves to for `scene`: the volume for grid
+    /// densities, where it replaces ~(light units x camera steps) shadow marches per pixel by
+    /// two per unit and voxel.
+    fn resolve(mode: &str, scene: &Scene) -> Shadow {
+        let grid = matches!(scene.medium.density, crate::scene::Density::Grid(_));
+        if mode != "march" && grid {
+            Shadow::Volume
+        } else {
+            Shadow::March
+        }
+    }
+}
+
+/// Light units of the view pass: one per point or directional light, `env_dirs` per
+/// environment (glsl/include/view.glsl, `unit_light`).
+fn light_units(scene: &Scene, env_dirs: u32) -> u32 {
+    scene.lights.iter().map(|l| if matches!(l, crate::scene::Light::Environment { .. }) { env_dirs } else { 1 }).sum()
+}
+
+/// Depths stored per unit and voxel: toward the unit, and away from it where the bounded
+/// octaves need the whole chord.
+fn shadow_sides(v: &ViewSettings) -> u32 {
+    if v.octaves.n > 1 && v.octaves.bounded {
+        2
+    } else {
+        1
+    }
+}
+
+/// Device bytes of the shadow volume for `v` on `scene` (0 when it marches).
+fn shadow_bytes(scene: &Scene, v: &ViewSettings) -> u64 {
+    match (&scene.medium.density, v.shadow) {
+        (crate::scene::Density::Grid(g), Shadow::Volume) => {
+            shadow_sides(v) as u64
+                * light_units(scene, v.env_dirs) as u64
+                * g.dims.iter().map(|d| *d as u64).product::<u64>()
+                * 4
+        }
+        _ => 0,
+    }
 }
 
 /// Specialisation constant: octaves of the multiple-scattering approximation (1: none).
@@ -85,10 +159,10 @@ pub const STATE_BYTES_PER_PIXEL: u64 = 64;
 /// Longest shadow march (steps across the medium's diagonal) a single loop may take.
 pub const MAX_SHADOW_STEPS: f32 = 16384.0;
 
-/// Device bytes of the view pass at this image size.
-pub fn device_bytes(scene: &Scene) -> u64 {
+/// Device bytes of the view pass at this image size, with its shadow volume.
+pub fn device_bytes(scene: &Scene, v: &ViewSettings) -> u64 {
     let pixels = scene.render.width as u64 * scene.render.height as u64;
-    pixels * (16 + STATE_BYTES_PER_PIXEL) + resumable::STATS_WORDS * 4
+    pixels * (16 + STATE_BYTES_PER_PIXEL) + resumable::STATS_WORDS * 4 + shadow_bytes(scene, v)
 }
 
 /// The view march's knobs (unprefixed; solvers add `view_`).
@@ -112,6 +186,13 @@ pub fn knobs() -> Vec<Knob> {
             Range::int(1, 4096),
             "quadrature directions for environment in-scattering (each costs a shadow march per camera step)",
         ),
+        Knob::fixed(
+            "shadow",
+            "auto",
+            Range::Choice(&["auto", "volume", "march"]),
+            "optical depth toward each light unit: precomputed at the density grid's voxel centres and read \
+             trilinearly (volume), or marched per camera step (march); auto: volume for grid densities",
+        ),
         Knob::fixed("supersample", "1", Range::int(1, 16), "n x n subpixel rays per pixel, box filter"),
         Knob::fixed("jitter", "0", Range::int(0, 1), "1 jitters step origins per pixel (noise instead of banding)"),
         resumable::budget_knob(),
@@ -129,6 +210,7 @@ pub struct ViewSettings {
     pub budget: u32,
     /// Single scattering unless a solver sets octaves (`octaves`).
     pub octaves: Octaves,
+    pub shadow: Shadow,
 }
 
 impl ViewSettings {
@@ -145,6 +227,7 @@ impl ViewSettings {
             jitter: k.get(&key("jitter"))?,
             budget: k.get(&key("budget"))?,
             octaves: Octaves::SINGLE,
+            shadow: Shadow::resolve(&k.get::<String>(&key("shadow"))?, scene),
         };
         for (name, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
@@ -233,6 +316,33 @@ pub fn march(
             (&dummy, [0; 4], [0.0; 4], 0)
         }
     };
+    // The shadow volume, when the settings ask for one: every unit's depth at every voxel
+    // centre, both ways, in one dispatch before the march.
+    let (shadow_buf, shadow_dims) = match (&scene.medium.density, v.shadow) {
+        (crate::scene::Density::Grid(g), Shadow::Volume) => {
+            let units = light_units(scene, v.env_dirs);
+            let voxels = g.dims.iter().map(|d| *d as u64).product::<u64>();
+            let buf = gpu.buffer("view shadow volume", shadow_bytes(scene, v))?;
+            let sp = gpu.pipeline(&SHADOW, &gs.modelled.spec())?;
+            let p = gs
+                .bind(Pass::new("view.shadow", QueueRole::Trace, &sp))
+                .write(3, &buf)
+                .push(&ShadowPush { shadow_step: v.shadow_step, env_dirs: v.env_dirs, units, sides: shadow_sides(v) })
+                .cover([voxels as u32, units, 1]);
+            let point = gpu.submit(QueueRole::Trace, &[p], &[])?;
+            gpu.wait(point)?;
+            (Some(buf), [g.dims[0], g.dims[1], g.dims[2], shadow_sides(v)])
+        }
+        _ => (None, [0; 4]),
+    };
+    let no_shadow;
+    let shadow_ref = match &shadow_buf {
+        Some(b) => b,
+        None => {
+            no_shadow = gpu.buffer("no shadow volume", 4)?;
+            &no_shadow
+        }
+    };
     let seed = scene.render.seed;
     let (dispatches, st) = resumable::run_until_done(gpu, "view", &stats, |slot| {
         let push = ViewPush {
@@ -250,12 +360,14 @@ pub fn march(
             ms_dims,
             ms_origin,
             octave: [o.a, o.b, o.c, if o.bounded { 1.0 } else { 0.0 }],
+            shadow_dims,
         };
         gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline))
             .write(3, &out)
             .read_write(4, &stats)
             .read_write(5, &state)
             .read(6, ms_buf)
+            .read(7, shadow_ref)
             .push(&push)
             .cover([w, h, 1])
     })?;
@@ -269,7 +381,7 @@ pub fn march(
         dispatches,
         max_loop_iterations: st[2],
         nonfinite_pixels: st[0],
-        device_bytes: out.size() + state.size() + stats.size(),
+        device_bytes: out.size() + state.size() + stats.size() + shadow_buf.as_ref().map_or(0, |b| b.size()),
     })
 }
 

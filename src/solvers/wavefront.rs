@@ -81,7 +81,7 @@ impl Solver for Wavefront {
 
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = wave_field::kernels();
-        k.push(view::MARCH);
+        k.extend([view::MARCH, view::SHADOW]);
         k
     }
 
@@ -123,7 +123,8 @@ impl Solver for Wavefront {
         let set = WaveSettings::parse(knobs, "")?;
         let geom = LatticeGeom::new(scene, set.grid);
         let chromatic = gpu_scene::modelled(scene, false).chromatic;
-        Ok(gpu_scene::scene_bytes(scene) + set.device_bytes(scene, chromatic, &geom) + view::device_bytes(scene))
+        let v = ViewSettings::parse(knobs, "view_", scene)?;
+        Ok(gpu_scene::scene_bytes(scene) + set.device_bytes(scene, chromatic, &geom) + view::device_bytes(scene, &v))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
