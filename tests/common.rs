@@ -28,6 +28,13 @@ pub fn assert_clean(gpu: &Gpu) {
     assert_eq!(gpu.validation_errors(), 0, "validation errors: {:#?}", gpu.validation_messages());
 }
 
+/// A scene file of the repository (`scenes/cloud.toml`), with `sets` applied as `--set` would.
+pub fn repo_scene(rel: &str, sets: &[(&str, &str)]) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    let sets: Vec<(String, String)> = sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    Scene::load(&path, &sets, &LoadOptions::default()).unwrap_or_else(|e| panic!("{rel}: {e}"))
+}
+
 pub fn scene(text: &str) -> Scene {
     Scene::from_str(text, "test.toml", Path::new("."), &[], &LoadOptions::default())
         .unwrap_or_else(|e| panic!("test scene invalid: {e}"))

@@ -388,14 +388,7 @@ fn memory_estimates_equal_what_renders_allocate() {
     .collect();
     // The cloud: a grid density (the view pass's shadow volume), anisotropic (lbl's deposit
     // fluxes and lattice flux), a sun and a sky.
-    let cloud_sets: Vec<(String, String)> =
-        [("render.width", "16"), ("render.height", "16")].iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
-    let cloud = scatterlab::scene::Scene::load(
-        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cloud.toml"),
-        &cloud_sets,
-        &scatterlab::scene::LoadOptions::default(),
-    )
-    .unwrap();
+    let cloud = crate::common::repo_scene("scenes/cloud.toml", &[("render.width", "16"), ("render.height", "16")]);
     for (what, s) in
         [("grey, environment", scene(CUBE)), ("chromatic, light inside", scene(&inside)), ("cloud: grid, g 0.6", cloud)]
     {

@@ -368,10 +368,7 @@ radiance = 1.0
 #[test]
 fn shadow_volume_matches_marched_shadows_on_the_cloud() {
     let gpu = gpu();
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cloud.toml");
-    let sets: Vec<(String, String)> =
-        [("render.width", "32"), ("render.height", "32")].iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
-    let s = scatterlab::scene::Scene::load(&path, &sets, &scatterlab::scene::LoadOptions::default()).unwrap();
+    let s = crate::common::repo_scene("scenes/cloud.toml", &[("render.width", "32"), ("render.height", "32")]);
     let octaves: &dyn scatterlab::solvers::Solver = &scatterlab::solvers::octaves::OctavesSolver;
     for (solver, key) in [(SINGLE, "single.shadow"), (octaves, "octaves.view_shadow")] {
         let vol = render(&gpu, &s, solver, &[(key, "volume")]);
