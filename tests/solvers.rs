@@ -381,3 +381,28 @@ fn shadow_volume_matches_marched_shadows_on_the_cloud() {
     }
     assert_clean(&gpu);
 }
+
+/// The shadow volume with a large sky quadrature: the units of a step resume across dispatches
+/// when the loop budget runs out mid-step (64 directions, a small budget) and give the marched
+/// image; past 2^27 bytes (what every device binds) `auto` marches and `volume` is refused
+/// with the knob named.
+#[test]
+fn shadow_volume_resumes_within_the_budget_and_falls_back_when_too_large() {
+    let gpu = gpu();
+    let s = crate::common::repo_scene("scenes/cloud.toml", &[("render.width", "12"), ("render.height", "12")]);
+    let sky = [("single.env_dirs", "64"), ("single.budget", "300")];
+    let vol = render(&gpu, &s, SINGLE, &[sky[0], sky[1], ("single.shadow", "volume")]);
+    let march = render(&gpu, &s, SINGLE, &[sky[0], sky[1], ("single.shadow", "march")]);
+    let m = scatterlab::output::compare(&vol.image, &march.image).unwrap();
+    assert!(m.rel_l2 < 0.01, "64-direction sky, budget 300: volume vs march {m:?}");
+    // 601 units x 64^3 voxels x 4 bytes = 630 MB.
+    let big = [("single.env_dirs", "600"), ("single.budget", "4000")];
+    let auto = render(&gpu, &s, SINGLE, &big);
+    let march = render(&gpu, &s, SINGLE, &[big[0], big[1], ("single.shadow", "march")]);
+    assert!(auto.image.data == march.image.data, "auto must march where the volume would not fit");
+    let err = crate::common::try_render(&gpu, &s, SINGLE, &[big[0], big[1], ("single.shadow", "volume")], false)
+        .err()
+        .expect("a shadow volume over 2^27 bytes must be refused");
+    assert!(err.to_string().contains("single.shadow"), "{err}");
+    assert_clean(&gpu);
+}

@@ -358,9 +358,17 @@ void main() {
                 onorm_k = k;
             }
             float t0 = a + float(i) * dt;
-            S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm, onorm);
-            j++;
-            continue;
+            if (pc.shadow_dims.x == 0u) {
+                // Marched shadows: one unit per loop iteration, so a dispatch can stop after any.
+                S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm, onorm);
+                j++;
+                continue;
+            }
+            // Shadow volume: a unit is a few reads, so every unit of the step in this iteration
+            // (the per-iteration ray setup above had come to dominate), same order, same sum.
+            // Within the budget: a large environment quadrature resumes where it stopped.
+            for (; j < units && iters < pc.budget; ++j) S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm, onorm);
+            if (j < units) continue;
         }
         // Close the step: integral over it of T(s) sigma_s ds with sigma_t held constant is
         // albedo (1 - e^{-sigma_t dt}), so a thick step never scatters more than it extinguishes.

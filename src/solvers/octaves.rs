@@ -43,7 +43,7 @@ impl OctavesSolver {
         let mut v = ViewSettings::parse(k, "view_", scene)?;
         let bounded = k.get::<String>("form")? == "bounded";
         v.octaves = Octaves { n: k.get("n")?, a: k.get("a")?, b: k.get("b")?, c: k.get("c")?, bounded };
-        Ok(v)
+        v.fit_shadow(k, "view_", scene)
     }
 }
 

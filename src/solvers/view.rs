@@ -87,6 +87,9 @@ impl Shadow {
     }
 }
 
+/// Largest shadow volume `auto` builds: 2^27 bytes, what every Vulkan device can bind.
+const MAX_SHADOW_VOLUME_BYTES: u64 = 1 << 27;
+
 /// Light units of the view pass: one per point or directional light, `env_dirs` per
 /// environment (glsl/include/view.glsl, `unit_light`).
 fn light_units(scene: &Scene, env_dirs: u32) -> u32 {
@@ -229,6 +232,7 @@ impl ViewSettings {
             octaves: Octaves::SINGLE,
             shadow: Shadow::resolve(&k.get::<String>(&key("shadow"))?, scene),
         };
+        let v = v.fit_shadow(k, prefix, scene)?;
         for (name, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
             // length is bounded; camera-ray steps are resumable and only bounded for sanity.
@@ -241,6 +245,30 @@ impl ViewSettings {
             }
         }
         Ok(v)
+    }
+
+    /// Every Vulkan device binds 2^27 bytes (the spec's minimum maxStorageBufferRange): where
+    /// the shadow volume would be larger, `auto` marches instead and `volume` says what to
+    /// change. Solvers that change the settings after [`ViewSettings::parse`] (octaves: both
+    /// chord directions) call it again.
+    pub fn fit_shadow(self, k: &Knobs, prefix: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
+        let v = self;
+        let bytes = shadow_bytes(scene, &v);
+        if bytes <= MAX_SHADOW_VOLUME_BYTES || v.shadow == Shadow::March {
+            return Ok(v);
+        }
+        if k.get::<String>(&format!("{prefix}shadow"))? == "volume" {
+            return Err(k.invalid(
+                &format!("{prefix}shadow"),
+                format!(
+                    "the shadow volume needs {bytes} bytes ({} light units x the density grid), over the {} every \
+                     device can bind; set it to march, or lower {prefix}env_dirs",
+                    light_units(scene, v.env_dirs),
+                    MAX_SHADOW_VOLUME_BYTES
+                ),
+            ));
+        }
+        Ok(ViewSettings { shadow: Shadow::March, ..v })
     }
 }
 
