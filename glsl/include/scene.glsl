@@ -67,6 +67,21 @@ vec2 medium_interval(vec3 o, vec3 d) {
     return t;
 }
 
+// Corners and weights of a trilinear lookup at continuous voxel coordinate g (voxel centres at
+// integers) on a grid of n voxels, clamped at the outer half voxel: the density, and the view
+// pass's volumes, all interpolate this way.
+void grid_corners(vec3 g, ivec3 n, out ivec3 i0, out ivec3 i1, out vec3 f) {
+    g = clamp(g, vec3(0.0), vec3(n - 1));
+    i0 = ivec3(floor(g));
+    i1 = min(i0 + 1, n - 1);
+    f = g - vec3(i0);
+}
+
+// Voxel coordinate of world position p on a grid of n voxels spanning the medium's box.
+vec3 box_voxel_coord(vec3 p, ivec3 n) {
+    return (p - scene.bounds_min.xyz) / (scene.bounds_max.xyz - scene.bounds_min.xyz) * vec3(n) - 0.5;
+}
+
 // Density in [0, 1+] at world position p (DESIGN.md: voxel-centred, trilinear, clamped).
 float density_at(vec3 p) {
     if (DENSITY_KIND == DENSITY_CONSTANT) return 1.0;
@@ -75,11 +90,9 @@ float density_at(vec3 p) {
         return dot(q, q) <= scene.sphere.w * scene.sphere.w ? 1.0 : 0.0;
     }
     ivec3 n = ivec3(scene.grid_dims.xyz);
-    vec3 g = (p - scene.bounds_min.xyz) / (scene.bounds_max.xyz - scene.bounds_min.xyz) * vec3(n) - 0.5;
-    g = clamp(g, vec3(0.0), vec3(n - 1));
-    ivec3 i0 = ivec3(floor(g));
-    ivec3 i1 = min(i0 + 1, n - 1);
-    vec3 f = g - vec3(i0);
+    ivec3 i0, i1;
+    vec3 f;
+    grid_corners(box_voxel_coord(p, n), n, i0, i1, f);
     float c000 = imageLoad(density_grid, ivec3(i0.x, i0.y, i0.z)).r;
     float c100 = imageLoad(density_grid, ivec3(i1.x, i0.y, i0.z)).r;
     float c010 = imageLoad(density_grid, ivec3(i0.x, i1.y, i0.z)).r;

@@ -19,8 +19,9 @@
 // lattice's axial links, so its net flux is 1 / |m^|_1 of its energy where a real beam's is
 // all of it. The lattice keeps that scale throughout, and the view pass undoes it (k =
 // |E| |E^|_1 / phi, glsl/view/march.comp): a beam's mean cosine g stays g whatever its
-// direction, and the injection is always feasible. The remainder E - |m|_2 joins the rest. Links that would leave the lattice go to the rest instead (its
-// first-flight escape weights send them out, and the energy book counts what leaks).
+// direction, and the injection is always feasible. The remainder E - |m|_2 joins the rest.
+// Links that would leave the lattice go to the rest instead (its first-flight escape weights
+// send them out, and the energy book counts what leaks).
 #extension GL_GOOGLE_include_directive : require
 #include "../include/lattice.glsl"
 

@@ -90,28 +90,26 @@ layout(push_constant) uniform Push {
 // exactly (Legendre coefficients g^l k^l): non-negative, and right for a collimated field
 // (90-degree scattering of a g = 0.9 beam is 13x weaker than isotropic, which the two-term
 // expansion cannot express).
-float ms_trilinear(uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) {
-    float c000 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i0.z))];
-    float c100 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i0.z))];
-    float c010 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i0.z))];
-    float c110 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i0.z))];
-    float c001 = ms_energy[base + uint(i0.x + n.x * (i0.y + n.y * i1.z))];
-    float c101 = ms_energy[base + uint(i1.x + n.x * (i0.y + n.y * i1.z))];
-    float c011 = ms_energy[base + uint(i0.x + n.x * (i1.y + n.y * i1.z))];
-    float c111 = ms_energy[base + uint(i1.x + n.x * (i1.y + n.y * i1.z))];
-    return mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y), mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
-}
+// Trilinear interpolation of buffer array `buf` from element `base` on a grid of n voxels, at
+// the corners i0, i1 with weights f of grid_corners. A macro: GLSL cannot pass a buffer, and
+// both volumes (the solver's and the shadow volume) read this way.
+#define GRID_AT(buf, base, n, ix, iy, iz) buf[(base) + uint((ix) + (n).x * ((iy) + (n).y * (iz)))]
+#define TRILINEAR(buf, base, n, i0, i1, f)                                                             \
+    mix(mix(mix(GRID_AT(buf, base, n, i0.x, i0.y, i0.z), GRID_AT(buf, base, n, i1.x, i0.y, i0.z), f.x),  \
+            mix(GRID_AT(buf, base, n, i0.x, i1.y, i0.z), GRID_AT(buf, base, n, i1.x, i1.y, i0.z), f.x), f.y), \
+        mix(mix(GRID_AT(buf, base, n, i0.x, i0.y, i1.z), GRID_AT(buf, base, n, i1.x, i0.y, i1.z), f.x),  \
+            mix(GRID_AT(buf, base, n, i0.x, i1.y, i1.z), GRID_AT(buf, base, n, i1.x, i1.y, i1.z), f.x), f.y), f.z)
+
+float ms_trilinear(uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) { return TRILINEAR(ms_energy, base, n, i0, i1, f); }
 
 vec3 ms_inscatter(vec3 p, vec3 d) {
     if (pc.ms_dims.x == 0u) return vec3(0.0);
     ivec3 n = ivec3(pc.ms_dims.xyz);
     uint V = pc.ms_dims.x * pc.ms_dims.y * pc.ms_dims.z;
     uint C = pc.ms_dims.w;
-    vec3 g = (p - pc.ms_origin.xyz) / pc.ms_origin.w - 0.5;
-    g = clamp(g, vec3(0.0), vec3(n - 1));
-    ivec3 i0 = ivec3(floor(g));
-    ivec3 i1 = min(i0 + 1, n - 1);
-    vec3 f = g - vec3(i0);
+    ivec3 i0, i1;
+    vec3 f;
+    grid_corners((p - pc.ms_origin.xyz) / pc.ms_origin.w - 0.5, n, i0, i1, f);
     vec3 e = vec3(0.0);
     for (uint c = 0u; c < C; ++c) {
         iters++;
@@ -158,22 +156,11 @@ vec3 unit_depth(uint unit, uint side, vec3 p, vec3 w, float dist) {
     ivec3 n = ivec3(pc.shadow_dims.xyz);
     uint V = pc.shadow_dims.x * pc.shadow_dims.y * pc.shadow_dims.z;
     uint base = (pc.shadow_dims.w * unit + side) * V;
-    vec3 g = (p - scene.bounds_min.xyz) / (scene.bounds_max.xyz - scene.bounds_min.xyz) * vec3(n) - 0.5;
-    g = clamp(g, vec3(0.0), vec3(n - 1));
-    ivec3 i0 = ivec3(floor(g));
-    ivec3 i1 = min(i0 + 1, n - 1);
-    vec3 f = g - vec3(i0);
-    float c000 = sdepth[base + uint(i0.x + n.x * (i0.y + n.y * i0.z))];
-    float c100 = sdepth[base + uint(i1.x + n.x * (i0.y + n.y * i0.z))];
-    float c010 = sdepth[base + uint(i0.x + n.x * (i1.y + n.y * i0.z))];
-    float c110 = sdepth[base + uint(i1.x + n.x * (i1.y + n.y * i0.z))];
-    float c001 = sdepth[base + uint(i0.x + n.x * (i0.y + n.y * i1.z))];
-    float c101 = sdepth[base + uint(i1.x + n.x * (i0.y + n.y * i1.z))];
-    float c011 = sdepth[base + uint(i0.x + n.x * (i1.y + n.y * i1.z))];
-    float c111 = sdepth[base + uint(i1.x + n.x * (i1.y + n.y * i1.z))];
+    ivec3 i0, i1;
+    vec3 f;
+    grid_corners(box_voxel_coord(p, n), n, i0, i1, f);
     iters++;
-    return scene.sigma_t.xyz * mix(mix(mix(c000, c100, f.x), mix(c010, c110, f.x), f.y),
-                                   mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
+    return scene.sigma_t.xyz * TRILINEAR(sdepth, base, n, i0, i1, f);
 }
 
 // Light units per step: one per point or directional light, env_dirs per environment.

@@ -489,28 +489,26 @@ impl Diffuser {
 pub struct Injector {
     pipeline: Pipeline,
     tally: Buffer,
-    dims: [u32; 3],
-    voxels: u32,
     nch: u32,
-    inv_scale: f32,
-    g: f32,
-    directed: bool,
+    /// Fixed by the lattice's parameters: every injection pushes the same constants.
+    push: InjectPush,
 }
 
 impl Injector {
     pub fn new(gpu: &Gpu, p: &LatticeParams, fixed: bool, scale: f32) -> Result<Injector, SolverError> {
         let spec =
             [(SPEC_NCH, Spec::U32(p.nch)), (SPEC_FIXED, Spec::Bool(fixed)), (SPEC_LINKS, Spec::U32(p.lattice.links()))];
-        let voxels: u64 = p.dims.iter().map(|d| *d as u64).product();
         Ok(Injector {
             pipeline: gpu.pipeline(&INJECT, &spec)?,
             tally: gpu.buffer("lattice inject tally", p.injector_bytes())?,
-            dims: p.dims,
-            voxels: voxels as u32,
             nch: p.nch,
-            inv_scale: 1.0 / scale,
-            g: p.g,
-            directed: p.directed,
+            push: InjectPush {
+                dims: [p.dims[0], p.dims[1], p.dims[2], p.voxels() as u32],
+                inv_scale: 1.0 / scale,
+                g: p.g,
+                directed: p.directed as u32,
+                pad: 0,
+            },
         })
     }
 
@@ -520,14 +518,8 @@ impl Injector {
             .read_write(0, sums)
             .read_write(1, lattice.state())
             .read_write(2, &self.tally)
-            .push(&InjectPush {
-                dims: [self.dims[0], self.dims[1], self.dims[2], self.voxels],
-                inv_scale: self.inv_scale,
-                g: self.g,
-                directed: self.directed as u32,
-                pad: 0,
-            })
-            .cover([self.voxels, 1, 1])
+            .push(&self.push)
+            .cover([self.push.dims[3], 1, 1])
     }
 
     /// Energy injected so far, per channel.

@@ -153,7 +153,7 @@ impl Solver for Lbl {
             channels: lat.stats.channels,
             origin: g.origin,
             lambda: g.lambda,
-            flux: if lat.stats.flux { set.flux_use } else { view::FluxUse::None },
+            flux: if lat.stats.flux { set.flux } else { view::FluxUse::None },
         };
         let view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
         let bytes = gs.bytes + view.device_bytes + lat.stats.device_bytes;
@@ -307,9 +307,9 @@ pub struct LblSettings {
     pub escape: lattice::Escape,
     /// Inject anisotropic media's once-scattered light with its first moment (`lbl.inject`).
     pub directed: bool,
-    /// Anisotropic media: the view pass scatters the lattice's flux too (`lbl.flux`), and how.
-    pub flux: bool,
-    pub flux_use: view::FluxUse,
+    /// Anisotropic media: how the view pass scatters the lattice's flux (`lbl.flux`; `None`:
+    /// the lattice keeps no flux).
+    pub flux: view::FluxUse,
 }
 
 impl LblSettings {
@@ -345,10 +345,11 @@ impl LblSettings {
                 mode => mode == "directed",
             },
             flux: match k.get::<String>("flux")?.as_str() {
-                "auto" => !light_inside,
-                mode => mode != "off",
+                "auto" if light_inside => view::FluxUse::None,
+                "auto" | "two_term" => view::FluxUse::TwoTerm,
+                "lobe" => view::FluxUse::Lobe,
+                _ => view::FluxUse::None,
             },
-            flux_use: if k.get::<String>("flux")? == "lobe" { view::FluxUse::Lobe } else { view::FluxUse::TwoTerm },
         };
         let lattice = out.lattice;
         let mut out = LblSettings { cascade: k.get("cascade")?, ..out };
@@ -443,7 +444,7 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         block_steps: set.block_steps,
         escape: set.escape,
         directed: set.directed && m.g != 0.0,
-        flux: set.flux && m.g != 0.0,
+        flux: set.flux != view::FluxUse::None && m.g != 0.0,
     }
 }
 

@@ -106,17 +106,22 @@ fn shadow_sides(v: &ViewSettings) -> u32 {
     }
 }
 
+/// The density grid the shadow volume is built on, when `v` builds one.
+fn shadow_grid<'a>(scene: &'a Scene, v: &ViewSettings) -> Option<&'a crate::scene::Grid> {
+    match (&scene.medium.density, v.shadow) {
+        (crate::scene::Density::Grid(g), Shadow::Volume) => Some(g),
+        _ => None,
+    }
+}
+
 /// Device bytes of the shadow volume for `v` on `scene` (0 when it marches).
 fn shadow_bytes(scene: &Scene, v: &ViewSettings) -> u64 {
-    match (&scene.medium.density, v.shadow) {
-        (crate::scene::Density::Grid(g), Shadow::Volume) => {
-            shadow_sides(v) as u64
-                * light_units(scene, v.env_dirs) as u64
-                * g.dims.iter().map(|d| *d as u64).product::<u64>()
-                * 4
-        }
-        _ => 0,
-    }
+    shadow_grid(scene, v).map_or(0, |g| {
+        shadow_sides(v) as u64
+            * light_units(scene, v.env_dirs) as u64
+            * g.dims.iter().map(|d| *d as u64).product::<u64>()
+            * 4
+    })
 }
 
 /// Specialisation constant: octaves of the multiple-scattering approximation (1: none).
@@ -252,10 +257,9 @@ impl ViewSettings {
     /// change. Solvers that change the settings after [`ViewSettings::parse`] (octaves: both
     /// chord directions) call it again.
     pub fn fit_shadow(self, k: &Knobs, prefix: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
-        let v = self;
-        let bytes = shadow_bytes(scene, &v);
-        if bytes <= MAX_SHADOW_VOLUME_BYTES || v.shadow == Shadow::March {
-            return Ok(v);
+        let bytes = shadow_bytes(scene, &self);
+        if bytes <= MAX_SHADOW_VOLUME_BYTES {
+            return Ok(self);
         }
         if k.get::<String>(&format!("{prefix}shadow"))? == "volume" {
             return Err(k.invalid(
@@ -263,12 +267,12 @@ impl ViewSettings {
                 format!(
                     "the shadow volume needs {bytes} bytes ({} light units x the density grid), over the {} every \
                      device can bind; set it to march, or lower {prefix}env_dirs",
-                    light_units(scene, v.env_dirs),
+                    light_units(scene, self.env_dirs),
                     MAX_SHADOW_VOLUME_BYTES
                 ),
             ));
         }
-        Ok(ViewSettings { shadow: Shadow::March, ..v })
+        Ok(ViewSettings { shadow: Shadow::March, ..self })
     }
 }
 
@@ -331,23 +335,10 @@ pub fn march(
     init[..3].copy_from_slice(&[1.0; 3]);
     let state = gpu.buffer_with("view state", &vec![init; pixels as usize])?;
     let stats = gpu.buffer("view stats", resumable::STATS_WORDS * 4)?;
-    let dummy;
-    let (ms_buf, ms_dims, ms_origin, ms_flux) = match ms {
-        Some(m) => (
-            m.energy,
-            [m.dims[0], m.dims[1], m.dims[2], m.channels],
-            [m.origin[0], m.origin[1], m.origin[2], m.lambda],
-            m.flux as u32,
-        ),
-        None => {
-            dummy = gpu.buffer("no ms volume", 4)?;
-            (&dummy, [0; 4], [0.0; 4], 0)
-        }
-    };
     // The shadow volume, when the settings ask for one: every unit's depth at every voxel
-    // centre, both ways, in one dispatch before the march.
-    let (shadow_buf, shadow_dims) = match (&scene.medium.density, v.shadow) {
-        (crate::scene::Density::Grid(g), Shadow::Volume) => {
+    // centre (both ways for the bounded octaves), in one dispatch before the march.
+    let (shadow_buf, shadow_dims) = match shadow_grid(scene, v) {
+        Some(g) => {
             let units = light_units(scene, v.env_dirs);
             let voxels = g.dims.iter().map(|d| *d as u64).product::<u64>();
             let buf = gpu.buffer("view shadow volume", shadow_bytes(scene, v))?;
@@ -361,16 +352,20 @@ pub fn march(
             gpu.wait(point)?;
             (Some(buf), [g.dims[0], g.dims[1], g.dims[2], shadow_sides(v)])
         }
-        _ => (None, [0; 4]),
+        None => (None, [0; 4]),
     };
-    let no_shadow;
-    let shadow_ref = match &shadow_buf {
-        Some(b) => b,
-        None => {
-            no_shadow = gpu.buffer("no shadow volume", 4)?;
-            &no_shadow
-        }
+    // One stand-in for whichever volume binding this render leaves unused.
+    let unused = if ms.is_none() || shadow_buf.is_none() { Some(gpu.buffer("unused view volume", 4)?) } else { None };
+    let (ms_buf, ms_dims, ms_origin, ms_flux) = match ms {
+        Some(m) => (
+            m.energy,
+            [m.dims[0], m.dims[1], m.dims[2], m.channels],
+            [m.origin[0], m.origin[1], m.origin[2], m.lambda],
+            m.flux as u32,
+        ),
+        None => (unused.as_ref().expect("made when ms is none"), [0; 4], [0.0; 4], 0),
     };
+    let shadow_ref = shadow_buf.as_ref().or(unused.as_ref()).expect("made when there is no shadow volume");
     let seed = scene.render.seed;
     let (dispatches, st) = resumable::run_until_done(gpu, "view", &stats, |slot| {
         let push = ViewPush {
