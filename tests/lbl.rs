@@ -10,7 +10,7 @@ use scatterlab::solvers::lattice::{EnergyBook, Lattice, LatticeParams};
 use scatterlab::solvers::lbl::{plan, LblStats, Planned, Step};
 use scatterlab::solvers::{Schedule, SolverError};
 
-use crate::common::{assert_clean, gpu, render, scene};
+use crate::common::{assert_clean, gpu, render, scene, SceneText};
 
 /// Execute a plan on fake in-order queues. `shared`: one queue for both roles (lavapipe),
 /// else one per role. Every submission takes `duration(step)` time units once it starts; a
@@ -367,31 +367,26 @@ fn lbl_beats_single_against_path_at_albedo_09() {
     assert_clean(&gpu);
 }
 
-/// A unit cube (albedo 0.95) lit by a directional light travelling along `DIR`, seen by a
-/// perspective camera in front: the forward-peak cases of issue 11.
-const FORWARD_CUBE: &str = r#"
-[render]
-width = 24
-height = 24
-seed = 1
-spp = 512
-[camera]
-kind = "perspective"
-origin = [0.6, 0.8, 4.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov = 24.0
-[medium]
-bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
-sigma_t = SIGMA_T
-albedo = 0.95
-g = G
-density = { kind = "constant" }
-[[light]]
-kind = "directional"
-direction = DIR
-irradiance = 3.0
-"#;
+/// A unit cube (albedo 0.95) lit by a directional light travelling along `dir`, seen by a
+/// perspective camera in front: the forward-peak cases of issue 11 (the shared base scene,
+/// edited).
+fn forward_cube(sigma_t: &str, g: &str, dir: &str) -> scatterlab::scene::Scene {
+    scene(
+        &SceneText::base()
+            .set("render.width", "24")
+            .set("render.height", "24")
+            .set("render.seed", "1")
+            .set("render.spp", "512")
+            .set("camera.origin", "[0.6, 0.8, 4.0]")
+            .set("camera.fov", "24.0")
+            .set("medium.sigma_t", sigma_t)
+            .set("medium.albedo", "0.95")
+            .set("medium.g", g)
+            .set("light.kind", "\"directional\"")
+            .replace_line("light.position", &format!("direction = {dir}"))
+            .replace_line("light.intensity", "irradiance = 3.0"),
+    )
+}
 
 /// The forward peak (lbl.inject=directed, lbl.flux=two_term, the defaults for anisotropic
 /// media): the deposit fluxes enter the energy book like the deposits (what is injected is
@@ -400,7 +395,7 @@ irradiance = 3.0
 #[test]
 fn directed_injection_keeps_the_energy_book_and_determinism() {
     let gpu = gpu();
-    let s = scene(&FORWARD_CUBE.replace("SIGMA_T", "5.0").replace("G", "0.6").replace("DIR", "[0.3, -0.4, 0.85]"));
+    let s = forward_cube("5.0", "0.6", "[0.3, -0.4, 0.85]");
     let small = [("lbl.grid", "16"), ("lbl.rays", "4096")];
     let mut sets = small.to_vec();
     sets.extend([("lbl.deterministic", "true"), ("lbl.schedule", "sequential")]);
@@ -418,7 +413,7 @@ fn directed_injection_keeps_the_energy_book_and_determinism() {
         assert!(m.rel_l2 < 1e-3, "float-atomic fluxes vs fixed point: relL2 {}", m.rel_l2);
     }
     // Isotropic media keep the thesis' lattice: no flux buffers, nothing directed.
-    let iso = scene(&FORWARD_CUBE.replace("SIGMA_T", "5.0").replace("G", "0.0").replace("DIR", "[0.3, -0.4, 0.85]"));
+    let iso = forward_cube("5.0", "0.0", "[0.3, -0.4, 0.85]");
     let i = render(&gpu, &iso, LBL, &small);
     let st = i.report.detail::<LblStats>().expect("lbl stats");
     assert!(!st.directed && !st.flux);
@@ -437,7 +432,7 @@ fn forward_peak_brings_lbl_closer_to_path_across_g_and_thickness() {
     for dir in ["[-0.3, -0.5, -0.8]", "[0.3, -0.4, 0.85]"] {
         for sigma_t in ["1.0", "20.0"] {
             for g in ["-0.6", "0.6", "0.9"] {
-                let s = scene(&FORWARD_CUBE.replace("SIGMA_T", sigma_t).replace("G", g).replace("DIR", dir));
+                let s = forward_cube(sigma_t, g, dir);
                 let reference = render(&gpu, &s, PATH, &[]);
                 let new = render(&gpu, &s, LBL, &small);
                 let mut old_sets = small.to_vec();
