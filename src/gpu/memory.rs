@@ -243,14 +243,21 @@ impl Gpu {
 
     /// Read the whole buffer back to the host, after all submitted work has finished.
     pub fn read_buffer(&self, b: &Buffer) -> Result<Vec<u8>> {
+        self.read_buffer_prefix(b, b.size())
+    }
+
+    /// Read the first `bytes` bytes of a buffer (at most its size) back to the host, after all
+    /// submitted work has finished.
+    pub fn read_buffer_prefix(&self, b: &Buffer, bytes: u64) -> Result<Vec<u8>> {
+        let n = bytes.min(b.size());
         self.wait_idle_roles()?;
         if let Some(p) = b.mapped() {
-            let mut out = vec![0u8; b.size() as usize];
+            let mut out = vec![0u8; n as usize];
             unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
             return Ok(out);
         }
-        let (stage, p) = self.staging("staging readback", b.size(), MemoryLocation::GpuToCpu)?;
-        let (src, dst, n) = (b.raw(), stage.raw(), b.size());
+        let (stage, p) = self.staging("staging readback", n, MemoryLocation::GpuToCpu)?;
+        let (src, dst) = (b.raw(), stage.raw());
         self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
             d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: n }])
         })?;

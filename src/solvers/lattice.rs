@@ -445,15 +445,18 @@ impl Diffuser {
         };
         // The energies only: the probes never look at the flux after them.
         let irr = self.irr.clone();
+        let energies = |gpu: &Gpu| -> Result<Vec<f32>, SolverError> {
+            Ok(bytemuck::pod_collect_to_vec(&gpu.read_buffer_prefix(&irr, (nch * v * 4) as u64)?))
+        };
         let chunk = 8 * self.block_steps;
-        let mut prev = probe_sum(&read_f32(gpu, &irr)?);
+        let mut prev = probe_sum(&energies(gpu)?);
         let mut change = f64::INFINITY;
         while self.iterations < max_iters {
             let before = self.iterations;
             let passes = self.passes(chunk.min(max_iters - self.iterations));
             let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
             gpu.wait(point)?;
-            let now = probe_sum(&read_f32(gpu, &irr)?);
+            let now = probe_sum(&energies(gpu)?);
             let done = (self.iterations - before) as f64;
             // Largest relative change per iteration over the probes that hold energy.
             change = now
