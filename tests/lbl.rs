@@ -137,6 +137,7 @@ fn diffuse_impulse(
         escape: scatterlab::solvers::lattice::Escape::None,
         directed: false,
         flux: false,
+        extrapolate: false,
     };
     scatterlab::solvers::lattice::diffuse_impulse(gpu, &p, source, iterations)
 }
@@ -371,6 +372,11 @@ fn lbl_beats_single_against_path_at_albedo_09() {
 /// perspective camera in front: the forward-peak cases of issue 11 (the shared base scene,
 /// edited).
 fn forward_cube(sigma_t: &str, g: &str, dir: &str) -> scatterlab::scene::Scene {
+    cube(sigma_t, "0.95", g, dir)
+}
+
+/// [`forward_cube`] with any albedo.
+fn cube(sigma_t: &str, albedo: &str, g: &str, dir: &str) -> scatterlab::scene::Scene {
     scene(
         &SceneText::base()
             .set("render.width", "24")
@@ -380,7 +386,7 @@ fn forward_cube(sigma_t: &str, g: &str, dir: &str) -> scatterlab::scene::Scene {
             .set("camera.origin", "[0.6, 0.8, 4.0]")
             .set("camera.fov", "24.0")
             .set("medium.sigma_t", sigma_t)
-            .set("medium.albedo", "0.95")
+            .set("medium.albedo", albedo)
             .set("medium.g", g)
             .set("light.kind", "\"directional\"")
             .replace_line("light.position", &format!("direction = {dir}"))
@@ -451,5 +457,62 @@ fn forward_peak_brings_lbl_closer_to_path_across_g_and_thickness() {
     let (mean_new, mean_old) = (sum_new / n as f64, sum_old / n as f64);
     eprintln!("mean |ln energy ratio|: forward-peak {mean_new:.3}, isotropic {mean_old:.3}");
     assert!(mean_new < 0.5 * mean_old, "forward peak {mean_new} vs isotropic {mean_old}");
+    assert_clean(&gpu);
+}
+
+/// The tail extrapolation (lbl.extrapolate, the default) against the same lattice converged
+/// plainly to 1e-7 per iteration, across optical thickness (1 to 40 over the cube), albedo
+/// (0 to 0.99) and g (-0.9 to 0.9): the image within relL2 1e-3 and its energy not above the
+/// converged one's (the tail stands for energy still in flight, never more), in no more
+/// iterations than the plain criterion at the same tolerance per case and a quarter fewer in
+/// all (measured: 928 -> 608, both stops 5e-5 from the converged image summed over the cases).
+/// At albedo 0 nothing moves and nothing is extrapolated.
+#[test]
+fn extrapolated_tail_matches_the_converged_lattice_in_fewer_iterations() {
+    let gpu = gpu();
+    let small = [("lbl.grid", "16"), ("lbl.rays", "4096")];
+    let (mut err_ext, mut err_plain) = (0.0f64, 0.0f64);
+    let (mut it_ext, mut it_plain) = (0u32, 0u32);
+    let cases = [
+        ("1.0", "0.5", "0.0"),
+        ("5.0", "0.9", "-0.9"),
+        ("20.0", "0.95", "0.0"),
+        ("20.0", "0.99", "0.9"),
+        ("40.0", "0.99", "0.0"),
+        ("5.0", "0.0", "0.0"),
+    ];
+    for (sigma_t, albedo, g) in cases {
+        let s = cube(sigma_t, albedo, g, "[0.3, -0.4, 0.85]");
+        let mut tight = small.to_vec();
+        tight.extend([("lbl.extrapolate", "false"), ("lbl.tol", "1e-7"), ("lbl.max_iters", "100000")]);
+        let reference = render(&gpu, &s, LBL, &tight);
+        let mut plain_sets = small.to_vec();
+        plain_sets.push(("lbl.extrapolate", "false"));
+        let plain = render(&gpu, &s, LBL, &plain_sets);
+        let ext = render(&gpu, &s, LBL, &small);
+        let [sr, sp, se] =
+            [&reference, &plain, &ext].map(|r| r.report.detail::<LblStats>().expect("lbl stats").clone());
+        assert!(sr.converged && sp.converged && se.converged, "{sigma_t} {albedo} {g}: every run converges");
+        let me = scatterlab::output::compare(&ext.image, &reference.image).unwrap();
+        let mp = scatterlab::output::compare(&plain.image, &reference.image).unwrap();
+        eprintln!(
+            "sigma_t {sigma_t} albedo {albedo} g {g}: iterations converged {} plain {} extrapolated {} (tail {:?}); \
+             relL2 to converged plain {:.2e} extrapolated {:.2e}, energy {:.5}",
+            sr.iterations, sp.iterations, se.iterations, se.tail, mp.rel_l2, me.rel_l2, me.energy_ratio
+        );
+        assert!(me.rel_l2 < 1e-3, "{sigma_t} {albedo} {g}: extrapolated relL2 {}", me.rel_l2);
+        assert!(me.energy_ratio < 1.0 + 1e-4, "{sigma_t} {albedo} {g}: extrapolated energy {}", me.energy_ratio);
+        assert!(se.iterations <= sp.iterations, "{sigma_t} {albedo} {g}: {} > {}", se.iterations, sp.iterations);
+        if albedo == "0.0" {
+            assert!(se.tail.is_none() && me.rel_l2 == 0.0, "albedo 0: nothing to extrapolate");
+        }
+        assert!(se.energy.imbalance() < 1e-4, "the tally still balances: {:?}", se.energy);
+        err_ext += me.rel_l2;
+        err_plain += mp.rel_l2;
+        it_ext += se.iterations;
+        it_plain += sp.iterations;
+    }
+    eprintln!("summed relL2 plain {err_plain:.2e} extrapolated {err_ext:.2e}; iterations {it_plain} -> {it_ext}");
+    assert!(4 * it_ext < 3 * it_plain, "iterations {it_plain} -> {it_ext}");
     assert_clean(&gpu);
 }

@@ -32,6 +32,10 @@ layout(std430, binding = 2) writeonly buffer StateOut { float fout[]; };
 layout(std430, binding = 3) buffer Irradiance { float irr[]; };
 // Per workgroup and channel, Kahan-compensated running sums: absorbed (sum, comp), leaked (sum, comp).
 layout(std430, binding = 4) buffer Tally { vec4 tally[]; };
+// With pc.snapshot: the time-integrated field before this dispatch adds to it (same layout as
+// Irradiance), so the host can take the increment over a chunk of steps for the tail
+// extrapolation (src/solvers/lattice.rs, Diffuser::iterate).
+layout(std430, binding = 5) writeonly buffer Snapshot { float snap[]; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;          // lattice voxels xyz, w = number of voxels V
@@ -40,7 +44,7 @@ layout(push_constant) uniform Push {
     uint inner_steps;
     uint escape;         // first-flight escape weights (D3Q6): 0 none, 1 at the box's faces, 2 also at zero density
     uint flux;           // 1: integrate the flux too
-    uint pad2;
+    uint snapshot;       // 1: copy the field to Snapshot before adding this dispatch's part
 } pc;
 
 shared float sh_out[LINKS * NCH * B * B * B];
@@ -181,9 +185,17 @@ void main() {
                 uint k = (i - 1u) * 3u + c;
                 fout[(i * NCH + c) * V + v] = stays ? out_last[k] : out_face[k];
             }
-            irr[c * V + v] += irr_add[c];
-            if (pc.flux != 0u)
-                for (uint a = 0u; a < 3u; ++a) irr[(NCH + 3u * c + a) * V + v] += flux_add[c][a];
+            float e = irr[c * V + v];
+            if (pc.snapshot != 0u) snap[c * V + v] = e;
+            irr[c * V + v] = e + irr_add[c];
+            if (pc.flux != 0u) {
+                for (uint a = 0u; a < 3u; ++a) {
+                    uint k = (NCH + 3u * c + a) * V + v;
+                    float f = irr[k];
+                    if (pc.snapshot != 0u) snap[k] = f;
+                    irr[k] = f + flux_add[c][a];
+                }
+            }
         }
     }
 

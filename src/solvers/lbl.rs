@@ -74,9 +74,17 @@ impl Solver for Lbl {
                 "tol",
                 "1e-4",
                 Range::open_unit(),
-                "convergence: largest relative change per iteration at the probe voxels",
+                "convergence: largest relative change per iteration at the probe voxels (of the extrapolated field \
+                 with lbl.extrapolate)",
             ),
             Knob::fixed("max_iters", "20000", Range::int(1, 1 << 26), "lattice iterations at most"),
+            Knob::fixed(
+                "extrapolate",
+                "true",
+                Range::Bool,
+                "add the iteration's geometric tail (the last increments times r / (1 - r), r their decay) and test \
+                 convergence on the extrapolated field (docs/lbl.md); false: stop on the plain field's change",
+            ),
             Knob::fixed(
                 "deterministic",
                 "false",
@@ -234,7 +242,11 @@ impl Solver for Lbl {
             l.rays,
             l.rounds,
             l.iterations,
-            if l.converged { "converged" } else { "NOT converged" }
+            match (l.converged, l.tail) {
+                (false, _) => "NOT converged".to_string(),
+                (true, None) => "converged".to_string(),
+                (true, Some(t)) => format!("converged; tail extrapolated: {:.1}% of the fluence", 100.0 * t.share),
+            }
         )]
     }
 }
@@ -295,6 +307,8 @@ pub struct LblSettings {
     pub iters_per_round: u32,
     pub tol: f32,
     pub max_iters: u32,
+    /// Extrapolate the lattice iteration's geometric tail (`Diffuser::iterate`).
+    pub extrapolate: bool,
     pub deterministic: bool,
     pub schedule: Schedule,
     pub view: ViewSettings,
@@ -331,6 +345,7 @@ impl LblSettings {
             iters_per_round: k.get("iters_per_round")?,
             tol: k.get("tol")?,
             max_iters: k.get("max_iters")?,
+            extrapolate: k.get("extrapolate")?,
             deterministic: k.get("deterministic")?,
             schedule: k.get("schedule")?,
             view: ViewSettings::parse(k, "view_", scene)?,
@@ -400,6 +415,10 @@ pub struct LblStats {
     pub iterations: u32,
     pub converged: bool,
     pub final_change: f64,
+    /// The extrapolated tail of the iteration (`lbl.extrapolate`), none where the plain
+    /// criterion stopped it. The energy book is the lattice's own tally: its `remaining` is
+    /// the energy in flight that the tail stands for.
+    pub tail: Option<lattice::Tail>,
     pub energy: EnergyBook,
     pub schedule: Schedule,
     pub deterministic: bool,
@@ -445,6 +464,7 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         escape: set.escape,
         directed: set.directed && m.g != 0.0,
         flux: set.flux != view::FluxUse::None && m.g != 0.0,
+        extrapolate: set.extrapolate,
     }
 }
 
@@ -529,7 +549,10 @@ pub fn run_lattice(
 
     // Iterate to convergence: relative change of the time-integrated energy at sparse probes.
     let density = lattice::read_f32(gpu, &marcher.density)?;
-    let (converged, change) = lattice.iterate(gpu, &density, set.tol, set.max_iters)?;
+    if warm {
+        lattice.plain();
+    }
+    let it = lattice.iterate(gpu, &density, set.tol, set.max_iters)?;
     gpu.wait_idle_roles()?;
     progress(rounds as u64 + 1, rounds as u64 + 1);
 
@@ -555,8 +578,9 @@ pub fn run_lattice(
             rays: marcher.ray_count,
             rounds,
             iterations: lattice.iterations,
-            converged,
-            final_change: change,
+            converged: it.converged,
+            final_change: it.change,
+            tail: it.tail,
             energy: book,
             schedule: set.schedule,
             deterministic: fixed,
@@ -677,6 +701,7 @@ fn cascade(
         let mut d = Diffuser::new(gpu, dens_buf, &params)?;
         match &guess {
             Some((g, from, from_lambda)) => {
+                d.plain();
                 let p = prolong(g, *from, *from_lambda, dims, lambda, &dens, fine);
                 seed(gpu, &mut d, &p.links(nch, dens.len()), None, Some(&dep))?;
             }
