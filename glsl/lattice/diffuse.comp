@@ -47,8 +47,8 @@ layout(push_constant) uniform Push {
     uint snapshot;       // 1: copy the field to Snapshot before adding this dispatch's part
 } pc;
 
-shared float sh_out[LINKS * NCH * B * B * B];
-shared float sh_red[2u * NCH * B * B * B];
+shared float sh_out[LINKS * B * B * B];
+shared float sh_red[2u * B * B * B];
 
 void kahan_add(inout float s, inout float comp, float x) {
     float y = x - comp;
@@ -126,16 +126,18 @@ void main() {
         }
     }
 
-    float out_face[18 * 3];   // per link and channel: summed over steps if it crosses the block face
-    float out_last[18 * 3];   // the last step's out, for links staying in the block
-    for (uint k = 0u; k < 54u; ++k) { out_face[k] = 0.0; out_last[k] = 0.0; }
-    float absorbed[3] = float[3](0.0, 0.0, 0.0);
-    float leaked[3] = float[3](0.0, 0.0, 0.0);
-    float irr_add[3] = float[3](0.0, 0.0, 0.0);
-    vec3 flux_add[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
+    // The channels never exchange energy, so each runs all its inner steps in turn through one
+    // channel's shared links: shared memory is (LINKS + 2) B^3 floats whatever NCH is, which
+    // lets B = 8 fit where it would not with every channel at once.
+    uint wg = gl_WorkGroupID.x + gl_NumWorkGroups.x * (gl_WorkGroupID.y + gl_NumWorkGroups.y * gl_WorkGroupID.z);
+    for (uint c = 0u; c < NCH; ++c) {
+        float out_face[18];   // per link: summed over steps if it crosses the block face
+        float out_last[18];   // the last step's out, for links staying in the block
+        for (uint k = 0u; k < 18u; ++k) { out_face[k] = 0.0; out_last[k] = 0.0; }
+        float absorbed = 0.0, leaked = 0.0, irr_add = 0.0;
+        vec3 flux_add = vec3(0.0);
 
-    for (uint s = 0u; s < pc.inner_steps; ++s) {
-        for (uint c = 0u; c < NCH; ++c) {
+        for (uint s = 0u; s < pc.inner_steps; ++s) {
             float in_[18];
             float S = 0.0;
             for (uint i = 1u; i <= LINKS; ++i) {
@@ -149,76 +151,70 @@ void main() {
                     if (inside && lattice_inside(q, n)) x = fin[(i * NCH + c) * V + lattice_index(q, n)];
                 } else if (in_block) {
                     uint qi = uint(ql.x) + B * (uint(ql.y) + B * uint(ql.z));
-                    x = sh_out[((i - 1u) * NCH + c) * BB + qi];
+                    x = sh_out[(i - 1u) * BB + qi];
                 }
                 in_[i - 1u] = x;
                 S += x;
-                irr_add[c] += x * link_length(i);
-                if (pc.flux != 0u) flux_add[c] += x * vec3(LATTICE_DIR[i]);
+                irr_add += x * link_length(i);
+                if (pc.flux != 0u) flux_add += x * vec3(LATTICE_DIR[i]);
             }
             float r = (s == 0u && inside) ? fin[c * V + v] : 0.0;
-            absorbed[c] += (kt[c] - ks[c]) * S;
+            absorbed += (kt[c] - ks[c]) * S;
             for (uint i = 1u; i <= LINKS; ++i) {
                 float w = wgt[(i - 1u) * 3u + c];
                 float o = inside ? (1.0 - kt[c]) * in_[i - 1u] + (ks[c] * S + r) * w : 0.0;
                 ivec3 ql = local + LATTICE_DIR[i];
                 bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
-                uint k = (i - 1u) * 3u + c;
-                if (stays) out_last[k] = o; else out_face[k] += o;
-                if (inside && !lattice_inside(p + LATTICE_DIR[i], n)) leaked[c] += o;
+                if (stays) out_last[i - 1u] = o; else out_face[i - 1u] += o;
+                if (inside && !lattice_inside(p + LATTICE_DIR[i], n)) leaked += o;
             }
+            // All of this step's outs must be visible before anyone reads them, and all reads
+            // of the previous step's outs (or the previous channel's) done before they are
+            // overwritten.
+            barrier();
+            for (uint i = 1u; i <= LINKS; ++i) sh_out[(i - 1u) * BB + li] = out_last[i - 1u];
+            barrier();
         }
-        // All of this step's outs must be visible before anyone reads them, and all reads of
-        // the previous step's outs must be done before they are overwritten.
-        barrier();
-        for (uint c = 0u; c < NCH; ++c)
-            for (uint i = 1u; i <= LINKS; ++i) sh_out[((i - 1u) * NCH + c) * BB + li] = out_last[(i - 1u) * 3u + c];
-        barrier();
-    }
 
-    if (inside) {
-        for (uint c = 0u; c < NCH; ++c) {
+        if (inside) {
             fout[c * V + v] = 0.0;   // the rest was emitted at the first step
             for (uint i = 1u; i <= LINKS; ++i) {
                 ivec3 ql = local + LATTICE_DIR[i];
                 bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
-                uint k = (i - 1u) * 3u + c;
-                fout[(i * NCH + c) * V + v] = stays ? out_last[k] : out_face[k];
+                fout[(i * NCH + c) * V + v] = stays ? out_last[i - 1u] : out_face[i - 1u];
             }
             float e = irr[c * V + v];
             if (pc.snapshot != 0u) snap[c * V + v] = e;
-            irr[c * V + v] = e + irr_add[c];
+            irr[c * V + v] = e + irr_add;
             if (pc.flux != 0u) {
                 for (uint a = 0u; a < 3u; ++a) {
                     uint k = (NCH + 3u * c + a) * V + v;
                     float f = irr[k];
                     if (pc.snapshot != 0u) snap[k] = f;
-                    irr[k] = f + flux_add[c][a];
+                    irr[k] = f + flux_add[a];
                 }
             }
         }
-    }
 
-    // Workgroup sums of absorbed and leaked energy (tree reduction), kept per workgroup so the
-    // totals are deterministic; the host adds the workgroups up in double precision.
-    for (uint c = 0u; c < NCH; ++c) {
-        sh_red[c * BB + li] = absorbed[c];
-        sh_red[(NCH + c) * BB + li] = leaked[c];
-    }
-    barrier();
-    for (uint stride = BB / 2u; stride > 0u; stride >>= 1u) {
-        if (li < stride) {
-            for (uint k = 0u; k < 2u * NCH; ++k) sh_red[k * BB + li] += sh_red[k * BB + li + stride];
-        }
+        // Workgroup sums of absorbed and leaked energy (tree reduction), kept per workgroup so
+        // the totals are deterministic; the host adds the workgroups up in double precision.
+        sh_red[li] = absorbed;
+        sh_red[BB + li] = leaked;
         barrier();
-    }
-    if (li == 0u) {
-        uint wg = gl_WorkGroupID.x + gl_NumWorkGroups.x * (gl_WorkGroupID.y + gl_NumWorkGroups.y * gl_WorkGroupID.z);
-        for (uint c = 0u; c < NCH; ++c) {
+        for (uint stride = BB / 2u; stride > 0u; stride >>= 1u) {
+            if (li < stride) {
+                sh_red[li] += sh_red[li + stride];
+                sh_red[BB + li] += sh_red[BB + li + stride];
+            }
+            barrier();
+        }
+        if (li == 0u) {
             vec4 t = tally[wg * NCH + c];
-            kahan_add(t.x, t.y, sh_red[c * BB]);
-            kahan_add(t.z, t.w, sh_red[(NCH + c) * BB]);
+            kahan_add(t.x, t.y, sh_red[0]);
+            kahan_add(t.z, t.w, sh_red[BB]);
             tally[wg * NCH + c] = t;
         }
+        // sh_red is read by lane 0 before the next channel's first write to it.
+        barrier();
     }
 }

@@ -269,7 +269,9 @@ impl EnergyBook {
 /// `nch` channels of `lattice`; why not otherwise.
 pub fn check_block(info: &DeviceInfo, lattice: Lattice, nch: u32, block: u32) -> Result<(), String> {
     let block_voxels = (block as u64).pow(3);
-    let shared_bytes = (lattice.links() as u64 + 2) * nch as u64 * block_voxels * 4;
+    // One channel's links and two reduction values per voxel: the kernel runs the channels in
+    // turn through the same shared memory.
+    let shared_bytes = (lattice.links() as u64 + 2) * block_voxels * 4;
     if shared_bytes > info.max_compute_shared_memory as u64
         || block_voxels > info.max_compute_workgroup_invocations as u64
     {
