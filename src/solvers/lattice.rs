@@ -520,9 +520,10 @@ impl Diffuser {
         let energies = |gpu: &Gpu| -> Result<Vec<f32>, SolverError> {
             Ok(bytemuck::pod_collect_to_vec(&gpu.read_buffer_prefix(&irr, (nch * v * 4) as u64)?))
         };
-        // Plain: a check every 8 dispatches. Extrapolated: every 2, since the criterion can stop
-        // as soon as the extrapolation settles (each check reads the energies back).
-        let chunk = if self.extrapolate { 2 } else { 8 } * self.block_steps;
+        // Plain: a check every 8 dispatches. Extrapolated: every dispatch that makes up about 8
+        // steps, since the criterion can stop as soon as the extrapolation settles (each check
+        // reads the energies back).
+        let chunk = if self.extrapolate { 8u32.div_ceil(self.block_steps).max(1) } else { 8 } * self.block_steps;
         let mut prev = energies(gpu)?;
         // The previous chunk's increment per channel and length, and the previous extrapolation.
         let mut prev_inc: Option<([f64; 3], u32)> = None;

@@ -52,11 +52,12 @@ impl Solver for Lbl {
                 Range::Choice(&["d3q6", "d3q18"]),
                 "d3q6: 6 axial links (thesis 4.5); d3q18: Geist's 18 links (section 2.2.3)",
             ),
-            Knob::fixed(
+            Knob::derived(
                 "block",
-                "4",
+                "8 where the device's shared memory and workgroup size allow it, else 4, else 2",
                 Range::Choice(&["2", "4", "8"]),
-                "block edge in voxels (a power of two for the workgroup reduction)",
+                "block edge in voxels (a power of two for the workgroup reduction); d3q6 at 8 needs 16 KiB of shared \
+                 memory and 512 invocations, d3q18 40 KiB",
             ),
             Knob::derived(
                 "block_steps",
@@ -304,6 +305,10 @@ pub struct LblSettings {
     pub lattice: Lattice,
     pub block: u32,
     pub block_steps: u32,
+    /// `block` (and `block_steps` with it) were derived: the lattice steps down to a block the
+    /// device can run.
+    pub block_auto: bool,
+    pub block_steps_auto: bool,
     pub iters_per_round: u32,
     pub tol: f32,
     pub max_iters: u32,
@@ -330,7 +335,7 @@ impl LblSettings {
     pub fn parse(k: &Knobs, scene: &Scene) -> Result<LblSettings, SolverError> {
         let grid: u32 = k.get("grid")?;
         let geom = LatticeGeom::new(scene, grid);
-        let block: u32 = k.get("block")?;
+        let block: u32 = k.get_or("block", 8)?;
         // `auto` models the forward peak (lbl.inject, lbl.flux) unless a point light is inside
         // the medium: there the radially injected first moment streams along the lattice's
         // axes and the "+" around the light grows (point-light-in-cloud at 64^2: relL2 0.36
@@ -342,6 +347,8 @@ impl LblSettings {
             lattice: k.get("lattice")?,
             block,
             block_steps: k.get_or("block_steps", block)?,
+            block_auto: !k.is_set("block"),
+            block_steps_auto: !k.is_set("block_steps"),
             iters_per_round: k.get("iters_per_round")?,
             tol: k.get("tol")?,
             max_iters: k.get("max_iters")?,
@@ -409,6 +416,10 @@ impl LblSettings {
 pub struct LblStats {
     pub lattice: LatticeGeom,
     pub lattice_kind: Lattice,
+    /// Block edge and steps per dispatch the lattice ran with (a derived block may have
+    /// stepped down to fit the device).
+    pub block: u32,
+    pub block_steps: u32,
     pub channels: u32,
     pub rays: u32,
     pub rounds: u32,
@@ -491,6 +502,16 @@ pub fn run_lattice(
             ),
         });
     }
+    // A derived block steps down (8, 4, 2) to what this device's shared memory and workgroup
+    // size allow; one the user set is checked as it is.
+    let mut set = set.clone();
+    while set.block_auto && set.block > 2 && check_block(&info, set.lattice, nch, set.block).is_err() {
+        set.block /= 2;
+        if set.block_steps_auto {
+            set.block_steps = set.block;
+        }
+    }
+    let set = &set;
     check_block(&info, set.lattice, nch, set.block)
         .map_err(|reason| SolverError::Setting { key: "lbl.block".into(), reason })?;
     // Float atomics are the fast path where the device has them; fixed point is deterministic.
@@ -574,6 +595,8 @@ pub fn run_lattice(
         stats: LblStats {
             lattice: geom,
             lattice_kind: set.lattice,
+            block: set.block,
+            block_steps: set.block_steps,
             channels: nch,
             rays: marcher.ray_count,
             rounds,
