@@ -1,8 +1,9 @@
 #version 460
 // path/trace: the ground truth. A volumetric path tracer with delta tracking against a
 // majorant (analytic for constant/sphere media, a coarse majorant grid for grids), next-event
-// estimation with ratio tracking toward every light, a uniformly sampled (importance-sampled
-// for a constant environment) environment combined with phase sampling by MIS, HG sampling,
+// estimation toward every light (shadow transmittance by ratio tracking; in closed form in
+// constant media), a uniformly sampled (importance-sampled for a constant environment)
+// environment combined with phase sampling by MIS, HG sampling,
 // and unbiased Russian roulette. Chromatic media use spectral tracking (Kutz et al. 2017,
 // "Spectral and decomposition tracking", sec. 5) with absorption folded into the weights,
 // so no channel is shortcut. One invocation = one pixel. The kernel is resumable (budget.glsl):
