@@ -56,10 +56,17 @@ bool trk_paused = false;
 // when a paused tracker is waiting (trk_resume), resume it: the caller reaches the same call
 // with the same ray, so the parts of the tracker that follow from the ray (segments_begin's
 // steps) are recomputed identically and only its progress is loaded.
+void track_start_on(vec3 p, vec3 w, vec2 iv);
 void track_start(vec3 p, vec3 w, float t_far, bool clip) {
     vec2 iv = medium_interval(p, w);
     iv.x = max(iv.x, 0.0);
     if (clip) iv.y = min(iv.y, t_far);
+    track_start_on(p, w, iv);
+}
+
+// track_start over an interval [iv.x, iv.y] of the ray the caller has already found (the
+// medium's, from t >= 0): saves the caller's second ray-medium intersection.
+void track_start_on(vec3 p, vec3 w, vec2 iv) {
     trk.s = segments_begin(p, w, iv.x, iv.y);
     trk.t = 0.0;
     trk.t1 = 0.0;

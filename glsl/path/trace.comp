@@ -222,7 +222,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         ev_step = EV_FLIGHT;
     }
     if (ev_step == EV_FLIGHT) {
-        track_start(o, d, INF, false);
+        track_start_on(o, d, seg);
         float t_hit;
         int r = scatter_run(beta, rng, t_hit);
         if (r == FLIGHT_PAUSED) return EVENT_PAUSED;
