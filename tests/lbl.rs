@@ -516,3 +516,26 @@ fn extrapolated_tail_matches_the_converged_lattice_in_fewer_iterations() {
     assert!(4 * it_ext < 3 * it_plain, "iterations {it_plain} -> {it_ext}");
     assert_clean(&gpu);
 }
+
+/// `lbl.block` derives the largest block (8, 4, 2) this device's shared memory and workgroup
+/// size allow for the lattice, with as many steps per dispatch, and the stats say which ran
+/// (lavapipe, 32 KiB: d3q6 at 8, d3q18 at 4); a block the user sets is checked as it is, and
+/// refused naming the knob when the device cannot run it.
+#[test]
+fn derived_block_is_the_largest_the_device_runs() {
+    use scatterlab::solvers::lattice::check_block;
+    let gpu = gpu();
+    let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
+    for kind in [Lattice::D3q6, Lattice::D3q18] {
+        let out = render(&gpu, &s, LBL, &with(&[("lbl.lattice", kind.name()), ("lbl.grid", "16")]));
+        let st = out.report.detail::<LblStats>().expect("lbl stats");
+        let want = [8, 4, 2].into_iter().find(|b| check_block(gpu.info(), kind, st.channels, *b).is_ok());
+        assert_eq!(Some((st.block, st.block_steps)), want.map(|b| (b, b)), "{kind:?}");
+        if check_block(gpu.info(), kind, st.channels, 8).is_err() {
+            let sets = with(&[("lbl.lattice", kind.name()), ("lbl.grid", "16"), ("lbl.block", "8")]);
+            let err = crate::common::try_render(&gpu, &s, LBL, &sets, false).err().expect("block 8 refused");
+            assert!(err.to_string().contains("lbl.block"), "{err}");
+        }
+    }
+    assert_clean(&gpu);
+}
