@@ -456,9 +456,10 @@ impl Diffuser {
         passes
     }
 
-    /// Run to convergence, checked every `8 block_steps` iterations at sparse probe voxels
-    /// (every `max(4, dims/8)`-th voxel where `density` is > 0, or every such voxel when none
-    /// falls on the sparse set), or until `max_iters` iterations in all.
+    /// Run to convergence, checked at sparse probe voxels (every `max(4, dims/8)`-th voxel
+    /// where `density` is > 0, or every such voxel when none falls on the sparse set) every 8
+    /// dispatches (plain) or every dispatch that makes up about 8 steps (extrapolated), or
+    /// until `max_iters` iterations in all.
     ///
     /// Plain: converged when the largest relative change per iteration of the time-integrated
     /// field F at the probes falls under `tol`. That stops with about tol / (1 - rho) of F
@@ -494,10 +495,8 @@ impl Diffuser {
             probes = (0..v).filter(|i| density[*i] > 0.0).collect();
         }
         let nch = self.nch as usize;
-        // Per probe, summed over channels: the field, and the field extrapolated by q[c].
-        let probe_sum = |irr: &[f32]| -> Vec<f64> {
-            probes.iter().map(|p| (0..nch).map(|c| irr[c * v + p] as f64).sum()).collect()
-        };
+        // Per probe, summed over channels: the field extrapolated by q[c] from its value
+        // `before` (with q = 0, the field itself).
         let probe_extrapolated = |irr: &[f32], before: &[f32], q: &[f64; 3]| -> Vec<f64> {
             probes
                 .iter()
@@ -511,6 +510,7 @@ impl Diffuser {
                 })
                 .collect()
         };
+        let probe_sum = |irr: &[f32]| probe_extrapolated(irr, irr, &[0.0; 3]);
         // Largest relative change per iteration over the probes that hold energy.
         let largest_change = |now: &[f64], prev: &[f64], done: f64| -> f64 {
             now.iter().zip(prev).filter(|(n, _)| **n > 0.0).map(|(n, p)| (n - p).abs() / n / done).fold(0.0, f64::max)
@@ -525,6 +525,7 @@ impl Diffuser {
         // reads the energies back).
         let chunk = if self.extrapolate { 8u32.div_ceil(self.block_steps).max(1) } else { 8 } * self.block_steps;
         let mut prev = energies(gpu)?;
+        let mut prev_probes = probe_sum(&prev);
         // The previous chunk's increment per channel and length, and the previous extrapolation.
         let mut prev_inc: Option<([f64; 3], u32)> = None;
         let mut prev_x: Option<Vec<f64>> = None;
@@ -537,7 +538,8 @@ impl Diffuser {
             let now = energies(gpu)?;
             let n = self.iterations - before;
             let done = n as f64;
-            change = largest_change(&probe_sum(&now), &probe_sum(&prev), done);
+            let now_probes = probe_sum(&now);
+            change = largest_change(&now_probes, &prev_probes, done);
             if self.extrapolate {
                 let mut inc = [0f64; 3];
                 for (c, total) in inc.iter_mut().enumerate().take(nch) {
@@ -577,6 +579,7 @@ impl Diffuser {
                 }
             }
             prev = now;
+            prev_probes = now_probes;
             if change < tol as f64 {
                 return Ok(Iterated { converged: true, change, tail: None });
             }
@@ -589,7 +592,7 @@ impl Diffuser {
     fn extrapolate_tail(&self, gpu: &Gpu, q: [f64; 3]) -> Result<f64, SolverError> {
         let mut field = read_f32(gpu, &self.irr)?;
         let snap: Vec<f32> = bytemuck::pod_collect_to_vec(&gpu.read_buffer_prefix(&self.snap, self.irr.size())?);
-        let v = (self.irr.size() / 4) as usize / self.nch as usize / if self.push.flux != 0 { 4 } else { 1 };
+        let v: usize = self.dims.iter().map(|d| *d as usize).product();
         let nch = self.nch as usize;
         let (mut added, mut total) = (0f64, 0f64);
         for (k, (f, s)) in field.iter_mut().zip(&snap).enumerate() {

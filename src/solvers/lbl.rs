@@ -6,11 +6,12 @@
 //! lattice iterations on the `diffuse` role; then `transfer(n)` (alone: it reads the history
 //! and writes the lattice) adds the round's deposits to the lattice. After the last round the
 //! lattice iterates until the relative change at sparse probe voxels falls under `tol` (of the
-//! field with its geometric tail extrapolated, `lbl.extrapolate`), and the view pass marches camera rays: exact single scattering (as `single`) plus the multiply
-//! scattered light gathered from the lattice's time-integrated field (thesis 4.6.2). The
-//! deposits are the power scattered out of the light beams (the once-scattered source); what
-//! they send straight to the camera is the single-scattering term, and the lattice carries the
-//! rest, so no energy is counted twice.
+//! field with its geometric tail extrapolated, `lbl.extrapolate`), and the view pass marches
+//! camera rays: exact single scattering (as `single`) plus the multiply scattered light
+//! gathered from the lattice's time-integrated field (thesis 4.6.2). The deposits are the
+//! power scattered out of the light beams (the once-scattered source); what they send straight
+//! to the camera is the single-scattering term, and the lattice carries the rest, so no energy
+//! is counted twice.
 //!
 //! Built from shared parts: [`super::marching`] (raymaps, marching, transfer),
 //! [`super::lattice`] (the lattice, injection, convergence), [`super::view`] (the view pass)
