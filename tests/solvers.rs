@@ -96,6 +96,84 @@ fn pure_absorber_path_matches_per_pixel_statistically() {
     assert_clean(&gpu);
 }
 
+/// Pixels no ray of which can meet the medium take all their samples at once
+/// (`pixel_misses_medium` in glsl/include/scene.glsl, a conservative cone or prism test). It
+/// must never take a pixel the medium covers: every pixel at least a quarter covered (16 x 16
+/// rays through its square, on the CPU) differs from the environment, on an off-centre sphere
+/// seen by both cameras; and the pixels it takes come out exactly the environment with zero
+/// variance.
+#[test]
+fn pixels_beside_the_medium_see_the_environment_and_no_covered_pixel_is_skipped() {
+    let gpu = gpu();
+    for camera in ["kind = \"perspective\"\nfov = 30.0", "kind = \"orthographic\"\nextent = 1.6"] {
+        let s = scene(&format!(
+            r#"
+[render]
+width = 40
+height = 32
+seed = 5
+spp = 64
+[camera]
+{camera}
+origin = [0.2, 0.1, 3.0]
+target = [0.0, 0.0, 0.0]
+[medium]
+bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+sigma_t = 4.0
+albedo = 0.5
+density = {{ kind = "sphere", center = [0.15, -0.12, 0.05], radius = 0.3 }}
+[[light]]
+kind = "environment"
+radiance = 1.5
+"#
+        ));
+        let out = render(&gpu, &s, PATH, &[]);
+        let var = out.variance.as_ref().unwrap();
+        let (right, up, forward) = s.camera.basis();
+        let (w, h) = (s.render.width, s.render.height);
+        let ortho = camera.contains("orthographic");
+        let k = if ortho { 0.8 } else { (30.0f32.to_radians() * 0.5).tan() };
+        let (mut covered_pixels, mut exact_pixels) = (0, 0);
+        for y in 0..h {
+            for x in 0..w {
+                let n = 16;
+                let mut covered = 0;
+                for sy in 0..n {
+                    for sx in 0..n {
+                        let px = x as f32 + (sx as f32 + 0.5) / n as f32;
+                        let py = y as f32 + (sy as f32 + 0.5) / n as f32;
+                        let ndc = (px / w as f32 * 2.0 - 1.0, 1.0 - py / h as f32 * 2.0);
+                        let offset = right * (ndc.0 * k) + up * (ndc.1 * k * h as f32 / w as f32);
+                        let (o, d) = if ortho {
+                            (s.camera.origin + offset, forward)
+                        } else {
+                            (s.camera.origin, (forward + offset).normalize())
+                        };
+                        if ray_sphere(o, d, glam::Vec3::new(0.15, -0.12, 0.05), 0.3).is_some_and(|(_, b)| b > 0.0) {
+                            covered += 1;
+                        }
+                    }
+                }
+                let i = ((y * w + x) * 3) as usize;
+                let (v, dv) = (out.image.data[i], var.data[i]);
+                if covered * 4 >= n * n {
+                    covered_pixels += 1;
+                    assert!(
+                        v != 1.5,
+                        "{camera}: pixel ({x}, {y}) is {covered}/256 covered but shows only the environment"
+                    );
+                } else if covered == 0 && v == 1.5 {
+                    exact_pixels += 1;
+                    assert_eq!(dv, 0.0, "{camera}: pixel ({x}, {y}) beside the medium has variance");
+                }
+            }
+        }
+        // Both kinds of pixel are there in number (the test cannot pass on an empty image).
+        assert!(covered_pixels > 100 && exact_pixels > 300, "{camera}: {covered_pixels} covered, {exact_pixels} exact");
+    }
+    assert_clean(&gpu);
+}
+
 fn furnace_scene(density: &str, sigma_t: &str, g: f32) -> String {
     format!(
         r#"

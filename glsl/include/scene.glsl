@@ -57,6 +57,41 @@ void camera_ray(vec2 px, out vec3 o, out vec3 d) {
     }
 }
 
+// Whether every camera ray through pixel `px`'s square [px, px + 1)^2 misses the medium's
+// support, conservatively (false when unsure). The support (box, and the sphere for sphere
+// density) lies in a bounding sphere: the box's circumsphere, or the density sphere where that
+// is smaller. Perspective: the pixel's rays fill the pyramid over its corners, which lies in the
+// circular cone about the centre ray whose half-angle reaches the farthest corner (the angle to
+// the axis is quasi-convex over the image plane, so its maximum is at a corner); the cone misses
+// the sphere when the axis-to-centre angle exceeds the half-angle plus the sphere's angular
+// radius. Orthographic: the rays fill a prism about the centre ray, half a pixel diagonal wide.
+// A pixel that passes sees only the environment, whatever its samples' positions.
+bool pixel_misses_medium(uvec2 px) {
+    vec3 c = 0.5 * (scene.bounds_min.xyz + scene.bounds_max.xyz);
+    float r = 0.5 * length(scene.bounds_max.xyz - scene.bounds_min.xyz);
+    if (DENSITY_KIND == DENSITY_SPHERE && scene.sphere.w < r) { c = scene.sphere.xyz; r = scene.sphere.w; }
+    r = r * 1.001 + 1e-6;   // float rounding of the rays: keep the test conservative
+    vec2 p = vec2(px);
+    vec3 o, d, oc, dc;
+    camera_ray(p + 0.5, o, dc);
+    if (scene.cam_origin.w < 0.5) {
+        vec3 v = c - o;
+        float dist = length(v);
+        if (dist <= r) return false;
+        float cos_half = 1.0;
+        for (uint i = 0u; i < 4u; i++) {
+            camera_ray(p + vec2(float(i & 1u), float(i >> 1u)), oc, d);
+            cos_half = min(cos_half, dot(d, dc));
+        }
+        float reach = acos(clamp(cos_half, -1.0, 1.0)) + asin(r / dist) + 1e-4;
+        return reach < PI && acos(clamp(dot(v, dc) / dist, -1.0, 1.0)) > reach;
+    }
+    vec3 v = c - o;
+    float dist = length(v - dc * dot(v, dc));
+    camera_ray(p, oc, d);   // a corner: the prism's half-width is the corner's offset
+    return dist > r + 1.001 * length(oc - o) + 1e-6;
+}
+
 // Interval of the ray inside the medium's support (box, and the sphere for sphere density).
 vec2 medium_interval(vec3 o, vec3 d) {
     vec2 t = ray_box(o, d, scene.bounds_min.xyz, scene.bounds_max.xyz);
