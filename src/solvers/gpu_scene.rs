@@ -152,6 +152,11 @@ pub fn majorant_grid(dims: [u32; 3], data: &[f32], m: [u32; 3]) -> Vec<f32> {
 
 /// The header and lights as bytes; pure, so tests can check the layout without a device.
 pub fn scene_block(scene: &Scene) -> (SceneHeader, Vec<GpuLight>) {
+    scene_block_with(scene, MAJORANT_CELL)
+}
+
+/// [`scene_block`] with majorant cells of `cell` voxels on an edge (`path.majorant_cell`).
+pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>) {
     let m = &scene.medium;
     let cam = &scene.camera;
     let (right, up, forward) = cam.basis();
@@ -163,8 +168,8 @@ pub fn scene_block(scene: &Scene) -> (SceneHeader, Vec<GpuLight>) {
         Density::Constant => ([0.0; 4], [1, 1, 1, 0], [1, 1, 1, 1]),
         Density::Sphere { center, radius } => (v4(*center, *radius), [1, 1, 1, 0], [1, 1, 1, 1]),
         Density::Grid(g) => {
-            let md = majorant_dims(g.dims, MAJORANT_CELL);
-            ([0.0; 4], [g.dims[0], g.dims[1], g.dims[2], 0], [md[0], md[1], md[2], MAJORANT_CELL])
+            let md = majorant_dims(g.dims, cell);
+            ([0.0; 4], [g.dims[0], g.dims[1], g.dims[2], 0], [md[0], md[1], md[2], cell])
         }
     };
     let lights: Vec<GpuLight> = scene
@@ -237,14 +242,20 @@ impl GpuScene {
     }
 
     pub fn upload(gpu: &Gpu, scene: &Scene, force_full: bool) -> Result<GpuScene, SolverError> {
-        let (header, lights) = scene_block(scene);
+        Self::upload_with(gpu, scene, force_full, MAJORANT_CELL)
+    }
+
+    /// [`GpuScene::upload`] with majorant cells of `cell` voxels on an edge (`path.majorant_cell`;
+    /// only the path kernels read the majorant).
+    pub fn upload_with(gpu: &Gpu, scene: &Scene, force_full: bool, cell: u32) -> Result<GpuScene, SolverError> {
+        let (header, lights) = scene_block_with(scene, cell);
         let mut bytes = bytemuck::bytes_of(&header).to_vec();
         bytes.extend_from_slice(bytemuck::cast_slice(&lights));
         let block = gpu.buffer("scene block", bytes.len() as u64)?;
         gpu.write_buffer(&block, 0, &bytes)?;
         let (density, majorant) = match &scene.medium.density {
             Density::Grid(g) => {
-                let md = majorant_dims(g.dims, MAJORANT_CELL);
+                let md = majorant_dims(g.dims, cell);
                 let maj = majorant_grid(g.dims, &g.data, md);
                 (
                     gpu.image3d_with("density grid", g.dims, VolumeFormat::R32F, &g.data)?,

@@ -395,6 +395,13 @@ impl Solver for Path {
             ),
             resumable::budget_knob(),
             Knob::fixed(
+                "majorant_cell",
+                "16",
+                Range::int(1, 4096),
+                "voxels on a majorant cell's edge (grid densities): smaller cells, fewer null collisions but more \
+                    cell crossings (16 measured best on llvmpipe for 64^3 clouds; docs/measurements.md)",
+            ),
+            Knob::fixed(
                 "collision_cap",
                 "1048576",
                 Range::int(1, u32::MAX as u64),
@@ -463,6 +470,7 @@ impl Solver for Path {
         let rr_threshold: f32 = k.get("rr_threshold")?;
         let lt_mode: String = k.get("light_tracing")?;
         let light_batches: u32 = k.get("light_batches")?;
+        let majorant_cell: u32 = k.get("majorant_cell")?;
         k.finish()?;
         if scene.lights.len() >= MAX_LIGHTS {
             return Err(SolverError::Unsupported(format!(
@@ -473,14 +481,15 @@ impl Solver for Path {
             )));
         }
         if let Some(g) = scene.features().grid_dims {
-            let md = gpu_scene::majorant_dims(g, gpu_scene::MAJORANT_CELL);
+            let md = gpu_scene::majorant_dims(g, majorant_cell);
             if md[1] >= MAX_MAJORANT_CELLS || md[2] >= MAX_MAJORANT_CELLS {
                 return Err(SolverError::Unsupported(format!(
-                    "path: a grid of {} x {} x {} voxels; the path kernels take at most {} voxels along y and z",
+                    "path: a grid of {} x {} x {} voxels; with majorant cells of {majorant_cell} voxels the path \
+                        kernels take at most {} voxels along y and z (raise path.majorant_cell)",
                     g[0],
                     g[1],
                     g[2],
-                    (MAX_MAJORANT_CELLS - 1) * gpu_scene::MAJORANT_CELL
+                    (MAX_MAJORANT_CELLS - 1) * majorant_cell
                 )));
             }
         }
@@ -489,7 +498,7 @@ impl Solver for Path {
         // Camera paths are needed for every light not traced from the light side.
         let camera_lights = scene.lights.len() - traced.len();
 
-        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+        let gs = GpuScene::upload_with(gpu, scene, req.force_full, majorant_cell)?;
         let seed = scene.render.seed;
         let kernels = (camera_lights > 0) as u64 + (!traced.is_empty()) as u64;
         let total = spp as u64 * kernels.max(1);
