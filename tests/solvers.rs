@@ -531,6 +531,13 @@ fn majorant_cell_changes_the_cost_not_the_answer() {
         }
     }
     assert!(runs[2].3 > runs[0].3, "one majorant for the grid should take more steps: {runs:?}");
+    // The knob's default is the cell every other user of the scene block assumes.
+    let default = render(&gpu, &s, PATH, &[]);
+    assert_eq!(
+        default.report.settings["majorant_cell"].as_u64(),
+        Some(scatterlab::solvers::gpu_scene::MAJORANT_CELL as u64),
+        "path.majorant_cell's default and gpu_scene::MAJORANT_CELL differ"
+    );
     assert_clean(&gpu);
 }
 

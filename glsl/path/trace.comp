@@ -316,10 +316,11 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     return EVENT_NEXT;
 }
 
-// A finished sample's radiance into the pixel's sums (mean and variance of the mean).
-void add_sample(uint pixel, vec3 L) {
-    accum[2u * pixel] += vec4(L, 1.0);
-    accum[2u * pixel + 1u] += vec4(L * L, 0.0);
+// n finished samples of radiance L each into the pixel's sums (mean and variance of the mean).
+// n = 1 adds L and L^2 exactly (L * 1.0 is L).
+void add_samples(uint pixel, vec3 L, float n) {
+    accum[2u * pixel] += vec4(L * n, n);
+    accum[2u * pixel + 1u] += vec4(L * L * n, 0.0);
 }
 
 void main() {
@@ -357,6 +358,9 @@ void main() {
     uint segs = 0u;
     // Only a pixel between samples can be one no ray of which meets the medium.
     bool pixel_misses = !in_flight && pixel_misses_medium(px);
+    vec3 env_seen = vec3(0.0);   // what a camera ray that misses the medium sees
+    for (uint i = 0u; i < scene.image.z; i++)
+        if (uint(scene.lights[i].pos_kind.w) == LIGHT_ENVIRONMENT) env_seen += scene.lights[i].value.rgb;
 
     while (iters < pc.budget) {
         if (!in_flight) {
@@ -367,16 +371,11 @@ void main() {
             // the pixels miss, 11% faster. The same samples, random numbers and sums as
             // advance() would give: bit-identical images.
             bool hits = false;
-            vec3 env_seen = vec3(0.0);   // what a missing camera ray sees
-            for (uint i = 0u; i < scene.image.z; i++)
-                if (uint(scene.lights[i].pos_kind.w) == LIGHT_ENVIRONMENT) env_seen += scene.lights[i].value.rgb;
             if (pixel_misses && k < pc.sample_end) {
                 // No ray through this pixel can meet the medium (a conservative test once per
                 // dispatch): its remaining samples all see env_seen, added at once. The same
                 // mean and variance as one at a time (the same sums exactly when env_seen is 0).
-                float n = float(pc.sample_end - k);
-                accum[2u * pixel] += vec4(env_seen * n, n);
-                accum[2u * pixel + 1u] += vec4(env_seen * env_seen * n, 0.0);
+                add_samples(pixel, env_seen, float(pc.sample_end - k));
                 segs += pc.sample_end - k;
                 k = pc.sample_end;
             }
@@ -387,7 +386,7 @@ void main() {
                 vec2 iv = medium_interval(o, d);
                 if (max(iv.x, 0.0) < iv.y) { hits = true; break; }
                 iters++;
-                add_sample(pixel, env_seen);
+                add_samples(pixel, env_seen, 1.0);
                 segs += 1u;
                 k++;
             }
@@ -411,7 +410,7 @@ void main() {
             // Never let a NaN/Inf leave the pass; count it with the truncations so it is reported.
             if (any(isnan(L)) || any(isinf(L))) { L = vec3(0.0); truncated = true; }
             if (truncated) trunc_count++;
-            add_sample(pixel, L);
+            add_samples(pixel, L, 1.0);
             segs += collisions - segs0 + 1u;
             segs0 = 0u;
             collisions = 0u;

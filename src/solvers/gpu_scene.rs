@@ -222,10 +222,15 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
 
 /// Bytes the scene occupies on the device (block, density volume, majorant grid).
 pub fn scene_bytes(scene: &Scene) -> u64 {
+    scene_bytes_with(scene, MAJORANT_CELL)
+}
+
+/// [`scene_bytes`] with majorant cells of `cell` voxels on an edge (`path.majorant_cell`).
+pub fn scene_bytes_with(scene: &Scene, cell: u32) -> u64 {
     let block = (std::mem::size_of::<SceneHeader>() + scene.lights.len() * std::mem::size_of::<GpuLight>()) as u64;
     match &scene.medium.density {
         Density::Grid(g) => {
-            let md = majorant_dims(g.dims, MAJORANT_CELL);
+            let md = majorant_dims(g.dims, cell);
             block
                 + g.dims.iter().map(|d| *d as u64).product::<u64>() * 4
                 + md.iter().map(|d| *d as u64).product::<u64>() * 4
@@ -269,6 +274,12 @@ impl GpuScene {
                 gpu.buffer_with("majorant (unused)", &[0f32])?,
             ),
         };
-        Ok(GpuScene { block, density, majorant, modelled: modelled(scene, force_full), bytes: scene_bytes(scene) })
+        Ok(GpuScene {
+            block,
+            density,
+            majorant,
+            modelled: modelled(scene, force_full),
+            bytes: scene_bytes_with(scene, cell),
+        })
     }
 }

@@ -583,7 +583,7 @@ impl Solver for Path {
             0
         };
         let light = if traced.is_empty() { 0 } else { pixels * LIGHT_BYTES_PER_PIXEL + stats + 16 };
-        Ok(gpu_scene::scene_bytes(scene) + camera + light)
+        Ok(gpu_scene::scene_bytes_with(scene, knobs.get("majorant_cell")?) + camera + light)
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
