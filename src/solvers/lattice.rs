@@ -47,7 +47,20 @@ struct DiffusePush {
     flux: u32,
     /// 1: copy the time-integrated field to the snapshot before adding to it.
     snapshot: u32,
+    /// Fraction of a link's carried light that drifts out per open face parallel to it
+    /// ([`CONE_DRIFT`]; 0: off).
+    drift: f32,
 }
+
+/// Mean drift toward a face of light in a D3Q6 link parallel to it, per voxel of path:
+/// E[max(0, -w_z)] over the cone of directions nearest +x (|w_x| >= |w_y|, |w_z|), for a
+/// photon at a uniform depth in the voxel. A link stands for that cone, but moves only along
+/// its axis; in a voxel with an open face this is the share of its light that the cone would
+/// carry out through the face in one step (glsl/lattice/diffuse.comp, docs/lbl.md). With the
+/// outward link (mean |w_z| 0.8312 over its cone), the six cones let (0.8312 + 4 x 0.1672) / 6 =
+/// 1/4 of an isotropic population out per voxel of path: the partial current u c / 4. The
+/// value is checked by quadrature in tests/lbl.rs.
+pub const CONE_DRIFT: f32 = 0.1672;
 
 pub const DIFFUSE: Kernel = Kernel {
     shader: shader!("lattice/diffuse"),
@@ -301,6 +314,9 @@ pub struct LatticeParams {
     pub block_steps: u32,
     /// First-flight escape weights at the medium's boundary (D3Q6; glsl/lattice/diffuse.comp).
     pub escape: Escape,
+    /// D3Q6 with `escape`: light carried parallel to an open face drifts out through it
+    /// ([`CONE_DRIFT`] per voxel of path).
+    pub drift: bool,
     /// Inject the once-scattered light with its first moment g F (glsl/lattice/inject.comp):
     /// the deposit sums carry fluxes. Only for anisotropic media.
     pub directed: bool,
@@ -392,6 +408,7 @@ impl Diffuser {
                 escape: p.escape.code(),
                 flux: p.flux as u32,
                 snapshot: 0,
+                drift: if p.drift && p.escape != Escape::None { CONE_DRIFT } else { 0.0 },
             },
             groups,
             block_steps: p.block_steps,

@@ -113,6 +113,13 @@ impl Solver for Lbl {
                  box's faces (box), also toward zero-density voxels (all: too much on voxelised curves), or nowhere",
             ),
             Knob::fixed(
+                "drift",
+                "true",
+                Range::Bool,
+                "d3q6 with lbl.escape: light a link carries parallel to an open face drifts out through it, 0.167 per \
+                 voxel of path (the mean over the link's cone of directions; docs/lbl.md); false: it stays until it scatters",
+            ),
+            Knob::fixed(
                 "inject",
                 "auto",
                 Range::Choice(&["auto", "directed", "isotropic"]),
@@ -325,6 +332,8 @@ pub struct LblSettings {
     pub cascade: u32,
     /// First-flight escape weights at the medium's boundary (D3Q6).
     pub escape: lattice::Escape,
+    /// Light carried parallel to an open face drifts out through it (`lbl.drift`, D3Q6).
+    pub drift: bool,
     /// Inject anisotropic media's once-scattered light with its first moment (`lbl.inject`).
     pub directed: bool,
     /// Anisotropic media: how the view pass scatters the lattice's flux (`lbl.flux`; `None`:
@@ -363,6 +372,7 @@ impl LblSettings {
             },
             cascade: 0,
             escape: k.get("escape")?,
+            drift: k.get("drift")?,
             directed: match k.get::<String>("inject")?.as_str() {
                 "auto" => !light_inside,
                 mode => mode == "directed",
@@ -474,6 +484,7 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         block: set.block,
         block_steps: set.block_steps,
         escape: set.escape,
+        drift: set.drift,
         directed: set.directed && m.g != 0.0,
         flux: set.flux != view::FluxUse::None && m.g != 0.0,
         extrapolate: set.extrapolate,
