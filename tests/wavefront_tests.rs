@@ -483,7 +483,9 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
     let gpu = gpu();
     let sc = cloud_with_light_inside(16);
     let run = |extra: &[(&str, &str)]| {
-        let mut sets = vec![("lbl.grid", "24"), ("lbl.rays", "8192")];
+        // The near ball (on by default for this light) leaves deposits out that the wavefront
+        // guess holds, so the warm start refuses it: compare the same lattice.
+        let mut sets = vec![("lbl.grid", "24"), ("lbl.rays", "8192"), ("lbl.near_light", "0")];
         sets.extend_from_slice(extra);
         try_render(&gpu, &sc, LBL, &sets, false).unwrap()
     };

@@ -22,6 +22,12 @@
 // direction, and the injection is always feasible. The remainder E - |m|_2 joins the rest.
 // Links that would leave the lattice go to the rest instead (its first-flight escape weights
 // send them out, and the energy book counts what leaks).
+//
+// Near a point light (pc.near.w > 0: voxels whose centre lies within pc.near.w voxels of the
+// light at pc.near.xyz) the deposits are not injected but tallied apart: lbl lumps that
+// once-scattered light into the light itself (src/solvers/lbl.rs, `lbl.near_light`), because
+// concentrated deposits emitted on six axial links stream along the axes and draw a "+"
+// through the light.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/lattice.glsl"
 
@@ -33,6 +39,7 @@ layout(constant_id = 6) const bool FIXED = false;
 layout(std430, binding = 0) buffer Accum { uint acc[]; };
 layout(std430, binding = 1) buffer State { float f[]; };     // the current lattice state
 layout(std430, binding = 2) buffer Tally { vec2 tally[]; };  // per workgroup and channel: (sum, comp)
+layout(std430, binding = 3) buffer NearTally { vec2 near_tally[]; };  // the same, for the near ball
 
 layout(push_constant) uniform Push {
     uvec4 dims;        // lattice voxels xyz, w = V
@@ -40,9 +47,18 @@ layout(push_constant) uniform Push {
     float g;           // Henyey-Greenstein asymmetry of the once-scattered light
     uint directed;     // 1: the sums carry the deposit fluxes (above)
     uint pad;
+    vec4 near;         // the near ball: centre (voxel units from the min corner), radius in voxels (0: none)
 } pc;
 
 shared float sh[3 * 64];
+shared float sh_near[3 * 64];
+
+void kahan_add(inout vec2 t, float x) {
+    float y = x - t.y;
+    float s = t.x + y;
+    t.y = (s - t.x) - y;
+    t.x = s;
+}
 
 float take(uint i, bool signed_) {
     uint a = acc[i];
@@ -57,9 +73,14 @@ void main() {
     uint V = pc.dims.w;
     uvec3 n = pc.dims.xyz;
     ivec3 p = ivec3(v % n.x, (v / n.x) % n.y, v / (n.x * n.y));
+    bool near = pc.near.w > 0.0 && distance(vec3(p) + 0.5, pc.near.xyz) <= pc.near.w;
     for (uint c = 0u; c < NCH; ++c) {
-        float e = 0.0;
-        if (v < V) {
+        float e = 0.0, e_near = 0.0;
+        if (v < V && near) {
+            e_near = take(c * V + v, false);
+            if (pc.directed != 0u)
+                for (uint a = 0u; a < 3u; ++a) take(NCH * V + (3u * c + a) * V + v, true);
+        } else if (v < V) {
             e = take(c * V + v, false);
             float rest = e;
             if (pc.directed != 0u) {
@@ -82,21 +103,28 @@ void main() {
             f[c * V + v] += rest;   // distribution 0 (rest) of channel c
         }
         sh[c * 64u + li] = e;
+        sh_near[c * 64u + li] = e_near;
     }
     barrier();
     for (uint stride = 32u; stride > 0u; stride >>= 1u) {
         if (li < stride)
-            for (uint c = 0u; c < NCH; ++c) sh[c * 64u + li] += sh[c * 64u + li + stride];
+            for (uint c = 0u; c < NCH; ++c) {
+                sh[c * 64u + li] += sh[c * 64u + li + stride];
+                sh_near[c * 64u + li] += sh_near[c * 64u + li + stride];
+            }
         barrier();
     }
     if (li == 0u) {
         for (uint c = 0u; c < NCH; ++c) {
-            vec2 t = tally[gl_WorkGroupID.x * NCH + c];
-            float y = sh[c * 64u] - t.y;
-            float s = t.x + y;
-            t.y = (s - t.x) - y;
-            t.x = s;
-            tally[gl_WorkGroupID.x * NCH + c] = t;
+            uint k = gl_WorkGroupID.x * NCH + c;
+            vec2 t = tally[k];
+            kahan_add(t, sh[c * 64u]);
+            tally[k] = t;
+            if (pc.near.w > 0.0) {
+                vec2 u = near_tally[k];
+                kahan_add(u, sh_near[c * 64u]);
+                near_tally[k] = u;
+            }
         }
     }
 }

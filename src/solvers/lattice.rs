@@ -32,6 +32,9 @@ struct InjectPush {
     g: f32,
     directed: u32,
     pad: u32,
+    /// The near ball of a point light inside the medium ([`LatticeParams::near`]): centre in
+    /// voxel units from the lattice's min corner, radius in voxels (0: none).
+    near: [f32; 4],
 }
 
 #[repr(C)]
@@ -325,6 +328,11 @@ pub struct LatticeParams {
     pub flux: bool,
     /// Extrapolate the geometric tail of the iteration ([`Diffuser::iterate`]).
     pub extrapolate: bool,
+    /// Deposits within this ball (centre in voxel units from the lattice's min corner, radius
+    /// in voxels) are not injected but tallied apart ([`Injector::near_energy`]): the once-
+    /// scattered light around a point light, which `lbl` lumps into the light
+    /// (`lbl.near_light`). None: every deposit is injected.
+    pub near: Option<([f32; 3], f32)>,
 }
 
 impl LatticeParams {
@@ -349,9 +357,10 @@ impl LatticeParams {
     pub fn irradiance_floats(&self) -> u64 {
         self.nch as u64 * self.voxels() * if self.flux { 4 } else { 1 }
     }
-    /// Device bytes of an [`Injector`]: its per-workgroup tallies.
+    /// Device bytes of an [`Injector`]: its per-workgroup tallies (injected, and near the
+    /// light).
     pub fn injector_bytes(&self) -> u64 {
-        self.voxels().div_ceil(64) * self.nch as u64 * 8
+        2 * self.voxels().div_ceil(64) * self.nch as u64 * 8
     }
 }
 
@@ -646,6 +655,7 @@ impl Diffuser {
 pub struct Injector {
     pipeline: Pipeline,
     tally: Buffer,
+    near_tally: Buffer,
     nch: u32,
     /// Fixed by the lattice's parameters: every injection pushes the same constants.
     push: InjectPush,
@@ -657,7 +667,8 @@ impl Injector {
             [(SPEC_NCH, Spec::U32(p.nch)), (SPEC_FIXED, Spec::Bool(fixed)), (SPEC_LINKS, Spec::U32(p.lattice.links()))];
         Ok(Injector {
             pipeline: gpu.pipeline(&INJECT, &spec)?,
-            tally: gpu.buffer("lattice inject tally", p.injector_bytes())?,
+            tally: gpu.buffer("lattice inject tally", p.injector_bytes() / 2)?,
+            near_tally: gpu.buffer("lattice near-light tally", p.injector_bytes() / 2)?,
             nch: p.nch,
             push: InjectPush {
                 dims: [p.dims[0], p.dims[1], p.dims[2], p.voxels() as u32],
@@ -665,6 +676,7 @@ impl Injector {
                 g: p.g,
                 directed: p.directed as u32,
                 pad: 0,
+                near: p.near.map_or([0.0; 4], |(c, r)| [c[0], c[1], c[2], r]),
             },
         })
     }
@@ -675,14 +687,24 @@ impl Injector {
             .read_write(0, sums)
             .read_write(1, lattice.state())
             .read_write(2, &self.tally)
+            .read_write(3, &self.near_tally)
             .push(&self.push)
             .cover([self.push.dims[3], 1, 1])
     }
 
     /// Energy injected so far, per channel.
     pub fn injected(&self, gpu: &Gpu) -> Result<[f64; 3], SolverError> {
+        self.sum(gpu, &self.tally)
+    }
+
+    /// Energy deposited in the near ball ([`LatticeParams::near`]) and held back, per channel.
+    pub fn near_energy(&self, gpu: &Gpu) -> Result<[f64; 3], SolverError> {
+        self.sum(gpu, &self.near_tally)
+    }
+
+    fn sum(&self, gpu: &Gpu, tally: &Buffer) -> Result<[f64; 3], SolverError> {
         let mut out = [0f64; 3];
-        let it: Vec<[f32; 2]> = gpu.read_buffer_as(&self.tally)?;
+        let it: Vec<[f32; 2]> = gpu.read_buffer_as(tally)?;
         for (i, t) in it.iter().enumerate() {
             out[i % self.nch as usize] += t[0] as f64 - t[1] as f64;
         }
@@ -690,7 +712,7 @@ impl Injector {
     }
 
     pub fn device_bytes(&self) -> u64 {
-        self.tally.size()
+        self.tally.size() + self.near_tally.size()
     }
 }
 

@@ -119,6 +119,14 @@ impl Solver for Lbl {
                 "d3q6 with lbl.escape: light a link carries parallel to an open face drifts out through it, 0.167 per \
                  voxel of path (the mean over the link's cone of directions; docs/lbl.md); false: it stays until it scatters",
             ),
+            Knob::derived(
+                "near_light",
+                "3 where the scene's only light is a point light inside the medium (without lbl.cascade or lbl.warm_start), else 0",
+                Range::non_negative(),
+                "radius in voxels of the ball about a point light inside the medium whose once-scattered light is \
+                 lumped into the light (its image scaled by 1 / (1 - k), k the share of the light's power scattered \
+                 there) instead of injected, where its six axial beams draw a \"+\" (docs/lbl.md); 0: off",
+            ),
             Knob::fixed(
                 "inject",
                 "auto",
@@ -172,7 +180,16 @@ impl Solver for Lbl {
             lambda: g.lambda,
             flux: if lat.stats.flux { set.flux } else { view::FluxUse::None },
         };
-        let view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
+        let mut view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
+        if let Some(n) = &lat.stats.near_light {
+            // The near ball's light, lumped into the light: 1 / (1 - k) times the image
+            // (NearLight).
+            for px in view.image.data.chunks_exact_mut(3) {
+                for c in 0..3 {
+                    px[c] = (px[c] as f64 / (1.0 - n.k[c])) as f32;
+                }
+            }
+        }
         let bytes = gs.bytes + view.device_bytes + lat.stats.device_bytes;
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, Stats::new(()));
         let mut ls = lat.stats;
@@ -334,6 +351,9 @@ pub struct LblSettings {
     pub escape: lattice::Escape,
     /// Light carried parallel to an open face drifts out through it (`lbl.drift`, D3Q6).
     pub drift: bool,
+    /// Radius in voxels of the near ball lumped into the scene's only light, a point light
+    /// inside the medium (`lbl.near_light`; 0: off).
+    pub near_light: f32,
     /// Inject anisotropic media's once-scattered light with its first moment (`lbl.inject`).
     pub directed: bool,
     /// Anisotropic media: how the view pass scatters the lattice's flux (`lbl.flux`; `None`:
@@ -373,6 +393,7 @@ impl LblSettings {
             cascade: 0,
             escape: k.get("escape")?,
             drift: k.get("drift")?,
+            near_light: 0.0,
             directed: match k.get::<String>("inject")?.as_str() {
                 "auto" => !light_inside,
                 mode => mode == "directed",
@@ -391,6 +412,19 @@ impl LblSettings {
                 "cascade",
                 "the cascadic start seeds a d3q6 lattice from its own coarse solution; use lbl.lattice=d3q6 and no \
                  lbl.warm_start, or lbl.cascade=0",
+            ));
+        }
+        // The near ball: only where the scene's only light is a point light inside the medium,
+        // whose image the lumped light scales (the scaling would scale any other light's too).
+        // A seeded start (lbl.cascade, lbl.warm_start) guesses the field of every deposit, the
+        // near ones too, and would start far from the lattice's fixed point without them.
+        let lumpable = scene.lights.len() == 1 && light_inside && !out.seeded();
+        out.near_light = k.get_or("near_light", if lumpable { NEAR_LIGHT_VOXELS } else { 0.0 })?;
+        if out.near_light > 0.0 && !lumpable {
+            return Err(k.invalid(
+                "near_light",
+                "the near ball lumps once-scattered light into the scene's only light, which must be a point light \
+                 inside the medium, without lbl.cascade or lbl.warm_start; set lbl.near_light=0",
             ));
         }
         // Each level halves the grid; the coarsest keeps at least 4 voxels along its longest side.
@@ -420,6 +454,28 @@ impl LblSettings {
             1
         }
     }
+}
+
+/// Default radius in voxels of the near ball about a point light inside the medium
+/// (`lbl.near_light`; docs/lbl.md has the sweep that chose it).
+pub const NEAR_LIGHT_VOXELS: f32 = 3.0;
+
+/// The once-scattered light about a point light inside the medium, lumped into the light
+/// (`lbl.near_light`). Deposits within `radius` voxels of the light are not injected: they are
+/// the share `k` (per channel) of the light's power 4 pi I scattered there, which is taken to
+/// leave from the light itself, isotropically (from a ball this small, what leaves goes
+/// outward in every direction). Emitted from the light, it is again a point light, of
+/// intensity k I: its single scattering is k times the light's, its own near part k^2 I, and
+/// its other deposits k times the light's. Summed over generations the near ball turns the
+/// light's whole image (single scattering and the lattice's field) into 1 / (1 - k) times that
+/// of the light with its near deposits left out, which is what `lbl` renders; the lattice
+/// never sees the concentrated deposits whose six axial beams drew a "+" through the light.
+#[derive(Clone, Debug, Serialize)]
+pub struct NearLight {
+    /// Ball radius, voxels.
+    pub radius: f32,
+    /// Share of the light's power scattered within the ball, per channel.
+    pub k: [f64; 3],
 }
 
 /// Everything `lbl` measured, beside the image.
@@ -458,6 +514,8 @@ pub struct LblStats {
     pub view_dispatches: u64,
     /// Once-scattered light injected with its first moment (anisotropic media, `lbl.inject`).
     pub directed: bool,
+    /// The near ball lumped into a point light inside the medium (`lbl.near_light`).
+    pub near_light: Option<NearLight>,
     /// The lattice's flux is integrated and scattered by the view pass (`lbl.flux`).
     pub flux: bool,
 }
@@ -485,6 +543,12 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         block_steps: set.block_steps,
         escape: set.escape,
         drift: set.drift,
+        near: match (set.near_light > 0.0, scene.lights.first()) {
+            (true, Some(crate::scene::Light::Point { position, .. })) => {
+                Some(([0, 1, 2].map(|a| (position[a] - geom.origin[a]) / geom.lambda), set.near_light))
+            }
+            _ => None,
+        },
         directed: set.directed && m.g != 0.0,
         flux: set.flux != view::FluxUse::None && m.g != 0.0,
         extrapolate: set.extrapolate,
@@ -601,6 +665,26 @@ pub fn run_lattice(
     let irr = lattice.irradiance().clone();
     let irradiance = lattice::read_f32(gpu, &irr)?;
     let device_bytes = marcher.device_bytes() + injector.device_bytes() + lattice.device_bytes();
+    let near_light = match (params.near, scene.lights.first()) {
+        (Some((_, radius)), Some(crate::scene::Light::Point { intensity, .. })) => {
+            let mut e = injector.near_energy(gpu)?;
+            if nch == 1 {
+                e = [e[0]; 3];
+            }
+            // The raymap carries 4 pi I from a light inside (marching::raymaps); what scatters
+            // is at most albedo times that, so k < 1.
+            let k = [0, 1, 2].map(|c| {
+                let power = 4.0 * std::f64::consts::PI * intensity[c] as f64;
+                if power > 0.0 {
+                    (e[c] / power).clamp(0.0, 0.999)
+                } else {
+                    0.0
+                }
+            });
+            Some(NearLight { radius, k })
+        }
+        _ => None,
+    };
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
@@ -626,6 +710,7 @@ pub fn run_lattice(
             view_dispatches: 0,
             directed: params.directed,
             flux: params.flux,
+            near_light,
         },
     })
 }
