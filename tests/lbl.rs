@@ -542,14 +542,15 @@ fn derived_block_is_the_largest_the_device_runs() {
     assert_clean(&gpu);
 }
 
-/// lbl.drift's constant is what its derivation says: the mean of max(0, -w_z) over the cone of
-/// directions nearest +x (a link's cone), by midpoint quadrature on the sphere; with the
+/// lbl.drift's constants are what their derivation says: the mean of max(0, -w_z) over the cone
+/// of directions nearest +x (a link's cone), and of max(0, -w_y) max(0, -w_z) (what two open
+/// faces of an edge count twice), by midpoint quadrature on the sphere; with the
 /// outward cone's mean |w_z| the six cones let out exactly the partial current of an isotropic
 /// population, 1/4 per voxel of path.
 #[test]
 fn cone_drift_is_the_mean_drift_of_a_link_cone() {
     let n = 2000;
-    let (mut side, mut side_n, mut out, mut out_n) = (0.0f64, 0u64, 0.0f64, 0u64);
+    let (mut side, mut side_n, mut out, mut out_n, mut pair) = (0.0f64, 0u64, 0.0f64, 0u64, 0.0f64);
     for a in 0..n {
         let z = -1.0 + (a as f64 + 0.5) * 2.0 / n as f64;
         let r = (1.0 - z * z).sqrt();
@@ -558,6 +559,7 @@ fn cone_drift_is_the_mean_drift_of_a_link_cone() {
             let (x, y) = (r * phi.cos(), r * phi.sin());
             if x >= y.abs() && x >= z.abs() {
                 side += (-z).max(0.0);
+                pair += (-z).max(0.0) * (-y).max(0.0);
                 side_n += 1;
             }
             if -z >= x.abs() && -z >= y.abs() {
@@ -566,8 +568,10 @@ fn cone_drift_is_the_mean_drift_of_a_link_cone() {
             }
         }
     }
-    let (f, m) = (side / side_n as f64, out / out_n as f64);
-    eprintln!("drift over a side cone {f:.5}, outward cone mean {m:.5}");
+    let (f, m, fp) = (side / side_n as f64, out / out_n as f64, pair / side_n as f64);
+    eprintln!("drift over a side cone {f:.5}, outward cone mean {m:.5}, pair term {fp:.5}");
+    let cp = scatterlab::solvers::lattice::CONE_DRIFT_PAIR as f64;
+    assert!((fp - cp).abs() < 2e-4, "quadrature {fp} vs CONE_DRIFT_PAIR {cp}");
     let c = scatterlab::solvers::lattice::CONE_DRIFT as f64;
     assert!((f - c).abs() < 2e-4, "quadrature {f} vs CONE_DRIFT {c}");
     assert!(((m + 4.0 * c) / 6.0 - 0.25).abs() < 1e-3, "outward {m}: partial current {}", (m + 4.0 * c) / 6.0);

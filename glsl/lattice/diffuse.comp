@@ -46,6 +46,7 @@ layout(push_constant) uniform Push {
     uint flux;           // 1: integrate the flux too
     uint snapshot;       // 1: copy the field to Snapshot before adding this dispatch's part
     float drift;         // share of a link's carried light leaving per open face parallel to it (0: off)
+    float drift_pair;    // the share leaving through either of two such faces on different axes counted twice
 } pc;
 
 shared float sh_out[LINKS * B * B * B];
@@ -141,15 +142,22 @@ void main() {
     // carries on, not to the freshly scattered share, whose first-flight escape the weights
     // above already give. lk[i - 1]: the fraction link i loses per step, 0.167 per open face
     // perpendicular to it (pc.drift = CONE_DRIFT in src/solvers/lattice.rs, where the value is
-    // derived; 0 with lbl.drift=false).
+    // derived; 0 with lbl.drift=false). Along an edge (open faces on both axes perpendicular to
+    // the link) a photon leaves through one or the other: the union, less pc.drift_pair (the
+    // cone's mean of max(0, -w_y) max(0, -w_z)) for each pair of faces on different axes.
     float lk[6];
     for (uint i = 1u; i <= 6u; ++i) {
         float f = 0.0;
         if (LINKS == 6u && pc.escape != 0u && inside && dens > 0.0) {
+            uint ax = (i - 1u) / 2u;
+            float na = 0.0, nb = 0.0;   // open faces on the two other axes
             for (uint j = 1u; j <= 6u; ++j) {
-                bool perpendicular = (j - 1u) / 2u != (i - 1u) / 2u;
-                if (perpendicular && (vac_mask & (1u << (j - 1u))) != 0u) f += pc.drift;
+                uint aj = (j - 1u) / 2u;
+                if (aj != ax && (vac_mask & (1u << (j - 1u))) != 0u) {
+                    if (aj == (ax + 1u) % 3u) na += 1.0; else nb += 1.0;
+                }
             }
+            f = pc.drift * (na + nb) - pc.drift_pair * na * nb;
         }
         lk[i - 1u] = f;
     }

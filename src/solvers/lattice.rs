@@ -53,6 +53,8 @@ struct DiffusePush {
     /// Fraction of a link's carried light that drifts out per open face parallel to it
     /// ([`CONE_DRIFT`]; 0: off).
     drift: f32,
+    /// [`CONE_DRIFT_PAIR`] with the drift, else 0.
+    drift_pair: f32,
 }
 
 /// Mean drift toward a face of light in a D3Q6 link parallel to it, per voxel of path:
@@ -64,6 +66,12 @@ struct DiffusePush {
 /// 1/4 of an isotropic population out per voxel of path: the partial current u c / 4. The
 /// value is checked by quadrature in tests/lbl.rs.
 pub const CONE_DRIFT: f32 = 0.1672;
+
+/// What [`CONE_DRIFT`] counts twice along an edge, where a link has open faces on both axes
+/// perpendicular to it: E[max(0, -w_y) max(0, -w_z)] over the +x cone, the share that could
+/// leave through either (inclusion-exclusion: the link loses 2 x 0.1672 - 0.0260 per step).
+/// Checked by quadrature in tests/lbl.rs.
+pub const CONE_DRIFT_PAIR: f32 = 0.0260;
 
 pub const DIFFUSE: Kernel = Kernel {
     shader: shader!("lattice/diffuse"),
@@ -418,6 +426,7 @@ impl Diffuser {
                 flux: p.flux as u32,
                 snapshot: 0,
                 drift: if p.drift && p.escape != Escape::None { CONE_DRIFT } else { 0.0 },
+                drift_pair: if p.drift && p.escape != Escape::None { CONE_DRIFT_PAIR } else { 0.0 },
             },
             groups,
             block_steps: p.block_steps,
