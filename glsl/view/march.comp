@@ -8,7 +8,9 @@
 // i.e. the single-scattering integral of eq. 1.24 with the extinction held constant within a
 // step (so a thick step never scatters more than it extinguishes: energy is not created), the
 // exact phase function, and shadow transmittance marched toward each light with the same
-// rule. The environment's in-scattering is a fixed spherical Fibonacci quadrature of
+// rule. Where a step can be thicker than 0.2 mean free paths, single scattering takes the shadow depth at both
+// ends of the step and integrates its exponential exactly against the camera's
+// (step_transmittance): a step can be many mean free paths thick. The environment's in-scattering is a fixed spherical Fibonacci quadrature of
 // `env_dirs` directions. Deterministic: no random numbers unless `jitter` is set.
 // Resumable (budget.glsl): the state of a pixel's march (subsample, step, light unit and the
 // partial sums) lives in a buffer; each dispatch does one shadow march per loop iteration
@@ -250,9 +252,47 @@ void octave_norms(vec3 d, out float onorm[8]) {
     }
 }
 
+// The shadow transmittance over a step, weighted as the step weights in-scattering: with the
+// depth toward the light tau0 and tau1 at the step's ends, taken linear in between (exact in a
+// constant medium under a directional light), and the camera's transmittance exp(-b u) over
+// the step (u in [0, 1], b = sigma_t dt),
+//   int exp(-b u) exp(-tau0 - (tau1 - tau0) u) du / int exp(-b u) du
+//     = (exp(-tau0) - exp(-tau1 - b)) / (b + tau1 - tau0) / f(b),  f(b) = (1 - exp(-b)) / b.
+// A weighted mean of exp(-tau) over the step, so never above its larger end: no energy is
+// created. The depth at the step's middle instead was 0.38x the converged single scattering on
+// thick-slab.toml (4.4 mean free paths per step) and 3% low at 0.27 (docs/measurements.md).
+// It costs a second shadow depth per light unit (1.25-1.8x the view pass on the sphere and the
+// cloud; llvmpipe runs both sides of a branch that differs between lanes, so a per-step test
+// would cost it everywhere), so the host turns it on per render (STEP_FIT) only where a step
+// can be thicker than 0.2 mean free paths (src/solvers/view.rs, STEP_FIT_TAU); thinner, the
+// midpoint's error is a few tenths of a percent (sphere, 0.135 per step: 0.25%; cloud, at most
+// 0.16: 0.06%).
+layout(constant_id = 9) const bool STEP_FIT = false;
+
+vec3 step_transmittance(vec3 tau0, vec3 tau1, vec3 b) {
+    vec3 x = b + tau1 - tau0;
+    vec3 e0 = exp(-tau0);
+    vec3 num;
+    vec3 fb;
+    for (uint c = 0u; c < 3u; ++c) {
+        num[c] = abs(x[c]) < 1e-4 ? e0[c] * (1.0 - 0.5 * x[c]) : (e0[c] - exp(-tau1[c] - b[c])) / x[c];
+        fb[c] = b[c] < 1e-4 ? 1.0 - 0.5 * b[c] : (1.0 - exp(-b[c])) / b[c];
+    }
+    return num / fb;
+}
+
+// The depth toward light unit `unit` from q (point lights: toward `lpos`, each point its own
+// direction; others along wi).
+vec3 depth_from(uint unit, bool point, vec3 lpos, vec3 q, vec3 wi) {
+    if (!point) return unit_depth(unit, 0u, q, wi, INF);
+    vec3 to = lpos - q;
+    float dq = length(to);
+    return dq > 0.0 ? unit_depth(unit, 0u, q, to / dq, dq) : vec3(0.0);
+}
+
 // In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T, for the step
-// [t0, t1] of the camera ray o + d t that p samples.
-vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float norm, float onorm[8]) {
+// [t0, t1] of the camera ray o + d t that p samples, whose extinction is b = sigma_t dt.
+vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, float norm, float onorm[8]) {
     float g = scene.albedo.w;
     uint unit = j;
     for (uint i = 0u; i < scene.image.z; ++i) {
@@ -261,28 +301,34 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, uint j, float no
         uint kind = uint(li.pos_kind.w);
         uint n = kind == LIGHT_ENVIRONMENT ? pc.env_dirs : 1u;
         if (j >= n) { j -= n; continue; }
+        vec3 wi;
+        float dist = INF;
+        float geo = 1.0;   // the point light's mean 1/r^2 over the step, the quadrature weight
+        bool env = kind == LIGHT_ENVIRONMENT;
         if (kind == LIGHT_POINT) {
             vec3 to = li.pos_kind.xyz - p;
             float dist2 = dot(to, to);
             if (dist2 <= 0.0) return vec3(0.0);
-            float dist = sqrt(dist2);
-            vec3 wi = to / dist;
-            if (OCTAVES == 1u) {
-                return phase_eval(g, dot(d, wi)) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz) * exp(-unit_depth(unit, 0u, p, wi, dist));
-            }
-            return octave_light(unit, g, dot(d, wi), p, wi, dist, false, onorm) * li.value.rgb * mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
+            dist = sqrt(dist2);
+            wi = to / dist;
+            geo = mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
         } else if (kind == LIGHT_DIRECTIONAL) {
-            vec3 wi = -li.pos_kind.xyz;
-            if (OCTAVES == 1u) return phase_eval(g, dot(d, wi)) * li.value.rgb * exp(-unit_depth(unit, 0u, p, wi, INF));
-            return octave_light(unit, g, dot(d, wi), p, wi, INF, false, onorm) * li.value.rgb;
+            wi = -li.pos_kind.xyz;
         } else {
-            vec3 wi = fibonacci_dir(j, pc.env_dirs);
-            if (OCTAVES == 1u) {
-                return li.value.rgb * phase_eval(g, dot(d, wi)) * exp(-unit_depth(unit, 0u, p, wi, INF)) * (4.0 * PI / float(pc.env_dirs)) / norm;
-            }
-            // Each octave's quadrature is normalised by its own phase function's sum.
-            return li.value.rgb * octave_light(unit, g, dot(d, wi), p, wi, INF, true, onorm) * (4.0 * PI / float(pc.env_dirs));
+            wi = fibonacci_dir(j, pc.env_dirs);
+            geo = 4.0 * PI / float(pc.env_dirs);
         }
+        // Octaves: each octave's environment quadrature is normalised by its own phase sum.
+        if (OCTAVES > 1u) return octave_light(unit, g, dot(d, wi), p, wi, dist, env, onorm) * li.value.rgb * geo;
+        vec3 t;
+        if (STEP_FIT) {
+            bool point = kind == LIGHT_POINT;
+            t = step_transmittance(depth_from(unit, point, li.pos_kind.xyz, o + d * t0, wi),
+                                   depth_from(unit, point, li.pos_kind.xyz, o + d * t1, wi), b);
+        } else {
+            t = exp(-unit_depth(unit, 0u, p, wi, dist));
+        }
+        return phase_eval(g, dot(d, wi)) * li.value.rgb * geo * t / (env ? norm : 1.0);
     }
     return vec3(0.0);
 }
@@ -347,14 +393,15 @@ void main() {
             float t0 = a + float(i) * dt;
             if (pc.shadow_dims.x == 0u) {
                 // Marched shadows: one unit per loop iteration, so a dispatch can stop after any.
-                S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm, onorm);
+                S += unit_inscatter(o, d, p, t0, t0 + dt, scene.sigma_t.xyz * density_at(p) * dt, j, norm, onorm);
                 j++;
                 continue;
             }
             // Shadow volume: a unit is a few reads, so every unit of the step in this iteration
             // (the per-iteration ray setup above had come to dominate), same order, same sum.
             // Within the budget: a large environment quadrature resumes where it stopped.
-            for (; j < units && iters < pc.budget; ++j) S += unit_inscatter(o, d, p, t0, t0 + dt, j, norm, onorm);
+            vec3 b = scene.sigma_t.xyz * density_at(p) * dt;
+            for (; j < units && iters < pc.budget; ++j) S += unit_inscatter(o, d, p, t0, t0 + dt, b, j, norm, onorm);
             if (j < units) continue;
         }
         // Close the step: integral over it of T(s) sigma_s ds with sigma_t held constant is
