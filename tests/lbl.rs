@@ -581,8 +581,10 @@ fn cone_drift_is_the_mean_drift_of_a_link_cone() {
 /// trapped surface light showed): the issue's cube (sigma_t 20, albedo 0.95, point light of
 /// 10 W/sr near a corner) at g 0 and 0.6, and a directional light from the front, the side and
 /// behind at sigma_t 5 and 20 (g 0). With the drift, the energy ratio moves toward 1 on average
-/// by more than half in log and relL2 falls; the issue's cube at g 0 within 7% of path
-/// (measured 0.945 here, 0.947 at 64 x 64 and grid 64; 1.107 without the drift).
+/// by more than half in log and relL2 falls; the issue's cube at g 0 within 5% of path (issue
+/// 11's target; measured 0.958 here and 0.961 at 64 x 64 and grid 64 since the view pass
+/// integrates thick steps exactly, 0.945 before that; 1.107 without the drift). At g 0.6 it
+/// is 1.108 here, 1.22 at grid 64: not within 5% (docs/lbl.md says why).
 #[test]
 fn surface_drift_brings_lit_cubes_closer_to_path() {
     let gpu = gpu();
@@ -619,7 +621,7 @@ fn surface_drift_brings_lit_cubes_closer_to_path() {
         );
         assert!(mon.energy_ratio.is_finite() && mon.energy_ratio > 0.0, "{name}");
         if name == "issue cube g 0" {
-            assert!((mon.energy_ratio - 1.0).abs() < 0.07, "{name}: energy ratio {}", mon.energy_ratio);
+            assert!((mon.energy_ratio - 1.0).abs() < 0.05, "{name}: energy ratio {}", mon.energy_ratio);
         }
         ln_on += mon.energy_ratio.ln().abs();
         ln_off += moff.energy_ratio.ln().abs();
