@@ -40,6 +40,18 @@ pub fn scene(text: &str) -> Scene {
         .unwrap_or_else(|e| panic!("test scene invalid: {e}"))
 }
 
+/// Issue 11's cube at 24 x 24: [-0.5, 0.5]^3, sigma_t 20, albedo 0.95, asymmetry `g`, a point
+/// light of 10 W/sr at (1, 1, 1) near its corner, the camera at (0, 0, 4), fov 20.
+pub fn issue_cube(g: &str) -> Scene {
+    scene(&format!(
+        "[render]\nwidth = 24\nheight = 24\nseed = 1\nspp = 1024\n\
+         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 20.0\nalbedo = 0.95\ng = {g}\n\
+         density = {{ kind = \"constant\" }}\n\
+         [[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n"
+    ))
+}
+
 /// A render with its error (or warnings) left to the caller. `sets` holds solver knobs
 /// (`lbl.grid`) and `render.*` scene keys (`render.spp`), as a bench ladder does.
 pub fn try_render(

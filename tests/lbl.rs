@@ -589,15 +589,7 @@ fn cone_drift_is_the_mean_drift_of_a_link_cone() {
 fn surface_drift_brings_lit_cubes_closer_to_path() {
     let gpu = gpu();
     let small = [("lbl.grid", "32"), ("lbl.rays", "4096"), ("lbl.view_supersample", "4")];
-    let issue_cube = |g: &str| {
-        scene(&format!(
-            "[render]\nwidth = 24\nheight = 24\nseed = 1\nspp = 1024\n\
-             [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-             [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 20.0\nalbedo = 0.95\ng = {g}\n\
-             density = {{ kind = \"constant\" }}\n\
-             [[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n"
-        ))
-    };
+    let issue_cube = crate::common::issue_cube;
     let mut cases =
         vec![("issue cube g 0".to_string(), issue_cube("0.0")), ("issue cube g 0.6".to_string(), issue_cube("0.6"))];
     for (name, dir) in [("front", "[-0.3, -0.5, -0.8]"), ("side", "[-0.95, -0.2, -0.1]"), ("back", "[0.3, -0.4, 0.85]")]

@@ -312,13 +312,7 @@ fn single_converges_to_path_depth_one() {
 fn single_is_step_converged_in_thick_media() {
     let gpu = gpu();
     let slab = crate::common::repo_scene("scenes/thick-slab.toml", &[("render.width", "24"), ("render.height", "24")]);
-    let cube = scene(
-        "[render]\nwidth = 24\nheight = 24\nseed = 1\nspp = 64\n\
-         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 20.0\nalbedo = 0.95\ng = 0.0\n\
-         density = { kind = \"constant\" }\n\
-         [[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n",
-    );
+    let cube = crate::common::issue_cube("0.0");
     for (name, s, max_rel, max_energy) in [("thick-slab", &slab, 0.15, 0.03), ("cube", &cube, 0.03, 0.01)] {
         let step = scatterlab::solvers::view::ViewSettings::default_step(s);
         assert!(scatterlab::solvers::view::step_fit(s, step), "{name}: the fit must be on");

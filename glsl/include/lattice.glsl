@@ -62,6 +62,15 @@ void lattice_kappa(float sigma_t, float albedo, float g, float lambda, out float
     }
 }
 
+// Kahan-compensated running sum (s, comp) += x: the per-workgroup energy tallies of the
+// lattice kernels, which add many small values to a large total.
+void kahan_add(inout float s, inout float comp, float x) {
+    float y = x - comp;
+    float t = s + y;
+    comp = (t - s) - y;
+    s = t;
+}
+
 // Path length of link i in voxels: each arrival adds energy x length to the fluence integral.
 float link_length(uint i) { return i <= 6u ? 1.0 : 1.41421356; }
 #endif

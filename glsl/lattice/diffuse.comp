@@ -53,13 +53,6 @@ shared float sh_out[LINKS * B * B * B];
 shared float sh_red[2u * B * B * B];
 shared uint sh_busy;
 
-void kahan_add(inout float s, inout float comp, float x) {
-    float y = x - comp;
-    float t = s + y;
-    comp = (t - s) - y;
-    s = t;
-}
-
 // Exponential integrals E_1 (Abramowitz & Stegun 5.1.53 on (0, 1], 5.1.56 beyond; |error| <
 // 2e-7 and 5e-5 relative), E_2 and E_3 by the recurrence E_{n+1}(x) = (e^-x - x E_n(x)) / n.
 float expint_e1(float x) {

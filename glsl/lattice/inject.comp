@@ -53,13 +53,6 @@ layout(push_constant) uniform Push {
 shared float sh[3 * 64];
 shared float sh_near[3 * 64];
 
-void kahan_add(inout vec2 t, float x) {
-    float y = x - t.y;
-    float s = t.x + y;
-    t.y = (s - t.x) - y;
-    t.x = s;
-}
-
 float take(uint i, bool signed_) {
     uint a = acc[i];
     acc[i] = 0u;
@@ -118,11 +111,11 @@ void main() {
         for (uint c = 0u; c < NCH; ++c) {
             uint k = gl_WorkGroupID.x * NCH + c;
             vec2 t = tally[k];
-            kahan_add(t, sh[c * 64u]);
+            kahan_add(t.x, t.y, sh[c * 64u]);
             tally[k] = t;
             if (pc.near.w > 0.0) {
                 vec2 u = near_tally[k];
-                kahan_add(u, sh_near[c * 64u]);
+                kahan_add(u.x, u.y, sh_near[c * 64u]);
                 near_tally[k] = u;
             }
         }

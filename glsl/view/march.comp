@@ -8,10 +8,10 @@
 // i.e. the single-scattering integral of eq. 1.24 with the extinction held constant within a
 // step (so a thick step never scatters more than it extinguishes: energy is not created), the
 // exact phase function, and shadow transmittance marched toward each light with the same
-// rule. Where a step can be thicker than 0.2 mean free paths, single scattering takes the shadow depth at both
-// ends of the step and integrates its exponential exactly against the camera's
-// (step_transmittance): a step can be many mean free paths thick. The environment's in-scattering is a fixed spherical Fibonacci quadrature of
-// `env_dirs` directions. Deterministic: no random numbers unless `jitter` is set.
+// rule. Where a step can be thicker than 0.2 mean free paths, single scattering takes the
+// shadow depth at both ends of the step and integrates its exponential exactly against the
+// camera's (step_transmittance): a step can be many mean free paths thick. The environment's
+// in-scattering is a fixed spherical Fibonacci quadrature of `env_dirs` directions. Deterministic: no random numbers unless `jitter` is set.
 // Resumable (budget.glsl): the state of a pixel's march (subsample, step, light unit and the
 // partial sums) lives in a buffer; each dispatch does one shadow march per loop iteration
 // until its budget is spent, and the host re-dispatches until every pixel is done.
@@ -391,16 +391,17 @@ void main() {
                 onorm_k = k;
             }
             float t0 = a + float(i) * dt;
+            // The step's extinction, which only the thick-step fit weighs.
+            vec3 b = STEP_FIT ? scene.sigma_t.xyz * density_at(p) * dt : vec3(0.0);
             if (pc.shadow_dims.x == 0u) {
                 // Marched shadows: one unit per loop iteration, so a dispatch can stop after any.
-                S += unit_inscatter(o, d, p, t0, t0 + dt, scene.sigma_t.xyz * density_at(p) * dt, j, norm, onorm);
+                S += unit_inscatter(o, d, p, t0, t0 + dt, b, j, norm, onorm);
                 j++;
                 continue;
             }
             // Shadow volume: a unit is a few reads, so every unit of the step in this iteration
             // (the per-iteration ray setup above had come to dominate), same order, same sum.
             // Within the budget: a large environment quadrature resumes where it stopped.
-            vec3 b = scene.sigma_t.xyz * density_at(p) * dt;
             for (; j < units && iters < pc.budget; ++j) S += unit_inscatter(o, d, p, t0, t0 + dt, b, j, norm, onorm);
             if (j < units) continue;
         }

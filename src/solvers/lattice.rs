@@ -409,6 +409,7 @@ impl Diffuser {
         let groups = p.groups();
         let n_wg = groups.iter().map(|x| *x as u64).product::<u64>();
         let (st, al) = (p.sigma_t, p.albedo);
+        let drift_on = p.drift && p.escape != Escape::None;
         Ok(Diffuser {
             pipeline,
             density,
@@ -425,8 +426,9 @@ impl Diffuser {
                 escape: p.escape.code(),
                 flux: p.flux as u32,
                 snapshot: 0,
-                drift: if p.drift && p.escape != Escape::None { CONE_DRIFT } else { 0.0 },
-                drift_pair: if p.drift && p.escape != Escape::None { CONE_DRIFT_PAIR } else { 0.0 },
+                // The drift acts only with the escape weights (at the same open faces).
+                drift: if drift_on { CONE_DRIFT } else { 0.0 },
+                drift_pair: if drift_on { CONE_DRIFT_PAIR } else { 0.0 },
             },
             groups,
             block_steps: p.block_steps,
