@@ -15,15 +15,15 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use scatterlab::output::{read_exr, read_exr_layer, write_exr, Image};
+use scatterlab::output::{read_exr, read_exr_layer, read_exr_metadata, read_pfm, read_png_text, write_exr, Image};
 use scatterlab::scene::write_vol;
 
 use crate::common::SceneText;
 
 const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
 
-/// Flags that keep every render tiny.
-const TINY: [&str; 6] = ["--set", "render.width=16", "--set", "render.height=16", "--spp", "4"];
+/// Flags that keep every render tiny (the base scene has 4 spp; `--spp` is `path`'s only).
+const TINY: [&str; 4] = ["--set", "render.width=16", "--set", "render.height=16"];
 
 /// The shared base scene ([`SceneText::base`]) at the size [`TINY`] renders: 16x16, seed 3.
 /// Tests write broken variants of it.
@@ -742,10 +742,10 @@ fn output_with_wrong_extension() {
     let c = Case::new();
     let s = c.scene(&base());
     for (flag, name, want) in [
-        ("--out", "out/x.png", ".exr"),
+        ("--out", "out/x.jpg", ".jpg is not an image format"),
         ("--png", "out/x.jpg", ".png"),
         ("--json", "out/x.txt", ".json"),
-        ("--out", "out/x", ".exr"),
+        ("--out", "out/x", "no extension"),
     ] {
         let p = c.path(name);
         c.fails(
@@ -753,6 +753,97 @@ fn output_with_wrong_extension() {
             &[flag, name, want],
         );
     }
+}
+
+/// `--out` picks the format by extension, as pbrt and Mitsuba do: EXR, PNG and PFM of one
+/// deterministic render hold the same image (PFM bit-exact against EXR).
+#[test]
+fn out_format_follows_the_extension() {
+    let c = Case::new();
+    let s = c.scene(&base());
+    for name in ["out/x.exr", "out/x.pfm", "out/y.png"] {
+        let p = c.path(name);
+        succeeded(
+            &c.run(
+                [&["render", s.to_str().unwrap(), "--validate", "-q", "--out", p.to_str().unwrap()][..], &TINY[..]]
+                    .concat(),
+            ),
+        );
+    }
+    let exr = read_exr(&c.path("out/x.exr")).expect("EXR");
+    let pfm = read_pfm(&c.path("out/x.pfm")).expect("PFM");
+    assert_eq!((pfm.width, pfm.height), (16, 16));
+    assert_eq!(exr.data, pfm.data, "PFM and EXR of one render differ");
+    let png = image::open(c.path("out/y.png")).expect("PNG decodes").to_rgb8();
+    assert_eq!(png.dimensions(), (16, 16));
+    assert!(png.pixels().any(|p| p.0 != [0, 0, 0]), "PNG is black");
+    // Two outputs on one name would overwrite each other.
+    let c = Case::new();
+    let s = c.scene(&base());
+    let same = c.path("out/z.png");
+    c.fails(
+        [&["render", s.to_str().unwrap(), "-q", "--out", same.to_str().unwrap(), "--png", same.to_str().unwrap()][..],
+            &TINY[..]]
+            .concat(),
+        &["--out", "--png", "z.png", "own file"],
+    );
+}
+
+/// `--spp` sets the quality of solvers that sample pixels; the others refuse it (as they do
+/// `--max-depth`) rather than ignore it.
+#[test]
+fn spp_is_refused_where_nothing_is_sampled() {
+    let c = Case::new();
+    let s = c.scene(&base());
+    for solver in ["single", "lbl", "wavefront", "octaves"] {
+        c.render_fails(&s, &[&TINY[..], &["--solver", solver, "--spp", "8"]].concat(), &["--spp", "(path)", solver]);
+    }
+}
+
+/// Provenance: the JSON report, the EXR header and the PNG text chunks name the scene, its
+/// content digest, every override as given, the solver, seed and spp. The digest follows the
+/// scene's content: the same scene under other overrides keeps it, a changed grid file
+/// changes it.
+#[test]
+fn outputs_carry_provenance() {
+    let c = Case::new();
+    c.write("g.vol", vol_bytes(4, None));
+    let s = c.scene(&base().grid("g.vol"));
+    let render = |extra: &[&str]| {
+        succeeded(&c.render(&s, &[&TINY[..], extra].concat()));
+        read_json(&c.path("out/x.json"))["provenance"].clone()
+    };
+    let p = render(&["--set", "medium.albedo=0.123", "--seed", "5", "--spp", "2"]);
+    let overrides: Vec<&str> =
+        p["overrides"].as_array().expect("overrides").iter().filter_map(|v| v.as_str()).collect();
+    for want in ["render.width=16", "medium.albedo=0.123", "render.spp=2", "render.seed=5"] {
+        assert!(overrides.contains(&want), "{want} missing from {overrides:?}");
+    }
+    assert_eq!((p["solver"].as_str(), p["seed"].as_u64(), p["spp"].as_u64()), (Some("path"), Some(5), Some(2)), "{p}");
+    assert!(p["scene"].as_str().is_some_and(|n| n.ends_with("scene.toml")), "{p}");
+    let hash = p["scene_hash"].as_str().expect("scene_hash").to_string();
+    assert!(hash.len() == 64 && hash.chars().all(|ch| ch.is_ascii_hexdigit()), "{hash}");
+    assert!(p["engine"].as_str().is_some_and(|e| e.starts_with("scatterlab ")), "{p}");
+
+    let exr_meta = read_exr_metadata(&c.path("out/x.exr")).expect("EXR header");
+    let png_text = read_png_text(&c.path("out/x.png")).expect("PNG text");
+    for (what, pairs) in [("EXR", &exr_meta), ("PNG", &png_text)] {
+        let get = |k: &str| pairs.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+        assert_eq!(get("scatterlab.scene_hash"), Some(hash.as_str()), "{what}: {pairs:?}");
+        assert!(get("scatterlab.overrides").is_some_and(|o| o.lines().any(|l| l == "medium.albedo=0.123")), "{what}");
+        assert_eq!(get("scatterlab.solver"), Some("path"), "{what}");
+        assert_eq!(get("scatterlab.seed"), Some("5"), "{what}");
+        assert_eq!(get("scatterlab.spp"), Some("2"), "{what}");
+    }
+
+    // Same content, other overrides: same digest. A solver without samples records none.
+    let q = render(&["--solver", "single"]);
+    assert_eq!(q["scene_hash"].as_str(), Some(hash.as_str()), "{q}");
+    assert!(q["spp"].is_null(), "single records spp: {q}");
+    // One voxel of the grid changed, scene text unchanged: another digest.
+    c.write("g.vol", vol_bytes(4, Some((5, 0.25))));
+    let r = render(&[]);
+    assert_ne!(r["scene_hash"].as_str(), Some(hash.as_str()), "the digest ignores the grid data");
 }
 
 /// Errors whose cause is an I/O or decoder error must say it once. Today the scene-file and
@@ -890,6 +981,7 @@ fn render_sphere(solver: &str) -> serde_json::Value {
         [
             &["render", scene.to_str().unwrap(), "--solver", solver, "--validate"][..],
             &TINY[..],
+            if solver == "path" { &["--spp", "4"][..] } else { &[][..] },
             &["--out", exr.to_str().unwrap(), "--png", png.to_str().unwrap(), "--json", json.to_str().unwrap()][..],
         ]
         .concat(),

@@ -14,16 +14,17 @@ use super::RenderArgs;
 use crate::gpu::{DeviceInfo, Gpu};
 use crate::measure::timeline::{self, ScheduleComparison, TimelineSummary};
 use crate::output::{self, Staging};
-use crate::scene::{is_scene_key, LoadOptions, Scene};
+use crate::scene::{content_hash, is_scene_key, LoadOptions, Scene};
 use crate::solvers::{self, RenderOutput, RenderRequest, Settings, Solver};
 
 pub fn render(a: RenderArgs) -> Result<()> {
     let started = Instant::now();
     let solver = solvers::find(&a.solver)?;
-    let (scene_sets, settings) = settings_from_flags(&a, solver)?;
+    let (overrides, scene_sets, settings) = settings_from_flags(&a, solver)?;
     check_outputs(&a)?;
     let budget = parse_bytes(&a.memory_budget)?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions { memory_budget_bytes: budget })?;
+    let provenance = provenance(&a, solver, &scene, &overrides)?;
     let gpu = open_gpu(&a)?;
     let (out, comparison) = run(&gpu, solver, &scene, &settings, &a)?;
     check_validation(&gpu)?;
@@ -36,18 +37,32 @@ pub fn render(a: RenderArgs) -> Result<()> {
     }
     let wall_s = started.elapsed().as_secs_f64();
     let timeline = timeline::summarize(&out.report.passes);
-    write_outputs(&a, &scene, &gpu, &out, &timeline, comparison.as_ref(), wall_s)?;
+    write_outputs(&a, &provenance, &gpu, &out, &timeline, comparison.as_ref(), wall_s)?;
     print_summary(&a, solver, gpu.info(), &out, &timeline, comparison.as_ref(), wall_s);
     Ok(())
 }
 
-/// `--set` pairs and solver flags, split into scene overrides and solver knobs, the knobs
-/// checked against the solver's table before any work (a typo costs nothing).
-fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<(String, String)>, Settings)> {
+type Overrides = Vec<(String, String)>;
+
+/// Every override as `key=value` in the order given (for provenance), then `--set` pairs
+/// and solver flags split into scene overrides and solver knobs, the knobs checked against
+/// the solver's table before any work (a typo costs nothing).
+fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<String>, Overrides, Settings)> {
     let mut sets = parse_sets(&a.set)?;
     if let Some(spp) = a.spp {
         if spp == 0 {
             bail!("--spp 0: samples per pixel must be at least 1");
+        }
+        if !solver.samples_pixels() {
+            let sampling: Vec<&str> =
+                solvers::SOLVERS.iter().filter(|s| s.samples_pixels()).map(|s| s.name()).collect();
+            bail!(
+                "--spp applies to solvers that sample pixels ({}); --solver {} computes each pixel without samples \
+                 (its quality knobs: scatterlab knobs {})",
+                sampling.join(", "),
+                solver.name(),
+                solver.name()
+            );
         }
         sets.push(("render.spp".into(), spp.to_string()));
     }
@@ -72,10 +87,53 @@ fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<(Stri
             bail!("--schedule and --compare-schedules exclude each other (the comparison runs both)");
         }
     }
+    let given = sets.iter().map(|(k, v)| format!("{k}={v}")).collect();
     let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = sets.into_iter().partition(|(k, _)| is_scene_key(k));
     let settings = Settings::new(&knob_sets);
     settings.knobs(solver.name(), solver.knobs())?;
-    Ok((scene_sets, settings))
+    Ok((given, scene_sets, settings))
+}
+
+/// What made this image ([`output::Provenance`]): the scene's content digest is taken from
+/// the file as loaded (read again: `Scene` keeps its values, not its text).
+fn provenance(a: &RenderArgs, solver: &dyn Solver, scene: &Scene, overrides: &[String]) -> Result<output::Provenance> {
+    let text = std::fs::read_to_string(&a.scene).map_err(|e| anyhow!("{}: {e}", a.scene.display()))?;
+    Ok(output::Provenance {
+        engine: output::engine(),
+        scene: a.scene.display().to_string(),
+        scene_hash: content_hash(&text, scene),
+        overrides: overrides.to_vec(),
+        solver: solver.name().to_string(),
+        seed: scene.render.seed,
+        spp: solver.samples_pixels().then_some(scene.render.spp),
+        width: scene.render.width,
+        height: scene.render.height,
+    })
+}
+
+/// The image formats `--out` writes, chosen by the file's extension as pbrt and Mitsuba do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum ImageFormat {
+    /// Linear RGB f32, with a `variance` layer where the solver estimates one, and the
+    /// provenance as header attributes.
+    Exr,
+    /// Tone-mapped 8-bit sRGB (`--exposure`), provenance as text chunks.
+    Png,
+    /// Linear RGB f32, no metadata.
+    Pfm,
+}
+
+const OUT_EXTENSIONS: [&str; 3] = ["exr", "png", "pfm"];
+
+impl ImageFormat {
+    fn of(p: &Path) -> Option<ImageFormat> {
+        match p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+            Some("exr") => Some(ImageFormat::Exr),
+            Some("png") => Some(ImageFormat::Png),
+            Some("pfm") => Some(ImageFormat::Pfm),
+            _ => None,
+        }
+    }
 }
 
 /// `flag` stands for `--set <solver>.<knob>`; an error naming the solvers that have it if
@@ -97,11 +155,31 @@ fn check_outputs(a: &RenderArgs) -> Result<()> {
             trace.json)"
         );
     }
-    for (p, flag, ext) in
-        [(&a.out, "--out", "exr"), (&a.png, "--png", "png"), (&a.json, "--json", "json"), (&a.trace, "--trace", "json")]
-    {
+    if let Some(p) = &a.out {
+        if ImageFormat::of(p).is_none() {
+            let ext = p.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or("no extension".into());
+            bail!(
+                "--out {}: {ext} is not an image format scatterlab writes; use .exr (linear float, with the variance \
+                 layer and provenance), .png (tone-mapped 8-bit) or .pfm (linear float)",
+                p.display()
+            );
+        }
+        check_output_path(p, "--out", &OUT_EXTENSIONS)?;
+    }
+    for (p, flag, ext) in [(&a.png, "--png", "png"), (&a.json, "--json", "json"), (&a.trace, "--trace", "json")] {
         if let Some(p) = p {
             check_output_path(p, flag, &[ext])?;
+        }
+    }
+    // Two outputs on one name: the second would silently replace the first.
+    let named: Vec<(&str, &PathBuf)> =
+        [("--out", &a.out), ("--png", &a.png), ("--json", &a.json), ("--trace", &a.trace)]
+            .into_iter()
+            .filter_map(|(flag, p)| p.as_ref().map(|p| (flag, p)))
+            .collect();
+    for (i, (f1, p1)) in named.iter().enumerate() {
+        if let Some((f2, _)) = named[i + 1..].iter().find(|(_, p2)| p2 == p1) {
+            bail!("{f1} and {f2} both name {}; give each output its own file", p1.display());
         }
     }
     Ok(())
@@ -155,7 +233,7 @@ fn run(
 /// none of them behind.
 fn write_outputs(
     a: &RenderArgs,
-    scene: &Scene,
+    provenance: &output::Provenance,
     gpu: &Gpu,
     out: &RenderOutput,
     timeline: &TimelineSummary,
@@ -164,23 +242,32 @@ fn write_outputs(
 ) -> Result<()> {
     let info = gpu.info();
     let r = &out.report;
+    let header = provenance.header_pairs();
     let mut staging = Staging::new();
     if let Some(p) = &a.out {
-        let mut layers: Vec<(&str, &output::Image)> = vec![("", &out.image)];
-        if let Some(v) = &out.variance {
-            layers.push(("variance", v));
+        match ImageFormat::of(p) {
+            Some(ImageFormat::Exr) | None => {
+                let mut layers: Vec<(&str, &output::Image)> = vec![("", &out.image)];
+                if let Some(v) = &out.variance {
+                    layers.push(("variance", v));
+                }
+                staging.stage(p, |tmp| output::write_exr_with_metadata(tmp, &layers, &header))?;
+            }
+            Some(ImageFormat::Png) => staging
+                .stage(p, |tmp| output::write_png_tonemapped_with_metadata(tmp, &out.image, a.exposure, &header))?,
+            Some(ImageFormat::Pfm) => staging.stage(p, |tmp| output::write_pfm(tmp, &out.image))?,
         }
-        staging.stage(p, |tmp| output::write_exr(tmp, &layers))?;
     }
     if let Some(p) = &a.png {
-        staging.stage(p, |tmp| output::write_png_tonemapped(tmp, &out.image, a.exposure))?;
+        staging.stage(p, |tmp| output::write_png_tonemapped_with_metadata(tmp, &out.image, a.exposure, &header))?;
     }
     if let Some(p) = &a.json {
         let mut doc = json!({
             "scatterlab": env!("CARGO_PKG_VERSION"),
+            "provenance": provenance,
             "scene": a.scene.display().to_string(),
-            "width": scene.render.width,
-            "height": scene.render.height,
+            "width": provenance.width,
+            "height": provenance.height,
             "device": info,
             "solver": r.solver,
             "settings": r.settings,
@@ -254,9 +341,18 @@ fn print_summary(
             c.images_rel_l2
         );
     }
+    let tonemapped = format!("tone-mapped with e = {} stops: {}", a.exposure, output::TONEMAP_DESCRIPTION);
+    let out_what = match a.out.as_deref().and_then(ImageFormat::of) {
+        Some(ImageFormat::Png) => tonemapped.clone(),
+        Some(ImageFormat::Pfm) => "linear RGB f32, PFM".to_string(),
+        _ => format!(
+            "linear RGB f32{}, provenance in the header",
+            if out.variance.is_some() { ", + variance layer" } else { "" }
+        ),
+    };
     let written: [(&Option<PathBuf>, String); 4] = [
-        (&a.out, format!("linear RGB f32{}", if out.variance.is_some() { ", + variance layer" } else { "" })),
-        (&a.png, format!("tone-mapped: {}", output::TONEMAP_DESCRIPTION)),
+        (&a.out, out_what),
+        (&a.png, tonemapped),
         (&a.json, String::new()),
         (&a.trace, "Chrome trace: one track per queue role".into()),
     ];

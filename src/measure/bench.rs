@@ -16,7 +16,7 @@ use sha2::{Digest, Sha256};
 
 use crate::gpu::{DeviceInfo, Gpu};
 use crate::output::{self, Image, Metrics};
-use crate::scene::{Density, Scene};
+use crate::scene::Scene;
 use crate::solvers::{self, Rung, Solver};
 
 use super::render_with as render;
@@ -92,12 +92,9 @@ pub fn reference_key(
     spp: u32,
 ) -> String {
     let mut h = Sha256::new();
-    h.update(scene_text.as_bytes());
+    h.update(crate::scene::content_hash(scene_text, scene).as_bytes());
     for (k, v) in overrides {
         h.update(format!("{k}={v};").as_bytes());
-    }
-    if let Density::Grid(g) = &scene.medium.density {
-        h.update(bytemuck::cast_slice::<f32, u8>(&g.data));
     }
     h.update(env!("CARGO_PKG_VERSION").as_bytes());
     h.update(

@@ -40,6 +40,26 @@ pub enum OutputError {
         source: ::image::ImageError,
     },
 
+    /// The PNG encoder failed (a file with text chunks).
+    #[error("cannot write PNG file '{}': {source}; check the path and free disk space", path.display())]
+    PngEncode {
+        /// File involved.
+        path: PathBuf,
+        /// Underlying error.
+        #[source]
+        source: ::png::EncodingError,
+    },
+
+    /// The PNG decoder failed.
+    #[error("cannot read PNG file '{}': {source}; check that it is a PNG image", path.display())]
+    PngDecode {
+        /// File involved.
+        path: PathBuf,
+        /// Underlying error.
+        #[source]
+        source: ::png::DecodingError,
+    },
+
     /// JSON serialisation failed.
     #[error("cannot write JSON file '{}': {source}; the value holds something JSON cannot represent", path.display())]
     Json {

@@ -9,7 +9,8 @@ use std::path::Path;
 
 use ::exr::prelude::traits::{ReadChannels, ReadLayers, WritableImage};
 use ::exr::prelude::{
-    read, AnyChannel, AnyChannels, Encoding, FlatSamples, Image as ExrImage, Layer, LayerAttributes, SmallVec,
+    read, AnyChannel, AnyChannels, AttributeValue, Encoding, FlatSamples, Image as ExrImage, Layer, LayerAttributes,
+    SmallVec, Text,
 };
 
 use super::{write_atomically, Image, OutputError};
@@ -20,6 +21,17 @@ use super::{write_atomically, Image, OutputError};
 /// `R`, `G`, `B`), any other name `n` becomes channels `n.R`, `n.G`, `n.B` (e.g. a
 /// `"variance"` layer beside the radiance). All layers must have one size.
 pub fn write_exr(path: &Path, layers: &[(&str, &Image)]) -> Result<(), OutputError> {
+    write_exr_with_metadata(path, layers, &[])
+}
+
+/// [`write_exr`] with text attributes in the header (`metadata`: name, value; the render's
+/// [`super::Provenance`]), readable with [`read_exr_metadata`] or any OpenEXR tool
+/// (`exrheader`). A value outside the attribute's byte-string range is written escaped.
+pub fn write_exr_with_metadata(
+    path: &Path,
+    layers: &[(&str, &Image)],
+    metadata: &[(String, String)],
+) -> Result<(), OutputError> {
     let Some((_, first)) = layers.first() else {
         return Err(invalid(path, "no layers given"));
     };
@@ -57,9 +69,16 @@ pub fn write_exr(path: &Path, layers: &[(&str, &Image)]) -> Result<(), OutputErr
             channels.push(AnyChannel::new(channel_name.as_str(), FlatSamples::F32(samples)));
         }
     }
+    let mut attributes = LayerAttributes::default();
+    for (name, value) in metadata {
+        let text = Text::new_or_none(value).or_else(|| Text::new_or_none(value.escape_default().to_string()));
+        if let (Some(key), Some(text)) = (Text::new_or_none(name), text) {
+            attributes.other.insert(key, AttributeValue::Text(text));
+        }
+    }
     let layer = Layer::new(
         (width as usize, height as usize),
-        LayerAttributes::default(),
+        attributes,
         Encoding::SMALL_LOSSLESS,
         AnyChannels::sort(channels),
     );
@@ -72,6 +91,31 @@ pub fn write_exr(path: &Path, layers: &[(&str, &Image)]) -> Result<(), OutputErr
             source,
         })
     })
+}
+
+/// The text attributes of an EXR file's header (every part's, in file order): what
+/// [`write_exr_with_metadata`] wrote, sorted by name within a part.
+pub fn read_exr_metadata(path: &Path) -> Result<Vec<(String, String)>, OutputError> {
+    let meta = ::exr::meta::MetaData::read_from_file(path, false).map_err(|source| OutputError::Exr {
+        path: path.to_owned(),
+        action: "read",
+        source,
+    })?;
+    let mut out = Vec::new();
+    for header in &meta.headers {
+        let mut part: Vec<(String, String)> = header
+            .own_attributes
+            .other
+            .iter()
+            .filter_map(|(k, v)| match v {
+                AttributeValue::Text(t) => Some((k.to_string(), t.to_string())),
+                _ => None,
+            })
+            .collect();
+        part.sort();
+        out.extend(part);
+    }
+    Ok(out)
 }
 
 /// Read the main RGB layer (channels `R`, `G`, `B`) of the EXR file at `path`.

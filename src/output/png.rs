@@ -19,6 +19,17 @@ pub const NON_FINITE_RGB8: [u8; 3] = [255, 0, 255];
 /// OETF (IEC 61966-2-1), rounded to 8 bits. Pixels with any non-finite channel are
 /// written magenta (255, 0, 255). See [`TONEMAP_DESCRIPTION`].
 pub fn write_png_tonemapped(path: &Path, image: &Image, exposure: f32) -> Result<(), OutputError> {
+    write_png_tonemapped_with_metadata(path, image, exposure, &[])
+}
+
+/// [`write_png_tonemapped`] with text chunks (`metadata`: keyword, text; the render's
+/// [`super::Provenance`] and the exposure), as `exiftool` or `identify -verbose` show them.
+pub fn write_png_tonemapped_with_metadata(
+    path: &Path,
+    image: &Image,
+    exposure: f32,
+    metadata: &[(String, String)],
+) -> Result<(), OutputError> {
     check_writable(path, image)?;
     let scale = exposure.exp2();
     let mut rgb8 = Vec::with_capacity(3 * image.pixel_count());
@@ -29,7 +40,61 @@ pub fn write_png_tonemapped(path: &Path, image: &Image, exposure: f32) -> Result
             rgb8.extend(p.iter().map(|&v| to_u8(srgb_oetf(aces_narkowicz(v.max(0.0) * scale)))));
         }
     }
-    write_rgb8(path, image.width, image.height, &rgb8)
+    let mut text = metadata.to_vec();
+    text.push(("scatterlab.exposure".into(), format!("{exposure}")));
+    text.push(("scatterlab.tonemap".into(), TONEMAP_DESCRIPTION.into()));
+    write_rgb8_with_text(path, image.width, image.height, &rgb8, &text)
+}
+
+/// 8-bit RGB as PNG with text chunks at `path`, atomically: tEXt where the text is Latin-1
+/// (what most viewers show), iTXt (UTF-8) otherwise.
+pub(super) fn write_rgb8_with_text(
+    path: &Path,
+    width: u32,
+    height: u32,
+    rgb8: &[u8],
+    text: &[(String, String)],
+) -> Result<(), OutputError> {
+    let encoding = |source: ::png::EncodingError| OutputError::PngEncode { path: path.to_owned(), source };
+    write_atomically(path, |tmp| {
+        let file = std::fs::File::create(tmp).map_err(|source| OutputError::Io {
+            path: path.to_owned(),
+            action: "create",
+            source,
+        })?;
+        let mut encoder = ::png::Encoder::new(std::io::BufWriter::new(file), width, height);
+        encoder.set_color(::png::ColorType::Rgb);
+        encoder.set_depth(::png::BitDepth::Eight);
+        encoder.set_source_srgb(::png::SrgbRenderingIntent::Perceptual);
+        for (key, value) in text {
+            let latin1 = value.chars().all(|c| (c as u32) < 256 && c != '\0');
+            if latin1 {
+                encoder.add_text_chunk(key.clone(), value.clone()).map_err(encoding)?;
+            } else {
+                encoder.add_itxt_chunk(key.clone(), value.clone()).map_err(encoding)?;
+            }
+        }
+        let mut writer = encoder.write_header().map_err(encoding)?;
+        writer.write_image_data(rgb8).map_err(encoding)?;
+        writer.finish().map_err(encoding)
+    })
+}
+
+/// The text chunks (tEXt, zTXt and iTXt) of the PNG file at `path`, in file order.
+pub fn read_png_text(path: &Path) -> Result<Vec<(String, String)>, OutputError> {
+    let io = |source| OutputError::Io { path: path.to_owned(), action: "read", source };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let decoder = ::png::Decoder::new(std::io::BufReader::new(file));
+    let reader = decoder.read_info().map_err(|e| OutputError::PngDecode { path: path.to_owned(), source: e })?;
+    let info = reader.info();
+    let mut out: Vec<(String, String)> =
+        info.uncompressed_latin1_text.iter().map(|t| (t.keyword.clone(), t.text.clone())).collect();
+    for t in &info.utf8_text {
+        if let Ok(text) = t.get_text() {
+            out.push((t.keyword.clone(), text));
+        }
+    }
+    Ok(out)
 }
 
 /// ACES filmic tone curve, Narkowicz's fit; maps [0, inf) to [0, 1).

@@ -223,6 +223,20 @@ impl Scene {
     }
 }
 
+/// A digest of what a scene is: its file text and, for a grid density, the grid's values
+/// (the file the scene names can change without the scene text changing). Hex SHA-256. The
+/// `--set` overrides are not in it: provenance records them beside it, as given.
+pub fn content_hash(text: &str, scene: &Scene) -> String {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    h.update((text.len() as u64).to_le_bytes());
+    h.update(text.as_bytes());
+    if let Density::Grid(g) = &scene.medium.density {
+        h.update(bytemuck::cast_slice::<f32, u8>(&g.data));
+    }
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
 /// True if a `--set` key belongs to the scene (first segment `render`, `camera`, `medium` or
 /// `light`) rather than to a solver (`path.max_depth`).
 pub fn is_scene_key(key: &str) -> bool {

@@ -78,6 +78,11 @@ pub trait Solver: Sync {
     fn is_reference(&self) -> bool {
         false
     }
+    /// Whether it samples pixels, so that `render.spp` (`--spp`) sets its quality; the
+    /// others compute each pixel deterministically and refuse `--spp` rather than ignore it.
+    fn samples_pixels(&self) -> bool {
+        false
+    }
     /// Every knob with its default, range and meaning: the one place they are written.
     fn knobs(&self) -> Vec<Knob>;
     /// Every compute kernel its passes may run (checked against SPIR-V reflection in tests).

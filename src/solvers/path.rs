@@ -378,6 +378,9 @@ impl Solver for Path {
     fn is_reference(&self) -> bool {
         true
     }
+    fn samples_pixels(&self) -> bool {
+        true
+    }
 
     fn knobs(&self) -> Vec<Knob> {
         vec![
