@@ -333,6 +333,27 @@ fn concurrent_and_sequential_schedules_agree() {
     assert_clean(&gpu);
 }
 
+/// `--compare-schedules` on the device: every repeat measured, the kept image agrees with the
+/// sequential one, and a gain only where the device gives the roles separate queues.
+#[test]
+fn schedule_comparison_repeats_and_knows_a_shared_queue() {
+    use scatterlab::measure::timeline::compare_schedules;
+    use scatterlab::solvers::{RenderRequest, Settings};
+    let gpu = gpu();
+    let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
+    let pairs: Vec<(String, String)> =
+        with(&[("lbl.deterministic", "true")]).iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    let settings = Settings::new(&pairs);
+    let req = RenderRequest { scene: &s, settings: &settings, force_full: false, progress: &|_, _| {} };
+    let (_, c) = compare_schedules(&gpu, LBL, &req, 2).expect("comparison");
+    assert_eq!((c.sequential_ms.len(), c.concurrent_ms.len()), (2, 2), "{c:?}");
+    assert!(c.sequential_ms.iter().chain(&c.concurrent_ms).all(|t| *t > 0.0), "{c:?}");
+    assert_eq!(c.images_rel_l2, 0.0, "deterministic schedules differ: {c:?}");
+    assert_eq!(c.shared_queue, gpu.info().mapping.shared());
+    assert_eq!(c.gain.is_none(), c.shared_queue, "{c:?}");
+    assert_clean(&gpu);
+}
+
 #[test]
 fn no_albedo_lbl_equals_single() {
     let gpu = gpu();

@@ -220,3 +220,28 @@ fn write_chrome_trace_writes_the_same_json() {
     // Nothing else left in the directory (the write is atomic).
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
 }
+
+/// `--compare-schedules` reports a gain only where the queues could overlap and it beats
+/// the run-to-run noise: separate queues, spans 150 vs 100 ms +- 2%: a gain of 1.5x; 102 vs
+/// 100 +- 5%: within the noise; one shared queue: no gain at all, whatever the spans say.
+#[test]
+fn schedule_gain_is_reported_only_above_noise_and_with_overlap_possible() {
+    use scatterlab::measure::timeline::ScheduleComparison;
+    let s = || summarize(&[]);
+    let c = ScheduleComparison::from_spans(s(), s(), vec![147.0, 150.0, 153.0], vec![99.0, 100.0, 101.0], false, 0.0);
+    assert!((c.gain.unwrap() - 1.5).abs() < 1e-12 && (c.noise - 0.02).abs() < 1e-12 && c.significant, "{c:?}");
+    assert!(c.describe().contains("concurrency gain 1.500x;"), "{}", c.describe());
+
+    let c = ScheduleComparison::from_spans(s(), s(), vec![97.0, 102.0, 107.0], vec![100.0, 100.0, 100.0], false, 0.0);
+    assert!(!c.significant && (c.noise - 5.0 / 102.0).abs() < 1e-12, "{c:?}");
+    assert!(c.describe().contains("within the noise"), "{}", c.describe());
+
+    let c = ScheduleComparison::from_spans(s(), s(), vec![103.1, 103.0], vec![100.0, 100.1], true, 0.0);
+    assert!(c.gain.is_none() && !c.significant, "{c:?}");
+    let line = c.describe();
+    assert!(line.contains("no overlap possible") && !line.contains("gain 1."), "{line}");
+
+    // One repeat: the noise is unknown, so no gain is called significant.
+    let c = ScheduleComparison::from_spans(s(), s(), vec![150.0], vec![100.0], false, 0.0);
+    assert!(!c.significant && c.describe().contains("unknown"), "{c:?}");
+}

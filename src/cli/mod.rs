@@ -179,6 +179,11 @@ pub struct RenderArgs {
     /// is the concurrent one); for a solver with a `schedule` knob.
     #[arg(long)]
     pub compare_schedules: bool,
+    /// Renders per schedule under `--compare-schedules` (interleaved; default 3): the gain is
+    /// reported with the run-to-run spread of the spans, and as a gain only when it exceeds
+    /// twice that.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub repeats: Option<u32>,
     /// Deterministic order of floating-point accumulation (bit-identical images):
     /// `--set <solver>.deterministic=true` for a solver with that knob (`lbl`).
     #[arg(long)]

@@ -81,6 +81,9 @@ fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<Strin
             sets.push((format!("{}.{knob}", solver.name()), v));
         }
     }
+    if a.repeats.is_some() && !a.compare_schedules {
+        bail!("--repeats counts the renders of --compare-schedules; add --compare-schedules or drop --repeats");
+    }
     if a.compare_schedules {
         require_knob(solver, "--compare-schedules", "schedule")?;
         if a.schedule.is_some() {
@@ -221,7 +224,7 @@ fn run(
     };
     let req = RenderRequest { scene, settings, force_full: a.model_all, progress: &progress };
     let result = if a.compare_schedules {
-        timeline::compare_schedules(gpu, solver, &req).map(|(out, c)| (out, Some(c)))
+        timeline::compare_schedules(gpu, solver, &req, a.repeats.unwrap_or(3)).map(|(out, c)| (out, Some(c)))
     } else {
         solver.render(gpu, &req).map(|out| (out, None))
     };
@@ -284,6 +287,7 @@ fn write_outputs(
         });
         if let Some(c) = comparison {
             doc["sequential_timeline"] = serde_json::to_value(&c.sequential)?;
+            doc["schedule_comparison"] = serde_json::to_value(c)?;
         }
         staging.stage(p, |tmp| output::write_json(tmp, &doc))?;
     }
@@ -331,15 +335,7 @@ fn print_summary(
         );
     }
     if let Some(c) = comparison {
-        eprintln!(
-            "schedules: sequential {:.1} ms, concurrent {:.1} ms (GPU span): concurrency gain {:.3}x{}; images differ \
-                by relL2 {:.2e}",
-            c.sequential.span_ns as f64 * 1e-6,
-            c.concurrent.span_ns as f64 * 1e-6,
-            c.gain,
-            if info.mapping.shared() { " (one shared queue: the difference is noise, not overlap)" } else { "" },
-            c.images_rel_l2
-        );
+        eprintln!("{}", c.describe());
     }
     let tonemapped = format!("tone-mapped with e = {} stops: {}", a.exposure, output::TONEMAP_DESCRIPTION);
     let out_what = match a.out.as_deref().and_then(ImageFormat::of) {

@@ -29,3 +29,15 @@ pub fn render_with(
     let r = solver.render(gpu, &req).map_err(|e| e.to_string())?;
     Ok((r, t.elapsed().as_secs_f64() * 1e3))
 }
+
+/// The median of `v` (the mean of the middle two for an even count); NaN for none.
+pub fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => f64::NAN,
+        _ if n % 2 == 1 => v[n / 2],
+        _ => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}

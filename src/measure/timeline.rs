@@ -177,26 +177,105 @@ pub fn write_chrome_trace(path: &Path, timings: &[PassTiming], meta: Value) -> R
     write_json(path, &chrome_trace(timings, meta))
 }
 
-/// The same render under both schedules of a solver with concurrent work (a `schedule` knob):
-/// their timelines, the sequential/concurrent span ratio (the concurrency gain) and how far
-/// apart the images are.
+/// The same render under both schedules of a solver with concurrent work (a `schedule` knob),
+/// repeated: their timelines, each schedule's span per repeat, the concurrency gain with its
+/// run-to-run noise, and how far apart the images are. A gain is reported only where the
+/// device could overlap the two roles' work: on one shared queue the spans differ by noise
+/// alone (lavapipe printed "gain 1.031x" with 0.0% overlap), and the comparison says so.
 #[derive(Clone, Debug, Serialize)]
 pub struct ScheduleComparison {
+    /// Timelines of the last repeat.
     pub sequential: TimelineSummary,
     pub concurrent: TimelineSummary,
-    /// Sequential span over concurrent span.
-    pub gain: f64,
+    /// GPU span of each repeat, ms, in run order (sequential and concurrent interleaved).
+    pub sequential_ms: Vec<f64>,
+    pub concurrent_ms: Vec<f64>,
+    /// Median sequential span over median concurrent span, where the roles run on separate
+    /// queues; `None` on one shared queue (no overlap possible).
+    pub gain: Option<f64>,
+    /// The run-to-run noise of a span: the larger of the two schedules' relative half-ranges
+    /// ((max - min) / (2 median)); 0 with one repeat (unknown).
+    pub noise: f64,
+    /// Whether |gain - 1| exceeds twice the noise (with at least two repeats).
+    pub significant: bool,
+    /// The roles shared one queue.
+    pub shared_queue: bool,
     /// relL2 between the two images (the schedules must agree to floating-point tolerance).
     pub images_rel_l2: f64,
 }
 
-/// Render `req` with `solver` under `schedule=sequential` and then `schedule=concurrent`;
-/// returns the concurrent render (the one kept) and the comparison. The solver must have a
-/// `schedule` knob, and the request must not set it.
+impl ScheduleComparison {
+    /// The comparison of measured spans (ms per repeat): the gain as the ratio of medians,
+    /// unless the roles shared one queue; the noise as the larger relative half-range; the gain
+    /// significant when it is more than twice the noise away from 1.
+    pub fn from_spans(
+        sequential: TimelineSummary,
+        concurrent: TimelineSummary,
+        sequential_ms: Vec<f64>,
+        concurrent_ms: Vec<f64>,
+        shared_queue: bool,
+        images_rel_l2: f64,
+    ) -> ScheduleComparison {
+        let med = |v: &[f64]| crate::measure::median(v);
+        let half_range = |v: &[f64]| {
+            let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(*x), hi.max(*x)));
+            if v.len() > 1 && med(v) > 0.0 {
+                (hi - lo) / (2.0 * med(v))
+            } else {
+                0.0
+            }
+        };
+        let noise = half_range(&sequential_ms).max(half_range(&concurrent_ms));
+        let ratio = med(&sequential_ms) / med(&concurrent_ms).max(1e-9);
+        let gain = (!shared_queue).then_some(ratio);
+        let significant = gain.is_some() && sequential_ms.len() > 1 && (ratio - 1.0).abs() > 2.0 * noise;
+        ScheduleComparison {
+            sequential,
+            concurrent,
+            sequential_ms,
+            concurrent_ms,
+            gain,
+            noise,
+            significant,
+            shared_queue,
+            images_rel_l2,
+        }
+    }
+
+    /// One line for the terminal.
+    pub fn describe(&self) -> String {
+        let med = |v: &[f64]| crate::measure::median(v);
+        let spans = format!(
+            "sequential {:.1} ms, concurrent {:.1} ms (GPU span, median of {})",
+            med(&self.sequential_ms),
+            med(&self.concurrent_ms),
+            self.sequential_ms.len()
+        );
+        let noise = if self.sequential_ms.len() > 1 {
+            format!("run-to-run noise {:.1}%", 100.0 * self.noise)
+        } else {
+            "run-to-run noise unknown (one repeat)".to_string()
+        };
+        let verdict = match self.gain {
+            None => "one shared queue: no overlap possible, so no concurrency gain to measure".to_string(),
+            Some(g) if self.significant => format!("concurrency gain {g:.3}x"),
+            Some(g) => format!("concurrency gain {g:.3}x is within the noise: no measurable gain"),
+        };
+        format!(
+            "schedules: {spans}, {noise}; {verdict}; the two images differ by relL2 {:.2e} (must be rounding only)",
+            self.images_rel_l2
+        )
+    }
+}
+
+/// Render `req` with `solver` under `schedule=sequential` and then `schedule=concurrent`,
+/// `repeats` times in turn; returns the last concurrent render (the one kept) and the
+/// comparison. The solver must have a `schedule` knob, and the request must not set it.
 pub fn compare_schedules(
     gpu: &crate::gpu::Gpu,
     solver: &dyn crate::solvers::Solver,
     req: &crate::solvers::RenderRequest,
+    repeats: u32,
 ) -> Result<(crate::solvers::RenderOutput, ScheduleComparison), crate::solvers::SolverError> {
     use crate::solvers::{RenderRequest, Schedule, SolverError};
     let key = format!("{}.schedule", solver.name());
@@ -211,11 +290,26 @@ pub fn compare_schedules(
         let r = RenderRequest { settings: &settings, ..*req };
         solver.render(gpu, &r)
     };
-    let seq = run(Schedule::Sequential)?;
-    let out = run(Schedule::Concurrent)?;
-    let sequential = summarize(&seq.report.passes);
-    let concurrent = summarize(&out.report.passes);
-    let gain = sequential.span_ns as f64 / concurrent.span_ns.max(1) as f64;
+    let (mut sequential_ms, mut concurrent_ms) = (Vec::new(), Vec::new());
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let seq = run(Schedule::Sequential)?;
+        let out = run(Schedule::Concurrent)?;
+        let (s, c) = (summarize(&seq.report.passes), summarize(&out.report.passes));
+        sequential_ms.push(s.span_ns as f64 * 1e-6);
+        concurrent_ms.push(c.span_ns as f64 * 1e-6);
+        last = Some((seq, out, s, c));
+    }
+    let (seq, out, sequential, concurrent) = last.expect("at least one repeat");
     let images_rel_l2 = crate::output::compare(&out.image, &seq.image).map(|m| m.rel_l2).unwrap_or(f64::NAN);
-    Ok((out, ScheduleComparison { sequential, concurrent, gain, images_rel_l2 }))
+    let shared_queue = gpu.info().mapping.shared();
+    let c = ScheduleComparison::from_spans(
+        sequential,
+        concurrent,
+        sequential_ms,
+        concurrent_ms,
+        shared_queue,
+        images_rel_l2,
+    );
+    Ok((out, c))
 }
