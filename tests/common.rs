@@ -65,7 +65,7 @@ pub fn try_render(
     let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = pairs.into_iter().partition(|(k, _)| is_scene_key(k));
     let scene = scene.with_overrides(&scene_sets).unwrap_or_else(|e| panic!("test bug: {e}"));
     let settings = Settings::new(&knob_sets);
-    let req = RenderRequest { scene: &scene, settings: &settings, force_full, progress: &|_, _| {} };
+    let req = RenderRequest { scene: &scene, settings: &settings, force_full, progress: &|_| {} };
     solver.render(gpu, &req)
 }
 

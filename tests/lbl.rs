@@ -344,13 +344,67 @@ fn schedule_comparison_repeats_and_knows_a_shared_queue() {
     let pairs: Vec<(String, String)> =
         with(&[("lbl.deterministic", "true")]).iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
     let settings = Settings::new(&pairs);
-    let req = RenderRequest { scene: &s, settings: &settings, force_full: false, progress: &|_, _| {} };
+    let req = RenderRequest { scene: &s, settings: &settings, force_full: false, progress: &|_| {} };
     let (_, c) = compare_schedules(&gpu, LBL, &req, 2).expect("comparison");
     assert_eq!((c.sequential_ms.len(), c.concurrent_ms.len()), (2, 2), "{c:?}");
     assert!(c.sequential_ms.iter().chain(&c.concurrent_ms).all(|t| *t > 0.0), "{c:?}");
     assert_eq!(c.images_rel_l2, 0.0, "deterministic schedules differ: {c:?}");
     assert_eq!(c.shared_queue, gpu.info().mapping.shared());
     assert_eq!(c.gain.is_none(), c.shared_queue, "{c:?}");
+    assert_clean(&gpu);
+}
+
+/// Progress that does not lie: marching rounds counted as they finish (never ahead, never
+/// back), up to their total,
+/// then the lattice's iterations with their convergence measure, ending below the tolerance;
+/// the estimate of the iterations left, where given, is within a factor of 3 of what was left.
+#[test]
+fn lbl_progress_counts_rounds_then_reports_convergence() {
+    use scatterlab::solvers::{Progress, RenderRequest, Settings};
+    use std::cell::RefCell;
+    let gpu = gpu();
+    let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
+    let pairs: Vec<(String, String)> = SMALL.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    let settings = Settings::new(&pairs);
+    let events = RefCell::new(Vec::new());
+    let record = |p: Progress| events.borrow_mut().push(p);
+    let req = RenderRequest { scene: &s, settings: &settings, force_full: false, progress: &record };
+    LBL.render(&gpu, &req).expect("render");
+    let events = events.into_inner();
+    let rounds: Vec<(u64, u64)> = events
+        .iter()
+        .filter_map(|p| match p {
+            Progress::Work { stage: "marching rounds", done, total } => Some((*done, *total)),
+            _ => None,
+        })
+        .collect();
+    let total = rounds.last().expect("round progress").1;
+    assert!(total > 1 && rounds[0].0 == 0 && rounds.windows(2).all(|w| w[1].0 >= w[0].0), "rounds {rounds:?}");
+    assert!(rounds.iter().all(|r| r.1 == total && r.0 <= total), "rounds {rounds:?}");
+    assert_eq!(rounds.last().unwrap().0, total, "rounds end short: {rounds:?}");
+    let iters: Vec<(u64, f64, f64, Option<u64>)> = events
+        .iter()
+        .filter_map(|p| match p {
+            Progress::Converging { iteration, change, tol, remaining, .. } => {
+                Some((*iteration, *change, *tol, *remaining))
+            }
+            _ => None,
+        })
+        .collect();
+    assert!(iters.len() >= 3, "too few convergence reports: {iters:?}");
+    assert!(iters.windows(2).all(|w| w[1].0 > w[0].0), "iterations not increasing: {iters:?}");
+    let (last_iteration, last_change, tol, _) = *iters.last().unwrap();
+    assert!(last_change < tol, "the last report is not converged: {iters:?}");
+    // Each estimate against the iterations actually left (to the last report), over the
+    // reports with at least a chunk left.
+    let judged: Vec<f64> = iters
+        .iter()
+        .filter_map(|(i, _, _, r)| {
+            r.filter(|_| last_iteration > *i + 8).map(|r| r as f64 / (last_iteration - i) as f64)
+        })
+        .collect();
+    assert!(!judged.is_empty(), "no estimate of the iterations left: {iters:?}");
+    assert!(judged.iter().all(|q| (1.0 / 3.0..=3.0).contains(q)), "estimate / actual {judged:?}: {iters:?}");
     assert_clean(&gpu);
 }
 

@@ -15,7 +15,7 @@ use crate::gpu::{DeviceInfo, Gpu};
 use crate::measure::timeline::{self, ScheduleComparison, TimelineSummary};
 use crate::output::{self, Staging};
 use crate::scene::{content_hash, is_scene_key, LoadOptions, Scene};
-use crate::solvers::{self, RenderOutput, RenderRequest, Settings, Solver};
+use crate::solvers::{self, Progress, RenderOutput, RenderRequest, Settings, Solver};
 
 pub fn render(a: RenderArgs) -> Result<()> {
     let started = Instant::now();
@@ -213,14 +213,39 @@ fn run(
     a: &RenderArgs,
 ) -> Result<(RenderOutput, Option<ScheduleComparison>)> {
     let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar.set_message(format!("{} {}", solver.name(), a.scene.display()));
-    let progress = |done: u64, total: u64| {
-        bar.set_length(total);
-        bar.set_position(done);
+    let name = format!("{} {}", solver.name(), a.scene.display());
+    let work_style = ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})")
+        .unwrap_or_else(|_| ProgressStyle::default_bar());
+    // Before the first unit of a stage finishes there is no rate: no ETA rather than "eta 0s".
+    let start_style = ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} ({elapsed})")
+        .unwrap_or_else(|_| ProgressStyle::default_bar());
+    // No total while iterating to a tolerance: a spinner with the convergence measure (and
+    // the iterations left at its measured decay) rather than a bar that stands still.
+    let spin_style = ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
+        .unwrap_or_else(|_| ProgressStyle::default_spinner());
+    bar.set_style(start_style.clone());
+    bar.set_message(name.clone());
+    bar.enable_steady_tick(std::time::Duration::from_millis(150));
+    let stage_now = std::cell::Cell::new("");
+    let progress = |p: Progress| match p {
+        Progress::Work { stage, done, total } => {
+            if stage_now.replace(stage) != stage {
+                // A new stage: its own rate, so the ETA is not one of the last stage's.
+                bar.reset();
+                bar.set_message(format!("{name}: {stage}"));
+            }
+            bar.set_style(if done == 0 { start_style.clone() } else { work_style.clone() });
+            bar.set_length(total);
+            bar.set_position(done);
+        }
+        Progress::Converging { stage, iteration, change, tol, remaining } => {
+            if stage_now.replace(stage) != stage {
+                bar.set_style(spin_style.clone());
+            }
+            let left = remaining.map(|r| format!(", about {r} more at the measured decay")).unwrap_or_default();
+            bar.set_message(format!("{name}: {stage} {iteration}, change {change:.1e} (tolerance {tol:.0e}){left}"));
+            bar.tick();
+        }
     };
     let req = RenderRequest { scene, settings, force_full: a.model_all, progress: &progress };
     let result = if a.compare_schedules {

@@ -488,6 +488,14 @@ impl Gpu {
         self.wait(p)
     }
 
+    /// Whether `point` has been reached, without blocking (progress displays).
+    pub fn reached(&self, point: SyncPoint) -> Result<bool> {
+        let s = &self.shared;
+        let value = unsafe { s.device.get_semaphore_counter_value(s.role(point.role).timeline) }
+            .map_err(|e| GpuError::Vk { call: "vkGetSemaphoreCounterValue", result: e })?;
+        Ok(value >= point.value)
+    }
+
     /// Block until `point` is reached, or fail after the configured timeout.
     pub fn wait(&self, point: SyncPoint) -> Result<()> {
         let s = &self.shared;

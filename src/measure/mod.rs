@@ -24,7 +24,7 @@ pub fn render_with(
     let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = sets.iter().cloned().partition(|(k, _)| is_scene_key(k));
     let scene = scene.with_overrides(&scene_sets).map_err(|e| e.to_string())?;
     let settings = Settings::new(&knob_sets);
-    let req = RenderRequest { scene: &scene, settings: &settings, force_full, progress: &|_, _| {} };
+    let req = RenderRequest { scene: &scene, settings: &settings, force_full, progress: &|_| {} };
     let t = std::time::Instant::now();
     let r = solver.render(gpu, &req).map_err(|e| e.to_string())?;
     Ok((r, t.elapsed().as_secs_f64() * 1e3))

@@ -12,6 +12,7 @@ use serde::Serialize;
 use crate::gpu::{Buffer, DeviceInfo, Gpu, Kernel, Pass, Pipeline, QueueRole, Spec, SpecKind};
 use crate::scene::Scene;
 
+use super::Progress;
 use super::SolverError;
 
 /// Specialisation constant ids of glsl/include/lattice.glsl and the lattice kernels.
@@ -513,7 +514,14 @@ impl Diffuser {
     /// extrapolation is applied to the whole field (energy and flux). Where the ratio is not
     /// yet a decay (0 < r < 1 in every channel that moves), the plain criterion applies and
     /// nothing is extrapolated.
-    pub fn iterate(&mut self, gpu: &Gpu, density: &[f32], tol: f32, max_iters: u32) -> Result<Iterated, SolverError> {
+    pub fn iterate(
+        &mut self,
+        gpu: &Gpu,
+        density: &[f32],
+        tol: f32,
+        max_iters: u32,
+        progress: &dyn Fn(Progress),
+    ) -> Result<Iterated, SolverError> {
         let [nx, ny, nz] = self.dims.map(|d| d as usize);
         let v = nx * ny * nz;
         let stride = 4usize.max(nx.max(ny).max(nz) / 8);
@@ -567,6 +575,25 @@ impl Diffuser {
         let mut prev_inc: Option<([f64; 3], u32)> = None;
         let mut prev_x: Option<Vec<f64>> = None;
         let mut change = f64::INFINITY;
+        // The measure the stop is decided on (the extrapolated field's change once it has one)
+        // and the iteration it was taken at: two give the rate of decay, hence an estimate of
+        // the iterations left (a geometric decay, as the tail extrapolation assumes).
+        let mut last_measure: Option<(f64, u32)> = None;
+        let report = |iteration: u32, measure: f64, last: Option<(f64, u32)>| {
+            let remaining = last.and_then(|(m0, i0)| {
+                let rate = (measure / m0).powf(1.0 / (iteration - i0).max(1) as f64);
+                (rate > 0.0 && rate < 1.0 && measure > tol as f64).then(|| {
+                    ((tol as f64 / measure).ln() / rate.ln()).ceil().min((max_iters - iteration) as f64) as u64
+                })
+            });
+            progress(Progress::Converging {
+                stage: "lattice iterations",
+                iteration: iteration as u64,
+                change: measure,
+                tol: tol as f64,
+                remaining,
+            });
+        };
         while self.iterations < max_iters {
             let before = self.iterations;
             let passes = self.passes_from(chunk.min(max_iters - self.iterations), self.extrapolate);
@@ -606,6 +633,10 @@ impl Diffuser {
                     let x = probe_extrapolated(&now, &prev, &q);
                     let x_change = prev_x.as_ref().map(|px| largest_change(&x, px, done));
                     prev_x = Some(x);
+                    if let Some(xc) = x_change {
+                        report(self.iterations, xc, last_measure);
+                        last_measure = Some((xc, self.iterations));
+                    }
                     if let Some(xc) = x_change.filter(|xc| *xc < tol as f64) {
                         let tail = self.extrapolate_tail(gpu, q)?;
                         let rho = r.map(|r| r.powf(1.0 / done));
@@ -617,6 +648,12 @@ impl Diffuser {
             }
             prev = now;
             prev_probes = now_probes;
+            if prev_x.is_none() {
+                report(self.iterations, change, last_measure.filter(|_| !self.extrapolate));
+                if !self.extrapolate {
+                    last_measure = Some((change, self.iterations));
+                }
+            }
             if change < tol as f64 {
                 return Ok(Iterated { converged: true, change, tail: None });
             }

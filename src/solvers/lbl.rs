@@ -28,6 +28,7 @@ use super::lattice::{self, check_block, Diffuser, EnergyBook, Injector, Lattice,
 use super::marching::{self, MarchSettings, Marcher};
 use super::view::{self, MsVolume, ViewSettings};
 use super::wave_field::{self, wave_volume, WaveSettings};
+use super::Progress;
 use super::{
     Convergence, Figure, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
     SolverError, Stats, Variant,
@@ -561,8 +562,11 @@ pub fn run_lattice(
     scene: &Scene,
     gs: &GpuScene,
     set: &LblSettings,
-    progress: &dyn Fn(u64, u64),
+    progress: &dyn Fn(Progress),
 ) -> Result<LatticeResult, SolverError> {
+    // Pipeline creation (a shader compile per kernel on a CPU driver) and the raymaps take
+    // seconds before the first round: a stage of its own, so the rounds' bar does not sit at 0.
+    progress(Progress::work("setup: pipelines, raymaps, lattice", 0, 1));
     let geom = LatticeGeom::new(scene, set.grid);
     let v = geom.voxels();
     let nch = LblSettings::channels(scene, gs.modelled.chromatic);
@@ -603,7 +607,9 @@ pub fn run_lattice(
     // A warm or cascadic start needs the whole deposit s before the iteration starts from the
     // guess, so the rounds only march and transfer (the sums accumulate until one injection).
     let warm = set.seeded();
-    progress(0, rounds as u64 + 1);
+    progress(Progress::work("setup: pipelines, raymaps, lattice", 1, 1));
+    progress(Progress::work("marching rounds", 0, rounds as u64));
+    let mut transfers: Vec<SyncPoint> = Vec::with_capacity(rounds as usize);
     for st in &steps {
         let waits: Vec<SyncPoint> = st.waits.iter().map(|w| points[*w]).collect();
         if warm && matches!(st.step, Step::Diffuse(_)) {
@@ -624,9 +630,21 @@ pub fn run_lattice(
         };
         let point = gpu.submit(st.role, &passes, &waits)?;
         points.push(point);
-        if let Step::Transfer(n) = st.step {
-            progress(n as u64 + 1, rounds as u64 + 1);
+        if let Step::Transfer(_) = st.step {
+            transfers.push(point);
         }
+        // Submission can block while the queues work (lavapipe's does): report what has run.
+        let mut reached = 0;
+        while reached < transfers.len() && gpu.reached(transfers[reached])? {
+            reached += 1;
+        }
+        progress(Progress::work("marching rounds", reached as u64, rounds as u64));
+    }
+    // Rounds count when their transfer has run, not when it was submitted (the queues run
+    // ahead of the host): wait for each in turn, which delays nothing since all is submitted.
+    for (n, point) in transfers.iter().enumerate() {
+        gpu.wait(*point)?;
+        progress(Progress::work("marching rounds", n as u64 + 1, rounds as u64));
     }
 
     let mut cascade_iterations = Vec::new();
@@ -649,9 +667,8 @@ pub fn run_lattice(
     if warm {
         lattice.plain();
     }
-    let it = lattice.iterate(gpu, &density, set.tol, set.max_iters)?;
+    let it = lattice.iterate(gpu, &density, set.tol, set.max_iters, progress)?;
     gpu.wait_idle_roles()?;
-    progress(rounds as u64 + 1, rounds as u64 + 1);
 
     // Energy bookkeeping: injected = absorbed + leaked + what is still moving in the lattice.
     let mut book = lattice.book(gpu)?;
@@ -832,7 +849,7 @@ fn cascade(
                 gpu.write_buffer(d.state(), 0, bytemuck::cast_slice(&state))?;
             }
         }
-        d.iterate(gpu, &dens, set.tol, set.max_iters)?;
+        d.iterate(gpu, &dens, set.tol, set.max_iters, &|_| {})?;
         iterations.push(d.iterations);
         let energy = lattice::read_f32(gpu, d.irradiance())?;
         guess = Some((Guess { energy, flux: Vec::new(), channels: nch }, dims, lambda));

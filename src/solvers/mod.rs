@@ -219,8 +219,28 @@ pub struct RenderRequest<'a> {
     pub settings: &'a Settings,
     /// Model every feature even when the scene does not need it (to measure the slim path).
     pub force_full: bool,
-    /// Called with (done, total) work units as the render progresses.
-    pub progress: &'a dyn Fn(u64, u64),
+    /// Called as the render progresses ([`Progress`]).
+    pub progress: &'a dyn Fn(Progress),
+}
+
+/// How far a render has got, for a progress display that does not lie: work of a known size
+/// counts units as they finish (not as they are submitted); an iteration to a tolerance has
+/// no known total and reports its convergence measure instead.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Progress {
+    /// `done` of `total` units of a stage (`stage` names a unit: "samples per pixel").
+    Work { stage: &'static str, done: u64, total: u64 },
+    /// Iterating to a tolerance: `change` is the convergence measure after `iteration`
+    /// iterations, `tol` its target; `remaining` the iterations left at the measured rate of
+    /// decay, once two measurements give one.
+    Converging { stage: &'static str, iteration: u64, change: f64, tol: f64, remaining: Option<u64> },
+}
+
+impl Progress {
+    /// Work units: `stage`, `done` of `total`.
+    pub fn work(stage: &'static str, done: u64, total: u64) -> Progress {
+        Progress::Work { stage, done, total }
+    }
 }
 
 impl RenderRequest<'_> {

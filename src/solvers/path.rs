@@ -37,6 +37,7 @@ use crate::output::Image;
 use crate::scene::{CameraKind, Light, Scene};
 
 use super::gpu_scene::{self, GpuScene, SCENE_SPEC};
+use super::Progress;
 use super::{
     resumable, Figure, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats,
     Variant,
@@ -505,7 +506,10 @@ impl Solver for Path {
         let seed = scene.render.seed;
         let kernels = (camera_lights > 0) as u64 + (!traced.is_empty()) as u64;
         let total = spp as u64 * kernels.max(1);
-        (req.progress)(0, total);
+        // One batch (the default below 2^24 pixel-samples) is one step: say so, rather than
+        // show a bar that cannot move until the end.
+        let stage = if batch >= spp { "samples per pixel, in one batch (path.batch)" } else { "samples per pixel" };
+        (req.progress)(Progress::work(stage, 0, total));
 
         let common = Common {
             gpu,
@@ -522,7 +526,9 @@ impl Solver for Path {
             rr_threshold,
         };
         let camera = if camera_lights > 0 || traced.is_empty() {
-            Some(camera_paths(&common, batch, equiangular, &|done| (req.progress)(done, total))?)
+            Some(camera_paths(&common, batch, equiangular, &|done| {
+                (req.progress)(Progress::work("samples per pixel", done, total))
+            })?)
         } else {
             None
         };
@@ -531,7 +537,7 @@ impl Solver for Path {
             None
         } else {
             Some(light_paths(&common, scene, &traced, light_batches.min(spp), &|done| {
-                (req.progress)(offset + done, total)
+                (req.progress)(Progress::work(stage, offset + done, total))
             })?)
         };
 

@@ -16,6 +16,7 @@ use crate::scene::Scene;
 use serde::Serialize;
 
 use super::gpu_scene::GpuScene;
+use super::Progress;
 use super::{resumable, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Solver, SolverError, Stats};
 
 /// Push constants of glsl/view/march.comp.
@@ -449,9 +450,9 @@ pub fn render_alone(
 ) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
     let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-    (req.progress)(0, 1);
+    (req.progress)(Progress::work("view pass", 0, 1));
     let view = march(gpu, scene, &gs, v, None)?;
-    (req.progress)(1, 1);
+    (req.progress)(Progress::work("view pass", 1, 1));
     let mut stats = Stats::new(ViewStats {
         octaves: v.octaves.n,
         dispatches: view.dispatches,

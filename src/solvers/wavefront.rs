@@ -21,6 +21,7 @@ use super::gpu_scene::{self, GpuScene};
 use super::lattice::LatticeGeom;
 use super::view::{self, ViewSettings};
 use super::wave_field::{self, wave_volume, WaveSettings, WaveVolume};
+use super::Progress;
 use super::{Knob, Knobs, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats, Variant};
 
 pub struct Wavefront;
@@ -92,11 +93,11 @@ impl Solver for Wavefront {
         let view = ViewSettings::parse(&k, "view_", scene)?;
         k.finish()?;
         let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-        (req.progress)(0, 2);
+        (req.progress)(Progress::work("passes", 0, 2));
         let vol = wave_volume(gpu, scene, &gs, &set, None)?;
-        (req.progress)(1, 2);
+        (req.progress)(Progress::work("passes", 1, 2));
         let res = view::march(gpu, scene, &gs, &view, Some(&vol.ms()))?;
-        (req.progress)(2, 2);
+        (req.progress)(Progress::work("passes", 2, 2));
         let mut stats = Stats::new(WavefrontStats {
             lights_traced: vol.lights_traced,
             channels: vol.channels,
