@@ -91,7 +91,8 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
     let s = scene(TINY);
     let reference = render(&gpu, &s, PATH, &[("render.spp", "512")]).image;
     let kinds = [PATH, SINGLE, LBL];
-    let (points, thr) = bench::bench_scene(&gpu, "tiny", &s, &reference, &kinds, true, 1, &|_| {}).unwrap();
+    let (points, thr) =
+        bench::bench_scene(&gpu, "tiny", &s, &reference, &kinds, &bench::Points::Cheapest(3), 1, &|_| {}).unwrap();
     assert_eq!(points.len(), 9, "three quick rungs per solver");
     for p in &points {
         assert!(p.gpu_ms > 0.0 && p.gpu_ms.is_finite(), "{p:?}");
@@ -217,4 +218,53 @@ fn bench_and_stability_commands_end_to_end() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(stab.join("stability.json")).unwrap()).unwrap();
     assert!(json["outcomes"].as_array().unwrap().iter().all(|o| o["passed"] == true));
+}
+
+#[test]
+fn points_parse_rung_lists() {
+    use bench::Points;
+    assert_eq!(Points::parse("1,3-5"), Ok(Points::Rungs(vec![1, 3, 4, 5])));
+    assert_eq!(Points::parse(" 2 , 2,1"), Ok(Points::Rungs(vec![1, 2])));
+    assert_eq!(Points::parse("4").unwrap().highest(), Some(4));
+    for bad in ["0", "3-1", "a", "", "1,,2", "-2"] {
+        let e = Points::parse(bad).expect_err(bad);
+        assert!(e.contains("--points") && e.contains("1,3-5"), "{bad}: {e}");
+    }
+}
+
+/// The progress count is the work: `bench` announces exactly [`bench::steps`] steps and
+/// `stability` exactly [`stability::steps`] renders, so "[k/N]" reaches N and never passes it;
+/// `--points` picks rungs by number.
+#[test]
+fn bench_and_stability_announce_the_steps_they_count() {
+    use scatterlab::measure::stability;
+    use std::cell::Cell;
+    let gpu = gpu();
+    let cache = tempfile::tempdir().unwrap();
+    let scenes = vec![bench::BenchScene { name: "tiny".into(), text: TINY.into(), scene: scene(TINY) }];
+    let solvers = [PATH, SINGLE];
+    let cfg = bench::BenchConfig {
+        solvers: &solvers,
+        ref_spp: 16,
+        repeats: 1,
+        points: bench::Points::parse("2,4").unwrap(),
+        overrides: &[],
+        cache: cache.path(),
+    };
+    let calls = Cell::new(0usize);
+    let result = bench::run(&gpu, &scenes, &cfg, &|_| calls.set(calls.get() + 1)).expect("bench");
+    // Reference, two rungs each of two solvers, two slim-vs-full pairs.
+    assert_eq!((calls.get(), bench::steps(&scenes, &cfg)), (7, 7));
+    let rungs: Vec<(&str, &str)> = result.points.iter().map(|p| (p.solver, p.value.as_str())).collect();
+    let want_path: Vec<String> = PATH.ladder(&scenes[0].scene).iter().map(|r| r.value.clone()).collect();
+    assert_eq!(
+        rungs.iter().filter(|(s, _)| *s == "path").map(|(_, v)| *v).collect::<Vec<_>>(),
+        [&want_path[1], &want_path[3]]
+    );
+
+    let calls = Cell::new(0usize);
+    stability::run(&gpu, &[SINGLE], false, &|_| calls.set(calls.get() + 1)).expect("stability");
+    assert_eq!(calls.get(), stability::steps(&[SINGLE], false).unwrap());
+    assert!(calls.get() > 10, "{}", calls.get());
+    assert_clean(&gpu);
 }

@@ -846,6 +846,29 @@ fn outputs_carry_provenance() {
     assert_ne!(r["scene_hash"].as_str(), Some(hash.as_str()), "the digest ignores the grid data");
 }
 
+/// `bench --points` past a ladder's end, or malformed, is refused before any work (no
+/// output folder, no device).
+#[test]
+fn bench_points_are_checked_first() {
+    let c = Case::new();
+    let s = c.scene(&base());
+    let out = c.path("out/bench");
+    let bench = |points: &str| {
+        vec![
+            "bench".to_string(),
+            s.display().to_string(),
+            "--solvers".into(),
+            "path".into(),
+            "--points".into(),
+            points.into(),
+            "--out".into(),
+            out.display().to_string(),
+        ]
+    };
+    c.fails(bench("2,9"), &["--points 2,9", "solver path", "5 rungs"]);
+    c.fails(bench("0"), &["--points 0", "rung number"]);
+}
+
 /// Errors whose cause is an I/O or decoder error must say it once. Today the scene-file and
 /// EXR errors embed their source in their own message and the CLI appends the source chain
 /// (`{e:#}`) again, e.g. `nope.toml: cannot read scene file: No such file or directory (os

@@ -285,7 +285,9 @@ fn a_fake_solver_is_picked_up_everywhere() {
     let s = scene(CUBE);
     // Bench walks its ladder beside a real solver, against the reference.
     let reference = render(&gpu, &s, PATH, &[("render.spp", "4096")]).image;
-    let (points, _) = bench::bench_scene(&gpu, "cube", &s, &reference, &[FAKE, SINGLE], true, 1, &|_| {}).unwrap();
+    let (points, _) =
+        bench::bench_scene(&gpu, "cube", &s, &reference, &[FAKE, SINGLE], &bench::Points::Cheapest(3), 1, &|_| {})
+            .unwrap();
     let fake: Vec<_> = points.iter().filter(|p| p.solver == "absorber").collect();
     assert_eq!(fake.len(), 3);
     assert_eq!(fake.iter().map(|p| p.value.as_str()).collect::<Vec<_>>(), ["0.25", "0.5", "1"]);

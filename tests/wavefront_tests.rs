@@ -528,9 +528,17 @@ fn bench_ladder_runs_for_wavefront() {
     let gpu = gpu();
     let sc = cloud_with_light_inside(16);
     let reference = render(&gpu, &sc, PATH, &[("render.spp", "256")]).image;
-    let (points, _) =
-        scatterlab::measure::bench::bench_scene(&gpu, "cloud-inside", &sc, &reference, &[WAVEFRONT], true, 1, &|_| {})
-            .unwrap();
+    let (points, _) = scatterlab::measure::bench::bench_scene(
+        &gpu,
+        "cloud-inside",
+        &sc,
+        &reference,
+        &[WAVEFRONT],
+        &scatterlab::measure::bench::Points::Cheapest(3),
+        1,
+        &|_| {},
+    )
+    .unwrap();
     assert_eq!(points.len(), 3);
     for p in &points {
         assert!(p.gpu_ms > 0.0 && p.metrics.rel_l2.is_finite() && p.metrics.nan_inf_count == 0, "{p:?}");

@@ -34,8 +34,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Export(a) => export(a),
         Command::Devices { gpu, json } => devices(&gpu, json),
         Command::Stability { solvers, slow, out, gpu } => stability(&solvers, slow, &out, &gpu),
-        Command::Bench { scenes, solvers, out, ref_spp, repeats, quick, throughput, set, cache, gpu } => {
-            bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, throughput, set, cache }, &gpu)
+        Command::Bench { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache, gpu } => {
+            bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache }, &gpu)
         }
         Command::Scene { command: SceneCommand::Info { scene, set, json } } => scene_info(&scene, &set, json),
         Command::Knobs { solver, markdown } => knobs(solver.as_deref(), markdown),
@@ -244,6 +244,7 @@ struct BenchArgs {
     ref_spp: u32,
     repeats: u32,
     quick: bool,
+    points: Option<String>,
     throughput: bool,
     set: Vec<String>,
     cache: PathBuf,
@@ -266,20 +267,42 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         let name = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         scenes.push(b::BenchScene { name, text, scene: Scene::load(p, &sets, &LoadOptions::default())? });
     }
+    let points = match (&a.points, a.quick) {
+        (Some(p), _) => b::Points::parse(p).map_err(|e| anyhow!(e))?,
+        (None, true) => b::Points::Cheapest(3),
+        (None, false) => b::Points::All,
+    };
+    // A rung past a ladder's end is a typo: refuse it before any GPU work.
+    if let Some(top) = points.highest() {
+        for s in &scenes {
+            for solver in solvers.iter().filter(|solver| solver.inapplicable(&s.scene).is_none()) {
+                let n = solver.ladder(&s.scene).len();
+                if top > n {
+                    bail!(
+                        "--points {}: solver {}'s ladder on {} has {n} rungs (1-{n}); pick rungs it has or narrow \
+                         --solvers",
+                        a.points.as_deref().unwrap_or_default(),
+                        solver.name(),
+                        s.name
+                    );
+                }
+            }
+        }
+    }
     std::fs::create_dir_all(&a.out)
         .map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", a.out.display()))?;
     let gpu = Gpu::new(&gpu_options(g))?;
     let info = gpu.info().clone();
-    let bar = ProgressBar::new_spinner();
     let cfg = b::BenchConfig {
         solvers: &solvers,
         ref_spp: a.ref_spp,
         repeats: a.repeats,
-        quick: a.quick,
+        points: points.clone(),
         overrides: &sets,
         cache: &a.cache,
     };
-    let result = b::run(&gpu, &scenes, &cfg, &|m| bar.set_message(m.to_string())).map_err(|e| anyhow!(e))?;
+    let bar = counted_bar(b::steps(&scenes, &cfg));
+    let result = b::run(&gpu, &scenes, &cfg, &|m| step(&bar, m)).map_err(|e| anyhow!(e))?;
     bar.finish_and_clear();
     check_validation(&gpu)?;
     for (name, svg) in &result.plots {
@@ -289,11 +312,11 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
     output::write_text(&csv_path, b::csv(&result.points))?;
     let ladders: Vec<_> = solvers
         .iter()
-        .map(|s| json!({ "solver": s.name(), "rungs": scenes.first().map(|x| b::ladder(*s, &x.scene, a.quick)).unwrap_or_default() }))
+        .map(|s| json!({ "solver": s.name(), "rungs": scenes.first().map(|x| b::ladder(*s, &x.scene, &points)).unwrap_or_default() }))
         .collect();
     let doc = json!({
         "scatterlab": env!("CARGO_PKG_VERSION"), "device": info, "references": result.references, "quick": a.quick,
-        "repeats": a.repeats, "ladders": ladders, "points": result.points, "throughput": result.throughput,
+        "points": points, "repeats": a.repeats, "ladders": ladders, "points": result.points, "throughput": result.throughput,
         "slim_vs_full": result.slim_vs_full, "skipped": result.skipped,
     });
     output::write_json(&a.out.join("bench.json"), &doc)?;
@@ -364,13 +387,34 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
     Ok(())
 }
 
+/// A bar over `total` steps of unequal cost (a reference render next to a 16-voxel lattice):
+/// the count and the elapsed time, and no ETA, which a count of such steps cannot give.
+fn counted_bar(total: usize) -> ProgressBar {
+    let bar = ProgressBar::new(total as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} [{pos}/{len}] {msg} ({elapsed})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(150));
+    bar
+}
+
+/// A step starts: the steps before it are done.
+fn step(bar: &ProgressBar, what: &str) {
+    if bar.message().is_empty() {
+        bar.set_position(0);
+    } else {
+        bar.inc(1);
+    }
+    bar.set_message(what.to_string());
+}
+
 fn stability(names: &[String], slow: bool, out: &Path, g: &GpuArgs) -> Result<()> {
     let solvers = chosen_solvers(names)?;
     std::fs::create_dir_all(out).map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", out.display()))?;
     let gpu = Gpu::new(&gpu_options(g))?;
-    let bar = ProgressBar::new_spinner();
-    let outcomes = crate::measure::stability::run(&gpu, &solvers, slow, &|m| bar.set_message(m.to_string()))
-        .map_err(|e| anyhow!(e))?;
+    let bar = counted_bar(crate::measure::stability::steps(&solvers, slow).map_err(|e| anyhow!(e))?);
+    let outcomes = crate::measure::stability::run(&gpu, &solvers, slow, &|m| step(&bar, m)).map_err(|e| anyhow!(e))?;
     bar.finish_and_clear();
     check_validation(&gpu)?;
     outln!("{}", crate::measure::stability::table(&outcomes));

@@ -70,9 +70,13 @@ pub enum Command {
         /// Renders per point; times are medians.
         #[arg(long, default_value_t = 1)]
         repeats: u32,
-        /// The cheap end of each ladder only.
-        #[arg(long)]
+        /// The cheap end of each ladder only (its three cheapest rungs).
+        #[arg(long, conflicts_with = "points")]
         quick: bool,
+        /// Which rungs of each solver's ladder to run, numbered from 1 at the cheap end:
+        /// `2`, `1,3-5` (`scatterlab knobs` and bench.json's `ladders` list them).
+        #[arg(long, value_name = "LIST")]
+        points: Option<String>,
         /// Also print the throughput table (samples/s, path segments/s, lattice voxel-updates/s, GB/s).
         #[arg(long)]
         throughput: bool,

@@ -21,14 +21,63 @@ use crate::solvers::{self, Rung, Solver};
 
 use super::render_with as render;
 
-/// A solver's quality ladder on `scene`, cheapest first; `quick` keeps the cheap end (three
-/// rungs).
-pub fn ladder(solver: &dyn Solver, scene: &Scene, quick: bool) -> Vec<Rung> {
-    let mut v = solver.ladder(scene);
-    if quick {
-        v.truncate(3);
+/// Which rungs of each solver's ladder `bench` runs.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub enum Points {
+    /// Every rung.
+    All,
+    /// The `n` cheapest (`--quick`: 3).
+    Cheapest(usize),
+    /// These rungs, numbered from 1 at the cheap end, ascending (`--points 1,3-5`).
+    Rungs(Vec<usize>),
+}
+
+impl Points {
+    /// `--points`: comma-separated rung numbers and ranges counted from 1 at the cheap end
+    /// (`2`, `1,3-5`).
+    pub fn parse(text: &str) -> Result<Points, String> {
+        let bad = |part: &str| {
+            format!("--points {text}: '{part}' is not a rung number or range; give e.g. 1,3-5 (rungs from 1, cheapest first)")
+        };
+        let mut v = Vec::new();
+        for part in text.split(',').map(str::trim) {
+            let num = |s: &str| s.trim().parse::<usize>().ok().filter(|n| *n >= 1).ok_or_else(|| bad(part));
+            match part.split_once('-') {
+                Some((a, b)) => {
+                    let (a, b) = (num(a)?, num(b)?);
+                    if a > b {
+                        return Err(bad(part));
+                    }
+                    v.extend(a..=b);
+                }
+                None => v.push(num(part)?),
+            }
+        }
+        v.sort_unstable();
+        v.dedup();
+        Ok(Points::Rungs(v))
     }
-    v
+
+    /// The highest rung number asked for, if any is named.
+    pub fn highest(&self) -> Option<usize> {
+        match self {
+            Points::Rungs(v) => v.last().copied(),
+            _ => None,
+        }
+    }
+}
+
+/// A solver's quality ladder on `scene`, cheapest first, cut to `points` (numbers past the
+/// ladder's end are not there: the CLI refuses them before any work).
+pub fn ladder(solver: &dyn Solver, scene: &Scene, points: &Points) -> Vec<Rung> {
+    let v = solver.ladder(scene);
+    match points {
+        Points::All => v,
+        Points::Cheapest(n) => v.into_iter().take(*n).collect(),
+        Points::Rungs(which) => {
+            v.into_iter().enumerate().filter(|(i, _)| which.contains(&(i + 1))).map(|(_, r)| r).collect()
+        }
+    }
 }
 
 /// A measured point.
@@ -193,14 +242,14 @@ pub fn bench_scene(
     scene: &Scene,
     reference: &Image,
     solvers: &[&dyn Solver],
-    quick: bool,
+    points_: &Points,
     repeats: u32,
     progress: &dyn Fn(&str),
 ) -> Result<(Vec<Point>, Vec<Throughput>), String> {
     let mut points = Vec::new();
     let mut thr = Vec::new();
     for &solver in solvers {
-        for rung in ladder(solver, scene, quick) {
+        for rung in ladder(solver, scene, points_) {
             progress(&format!("{name}: {} {}={}", solver.name(), rung.knob, rung.value));
             let mut gpu_ms = Vec::new();
             let mut wall_ms = Vec::new();
@@ -424,8 +473,8 @@ pub struct BenchConfig<'a> {
     pub ref_spp: u32,
     /// Renders per point; times are medians.
     pub repeats: u32,
-    /// The cheap end of each ladder only.
-    pub quick: bool,
+    /// The rungs of each ladder to run.
+    pub points: Points,
     /// Scene overrides the scenes were loaded with (part of the cache key).
     pub overrides: &'a [(String, String)],
     /// Where references are cached.
@@ -481,6 +530,19 @@ pub struct BenchResult {
 /// Bench every scene: its cached reference, every solver's ladder, the plot, and slim against
 /// full modelling at each solver's third rung (for `path`, enough samples that the difference
 /// is not all noise).
+/// How many steps [`run`] takes (each announced by one `progress` call): per scene the
+/// reference, every rung of every applicable solver, and each solver's slim-vs-full pair.
+pub fn steps(scenes: &[BenchScene], cfg: &BenchConfig) -> usize {
+    scenes
+        .iter()
+        .map(|s| {
+            let here = cfg.solvers.iter().filter(|solver| solver.inapplicable(&s.scene).is_none());
+            1 + here.map(|solver| ladder(*solver, &s.scene, &cfg.points).len() + 1).sum::<usize>()
+        })
+        .sum()
+}
+
+/// `progress` is called once as each of the [`steps`] steps starts, with what it is.
 pub fn run(
     gpu: &Gpu,
     scenes: &[BenchScene],
@@ -518,14 +580,14 @@ pub fn run(
             }
         }
         let (mut points, thr) =
-            bench_scene(gpu, &s.name, &s.scene, &reference.image, &solvers_here, cfg.quick, cfg.repeats, progress)?;
+            bench_scene(gpu, &s.name, &s.scene, &reference.image, &solvers_here, &cfg.points, cfg.repeats, progress)?;
         speedups(&mut points, solvers::reference().name(), noise);
         out.plots.push((s.name.clone(), svg(&format!("{}: error vs GPU time on {}", s.name, info.name), &points)));
         for &solver in &solvers_here {
             // A deterministic solver's slim and full renders differ or not at any rung: its
             // cheapest. A Monte Carlo one (the reference) at its third, so the difference is
             // not all noise.
-            let rung = ladder(solver, &s.scene, true)
+            let rung = ladder(solver, &s.scene, &Points::Cheapest(3))
                 .into_iter()
                 .nth(if solver.is_reference() { 2 } else { 0 })
                 .ok_or_else(|| format!("solver {}'s bench ladder has fewer than three rungs", solver.name()))?;

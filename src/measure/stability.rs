@@ -138,7 +138,21 @@ fn render(
     super::render_with(gpu, scene, solver, sets, false).map(|(r, _)| r)
 }
 
-/// Run every case (skipping slow ones unless `include_slow`) for every solver.
+/// How many renders [`run`] judges (each announced by one `progress` call): every variant
+/// of every solver that applies to each case run.
+pub fn steps(solvers_: &[&dyn Solver], include_slow: bool) -> Result<usize, String> {
+    let mut n = 0;
+    for case in cases().into_iter().filter(|c| include_slow || !c.slow) {
+        let scene =
+            Scene::from_str(&scene_text(&case), &case.name, std::path::Path::new("."), &[], &LoadOptions::default())
+                .map_err(|e| e.to_string())?;
+        n += solvers_.iter().map(|s| s.stability().into_iter().filter(|v| (v.applies)(&scene)).count()).sum::<usize>();
+    }
+    Ok(n)
+}
+
+/// Run every case (skipping slow ones unless `include_slow`) for every solver; `progress` is
+/// called as each of the [`steps`] renders starts.
 pub fn run(
     gpu: &Gpu,
     solvers_: &[&dyn Solver],
