@@ -977,8 +977,10 @@ fn compare_identical_and_error_png() {
     let (stdout, _) = succeeded(&c.run(["compare", a.to_str().unwrap(), a.to_str().unwrap()]));
     let rel =
         stdout.lines().find_map(|l| l.strip_prefix("relL2")).unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
-    assert_eq!(rel.trim().parse::<f64>().expect("relL2 number"), 0.0, "{stdout}");
+    let rel = rel.split_whitespace().next().unwrap_or_default();
+    assert_eq!(rel.parse::<f64>().expect("relL2 number"), 0.0, "{stdout}");
     assert!(stdout.contains("NaN/Inf"), "{stdout}");
+    assert!(stdout.contains("noise floor unknown"), "no variance layer, no floor: {stdout}");
 
     let (stdout, _) = succeeded(&c.run(["compare", b.to_str().unwrap(), a.to_str().unwrap(), "--json"]));
     let m: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
@@ -988,8 +990,50 @@ fn compare_identical_and_error_png() {
     let err = c.path("out/err.png");
     succeeded(&c.run(["compare", b.to_str().unwrap(), a.to_str().unwrap(), "--error-png", err.to_str().unwrap()]));
     let png = image::open(&err).expect("error PNG decodes");
-    assert_eq!((png.width(), png.height()), (16, 16));
+    let (gap, bar) = scatterlab::output::metrics::error_map_legend_rows(16);
+    assert_eq!((png.width(), png.height()), (16, 16 + gap + bar), "the image and its colour bar");
     assert_eq!(c.listing(), ["a.exr", "b.exr", "out", "out/err.png"], "stray files");
+}
+
+/// `compare` knows the noise: two independent `path` renders of one scene differ by their
+/// noise alone, so the error with both variance layers removed is near zero (within what
+/// the noise can resolve) though the raw relL2 is not; `single` against `path` lacks the
+/// multiple scattering, a bias the noise cannot hide.
+#[test]
+fn compare_removes_both_images_noise() {
+    let c = Case::new();
+    let scene = repo("scenes/homogeneous-sphere.toml");
+    let render = |name: &str, extra: &[&str]| {
+        let out = c.path(name);
+        let size = ["--set", "render.width=24", "--set", "render.height=24"];
+        let args =
+            [&["render", scene.to_str().unwrap(), "-q", "--out", out.to_str().unwrap()][..], &size, extra].concat();
+        succeeded(&c.run(args));
+        out
+    };
+    let (p1, p2) =
+        (render("p1.exr", &["--spp", "64", "--seed", "1"]), render("p2.exr", &["--spp", "64", "--seed", "2"]));
+    let s1 = render("s1.exr", &["--solver", "single"]);
+    let compare = |a: &Path, b: &Path| -> serde_json::Value {
+        let (stdout, _) = succeeded(&c.run(["compare", a.to_str().unwrap(), b.to_str().unwrap(), "--json"]));
+        serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"))
+    };
+    let m = compare(&p1, &p2);
+    let (raw, noise) = (m["rel_l2"].as_f64().unwrap(), &m["noise"]);
+    let (bias, resolution) = (noise["rel_l2_corrected"].as_f64().unwrap(), noise["resolution"].as_f64().unwrap());
+    let (floor_a, floor_r) = (noise["image"].as_f64().unwrap(), noise["reference"].as_f64().unwrap());
+    // Independent images: relL2^2 is about the sum of the two floors squared.
+    let expected = (floor_a * floor_a + floor_r * floor_r).sqrt();
+    assert!((raw / expected - 1.0).abs() < 0.25, "raw {raw} vs the floors' {expected}: {m}");
+    assert!(bias < 1.5 * resolution && bias < 0.5 * raw, "noise taken for bias: {m}");
+
+    let m = compare(&s1, &p2);
+    let (raw, noise) = (m["rel_l2"].as_f64().unwrap(), &m["noise"]);
+    let bias = noise["rel_l2_corrected"].as_f64().unwrap();
+    assert!(noise["image"].is_null(), "single has no variance layer: {m}");
+    assert!(bias > 0.9 * raw && bias > 3.0 * noise["resolution"].as_f64().unwrap(), "bias hidden: {m}");
+    let (stdout, _) = succeeded(&c.run(["compare", s1.to_str().unwrap(), p2.to_str().unwrap()]));
+    assert!(stdout.contains("ref noise") && stdout.contains("bias relL2"), "{stdout}");
 }
 
 // ------------------------------------------------------------------ renders that succeed
@@ -1043,7 +1087,11 @@ fn render_sphere(solver: &str) -> serde_json::Value {
     let (stdout, _) = succeeded(&c.run(["compare", exr.to_str().unwrap(), exr.to_str().unwrap()]));
     let rel =
         stdout.lines().find_map(|l| l.strip_prefix("relL2")).unwrap_or_else(|| panic!("no relL2 line:\n{stdout}"));
-    assert_eq!(rel.trim().parse::<f64>().expect("relL2 number"), 0.0, "{stdout}");
+    assert_eq!(
+        rel.split_whitespace().next().unwrap_or_default().parse::<f64>().expect("relL2 number"),
+        0.0,
+        "{stdout}"
+    );
     doc
 }
 

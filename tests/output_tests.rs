@@ -169,7 +169,13 @@ fn output_error_png_and_json_report() {
     let png = dir.path().join("error.png");
     error_png(&png, &a, &reference).unwrap();
     let decoded = image::open(&png).unwrap().to_rgb8();
-    assert_eq!(decoded.dimensions(), (8, 4));
+    let (gap, bar) = scatterlab::output::metrics::error_map_legend_rows(4);
+    assert_eq!(decoded.dimensions(), (8, 4 + gap + bar));
+    // The legend: white gap, then the ramp from its dark end (left) to its bright end (right).
+    assert_eq!(decoded.get_pixel(4, 4).0, [255, 255, 255]);
+    assert_eq!(decoded.get_pixel(0, 4 + gap).0, [68, 1, 84]);
+    assert_eq!(decoded.get_pixel(7, 4 + gap).0, [253, 231, 37]);
+    assert_eq!(decoded.get_pixel(0, 4 + gap + bar - 1).0, [0, 0, 0], "a tick at 1e-4");
     assert_eq!(decoded.get_pixel(3, 3).0, [255, 0, 255]);
     assert_eq!(decoded.get_pixel(0, 0).0, [68, 1, 84], "zero error is the dark end of the ramp");
     assert_ne!(decoded.get_pixel(2, 2).0, [68, 1, 84]);
@@ -230,4 +236,31 @@ fn output_writers_fail_cleanly_into_a_missing_directory() {
     let err = write_png_tonemapped(&path, &Image::new(2, 2), 0.0).unwrap_err();
     let msg = err.to_string();
     assert!(msg.contains("no-such-dir") && msg.contains("exists"), "{msg}");
+}
+
+/// The noise floor's arithmetic on images with known variance: a noise-free image 0.5 above a
+/// reference of 1 whose values have variance 0.01 measures sqrt(0.25 - 0.01) once the
+/// reference's noise is removed; an image that differs by no more than both noises measures 0.
+#[test]
+fn noise_floor_removes_known_variance() {
+    use scatterlab::output::metrics::noise_floor;
+    let n = 10u32;
+    let flat = |v: f32| Image::from_fn(n, n, |_, _| [v, v, v]);
+    let (r, var_r) = (flat(1.0), flat(0.01));
+    // Bias 0.5, no noise of its own: sum d^2 = 0.25 N, minus the reference's 0.01 N.
+    let f = noise_floor(&flat(1.5), &r, None, Some(&var_r)).unwrap();
+    assert!((f.reference.unwrap() - 0.1).abs() < 1e-6, "{f:?}");
+    assert!(f.image.is_none());
+    assert!((f.rel_l2_corrected.unwrap() - 0.24f64.sqrt()).abs() < 1e-6, "{f:?}");
+    // The resolution: sqrt(2 sqrt(2 N 0.01^2) / N) with N = 300 values.
+    let values = 3.0 * (n * n) as f64;
+    let want = (2.0 * (2.0 * values * 1e-4).sqrt() / values).sqrt();
+    assert!((f.resolution.unwrap() - want).abs() < 1e-6, "{f:?} vs {want}");
+    // Differences no larger than both variances: no bias.
+    let f = noise_floor(&flat(1.1), &r, Some(&flat(0.01)), Some(&var_r)).unwrap();
+    assert_eq!(f.rel_l2_corrected, Some(0.0), "{f:?}");
+    assert!((f.image.unwrap() - 0.1).abs() < 1e-6);
+    // Without the reference's variance nothing can be said.
+    let f = noise_floor(&flat(1.1), &r, Some(&var_r), None).unwrap();
+    assert!(f.rel_l2_corrected.is_none() && f.reference.is_none() && f.resolution.is_none(), "{f:?}");
 }

@@ -130,19 +130,49 @@ fn compare(a: CompareArgs) -> Result<()> {
         );
     }
     let m = output::compare(&x, &r)?;
+    // The variance layers `path` writes (the variance of each pixel's mean): absent is not
+    // an error (a deterministic solver has none), a broken one is.
+    let variance = |p: &Path| match output::read_exr_layer(p, "variance") {
+        Ok(v) => Ok(Some(v)),
+        Err(output::OutputError::MissingLayer { .. }) => Ok(None),
+        Err(e) => Err(e),
+    };
+    let (var_a, var_r) = (variance(&a.a)?, variance(&a.b)?);
+    let noise = output::metrics::noise_floor(&x, &r, var_a.as_ref(), var_r.as_ref())?;
     if let Some(p) = &a.error_png {
         check_output_path(p, "--error-png", &["png"])?;
         output::error_png(p, &x, &r)?;
     }
     if a.json {
-        outln!("{}", serde_json::to_string_pretty(&m)?);
+        let mut doc = serde_json::to_value(m)?;
+        doc["noise"] = serde_json::to_value(noise)?;
+        outln!("{}", serde_json::to_string_pretty(&doc)?);
     } else {
-        outln!("relL2         {:.6}", m.rel_l2);
+        outln!("relL2         {:.6}   ||a - ref|| / ||ref||, noise included", m.rel_l2);
+        match (noise.reference, noise.rel_l2_corrected, noise.resolution) {
+            (Some(floor), Some(corrected), Some(resolution)) => {
+                outln!("ref noise     {floor:.6}   the relL2 the reference's own noise adds (its variance layer)");
+                match noise.image {
+                    Some(n) => outln!("image noise   {n:.6}   the same for the judged image"),
+                    None => outln!("image noise   none       no variance layer: taken as noise-free (deterministic)"),
+                }
+                let verdict = if corrected <= resolution {
+                    format!("consistent with zero: below the {resolution:.6} the noise can resolve")
+                } else {
+                    format!("the bias; the noise resolves errors above {resolution:.6}")
+                };
+                outln!("bias relL2    {corrected:.6}   relL2 with both images' noise removed: {verdict}");
+            }
+            _ => outln!("ref noise     unknown    the reference carries no variance layer: noise floor unknown"),
+        }
         outln!("relMSE        {:.6e}", m.rel_mse);
         outln!("RMSE          {:.6e}", m.rmse);
         outln!("energy ratio  {:.6}", m.energy_ratio);
         outln!("max abs error {:.6e}", m.max_abs_error);
         outln!("NaN/Inf       {}", m.nan_inf_count);
+    }
+    if let Some(p) = &a.error_png {
+        eprintln!("wrote {} ({})", p.display(), output::metrics::ERROR_MAP_DESCRIPTION);
     }
     Ok(())
 }

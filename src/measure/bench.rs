@@ -166,13 +166,7 @@ impl Reference {
     /// The relL2 the reference's own noise adds to any comparison with it:
     /// sqrt(sum of pixel variances) / ||reference|| (the expected ||r - r_true|| / ||r||).
     pub fn noise(&self) -> f64 {
-        let norm2: f64 = self.image.data.iter().map(|v| (*v as f64).powi(2)).sum();
-        let var: f64 = self.variance.as_ref().map_or(0.0, |v| v.data.iter().map(|x| *x as f64).sum());
-        if norm2 > 0.0 {
-            (var / norm2).sqrt()
-        } else {
-            0.0
-        }
+        self.variance.as_ref().map_or(0.0, |v| output::metrics::relative_noise(&self.image, v))
     }
 }
 

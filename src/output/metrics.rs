@@ -85,6 +85,76 @@ pub fn compare(a: &Image, reference: &Image) -> Result<Metrics, OutputError> {
     })
 }
 
+/// What the images' own noise does to a comparison, from their per-pixel variance layers
+/// (the variance of each pixel's mean, as `path` writes it). For independent images,
+/// E[sum (a - r)^2] = sum bias^2 + sum var_a + sum var_r, so the bias alone is estimated by
+/// subtracting both variances; the estimate itself fluctuates, with standard deviation
+/// sqrt(2 sum (var_a + var_r)^2) where there is no bias (Gaussian pixel means).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct NoiseFloor {
+    /// sqrt(sum var_r) / ||r||: the relL2 the reference's noise alone adds to any comparison
+    /// (its expected distance from the noise-free image). `None` without a variance layer.
+    pub reference: Option<f64>,
+    /// sqrt(sum var_a) / ||r||: the same for the judged image; `None` without a layer (a
+    /// deterministic solver's image has no noise).
+    pub image: Option<f64>,
+    /// sqrt(max(0, sum (a - r)^2 - sum var_a - sum var_r)) / ||r||: the relL2 with both
+    /// images' noise removed. `None` when the reference's noise is unknown.
+    pub rel_l2_corrected: Option<f64>,
+    /// The smallest corrected relL2 that two standard deviations of the noise let one tell
+    /// from zero: sqrt(2 sqrt(2 sum (var_a + var_r)^2)) / ||r||. A corrected error below it is
+    /// consistent with none.
+    pub resolution: Option<f64>,
+}
+
+/// [`NoiseFloor`] of `a` against `reference`, over the pixels [`compare`] uses (those where
+/// `a` is finite). Variance layers must match the images' size.
+pub fn noise_floor(
+    a: &Image,
+    reference: &Image,
+    var_a: Option<&Image>,
+    var_r: Option<&Image>,
+) -> Result<NoiseFloor, OutputError> {
+    check_same_size(a, reference, "comparison")?;
+    for v in [var_a, var_r].into_iter().flatten() {
+        check_same_size(v, reference, "variance layer")?;
+    }
+    let (mut sum_sq_diff, mut sum_sq_ref, mut sum_va, mut sum_vr, mut sum_v2) = (0f64, 0f64, 0f64, 0f64, 0f64);
+    for i in 0..a.pixel_count() {
+        let pa = &a.data[3 * i..3 * i + 3];
+        if pa.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        for c in 0..3 {
+            let k = 3 * i + c;
+            let (x, r) = (f64::from(a.data[k]), f64::from(reference.data[k]));
+            let va = var_a.map_or(0.0, |v| f64::from(v.data[k]).max(0.0));
+            let vr = var_r.map_or(0.0, |v| f64::from(v.data[k]).max(0.0));
+            sum_sq_diff += (x - r) * (x - r);
+            sum_sq_ref += r * r;
+            sum_va += va;
+            sum_vr += vr;
+            sum_v2 += (va + vr) * (va + vr);
+        }
+    }
+    let rel = |x: f64| ratio(x, sum_sq_ref).sqrt();
+    let known = var_r.is_some();
+    Ok(NoiseFloor {
+        reference: var_r.map(|_| rel(sum_vr)),
+        image: var_a.map(|_| rel(sum_va)),
+        rel_l2_corrected: known.then(|| rel((sum_sq_diff - sum_va - sum_vr).max(0.0))),
+        resolution: known.then(|| rel(2.0 * (2.0 * sum_v2).sqrt())),
+    })
+}
+
+/// sqrt(sum of `variance`) / ||`image`||: the relL2 an image's own noise stands for (the
+/// expected distance of a Monte Carlo image from its noise-free mean).
+pub fn relative_noise(image: &Image, variance: &Image) -> f64 {
+    let norm2: f64 = image.data.iter().map(|v| f64::from(*v).powi(2)).sum();
+    let var: f64 = variance.data.iter().map(|x| f64::from(*x).max(0.0)).sum();
+    ratio(var, norm2).sqrt()
+}
+
 /// `num / den`, with `0 / 0 = 0` (identical all-black images agree perfectly).
 fn ratio(num: f64, den: f64) -> f64 {
     if den == 0.0 && num == 0.0 {
@@ -115,7 +185,13 @@ pub const ERROR_MAP_MAX: f32 = 1.0;
 /// How [`error_png`] maps error to colour, for captions and the CLI.
 pub const ERROR_MAP_DESCRIPTION: &str = "per-pixel relative error e = mean_c|a - r| / (mean_c|r| + 1e-3), \
      log10 scale from 1e-4 (dark purple) to 1 (yellow), viridis ramp, clamped at both ends; \
-     NaN/Inf pixels magenta";
+     NaN/Inf pixels magenta; the bar below the image is the scale, 1e-4 at its left end to 1 at its right, \
+     a black tick at each decade (1e-4, 1e-3, 1e-2, 1e-1, 1)";
+
+/// Rows of white gap and of colour bar [`error_png`] adds below an image `height` rows tall.
+pub fn error_map_legend_rows(height: u32) -> (u32, u32) {
+    (2, (height / 10).max(6))
+}
 
 /// Viridis (matplotlib) sampled at nine evenly spaced points, 8-bit sRGB.
 const VIRIDIS: [[f32; 3]; 9] = [
@@ -163,5 +239,22 @@ pub fn error_png(path: &Path, a: &Image, reference: &Image) -> Result<(), Output
         let t = if e > 0.0 { (e.log10() - lo) / (hi - lo) } else { 0.0 };
         rgb8.extend_from_slice(&viridis(t));
     }
-    write_rgb8(path, a.width, a.height, &rgb8)
+    // The legend: a gap, then the ramp across the full width with a tick per decade.
+    let (gap, bar) = error_map_legend_rows(a.height);
+    let w = a.width as usize;
+    rgb8.extend(std::iter::repeat_n(255u8, 3 * w * gap as usize));
+    let decades = (hi - lo).round() as usize;
+    let tick = |x: usize| (0..=decades).any(|k| (k * (w - 1) + decades / 2) / decades.max(1) == x);
+    for row in 0..bar {
+        for x in 0..w {
+            let t = if w > 1 { x as f32 / (w - 1) as f32 } else { 0.0 };
+            // Ticks on the lower half of the bar, so the colour at each decade shows above.
+            if row >= bar / 2 && tick(x) {
+                rgb8.extend_from_slice(&[0, 0, 0]);
+            } else {
+                rgb8.extend_from_slice(&viridis(t));
+            }
+        }
+    }
+    write_rgb8(path, a.width, a.height + gap + bar, &rgb8)
 }
