@@ -132,7 +132,7 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
         assert_eq!(line.split(',').count(), header.len(), "{line}");
     }
 
-    let svg = bench::svg("tiny <&> \"quoted\"", &points);
+    let svg = bench::svg("tiny <&> \"quoted\"", &points, Some(1e-3));
     let doc = roxmltree::Document::parse(&svg).unwrap_or_else(|e| panic!("SVG is not well-formed XML: {e}"));
     assert_eq!(doc.root_element().tag_name().name(), "svg");
     let count = |tag: &str| doc.descendants().filter(|n| n.has_tag_name(tag)).count();
@@ -140,7 +140,33 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
     let ringed = doc.descendants().filter(|n| n.has_tag_name("circle") && n.attribute("fill") == Some("none")).count();
     assert_eq!(ringed, points.iter().filter(|p| p.pareto).count() + 1, "a ring per Pareto point, plus the legend's");
     assert!(doc.descendants().any(|n| n.text() == Some("Pareto front")));
+    assert!(
+        doc.descendants().any(|n| n.attribute("stroke-dasharray").is_some())
+            && doc.descendants().any(|n| n.text().is_some_and(|t| t.starts_with("reference noise floor"))),
+        "no noise floor line"
+    );
     assert_clean(&gpu);
+}
+
+/// Labels never overlap: points on one spot (three wavefront rungs at one time and error)
+/// and crowded neighbours each get their own box, near their point.
+#[test]
+fn plot_labels_never_overlap() {
+    let mut anchors = vec![(300.0, 200.0, 6); 4];
+    anchors.extend((0..12).map(|i| (100.0 + 3.0 * i as f64, 150.0 + 2.0 * i as f64, 5)));
+    anchors.push((640.0, 40.0, 6));
+    let spots = bench::place_labels(&anchors);
+    let boxes: Vec<(f64, f64, f64, f64)> =
+        spots.iter().zip(&anchors).map(|((x, y), (_, _, n))| (*x, y - 9.0, 5.2 * *n as f64 + 2.0, 11.0)).collect();
+    for (i, a) in boxes.iter().enumerate() {
+        for b in &boxes[i + 1..] {
+            let overlap = a.0 < b.0 + b.2 && b.0 < a.0 + a.2 && a.1 < b.1 + b.3 && b.1 < a.1 + a.3;
+            assert!(!overlap, "labels overlap: {a:?} {b:?}");
+        }
+    }
+    for ((x, y), (ax, ay, _)) in spots.iter().zip(&anchors) {
+        assert!((x - ax).abs() < 60.0 && (y - ay).abs() < 120.0, "label far from its point: {x},{y} vs {ax},{ay}");
+    }
 }
 
 /// Model only what the scene requires, measured: `lbl` on a grey scene allocates less with one
@@ -203,6 +229,11 @@ fn bench_and_stability_commands_end_to_end() {
     assert_eq!(csv.lines().count(), 7);
     let svg = std::fs::read_to_string(out.join("tiny.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("polyline"));
+    // --replot draws the same plot again from bench.json alone.
+    std::fs::remove_file(out.join("tiny.svg")).unwrap();
+    let (ok, _, stderr) = run(&["bench", "--replot", out.to_str().unwrap()]);
+    assert!(ok, "replot failed: {stderr}");
+    assert_eq!(std::fs::read_to_string(out.join("tiny.svg")).unwrap(), svg, "the replot differs");
     // A second run finds the reference in the cache.
     let (ok, _, stderr) = run(&args);
     assert!(ok, "{stderr}");

@@ -34,9 +34,10 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Export(a) => export(a),
         Command::Devices { gpu, json } => devices(&gpu, json),
         Command::Stability { solvers, slow, out, gpu } => stability(&solvers, slow, &out, &gpu),
-        Command::Bench { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache, gpu } => {
-            bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache }, &gpu)
-        }
+        Command::Bench { replot: Some(dir), .. } => replot(&dir),
+        Command::Bench {
+            scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache, gpu, ..
+        } => bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache }, &gpu),
         Command::Scene { command: SceneCommand::Info { scene, set, json } } => scene_info(&scene, &set, json),
         Command::Knobs { solver, markdown } => knobs(solver.as_deref(), markdown),
     }
@@ -278,6 +279,22 @@ struct BenchArgs {
     throughput: bool,
     set: Vec<String>,
     cache: PathBuf,
+}
+
+/// `bench --replot DIR`: the plots of DIR/bench.json drawn again, written beside it.
+fn replot(dir: &Path) -> Result<()> {
+    let json = dir.join("bench.json");
+    let text = std::fs::read_to_string(&json)
+        .map_err(|e| anyhow!("--replot {}: cannot read {}: {e}", dir.display(), json.display()))?;
+    let doc: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| anyhow!("{}: not a bench.json ({e}); give the folder a bench run wrote", json.display()))?;
+    let plots = crate::measure::bench::replot(&doc).map_err(|e| anyhow!("{}: {e}", json.display()))?;
+    for (name, svg) in &plots {
+        let p = dir.join(format!("{name}.svg"));
+        output::write_text(&p, svg)?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
 }
 
 fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {

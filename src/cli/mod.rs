@@ -42,7 +42,8 @@ pub struct GpuArgs {
 pub enum Command {
     /// Render a scene to EXR (linear) and/or PNG (tone-mapped).
     Render(RenderArgs),
-    /// Compare two EXR images: relL2, relMSE, RMSE, energy ratio, max error, NaN/Inf count.
+    /// Compare two EXR images: relL2 (and without the images' noise where they carry variance
+    /// layers), relMSE, RMSE, energy ratio, max error, NaN/Inf count.
     Compare(CompareArgs),
     /// List Vulkan devices, their queue families and the queue-role mapping scatterlab would use.
     Devices {
@@ -56,8 +57,12 @@ pub enum Command {
     /// `path` reference: CSV, JSON and an SVG plot per scene (log-log, Pareto front marked).
     Bench {
         /// Scene files.
-        #[arg(required = true)]
+        #[arg(required_unless_present = "replot")]
         scenes: Vec<PathBuf>,
+        /// Redraw the SVG plots of an earlier run from its bench.json in this directory (no
+        /// rendering): for a plot of this version from results measured before.
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["scenes", "quick", "points", "throughput"])]
+        replot: Option<PathBuf>,
         /// Solvers to bench (comma-separated; default: every solver).
         #[arg(long, value_delimiter = ',', value_parser = solver_names())]
         solvers: Vec<String>,

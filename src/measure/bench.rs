@@ -11,7 +11,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use crate::gpu::{DeviceInfo, Gpu};
@@ -81,9 +81,10 @@ pub fn ladder(solver: &dyn Solver, scene: &Scene, points: &Points) -> Vec<Rung> 
 }
 
 /// A measured point.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Point {
     pub scene: String,
+    #[serde(deserialize_with = "solver_name")]
     pub solver: &'static str,
     pub knob: String,
     pub value: String,
@@ -102,6 +103,47 @@ pub struct Point {
     /// along its 1/sqrt(spp) curve, over this point's GPU time ([`speedups`]); None for the
     /// reference solver itself or an error below what its curve resolves.
     pub speedup: Option<f64>,
+}
+
+/// A registered solver's name from its text (a bench.json read back).
+fn solver_name<'de, D: serde::Deserializer<'de>>(d: D) -> Result<&'static str, D::Error> {
+    let name = String::deserialize(d)?;
+    solvers::SOLVERS
+        .iter()
+        .map(|s| s.name())
+        .find(|n| *n == name)
+        .ok_or_else(|| serde::de::Error::custom(format!("unknown solver {name:?}")))
+}
+
+/// The plots of a bench run from its JSON document (`bench --replot`): per scene, its points
+/// and its reference's noise floor, titled with the device the run measured.
+pub fn replot(doc: &serde_json::Value) -> Result<Vec<(String, String)>, String> {
+    // Point by point from owned values: a point names its solver as a `&'static str` of the
+    // registry, which ties the derive to a 'static deserializer.
+    let points = doc["points"].as_array().ok_or("it has no points")?;
+    let points: Vec<Point> = points
+        .iter()
+        .map(|v| Point::deserialize(v.clone()))
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("its points do not read back: {e}"))?;
+    let device = doc["device"]["name"].as_str().unwrap_or("an unnamed device");
+    let mut scenes: Vec<&str> = Vec::new();
+    for p in &points {
+        if !scenes.contains(&p.scene.as_str()) {
+            scenes.push(&p.scene);
+        }
+    }
+    Ok(scenes
+        .into_iter()
+        .map(|name| {
+            let here: Vec<Point> = points.iter().filter(|p| p.scene == name).cloned().collect();
+            let noise = doc["references"]
+                .as_array()
+                .and_then(|r| r.iter().find(|r| r["scene"] == name))
+                .and_then(|r| r["noise"].as_f64());
+            (name.to_string(), svg(&format!("{name}: error vs GPU time on {device}"), &here, noise))
+        })
+        .collect())
 }
 
 /// Figures of merit a GPU engineer compares across devices.
@@ -341,9 +383,43 @@ fn esc(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
 }
 
+/// A label's box: left, top, width, height (SVG units, y down).
+pub type LabelBox = (f64, f64, f64, f64);
+
+/// The box of a `chars`-character label at font size 9 whose baseline starts at (x, y).
+fn label_box(x: f64, y: f64, chars: usize) -> LabelBox {
+    (x, y - 9.0, 5.2 * chars as f64 + 2.0, 11.0)
+}
+
+fn overlaps(a: &LabelBox, b: &LabelBox) -> bool {
+    a.0 < b.0 + b.2 && b.0 < a.0 + a.2 && a.1 < b.1 + b.3 && b.1 < a.1 + a.3
+}
+
+/// Baselines for labels of `chars` characters beside points at (x, y), in order, so that no
+/// two labels overlap: each takes the first free spot of upper right, lower right, upper
+/// left, lower left of its point, else the first free row stepping down (then up) from its
+/// point. Points on one spot (equal time and error) get stacked labels.
+pub fn place_labels(anchors: &[(f64, f64, usize)]) -> Vec<(f64, f64)> {
+    let mut placed: Vec<LabelBox> = Vec::new();
+    let mut out = Vec::with_capacity(anchors.len());
+    for &(x, y, chars) in anchors {
+        let w = label_box(0.0, 0.0, chars).2;
+        let around = [(x + 6.0, y - 6.0), (x + 6.0, y + 14.0), (x - 6.0 - w, y - 6.0), (x - 6.0 - w, y + 14.0)];
+        let rows = (1..).flat_map(|k| [(x + 6.0, y - 6.0 + 12.0 * k as f64), (x + 6.0, y - 6.0 - 12.0 * k as f64)]);
+        let free = |&(bx, by): &(f64, f64)| !placed.iter().any(|p| overlaps(p, &label_box(bx, by, chars)));
+        // Every label lies in a finite strip, so some row below them all is free.
+        let spot = around.into_iter().chain(rows).find(free).expect("a free row exists");
+        placed.push(label_box(spot.0, spot.1, chars));
+        out.push(spot);
+    }
+    out
+}
+
 /// relL2 against GPU time, log-log, one polyline per solver, Pareto points ringed, readable
-/// without the CSV (axis labels, decades, legend, knob values beside points).
-pub fn svg(title: &str, points: &[Point]) -> String {
+/// without the CSV (axis labels, decades, legend, knob values beside points, never
+/// overlapping), and the reference's noise floor as a dashed line: below it a point's error
+/// is the reference's, not the solver's.
+pub fn svg(title: &str, points: &[Point], noise_floor: Option<f64>) -> String {
     let (w, h, ml, mr, mt, mb) = (720.0f64, 480.0f64, 70.0, 150.0, 40.0, 50.0);
     let finite: Vec<&Point> =
         points.iter().filter(|p| p.gpu_ms > 0.0 && p.metrics.rel_l2 > 0.0 && p.metrics.rel_l2.is_finite()).collect();
@@ -353,8 +429,9 @@ pub fn svg(title: &str, points: &[Point]) -> String {
         lx.iter().cloned().fold(f64::INFINITY, f64::min).floor(),
         lx.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil(),
     );
+    let floor = noise_floor.filter(|n| *n > 0.0 && n.is_finite());
     let (y0, y1) = (
-        ly.iter().cloned().fold(f64::INFINITY, f64::min).floor(),
+        ly.iter().cloned().chain(floor.map(f64::log10)).fold(f64::INFINITY, f64::min).floor(),
         ly.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil(),
     );
     let (x0, x1, y0, y1) =
@@ -395,6 +472,17 @@ pub fn svg(title: &str, points: &[Point]) -> String {
         (mt + h - mb) / 2.0,
         (mt + h - mb) / 2.0
     ));
+    if let Some(n) = floor {
+        let y = py(n.log10());
+        s.push_str(&format!(
+            "<line x1=\"{ml}\" y1=\"{y:.1}\" x2=\"{}\" y2=\"{y:.1}\" stroke=\"#888\" stroke-dasharray=\"6 4\"/>\n<text \
+            x=\"{}\" y=\"{:.1}\" font-size=\"10\" fill=\"#666\" text-anchor=\"end\">reference noise floor {n:.4}</text>\n",
+            w - mr,
+            w - mr - 4.0,
+            y + 12.0
+        ));
+    }
+    let mut labels: Vec<(f64, f64, String)> = Vec::new();
     let colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"];
     let mut kinds: Vec<&str> = Vec::new();
     for p in &finite {
@@ -421,13 +509,7 @@ pub fn svg(title: &str, points: &[Point]) -> String {
             if p.pareto {
                 s.push_str(&format!("<circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"7\" fill=\"none\" stroke=\"black\"/>\n"));
             }
-            let short: String = p.value.chars().take(6).collect();
-            s.push_str(&format!(
-                "<text x=\"{:.1}\" y=\"{:.1}\" font-size=\"9\" fill=\"#555\">{}</text>\n",
-                x + 6.0,
-                y - 6.0,
-                esc(&short)
-            ));
+            labels.push((x, y, p.value.chars().take(6).collect::<String>()));
         }
         let ly = mt + 20.0 + 20.0 * i as f64;
         s.push_str(&format!(
@@ -439,6 +521,10 @@ pub fn svg(title: &str, points: &[Point]) -> String {
             ly + 4.0,
             kind
         ));
+    }
+    let anchors: Vec<(f64, f64, usize)> = labels.iter().map(|(x, y, t)| (*x, *y, t.chars().count())).collect();
+    for ((bx, by), (_, _, text)) in place_labels(&anchors).into_iter().zip(&labels) {
+        s.push_str(&format!("<text x=\"{bx:.1}\" y=\"{by:.1}\" font-size=\"9\" fill=\"#555\">{}</text>\n", esc(text)));
     }
     let ly = mt + 20.0 + 20.0 * kinds.len() as f64;
     s.push_str(&format!(
@@ -576,7 +662,10 @@ pub fn run(
         let (mut points, thr) =
             bench_scene(gpu, &s.name, &s.scene, &reference.image, &solvers_here, &cfg.points, cfg.repeats, progress)?;
         speedups(&mut points, solvers::reference().name(), noise);
-        out.plots.push((s.name.clone(), svg(&format!("{}: error vs GPU time on {}", s.name, info.name), &points)));
+        out.plots.push((
+            s.name.clone(),
+            svg(&format!("{}: error vs GPU time on {}", s.name, info.name), &points, Some(noise)),
+        ));
         for &solver in &solvers_here {
             // A deterministic solver's slim and full renders differ or not at any rung: its
             // cheapest. A Monte Carlo one (the reference) at its third, so the difference is

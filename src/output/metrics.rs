@@ -27,7 +27,7 @@ pub const REL_MSE_EPSILON: f64 = 0.01;
 
 /// Errors of an image against a reference. Ratios with a zero denominator are `0` when the
 /// numerator is also zero, else infinite (serialised as JSON `null`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct Metrics {
     /// `||a - r|| / ||r||` over all finite pixels and channels.
     pub rel_l2: f64,
