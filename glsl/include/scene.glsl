@@ -117,7 +117,7 @@ vec3 box_voxel_coord(vec3 p, ivec3 n) {
     return (p - scene.bounds_min.xyz) / (scene.bounds_max.xyz - scene.bounds_min.xyz) * vec3(n) - 0.5;
 }
 
-// Density in [0, 1+] at world position p (DESIGN.md: voxel-centred, trilinear, clamped).
+// Density in [0, 1+] at world position p (docs/design.md: voxel-centred, trilinear, clamped).
 float density_at(vec3 p) {
     if (DENSITY_KIND == DENSITY_CONSTANT) return 1.0;
     if (DENSITY_KIND == DENSITY_SPHERE) {

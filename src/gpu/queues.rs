@@ -2,7 +2,7 @@
 //!
 //! Solvers name a *role* (`trace`, `diffuse`); the mapping to real queues is decided once, when
 //! the device is created, by [`map_roles`], a pure function of the queue-family table so it can
-//! be tested against the tables of real GPUs without owning one (see `../shared/vulkan-notes.md`).
+//! be tested against the tables of real GPUs without owning one (see docs/design.md, "Vulkan facts").
 
 use serde::Serialize;
 
@@ -103,7 +103,7 @@ impl RoleMapping {
 }
 
 /// Map the roles onto queues: two compute-only queues, else two compute-capable queues of
-/// one family, else queues of two families, else one shared queue (DESIGN.md, "Queues and
+/// one family, else queues of two families, else one shared queue (docs/design.md, "Queues and
 /// schedule"). Returns `None` when no family can run compute at all. Families whose
 /// timestamps are not valid are avoided where an alternative exists, since every pass is timed.
 pub fn map_roles(families: &[FamilyInfo]) -> Option<RoleMapping> {

@@ -1,5 +1,5 @@
 //! `scatterlab bench`: the error-versus-time trade of every solver on the user's scenes
-//! (DESIGN.md, "Measuring the trade").
+//! (docs/design.md, "Measuring the trade").
 //!
 //! Per scene: the `path` reference at high spp, cached on disk under a key of the scene's
 //! content (scene text, grid data, overrides), engine version, device and reference spp; then
@@ -239,7 +239,7 @@ pub fn reference(gpu: &Gpu, scene: &Scene, key: &str, spp: u32, cache: &Path) ->
 }
 
 /// The speed-up at equal error of every approximate point of one scene against the reference
-/// solver's points (DESIGN.md, "Measuring the trade"). With `noise` the reference's own relL2
+/// solver's points (docs/design.md, "Measuring the trade"). With `noise` the reference's own relL2
 /// noise, a point's error is denoised as e = sqrt(max(relL2^2 - noise^2, 0)). The reference
 /// solver's error falls as e(s)^2 = K / s with samples per pixel s (Monte Carlo), so K is
 /// fitted from its points (median of s e(s)^2 over those above the noise), its GPU time is

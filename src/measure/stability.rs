@@ -1,4 +1,4 @@
-//! `scatterlab stability`: every solver at the extremes (DESIGN.md, "Measuring the trade").
+//! `scatterlab stability`: every solver at the extremes (docs/design.md, "Measuring the trade").
 //!
 //! Sweeps albedo {0, 0.5, 0.9, 0.99, 0.999, 1}, optical thickness of the medium from 1e-3 to
 //! 1e4, g from -0.99 to 0.99, and a point light at a voxel centre, on a voxel corner, on the
@@ -85,7 +85,7 @@ fn scene_text(c: &Case) -> String {
     )
 }
 
-/// The sweep (DESIGN.md "stability").
+/// The sweep (docs/design.md "stability").
 pub fn cases() -> Vec<Case> {
     let mut v = Vec::new();
     let mk = |name: String, group, albedo, tau, g, light, slow| Case { name, group, albedo, tau, g, light, slow };

@@ -1,7 +1,7 @@
 //! Per-queue GPU timelines from pass timestamps: busy time per queue role, how much of it the
 //! two roles overlapped, the one-queue serial baseline, and a Chrome-trace / Perfetto export.
 //!
-//! Definitions (`../shared/vulkan-notes.md`, "Real GPUs"): a role is *busy* over the union of
+//! Definitions (docs/design.md, "Vulkan facts", "Real GPUs"): a role is *busy* over the union of
 //! its passes' intervals; *overlap* is the time both roles were busy, `|U(trace) ∩ U(diffuse)|`;
 //! the overlap fraction is overlap over `|U(all passes)|`; the *serial* baseline is the sum of
 //! all pass durations (what one queue running the same passes back to back would need).

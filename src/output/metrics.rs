@@ -1,6 +1,6 @@
 //! Error metrics of a render against a reference, and a false-colour error map.
 //!
-//! Definitions (DESIGN.md, "Measuring the trade"), over all pixels and all three channels:
+//! Definitions (docs/design.md, "Measuring the trade"), over all pixels and all three channels:
 //!
 //! | metric | definition |
 //! | --- | --- |

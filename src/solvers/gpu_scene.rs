@@ -49,7 +49,7 @@ pub const SPEC_ANISOTROPIC: u32 = 2;
 pub const SCENE_SPEC: &[(u32, SpecKind)] =
     &[(SPEC_DENSITY_KIND, SpecKind::U32), (SPEC_CHROMATIC, SpecKind::Bool), (SPEC_ANISOTROPIC, SpecKind::Bool)];
 
-/// What a render modelled and what it skipped (DESIGN.md: "model only what a scene requires").
+/// What a render modelled and what it skipped (docs/design.md: "model only what a scene requires").
 #[derive(Clone, Debug, Serialize)]
 pub struct Modelled {
     pub density: &'static str,

@@ -152,7 +152,7 @@ impl Variant {
     }
 }
 
-/// Whether a solver's work on two queue roles may overlap (DESIGN.md, "Queues and schedule"):
+/// Whether a solver's work on two queue roles may overlap (docs/design.md, "Queues and schedule"):
 /// a solver with concurrent work has a `schedule` knob taking these values.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]

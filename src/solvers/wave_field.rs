@@ -1,6 +1,6 @@
 //! Shared part: wavefront tracing of homogeneous spherical layers (Szirmay-Kalos, Liktor,
 //! Umenhoffer, Toth, "Fast approximation of multiple scattering in inhomogeneous participating
-//! media"; `../shared/papers/wavefront-diffusion-szirmay-kalos.md`).
+//! media").
 //!
 //! Per point light inside the medium: the medium is resampled onto a spherical grid around the
 //! light (glsl/wave_field/resample.comp, section 2.1), every ray of the grid is marched

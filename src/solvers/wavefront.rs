@@ -1,6 +1,6 @@
 //! Solver `wavefront`: wavefront tracing of homogeneous spherical layers (Szirmay-Kalos,
 //! Liktor, Umenhoffer, Toth, "Fast approximation of multiple scattering in inhomogeneous
-//! participating media"; `../shared/papers/wavefront-diffusion-szirmay-kalos.md`).
+//! participating media").
 //!
 //! Around every point light inside the medium the shared part [`super::wave_field`] marches a
 //! spherical grid layer by layer (eq. 4-6) and gathers the multiply scattered fluence and
