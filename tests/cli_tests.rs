@@ -628,6 +628,8 @@ fn render_rejects_bad_flags() {
             .and_args(&["--set", "medium.albdo=1"]),
         fails("unknown_set_keys/path.nope", base(), &["--set path.nope", "unknown knob", "path", "max_depth"])
             .and_args(&["--set", "path.nope=1"]),
+        fails("unknown_set_keys/path.maxdepth", base(), &["--set path.maxdepth", "did you mean path.max_depth?"])
+            .and_args(&["--set", "path.maxdepth=3"]),
         fails("unknown_set_keys/single.step", base(), &["--set single.step", "solver single", "solver path"])
             .and_args(&["--set", "single.step=0.01"]),
         fails("unknown_set_keys/nope", base(), &["--set nope", "unknown key"]).and_args(&["--set", "nope=1"]),

@@ -19,6 +19,7 @@ use glam::Vec3;
 pub use error::SceneError;
 pub use features::is_grey;
 pub use grid::write_vol;
+pub use parse::did_you_mean;
 
 /// A validated scene.
 #[derive(Debug, Clone, PartialEq)]

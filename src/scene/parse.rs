@@ -674,28 +674,15 @@ fn missing_hint(section: &str, name: &str) -> String {
     format!("add {name} = ... to {table} (see docs/scene-format.md)")
 }
 
-/// The closest candidate within edit distance 2, if any.
-fn did_you_mean<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
+/// The closest candidate within edit distance 2 (optimal string alignment: a swap of two
+/// neighbouring letters counts one), if any. Also names solver knobs (`solvers::knobs`).
+pub fn did_you_mean<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
     candidates
         .iter()
-        .map(|c| (edit_distance(name, c), *c))
+        .map(|c| (strsim::osa_distance(name, c), *c))
         .filter(|&(d, _)| d <= 2)
         .min_by_key(|&(d, _)| d)
         .map(|(_, c)| c)
-}
-
-fn edit_distance(a: &str, b: &str) -> usize {
-    let b: Vec<char> = b.chars().collect();
-    let mut prev: Vec<usize> = (0..=b.len()).collect();
-    for (i, ca) in a.chars().enumerate() {
-        let mut cur = vec![i + 1; b.len() + 1];
-        for (j, &cb) in b.iter().enumerate() {
-            let subst = prev[j] + usize::from(ca != cb);
-            cur[j + 1] = subst.min(prev[j + 1] + 1).min(cur[j] + 1);
-        }
-        prev = cur;
-    }
-    prev[b.len()]
 }
 
 /// 1-based line and column (in characters) of a byte offset.

@@ -204,6 +204,8 @@ impl Settings {
                 let known: Vec<&str> = table.iter().map(|k| k.name.as_str()).collect();
                 let hint = if ["spp", "seed", "width", "height"].contains(&name) {
                     format!(" (it is a scene key: render.{name}, as --set render.{name}=...)")
+                } else if let Some(close) = crate::scene::did_you_mean(name, &known) {
+                    format!(" (did you mean {solver}.{close}?)")
                 } else {
                     String::new()
                 };
