@@ -107,8 +107,10 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
     assert!(thr.iter().any(|t| t.figure.starts_with("lattice voxel-updates/s") && t.value > 0.0));
     assert!(thr.iter().any(|t| t.figure.starts_with("samples/s") && t.value > 0.0));
 
-    let csv = bench::csv(&points);
-    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let csv = bench::csv(&points).unwrap();
+    let mut reader = csv::Reader::from_reader(csv.as_bytes());
+    let header: Vec<String> = reader.headers().unwrap().iter().map(String::from).collect();
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
     for col in [
         "scene",
         "solver",
@@ -128,9 +130,17 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
     ] {
         assert!(header.contains(&col), "CSV lacks column {col}");
     }
-    for line in csv.lines().skip(1) {
-        assert_eq!(line.split(',').count(), header.len(), "{line}");
-    }
+    let rows: Vec<csv::StringRecord> = reader.records().map(|r| r.expect("a CSV row")).collect();
+    assert_eq!(rows.len(), points.len());
+    assert!(rows.iter().all(|r| r.len() == header.len()));
+
+    // A scene name with a comma and a quote stays one field and reads back as written.
+    let mut odd = points[0].clone();
+    odd.scene = "my \"best\", cloud".into();
+    let text = bench::csv(&[odd.clone()]).unwrap();
+    let mut reader = csv::Reader::from_reader(text.as_bytes());
+    let row = reader.records().next().expect("one row").expect("parses");
+    assert_eq!((&row[0], &row[1], row.len()), (odd.scene.as_str(), odd.solver, header.len()), "{text}");
 
     let svg = bench::svg("tiny <&> \"quoted\"", &points, Some(1e-3));
     let doc = roxmltree::Document::parse(&svg).unwrap_or_else(|e| panic!("SVG is not well-formed XML: {e}"));

@@ -27,11 +27,18 @@ fn stability_sweep_path_and_single_pass_everything() {
     // The pure absorber and the furnace were checked against their exact answers by both.
     assert_eq!(out.iter().filter(|o| o.exact_error.is_some()).count(), 4);
     // CSV: header plus one row per outcome, every row with the header's column count.
-    let csv = stability::csv(&out);
-    let mut lines = csv.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    assert!(header.contains(&"passed") && header.contains(&"max_over_bound") && header.contains(&"exact_rel_l2"));
-    assert_eq!(csv.lines().count(), out.len() + 1);
+    let csv = stability::csv(&out).unwrap();
+    let mut reader = csv::Reader::from_reader(csv.as_bytes());
+    let header = reader.headers().unwrap().clone();
+    assert!(["passed", "max_over_bound", "exact_rel_l2"].iter().all(|h| header.iter().any(|x| x == *h)), "{header:?}");
+    let rows: Vec<csv::StringRecord> = reader.records().map(|r| r.expect("a CSV row")).collect();
+    assert_eq!(rows.len(), out.len());
+    // Case names hold commas ("light inside, tau 1e-3, albedo 0.99"): one field each.
+    assert!(rows.iter().all(|r| r.len() == header.len()));
+    assert_eq!(
+        rows.iter().map(|r| r[0].to_string()).collect::<Vec<_>>(),
+        out.iter().map(|o| o.case.clone()).collect::<Vec<_>>()
+    );
     let table = stability::table(&out);
     assert!(table.contains("pass") && !table.contains("FAIL"));
     assert_clean(&gpu);
@@ -87,7 +94,7 @@ fn stability_sweep_wavefront_both_integrators() {
     eprintln!("{table}");
     assert!(failed.contains(&"light inside, tau 1e1, albedo 0"), "explicit failures: {failed:?}");
     assert!(!failed.contains(&"light inside, tau 1e-3, albedo 0.99"), "explicit failures: {failed:?}");
-    assert!(stability::csv(&out).contains("wavefront/explicit"));
+    assert!(stability::csv(&out).unwrap().contains("wavefront/explicit"));
     // The explicit scheme is a comparison variant: its failures are shown as expected and do
     // not fail the sweep; the exponential integrator's would.
     for o in &out {
@@ -145,10 +152,12 @@ fn a_comparison_variants_failure_is_shown_but_not_counted() {
     assert!(rows[3].contains(" pass "), "{table}");
     assert!(table.contains("1 check(s) of comparison variant(s) (wavefront/explicit)"), "{table}");
 
-    let csv = stability::csv(&all);
-    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let row = |i: usize| -> Vec<String> { csv.lines().nth(i + 1).unwrap().split(',').map(String::from).collect() };
+    let csv = stability::csv(&all).unwrap();
+    let mut reader = csv::Reader::from_reader(csv.as_bytes());
+    let header: Vec<String> = reader.headers().unwrap().iter().map(String::from).collect();
+    let records: Vec<csv::StringRecord> = reader.records().map(|r| r.unwrap()).collect();
+    let col = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let row = |i: usize| -> Vec<String> { records[i].iter().map(String::from).collect() };
     assert_eq!((row(0)[col("comparison")].as_str(), row(0)[col("counts_as_failure")].as_str()), ("false", "true"));
     assert_eq!((row(1)[col("comparison")].as_str(), row(1)[col("counts_as_failure")].as_str()), ("true", "false"));
     let json = serde_json::to_value(&all).unwrap();

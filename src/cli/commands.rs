@@ -356,7 +356,7 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         output::write_text(&a.out.join(format!("{name}.svg")), svg)?;
     }
     let csv_path = a.out.join("bench.csv");
-    output::write_text(&csv_path, b::csv(&result.points))?;
+    output::write_text(&csv_path, b::csv(&result.points).map_err(|e| anyhow!(e))?)?;
     let ladders: Vec<_> = solvers
         .iter()
         .map(|s| json!({ "solver": s.name(), "rungs": scenes.first().map(|x| b::ladder(*s, &x.scene, &points)).unwrap_or_default() }))
@@ -415,7 +415,8 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
     }
     for s in &result.slim_vs_full {
         outln!(
-            "model-only-what-is-needed {} {}: slim {} B / full {} B, {:.1} / {:.1} ms, images differ by relL2 {:.2e}",
+            "model-only-what-is-needed {} {}: slim {} B / full {} B, {:.1} / {:.1} ms; relL2 of the slim image against \
+             the full-model one (--model-all) {:.2e} (for path both are Monte Carlo: this includes their noise)",
             s.scene,
             s.solver,
             s.slim_bytes,
@@ -466,7 +467,7 @@ fn stability(names: &[String], slow: bool, out: &Path, g: &GpuArgs) -> Result<()
     check_validation(&gpu)?;
     outln!("{}", crate::measure::stability::table(&outcomes));
     let csv_path = out.join("stability.csv");
-    output::write_text(&csv_path, crate::measure::stability::csv(&outcomes))?;
+    output::write_text(&csv_path, crate::measure::stability::csv(&outcomes).map_err(|e| anyhow!(e))?)?;
     let doc = json!({ "scatterlab": env!("CARGO_PKG_VERSION"), "device": gpu.info(), "slow_included": slow, "outcomes": outcomes });
     output::write_json(&out.join("stability.json"), &doc)?;
     let failed = outcomes.iter().filter(|o| o.counts_as_failure()).count();

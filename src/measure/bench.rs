@@ -347,36 +347,51 @@ pub fn slim_vs_full(
     Ok((a.report.device_bytes, b.report.device_bytes, a.report.gpu_ms, b.report.gpu_ms, d))
 }
 
-pub fn csv(points: &[Point]) -> String {
-    let mut s = String::from(
-        "scene,solver,knob,value,gpu_ms,wall_ms,rel_l2,rel_l2_denoised,speedup,rel_mse,rmse,energy_ratio,max_abs_error,\
-         nan_inf_count,iterations,converged,device_bytes,pareto\n",
-    );
-    for p in points {
+pub fn csv(points: &[Point]) -> Result<String, String> {
+    let header = [
+        "scene",
+        "solver",
+        "knob",
+        "value",
+        "gpu_ms",
+        "wall_ms",
+        "rel_l2",
+        "rel_l2_denoised",
+        "speedup",
+        "rel_mse",
+        "rmse",
+        "energy_ratio",
+        "max_abs_error",
+        "nan_inf_count",
+        "iterations",
+        "converged",
+        "device_bytes",
+        "pareto",
+    ];
+    let rows = points.iter().map(|p| {
         let m = &p.metrics;
-        s.push_str(&format!(
-            "\"{}\",{},{},{},{:.3},{:.3},{:.6e},{:.6e},{},{:.6e},{:.6e},{:.6},{:.6e},{},{},{},{},{}\n",
-            p.scene,
-            p.solver,
-            p.knob,
-            p.value,
-            p.gpu_ms,
-            p.wall_ms,
-            m.rel_l2,
-            p.rel_l2_denoised,
+        vec![
+            p.scene.clone(),
+            p.solver.to_string(),
+            p.knob.clone(),
+            p.value.clone(),
+            format!("{:.3}", p.gpu_ms),
+            format!("{:.3}", p.wall_ms),
+            format!("{:.6e}", m.rel_l2),
+            format!("{:.6e}", p.rel_l2_denoised),
             p.speedup.map(|x| format!("{x:.4}")).unwrap_or_default(),
-            m.rel_mse,
-            m.rmse,
-            m.energy_ratio,
-            m.max_abs_error,
-            m.nan_inf_count,
+            format!("{:.6e}", m.rel_mse),
+            format!("{:.6e}", m.rmse),
+            format!("{:.6}", m.energy_ratio),
+            format!("{:.6e}", m.max_abs_error),
+            m.nan_inf_count.to_string(),
             p.iterations.map(|i| i.to_string()).unwrap_or_default(),
             p.converged.map(|c| c.to_string()).unwrap_or_default(),
-            p.device_bytes,
-            p.pareto
-        ));
-    }
-    s
+            p.device_bytes.to_string(),
+            p.pareto.to_string(),
+        ]
+    });
+    super::csv_text(&header, rows)
 }
 
 fn esc(s: &str) -> String {

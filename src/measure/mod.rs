@@ -41,3 +41,15 @@ pub fn median(v: &[f64]) -> f64 {
         _ => 0.5 * (v[n / 2 - 1] + v[n / 2]),
     }
 }
+
+/// CSV text of `header` and `rows` (RFC 4180 quoting by the `csv` crate: a scene path with a
+/// comma or a quote stays one field).
+pub fn csv_text(header: &[&str], rows: impl IntoIterator<Item = Vec<String>>) -> Result<String, String> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    w.write_record(header).map_err(|e| format!("CSV: {e}"))?;
+    for row in rows {
+        w.write_record(&row).map_err(|e| format!("CSV: {e}"))?;
+    }
+    let bytes = w.into_inner().map_err(|e| format!("CSV: {e}"))?;
+    String::from_utf8(bytes).map_err(|e| format!("CSV: {e}"))
+}
