@@ -848,6 +848,28 @@ fn outputs_carry_provenance() {
     assert_ne!(r["scene_hash"].as_str(), Some(hash.as_str()), "the digest ignores the grid data");
 }
 
+/// A write that fails at the filesystem names the user's file and the OS error, never a
+/// temporary name of ours, and suggests what to check about the place, not the file's
+/// format (/proc takes no new files, even from root).
+#[test]
+fn failed_writes_name_the_users_file() {
+    let c = Case::new();
+    let s = c.scene(&base());
+    for (flag, name) in [
+        ("--out", "/proc/scatterlab-x.exr"),
+        ("--png", "/proc/scatterlab-x.png"),
+        ("--json", "/proc/scatterlab-x.json"),
+    ] {
+        let line = c.fails(
+            [&["render", s.to_str().unwrap(), "-q", flag, name][..], &TINY[..]].concat(),
+            &[name, "os error", "writable"],
+        );
+        for bad in ["partial", ".tmp", "uncorrupted", "/proc/."] {
+            assert!(!line.contains(bad), "{flag}: the error names a temporary file or the wrong cause: {line}");
+        }
+    }
+}
+
 /// `bench --points` past a ladder's end, or malformed, is refused before any work (no
 /// output folder, no device).
 #[test]

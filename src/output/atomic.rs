@@ -1,73 +1,85 @@
-//! Atomic file writes: write to a temporary sibling, rename over the final name on success.
+//! Atomic file writes: write to a temporary sibling, move it over the final name on success
+//! (`tempfile`'s `NamedTempFile`: unique names, removed when dropped, `persist` renames).
+//! Errors name the file the user asked for, never the temporary one.
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+
+use tempfile::NamedTempFile;
 
 use super::OutputError;
 
-static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// Write `path` atomically: `write` receives a fresh temporary path in the same directory
-/// and must create the complete file there; on success the temporary file is flushed to
-/// disk and renamed to `path` (replacing any old file), on failure it is removed and the
-/// error returned. Either way no partial file ever carries the name `path`.
+/// Write `path` atomically: `write` receives the path of a fresh temporary file in the same
+/// directory and must write the complete file there; on success it is flushed to disk and
+/// renamed to `path` (replacing any old file), on failure it is removed and the error
+/// returned. Either way no partial file ever carries the name `path`.
 pub fn write_atomically<F>(path: &Path, write: F) -> Result<(), OutputError>
 where
     F: FnOnce(&Path) -> Result<(), OutputError>,
 {
-    let tmp = temp_sibling(path)?;
-    let result = write(&tmp).and_then(|()| {
-        // Flush the data before the rename makes it visible under the final name.
-        fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|source| OutputError::Io {
-            path: tmp.clone(),
-            action: "flush",
-            source,
-        })?;
-        fs::rename(&tmp, path).map_err(|source| OutputError::Io {
-            path: path.to_owned(),
-            action: "rename temporary file into place as",
-            source,
-        })
-    });
-    if result.is_err() {
-        // Best effort: the closure may not have created the file at all.
-        let _ = fs::remove_file(&tmp);
-    }
-    result
+    let tmp = temp_beside(path, "tmp")?;
+    write(tmp.path()).map_err(|e| e.at(path))?;
+    flush(tmp.path()).map_err(|e| e.at(path))?;
+    tmp.persist(path).map(drop).map_err(|e| OutputError::Io {
+        path: path.to_owned(),
+        action: "move the finished file into place as",
+        source: without_temp_path(e.error),
+    })
 }
 
-/// `dir/.name.<pid>.<n>.tmp`: hidden, unique within this process, same filesystem as `path`.
-fn temp_sibling(path: &Path) -> Result<PathBuf, OutputError> {
-    let name = path.file_name().ok_or_else(|| OutputError::Io {
-        path: path.to_owned(),
-        action: "write to",
-        source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "path has no file name"),
-    })?;
+/// A hidden temporary file beside `path` (same filesystem, so the final rename is atomic),
+/// `.name.XXXXXX.suffix`.
+fn temp_beside(path: &Path, suffix: &str) -> Result<NamedTempFile, OutputError> {
+    let io = |source| OutputError::Io { path: path.to_owned(), action: "write", source };
+    let name = path
+        .file_name()
+        .ok_or_else(|| io(std::io::Error::new(std::io::ErrorKind::InvalidInput, "the path has no file name")))?;
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
         _ => PathBuf::from("."),
     };
     if !dir.is_dir() {
         return Err(OutputError::Io {
-            path: dir,
-            action: "write into directory",
-            source: std::io::Error::new(std::io::ErrorKind::NotFound, "directory does not exist"),
+            path: path.to_owned(),
+            action: "write",
+            source: std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                format!("directory {} does not exist", dir.display()),
+            ),
         });
     }
-    let n = TEMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-    let tmp_name = format!(".{}.{}.{}.tmp", name.to_string_lossy(), std::process::id(), n);
-    Ok(dir.join(tmp_name))
+    tempfile::Builder::new()
+        .prefix(&format!(".{}.", name.to_string_lossy()))
+        .suffix(&format!(".{suffix}"))
+        .tempfile_in(&dir)
+        .map_err(|e| io(without_temp_path(e)))
+}
+
+/// tempfile's errors append the temporary file's path ("... at path \"/d/.x.exr.Ab12.tmp\"");
+/// the message names the user's path instead, so keep only the OS error's own text.
+fn without_temp_path(e: std::io::Error) -> std::io::Error {
+    let text = e.to_string();
+    let os = text.split(" at path ").next().unwrap_or(&text).to_string();
+    std::io::Error::new(e.kind(), os)
+}
+
+/// The data on disk before the rename makes it visible under the final name.
+fn flush(p: &Path) -> Result<(), OutputError> {
+    fs::File::open(p).and_then(|f| f.sync_all()).map_err(|source| OutputError::Io {
+        path: p.to_owned(),
+        action: "flush",
+        source,
+    })
 }
 
 /// Outputs that appear together or not at all (an image, its PNG, its metrics JSON): each is
 /// first written in full under a hidden staging name beside its final one; only when every
-/// one is written does [`Staging::commit`] rename them into place. On any failure, or when
+/// one is written does [`Staging::commit`] move them into place. On any failure, or when
 /// dropped uncommitted, nothing staged is left behind and nothing already placed stays.
 #[derive(Debug, Default)]
 pub struct Staging {
-    /// (staging path, final path), in the order staged.
-    staged: Vec<(PathBuf, PathBuf)>,
+    /// (staged file, final path), in the order staged.
+    staged: Vec<(NamedTempFile, PathBuf)>,
 }
 
 impl Staging {
@@ -75,51 +87,37 @@ impl Staging {
         Staging::default()
     }
 
-    /// Write `path`'s content (by `write`, given the staging path) under its staging name.
+    /// Write `path`'s content (by `write`, given the staging path, which keeps `path`'s
+    /// extension for writers that look at it) under its staging name.
     pub fn stage<F>(&mut self, path: &Path, write: F) -> Result<(), OutputError>
     where
         F: FnOnce(&Path) -> Result<(), OutputError>,
     {
-        let tmp = staging_path(path);
-        self.staged.push((tmp.clone(), path.to_owned()));
-        write(&tmp)
+        let ext = path.extension().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let tmp = temp_beside(path, &format!("partial.{ext}"))?;
+        write(tmp.path()).map_err(|e| e.at(path))?;
+        self.staged.push((tmp, path.to_owned()));
+        Ok(())
     }
 
-    /// Rename every staged output into place; on a failure, remove what was placed and what
-    /// is still staged, and return the error.
+    /// Move every staged output into place; on a failure, remove what was placed (what is
+    /// still staged is removed as its temporary file drops), and return the error.
     pub fn commit(mut self) -> Result<(), OutputError> {
         let staged = std::mem::take(&mut self.staged);
-        for (i, (tmp, fin)) in staged.iter().enumerate() {
-            if let Err(source) = fs::rename(tmp, fin) {
-                for (_, placed) in &staged[..i] {
-                    let _ = fs::remove_file(placed);
-                }
-                for (left, _) in &staged[i..] {
-                    let _ = fs::remove_file(left);
+        let mut placed: Vec<PathBuf> = Vec::new();
+        for (tmp, fin) in staged {
+            if let Err(e) = tmp.persist(&fin) {
+                for p in &placed {
+                    let _ = fs::remove_file(p);
                 }
                 return Err(OutputError::Io {
-                    path: fin.clone(),
+                    path: fin,
                     action: "move the finished output into place as",
-                    source,
+                    source: without_temp_path(e.error),
                 });
             }
+            placed.push(fin);
         }
         Ok(())
     }
-}
-
-impl Drop for Staging {
-    fn drop(&mut self) {
-        for (tmp, _) in &self.staged {
-            let _ = fs::remove_file(tmp);
-        }
-    }
-}
-
-/// `dir/.name.partial.ext`: same directory (so the final rename is atomic), same extension
-/// (so writers that look at it still work), hidden.
-fn staging_path(p: &Path) -> PathBuf {
-    let name = p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let ext = p.extension().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    p.with_file_name(format!(".{name}.partial.{ext}"))
 }

@@ -19,7 +19,7 @@ pub enum OutputError {
     },
 
     /// The EXR encoder or decoder failed.
-    #[error("cannot {action} EXR file '{}': {source}; check the path, or that the file is an uncorrupted OpenEXR image", path.display())]
+    #[error("cannot {action} EXR file '{}': {source}; {}", path.display(), exr_hint(action))]
     Exr {
         /// File involved.
         path: PathBuf,
@@ -110,6 +110,32 @@ pub enum OutputError {
         /// Number of pixels with a non-finite channel.
         count: u64,
     },
+}
+
+/// What to check after an EXR error: a read fails on a bad file, a write on the place.
+fn exr_hint(action: &str) -> &'static str {
+    if action == "read" {
+        "check the path, and that the file is an uncorrupted OpenEXR image"
+    } else {
+        "check that the directory exists, is writable and has free space"
+    }
+}
+
+impl OutputError {
+    /// The same error naming `path`, the file the user asked for, where it named a temporary
+    /// file written on the way there (the staging and atomic-write names are ours, not theirs).
+    pub fn at(self, user_path: &std::path::Path) -> OutputError {
+        let p = user_path.to_owned();
+        match self {
+            OutputError::Io { action, source, .. } => OutputError::Io { path: p, action, source },
+            OutputError::Exr { action, source, .. } => OutputError::Exr { path: p, action, source },
+            OutputError::Png { source, .. } => OutputError::Png { path: p, source },
+            OutputError::PngEncode { source, .. } => OutputError::PngEncode { path: p, source },
+            OutputError::Json { source, .. } => OutputError::Json { path: p, source },
+            OutputError::InvalidImage { reason, .. } => OutputError::InvalidImage { path: p, reason },
+            other => other,
+        }
+    }
 }
 
 fn layer_label(layer: &str) -> String {
