@@ -870,6 +870,27 @@ fn failed_writes_name_the_users_file() {
     }
 }
 
+/// A scene's `render.exposure` is the tone-mapped outputs' default; `--exposure` overrides it;
+/// a value outside -64 ..= 64 stops is the scene's error.
+#[test]
+fn scene_exposure_is_the_png_default() {
+    let c = Case::new();
+    let s = c.scene(&base().set("render.spp", "4\nexposure = -2.5"));
+    let exposure_of = |extra: &[&str]| {
+        succeeded(&c.render(&s, &[&TINY[..], extra].concat()));
+        let text = read_png_text(&c.path("out/x.png")).expect("PNG text");
+        text.iter().find(|(k, _)| k == "scatterlab.exposure").map(|(_, v)| v.clone()).expect("exposure chunk")
+    };
+    assert_eq!(exposure_of(&[]), "-2.5");
+    assert_eq!(exposure_of(&["--exposure", "1"]), "1");
+    let bad = c.scene(&base().set("render.spp", "4\nexposure = 100"));
+    c.fails(
+        [&["render", bad.to_str().unwrap(), "-q", "--png", c.path("out/y.png").to_str().unwrap()][..], &TINY[..]]
+            .concat(),
+        &["scene.toml", "render.exposure", "-64 ..= 64"],
+    );
+}
+
 /// `bench --points` past a ladder's end, or malformed, is refused before any work (no
 /// output folder, no device).
 #[test]
@@ -1191,6 +1212,11 @@ fn scene_info_cloud() {
         );
     }
     assert!(stdout.contains("anisotropic  yes"), "{stdout}");
+    assert!(stdout.contains("density      heterogeneous"), "{stdout}");
+    // The sphere scene is homogeneous (constant inside its sphere), and says so.
+    let sphere = repo("scenes/homogeneous-sphere.toml");
+    let (out, _) = succeeded(&c.run(["scene", "info", sphere.to_str().unwrap()]));
+    assert!(out.contains("density      homogeneous: constant inside a sphere"), "{out}");
 
     let (stdout, _) = succeeded(&c.run(["scene", "info", scene.to_str().unwrap(), "--json"]));
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));

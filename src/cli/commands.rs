@@ -499,7 +499,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
             serde_json::to_string_pretty(&json!({
                 "scene": path.display().to_string(),
                 "anisotropic": f.anisotropic, "chromatic": f.chromatic, "light_inside": f.light_inside,
-                "homogeneous": f.homogeneous, "has_environment": f.has_environment, "grid_dims": f.grid_dims,
+                "homogeneous": f.grid_dims.is_none(), "density": density_label(&scene.medium.density), "has_environment": f.has_environment, "grid_dims": f.grid_dims,
                 "device_bytes": mem,
             }))?
         );
@@ -516,13 +516,9 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     );
     outln!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
     outln!("chromatic    {}", yn(f.chromatic));
-    outln!("homogeneous  {}", yn(f.homogeneous));
+    outln!("density      {}", density_label(&scene.medium.density));
     outln!("light inside {}", yn(f.light_inside));
     outln!("environment  {}", yn(f.has_environment));
-    match f.grid_dims {
-        Some(d) => outln!("grid         {} x {} x {}", d[0], d[1], d[2]),
-        None => outln!("grid         none"),
-    }
     outln!(
         "device memory each solver would allocate{}:",
         if knob_sets_empty(&settings) { " (default knobs)" } else { " (default knobs but those set)" }
@@ -531,6 +527,20 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
         outln!("  {:<10} {:>10.2} MiB", name, b as f64 / (1u64 << 20) as f64);
     }
     Ok(())
+}
+
+/// The medium's density as `scene info` names it: "homogeneous" for a constant medium whether
+/// it fills the box or a sphere in it, so the sphere scene is not called inhomogeneous.
+fn density_label(d: &crate::scene::Density) -> String {
+    use crate::scene::Density;
+    match d {
+        Density::Constant => "homogeneous: constant, filling the medium's box".into(),
+        Density::Sphere { center, radius } => format!(
+            "homogeneous: constant inside a sphere (centre [{}, {}, {}], radius {radius}), 0 outside",
+            center.x, center.y, center.z
+        ),
+        Density::Grid(g) => format!("heterogeneous: a {} x {} x {} voxel grid", g.dims[0], g.dims[1], g.dims[2]),
+    }
 }
 
 fn knob_sets_empty(s: &Settings) -> bool {

@@ -134,11 +134,13 @@ pub enum Command {
 pub enum SceneCommand {
     /// What physics a scene requires and the device memory each solver would allocate.
     Info {
+        /// Scene file (TOML, format v1: docs/scene-format.md).
         scene: PathBuf,
         /// Override scene keys (`medium.albedo=0.5`) or set solver knobs for the memory
         /// estimate (`lbl.grid=128`).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
+        /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
     },
@@ -161,8 +163,9 @@ pub struct RenderArgs {
     /// Seed of every random choice (overrides render.seed).
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Override a scene key (`medium.albedo=0.5`) or set a solver knob (`path.max_depth=1`,
-    /// `single.step=0.01`). Repeatable.
+    /// Override a scene key (`medium.albedo=0.5`; lights by index from 0:
+    /// `light.0.intensity=[5, 5, 5]`; docs/scene-format.md) or set a solver knob
+    /// (`path.max_depth=1`, `single.step=0.01`). Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Linear HDR output (RGB f32; `path` adds a `variance` layer: variance of the pixel mean).
@@ -171,9 +174,9 @@ pub struct RenderArgs {
     /// Tone-mapped 8-bit PNG.
     #[arg(long)]
     pub png: Option<PathBuf>,
-    /// PNG exposure in stops.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    pub exposure: f32,
+    /// PNG exposure in stops (default: the scene's render.exposure, else 0).
+    #[arg(long, allow_negative_numbers = true)]
+    pub exposure: Option<f32>,
     /// Metrics and provenance as JSON (device, driver, queue mapping, settings, pass times).
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -222,7 +225,8 @@ pub struct ExportArgs {
     /// `export SCENE --mitsuba OUT.xml`.
     #[arg(long)]
     pub mitsuba: bool,
-    /// Override a scene key (`medium.albedo=0.5`), as for `render`. Repeatable.
+    /// Override a scene key (`medium.albedo=0.5`, `light.0.position=[0, 1, 0]`), as for
+    /// `render`. Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
 }

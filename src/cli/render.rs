@@ -37,8 +37,9 @@ pub fn render(a: RenderArgs) -> Result<()> {
     }
     let wall_s = started.elapsed().as_secs_f64();
     let timeline = timeline::summarize(&out.report.passes);
-    write_outputs(&a, &provenance, &gpu, &out, &timeline, comparison.as_ref(), wall_s)?;
-    print_summary(&a, solver, gpu.info(), &out, &timeline, comparison.as_ref(), wall_s);
+    let exposure = a.exposure.unwrap_or(scene.render.exposure);
+    write_outputs(&a, &provenance, exposure, &gpu, &out, &timeline, comparison.as_ref(), wall_s)?;
+    print_summary(&a, exposure, solver, gpu.info(), &out, &timeline, comparison.as_ref(), wall_s);
     Ok(())
 }
 
@@ -259,9 +260,11 @@ fn run(
 
 /// Every requested output, staged and then placed together ([`Staging`]): a failure leaves
 /// none of them behind.
+#[allow(clippy::too_many_arguments)]
 fn write_outputs(
     a: &RenderArgs,
     provenance: &output::Provenance,
+    exposure: f32,
     gpu: &Gpu,
     out: &RenderOutput,
     timeline: &TimelineSummary,
@@ -282,12 +285,12 @@ fn write_outputs(
                 staging.stage(p, |tmp| output::write_exr_with_metadata(tmp, &layers, &header))?;
             }
             Some(ImageFormat::Png) => staging
-                .stage(p, |tmp| output::write_png_tonemapped_with_metadata(tmp, &out.image, a.exposure, &header))?,
+                .stage(p, |tmp| output::write_png_tonemapped_with_metadata(tmp, &out.image, exposure, &header))?,
             Some(ImageFormat::Pfm) => staging.stage(p, |tmp| output::write_pfm(tmp, &out.image))?,
         }
     }
     if let Some(p) = &a.png {
-        staging.stage(p, |tmp| output::write_png_tonemapped_with_metadata(tmp, &out.image, a.exposure, &header))?;
+        staging.stage(p, |tmp| output::write_png_tonemapped_with_metadata(tmp, &out.image, exposure, &header))?;
     }
     if let Some(p) = &a.json {
         let mut doc = json!({
@@ -325,8 +328,10 @@ fn write_outputs(
 
 /// Warnings always; unless `--quiet`, what was modelled, times, the solver's own lines, the
 /// queues where work ran on more than one role, and what was written.
+#[allow(clippy::too_many_arguments)]
 fn print_summary(
     a: &RenderArgs,
+    exposure: f32,
     solver: &dyn Solver,
     info: &DeviceInfo,
     out: &RenderOutput,
@@ -362,7 +367,7 @@ fn print_summary(
     if let Some(c) = comparison {
         eprintln!("{}", c.describe());
     }
-    let tonemapped = format!("tone-mapped with e = {} stops: {}", a.exposure, output::TONEMAP_DESCRIPTION);
+    let tonemapped = format!("tone-mapped with e = {exposure} stops: {}", output::TONEMAP_DESCRIPTION);
     let out_what = match a.out.as_deref().and_then(ImageFormat::of) {
         Some(ImageFormat::Png) => tonemapped.clone(),
         Some(ImageFormat::Pfm) => "linear RGB f32, PFM".to_string(),

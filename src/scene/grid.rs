@@ -9,6 +9,16 @@ use glam::Vec3;
 
 use super::{Grid, LoadOptions, SceneError};
 
+/// The first four bytes of an OpenVDB file: its magic number 0x56444220 ("VDB" and a space),
+/// little-endian.
+const OPENVDB_MAGIC: [u8; 4] = [0x20, 0x42, 0x44, 0x56];
+
+/// Whether the file at `path` starts with [`OPENVDB_MAGIC`].
+fn is_openvdb(path: &Path) -> bool {
+    let mut head = [0u8; 4];
+    File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok() && head == OPENVDB_MAGIC
+}
+
 /// Size of a Mitsuba 3 `.vol` header: "VOL", u8 version, i32 encoding, i32 x3 resolution,
 /// i32 channels, f32 x6 bounding box.
 pub(crate) const VOL_HEADER_BYTES: u64 = 48;
@@ -126,6 +136,14 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
                         any grid; the file is truncated or not a grid",
                     if file_len == 0 { "empty" } else { "truncated" }
                 )));
+            }
+            if magic == OPENVDB_MAGIC[..3] && is_openvdb(&req.resolved) {
+                return Err(req.err(
+                    "an OpenVDB file, which scatterlab cannot read yet; copy its density grid to a dense array \
+                        (pyopenvdb's copyToArray) and write it as a Mitsuba 3 .vol (float32, 1 channel, x fastest: \
+                        write_vol in tools/make-cloud shows the header) or as raw little-endian float32 with \
+                        dims = [nx, ny, nz]",
+                ));
             }
             return Err(req.err(
                 "not a Mitsuba .vol file (no 'VOL' magic) and no dims given; for a raw little-endian f32 grid add \

@@ -34,7 +34,7 @@ pub struct Scene {
 }
 
 /// `[render]`: image size, the seed every random choice derives from, default samples/pixel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderSettings {
     /// Pixels, 1 ..= [`MAX_IMAGE_SIZE`].
     pub width: u32,
@@ -43,6 +43,9 @@ pub struct RenderSettings {
     pub seed: u64,
     /// Default samples per pixel for `path` (>= 1).
     pub spp: u32,
+    /// Default exposure of tone-mapped outputs, in stops (`--exposure` overrides): a scene
+    /// lit far above 1 W/(m^2 sr) (a light inside a cloud) says how it is best seen.
+    pub exposure: f32,
 }
 
 /// Largest accepted `render.width` / `render.height`.

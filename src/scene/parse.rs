@@ -40,6 +40,8 @@ struct RawRender {
     seed: i64,
     #[serde(default = "default_spp")]
     spp: i64,
+    #[serde(default)]
+    exposure: f64,
 }
 
 fn default_seed() -> i64 {
@@ -269,7 +271,12 @@ impl Ctx<'_> {
         let spp = u32::try_from(r.spp).ok().filter(|&s| s >= 1).ok_or_else(|| {
             self.invalid("render.spp", format!("{} samples per pixel is out of range; use 1 ..= {}", r.spp, u32::MAX))
         })?;
-        Ok(RenderSettings { width, height, seed, spp })
+        if !r.exposure.is_finite() || r.exposure.abs() > 64.0 {
+            return Err(
+                self.invalid("render.exposure", format!("{} stops is out of range; use -64 ..= 64", r.exposure))
+            );
+        }
+        Ok(RenderSettings { width, height, seed, spp, exposure: r.exposure as f32 })
     }
 
     fn camera(&self, c: &RawCamera) -> Result<Camera, SceneError> {
