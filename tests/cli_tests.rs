@@ -883,6 +883,7 @@ fn scene_exposure_is_the_png_default() {
     };
     assert_eq!(exposure_of(&[]), "-2.5");
     assert_eq!(exposure_of(&["--exposure", "1"]), "1");
+    let c = Case::new();
     let bad = c.scene(&base().set("render.spp", "4\nexposure = 100"));
     c.fails(
         [&["render", bad.to_str().unwrap(), "-q", "--png", c.path("out/y.png").to_str().unwrap()][..], &TINY[..]]

@@ -161,18 +161,6 @@ pub fn pareto(points: &[(f64, f64)]) -> Vec<bool> {
     points.iter().map(|&(t, e)| !points.iter().any(|&(t2, e2)| t2 <= t && e2 <= e && (t2 < t || e2 < e))).collect()
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n == 0 {
-        0.0
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 /// Cache key of a reference: scene content (file text, overrides, grid data), engine
 /// version, device and driver, reference spp.
 pub fn reference_key(
@@ -313,8 +301,8 @@ pub fn bench_scene(
                 solver: solver.name(),
                 knob: rung.knob.clone(),
                 value: rung.value.clone(),
-                gpu_ms: median(gpu_ms),
-                wall_ms: median(wall_ms),
+                gpu_ms: super::median(&gpu_ms),
+                wall_ms: super::median(&wall_ms),
                 metrics,
                 iterations: stats.convergence.map(|c| c.iterations),
                 converged: stats.convergence.map(|c| c.converged),
