@@ -439,3 +439,64 @@ fn physics_h_function_matches_integral_representation() {
         }
     }
 }
+
+// ------------------------------------------------------------------ angular quadratures
+
+/// sum_i w_i f(Omega_i).
+fn integrate(q: &scatterlab::physics::quadrature::Quadrature, f: impl Fn([f64; 3]) -> f64) -> f64 {
+    q.directions.iter().zip(&q.weights).map(|(d, w)| w * f(*d)).sum()
+}
+
+/// The discrete-ordinates direction sets (issue 13): unit directions, positive weights summing
+/// to 4 pi, the thesis's 24 and 48 directions, and the sphere's moments: odd ones vanish,
+/// <mu^2> = 1/3 on every axis, <mu^4> = 1/5 from S_4 on and <mu_x^2 mu_y^2> = 1/15 from S_6
+/// on (what the tables' seven digits allow), the product set exact to its degree.
+#[test]
+fn quadratures_integrate_the_sphere_moments() {
+    use scatterlab::physics::quadrature::{gauss_legendre, Quadrature};
+    let four_pi = 4.0 * std::f64::consts::PI;
+    for (name, count) in [("s2", 8), ("s4", 24), ("s6", 48), ("s8", 80), ("product-8x16", 128)] {
+        let q = Quadrature::named(name).unwrap();
+        assert_eq!(q.len(), count, "{name}");
+        assert!(q.weights.iter().all(|w| *w > 0.0), "{name}: a non-positive weight");
+        assert!(q.directions.iter().all(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - 1.0).abs() < 1e-6), "{name}");
+        assert_close(q.weights.iter().sum::<f64>(), four_pi, 1e-12, name);
+        for axis in 0..3 {
+            assert!(integrate(&q, |d| d[axis]).abs() < 1e-12, "{name}: first moment on axis {axis}");
+            assert!(integrate(&q, |d| d[axis].powi(3)).abs() < 1e-12, "{name}: third moment");
+            assert_close(integrate(&q, |d| d[axis].powi(2)) / four_pi, 1.0 / 3.0, 2e-6, name);
+        }
+        if name != "s2" {
+            for axis in 0..3 {
+                assert_close(integrate(&q, |d| d[axis].powi(4)) / four_pi, 0.2, 2e-6, &format!("{name} mu^4"));
+            }
+        }
+        if !matches!(name, "s2" | "s4") {
+            assert_close(integrate(&q, |d| (d[0] * d[1]).powi(2)) / four_pi, 1.0 / 15.0, 2e-6, &format!("{name} x2y2"));
+        }
+    }
+    // Level-symmetric sets favour no axis: the same cosines on every axis.
+    let q = Quadrature::named("s6").unwrap();
+    let mut per_axis: Vec<Vec<i64>> = (0..3)
+        .map(|a| {
+            let mut v: Vec<i64> = q.directions.iter().map(|d| (d[a] * 1e6).round() as i64).collect();
+            v.sort_unstable();
+            v
+        })
+        .collect();
+    let x = per_axis.remove(0);
+    assert!(per_axis.iter().all(|v| *v == x), "s6 is not symmetric under axis permutation");
+    // Gauss-Legendre with n nodes: exact to degree 2n - 1, e.g. n = 8 integrates mu^14 to 2/15.
+    let (mu, w) = gauss_legendre(8);
+    assert_close(w.iter().sum::<f64>(), 2.0, 1e-14, "GL weights");
+    assert_close(mu.iter().zip(&w).map(|(m, w)| w * m.powi(14)).sum::<f64>(), 2.0 / 15.0, 1e-13, "GL mu^14");
+    // The product set normalises a strongly forward HG lobe: sum_i w_i p(Omega_i . z) = 1.
+    let q = Quadrature::product(32, 8);
+    let g: f64 = 0.6;
+    let hg = |mu: f64| (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * mu).powf(1.5));
+    assert_close(integrate(&q, |d| hg(d[2])), 1.0, 1e-9, "HG g 0.6 on product-32x8");
+    for bad in ["s3", "s12", "product-0x4", "lebedev", "product-8"] {
+        let e = Quadrature::named(bad).unwrap_err();
+        assert!(e.contains(bad) && e.contains("s4"), "{bad}: {e}");
+    }
+}

@@ -8,6 +8,7 @@
 pub mod chandrasekhar;
 pub mod geometry;
 pub mod phase;
+pub mod quadrature;
 pub mod reference;
 pub mod rng;
 pub mod stats;
