@@ -16,6 +16,7 @@ mod phase_gpu;
 mod physics_tests;
 mod registry_tests;
 mod scene_tests;
+mod slab_reference;
 mod solvers;
 mod stability_tests;
 mod timeline_tests;
