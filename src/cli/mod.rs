@@ -40,7 +40,7 @@ pub struct GpuArgs {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
-    /// Render a scene to EXR (linear) and/or PNG (tone-mapped).
+    /// Render a scene to EXR or PFM (linear) and/or PNG (tone-mapped), with a JSON report.
     Render(RenderArgs),
     /// Compare two EXR images: relL2 (and without the images' noise where they carry variance
     /// layers), relMSE, RMSE, energy ratio, max error, NaN/Inf count.
@@ -168,10 +168,12 @@ pub struct RenderArgs {
     /// (`path.max_depth=1`, `single.step=0.01`). Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-    /// Linear HDR output (RGB f32; `path` adds a `variance` layer: variance of the pixel mean).
+    /// The image, in the format its extension names: `.exr` (linear RGB f32, provenance in the
+    /// header; `path` adds a `variance` layer: the variance of each pixel's mean), `.png`
+    /// (tone-mapped 8-bit, `--exposure`), `.pfm` (linear RGB f32).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Tone-mapped 8-bit PNG.
+    /// Also a tone-mapped 8-bit PNG (provenance in its text chunks).
     #[arg(long)]
     pub png: Option<PathBuf>,
     /// PNG exposure in stops (default: the scene's render.exposure, else 0).
