@@ -7,6 +7,7 @@
 
 pub mod chandrasekhar;
 pub mod geometry;
+pub mod ordinates;
 pub mod phase;
 pub mod quadrature;
 pub mod reference;
