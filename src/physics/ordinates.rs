@@ -146,6 +146,13 @@ impl OrdinatesGrid {
         (fluence, [top, bottom, leaving])
     }
 
+    /// One sweep of every direction for the emission `emission` and no scattering: the
+    /// fluence (what a GPU sweep must reproduce).
+    pub fn sweep_once(&self, q: &Quadrature, emission: &[f64]) -> Vec<f64> {
+        let mut last = vec![vec![0.0; self.voxels()]; q.len()];
+        self.sweep(q, emission, &mut last).0
+    }
+
     /// Source iteration from the first-scattering emission `first` (per unit volume and solid
     /// angle, isotropic) to a relative fluence change below `tol`, at most `max_iterations`
     /// sweeps of every direction.

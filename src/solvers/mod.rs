@@ -26,6 +26,7 @@ pub mod gpu_scene;
 pub mod knobs;
 pub mod lattice;
 pub mod marching;
+pub mod ordinates;
 pub mod probes;
 pub mod resumable;
 pub mod view;
