@@ -32,6 +32,7 @@ pub mod resumable;
 pub mod view;
 pub mod wave_field;
 
+pub mod dom;
 pub mod lbl;
 pub mod octaves;
 pub mod path;
@@ -54,7 +55,7 @@ pub use knobs::{Knob, Knobs, Range, Settings};
 /// Every solver this build ships, in the order they are listed and benched. Adding a solver
 /// is one line here (plus its own file and shader folder): `docs/architecture.md`.
 pub static SOLVERS: &[&dyn Solver] =
-    &[&path::Path, &single::Single, &lbl::Lbl, &wavefront::Wavefront, &octaves::OctavesSolver];
+    &[&path::Path, &single::Single, &lbl::Lbl, &wavefront::Wavefront, &octaves::OctavesSolver, &dom::Dom];
 
 #[derive(Debug, Error)]
 #[non_exhaustive]

@@ -79,6 +79,11 @@ impl Sweeper {
         })
     }
 
+    /// Device bytes of its buffers.
+    pub fn device_bytes(&self) -> u64 {
+        [&self.sigma_t, &self.emission, &self.dirs, &self.field, &self.fluence].iter().map(|b| b.size()).sum()
+    }
+
     /// One sweep of every direction for `emission` (per unit volume and solid angle, per
     /// voxel): the fluence sum_d w_d I_d per voxel.
     pub fn sweep(&self, gpu: &Gpu, emission: &[f32]) -> Result<Vec<f32>, SolverError> {
