@@ -165,7 +165,7 @@ impl Solver for Dom {
         let mut emission = first.clone();
         let mut previous: Vec<f64> = vec![0.0; first.len()];
         let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
-        let mut last_change: Option<(f64, u32)> = None;
+        let mut last_change: Option<(f64, u64)> = None;
         while iterations < set.max_iterations {
             let phi: Vec<f64> = sweeper.sweep(gpu, &to32(&emission))?.iter().map(|x| *x as f64).collect();
             iterations += 1;
@@ -176,19 +176,15 @@ impl Solver for Dom {
                 *e = first[i] + albedo * sigma_t[i] * phi[i] / four_pi;
             }
             previous = phi;
-            let remaining = last_change.and_then(|(c0, _)| {
-                let rate = change / c0;
-                (rate > 0.0 && rate < 1.0 && change > set.tol)
-                    .then(|| ((set.tol / change).ln() / rate.ln()).ceil() as u64)
-            });
-            (req.progress)(Progress::Converging {
-                stage: "source iterations",
-                iteration: iterations as u64,
+            (req.progress)(Progress::converging(
+                "source iterations",
+                iterations as u64,
                 change,
-                tol: set.tol,
-                remaining,
-            });
-            last_change = Some((change, iterations));
+                set.tol,
+                last_change,
+                (set.max_iterations - iterations) as u64,
+            ));
+            last_change = Some((change, iterations as u64));
             if change <= set.tol {
                 converged = true;
                 break;

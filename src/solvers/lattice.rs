@@ -580,19 +580,14 @@ impl Diffuser {
         // the iterations left (a geometric decay, as the tail extrapolation assumes).
         let mut last_measure: Option<(f64, u32)> = None;
         let report = |iteration: u32, measure: f64, last: Option<(f64, u32)>| {
-            let remaining = last.and_then(|(m0, i0)| {
-                let rate = (measure / m0).powf(1.0 / (iteration - i0).max(1) as f64);
-                (rate > 0.0 && rate < 1.0 && measure > tol as f64).then(|| {
-                    ((tol as f64 / measure).ln() / rate.ln()).ceil().min((max_iters - iteration) as f64) as u64
-                })
-            });
-            progress(Progress::Converging {
-                stage: "lattice iterations",
-                iteration: iteration as u64,
-                change: measure,
-                tol: tol as f64,
-                remaining,
-            });
+            progress(Progress::converging(
+                "lattice iterations",
+                iteration as u64,
+                measure,
+                tol as f64,
+                last.map(|(m, i)| (m, i as u64)),
+                (max_iters - iteration) as u64,
+            ));
         };
         while self.iterations < max_iters {
             let before = self.iterations;

@@ -243,6 +243,24 @@ impl Progress {
     pub fn work(stage: &'static str, done: u64, total: u64) -> Progress {
         Progress::Work { stage, done, total }
     }
+
+    /// An iteration's report, with the iterations left to `tol` at the geometric rate of decay
+    /// measured since `earlier` (an earlier measure and its iteration), at most `cap`.
+    pub fn converging(
+        stage: &'static str,
+        iteration: u64,
+        change: f64,
+        tol: f64,
+        earlier: Option<(f64, u64)>,
+        cap: u64,
+    ) -> Progress {
+        let remaining = earlier.and_then(|(c0, i0)| {
+            let rate = (change / c0).powf(1.0 / iteration.saturating_sub(i0).max(1) as f64);
+            (rate > 0.0 && rate < 1.0 && change > tol)
+                .then(|| ((tol / change).ln() / rate.ln()).ceil().min(cap as f64) as u64)
+        });
+        Progress::Converging { stage, iteration, change, tol, remaining }
+    }
 }
 
 impl RenderRequest<'_> {
