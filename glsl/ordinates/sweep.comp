@@ -1,9 +1,10 @@
 #version 460
-// ordinates/sweep: one wavefront plane of one octant of a discrete-ordinates sweep (thesis
-// 5.3.3: the voxels with i + j + k = w in the octant's own coordinates depend only on plane
-// w - 1, so a plane is one dispatch). Each invocation is one voxel of the plane and takes every
-// direction of the octant in turn, so the fluence is summed in a fixed order without atomics:
-// deterministic. The per-voxel update is the step scheme of src/physics/ordinates.rs (the
+// ordinates/sweep: one wavefront plane of all eight octants of a discrete-ordinates sweep
+// (thesis 5.3.3: the voxels with i + j + k = w in an octant's own coordinates depend only on
+// its plane w - 1, so a plane is one dispatch; the octants are independent, so they share it,
+// gl_GlobalInvocationID.z being the octant). Each invocation is one voxel of one octant's plane
+// and takes every direction of the octant in turn into the octant's own fluence slice, so the
+// fluence is summed in a fixed order without atomics (the host adds the slices): deterministic. The per-voxel update is the step scheme of src/physics/ordinates.rs (the
 // CPU oracle this mirrors): the voxel's balance with its outflow equal to its mean radiance,
 //   I = (Q + sum_a |w_a| I_upwind,a / h) / (sigma_t + sum_a |w_a| / h),
 // never negative and conservative. Faces of the box are vacuum (nothing enters).
@@ -13,16 +14,17 @@ layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 layout(std430, binding = 0) readonly buffer SigmaT { float sigma_t[]; };   // 1/unit per voxel
 layout(std430, binding = 1) readonly buffer Emission { float emission[]; }; // per unit volume and sr
 layout(std430, binding = 2) readonly buffer Dirs { vec4 dirs[]; };         // xyz direction, w weight (sr)
-layout(std430, binding = 3) buffer Field { float field[]; };               // [octant direction][voxel]
-layout(std430, binding = 4) buffer Fluence { float fluence[]; };           // sum over directions of w I
+layout(std430, binding = 3) buffer Field { float field[]; };               // [octant][its direction][voxel]
+layout(std430, binding = 4) buffer Fluence { float fluence[]; };           // [octant][voxel]: sum of w I
 
 layout(push_constant) uniform Push {
     uvec4 dims;       // voxels xyz, w = voxel count
-    ivec4 octant;     // +1 / -1 per axis (the sweep's direction), w = the plane index
-    uint first_dir;   // the octant's first direction in dirs[]
-    uint count;       // its number of directions
+    int plane;        // the plane index w
     float h;          // voxel edge, scene units
+    uint slots;       // field slots per octant (its largest direction count)
     uint pad;
+    uvec4 first[2];   // per octant o (bit a set: negative along axis a): its first direction in dirs[]
+    uvec4 count[2];   // and its number of directions
 } pc;
 
 uint voxel_index(ivec3 p) {
@@ -32,32 +34,38 @@ uint voxel_index(ivec3 p) {
 void main() {
     ivec3 n = ivec3(pc.dims.xyz);
     ivec2 ab = ivec2(gl_GlobalInvocationID.xy);
-    int c = pc.octant.w - ab.x - ab.y;
-    if (ab.x >= n.x || ab.y >= n.y || c < 0 || c >= n.z) return;
+    uint o = gl_GlobalInvocationID.z;
+    int c = pc.plane - ab.x - ab.y;
+    if (o >= 8u || ab.x >= n.x || ab.y >= n.y || c < 0 || c >= n.z) return;
+    uint count = pc.count[o / 4u][o % 4u];
+    if (count == 0u) return;
+    uint first_dir = pc.first[o / 4u][o % 4u];
+    ivec3 sgn = ivec3((o & 1u) != 0u ? -1 : 1, (o & 2u) != 0u ? -1 : 1, (o & 4u) != 0u ? -1 : 1);
     // Octant-local coordinates count from the upwind corner.
     ivec3 local = ivec3(ab, c);
-    ivec3 p = ivec3(pc.octant.x > 0 ? local.x : n.x - 1 - local.x,
-                    pc.octant.y > 0 ? local.y : n.y - 1 - local.y,
-                    pc.octant.z > 0 ? local.z : n.z - 1 - local.z);
+    ivec3 p = ivec3(sgn.x > 0 ? local.x : n.x - 1 - local.x,
+                    sgn.y > 0 ? local.y : n.y - 1 - local.y,
+                    sgn.z > 0 ? local.z : n.z - 1 - local.z);
     uint v = voxel_index(p);
     uint V = pc.dims.w;
     float st = sigma_t[v];
     float q = emission[v];
     float phi = 0.0;
-    for (uint k = 0u; k < pc.count; ++k) {
-        vec4 d = dirs[pc.first_dir + k];
+    for (uint k = 0u; k < count; ++k) {
+        vec4 d = dirs[first_dir + k];
         vec3 a = abs(d.xyz);
+        uint slot = (o * pc.slots + k) * V;
         float inflow = 0.0;
         for (int axis = 0; axis < 3; ++axis) {
             // The upwind neighbour is one step against the sweep; none at the upwind face.
             if (local[axis] == 0) continue;
             ivec3 u = p;
-            u[axis] -= pc.octant[axis];
-            inflow += a[axis] * field[k * V + voxel_index(u)];
+            u[axis] -= sgn[axis];
+            inflow += a[axis] * field[slot + voxel_index(u)];
         }
         float radiance = (q + inflow / pc.h) / (st + (a.x + a.y + a.z) / pc.h);
-        field[k * V + v] = radiance;
+        field[slot + v] = radiance;
         phi += d.w * radiance;
     }
-    fluence[v] += phi;
+    fluence[o * V + v] += phi;
 }

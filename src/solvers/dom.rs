@@ -236,18 +236,12 @@ impl Solver for Dom {
         let m = &set.march;
         let rays = marching::raymaps(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed).len() as u64;
         let v = geom.voxels();
-        // The sweeper: extinction, emission, fluence and one field per direction of the
-        // largest octant; the fluence handed to the view pass.
-        let q = &set.quadrature;
-        let octant = (0..8)
-            .map(|o: usize| {
-                q.directions.iter().filter(|d| (0..3).all(|a| (d[a] >= 0.0) == (o & (1 << a) == 0))).count()
-            })
-            .max()
-            .unwrap_or(1) as u64;
+        // The sweeper: extinction, emission, the octants' fluence slices and a field per
+        // direction slot of every octant; the fluence handed to the view pass.
+        let slots = Sweeper::slots(&set.quadrature);
         Ok(gpu_scene::scene_bytes(scene)
             + m.device_bytes(&geom, rays, 1, false)
-            + v * 4 * (4 + octant)
+            + v * 4 * (3 + 8 + 8 * slots)
             + set.quadrature.len() as u64 * 16
             + view::device_bytes(scene, &set.view))
     }
