@@ -8,23 +8,32 @@
 // CPU oracle this mirrors): the voxel's balance with its outflow equal to its mean radiance,
 //   I = (Q + sum_a |w_a| I_upwind,a / h) / (sigma_t + sum_a |w_a| / h),
 // never negative and conservative. Faces of the box are vacuum (nothing enters).
+// The emission along direction s comes from the source stored at M directions (thesis 5.1;
+// src/physics/angular.rs): mode 0, M = 1 (isotropic); mode 1, the storage set is the swept
+// set (Q_s itself); mode 2, upsampled, q_s = sum_m U[s][m] Q_m. Channel c of a chromatic medium
+// has its own extinction, source and fluence slices.
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
-layout(std430, binding = 0) readonly buffer SigmaT { float sigma_t[]; };   // 1/unit per voxel
-layout(std430, binding = 1) readonly buffer Emission { float emission[]; }; // per unit volume and sr
+layout(std430, binding = 0) readonly buffer SigmaT { float sigma_t[]; };   // [c][voxel], 1/unit
+layout(std430, binding = 1) readonly buffer Source { float source[]; };    // [c][m][voxel], per unit volume and sr
 layout(std430, binding = 2) readonly buffer Dirs { vec4 dirs[]; };         // xyz direction, w weight (sr)
 layout(std430, binding = 3) buffer Field { float field[]; };               // [octant][its direction][voxel]
-layout(std430, binding = 4) buffer Fluence { float fluence[]; };           // [octant][voxel]: sum of w I
+layout(std430, binding = 4) buffer Fluence { float fluence[]; };           // [c][octant][voxel]: sum of w I
+layout(std430, binding = 5) readonly buffer Upsample { float upsample[]; }; // [s][m] (mode 2)
 
 layout(push_constant) uniform Push {
     uvec4 dims;       // voxels xyz, w = voxel count
     int plane;        // the plane index w
     float h;          // voxel edge, scene units
     uint slots;       // field slots per octant (its largest direction count)
-    uint pad;
+    uint storage;     // M, source directions stored per voxel
     uvec4 first[2];   // per octant o (bit a set: negative along axis a): its first direction in dirs[]
     uvec4 count[2];   // and its number of directions
+    uint channel;     // c
+    uint mode;        // 0: M = 1; 1: storage = swept set; 2: upsampled
+    uint pad0;
+    uint pad1;
 } pc;
 
 uint voxel_index(ivec3 p) {
@@ -48,11 +57,22 @@ void main() {
                     sgn.z > 0 ? local.z : n.z - 1 - local.z);
     uint v = voxel_index(p);
     uint V = pc.dims.w;
-    float st = sigma_t[v];
-    float q = emission[v];
+    uint M = pc.storage;
+    float st = sigma_t[pc.channel * V + v];
+    uint src = pc.channel * M * V + v;
     float phi = 0.0;
     for (uint k = 0u; k < count; ++k) {
-        vec4 d = dirs[first_dir + k];
+        uint s = first_dir + k;
+        vec4 d = dirs[s];
+        float q;
+        if (pc.mode == 0u) {
+            q = source[src];
+        } else if (pc.mode == 1u) {
+            q = source[src + s * V];
+        } else {
+            q = 0.0;
+            for (uint m = 0u; m < M; ++m) q += upsample[s * M + m] * source[src + m * V];
+        }
         vec3 a = abs(d.xyz);
         uint slot = (o * pc.slots + k) * V;
         float inflow = 0.0;
@@ -67,5 +87,5 @@ void main() {
         field[slot + v] = radiance;
         phi += d.w * radiance;
     }
-    fluence[o * V + v] += phi;
+    fluence[(pc.channel * 8u + o) * V + v] = phi;
 }

@@ -5,6 +5,7 @@
 //! (`reference`, `chandrasekhar`, `stats`) are the exact answers and the tests that GPU
 //! results are held to, and production code does not use them.
 
+pub mod angular;
 pub mod chandrasekhar;
 pub mod geometry;
 pub mod ordinates;

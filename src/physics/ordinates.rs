@@ -15,10 +15,11 @@
 //! conservative: summed over voxels and weighted over directions, what leaves through the
 //! boundary plus what is absorbed equals what is emitted, exactly.
 //!
-//! Scattering is isotropic here (the storage directions M = 1 that the issue asks for
-//! isotropic media): the source of the next iteration is sigma_s phi / (4 pi), phi = sum_d w_d
-//! I_d, iterated from the first-scattering source until the fluence changes by less than a
-//! tolerance.
+//! [`OrdinatesGrid::solve`] scatters isotropically (the storage directions M = 1 that the issue
+//! asks for isotropic media): the source of the next iteration is sigma_s phi / (4 pi),
+//! phi = sum_d w_d I_d, iterated from the first-scattering source until the fluence changes by
+//! less than a tolerance. [`OrdinatesGrid::solve_angular`] scatters by Henyey-Greenstein with
+//! the source stored at M directions (`physics::angular`), as the device's `dom` does.
 
 use super::quadrature::Quadrature;
 
@@ -66,7 +67,12 @@ impl OrdinatesGrid {
     /// and bottom (-z) faces. Periodic x/y faces take the inflow from the opposite side's
     /// outflow of `last` (the previous sweep's field for that direction), which a converged
     /// iteration makes exact.
-    fn sweep(&self, q: &Quadrature, emission: &[f64], last: &mut [Vec<f64>]) -> (Vec<f64>, [f64; 3]) {
+    fn sweep(
+        &self,
+        q: &Quadrature,
+        emission: &dyn Fn(usize, usize) -> f64,
+        last: &mut [Vec<f64>],
+    ) -> (Vec<f64>, [f64; 3]) {
         let [nx, ny, nz] = self.dims;
         let mut fluence = vec![0.0; self.voxels()];
         let (mut top, mut bottom, mut leaving) = (0.0, 0.0, 0.0);
@@ -123,7 +129,7 @@ impl OrdinatesGrid {
                             inflow += a[axis] * i_in / self.h;
                         }
                         let i = self.index(p);
-                        let radiance = (emission[i] + inflow) / (self.sigma_t[i] + lean - own);
+                        let radiance = (emission(d, i) + inflow) / (self.sigma_t[i] + lean - own);
                         field[i] = radiance;
                         fluence[i] += w * radiance;
                         // What leaves through the box's vacuum faces, and the top and bottom.
@@ -150,7 +156,7 @@ impl OrdinatesGrid {
     /// fluence (what a GPU sweep must reproduce).
     pub fn sweep_once(&self, q: &Quadrature, emission: &[f64]) -> Vec<f64> {
         let mut last = vec![vec![0.0; self.voxels()]; q.len()];
-        self.sweep(q, emission, &mut last).0
+        self.sweep(q, &|_, i| emission[i], &mut last).0
     }
 
     /// Source iteration from the first-scattering emission `first` (per unit volume and solid
@@ -169,12 +175,68 @@ impl OrdinatesGrid {
             converged: false,
         };
         while out.iterations < max_iterations {
-            let (fluence, [top, bottom, leaving]) = self.sweep(q, &emission, &mut last);
+            let (fluence, [top, bottom, leaving]) = self.sweep(q, &|_, i| emission[i], &mut last);
             out.iterations += 1;
             let scale = fluence.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let change = fluence.iter().zip(&previous).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
             for (i, e) in emission.iter_mut().enumerate() {
                 *e = first[i] + self.albedo[i] * self.sigma_t[i] * fluence[i] / (4.0 * std::f64::consts::PI);
+            }
+            previous = fluence.clone();
+            out.fluence = fluence;
+            out.leaving_top = top;
+            out.leaving_bottom = bottom;
+            out.leaving = leaving;
+            if change <= tol * scale {
+                out.converged = true;
+                break;
+            }
+        }
+        out
+    }
+
+    /// Source iteration with Henyey-Greenstein scattering of asymmetry `g`, the emission stored
+    /// at the directions of `storage` (M) and swept along those of `q` (N), coupled by
+    /// `physics::angular`'s maps: `first` is the first-scattering emission at the storage
+    /// directions ([m * V + v], per unit volume and solid angle). The device's `dom` computes
+    /// the same; with `storage` isotropic and g = 0 this is [`OrdinatesGrid::solve`].
+    pub fn solve_angular(
+        &self,
+        q: &Quadrature,
+        storage: &Quadrature,
+        g: f64,
+        first: &[f64],
+        tol: f64,
+        max_iterations: u32,
+    ) -> OrdinatesSolution {
+        let v = self.voxels();
+        let (nn, mm) = (q.len(), storage.len());
+        let map = super::angular::StorageMap::new(q, storage);
+        let a = map.scatter_matrix(q, g);
+        let up = map.upsample;
+        let mut last = vec![vec![0.0; v]; nn];
+        let mut stored = first.to_vec();
+        let mut previous = vec![0.0; v];
+        let mut out = OrdinatesSolution {
+            fluence: previous.clone(),
+            leaving_top: 0.0,
+            leaving_bottom: 0.0,
+            leaving: 0.0,
+            iterations: 0,
+            converged: false,
+        };
+        while out.iterations < max_iterations {
+            let emission = |n: usize, i: usize| (0..mm).map(|m| up[n * mm + m] * stored[m * v + i]).sum::<f64>();
+            let (fluence, [top, bottom, leaving]) = self.sweep(q, &emission, &mut last);
+            out.iterations += 1;
+            let scale = fluence.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            let change = fluence.iter().zip(&previous).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+            for i in 0..v {
+                let sigma_s = self.albedo[i] * self.sigma_t[i];
+                for m in 0..mm {
+                    let scattered: f64 = (0..nn).map(|n| a[n * mm + m] * last[n][i]).sum();
+                    stored[m * v + i] = first[m * v + i] + sigma_s * scattered;
+                }
             }
             previous = fluence.clone();
             out.fluence = fluence;

@@ -124,6 +124,31 @@ impl Quadrature {
         q
     }
 
+    /// One direction of weight 4 pi: the storage set of an isotropic source (thesis 5.1,
+    /// M = 1). Its direction is arbitrary; every map that uses it is isotropic.
+    pub fn isotropic() -> Quadrature {
+        Quadrature { name: "1".into(), directions: vec![[0.0, 0.0, 1.0]], weights: vec![4.0 * PI] }
+    }
+
+    /// The same set reordered by octant (bit a of the octant set when the direction is
+    /// negative along axis a; a zero component counts as positive), with each octant's first
+    /// index and count: the order the sweeps take directions in.
+    pub fn by_octant(&self) -> (Quadrature, [u32; 8], [u32; 8]) {
+        let mut q = Quadrature { name: self.name.clone(), directions: Vec::new(), weights: Vec::new() };
+        let (mut first, mut count) = ([0u32; 8], [0u32; 8]);
+        for o in 0..8 {
+            first[o] = q.len() as u32;
+            for (d, w) in self.directions.iter().zip(&self.weights) {
+                if (0..3).all(|a| (d[a] < 0.0) == (o & (1 << a) != 0)) {
+                    q.directions.push(*d);
+                    q.weights.push(*w);
+                }
+            }
+            count[o] = q.len() as u32 - first[o];
+        }
+        (q, first, count)
+    }
+
     /// Number of directions.
     pub fn len(&self) -> usize {
         self.directions.len()

@@ -1,34 +1,36 @@
-//! Solver `dom`: modified discrete ordinates (thesis ch. 5; issue 13), first stage: isotropic
-//! media, in-core.
+//! Solver `dom`: modified discrete ordinates (thesis ch. 5; issue 13), in-core.
 //!
-//! 1. **Direct source (5.2).** Photon marching as in `lbl` (the shared `marching` part, its
-//!    fixed-point transfer: deterministic) deposits each voxel's once-scattered power E; the
-//!    first-scattering emission is E / (4 pi lambda^3) per unit volume and solid angle
-//!    (isotropic media store one direction, M = 1: thesis 5.1).
+//! 1. **Direct source (5.2).** Photon marching as in `lbl` (the shared `marching` part) moves
+//!    the light; each deposit (power scattered out of a beam) is shared among M storage
+//!    directions by the quadrature-normalised phase function and summed in fixed point
+//!    (glsl/ordinates/deposit.comp: deterministic). The first-scattering emission at storage
+//!    direction m is E_m / (w_m lambda^3) per unit volume and solid angle. Isotropic media
+//!    store one direction (M = 1, thesis 5.1), grey media one channel.
 //! 2. **Propagation (5.3).** Octant sweeps over the directions of a named quadrature
 //!    (`physics::quadrature`; S_4 and S_6 are the thesis's 24 and 48), plane by plane, with the
 //!    step scheme (`solvers::ordinates`, checked against the CPU oracle `physics::ordinates`):
-//!    never negative, conservative. Source iteration: the emission of the next sweep is the
-//!    first-scattering one plus sigma_s phi / (4 pi), until the fluence changes by less than
-//!    `dom.tol` (relative, largest over voxels) or `dom.max_iterations`; both are reported.
+//!    never negative, conservative. The swept emission is the stored one upsampled from M to N
+//!    directions (`physics::angular`). Source iteration on the device
+//!    (glsl/ordinates/scatter.comp): the stored source of the next sweep is the first-scattering
+//!    one plus sigma_s sum_n A[n][m] I_n, until the fluence changes by less than `dom.tol`
+//!    (relative, largest over voxels) or `dom.max_iterations`; both are reported.
 //! 3. **View gathering (5.3.5).** The shared view pass: exact single scattering of the direct
-//!    light, plus the swept fluence (the light scattered once and more) scattered toward the
-//!    camera, trilinear between voxel centres; nothing is counted twice.
+//!    light, plus the swept field (the light scattered once and more) scattered toward the
+//!    camera by the phase function at each voxel (scatter.comp), trilinear between voxel
+//!    centres; nothing is counted twice.
 //!
-//! Not yet (issue 13): anisotropic media (M storage directions and the sort-search-compact
-//! merge), chromatic media, blocks and out-of-core streaming, the sweep's source update on the
-//! device.
+//! Not yet (issue 13): blocks and out-of-core streaming.
 
 use serde::Serialize;
 
 use crate::gpu::{Gpu, Kernel, QueueRole};
 use crate::physics::quadrature::Quadrature;
-use crate::scene::Scene;
+use crate::scene::{CameraKind, Scene};
 
 use super::gpu_scene::{self, GpuScene};
 use super::lattice::LatticeGeom;
 use super::marching::{self, MarchSettings, Marcher};
-use super::ordinates::{Sweeper, SWEEP};
+use super::ordinates::{self, Eye, SweepSetup, Sweeper};
 use super::view::{self, FluxUse, MsVolume, ViewSettings};
 use super::{
     Convergence, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError,
@@ -43,6 +45,13 @@ pub struct DomStats {
     pub grid: LatticeGeom,
     pub quadrature: String,
     pub directions: usize,
+    /// The storage set (`1`: isotropic) and its size M.
+    pub storage: String,
+    pub storage_directions: usize,
+    pub channels: u32,
+    /// The mean cosine the quadrature's normalised scattering carries (the medium's g on a
+    /// fine set; a coarse one smears it toward 0).
+    pub quadrature_g: f64,
     pub iterations: u32,
     pub converged: bool,
     pub final_change: f64,
@@ -52,6 +61,7 @@ pub struct DomStats {
 struct DomSettings {
     grid: u32,
     quadrature: Quadrature,
+    storage: Quadrature,
     tol: f64,
     max_iterations: u32,
     march: MarchSettings,
@@ -62,11 +72,29 @@ impl DomSettings {
     fn parse(k: &Knobs, scene: &Scene) -> Result<DomSettings, SolverError> {
         let grid: u32 = k.get("grid")?;
         let name: String = k.get("directions")?;
+        // s6 resolves moderate anisotropy (the g 0.7 cube: energy 1.006 of path); a peaked
+        // phase function needs more directions (g 0.9: the twice-scattered light is 1.5x
+        // path's at s6, 1.16x at s8, 1.04x at product-8x16; docs/dom.md).
+        let name = match name.as_str() {
+            "auto" if scene.medium.g.abs() >= 0.8 => "product-8x16".to_string(),
+            "auto" => "s6".to_string(),
+            _ => name,
+        };
         let quadrature = Quadrature::named(&name).map_err(|e| k.invalid("directions", e))?;
+        let stored: String = k.get("storage")?;
+        // Model only what the scene needs: an isotropic medium scatters the same way into every
+        // direction, so one storage direction holds its source exactly (thesis 5.1).
+        let storage = match stored.as_str() {
+            "auto" if scene.medium.g == 0.0 => Quadrature::isotropic(),
+            "auto" | "directions" => quadrature.clone(),
+            "1" => Quadrature::isotropic(),
+            other => Quadrature::named(other).map_err(|e| k.invalid("storage", e))?,
+        };
         let geom = LatticeGeom::new(scene, grid);
         Ok(DomSettings {
             grid,
             quadrature,
+            storage,
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
             march: MarchSettings::parse(k, geom.lambda)?,
@@ -75,31 +103,14 @@ impl DomSettings {
     }
 }
 
-/// Why `dom` cannot render `scene` yet, if it cannot.
-fn unsupported(scene: &Scene) -> Option<String> {
-    let m = &scene.medium;
-    if m.g != 0.0 {
-        return Some(format!(
-            "dom scatters isotropically so far (g = {}): anisotropic media need its M storage directions (issue 13)",
-            m.g
-        ));
-    }
-    if gpu_scene::modelled(scene, false).chromatic {
-        return Some(
-            "dom has one channel so far: a chromatic medium (per-channel sigma_t or albedo) needs three".into(),
-        );
-    }
-    None
-}
-
 impl Solver for Dom {
     fn name(&self) -> &'static str {
         "dom"
     }
 
     fn about(&self) -> &'static str {
-        "modified discrete ordinates: marched first-scattering source, octant sweeps with the step scheme, source \
-         iteration (thesis ch. 5; isotropic, in-core so far)"
+        "modified discrete ordinates: marched first-scattering source binned into storage directions, octant sweeps \
+         with the step scheme, source iteration on the device (thesis ch. 5; in-core so far)"
     }
 
     fn knobs(&self) -> Vec<Knob> {
@@ -107,10 +118,11 @@ impl Solver for Dom {
             Knob::fixed("grid", "32", Range::int(2, 256), "voxels along the medium's longest side"),
             Knob::fixed(
                 "directions",
-                "s6",
-                Range::Choice(&["s2", "s4", "s6", "s8", "product-8x16", "product-16x32"]),
+                "auto",
+                Range::Choice(&["auto", "s2", "s4", "s6", "s8", "product-8x16", "product-16x32"]),
                 "the quadrature swept: level-symmetric s4 (24 directions, the thesis's), s6 (48), s8 (80), or a \
-                 Gauss-Legendre x Chebyshev product set (product-PxA: P polar x A azimuthal)",
+                 Gauss-Legendre x Chebyshev product set (product-PxA: P polar x A azimuthal); auto: s6, or \
+                 product-8x16 (128) where |g| >= 0.8",
             ),
             Knob::fixed(
                 "tol",
@@ -119,6 +131,14 @@ impl Solver for Dom {
                 "source iteration stops when the fluence changes by less than this, relative to its largest value",
             ),
             Knob::fixed("max_iterations", "2000", Range::int(1, 1_000_000), "source iterations at most"),
+            Knob::fixed(
+                "storage",
+                "auto",
+                Range::Choice(&["auto", "directions", "1", "s2", "s4", "s6", "s8", "product-4x8", "product-8x16"]),
+                "the M directions each voxel's source is stored at (thesis 5.1): auto is 1 for an isotropic medium \
+                 (exact) and the swept set otherwise; directions is the swept set; a smaller set is upsampled to the \
+                 swept one, conserving energy",
+            ),
         ];
         k.extend(marching::knobs());
         k.extend(view::knobs().into_iter().map(|k| k.prefixed("view_")));
@@ -127,7 +147,8 @@ impl Solver for Dom {
 
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = marching::kernels();
-        k.extend([SWEEP, view::MARCH, view::SHADOW]);
+        k.extend(ordinates::kernels());
+        k.extend([view::MARCH, view::SHADOW]);
         k
     }
 
@@ -136,45 +157,77 @@ impl Solver for Dom {
         let k = req.knobs(self)?;
         let set = DomSettings::parse(&k, scene)?;
         k.finish()?;
-        if let Some(why) = unsupported(scene) {
-            return Err(SolverError::Unsupported(why));
-        }
         let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-        (req.progress)(Progress::work("marching the direct source", 0, 1));
+        // One channel when the medium and every light are grey (as lbl's lattice).
+        let nch = gpu_scene::channels(scene, gs.modelled.chromatic);
         let geom = LatticeGeom::new(scene, set.grid);
-        let marcher = Marcher::new(gpu, scene, &gs, geom, &set.march, 1, true, false)?;
-        for _ in 0..marcher.rounds {
-            let point =
-                gpu.submit(QueueRole::Trace, &[marcher.march_pass(&gs), marcher.transfer_pass(QueueRole::Trace)], &[])?;
+        let marcher = Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false)?;
+        let density: Vec<f32> = gpu.read_buffer_as(&marcher.density)?;
+        let m = &scene.medium;
+        let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
+        for c in 0..nch as usize {
+            sigma_t.extend(density.iter().map(|d| m.sigma_t[c] * d));
+            sigma_s.extend(density.iter().map(|d| m.albedo[c] * m.sigma_t[c] * d));
+        }
+        let eye = match scene.camera.kind {
+            CameraKind::Perspective { .. } => Eye::Point(scene.camera.origin.to_array()),
+            CameraKind::Orthographic { .. } => Eye::Toward((-scene.camera.basis().2).to_array()),
+        };
+        let sweeper = Sweeper::new(
+            gpu,
+            &SweepSetup {
+                dims: geom.dims,
+                h: geom.lambda,
+                origin: geom.origin,
+                channels: nch,
+                sigma_t: &sigma_t,
+                sigma_s: &sigma_s,
+                quadrature: &set.quadrature,
+                storage: &set.storage,
+                g: m.g as f64,
+                eye,
+            },
+        )?;
+
+        // 5.2: march the light, binning each deposit into the storage directions.
+        let beams = marcher.beams.len();
+        let sums = sweeper.deposit_sums(gpu, beams)?;
+        let ray_beam = gpu.buffer_with("dom ray beams", &marcher.ray_beam)?;
+        let entries = marcher.ray_count * marcher.history_slots();
+        for round in 0..marcher.rounds {
+            (req.progress)(Progress::work("marching the direct source", round as u64, marcher.rounds as u64));
+            let deposit = sweeper.deposit_pass(
+                &marcher.history,
+                &ray_beam,
+                entries,
+                marcher.history_slots(),
+                beams as u32,
+                marcher.scale,
+                &sums,
+            );
+            let point = gpu.submit(QueueRole::Trace, &[marcher.march_pass(&gs), deposit], &[])?;
             gpu.wait(point)?;
         }
-        (req.progress)(Progress::work("marching the direct source", 1, 1));
-        let sums: Vec<u32> = gpu.read_buffer_as(&marcher.sums)?;
-        let density: Vec<f32> = gpu.read_buffer_as(&marcher.density)?;
-        let lambda = geom.lambda as f64;
-        let four_pi = 4.0 * std::f64::consts::PI;
-        // Once-scattered power per voxel (fixed point), as emission per unit volume and sr.
-        let first: Vec<f64> =
-            sums.iter().map(|s| *s as f64 / marcher.scale as f64 / (four_pi * lambda.powi(3))).collect();
-        let sigma_t: Vec<f64> = density.iter().map(|d| scene.medium.sigma_t.x as f64 * *d as f64).collect();
-        let albedo = scene.medium.albedo.x as f64;
-        let to32 = |v: &[f64]| v.iter().map(|x| *x as f32).collect::<Vec<f32>>();
-        let sweeper = Sweeper::new(gpu, geom.dims, geom.lambda, &to32(&sigma_t), &set.quadrature)?;
+        (req.progress)(Progress::work("marching the direct source", marcher.rounds as u64, marcher.rounds as u64));
+        // Each voxel's once-scattered power per beam, shared among the storage directions: the
+        // first-scattering source (per unit volume and sr), on the device.
+        let table = gpu.buffer_with("dom beams", &sweeper.beam_table(m.g as f64, &marcher.beams))?;
+        let point =
+            gpu.submit(QueueRole::Diffuse, &[sweeper.bin_pass(&sums, &table, beams as u32, marcher.scale)], &[])?;
+        gpu.wait(point)?;
+        let v = geom.voxels() as usize;
 
-        // Source iteration (thesis 5.3.4's scattering iterations, with one storage direction).
-        let mut emission = first.clone();
-        let mut previous: Vec<f64> = vec![0.0; first.len()];
+        // 5.3.4: scattering iterations, each sweeping every channel and updating the stored
+        // source on the device; the host reads the fluence to judge convergence.
+        let mut previous: Vec<f32> = vec![0.0; nch as usize * v];
         let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
         let mut last_change: Option<(f64, u64)> = None;
         while iterations < set.max_iterations {
-            let phi: Vec<f64> = sweeper.sweep(gpu, &to32(&emission))?.iter().map(|x| *x as f64).collect();
+            let phi = sweeper.iterate(gpu)?;
             iterations += 1;
-            let scale = phi.iter().fold(0.0f64, |m, x| m.max(*x));
-            change = phi.iter().zip(&previous).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()))
+            let scale = phi.iter().fold(0.0f64, |m, x| m.max(*x as f64));
+            change = phi.iter().zip(&previous).fold(0.0f64, |m, (a, b)| m.max((*a as f64 - *b as f64).abs()))
                 / if scale > 0.0 { scale } else { 1.0 };
-            for (i, e) in emission.iter_mut().enumerate() {
-                *e = first[i] + albedo * sigma_t[i] * phi[i] / four_pi;
-            }
             previous = phi;
             (req.progress)(Progress::converging(
                 "source iterations",
@@ -190,25 +243,34 @@ impl Solver for Dom {
                 break;
             }
         }
-        // The view pass reads energy per voxel, fluence = energy / lambda^2 (as lbl's lattice).
-        let energy: Vec<f32> = previous.iter().map(|p| (p * lambda * lambda) as f32).collect();
-        let energy_buf = gpu.buffer_with("dom fluence", &energy)?;
+        // The light each voxel scatters toward the camera, as the energy per voxel that the view
+        // pass scatters isotropically (fluence = energy / lambda^2, as lbl's lattice).
         let ms = MsVolume {
-            energy: &energy_buf,
+            energy: &sweeper.camera,
             dims: geom.dims,
-            channels: 1,
+            channels: nch,
             origin: geom.origin,
             lambda: geom.lambda,
             flux: FluxUse::None,
         };
         let res = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
-        let device = gs.bytes + marcher.device_bytes() + sweeper.device_bytes() + res.device_bytes + energy_buf.size();
+        let device = gs.bytes
+            + marcher.device_bytes()
+            + sweeper.device_bytes()
+            + sums.size()
+            + ray_beam.size()
+            + table.size()
+            + res.device_bytes;
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device, Stats::new(()));
         let sweep_ms = report.passes.iter().filter(|p| p.name == "ordinates.sweep").map(|p| p.duration_ms()).sum();
         let ds = DomStats {
             grid: geom,
             quadrature: set.quadrature.name.clone(),
             directions: set.quadrature.len(),
+            storage: set.storage.name.clone(),
+            storage_directions: set.storage.len(),
+            channels: nch,
+            quadrature_g: (sweeper.map.effective_g(&set.quadrature, m.g as f64) * 1e6).round() / 1e6 + 0.0,
             iterations,
             converged,
             final_change: change,
@@ -234,15 +296,18 @@ impl Solver for Dom {
         let set = DomSettings::parse(knobs, scene)?;
         let geom = LatticeGeom::new(scene, set.grid);
         let m = &set.march;
-        let rays = marching::raymaps(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed).len() as u64;
+        let (rays, _, beams) = marching::beams(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed);
+        let (rays, beams) = (rays.len() as u64, beams.len() as u64);
         let v = geom.voxels();
-        // The sweeper: extinction, emission, the octants' fluence slices and a field per
-        // direction slot of every octant; the fluence handed to the view pass.
-        let slots = Sweeper::slots(&set.quadrature);
+        let nch = gpu_scene::channels(scene, gpu_scene::modelled(scene, false).chromatic) as u64;
+        // The sweeper's buffers, the deposits' fixed-point sums per beam, each ray's beam and
+        // the beam table.
         Ok(gpu_scene::scene_bytes(scene)
-            + m.device_bytes(&geom, rays, 1, false)
-            + v * 4 * (3 + 8 + 8 * slots)
-            + set.quadrature.len() as u64 * 16
+            + m.device_bytes(&geom, rays, nch as u32, false)
+            + Sweeper::bytes(v, nch, &set.quadrature, &set.storage)
+            + nch * beams * v * 4
+            + rays * 4
+            + beams * 32
             + view::device_bytes(scene, &set.view))
     }
 
@@ -251,28 +316,29 @@ impl Solver for Dom {
     }
 
     fn stability(&self) -> Vec<Variant> {
-        let mut v = Variant::new(
+        vec![Variant::new(
             "",
             &[("dom.grid", "12"), ("dom.rays", "4096"), ("dom.view_env_dirs", "16"), ("dom.max_iterations", "4000")],
-        );
-        v.applies = |s| unsupported(s).is_none();
-        vec![v]
-    }
-
-    fn inapplicable(&self, scene: &Scene) -> Option<String> {
-        unsupported(scene)
+        )]
     }
 
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<DomStats>() else { return Vec::new() };
         let d = s.grid.dims;
         vec![format!(
-            "dom: {}x{}x{} voxels, {} ({} directions), {} source iterations{} (change {:.1e}), sweeps {:.1} ms",
+            "dom: {}x{}x{} voxels, {} ({} directions), source stored at {} ({} direction{}, g {:.3} on the \
+             quadrature), {} channel{}, {} source iterations{} (change {:.1e}), sweeps {:.1} ms",
             d[0],
             d[1],
             d[2],
             s.quadrature,
             s.directions,
+            s.storage,
+            s.storage_directions,
+            if s.storage_directions == 1 { "" } else { "s" },
+            s.quadrature_g,
+            s.channels,
+            if s.channels == 1 { "" } else { "s" },
             s.iterations,
             if s.converged { "" } else { ", NOT converged" },
             s.final_change,

@@ -220,6 +220,17 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
     }
 }
 
+/// Channels a solver's grids carry: one when the medium (`chromatic`: [`modelled`]'s) and every
+/// light are grey (model only what the scene requires), else three.
+pub fn channels(scene: &Scene, chromatic: bool) -> u32 {
+    let grey_lights = scene.lights.iter().all(|l| crate::scene::is_grey(l.colour()));
+    if chromatic || !grey_lights {
+        3
+    } else {
+        1
+    }
+}
+
 /// Bytes the scene occupies on the device (block, density volume, majorant grid).
 pub fn scene_bytes(scene: &Scene) -> u64 {
     scene_bytes_with(scene, MAJORANT_CELL)

@@ -21,7 +21,7 @@
 use serde::Serialize;
 
 use crate::gpu::{Gpu, Kernel, QueueRole, SyncPoint};
-use crate::scene::{is_grey, Scene};
+use crate::scene::Scene;
 
 use super::gpu_scene::{self, GpuScene};
 use super::lattice::{self, check_block, Diffuser, EnergyBook, Injector, Lattice, LatticeGeom, LatticeParams};
@@ -445,15 +445,9 @@ impl LblSettings {
         self.warm_start.is_some() || self.cascade > 0
     }
 
-    /// Channels the lattice carries: one when the medium and every light are grey (model only
-    /// what the scene requires).
+    /// Channels the lattice carries ([`gpu_scene::channels`]).
     pub fn channels(scene: &Scene, chromatic: bool) -> u32 {
-        let grey_lights = scene.lights.iter().all(|l| is_grey(l.colour()));
-        if chromatic || !grey_lights {
-            3
-        } else {
-            1
-        }
+        gpu_scene::channels(scene, chromatic)
     }
 }
 

@@ -150,15 +150,46 @@ impl MarchSettings {
 /// becomes `env_lights` directional lights of irradiance L 4 pi / K from a spherical Fibonacci
 /// set (an approximation the note in `docs/lbl.md` quantifies).
 pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, step: f32, seed: u64) -> Vec<RayInit> {
+    beams(scene, geom, rays, env_lights, step, seed).0
+}
+
+/// Where a raymap's rays come from: the direction every ray of it shares, or the point they
+/// all leave from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Beam {
+    Parallel(Vec3),
+    FromPoint(Vec3),
+}
+
+/// [`raymaps`], with the raymap (beam) each ray belongs to and the beams: a voxel's deposits
+/// from one beam all travel the same way (or away from the same point), which is what `dom`
+/// bins its anisotropic first scattering by.
+pub fn beams(
+    scene: &Scene,
+    geom: &LatticeGeom,
+    rays: u32,
+    env_lights: u32,
+    step: f32,
+    seed: u64,
+) -> (Vec<RayInit>, Vec<u32>, Vec<Beam>) {
     let (lo, hi) = (geom.min(), geom.max());
     let centre = 0.5 * (lo + hi);
     let radius = 0.5 * (hi - lo).length();
     let mut rng = Pcg32::new(seed, 0x1b1);
     let m = (rays as f32).sqrt().ceil().max(1.0) as u32;
     let mut out = Vec::new();
+    let mut ray_beam: Vec<u32> = Vec::new();
+    let mut beams: Vec<Beam> = Vec::new();
     // Start a ray where it enters the grid (or at its origin from inside), backed off by a
     // random fraction of a step.
-    let push = |out: &mut Vec<RayInit>, o: Vec3, d: Vec3, power: Vec3, from_inside: bool, rng: &mut Pcg32| {
+    let push = |out: &mut Vec<RayInit>,
+                ray_beam: &mut Vec<u32>,
+                beam: u32,
+                o: Vec3,
+                d: Vec3,
+                power: Vec3,
+                from_inside: bool,
+                rng: &mut Pcg32| {
         let start = if from_inside {
             Some(o)
         } else {
@@ -171,9 +202,18 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
                 dir_alive: [d.x, d.y, d.z, 1.0],
                 power: [power.x, power.y, power.z, power.max_element()],
             });
+            ray_beam.push(beam);
         }
     };
-    let directional = |out: &mut Vec<RayInit>, dir: Vec3, e: Vec3, n: u32, rng: &mut Pcg32| {
+    let directional = |out: &mut Vec<RayInit>,
+                       ray_beam: &mut Vec<u32>,
+                       beams: &mut Vec<Beam>,
+                       dir: Vec3,
+                       e: Vec3,
+                       n: u32,
+                       rng: &mut Pcg32| {
+        let beam = beams.len() as u32;
+        beams.push(Beam::Parallel(dir));
         let (b1, b2) = orthonormal_basis(dir);
         let side = 2.0 * radius;
         let per = e * (side * side / (n * n) as f32);
@@ -182,7 +222,7 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
                 let u = (i as f32 + rng.next_f32()) / n as f32 - 0.5;
                 let v = (j as f32 + rng.next_f32()) / n as f32 - 0.5;
                 let o = centre - dir * (radius * 1.01) + b1 * (u * side) + b2 * (v * side);
-                push(out, o, dir, per, false, rng);
+                push(out, ray_beam, beam, o, dir, per, false, rng);
             }
         }
     };
@@ -199,6 +239,8 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
                 let (b1, b2) = orthonormal_basis(axis);
                 let per = *intensity * (omega / (m * m) as f32);
                 let from_inside = position.cmpge(lo).all() && position.cmple(hi).all();
+                let beam = beams.len() as u32;
+                beams.push(Beam::FromPoint(*position));
                 for i in 0..m {
                     for j in 0..m {
                         // Stratified, uniform in solid angle over the cap cos_theta >= cos_max.
@@ -208,12 +250,12 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
                         let st = (1.0 - ct * ct).max(0.0).sqrt();
                         let phi = 2.0 * std::f32::consts::PI * v;
                         let d = (b1 * (st * phi.cos()) + b2 * (st * phi.sin()) + axis * ct).normalize();
-                        push(&mut out, *position, d, per, from_inside, &mut rng);
+                        push(&mut out, &mut ray_beam, beam, *position, d, per, from_inside, &mut rng);
                     }
                 }
             }
             Light::Directional { direction, irradiance } => {
-                directional(&mut out, direction.normalize(), *irradiance, m, &mut rng)
+                directional(&mut out, &mut ray_beam, &mut beams, direction.normalize(), *irradiance, m, &mut rng)
             }
             Light::Environment { radiance } => {
                 let k = env_lights.max(1);
@@ -223,12 +265,13 @@ pub fn raymaps(scene: &Scene, geom: &LatticeGeom, rays: u32, env_lights: u32, st
                     let r = (1.0 - z * z).max(0.0).sqrt();
                     let phi = 2.399_963_2 * i as f32;
                     let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
-                    directional(&mut out, d, *radiance * (4.0 * std::f32::consts::PI / k as f32), n, &mut rng);
+                    let e = *radiance * (4.0 * std::f32::consts::PI / k as f32);
+                    directional(&mut out, &mut ray_beam, &mut beams, d, e, n, &mut rng);
                 }
             }
         }
     }
-    out
+    (out, ray_beam, beams)
 }
 
 /// Floats per voxel of the deposit sums: one per channel, and with `directed` the deposit's flux
@@ -251,6 +294,9 @@ pub struct Marcher {
     pub sums: Buffer,
     pub directed: bool,
     pub ray_count: u32,
+    /// The beam (raymap) of each ray, and the beams ([`beams`]).
+    pub ray_beam: Vec<u32>,
+    pub beams: Vec<Beam>,
     /// Rounds of `k` steps until every ray has crossed the grid's diagonal.
     pub rounds: u32,
     pub fixed: bool,
@@ -293,7 +339,7 @@ impl Marcher {
         let pt = gpu.submit(QueueRole::Trace, &[p], &[])?;
         gpu.wait(pt)?;
 
-        let rays = raymaps(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
+        let (rays, ray_beam, beam_list) = beams(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
         let ray_count = rays.len() as u32;
         if ray_count == 0 {
             return Err(SolverError::Unsupported("no light ray reaches the medium's box; check the lights".into()));
@@ -314,6 +360,8 @@ impl Marcher {
             sums,
             directed,
             ray_count,
+            ray_beam,
+            beams: beam_list,
             rounds,
             fixed,
             scale,
@@ -357,6 +405,11 @@ impl Marcher {
                 pad: [0; 3],
             })
             .cover([entries, 1, 1])
+    }
+
+    /// Ray History Buffer slots per ray and round (`k`): entry e belongs to ray e / k.
+    pub fn history_slots(&self) -> u32 {
+        self.set.k
     }
 
     pub fn device_bytes(&self) -> u64 {

@@ -1,22 +1,38 @@
-//! Discrete-ordinates sweeps on the device (issue 13's propagation, thesis 5.3): the part the
-//! `dom` solver will be built on, checked against the CPU oracle `physics::ordinates`.
+//! Discrete-ordinates sweeps on the device (issue 13's propagation, thesis 5.2-5.3): the part
+//! the `dom` solver is built on, checked against the CPU oracle `physics::ordinates`.
 //!
-//! In-core and isotropic for now: the whole grid and one field per direction live on the
-//! device; the eight octants are swept together plane by plane (i + j + k = w in each one's
-//! own coordinates, one dispatch per plane, glsl/ordinates/sweep.comp), each octant's directions
-//! in turn per invocation into its own fluence slice, so the fluence sums in a fixed order
-//! (deterministic, no atomics). Source
-//! iteration runs on the host between sweeps (the solver will move it to the device).
+//! In-core: the whole grid and one field per direction live on the device. The eight octants
+//! are swept together plane by plane (i + j + k = w in each one's own coordinates, one dispatch
+//! per plane, glsl/ordinates/sweep.comp), each octant's directions in turn per invocation into
+//! its own fluence slice, so the fluence sums in a fixed order (deterministic, no atomics).
+//! The emission is stored at M storage directions and upsampled to the N swept ones
+//! (`physics::angular`); after each channel's sweep, glsl/ordinates/scatter.comp turns the
+//! field into the next iteration's stored source and the light scattered toward the camera,
+//! on the device. glsl/ordinates/deposit.comp bins the marched first-scattering deposits into
+//! the storage directions.
 
 use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
+use crate::physics::angular::StorageMap;
 use crate::physics::quadrature::Quadrature;
+use crate::solvers::marching::Beam;
 
 use super::SolverError;
 
 pub const SWEEP: Kernel =
     Kernel { shader: shader!("ordinates/sweep"), push_bytes: std::mem::size_of::<SweepPush>(), spec: &[] };
+pub const SCATTER: Kernel =
+    Kernel { shader: shader!("ordinates/scatter"), push_bytes: std::mem::size_of::<ScatterPush>(), spec: &[] };
+pub const DEPOSIT: Kernel =
+    Kernel { shader: shader!("ordinates/deposit"), push_bytes: std::mem::size_of::<DepositPush>(), spec: &[] };
+pub const BIN: Kernel =
+    Kernel { shader: shader!("ordinates/bin"), push_bytes: std::mem::size_of::<BinPush>(), spec: &[] };
+
+/// Every kernel of this part.
+pub fn kernels() -> Vec<Kernel> {
+    vec![SWEEP, SCATTER, DEPOSIT, BIN]
+}
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -25,114 +41,414 @@ struct SweepPush {
     plane: i32,
     h: f32,
     slots: u32,
-    pad: u32,
+    storage: u32,
     first: [u32; 8],
     count: [u32; 8],
+    channel: u32,
+    mode: u32,
+    pad: [u32; 2],
 }
 
-/// A grid ready to sweep: extinction and directions on the device, the directions grouped by
-/// octant.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct ScatterPush {
+    dims: [u32; 4],
+    storage: u32,
+    channel: u32,
+    slots: u32,
+    g: f32,
+    octants: [u32; 8],
+    grid: [f32; 4],
+    eye: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct DepositPush {
+    entries: u32,
+    voxels: u32,
+    k: u32,
+    beams: u32,
+    scale: f32,
+    channels: u32,
+    pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct BinPush {
+    dims: [u32; 4],
+    grid: [f32; 4],
+    beams: u32,
+    storage: u32,
+    channels: u32,
+    scale: f32,
+    g: f32,
+    pad: [u32; 3],
+}
+
+/// Where the camera is, for the light each voxel scatters toward it.
+#[derive(Clone, Copy, Debug)]
+pub enum Eye {
+    /// A pinhole at this point.
+    Point([f32; 3]),
+    /// An orthographic camera: the unit direction toward it.
+    Toward([f32; 3]),
+}
+
+/// What a [`Sweeper`] sweeps: a grid of cubic voxels, per channel extinction and scattering,
+/// the swept and the storage directions.
+pub struct SweepSetup<'a> {
+    pub dims: [u32; 3],
+    /// Voxel edge, scene units.
+    pub h: f32,
+    /// The grid's lower corner.
+    pub origin: [f32; 3],
+    /// 1 (grey) or 3.
+    pub channels: u32,
+    /// sigma_t per channel and voxel ([c * V + v], x fastest), 1/unit.
+    pub sigma_t: &'a [f32],
+    /// sigma_s likewise.
+    pub sigma_s: &'a [f32],
+    /// The N propagation directions.
+    pub quadrature: &'a Quadrature,
+    /// The M storage directions; the quadrature itself (same name) stores at the swept ones.
+    pub storage: &'a Quadrature,
+    /// Henyey-Greenstein asymmetry of the scattering.
+    pub g: f64,
+    pub eye: Eye,
+}
+
+/// How the sweep reads the stored source: one direction, the swept set itself, or upsampled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Storage {
+    Isotropic = 0,
+    Swept = 1,
+    Upsampled = 2,
+}
+
+/// A grid ready to sweep: extinction, directions and the angular maps on the device, the
+/// directions grouped by octant.
 pub struct Sweeper {
-    pipeline: Pipeline,
+    sweep: Pipeline,
+    scatter: Pipeline,
+    deposit: Pipeline,
+    bin: Pipeline,
     dims: [u32; 3],
     h: f32,
+    channels: u32,
+    /// The storage directions, in the order the source is stored (by octant when they are the
+    /// swept set), and how they couple to the swept ones.
+    pub storage: Quadrature,
+    pub map: StorageMap,
+    mode: Storage,
+    g: f32,
+    grid: [f32; 4],
+    eye: [f32; 4],
     sigma_t: Buffer,
-    emission: Buffer,
+    sigma_s: Buffer,
+    /// The stored source [c][m][v], per unit volume and sr.
+    source: Buffer,
+    /// The first-scattering source, the same layout.
+    first: Buffer,
     dirs: Buffer,
+    storage_dirs: Buffer,
+    footprint: Buffer,
+    upsample: Buffer,
+    scatter_matrix: Buffer,
     field: Buffer,
     fluence: Buffer,
+    /// Per channel and voxel: the energy (fluence times lambda^2) that scattered isotropically
+    /// gives the light scattered toward the eye (glsl/ordinates/scatter.comp).
+    pub camera: Buffer,
     /// Per octant (bit a set: negative along axis a): its directions' first index in `dirs`
     /// and count.
-    first: [u32; 8],
+    first_dir: [u32; 8],
     count: [u32; 8],
     /// Field slots per octant: its largest direction count.
     slots: u32,
 }
 
 impl Sweeper {
-    /// `sigma_t` per voxel (x fastest) of a `dims` grid of cubic voxels of edge `h`; `q` the
-    /// directions.
-    pub fn new(gpu: &Gpu, dims: [u32; 3], h: f32, sigma_t: &[f32], q: &Quadrature) -> Result<Sweeper, SolverError> {
-        let v = dims.iter().map(|d| *d as u64).product::<u64>();
-        let mut sorted: Vec<[f32; 4]> = Vec::with_capacity(q.len());
-        let (mut first, mut count) = ([0u32; 8], [0u32; 8]);
-        for o in 0..8 {
-            let signs = [0, 1, 2].map(|a| if o & (1 << a) != 0 { -1 } else { 1 });
-            first[o] = sorted.len() as u32;
-            for (d, w) in q.directions.iter().zip(&q.weights) {
-                // A direction belongs to the octant of its components' signs (a zero component
-                // to the positive side).
-                if (0..3).all(|a| (d[a] >= 0.0) == (signs[a] > 0)) {
-                    sorted.push([d[0] as f32, d[1] as f32, d[2] as f32, *w as f32]);
-                }
-            }
-            count[o] = sorted.len() as u32 - first[o];
+    pub fn new(gpu: &Gpu, s: &SweepSetup) -> Result<Sweeper, SolverError> {
+        let v = s.dims.iter().map(|d| *d as u64).product::<u64>();
+        let (swept, first_dir, count) = s.quadrature.by_octant();
+        let (storage, mode) = if s.storage.len() == 1 {
+            (s.storage.clone(), Storage::Isotropic)
+        } else if s.storage.name == s.quadrature.name {
+            (swept.clone(), Storage::Swept)
+        } else {
+            (s.storage.clone(), Storage::Upsampled)
+        };
+        if swept.len() >= 1 << 16 {
+            return Err(SolverError::Unsupported(format!("{} has more than 65535 directions", swept.name)));
         }
+        let m = storage.len() as u64;
+        let to_vec4 = |q: &Quadrature| -> Vec<[f32; 4]> {
+            q.directions
+                .iter()
+                .zip(&q.weights)
+                .map(|(d, w)| [d[0] as f32, d[1] as f32, d[2] as f32, *w as f32])
+                .collect()
+        };
+        let to32 = |x: Vec<f64>| x.into_iter().map(|y| y as f32).collect::<Vec<f32>>();
+        let map = StorageMap::new(&swept, &storage);
+        let footprint: Vec<[f32; 4]> =
+            map.footprint.iter().map(|f| [f[0] as f32, f[1] as f32, f[2] as f32, 0.0]).collect();
+        let upsample = if mode == Storage::Upsampled { to32(map.upsample.clone()) } else { vec![0.0f32] };
+        let scatter = to32(map.scatter_matrix(&swept, s.g));
         let slots = count.iter().copied().max().unwrap_or(1).max(1);
+        let nch = s.channels as u64;
         Ok(Sweeper {
-            pipeline: gpu.pipeline(&SWEEP, &[])?,
-            dims,
-            h,
-            sigma_t: gpu.buffer_with("ordinates sigma_t", sigma_t)?,
-            emission: gpu.buffer("ordinates emission", v * 4)?,
-            dirs: gpu.buffer_with("ordinates directions", &sorted)?,
+            sweep: gpu.pipeline(&SWEEP, &[])?,
+            scatter: gpu.pipeline(&SCATTER, &[])?,
+            deposit: gpu.pipeline(&DEPOSIT, &[])?,
+            bin: gpu.pipeline(&BIN, &[])?,
+            dims: s.dims,
+            h: s.h,
+            channels: s.channels,
+            storage: storage.clone(),
+            map,
+            mode,
+            g: s.g as f32,
+            grid: [s.origin[0], s.origin[1], s.origin[2], s.h],
+            eye: match s.eye {
+                Eye::Point(p) => [p[0], p[1], p[2], 0.0],
+                Eye::Toward(d) => [d[0], d[1], d[2], 1.0],
+            },
+            sigma_t: gpu.buffer_with("ordinates sigma_t", s.sigma_t)?,
+            sigma_s: gpu.buffer_with("ordinates sigma_s", s.sigma_s)?,
+            source: gpu.buffer("ordinates source", nch * m * v * 4)?,
+            first: gpu.buffer("ordinates first source", nch * m * v * 4)?,
+            dirs: gpu.buffer_with("ordinates directions", &to_vec4(&swept))?,
+            storage_dirs: gpu.buffer_with("ordinates storage directions", &to_vec4(&storage))?,
+            footprint: gpu.buffer_with("ordinates storage footprints", &footprint)?,
+            upsample: gpu.buffer_with("ordinates upsampling", &upsample)?,
+            scatter_matrix: gpu.buffer_with("ordinates scattering", &scatter)?,
             field: gpu.buffer("ordinates field", 8 * slots as u64 * v * 4)?,
-            fluence: gpu.buffer("ordinates fluence", 8 * v * 4)?,
-            first,
+            fluence: gpu.buffer("ordinates fluence", nch * 8 * v * 4)?,
+            camera: gpu.buffer("ordinates toward the camera", nch * v * 4)?,
+            first_dir,
             count,
             slots,
         })
     }
 
-    /// Field slots per octant that [`Sweeper::new`] allocates for `q`: its octants' largest
-    /// direction count (the memory estimate's figure).
-    pub fn slots(q: &Quadrature) -> u64 {
-        (0..8usize)
-            .map(|o| q.directions.iter().filter(|d| (0..3).all(|a| (d[a] >= 0.0) == (o & (1 << a) == 0))).count())
-            .max()
-            .unwrap_or(1)
-            .max(1) as u64
+    /// Device bytes [`Sweeper::new`] allocates for `channels` channels of `voxels` voxels,
+    /// `q` swept and `storage` stored (the memory estimate's figure).
+    pub fn bytes(voxels: u64, channels: u64, q: &Quadrature, storage: &Quadrature) -> u64 {
+        let slots = q.by_octant().2.iter().copied().max().unwrap_or(1).max(1) as u64;
+        let (n, m) = (q.len() as u64, storage.len() as u64);
+        let upsampled = m > 1 && storage.name != q.name;
+        let floats = voxels * channels * (2 + 2 * m + 8 + 1)  // sigma_t, sigma_s, source, first, fluence, camera
+            + 8 * slots * voxels                              // the field
+            + n * 4 + m * 4 + m * 4                           // directions, storage directions, footprints
+            + n * m                                           // the scattering matrix
+            + if upsampled { n * m } else { 1 }; // the upsampling (one float when unused)
+        4 * floats
     }
 
     /// Device bytes of its buffers.
     pub fn device_bytes(&self) -> u64 {
-        [&self.sigma_t, &self.emission, &self.dirs, &self.field, &self.fluence].iter().map(|b| b.size()).sum()
+        [
+            &self.sigma_t,
+            &self.sigma_s,
+            &self.source,
+            &self.first,
+            &self.dirs,
+            &self.storage_dirs,
+            &self.footprint,
+            &self.upsample,
+            &self.scatter_matrix,
+            &self.field,
+            &self.fluence,
+            &self.camera,
+        ]
+        .iter()
+        .map(|b| b.size())
+        .sum()
     }
 
-    /// One sweep of every direction for `emission` (per unit volume and solid angle, per
-    /// voxel): the fluence sum_d w_d I_d per voxel.
-    pub fn sweep(&self, gpu: &Gpu, emission: &[f32]) -> Result<Vec<f32>, SolverError> {
+    fn voxels(&self) -> u32 {
+        self.dims.iter().product()
+    }
+
+    /// A zeroed buffer for [`Sweeper::deposit_pass`]'s fixed-point sums ([c][beam][v]).
+    pub fn deposit_sums(&self, gpu: &Gpu, beams: usize) -> Result<Buffer, SolverError> {
+        Ok(gpu.buffer("ordinates deposits", self.channels as u64 * beams as u64 * self.voxels() as u64 * 4)?)
+    }
+
+    /// One marching round's transfer into `sums`: each deposit added to its voxel's sum for its
+    /// ray's beam (`ray_beam`), in fixed point of `scale` quanta per W.
+    pub fn deposit_pass(
+        &self,
+        history: &Buffer,
+        ray_beam: &Buffer,
+        entries: u32,
+        k: u32,
+        beams: u32,
+        scale: f32,
+        sums: &Buffer,
+    ) -> Pass {
+        Pass::new("ordinates.deposit", QueueRole::Trace, &self.deposit)
+            .read(0, history)
+            .read_write(1, sums)
+            .read(2, ray_beam)
+            .push(&DepositPush {
+                entries,
+                voxels: self.voxels(),
+                k,
+                beams,
+                scale,
+                channels: self.channels,
+                pad: [0; 2],
+            })
+            .cover([entries, 1, 1])
+    }
+
+    /// The beams as the bin pass reads them: two vec4 each, (direction or position, 0 parallel
+    /// or 1 point) and (the matched asymmetry of a parallel beam, -, -, -).
+    pub fn beam_table(&self, g: f64, beams: &[Beam]) -> Vec<[f32; 4]> {
+        beams
+            .iter()
+            .flat_map(|b| match b {
+                Beam::Parallel(d) => {
+                    let gm = self.map.matched_g(g, &[d.x as f64, d.y as f64, d.z as f64]) as f32;
+                    [[d.x, d.y, d.z, 0.0], [gm, 0.0, 0.0, 0.0]]
+                }
+                Beam::FromPoint(p) => [[p.x, p.y, p.z, 1.0], [0.0; 4]],
+            })
+            .collect()
+    }
+
+    /// Share the deposits' sums (`sums`, [`Sweeper::deposit_pass`]) among the storage
+    /// directions: the first-scattering source, and the first iteration's (bin.comp).
+    pub fn bin_pass(&self, sums: &Buffer, beam_table: &Buffer, beams: u32, scale: f32) -> Pass {
         let [nx, ny, nz] = self.dims;
         let v = nx * ny * nz;
-        gpu.write_buffer(&self.emission, 0, bytemuck::cast_slice(emission))?;
-        gpu.write_buffer(&self.fluence, 0, bytemuck::cast_slice(&vec![0f32; 8 * v as usize]))?;
+        Pass::new("ordinates.bin", QueueRole::Diffuse, &self.bin)
+            .read(0, sums)
+            .read(1, beam_table)
+            .read(2, &self.storage_dirs)
+            .read(3, &self.footprint)
+            .read_write(4, &self.first)
+            .write(5, &self.source)
+            .push(&BinPush {
+                dims: [nx, ny, nz, v],
+                grid: self.grid,
+                beams,
+                storage: self.storage.len() as u32,
+                channels: self.channels,
+                scale,
+                g: self.g,
+                pad: [0; 3],
+            })
+            .cover([v, 1, 1])
+    }
+
+    /// Set the first-scattering source ([c][m][v], per unit volume and sr) and start the
+    /// stored source from it.
+    pub fn set_first(&self, gpu: &Gpu, first: &[f32]) -> Result<(), SolverError> {
+        gpu.write_buffer(&self.first, 0, bytemuck::cast_slice(first))?;
+        gpu.write_buffer(&self.source, 0, bytemuck::cast_slice(first))?;
+        Ok(())
+    }
+
+    fn sweep_passes(&self, channel: u32) -> Vec<Pass> {
+        let [nx, ny, nz] = self.dims;
+        let v = nx * ny * nz;
         let planes = (nx + ny + nz - 2) as i32;
-        let passes: Vec<Pass> = (0..planes)
+        (0..planes)
             .map(|w| {
                 let push = SweepPush {
                     dims: [nx, ny, nz, v],
                     plane: w,
                     h: self.h,
                     slots: self.slots,
-                    pad: 0,
-                    first: self.first,
+                    storage: self.storage.len() as u32,
+                    first: self.first_dir,
                     count: self.count,
+                    channel,
+                    mode: self.mode as u32,
+                    pad: [0; 2],
                 };
-                Pass::new("ordinates.sweep", QueueRole::Diffuse, &self.pipeline)
+                Pass::new("ordinates.sweep", QueueRole::Diffuse, &self.sweep)
                     .read(0, &self.sigma_t)
-                    .read(1, &self.emission)
+                    .read(1, &self.source)
                     .read(2, &self.dirs)
                     .read_write(3, &self.field)
-                    .read_write(4, &self.fluence)
+                    .write(4, &self.fluence)
+                    .read(5, &self.upsample)
                     .push(&push)
                     .cover([nx, ny, 8])
             })
-            .collect();
+            .collect()
+    }
+
+    fn scatter_pass(&self, channel: u32) -> Pass {
+        let [nx, ny, nz] = self.dims;
+        let v = nx * ny * nz;
+        let mut octants = [0u32; 8];
+        for o in 0..8 {
+            octants[o] = self.first_dir[o] | self.count[o] << 16;
+        }
+        Pass::new("ordinates.scatter", QueueRole::Diffuse, &self.scatter)
+            .read(0, &self.field)
+            .read(1, &self.dirs)
+            .read(2, &self.scatter_matrix)
+            .read(3, &self.first)
+            .read(4, &self.sigma_s)
+            .write(5, &self.source)
+            .write(6, &self.camera)
+            .push(&ScatterPush {
+                dims: [nx, ny, nz, v],
+                storage: self.storage.len() as u32,
+                channel,
+                slots: self.slots,
+                g: self.g,
+                octants,
+                grid: self.grid,
+                eye: self.eye,
+            })
+            .cover([v, 1, 1])
+    }
+
+    /// The fluence per channel and voxel ([c][v]): the octants' slices added in a fixed order.
+    fn read_fluence(&self, gpu: &Gpu) -> Result<Vec<f32>, SolverError> {
+        let slices: Vec<f32> = gpu.read_buffer_as(&self.fluence)?;
+        let v = self.voxels() as usize;
+        Ok((0..self.channels as usize)
+            .flat_map(|c| {
+                let s = &slices;
+                (0..v).map(move |i| (0..8).map(|o| s[(c * 8 + o) * v + i]).sum())
+            })
+            .collect())
+    }
+
+    /// One sweep of every direction of channel 0 for the isotropic emission `emission` (per
+    /// unit volume and solid angle, per voxel), no scattering: the fluence sum_d w_d I_d per
+    /// voxel. Needs one storage direction (what the CPU oracle's `sweep_once` computes).
+    pub fn sweep(&self, gpu: &Gpu, emission: &[f32]) -> Result<Vec<f32>, SolverError> {
+        assert_eq!(self.mode, Storage::Isotropic, "Sweeper::sweep takes an isotropic emission");
+        gpu.write_buffer(&self.source, 0, bytemuck::cast_slice(emission))?;
+        let point = gpu.submit(QueueRole::Diffuse, &self.sweep_passes(0), &[])?;
+        gpu.wait(point)?;
+        let mut phi = self.read_fluence(gpu)?;
+        phi.truncate(self.voxels() as usize);
+        Ok(phi)
+    }
+
+    /// One scattering iteration of every channel on the device: sweep the stored source, then
+    /// store the next one (first-scattering plus scattered) and the light toward the camera.
+    /// Returns the swept fluence per channel and voxel ([c][v]).
+    pub fn iterate(&self, gpu: &Gpu) -> Result<Vec<f32>, SolverError> {
+        let mut passes = Vec::new();
+        for c in 0..self.channels {
+            passes.extend(self.sweep_passes(c));
+            passes.push(self.scatter_pass(c));
+        }
         let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
         gpu.wait(point)?;
-        // The octants' slices, added in a fixed order.
-        let slices: Vec<f32> = gpu.read_buffer_as(&self.fluence)?;
-        let v = v as usize;
-        Ok((0..v).map(|i| (0..8).map(|o| slices[o * v + i]).sum()).collect())
+        self.read_fluence(gpu)
     }
 }

@@ -1,0 +1,89 @@
+#version 460
+// ordinates/scatter: after a sweep of channel c, every voxel turns its swept field I_s (all N
+// propagation directions) into
+//  1. the next iteration's source at the M storage directions (thesis 5.3.4's scattering
+//     iteration): Q_m = F_m + sigma_s sum_s A[s][m] I_s, with F the first-scattering source
+//     and A the quadrature-normalised phase function of src/physics/angular.rs
+//     (sum_m w_m A[s][m] = w_s, so what is stored carries sigma_s phi exactly);
+//  2. the light it scatters toward the camera (thesis 5.3.5's view gathering), as the fluence
+//     the view pass scatters isotropically: 4 pi sum_s w_s p(s . o) I_s / sum_s w_s p(s . o),
+//     o the direction from the voxel centre to the camera, times lambda^2 (the view pass reads
+//     energy per voxel). The normalisation makes an isotropic field gather to its own fluence.
+// One invocation per voxel, directions in a fixed order: deterministic.
+#extension GL_GOOGLE_include_directive : require
+#include "../include/phase.glsl"
+
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+
+// Directions whose field a voxel keeps in a local array (s8 has 80).
+const uint MAX_LOCAL = 96u;
+
+layout(std430, binding = 0) readonly buffer Field { float field[]; };     // [octant][its direction][voxel]
+layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };        // by octant: xyz, w weight (sr)
+layout(std430, binding = 2) readonly buffer Scatter { float scatter[]; }; // A[s][m]
+layout(std430, binding = 3) readonly buffer First { float first[]; };     // [c][m][voxel]
+layout(std430, binding = 4) readonly buffer SigmaS { float sigma_s[]; };  // [c][voxel], 1/unit
+layout(std430, binding = 5) writeonly buffer Source { float source[]; };  // [c][m][voxel]
+layout(std430, binding = 6) writeonly buffer Camera { float camera[]; };  // [c][voxel]
+
+layout(push_constant) uniform Push {
+    uvec4 dims;      // voxels xyz, w = voxel count
+    uint storage;    // M
+    uint channel;    // c
+    uint slots;      // field slots per octant
+    float g;         // Henyey-Greenstein asymmetry
+    uvec4 octants[2]; // per octant: first direction | count << 16
+    vec4 grid;       // xyz the grid's lower corner, w lambda (voxel edge)
+    vec4 eye;        // xyz the camera's position (w = 0) or the direction toward it (w = 1)
+} pc;
+
+void main() {
+    uint v = gl_GlobalInvocationID.x;
+    uint V = pc.dims.w;
+    if (v >= V) return;
+    uint M = pc.storage;
+    uint c = pc.channel;
+    ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
+    vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
+    vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+    float sigma = sigma_s[c * V + v];
+    // The voxel's field, read once (in direction order) when it fits the local array.
+    float local_field[MAX_LOCAL];
+    uint N = 0u;
+    float gathered = 0.0, norm = 0.0;
+    for (uint o = 0u; o < 8u; ++o) {
+        uint packed = pc.octants[o / 4u][o % 4u];
+        uint first_dir = packed & 0xffffu, count = packed >> 16;
+        for (uint k = 0u; k < count; ++k) {
+            vec4 d = dirs[first_dir + k];
+            float radiance = field[(o * pc.slots + k) * V + v];
+            if (first_dir + k < MAX_LOCAL) local_field[first_dir + k] = radiance;
+            float w = d.w * hg_eval(pc.g, dot(d.xyz, to_eye));
+            gathered += w * radiance;
+            norm += w;
+        }
+        N = max(N, first_dir + count);
+    }
+    // The gathered light is kept where nothing scatters too: the view pass interpolates
+    // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
+    camera[c * V + v] = norm > 0.0 ? 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w : 0.0;
+    if (sigma <= 0.0) {
+        // Nothing scatters here: the stored source stays the first one (0 where nothing does).
+        for (uint m = 0u; m < M; ++m) source[(c * M + m) * V + v] = first[(c * M + m) * V + v];
+        return;
+    }
+    for (uint m = 0u; m < M; ++m) {
+        float scattered = 0.0;
+        if (N <= MAX_LOCAL) {
+            for (uint s = 0u; s < N; ++s) scattered += scatter[s * M + m] * local_field[s];
+        } else {
+            for (uint o = 0u; o < 8u; ++o) {
+                uint packed = pc.octants[o / 4u][o % 4u];
+                uint first_dir = packed & 0xffffu, count = packed >> 16;
+                for (uint k = 0u; k < count; ++k)
+                    scattered += scatter[(first_dir + k) * M + m] * field[(o * pc.slots + k) * V + v];
+            }
+        }
+        source[(c * M + m) * V + v] = first[(c * M + m) * V + v] + sigma * scattered;
+    }
+}
