@@ -64,9 +64,10 @@ fn judge(out: &Image, reference: &RenderOutput) -> (f64, f64) {
 /// the range a user meets: optical thickness 1 to 20 across, albedo 0.5 to 0.99, g -0.9 to 0.9,
 /// against path (2048 spp) at 24 x 24 with 2 x 2 subpixels (edges alias otherwise: `single`
 /// itself is 0.18 off path there with one ray per pixel). The energy and the error are held to
-/// what this small grid (12 voxels across) gives, measured: within 3.5% and 0.08 on the thin
-/// and moderate cases; the thick bright ones (the step scheme diffuses across voxels of
-/// optical thickness 1.7) converge as the grid doubles, their energy falling toward path's.
+/// what this small grid (12 voxels across) gives, measured: within 5% and 0.09 on the thin and
+/// moderate cases, 11% where sigma_t 20 meets g 0.9; the thick bright ones (voxels of optical
+/// thickness 1.7) converge as the grid doubles, their energy falling toward path's (14% -> 5.5%
+/// too bright at albedo 0.99).
 #[test]
 fn dom_matches_path_across_thickness_albedo_and_g() {
     let gpu = gpu();
@@ -75,10 +76,10 @@ fn dom_matches_path_across_thickness_albedo_and_g() {
     // sigma_t (1/unit across a unit cube), albedo, g, energy tolerance, relL2 bound.
     for (sigma_t, albedo, g, energy, error) in [
         ("1", "0.5", "0", 0.01, 0.02),
-        ("1", "0.99", "-0.9", 0.035, 0.08),
-        ("1", "0.99", "0.9", 0.02, 0.08),
-        ("5", "0.9", "0.6", 0.01, 0.05),
-        ("20", "0.5", "0.9", 0.12, 0.2),
+        ("1", "0.99", "-0.9", 0.05, 0.07),
+        ("1", "0.99", "0.9", 0.02, 0.09),
+        ("5", "0.9", "0.6", 0.01, 0.04),
+        ("20", "0.5", "0.9", 0.13, 0.2),
     ] {
         let case = format!("sigma_t {sigma_t}, albedo {albedo}, g {g}");
         let s = repo_scene(

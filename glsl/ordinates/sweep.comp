@@ -4,10 +4,17 @@
 // its plane w - 1, so a plane is one dispatch; the octants are independent, so they share it,
 // gl_GlobalInvocationID.z being the octant). Each invocation is one voxel of one octant's plane
 // and takes every direction of the octant in turn into the octant's own fluence slice, so the
-// fluence is summed in a fixed order without atomics (the host adds the slices): deterministic. The per-voxel update is the step scheme of src/physics/ordinates.rs (the
-// CPU oracle this mirrors): the voxel's balance with its outflow equal to its mean radiance,
-//   I = (Q + sum_a |w_a| I_upwind,a / h) / (sigma_t + sum_a |w_a| / h),
-// never negative and conservative. Faces of the box are vacuum (nothing enters).
+// fluence is summed in a fixed order without atomics (the host adds the slices): deterministic.
+// The per-voxel update mirrors src/physics/ordinates.rs (the CPU oracle), by pc.scheme:
+// 0, step difference: the voxel's balance with its outflow equal to its mean radiance,
+//   I = (Q + sum_a |w_a| I_upwind,a / h) / (sigma_t + sum_a |w_a| / h);
+// 1, step characteristics (thesis 5.3.1-5.3.2, `characteristic_update`): face-averaged
+// radiances carried across the voxel with exact attenuation, each outgoing face
+//   L_out,o = sum_i f_io (L_in,i e^-x_io + Q h s_io phi(x_io)),   x_io = sigma_t h s_io,
+// and the voxel's mean from its balance,
+//   L_V = sum_io |w_o| f_io s_io (L_in,i phi(x_io) + Q h s_io psi(x_io)),
+// with f (the thesis's A_In,Out / A_Out) and s (its s_avg) per direction from the host.
+// Both are never negative and conserve energy. Faces of the box are vacuum (nothing enters).
 // The emission along direction s comes from the source stored at M directions (thesis 5.1;
 // src/physics/angular.rs): mode 0, M = 1 (isotropic); mode 1, the storage set is the swept
 // set (Q_s itself); mode 2, upsampled, q_s = sum_m U[s][m] Q_m. Channel c of a chromatic medium
@@ -21,6 +28,12 @@ layout(std430, binding = 2) readonly buffer Dirs { vec4 dirs[]; };         // xy
 layout(std430, binding = 3) buffer Field { float field[]; };               // [octant][its direction][voxel]
 layout(std430, binding = 4) buffer Fluence { float fluence[]; };           // [c][octant][voxel]: sum of w I
 layout(std430, binding = 5) readonly buffer Upsample { float upsample[]; }; // [s][m] (mode 2)
+// Scheme 1: per direction, f[i][o] then s[i][o] (18 floats, padded to 20), and the outgoing
+// face radiances across x, y, z, laid out as the field.
+layout(std430, binding = 6) readonly buffer Geometry { float geometry[]; };
+layout(std430, binding = 7) buffer FaceX { float face_x[]; };
+layout(std430, binding = 8) buffer FaceY { float face_y[]; };
+layout(std430, binding = 9) buffer FaceZ { float face_z[]; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;       // voxels xyz, w = voxel count
@@ -32,9 +45,34 @@ layout(push_constant) uniform Push {
     uvec4 count[2];   // and its number of directions
     uint channel;     // c
     uint mode;        // 0: M = 1; 1: storage = swept set; 2: upsampled
-    uint pad0;
+    uint scheme;      // 0: step difference; 1: step characteristics
     uint pad1;
 } pc;
+
+float read_face(int axis, uint i) {
+    return axis == 0 ? face_x[i] : (axis == 1 ? face_y[i] : face_z[i]);
+}
+
+// (1 - e^-x) / x and (x - 1 + e^-x) / x^2 without cancellation near 0: float has no expm1, so
+// their Taylor series below x = 0.5 (the first term left out is below 3e-8 there; above it,
+// x - 1 + e^-x > 0.1 keeps the direct form within 1e-6).
+vec2 phi_psi(float x) {
+    if (x < 0.5) {
+        float p = 1.0, q = 0.5, t = 1.0;
+        // x^k / (k + 1)! and x^k / (k + 2)!, alternating.
+        float fp = 1.0, fq = 0.5;
+        for (int k = 1; k <= 7; ++k) {
+            t *= -x;
+            fp /= float(k + 1);
+            fq /= float(k + 2);
+            p += t * fp;
+            q += t * fq;
+        }
+        return vec2(p, q);
+    }
+    float e = exp(-x);
+    return vec2((1.0 - e) / x, (x - 1.0 + e) / (x * x));
+}
 
 uint voxel_index(ivec3 p) {
     return uint(p.x) + pc.dims.x * (uint(p.y) + pc.dims.y * uint(p.z));
@@ -75,15 +113,45 @@ void main() {
         }
         vec3 a = abs(d.xyz);
         uint slot = (o * pc.slots + k) * V;
-        float inflow = 0.0;
-        for (int axis = 0; axis < 3; ++axis) {
-            // The upwind neighbour is one step against the sweep; none at the upwind face.
-            if (local[axis] == 0) continue;
-            ivec3 u = p;
-            u[axis] -= sgn[axis];
-            inflow += a[axis] * field[slot + voxel_index(u)];
+        float radiance;
+        if (pc.scheme == 0u) {
+            float inflow = 0.0;
+            for (int axis = 0; axis < 3; ++axis) {
+                // The upwind neighbour is one step against the sweep; none at the upwind face.
+                if (local[axis] == 0) continue;
+                ivec3 u = p;
+                u[axis] -= sgn[axis];
+                inflow += a[axis] * field[slot + voxel_index(u)];
+            }
+            radiance = (q + inflow / pc.h) / (st + (a.x + a.y + a.z) / pc.h);
+        } else {
+            float l_in[3];
+            for (int axis = 0; axis < 3; ++axis) {
+                l_in[axis] = 0.0;
+                if (local[axis] == 0 || a[axis] == 0.0) continue;
+                ivec3 u = p;
+                u[axis] -= sgn[axis];
+                l_in[axis] = read_face(axis, slot + voxel_index(u));
+            }
+            uint gbase = s * 20u;
+            float out_face[3] = float[3](0.0, 0.0, 0.0);
+            radiance = 0.0;
+            for (int i = 0; i < 3; ++i) {
+                for (int oo = 0; oo < 3; ++oo) {
+                    float f = geometry[gbase + uint(3 * i + oo)];
+                    if (f == 0.0) continue;
+                    float sl = geometry[gbase + 9u + uint(3 * i + oo)];
+                    float x = st * pc.h * sl;
+                    vec2 pp = phi_psi(x);
+                    float qh = q * pc.h * sl;
+                    out_face[oo] += f * (l_in[i] * exp(-x) + qh * pp.x);
+                    radiance += a[oo] * f * sl * (l_in[i] * pp.x + qh * pp.y);
+                }
+            }
+            face_x[slot + v] = out_face[0];
+            face_y[slot + v] = out_face[1];
+            face_z[slot + v] = out_face[2];
         }
-        float radiance = (q + inflow / pc.h) / (st + (a.x + a.y + a.z) / pc.h);
         field[slot + v] = radiance;
         phi += d.w * radiance;
     }

@@ -7,8 +7,9 @@
 //!    direction m is E_m / (w_m lambda^3) per unit volume and solid angle. Isotropic media
 //!    store one direction (M = 1, thesis 5.1), grey media one channel.
 //! 2. **Propagation (5.3).** Octant sweeps over the directions of a named quadrature
-//!    (`physics::quadrature`; S_4 and S_6 are the thesis's 24 and 48), plane by plane, with the
-//!    step scheme (`solvers::ordinates`, checked against the CPU oracle `physics::ordinates`):
+//!    (`physics::quadrature`; S_4 and S_6 are the thesis's 24 and 48), plane by plane, with step
+//!    characteristics (5.3.1-5.3.2, the voxel mean from its balance) or the step difference
+//!    (`dom.scheme`; `solvers::ordinates`, checked against the CPU oracle `physics::ordinates`):
 //!    never negative, conservative. The swept emission is the stored one upsampled from M to N
 //!    directions (`physics::angular`). Source iteration on the device
 //!    (glsl/ordinates/scatter.comp): the stored source of the next sweep is the first-scattering
@@ -24,6 +25,7 @@
 use serde::Serialize;
 
 use crate::gpu::{Gpu, Kernel, QueueRole};
+use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 use crate::scene::{CameraKind, Scene};
 
@@ -33,8 +35,8 @@ use super::marching::{self, MarchSettings, Marcher};
 use super::ordinates::{self, Eye, SweepSetup, Sweeper};
 use super::view::{self, FluxUse, MsVolume, ViewSettings};
 use super::{
-    Convergence, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError,
-    Stats, Variant,
+    Convergence, Figure, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver,
+    SolverError, Stats, Variant,
 };
 
 pub struct Dom;
@@ -48,6 +50,7 @@ pub struct DomStats {
     /// The storage set (`1`: isotropic) and its size M.
     pub storage: String,
     pub storage_directions: usize,
+    pub scheme: Scheme,
     pub channels: u32,
     /// The mean cosine the quadrature's normalised scattering carries (the medium's g on a
     /// fine set; a coarse one smears it toward 0).
@@ -62,6 +65,7 @@ struct DomSettings {
     grid: u32,
     quadrature: Quadrature,
     storage: Quadrature,
+    scheme: Scheme,
     tol: f64,
     max_iterations: u32,
     march: MarchSettings,
@@ -91,10 +95,12 @@ impl DomSettings {
             other => Quadrature::named(other).map_err(|e| k.invalid("storage", e))?,
         };
         let geom = LatticeGeom::new(scene, grid);
+        let scheme: String = k.get("scheme")?;
         Ok(DomSettings {
             grid,
             quadrature,
             storage,
+            scheme: if scheme == "step" { Scheme::Step } else { Scheme::Characteristics },
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
             march: MarchSettings::parse(k, geom.lambda)?,
@@ -110,7 +116,7 @@ impl Solver for Dom {
 
     fn about(&self) -> &'static str {
         "modified discrete ordinates: marched first-scattering source binned into storage directions, octant sweeps \
-         with the step scheme, source iteration on the device (thesis ch. 5; in-core so far)"
+         with step characteristics, source iteration on the device (thesis ch. 5; in-core so far)"
     }
 
     fn knobs(&self) -> Vec<Knob> {
@@ -131,6 +137,14 @@ impl Solver for Dom {
                 "source iteration stops when the fluence changes by less than this, relative to its largest value",
             ),
             Knob::fixed("max_iterations", "2000", Range::int(1, 1_000_000), "source iterations at most"),
+            Knob::fixed(
+                "scheme",
+                "characteristics",
+                Range::Choice(&["characteristics", "step"]),
+                "the voxel update: step characteristics (thesis 5.3.1-5.3.2: face radiances carried across the voxel \
+                 with exact attenuation) or the step difference (cheaper, diffusive in optically thick voxels); both \
+                 conserve energy and are never negative",
+            ),
             Knob::fixed(
                 "storage",
                 "auto",
@@ -186,6 +200,7 @@ impl Solver for Dom {
                 storage: &set.storage,
                 g: m.g as f64,
                 eye,
+                scheme: set.scheme,
             },
         )?;
 
@@ -269,6 +284,7 @@ impl Solver for Dom {
             directions: set.quadrature.len(),
             storage: set.storage.name.clone(),
             storage_directions: set.storage.len(),
+            scheme: set.scheme,
             channels: nch,
             quadrature_g: (sweeper.map.effective_g(&set.quadrature, m.g as f64) * 1e6).round() / 1e6 + 0.0,
             iterations,
@@ -288,6 +304,24 @@ impl Solver for Dom {
         stats.convergence =
             Some(Convergence { iterations: iterations as u64, converged, final_change: change, tolerance: set.tol });
         stats.faults = res.nonfinite_pixels as u64;
+        // The transport community's figures (Kripke, SNAP): cell-direction updates per second of
+        // sweep time and the grind time, ns per cell, direction and iteration. The bandwidth is
+        // modelled: an update reads sigma_t, the source, three upwind radiances and writes one
+        // (24 bytes; an upsampled source reads M more).
+        let updates = geom.voxels() as f64 * set.quadrature.len() as f64 * nch as f64 * iterations as f64;
+        if sweep_ms > 0.0 {
+            let per_second = updates / (sweep_ms / 1e3);
+            let bytes = 24.0 + if sweeper.upsampled() { 4.0 * sweeper.storage.len() as f64 } else { 0.0 };
+            stats.throughput = vec![
+                Figure { figure: "cell-direction updates/s".into(), value: per_second, unit: "1/s".into() },
+                Figure { figure: "grind time".into(), value: 1e9 / per_second, unit: "ns".into() },
+                Figure {
+                    figure: "sweep modelled bandwidth".into(),
+                    value: per_second * bytes / 1e9,
+                    unit: "GB/s".into(),
+                },
+            ];
+        }
         report.stats = stats;
         Ok(RenderOutput { image: res.image, variance: None, report })
     }
@@ -304,7 +338,7 @@ impl Solver for Dom {
         // the beam table.
         Ok(gpu_scene::scene_bytes(scene)
             + m.device_bytes(&geom, rays, nch as u32, false)
-            + Sweeper::bytes(v, nch, &set.quadrature, &set.storage)
+            + Sweeper::bytes(v, nch, &set.quadrature, &set.storage, set.scheme)
             + nch * beams * v * 4
             + rays * 4
             + beams * 32
@@ -326,11 +360,12 @@ impl Solver for Dom {
         let Some(s) = report.detail::<DomStats>() else { return Vec::new() };
         let d = s.grid.dims;
         vec![format!(
-            "dom: {}x{}x{} voxels, {} ({} directions), source stored at {} ({} direction{}, g {:.3} on the \
+            "dom: {}x{}x{} voxels, {:?}, {} ({} directions), source stored at {} ({} direction{}, g {:.3} on the \
              quadrature), {} channel{}, {} source iterations{} (change {:.1e}), sweeps {:.1} ms",
             d[0],
             d[1],
             d[2],
+            s.scheme,
             s.quadrature,
             s.directions,
             s.storage,

@@ -15,6 +15,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
 use crate::physics::angular::StorageMap;
+use crate::physics::ordinates::{characteristic_geometry, Scheme};
 use crate::physics::quadrature::Quadrature;
 use crate::solvers::marching::Beam;
 
@@ -46,7 +47,8 @@ struct SweepPush {
     count: [u32; 8],
     channel: u32,
     mode: u32,
-    pad: [u32; 2],
+    scheme: u32,
+    pad: u32,
 }
 
 #[repr(C)]
@@ -117,6 +119,8 @@ pub struct SweepSetup<'a> {
     /// Henyey-Greenstein asymmetry of the scattering.
     pub g: f64,
     pub eye: Eye,
+    /// The voxel update.
+    pub scheme: Scheme,
 }
 
 /// How the sweep reads the stored source: one direction, the swept set itself, or upsampled.
@@ -157,6 +161,11 @@ pub struct Sweeper {
     upsample: Buffer,
     scatter_matrix: Buffer,
     field: Buffer,
+    /// Step characteristics: each direction's geometry (20 floats) and its outgoing face
+    /// radiances across x, y, z (4-byte stand-ins for the step scheme).
+    geometry: Buffer,
+    faces: [Buffer; 3],
+    scheme: Scheme,
     fluence: Buffer,
     /// Per channel and voxel: the energy (fluence times lambda^2) that scattered isotropically
     /// gives the light scattered toward the eye (glsl/ordinates/scatter.comp).
@@ -199,6 +208,27 @@ impl Sweeper {
         let scatter = to32(map.scatter_matrix(&swept, s.g));
         let slots = count.iter().copied().max().unwrap_or(1).max(1);
         let nch = s.channels as u64;
+        let characteristics = s.scheme == Scheme::Characteristics;
+        let geometry: Vec<f32> = if characteristics {
+            swept
+                .directions
+                .iter()
+                .flat_map(|d| {
+                    let (f, sl) = characteristic_geometry(d.map(f64::abs));
+                    let mut g = [0f32; 20];
+                    for i in 0..3 {
+                        for o in 0..3 {
+                            g[3 * i + o] = f[i][o] as f32;
+                            g[9 + 3 * i + o] = sl[i][o] as f32;
+                        }
+                    }
+                    g
+                })
+                .collect()
+        } else {
+            vec![0.0]
+        };
+        let face_bytes = if characteristics { 8 * slots as u64 * v * 4 } else { 4 };
         Ok(Sweeper {
             sweep: gpu.pipeline(&SWEEP, &[])?,
             scatter: gpu.pipeline(&SCATTER, &[])?,
@@ -226,6 +256,13 @@ impl Sweeper {
             upsample: gpu.buffer_with("ordinates upsampling", &upsample)?,
             scatter_matrix: gpu.buffer_with("ordinates scattering", &scatter)?,
             field: gpu.buffer("ordinates field", 8 * slots as u64 * v * 4)?,
+            geometry: gpu.buffer_with("ordinates characteristics geometry", &geometry)?,
+            faces: [
+                gpu.buffer("ordinates faces x", face_bytes)?,
+                gpu.buffer("ordinates faces y", face_bytes)?,
+                gpu.buffer("ordinates faces z", face_bytes)?,
+            ],
+            scheme: s.scheme,
             fluence: gpu.buffer("ordinates fluence", nch * 8 * v * 4)?,
             camera: gpu.buffer("ordinates toward the camera", nch * v * 4)?,
             first_dir,
@@ -236,7 +273,7 @@ impl Sweeper {
 
     /// Device bytes [`Sweeper::new`] allocates for `channels` channels of `voxels` voxels,
     /// `q` swept and `storage` stored (the memory estimate's figure).
-    pub fn bytes(voxels: u64, channels: u64, q: &Quadrature, storage: &Quadrature) -> u64 {
+    pub fn bytes(voxels: u64, channels: u64, q: &Quadrature, storage: &Quadrature, scheme: Scheme) -> u64 {
         let slots = q.by_octant().2.iter().copied().max().unwrap_or(1).max(1) as u64;
         let (n, m) = (q.len() as u64, storage.len() as u64);
         let upsampled = m > 1 && storage.name != q.name;
@@ -244,7 +281,8 @@ impl Sweeper {
             + 8 * slots * voxels                              // the field
             + n * 4 + m * 4 + m * 4                           // directions, storage directions, footprints
             + n * m                                           // the scattering matrix
-            + if upsampled { n * m } else { 1 }; // the upsampling (one float when unused)
+            + if upsampled { n * m } else { 1 } // the upsampling (one float when unused)
+            + if scheme == Scheme::Characteristics { 20 * n + 3 * 8 * slots * voxels } else { 1 + 3 };
         4 * floats
     }
 
@@ -261,12 +299,21 @@ impl Sweeper {
             &self.upsample,
             &self.scatter_matrix,
             &self.field,
+            &self.geometry,
+            &self.faces[0],
+            &self.faces[1],
+            &self.faces[2],
             &self.fluence,
             &self.camera,
         ]
         .iter()
         .map(|b| b.size())
         .sum()
+    }
+
+    /// Whether the source is stored at fewer directions than swept (the sweep reads all M).
+    pub fn upsampled(&self) -> bool {
+        self.mode == Storage::Upsampled
     }
 
     fn voxels(&self) -> u32 {
@@ -278,6 +325,7 @@ impl Sweeper {
         Ok(gpu.buffer("ordinates deposits", self.channels as u64 * beams as u64 * self.voxels() as u64 * 4)?)
     }
 
+    #[allow(clippy::too_many_arguments)]
     /// One marching round's transfer into `sums`: each deposit added to its voxel's sum for its
     /// ray's beam (`ray_beam`), in fixed point of `scale` quanta per W.
     pub fn deposit_pass(
@@ -370,7 +418,8 @@ impl Sweeper {
                     count: self.count,
                     channel,
                     mode: self.mode as u32,
-                    pad: [0; 2],
+                    scheme: (self.scheme == Scheme::Characteristics) as u32,
+                    pad: 0,
                 };
                 Pass::new("ordinates.sweep", QueueRole::Diffuse, &self.sweep)
                     .read(0, &self.sigma_t)
@@ -379,6 +428,10 @@ impl Sweeper {
                     .read_write(3, &self.field)
                     .write(4, &self.fluence)
                     .read(5, &self.upsample)
+                    .read(6, &self.geometry)
+                    .read_write(7, &self.faces[0])
+                    .read_write(8, &self.faces[1])
+                    .read_write(9, &self.faces[2])
                     .push(&push)
                     .cover([nx, ny, 8])
             })
@@ -388,10 +441,7 @@ impl Sweeper {
     fn scatter_pass(&self, channel: u32) -> Pass {
         let [nx, ny, nz] = self.dims;
         let v = nx * ny * nz;
-        let mut octants = [0u32; 8];
-        for o in 0..8 {
-            octants[o] = self.first_dir[o] | self.count[o] << 16;
-        }
+        let octants: [u32; 8] = std::array::from_fn(|o| self.first_dir[o] | self.count[o] << 16);
         Pass::new("ordinates.scatter", QueueRole::Diffuse, &self.scatter)
             .read(0, &self.field)
             .read(1, &self.dirs)
