@@ -78,8 +78,10 @@ impl DomSettings {
         let name: String = k.get("directions")?;
         // s6 resolves moderate anisotropy (the g 0.7 cube: energy 1.006 of path); a peaked
         // phase function needs more directions (g 0.9: the twice-scattered light is 1.5x
-        // path's at s6, 1.16x at s8, 1.04x at product-8x16; docs/dom.md).
+        // path's at s6, 1.16x at s8, 1.04x at product-8x16; docs/dom.md); at g 0.99 product-8x16
+        // still put the stability case 0.8% over the lossless bound, product-16x32 does not.
         let name = match name.as_str() {
+            "auto" if scene.medium.g.abs() >= 0.95 => "product-16x32".to_string(),
             "auto" if scene.medium.g.abs() >= 0.8 => "product-8x16".to_string(),
             "auto" => "s6".to_string(),
             _ => name,
@@ -127,8 +129,8 @@ impl Solver for Dom {
                 "auto",
                 Range::Choice(&["auto", "s2", "s4", "s6", "s8", "product-8x16", "product-16x32"]),
                 "the quadrature swept: level-symmetric s4 (24 directions, the thesis's), s6 (48), s8 (80), or a \
-                 Gauss-Legendre x Chebyshev product set (product-PxA: P polar x A azimuthal); auto: s6, or \
-                 product-8x16 (128) where |g| >= 0.8",
+                 Gauss-Legendre x Chebyshev product set (product-PxA: P polar x A azimuthal); auto: s6, \
+                 product-8x16 (128) where |g| >= 0.8, product-16x32 (512) where |g| >= 0.95",
             ),
             Knob::fixed(
                 "tol",
