@@ -124,25 +124,28 @@ impl StorageMap {
 
     /// A[n][m] (row-major, N x M): the storage emission is Q_m = sigma_s sum_n A[n][m] I_n,
     /// with A[n][m] = w_n share_m(n) / w_m (per unit solid angle of m), so
-    /// sum_m w_m A[n][m] = w_n.
-    pub fn scatter_matrix(&self, propagation: &Quadrature, g: f64) -> Vec<f64> {
+    /// sum_m w_m A[n][m] = w_n; and the mean cosine it carries, averaged over the propagation
+    /// directions with their weights (g where the sets resolve it, less where they cannot).
+    /// One bisection per propagation direction serves both.
+    pub fn scattering(&self, propagation: &Quadrature, g: f64) -> (Vec<f64>, f64) {
         let mut a = Vec::with_capacity(propagation.len() * self.storage.len());
+        let mut mean = 0.0;
         for (n, wn) in propagation.directions.iter().zip(&propagation.weights) {
-            for (share, wm) in self.shares(g, n).iter().zip(&self.storage.weights) {
-                a.push(wn * share / wm);
-            }
+            let shares = self.shares(g, n);
+            mean += wn * self.mean_cosine(&shares, n);
+            a.extend(shares.iter().zip(&self.storage.weights).map(|(share, wm)| wn * share / wm));
         }
-        a
+        (a, mean / (4.0 * std::f64::consts::PI))
     }
 
-    /// The mean cosine the quadrature's scattering carries, averaged over the propagation
-    /// directions with their weights: g where the sets resolve it, less where they cannot.
+    /// [`StorageMap::scattering`]'s matrix.
+    pub fn scatter_matrix(&self, propagation: &Quadrature, g: f64) -> Vec<f64> {
+        self.scattering(propagation, g).0
+    }
+
+    /// [`StorageMap::scattering`]'s mean cosine.
     pub fn effective_g(&self, propagation: &Quadrature, g: f64) -> f64 {
-        let mut total = 0.0;
-        for (n, wn) in propagation.directions.iter().zip(&propagation.weights) {
-            total += wn * self.mean_cosine(&self.shares(g, n), n);
-        }
-        total / (4.0 * std::f64::consts::PI)
+        self.scattering(propagation, g).1
     }
 }
 

@@ -51,6 +51,9 @@ pub enum Scheme {
     Characteristics,
 }
 
+/// `f[i][o]` and `s[i][o]` of [`characteristic_geometry`].
+pub type Geometry = ([[f64; 3]; 3], [[f64; 3]; 3]);
+
 /// A direction's geometry across a unit cube (all components taken positive): `f[i][o]`, the
 /// fraction of outgoing face o whose characteristics entered through face i (the thesis's
 /// A_In,Out / A_Out, Fig. 5.3), and `s[i][o]` their mean length (its s_avg(In, Out)), in voxel
@@ -58,7 +61,7 @@ pub enum Scheme {
 /// matters: sum_i f[i][o] = 1, sum_o |w_o| f[i][o] = |w_i| (what enters through a face leaves
 /// through the others), and sum_io |w_o| f[i][o] s[i][o] = 1 (the mean chord: the volume),
 /// which is what makes [`characteristic_update`] conserve energy and never go negative.
-pub fn characteristic_geometry(a: [f64; 3]) -> ([[f64; 3]; 3], [[f64; 3]; 3]) {
+pub fn characteristic_geometry(a: [f64; 3]) -> Geometry {
     const K: usize = 64;
     let (mut f, mut s) = ([[0.0f64; 3]; 3], [[0.0f64; 3]; 3]);
     for o in 0..3 {
@@ -140,7 +143,7 @@ fn phi_psi(x: f64) -> (f64, f64) {
 /// periodic and one voxel wide, its inflow the voxel's own outflow (solved for). Returns L_V
 /// and the three outgoing faces' radiances.
 pub fn characteristic_update(
-    geometry: &([[f64; 3]; 3], [[f64; 3]; 3]),
+    geometry: &Geometry,
     a: [f64; 3],
     h: f64,
     sigma_t: f64,
@@ -224,6 +227,7 @@ impl OrdinatesGrid {
     fn sweep(
         &self,
         q: &Quadrature,
+        geometry: &[Geometry],
         emission: &dyn Fn(usize, usize) -> f64,
         last: &mut [[Vec<f64>; 4]],
     ) -> (Vec<f64>, [f64; 3]) {
@@ -233,7 +237,6 @@ impl OrdinatesGrid {
         let (mut top, mut bottom, mut leaving) = (0.0, 0.0, 0.0);
         for (d, (dir, w)) in q.directions.iter().zip(&q.weights).enumerate() {
             let a = dir.map(f64::abs);
-            let geometry = characteristic_geometry(a);
             let order = |n: usize, positive: bool| -> Vec<usize> {
                 if positive {
                     (0..n).collect()
@@ -292,7 +295,7 @@ impl OrdinatesGrid {
                                 (r, [r; 3])
                             }
                             Scheme::Characteristics => characteristic_update(
-                                &geometry,
+                                &geometry[d],
                                 a,
                                 self.h,
                                 self.sigma_t[i],
@@ -326,6 +329,15 @@ impl OrdinatesGrid {
         (fluence, [top, bottom, leaving])
     }
 
+    /// Each direction's characteristic geometry, computed once per solve (none for the step
+    /// difference, which does not use it).
+    fn geometries(&self, q: &Quadrature) -> Vec<Geometry> {
+        match self.scheme {
+            Scheme::Step => Vec::new(),
+            Scheme::Characteristics => q.directions.iter().map(|d| characteristic_geometry(d.map(f64::abs))).collect(),
+        }
+    }
+
     fn fresh(&self, directions: usize) -> Vec<[Vec<f64>; 4]> {
         (0..directions).map(|_| std::array::from_fn(|_| vec![0.0; self.voxels()])).collect()
     }
@@ -334,43 +346,15 @@ impl OrdinatesGrid {
     /// fluence (what a GPU sweep must reproduce).
     pub fn sweep_once(&self, q: &Quadrature, emission: &[f64]) -> Vec<f64> {
         let mut last = self.fresh(q.len());
-        self.sweep(q, &|_, i| emission[i], &mut last).0
+        self.sweep(q, &self.geometries(q), &|_, i| emission[i], &mut last).0
     }
 
     /// Source iteration from the first-scattering emission `first` (per unit volume and solid
     /// angle, isotropic) to a relative fluence change below `tol`, at most `max_iterations`
     /// sweeps of every direction.
     pub fn solve(&self, q: &Quadrature, first: &[f64], tol: f64, max_iterations: u32) -> OrdinatesSolution {
-        let mut last = self.fresh(q.len());
-        let mut emission = first.to_vec();
-        let mut previous = vec![0.0; self.voxels()];
-        let mut out = OrdinatesSolution {
-            fluence: previous.clone(),
-            leaving_top: 0.0,
-            leaving_bottom: 0.0,
-            leaving: 0.0,
-            iterations: 0,
-            converged: false,
-        };
-        while out.iterations < max_iterations {
-            let (fluence, [top, bottom, leaving]) = self.sweep(q, &|_, i| emission[i], &mut last);
-            out.iterations += 1;
-            let scale = fluence.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let change = fluence.iter().zip(&previous).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-            for (i, e) in emission.iter_mut().enumerate() {
-                *e = first[i] + self.albedo[i] * self.sigma_t[i] * fluence[i] / (4.0 * std::f64::consts::PI);
-            }
-            previous = fluence.clone();
-            out.fluence = fluence;
-            out.leaving_top = top;
-            out.leaving_bottom = bottom;
-            out.leaving = leaving;
-            if change <= tol * scale {
-                out.converged = true;
-                break;
-            }
-        }
-        out
+        // One storage direction: the scattered source is sigma_s phi / (4 pi).
+        self.solve_angular(q, &Quadrature::isotropic(), 0.0, first, tol, max_iterations)
     }
 
     /// Source iteration with Henyey-Greenstein scattering of asymmetry `g`, the emission stored
@@ -392,6 +376,7 @@ impl OrdinatesGrid {
         let map = super::angular::StorageMap::new(q, storage);
         let a = map.scatter_matrix(q, g);
         let up = map.upsample;
+        let geometry = self.geometries(q);
         let mut last = self.fresh(nn);
         let mut stored = first.to_vec();
         let mut previous = vec![0.0; v];
@@ -405,7 +390,7 @@ impl OrdinatesGrid {
         };
         while out.iterations < max_iterations {
             let emission = |n: usize, i: usize| (0..mm).map(|m| up[n * mm + m] * stored[m * v + i]).sum::<f64>();
-            let (fluence, [top, bottom, leaving]) = self.sweep(q, &emission, &mut last);
+            let (fluence, [top, bottom, leaving]) = self.sweep(q, &geometry, &emission, &mut last);
             out.iterations += 1;
             let scale = fluence.iter().fold(0.0f64, |m, x| m.max(x.abs()));
             let change = fluence.iter().zip(&previous).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));

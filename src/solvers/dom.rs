@@ -206,7 +206,7 @@ impl Solver for Dom {
             },
         )?;
 
-        // 5.2: march the light, binning each deposit into the storage directions.
+        // 5.2: march the light, summing each voxel's deposits per beam.
         let beams = marcher.beams.len();
         let sums = sweeper.deposit_sums(gpu, beams)?;
         let ray_beam = gpu.buffer_with("dom ray beams", &marcher.ray_beam)?;
@@ -288,7 +288,7 @@ impl Solver for Dom {
             storage_directions: set.storage.len(),
             scheme: set.scheme,
             channels: nch,
-            quadrature_g: (sweeper.map.effective_g(&set.quadrature, m.g as f64) * 1e6).round() / 1e6 + 0.0,
+            quadrature_g: (sweeper.quadrature_g * 1e6).round() / 1e6 + 0.0,
             iterations,
             converged,
             final_change: change,

@@ -144,7 +144,9 @@ pub struct Sweeper {
     /// The storage directions, in the order the source is stored (by octant when they are the
     /// swept set), and how they couple to the swept ones.
     pub storage: Quadrature,
-    pub map: StorageMap,
+    map: StorageMap,
+    /// The mean cosine the quadrature's scattering carries ([`StorageMap::scattering`]).
+    pub quadrature_g: f64,
     mode: Storage,
     g: f32,
     grid: [f32; 4],
@@ -205,7 +207,8 @@ impl Sweeper {
         let footprint: Vec<[f32; 4]> =
             map.footprint.iter().map(|f| [f[0] as f32, f[1] as f32, f[2] as f32, 0.0]).collect();
         let upsample = if mode == Storage::Upsampled { to32(map.upsample.clone()) } else { vec![0.0f32] };
-        let scatter = to32(map.scatter_matrix(&swept, s.g));
+        let (scatter, quadrature_g) = map.scattering(&swept, s.g);
+        let scatter = to32(scatter);
         let slots = count.iter().copied().max().unwrap_or(1).max(1);
         let nch = s.channels as u64;
         let characteristics = s.scheme == Scheme::Characteristics;
@@ -239,6 +242,7 @@ impl Sweeper {
             channels: s.channels,
             storage: storage.clone(),
             map,
+            quadrature_g,
             mode,
             g: s.g as f32,
             grid: [s.origin[0], s.origin[1], s.origin[2], s.h],
