@@ -4,6 +4,7 @@
 mod bench_tests;
 mod cli_tests;
 mod common;
+mod dom_streaming;
 mod dom_tests;
 mod equiangular_tests;
 mod export_tests;

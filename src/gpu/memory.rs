@@ -192,6 +192,12 @@ impl Gpu {
         })
     }
 
+    /// A host-visible buffer of `size` bytes for copies to and from device buffers
+    /// ([`Gpu::submit_copies`]), with its mapped pointer (valid while the buffer lives).
+    pub fn host_buffer(&self, name: &str, size: u64) -> Result<(Buffer, *mut u8)> {
+        self.staging(name, size, MemoryLocation::GpuToCpu)
+    }
+
     fn staging(&self, name: &str, size: u64, location: MemoryLocation) -> Result<(Buffer, *mut u8)> {
         let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::empty(), location)?;
         let a = b.inner.allocation.as_ref().expect("allocated");

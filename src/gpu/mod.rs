@@ -16,4 +16,4 @@ pub use error::{GpuError, Result};
 pub use memory::{Buffer, Image3d, VolumeFormat};
 pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, Reflection, ShaderSource, Spec, SpecKind};
 pub use queues::{map_roles, FamilyInfo, MappingKind, QueueRole, QueueSlot, RoleMapping};
-pub use submit::{Access, Bind, Pass, PassTiming, Resource, SyncPoint};
+pub use submit::{Access, Bind, Copy, Pass, PassTiming, Resource, SyncPoint};

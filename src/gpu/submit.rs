@@ -81,6 +81,16 @@ pub struct Bind {
     pub resource: Resource,
 }
 
+/// One buffer-to-buffer copy ([`Gpu::submit_copies`]), byte offsets and size.
+#[derive(Clone)]
+pub struct Copy {
+    pub src: Buffer,
+    pub src_offset: u64,
+    pub dst: Buffer,
+    pub dst_offset: u64,
+    pub size: u64,
+}
+
 /// One compute dispatch, described as data.
 #[derive(Clone)]
 pub struct Pass {
@@ -367,6 +377,44 @@ impl Gpu {
                 }
             },
         )
+    }
+
+    /// Record buffer copies on `role`'s queue, waiting on `waits`: the stages run in order (a
+    /// transfer barrier between them), and a last barrier makes what they wrote visible to the
+    /// host once the returned point is reached. Streaming (src/solvers/blocks.rs) uses it.
+    pub fn submit_copies(&self, role: QueueRole, stages: &[Vec<Copy>], waits: &[SyncPoint]) -> Result<SyncPoint> {
+        let keep: Vec<Resource> =
+            stages.iter().flatten().flat_map(|c| [Resource::from(&c.src), Resource::from(&c.dst)]).collect();
+        let d = self.shared.device.clone();
+        self.record_and_submit(role, waits, vec!["copies".into()], keep, Vec::new(), None, |cb, _| unsafe {
+            for (i, stage) in stages.iter().enumerate() {
+                if i > 0 {
+                    let mb = vk::MemoryBarrier2::default()
+                        .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+                        .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ)
+                        .dst_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+                        .dst_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ);
+                    d.cmd_pipeline_barrier2(
+                        cb,
+                        &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)),
+                    );
+                }
+                for c in stage {
+                    d.cmd_copy_buffer(
+                        cb,
+                        c.src.raw(),
+                        c.dst.raw(),
+                        &[vk::BufferCopy { src_offset: c.src_offset, dst_offset: c.dst_offset, size: c.size }],
+                    );
+                }
+            }
+            let mb = vk::MemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+                .dst_access_mask(vk::AccessFlags2::HOST_READ);
+            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+        })
     }
 
     /// Record a command buffer with `record` and submit it on `role` with waits and a signal.

@@ -22,6 +22,7 @@ macro_rules! shader {
     };
 }
 
+pub mod blocks;
 pub mod gpu_scene;
 pub mod knobs;
 pub mod lattice;

@@ -125,7 +125,7 @@ pub struct SweepSetup<'a> {
 
 /// How the sweep reads the stored source: one direction, the swept set itself, or upsampled.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Storage {
+pub(crate) enum Storage {
     Isotropic = 0,
     Swept = 1,
     Upsampled = 2,
@@ -180,9 +180,31 @@ pub struct Sweeper {
     slots: u32,
 }
 
-impl Sweeper {
-    pub fn new(gpu: &Gpu, s: &SweepSetup) -> Result<Sweeper, SolverError> {
-        let v = s.dims.iter().map(|d| *d as u64).product::<u64>();
+/// The angular tables both sweepers upload: the swept directions by octant, the storage set
+/// and how it maps to them, the scattering matrix and the characteristics' geometry.
+pub(crate) struct Tables {
+    pub swept: Quadrature,
+    pub storage: Quadrature,
+    pub mode: Storage,
+    pub first_dir: [u32; 8],
+    pub count: [u32; 8],
+    pub map: StorageMap,
+    pub footprint: Vec<[f32; 4]>,
+    /// U[n][m] when upsampled, else one unused float.
+    pub upsample: Vec<f32>,
+    /// A[n][m].
+    pub scatter: Vec<f32>,
+    pub quadrature_g: f64,
+    /// Per direction f[i][o], s[i][o] (20 floats) for step characteristics, else one float.
+    pub geometry: Vec<f32>,
+}
+
+pub(crate) fn to_vec4(q: &Quadrature) -> Vec<[f32; 4]> {
+    q.directions.iter().zip(&q.weights).map(|(d, w)| [d[0] as f32, d[1] as f32, d[2] as f32, *w as f32]).collect()
+}
+
+impl Tables {
+    pub(crate) fn new(s: &SweepSetup) -> Result<Tables, SolverError> {
         let (swept, first_dir, count) = s.quadrature.by_octant();
         let (storage, mode) = if s.storage.len() == 1 {
             (s.storage.clone(), Storage::Isotropic)
@@ -194,14 +216,6 @@ impl Sweeper {
         if swept.len() >= 1 << 16 {
             return Err(SolverError::Unsupported(format!("{} has more than 65535 directions", swept.name)));
         }
-        let m = storage.len() as u64;
-        let to_vec4 = |q: &Quadrature| -> Vec<[f32; 4]> {
-            q.directions
-                .iter()
-                .zip(&q.weights)
-                .map(|(d, w)| [d[0] as f32, d[1] as f32, d[2] as f32, *w as f32])
-                .collect()
-        };
         let to32 = |x: Vec<f64>| x.into_iter().map(|y| y as f32).collect::<Vec<f32>>();
         let map = StorageMap::new(&swept, &storage);
         let footprint: Vec<[f32; 4]> =
@@ -209,10 +223,7 @@ impl Sweeper {
         let upsample = if mode == Storage::Upsampled { to32(map.upsample.clone()) } else { vec![0.0f32] };
         let (scatter, quadrature_g) = map.scattering(&swept, s.g);
         let scatter = to32(scatter);
-        let slots = count.iter().copied().max().unwrap_or(1).max(1);
-        let nch = s.channels as u64;
-        let characteristics = s.scheme == Scheme::Characteristics;
-        let geometry: Vec<f32> = if characteristics {
+        let geometry: Vec<f32> = if s.scheme == Scheme::Characteristics {
             swept
                 .directions
                 .iter()
@@ -231,6 +242,30 @@ impl Sweeper {
         } else {
             vec![0.0]
         };
+        Ok(Tables { swept, storage, mode, first_dir, count, map, footprint, upsample, scatter, quadrature_g, geometry })
+    }
+}
+
+impl Sweeper {
+    pub fn new(gpu: &Gpu, s: &SweepSetup) -> Result<Sweeper, SolverError> {
+        let v = s.dims.iter().map(|d| *d as u64).product::<u64>();
+        let Tables {
+            swept,
+            storage,
+            mode,
+            first_dir,
+            count,
+            map,
+            footprint,
+            upsample,
+            scatter,
+            quadrature_g,
+            geometry,
+        } = Tables::new(s)?;
+        let m = storage.len() as u64;
+        let slots = count.iter().copied().max().unwrap_or(1).max(1);
+        let nch = s.channels as u64;
+        let characteristics = s.scheme == Scheme::Characteristics;
         let face_bytes = if characteristics { 8 * slots as u64 * v * 4 } else { 4 };
         Ok(Sweeper {
             sweep: gpu.pipeline(&SWEEP, &[])?,

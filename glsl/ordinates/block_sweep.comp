@@ -1,0 +1,214 @@
+#version 460
+// ordinates/block_sweep: one octant's sweep of a set of blocks of the grid (thesis 5.3.3-5.3.4:
+// blocks as work groups, a wavefront of voxels inside each block). The host dispatches the
+// blocks of one block plane (bx + by + bz = W in the octant's own block coordinates) at a time,
+// so every block's upwind neighbours were swept by an earlier dispatch; their outgoing faces are
+// the block's incoming ones. Each block lives in one slot of the pool (src/solvers/blocks.rs),
+// a record of its extinction, stored source, accumulators and outgoing faces, so the same
+// kernel runs whether the whole grid is resident or streams through a small pool: the image is
+// bit-identical either way.
+//
+// Inside a block, one direction at a time, the voxels of plane i + j + k = w (block-local,
+// counted from the upwind corner) depend only on plane w - 1: each column (i, j) keeps its last
+// outgoing face radiances in shared memory, double-buffered by plane parity. The voxel update
+// is sweep.comp's (and the CPU oracle's, src/physics/ordinates.rs): the step difference or step
+// characteristics (thesis 5.3.1-5.3.2), both never negative and conservative.
+//
+// Per voxel and direction the kernel adds, in a fixed order (octants in turn, directions in
+// order, one invocation per column): the fluence w I, the scattered source
+// sum_s A[s][m] I_s at each storage direction (src/physics/angular.rs), and the light toward
+// the camera sum_s w_s p(s . o) I_s. After the last octant (7) each block finishes its voxels
+// as scatter.comp does: Q_m = F_m + sigma_s sum_s A[s][m] I_s, camera = 4 pi gathered / norm
+// lambda^2. Deterministic: no atomics.
+#extension GL_GOOGLE_include_directive : require
+#include "../include/phase.glsl"
+
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+
+// The largest block edge (dom.block) the shared face arrays hold.
+const uint MAX_B = 16u;
+
+layout(std430, binding = 0) buffer Pool { float pool[]; };                // slots x record
+layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };        // by octant: xyz, w weight (sr)
+layout(std430, binding = 2) readonly buffer Upsample { float upsample[]; }; // [s][m] (mode 2)
+layout(std430, binding = 3) readonly buffer Geometry { float geometry[]; }; // per direction: f[i][o], s[i][o] (20)
+layout(std430, binding = 4) readonly buffer Scatter { float scatter[]; };   // A[s][m]
+// Per work group: (slot, upwind slot along x, y, z or ~0u), (lower corner xyz, edges packed).
+layout(std430, binding = 5) readonly buffer Work { uvec4 work[]; };
+
+layout(push_constant) uniform Push {
+    uvec4 dims;       // grid voxels xyz, w = block edge B
+    uvec4 layout_;    // record floats; channels C; storage M; slots S (directions per octant at most)
+    uvec4 octant;     // x: octant o; y: its first direction; z: its count; w: first work item
+    uvec4 modes;      // x: channel c; y: storage mode (0: M = 1, 1: swept set, 2: upsampled); z: scheme; w: directions N
+    vec4 grid;        // xyz the grid's lower corner, w lambda (voxel edge)
+    vec4 eye;         // xyz the camera's position (w = 0) or the direction toward it (w = 1)
+    float g;          // Henyey-Greenstein asymmetry
+    float pad0, pad1, pad2;
+} pc;
+
+shared float faces[2][3][MAX_B * MAX_B];
+
+// (1 - e^-x) / x and (x - 1 + e^-x) / x^2 without cancellation near 0 (sweep.comp's).
+vec2 phi_psi(float x) {
+    if (x < 0.5) {
+        float p = 1.0, q = 0.5, t = 1.0;
+        float fp = 1.0, fq = 0.5;
+        for (int k = 1; k <= 7; ++k) {
+            t *= -x;
+            fp /= float(k + 1);
+            fq /= float(k + 2);
+            p += t * fp;
+            q += t * fq;
+        }
+        return vec2(p, q);
+    }
+    float e = exp(-x);
+    return vec2((1.0 - e) / x, (x - 1.0 + e) / (x * x));
+}
+
+// Record layout (floats, Bv = B^3 voxels, x fastest, F = B^2): sigma_t [C][Bv], sigma_s [C][Bv],
+// first [C][M][Bv], source [C][M][Bv], scattered [C][M][Bv], fluence [C][Bv], gathered [C][Bv],
+// camera [C][Bv], then the outgoing faces of the current channel and octant [3][S][F].
+uint bv() { return pc.dims.w * pc.dims.w * pc.dims.w; }
+uint off_sigma_t(uint c) { return c * bv(); }
+uint off_sigma_s(uint c) { return (pc.layout_.y + c) * bv(); }
+uint off_first(uint c, uint m) { return (2u * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
+uint off_source(uint c, uint m) { return ((2u + pc.layout_.z) * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
+uint off_scattered(uint c, uint m) { return ((2u + 2u * pc.layout_.z) * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
+uint off_fluence(uint c) { return ((2u + 3u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
+uint off_gathered(uint c) { return ((3u + 3u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
+uint off_camera(uint c) { return ((4u + 3u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
+uint off_faces(uint axis, uint k) { return (5u + 3u * pc.layout_.z) * pc.layout_.y * bv() + (axis * pc.layout_.w + k) * pc.dims.w * pc.dims.w; }
+
+// A voxel's index on the face across `axis` (the two other block-local coordinates).
+uint face_index(int axis, ivec3 l) {
+    uint B = pc.dims.w;
+    return axis == 0 ? uint(l.y) + B * uint(l.z) : (axis == 1 ? uint(l.x) + B * uint(l.z) : uint(l.x) + B * uint(l.y));
+}
+
+void main() {
+    uint B = pc.dims.w;
+    uvec4 w0 = work[2u * (pc.octant.w + gl_WorkGroupID.x)];
+    uvec4 w1 = work[2u * (pc.octant.w + gl_WorkGroupID.x) + 1u];
+    uint base = w0.x * pc.layout_.x;
+    uint up[3] = uint[3](w0.y, w0.z, w0.w);
+    ivec3 lo = ivec3(w1.xyz);
+    ivec3 ext = ivec3(w1.w & 0xffu, (w1.w >> 8) & 0xffu, (w1.w >> 16) & 0xffu);
+    uint o = pc.octant.x;
+    uint first_dir = pc.octant.y, count = pc.octant.z;
+    uint c = pc.modes.x, M = pc.layout_.z, mode = pc.modes.y;
+    ivec3 sgn = ivec3((o & 1u) != 0u ? -1 : 1, (o & 2u) != 0u ? -1 : 1, (o & 4u) != 0u ? -1 : 1);
+    uint columns = uint(ext.x * ext.y);
+    int planes = ext.x + ext.y + ext.z - 2;
+    float h = pc.grid.w;
+    for (uint k = 0u; k < count; ++k) {
+        uint s = first_dir + k;
+        vec4 d = dirs[s];
+        vec3 a = abs(d.xyz);
+        for (int w = 0; w < planes; ++w) {
+            uint cur = uint(w) & 1u, prev = cur ^ 1u;
+            for (uint col = gl_LocalInvocationID.x; col < columns; col += gl_WorkGroupSize.x) {
+                ivec3 l = ivec3(int(col) % ext.x, int(col) / ext.x, 0);
+                l.z = w - l.x - l.y;
+                if (l.z < 0 || l.z >= ext.z) continue;
+                // Block-local voxel (x fastest, stride B) from octant-local coordinates.
+                ivec3 q = ivec3(sgn.x > 0 ? l.x : ext.x - 1 - l.x,
+                                sgn.y > 0 ? l.y : ext.y - 1 - l.y,
+                                sgn.z > 0 ? l.z : ext.z - 1 - l.z);
+                uint vb = uint(q.x) + B * (uint(q.y) + B * uint(q.z));
+                float st = pool[base + off_sigma_t(c) + vb];
+                float src;
+                if (mode == 0u) {
+                    src = pool[base + off_source(c, 0u) + vb];
+                } else if (mode == 1u) {
+                    src = pool[base + off_source(c, s) + vb];
+                } else {
+                    src = 0.0;
+                    for (uint m = 0u; m < M; ++m) src += upsample[s * M + m] * pool[base + off_source(c, m) + vb];
+                }
+                // Incoming radiances: the upwind column's last face inside the block, the upwind
+                // block's outgoing face on its edge, nothing at the grid's faces (vacuum).
+                float l_in[3];
+                for (int axis = 0; axis < 3; ++axis) {
+                    l_in[axis] = 0.0;
+                    if (l[axis] > 0) {
+                        ivec3 u = l;
+                        u[axis] -= 1;
+                        l_in[axis] = faces[prev][axis][uint(u.x) + B * uint(u.y)];
+                    } else if (up[axis] != 0xffffffffu) {
+                        l_in[axis] = pool[up[axis] * pc.layout_.x + off_faces(uint(axis), k) + face_index(axis, l)];
+                    }
+                }
+                float radiance;
+                float out_face[3];
+                if (pc.modes.z == 0u) {
+                    // Step difference: the upwind voxels' mean radiances are the faces.
+                    float inflow = 0.0;
+                    for (int axis = 0; axis < 3; ++axis)
+                        if (l[axis] > 0 || up[axis] != 0xffffffffu) inflow += a[axis] * l_in[axis];
+                    radiance = (src + inflow / h) / (st + (a.x + a.y + a.z) / h);
+                    out_face = float[3](radiance, radiance, radiance);
+                } else {
+                    for (int axis = 0; axis < 3; ++axis) if (a[axis] == 0.0) l_in[axis] = 0.0;
+                    uint gbase = s * 20u;
+                    out_face = float[3](0.0, 0.0, 0.0);
+                    radiance = 0.0;
+                    for (int i = 0; i < 3; ++i) {
+                        for (int oo = 0; oo < 3; ++oo) {
+                            float f = geometry[gbase + uint(3 * i + oo)];
+                            if (f == 0.0) continue;
+                            float sl = geometry[gbase + 9u + uint(3 * i + oo)];
+                            float x = st * h * sl;
+                            vec2 pp = phi_psi(x);
+                            float qh = src * h * sl;
+                            out_face[oo] += f * (l_in[i] * exp(-x) + qh * pp.x);
+                            radiance += a[oo] * f * sl * (l_in[i] * pp.x + qh * pp.y);
+                        }
+                    }
+                }
+                for (int axis = 0; axis < 3; ++axis) {
+                    faces[cur][axis][uint(l.x) + B * uint(l.y)] = out_face[axis];
+                    if (l[axis] == ext[axis] - 1)
+                        pool[base + off_faces(uint(axis), k) + face_index(axis, l)] = out_face[axis];
+                }
+                // The voxel's accumulators; the first direction of octant 0 starts them.
+                bool start = o == 0u && k == 0u;
+                uint fl = base + off_fluence(c) + vb;
+                pool[fl] = (start ? 0.0 : pool[fl]) + d.w * radiance;
+                for (uint m = 0u; m < M; ++m) {
+                    uint sc = base + off_scattered(c, m) + vb;
+                    pool[sc] = (start ? 0.0 : pool[sc]) + scatter[s * M + m] * radiance;
+                }
+                vec3 centre = pc.grid.xyz + (vec3(lo + q) + 0.5) * h;
+                vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+                uint ga = base + off_gathered(c) + vb;
+                pool[ga] = (start ? 0.0 : pool[ga]) + d.w * hg_eval(pc.g, dot(d.xyz, to_eye)) * radiance;
+            }
+            memoryBarrierShared();
+            barrier();
+        }
+    }
+    if (o != 7u) return;
+    // The last octant: this channel's sweep of the block is complete. Finish its voxels.
+    uint voxels = uint(ext.x * ext.y * ext.z);
+    for (uint i = gl_LocalInvocationID.x; i < voxels; i += gl_WorkGroupSize.x) {
+        ivec3 q = ivec3(int(i) % ext.x, (int(i) / ext.x) % ext.y, int(i) / (ext.x * ext.y));
+        uint vb = uint(q.x) + B * (uint(q.y) + B * uint(q.z));
+        vec3 centre = pc.grid.xyz + (vec3(lo + q) + 0.5) * h;
+        vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+        float norm = 0.0;
+        for (uint s = 0u; s < pc.modes.w; ++s) {
+            vec4 d = dirs[s];
+            norm += d.w * hg_eval(pc.g, dot(d.xyz, to_eye));
+        }
+        float gathered = pool[base + off_gathered(c) + vb];
+        pool[base + off_camera(c) + vb] = norm > 0.0 ? 4.0 * PI * gathered / norm * h * h : 0.0;
+        float sigma = pool[base + off_sigma_s(c) + vb];
+        for (uint m = 0u; m < M; ++m) {
+            float first = pool[base + off_first(c, m) + vb];
+            pool[base + off_source(c, m) + vb] =
+                sigma > 0.0 ? first + sigma * pool[base + off_scattered(c, m) + vb] : first;
+        }
+    }
+}

@@ -1,0 +1,770 @@
+//! Block sweeps and out-of-core streaming for `dom` (issue 13; thesis 5.3.3-5.3.4).
+//!
+//! The grid is cut into blocks of B^3 voxels. Each block is one *record*: its extinction and
+//! scattering, its first-scattering and stored source at the M storage directions, the
+//! accumulators of a sweep (fluence, scattered source, light toward the camera) and its outgoing
+//! faces for the octant being swept (layout in [`BlockLayout`], mirrored by
+//! glsl/ordinates/block_sweep.comp). The records live in a host store (memory, or an unnamed
+//! memory-mapped file for volumes larger than host memory: `dom.store=file:DIR`); the device
+//! holds a *pool* of record slots sized by `dom.budget`.
+//!
+//! A sweep of one channel and octant visits the block planes bx + by + bz = W (in the octant's
+//! own block coordinates) in order, a precomputed block order; a dispatch sweeps a *chunk* of
+//! one plane, as many of its blocks as fit the pool with their upwind neighbours (whose outgoing
+//! faces are the chunk's incoming ones). Before a chunk runs, its missing blocks are loaded,
+//! evicting the least recently used slots outside the chunk (written back first when dirty).
+//! Uploads and write-backs are buffer copies on the `trace` role's queue, ordered against the
+//! sweeps on the `diffuse` role by timeline semaphores: a copy waits only for the last sweep
+//! that used its slot, and a sweep for the copies before it, so on a device whose roles have
+//! separate queues the streaming of one chunk overlaps the sweep of the previous one (on
+//! lavapipe's single queue they serialise, with the same result). The kernel and the order of
+//! every floating-point operation are the same whatever the pool's size, so the image is
+//! bit-identical whether the grid fits or streams (tests/dom_streaming.rs).
+
+use std::collections::HashSet;
+use std::path::PathBuf;
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::gpu::{Buffer, Copy, Gpu, Kernel, Pass, Pipeline, QueueRole, SyncPoint};
+use crate::physics::ordinates::Scheme;
+use crate::physics::quadrature::Quadrature;
+
+use super::ordinates::{to_vec4, Eye, Storage, SweepSetup, Tables};
+use super::SolverError;
+
+pub const BLOCK_SWEEP: Kernel =
+    Kernel { shader: shader!("ordinates/block_sweep"), push_bytes: std::mem::size_of::<BlockPush>(), spec: &[] };
+
+/// The largest block edge the kernel's shared face arrays hold (MAX_B in block_sweep.comp).
+pub const MAX_BLOCK: u32 = 16;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct BlockPush {
+    dims: [u32; 4],
+    layout: [u32; 4],
+    octant: [u32; 4],
+    modes: [u32; 4],
+    grid: [f32; 4],
+    eye: [f32; 4],
+    g: f32,
+    pad: [f32; 3],
+}
+
+/// Where the host keeps the blocks.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum StoreKind {
+    /// Host memory.
+    Memory,
+    /// An unnamed temporary file in this directory, memory-mapped (removed when done).
+    File(PathBuf),
+}
+
+/// How a [`BlockSweeper`] holds the grid.
+#[derive(Clone, Debug)]
+pub struct BlockOptions {
+    /// Block edge in voxels, 1..=[`MAX_BLOCK`].
+    pub block: u32,
+    /// Device bytes the sweeper may hold (pool and tables); `None`: the whole grid if one
+    /// binding can hold it.
+    pub budget: Option<u64>,
+    pub store: StoreKind,
+}
+
+/// The record layout (floats), as block_sweep.comp reads it.
+#[derive(Clone, Copy, Debug)]
+pub struct BlockLayout {
+    pub dims: [u32; 3],
+    pub b: u32,
+    pub nb: [u32; 3],
+    pub channels: u32,
+    pub storage: u32,
+    /// Directions per octant at most.
+    pub slots: u32,
+}
+
+impl BlockLayout {
+    pub fn new(dims: [u32; 3], b: u32, channels: u32, storage: u32, slots: u32) -> BlockLayout {
+        let nb = dims.map(|d| d.div_ceil(b));
+        BlockLayout { dims, b, nb, channels, storage, slots }
+    }
+    fn bv(&self) -> u64 {
+        (self.b as u64).pow(3)
+    }
+    /// Floats per record.
+    pub fn record(&self) -> u64 {
+        (5 + 3 * self.storage as u64) * self.channels as u64 * self.bv()
+            + 3 * self.slots as u64 * (self.b as u64).pow(2)
+    }
+    pub fn blocks(&self) -> u32 {
+        self.nb.iter().product()
+    }
+    fn off_sigma_t(&self, c: u32) -> u64 {
+        c as u64 * self.bv()
+    }
+    fn off_sigma_s(&self, c: u32) -> u64 {
+        (self.channels + c) as u64 * self.bv()
+    }
+    fn off_first(&self, c: u32, m: u32) -> u64 {
+        (2 * self.channels + c * self.storage + m) as u64 * self.bv()
+    }
+    fn off_source(&self, c: u32, m: u32) -> u64 {
+        ((2 + self.storage) * self.channels + c * self.storage + m) as u64 * self.bv()
+    }
+    fn off_fluence(&self, c: u32) -> u64 {
+        ((2 + 3 * self.storage) * self.channels + c) as u64 * self.bv()
+    }
+    fn off_camera(&self, c: u32) -> u64 {
+        ((4 + 3 * self.storage) * self.channels + c) as u64 * self.bv()
+    }
+    fn coords(&self, block: u32) -> [u32; 3] {
+        [block % self.nb[0], (block / self.nb[0]) % self.nb[1], block / (self.nb[0] * self.nb[1])]
+    }
+    fn index(&self, p: [u32; 3]) -> u32 {
+        p[0] + self.nb[0] * (p[1] + self.nb[1] * p[2])
+    }
+    fn lo(&self, block: u32) -> [u32; 3] {
+        self.coords(block).map(|c| c * self.b)
+    }
+    fn ext(&self, block: u32) -> [u32; 3] {
+        let lo = self.lo(block);
+        std::array::from_fn(|a| self.b.min(self.dims[a] - lo[a]))
+    }
+    /// Each grid voxel's (block, offset in the record's voxel arrays), x fastest.
+    fn voxels(&self) -> impl Iterator<Item = (u32, u64)> + '_ {
+        let [nx, ny, nz] = self.dims;
+        let b = self.b;
+        (0..nz).flat_map(move |z| {
+            (0..ny).flat_map(move |y| {
+                (0..nx).map(move |x| {
+                    let block = self.index([x / b, y / b, z / b]);
+                    let (i, j, k) = ((x % b) as u64, (y % b) as u64, (z % b) as u64);
+                    (block, i + b as u64 * (j + b as u64 * k))
+                })
+            })
+        })
+    }
+    /// The blocks upwind of `block` in octant `o` (bit a set: sweeping toward -a), per axis.
+    fn upwind(&self, block: u32, o: u32) -> [Option<u32>; 3] {
+        let p = self.coords(block);
+        std::array::from_fn(|a| {
+            let negative = o & (1 << a) != 0;
+            let q = if negative { p[a] + 1 } else { p[a].wrapping_sub(1) };
+            (q < self.nb[a]).then(|| {
+                let mut r = p;
+                r[a] = q;
+                self.index(r)
+            })
+        })
+    }
+    /// Octant `o`'s block planes in sweep order, each plane's blocks in a fixed order.
+    fn planes(&self, o: u32) -> Vec<Vec<u32>> {
+        let n = self.nb;
+        let mut planes = vec![Vec::new(); (n[0] + n[1] + n[2] - 2) as usize];
+        for block in 0..self.blocks() {
+            let p = self.coords(block);
+            let w: u32 = (0..3).map(|a| if o & (1 << a) != 0 { n[a] - 1 - p[a] } else { p[a] }).sum();
+            planes[w as usize].push(block);
+        }
+        planes
+    }
+    /// Slots the sweep needs at once at least: a block and its upwind neighbours.
+    pub fn min_slots(&self) -> u32 {
+        1 + self.nb.iter().filter(|n| **n > 1).count() as u32
+    }
+}
+
+enum Store {
+    Memory(Vec<f32>),
+    File(memmap2::MmapMut, #[allow(dead_code)] std::fs::File),
+}
+
+impl Store {
+    fn new(kind: &StoreKind, floats: u64) -> Result<Store, SolverError> {
+        match kind {
+            StoreKind::Memory => Ok(Store::Memory(vec![0.0; floats as usize])),
+            StoreKind::File(dir) => {
+                let bad = |e: std::io::Error| {
+                    SolverError::Unsupported(format!(
+                        "dom.store: cannot keep {} MiB of blocks in {}: {e}; name a writable directory with room",
+                        floats * 4 >> 20,
+                        dir.display()
+                    ))
+                };
+                let file = tempfile::tempfile_in(dir).map_err(bad)?;
+                file.set_len(floats * 4).map_err(bad)?;
+                // Safety: the file is unnamed and ours alone; nothing else maps or truncates it.
+                let map = unsafe { memmap2::MmapMut::map_mut(&file) }.map_err(bad)?;
+                Ok(Store::File(map, file))
+            }
+        }
+    }
+    fn data(&self) -> &[f32] {
+        match self {
+            Store::Memory(v) => v,
+            Store::File(m, _) => bytemuck::cast_slice(&m[..]),
+        }
+    }
+    fn data_mut(&mut self) -> &mut [f32] {
+        match self {
+            Store::Memory(v) => v,
+            Store::File(m, _) => bytemuck::cast_slice_mut(&mut m[..]),
+        }
+    }
+}
+
+/// What streaming did, for the report.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct StreamStats {
+    pub blocks: u32,
+    pub pool_slots: u32,
+    pub record_bytes: u64,
+    pub uploads: u64,
+    pub write_backs: u64,
+    pub dispatches: u64,
+}
+
+/// One chunk of the plan: the copies before it and its dispatch.
+struct Step {
+    /// (slot, block written back first or none, block loaded)
+    loads: Vec<(u32, Option<u32>, u32)>,
+    channel: u32,
+    octant: u32,
+    work_first: u32,
+    work_count: u32,
+    slots: Vec<u32>,
+}
+
+#[derive(Clone)]
+struct Residency {
+    slot_block: Vec<Option<u32>>,
+    block_slot: Vec<Option<u32>>,
+    dirty: Vec<bool>,
+    tick: Vec<u64>,
+    now: u64,
+}
+
+impl Residency {
+    fn new(slots: u32, blocks: u32) -> Residency {
+        Residency {
+            slot_block: vec![None; slots as usize],
+            block_slot: vec![None; blocks as usize],
+            dirty: vec![false; slots as usize],
+            tick: vec![0; slots as usize],
+            now: 0,
+        }
+    }
+    /// Make `needed` resident, evicting the least recently used slots outside it (free ones
+    /// first, then the oldest; ties by slot): (slot, evicted dirty block, loaded block).
+    fn admit(&mut self, needed: &[u32]) -> Vec<(u32, Option<u32>, u32)> {
+        self.now += 1;
+        let pinned: HashSet<u32> = needed.iter().filter_map(|b| self.block_slot[*b as usize]).collect();
+        let mut loads = Vec::new();
+        let mut taken = pinned.clone();
+        for &b in needed {
+            if self.block_slot[b as usize].is_some() {
+                continue;
+            }
+            let victim = (0..self.slot_block.len() as u32)
+                .filter(|s| !taken.contains(s))
+                .min_by_key(|s| (self.slot_block[*s as usize].is_some(), self.tick[*s as usize], *s))
+                .expect("the pool holds a chunk's working set");
+            taken.insert(victim);
+            let evicted = self.slot_block[victim as usize].take();
+            if let Some(e) = evicted {
+                self.block_slot[e as usize] = None;
+            }
+            let written = evicted.filter(|_| self.dirty[victim as usize]);
+            self.slot_block[victim as usize] = Some(b);
+            self.block_slot[b as usize] = Some(victim);
+            self.dirty[victim as usize] = false;
+            loads.push((victim, written, b));
+        }
+        for &b in needed {
+            let s = self.block_slot[b as usize].expect("admitted") as usize;
+            self.tick[s] = self.now;
+        }
+        loads
+    }
+}
+
+/// Discrete-ordinates sweeps over blocks streamed through a pool (see the module's notes).
+pub struct BlockSweeper {
+    pipeline: Pipeline,
+    pub layout: BlockLayout,
+    pool: Buffer,
+    pool_slots: u32,
+    staging: Buffer,
+    staging_ptr: *mut f32,
+    /// Records the staging buffer holds (two halves used in turn, two records per move).
+    staging_records: u32,
+    dirs: Buffer,
+    upsample: Buffer,
+    geometry: Buffer,
+    scatter: Buffer,
+    work: Buffer,
+    store: Store,
+    residency: Residency,
+    last_use: Vec<Option<SyncPoint>>,
+    mode: Storage,
+    scheme: Scheme,
+    first_dir: [u32; 8],
+    count: [u32; 8],
+    n_dirs: u32,
+    grid: [f32; 4],
+    eye: [f32; 4],
+    g: f32,
+    /// The storage directions (by octant when they are the swept set).
+    pub storage: Quadrature,
+    pub quadrature_g: f64,
+    pub stats: StreamStats,
+}
+
+impl BlockSweeper {
+    /// Device bytes of everything but the pool, for `channels`, the swept set `q` and storage.
+    fn fixed_bytes(layout: &BlockLayout, n: u64, m: u64, upsampled: bool, characteristics: bool) -> u64 {
+        let work = 8 * layout.channels as u64 * layout.blocks() as u64 * 32;
+        4 * (4 * n + if upsampled { n * m } else { 1 } + if characteristics { 20 * n } else { 1 } + n * m) + work
+    }
+
+    /// The layout and the fixed device bytes for a setup (the memory estimate's figures).
+    pub fn plan(
+        dims: [u32; 3],
+        channels: u32,
+        q: &Quadrature,
+        storage: &Quadrature,
+        scheme: Scheme,
+        block: u32,
+    ) -> (BlockLayout, u64) {
+        let slots = q.by_octant().2.iter().copied().max().unwrap_or(1).max(1);
+        let m = storage.len() as u32;
+        let layout = BlockLayout::new(dims, block, channels, m, slots);
+        let upsampled = m > 1 && storage.name != q.name;
+        let fixed = Self::fixed_bytes(&layout, q.len() as u64, m as u64, upsampled, scheme == Scheme::Characteristics);
+        (layout, fixed)
+    }
+
+    pub fn new(gpu: &Gpu, s: &SweepSetup, opts: &BlockOptions) -> Result<BlockSweeper, SolverError> {
+        if opts.block == 0 || opts.block > MAX_BLOCK {
+            return Err(SolverError::Unsupported(format!("dom.block must be 1..={MAX_BLOCK}, got {}", opts.block)));
+        }
+        let t = Tables::new(s)?;
+        let slots = t.count.iter().copied().max().unwrap_or(1).max(1);
+        let m = t.storage.len() as u32;
+        let layout = BlockLayout::new(s.dims, opts.block, s.channels, m, slots);
+        let record_bytes = layout.record() * 4;
+        let fixed = Self::fixed_bytes(
+            &layout,
+            t.swept.len() as u64,
+            m as u64,
+            t.mode == Storage::Upsampled,
+            s.scheme == Scheme::Characteristics,
+        );
+        let blocks = layout.blocks();
+        let max_binding = gpu.info().max_storage_buffer_range;
+        let binding_slots = (max_binding / record_bytes).min(u32::MAX as u64) as u32;
+        let wanted = match opts.budget {
+            Some(budget) => {
+                let need = fixed + layout.min_slots() as u64 * record_bytes;
+                if budget < need {
+                    return Err(SolverError::Unsupported(format!(
+                        "dom.budget = {:.2} MiB is below this sweep's working set ({} blocks of {} KiB and {} KiB of \
+                         tables): set dom.budget to at least {} (MiB) or a smaller dom.block",
+                        budget as f64 / 1048576.0,
+                        layout.min_slots(),
+                        record_bytes >> 10,
+                        fixed >> 10,
+                        (need as f64 / 1048576.0 * 100.0).ceil() / 100.0
+                    )));
+                }
+                ((budget - fixed) / record_bytes).min(u32::MAX as u64) as u32
+            }
+            None => blocks,
+        };
+        let pool_slots = wanted.min(blocks).min(binding_slots);
+        if pool_slots < layout.min_slots() {
+            return Err(SolverError::Unsupported(format!(
+                "a dom block record ({} KiB) is too large for this device's largest binding ({} MiB): lower dom.block",
+                record_bytes >> 10,
+                max_binding >> 20
+            )));
+        }
+        // The staging ring: two halves, each for up to a quarter of the pool or 32 moves (a
+        // move is two records: the one written back and the one loaded).
+        let half = (pool_slots / 4).clamp(1, 32);
+        let staging_records = 4 * half;
+        let (staging, ptr) = gpu.host_buffer("dom block staging", staging_records as u64 * record_bytes)?;
+        let mut store = Store::new(&opts.store, blocks as u64 * layout.record())?;
+        {
+            let rec = layout.record();
+            let data = store.data_mut();
+            let v = s.dims.iter().map(|d| *d as usize).product::<usize>();
+            for (i, (block, off)) in layout.voxels().enumerate() {
+                let base = block as u64 * rec + off;
+                for c in 0..s.channels {
+                    data[(base + layout.off_sigma_t(c)) as usize] = s.sigma_t[c as usize * v + i];
+                    data[(base + layout.off_sigma_s(c)) as usize] = s.sigma_s[c as usize * v + i];
+                }
+            }
+        }
+        Ok(BlockSweeper {
+            pipeline: gpu.pipeline(&BLOCK_SWEEP, &[])?,
+            layout,
+            pool: gpu.buffer("dom block pool", pool_slots as u64 * record_bytes)?,
+            pool_slots,
+            staging,
+            staging_ptr: ptr as *mut f32,
+            staging_records,
+            dirs: gpu.buffer_with("dom block directions", &to_vec4(&t.swept))?,
+            upsample: gpu.buffer_with("dom block upsampling", &t.upsample)?,
+            geometry: gpu.buffer_with("dom block geometry", &t.geometry)?,
+            scatter: gpu.buffer_with("dom block scattering", &t.scatter)?,
+            work: gpu.buffer("dom block order", 8 * s.channels as u64 * blocks as u64 * 32)?,
+            store,
+            residency: Residency::new(pool_slots, blocks),
+            last_use: vec![None; pool_slots as usize],
+            mode: t.mode,
+            scheme: s.scheme,
+            first_dir: t.first_dir,
+            count: t.count,
+            n_dirs: t.swept.len() as u32,
+            grid: [s.origin[0], s.origin[1], s.origin[2], s.h],
+            eye: match s.eye {
+                Eye::Point(p) => [p[0], p[1], p[2], 0.0],
+                Eye::Toward(d) => [d[0], d[1], d[2], 1.0],
+            },
+            g: s.g as f32,
+            storage: t.storage,
+            quadrature_g: t.quadrature_g,
+            stats: StreamStats { blocks, pool_slots, record_bytes, ..Default::default() },
+        })
+    }
+
+    /// Device bytes the sweeper holds (never above `dom.budget`; the staging ring is host memory).
+    pub fn device_bytes(&self) -> u64 {
+        [&self.pool, &self.dirs, &self.upsample, &self.geometry, &self.scatter, &self.work]
+            .iter()
+            .map(|b| b.size())
+            .sum()
+    }
+
+    /// Host bytes of the staging ring.
+    pub fn staging_bytes(&self) -> u64 {
+        self.staging.size()
+    }
+
+    /// Whether the whole grid is resident (no streaming after the first load).
+    pub fn in_core(&self) -> bool {
+        self.pool_slots >= self.layout.blocks()
+    }
+
+    /// Set the first-scattering source ([c][m][v], per unit volume and sr) and start the stored
+    /// source from it. Drops what the pool holds (the store has it all after an iteration).
+    pub fn set_first(&mut self, gpu: &Gpu, first: &[f32]) -> Result<(), SolverError> {
+        gpu.wait_idle_roles()?;
+        let l = self.layout;
+        let (rec, v) = (l.record(), l.dims.iter().map(|d| *d as usize).product::<usize>());
+        let data = self.store.data_mut();
+        for (i, (block, off)) in l.voxels().enumerate() {
+            let base = block as u64 * rec + off;
+            for c in 0..l.channels {
+                for m in 0..l.storage {
+                    let x = first[(c * l.storage + m) as usize * v + i];
+                    data[(base + l.off_first(c, m)) as usize] = x;
+                    data[(base + l.off_source(c, m)) as usize] = x;
+                }
+            }
+        }
+        self.residency = Residency::new(self.pool_slots, l.blocks());
+        self.last_use = vec![None; self.pool_slots as usize];
+        Ok(())
+    }
+
+    /// Plan one iteration: every channel, octant and block plane in order, cut into chunks that
+    /// fit the pool, with the loads before each. Returns the steps and the work table.
+    fn plan_iteration(&mut self) -> (Vec<Step>, Vec<[u32; 4]>) {
+        let l = self.layout;
+        let cap = self.pool_slots as usize;
+        let mut steps = Vec::new();
+        let mut work: Vec<[u32; 4]> = Vec::new();
+        for c in 0..l.channels {
+            for o in 0..8u32 {
+                if self.count[o as usize] == 0 {
+                    continue;
+                }
+                for plane in l.planes(o) {
+                    let mut i = 0;
+                    while i < plane.len() {
+                        // Grow the chunk while its blocks and their upwind neighbours fit.
+                        let mut chunk: Vec<u32> = Vec::new();
+                        let mut needed: Vec<u32> = Vec::new();
+                        while i < plane.len() {
+                            let b = plane[i];
+                            let mut more: Vec<u32> = vec![b];
+                            more.extend(l.upwind(b, o).iter().flatten());
+                            let extra = more.iter().filter(|x| !needed.contains(x)).count();
+                            if !chunk.is_empty() && needed.len() + extra > cap {
+                                break;
+                            }
+                            for x in more {
+                                if !needed.contains(&x) {
+                                    needed.push(x);
+                                }
+                            }
+                            chunk.push(b);
+                            i += 1;
+                        }
+                        let loads = self.residency.admit(&needed);
+                        let work_first = (work.len() / 2) as u32;
+                        for &b in &chunk {
+                            let slot = self.residency.block_slot[b as usize].expect("resident");
+                            self.residency.dirty[slot as usize] = true;
+                            let up = l.upwind(b, o).map(|u| {
+                                u.map_or(u32::MAX, |u| self.residency.block_slot[u as usize].expect("resident"))
+                            });
+                            let lo = l.lo(b);
+                            let e = l.ext(b);
+                            work.push([slot, up[0], up[1], up[2]]);
+                            work.push([lo[0], lo[1], lo[2], e[0] | e[1] << 8 | e[2] << 16]);
+                        }
+                        let slots =
+                            needed.iter().map(|b| self.residency.block_slot[*b as usize].expect("resident")).collect();
+                        steps.push(Step {
+                            loads,
+                            channel: c,
+                            octant: o,
+                            work_first,
+                            work_count: chunk.len() as u32,
+                            slots,
+                        });
+                    }
+                }
+            }
+        }
+        (steps, work)
+    }
+
+    fn pass(&self, step: &Step) -> Pass {
+        let l = &self.layout;
+        let o = step.octant as usize;
+        Pass::new("dom.block_sweep", QueueRole::Diffuse, &self.pipeline)
+            .read_write(0, &self.pool)
+            .read(1, &self.dirs)
+            .read(2, &self.upsample)
+            .read(3, &self.geometry)
+            .read(4, &self.scatter)
+            .read(5, &self.work)
+            .push(&BlockPush {
+                dims: [l.dims[0], l.dims[1], l.dims[2], l.b],
+                layout: [l.record() as u32, l.channels, l.storage, l.slots],
+                octant: [step.octant, self.first_dir[o], self.count[o], step.work_first],
+                modes: [step.channel, self.mode as u32, (self.scheme == Scheme::Characteristics) as u32, self.n_dirs],
+                grid: self.grid,
+                eye: self.eye,
+                g: self.g,
+                pad: [0.0; 3],
+            })
+            .groups([step.work_count, 1, 1])
+    }
+
+    /// Copy records between the store and the pool through the staging ring: each entry
+    /// (slot, block written back from the slot first, block loaded into it). The copies wait on
+    /// the last sweep that used each slot; returns the last copy's point.
+    fn transfer(
+        &mut self,
+        gpu: &Gpu,
+        moves: &[(u32, Option<u32>, u32)],
+        ring: &mut Ring,
+    ) -> Result<Option<SyncPoint>, SolverError> {
+        let rec = self.layout.record();
+        let bytes = rec * 4;
+        let mut last = None;
+        for batch in moves.chunks(ring.half as usize) {
+            let base = ring.take(gpu, self)?;
+            let mut wb = Vec::new();
+            let mut up = Vec::new();
+            let mut waits: Vec<SyncPoint> = Vec::new();
+            for (k, &(slot, written, loaded)) in batch.iter().enumerate() {
+                let region = (base + 2 * k as u32) as u64;
+                if let Some(p) = self.last_use[slot as usize] {
+                    if waits.iter().all(|w| w.value < p.value) {
+                        waits.retain(|w| w.role != p.role);
+                        waits.push(p);
+                    }
+                }
+                if let Some(w) = written {
+                    wb.push(Copy {
+                        src: self.pool.clone(),
+                        src_offset: slot as u64 * bytes,
+                        dst: self.staging.clone(),
+                        dst_offset: region * bytes,
+                        size: bytes,
+                    });
+                    ring.pending.push((region, w));
+                    self.stats.write_backs += 1;
+                }
+                if loaded != u32::MAX {
+                    // A block written back moments ago may still be on its way to the store.
+                    ring.settle_block(gpu, self, loaded)?;
+                    // Safety: the region is free (Ring::take waited for its last copy).
+                    let dst = unsafe {
+                        std::slice::from_raw_parts_mut(
+                            self.staging_ptr.add(((region + 1) * rec) as usize),
+                            rec as usize,
+                        )
+                    };
+                    dst.copy_from_slice(
+                        &self.store.data()[(loaded as u64 * rec) as usize..((loaded as u64 + 1) * rec) as usize],
+                    );
+                    up.push(Copy {
+                        src: self.staging.clone(),
+                        src_offset: (region + 1) * bytes,
+                        dst: self.pool.clone(),
+                        dst_offset: slot as u64 * bytes,
+                        size: bytes,
+                    });
+                    self.stats.uploads += 1;
+                }
+            }
+            let point = gpu.submit_copies(QueueRole::Trace, &[wb, up], &waits)?;
+            ring.busy[ring.current as usize] = Some(point);
+            last = Some(point);
+        }
+        Ok(last)
+    }
+
+    /// Copy what the ring's finished write-backs hold into the store.
+    fn settle(&mut self, regions: &[(u64, u32)]) {
+        let rec = self.layout.record() as usize;
+        for &(region, block) in regions {
+            // Safety: the copy into this region has completed (the caller waited for it).
+            let src = unsafe { std::slice::from_raw_parts(self.staging_ptr.add(region as usize * rec), rec) };
+            self.store.data_mut()[block as usize * rec..(block as usize + 1) * rec].copy_from_slice(src);
+        }
+    }
+
+    /// One scattering iteration of every channel: sweep the stored source over the blocks, then
+    /// store the next one and the light toward the camera (block_sweep.comp, octant 7). Returns
+    /// the swept fluence per channel and voxel ([c][v]); afterwards the store holds every block.
+    pub fn iterate(&mut self, gpu: &Gpu) -> Result<Vec<f32>, SolverError> {
+        let (steps, work) = self.plan_iteration();
+        gpu.write_buffer(&self.work, 0, bytemuck::cast_slice(&work))?;
+        let half = self.staging_records / 4;
+        let mut ring =
+            Ring { half, current: 1, busy: [None, None], pending: Vec::new(), pending_half: [Vec::new(), Vec::new()] };
+        let mut pending: Vec<Pass> = Vec::new();
+        let mut pending_slots: Vec<u32> = Vec::new();
+        let mut copies: Option<SyncPoint> = None;
+        for step in &steps {
+            if !step.loads.is_empty() {
+                self.flush_sweeps(gpu, &mut pending, &mut pending_slots, copies)?;
+                if let Some(p) = self.transfer(gpu, &step.loads, &mut ring)? {
+                    copies = Some(p);
+                }
+            }
+            pending.push(self.pass(step));
+            pending_slots.extend(&step.slots);
+            self.stats.dispatches += 1;
+        }
+        self.flush_sweeps(gpu, &mut pending, &mut pending_slots, copies)?;
+        // Write every dirty block back, so the store holds the iteration's result.
+        let dirty: Vec<(u32, Option<u32>, u32)> = (0..self.pool_slots)
+            .filter(|s| self.residency.dirty[*s as usize])
+            .map(|s| (s, self.residency.slot_block[s as usize], u32::MAX))
+            .collect();
+        for s in &dirty {
+            self.residency.dirty[s.0 as usize] = false;
+        }
+        self.transfer(gpu, &dirty, &mut ring)?;
+        gpu.wait_idle_roles()?;
+        ring.pending_half[ring.current as usize].append(&mut ring.pending);
+        for h in 0..2 {
+            let regions = std::mem::take(&mut ring.pending_half[h]);
+            self.settle(&regions);
+        }
+        Ok(self.gather(|l, c| l.off_fluence(c)))
+    }
+
+    fn flush_sweeps(
+        &mut self,
+        gpu: &Gpu,
+        pending: &mut Vec<Pass>,
+        slots: &mut Vec<u32>,
+        copies: Option<SyncPoint>,
+    ) -> Result<(), SolverError> {
+        if pending.is_empty() {
+            return Ok(());
+        }
+        let waits: Vec<SyncPoint> = copies.into_iter().collect();
+        let point = gpu.submit(QueueRole::Diffuse, pending, &waits)?;
+        for s in slots.drain(..) {
+            self.last_use[s as usize] = Some(point);
+        }
+        pending.clear();
+        Ok(())
+    }
+
+    /// A per-voxel field of the store ([c][v]) at `offset(layout, channel)` in each record.
+    fn gather(&self, offset: impl Fn(&BlockLayout, u32) -> u64) -> Vec<f32> {
+        let l = self.layout;
+        let rec = l.record();
+        let data = self.store.data();
+        (0..l.channels)
+            .flat_map(|c| {
+                let off = offset(&l, c);
+                l.voxels().map(move |(block, v)| data[(block as u64 * rec + off + v) as usize]).collect::<Vec<_>>()
+            })
+            .collect()
+    }
+
+    /// The light toward the camera per channel and voxel ([c][v], energy per voxel as the view
+    /// pass reads it), after an iteration.
+    pub fn camera(&self) -> Vec<f32> {
+        self.gather(|l, c| l.off_camera(c))
+    }
+}
+
+/// The staging ring: two halves used in turn; a half is reused once its copies are done, and
+/// the write-backs it received are then copied into the store.
+struct Ring {
+    half: u32,
+    current: u32,
+    busy: [Option<SyncPoint>; 2],
+    /// Write-backs (region, block) of the half in use.
+    pending: Vec<(u64, u32)>,
+    pending_half: [Vec<(u64, u32)>; 2],
+}
+
+impl Ring {
+    /// If `block`'s write-back is still in the ring (the other half), wait for it and copy that
+    /// half's write-backs into the store, so a load reads the block's latest record.
+    fn settle_block(&mut self, gpu: &Gpu, sweeper: &mut BlockSweeper, block: u32) -> Result<(), SolverError> {
+        for h in 0..2 {
+            if self.pending_half[h].iter().any(|(_, b)| *b == block) {
+                if let Some(p) = self.busy[h].take() {
+                    gpu.wait(p)?;
+                }
+                let regions = std::mem::take(&mut self.pending_half[h]);
+                sweeper.settle(&regions);
+            }
+        }
+        debug_assert!(!self.pending.iter().any(|(_, b)| *b == block), "evicted and loaded in one batch");
+        Ok(())
+    }
+
+    /// Switch to the other half, waiting for its last copies and settling its write-backs;
+    /// returns its first region (each move uses two: write-back, load).
+    fn take(&mut self, gpu: &Gpu, sweeper: &mut BlockSweeper) -> Result<u32, SolverError> {
+        let done = std::mem::take(&mut self.pending);
+        self.pending_half[self.current as usize].extend(done);
+        self.current ^= 1;
+        let h = self.current as usize;
+        if let Some(p) = self.busy[h].take() {
+            gpu.wait(p)?;
+        }
+        let regions = std::mem::take(&mut self.pending_half[h]);
+        sweeper.settle(&regions);
+        Ok(h as u32 * 2 * self.half)
+    }
+}
