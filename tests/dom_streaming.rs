@@ -109,8 +109,8 @@ fn block_sweeps_match_the_oracle_and_stream_bit_identically() {
 
         // The smallest pool: a block and its three upwind neighbours.
         let record = stats.record_bytes;
-        let (_, fixed) = BlockSweeper::plan(s.dims, 1, &q, &storage, scheme, 3);
-        let budget = fixed + 4 * record;
+        let (layout, fixed) = BlockSweeper::plan(s.dims, 1, &q, &storage, scheme, 3);
+        let budget = fixed + 4 * record + 4 * layout.scratch();
         let (phi_s, camera_s, stats_s, bytes) =
             run(BlockOptions { block: 3, budget: Some(budget), store: StoreKind::Memory });
         assert_eq!(stats_s.pool_slots, 4);
@@ -121,7 +121,7 @@ fn block_sweeps_match_the_oracle_and_stream_bit_identically() {
         let dir = tempfile::tempdir().unwrap();
         let (phi_f, camera_f, _, _) = run(BlockOptions {
             block: 3,
-            budget: Some(fixed + 6 * record),
+            budget: Some(fixed + 6 * record + 4 * 4 * layout.scratch()),
             store: StoreKind::File(dir.path().to_path_buf()),
         });
         assert!(phi_f == phi && camera_f == camera, "{stored}, g {g}: file store differs from in-core");
@@ -144,8 +144,64 @@ fn a_budget_below_the_working_set_names_the_smallest() {
     assert!(err.contains("dom.budget") && err.contains("at least"), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
     let (layout, fixed) = BlockSweeper::plan(s.dims, 1, &q, &iso, Scheme::Characteristics, 4);
-    let smallest = fixed + layout.min_slots() as u64 * layout.record() * 4;
+    let smallest = fixed + (layout.min_slots() as u64 * layout.record() + layout.scratch()) * 4;
     let ok = BlockSweeper::new(&gpu, &s, &BlockOptions { block: 4, budget: Some(smallest), store: StoreKind::Memory });
     assert!(ok.is_ok(), "the smallest budget works: {:?}", ok.err().map(|e| e.to_string()));
     assert_clean(&gpu);
+}
+
+/// From the command line: a budget too small is one line on stderr naming the knob and the
+/// smallest budget, a non-zero exit and no image; a streamed render's image equals the in-core
+/// one bit for bit, and its report gives the pool within the budget.
+#[test]
+fn streamed_render_from_the_command_line_matches_in_core() {
+    let bin = env!("CARGO_BIN_EXE_scatterlab");
+    let dir = tempfile::tempdir().unwrap();
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/anisotropic-cube.toml");
+    let render = |sets: &[&str], out: &str| {
+        let mut cmd = std::process::Command::new(bin);
+        cmd.args(["render", scene, "--solver", "dom", "--out"]).arg(dir.path().join(out));
+        cmd.arg("--json").arg(dir.path().join(format!("{out}.json")));
+        for s in ["render.width=24", "render.height=24", "dom.grid=12", "dom.rays=4096", "dom.view_env_dirs=8"]
+            .iter()
+            .chain(sets)
+        {
+            cmd.args(["--set", s]);
+        }
+        cmd.output().unwrap()
+    };
+    let small = render(&["dom.block=4", "dom.budget=0.01"], "small.exr");
+    assert!(!small.status.success());
+    let err = String::from_utf8_lossy(&small.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("dom.budget") && lines[0].contains("at least"), "{err}");
+    assert!(!dir.path().join("small.exr").exists(), "no image after a refused budget");
+
+    let whole = render(&["dom.block=4"], "whole.exr");
+    assert!(whole.status.success(), "{}", String::from_utf8_lossy(&whole.stderr));
+    let streamed = render(&["dom.block=4", "dom.budget=0.25"], "streamed.exr");
+    assert!(streamed.status.success(), "{}", String::from_utf8_lossy(&streamed.stderr));
+    let a = std::fs::read(dir.path().join("whole.exr.json")).unwrap();
+    let b = std::fs::read(dir.path().join("streamed.exr.json")).unwrap();
+    let a: serde_json::Value = serde_json::from_slice(&a).unwrap();
+    let b: serde_json::Value = serde_json::from_slice(&b).unwrap();
+    let stats = |v: &serde_json::Value| v.pointer("/stats/detail/streaming").cloned().unwrap_or_default();
+    let (sa, sb) = (stats(&a), stats(&b));
+    assert_eq!(sa["pool_slots"], sa["blocks"], "in-core: {sa}");
+    assert!(sb["pool_slots"].as_u64().unwrap() < sb["blocks"].as_u64().unwrap(), "streamed: {sb}");
+    let bytes = b.pointer("/stats/detail/sweep_device_bytes").and_then(|x| x.as_u64()).unwrap();
+    assert!(bytes <= (0.25 * 1048576.0) as u64, "sweep device bytes {bytes} above dom.budget");
+    // The EXR headers carry the settings; compare the pixels through the decoder.
+    let pixels = |name: &str| {
+        let path = dir.path().join(name);
+        let image = exr::prelude::read_first_rgba_layer_from_file(
+            &path,
+            |r, _| vec![[0f32; 4]; r.width() * r.height()],
+            |p: &mut Vec<[f32; 4]>, pos, (r, g, b, a): (f32, f32, f32, f32)| p[pos.y() * 24 + pos.x()] = [r, g, b, a],
+        )
+        .unwrap();
+        image.layer_data.channel_data.pixels
+    };
+    assert!(pixels("whole.exr") == pixels("streamed.exr"), "streamed image differs from in-core");
 }

@@ -8,14 +8,15 @@
 // kernel runs whether the whole grid is resident or streams through a small pool: the image is
 // bit-identical either way.
 //
-// Inside a block, one direction at a time, the voxels of plane i + j + k = w (block-local,
-// counted from the upwind corner) depend only on plane w - 1: each column (i, j) keeps its last
-// outgoing face radiances in shared memory, double-buffered by plane parity. The voxel update
+// Inside a block the voxels of plane i + j + k = w (block-local, counted from the upwind corner)
+// depend only on plane w - 1: each column (i, j) keeps its last outgoing face radiances per
+// direction in the work group's scratch, double-buffered by plane parity; a voxel takes all the
+// octant's directions in turn, summing its accumulators in registers. The voxel update
 // is sweep.comp's (and the CPU oracle's, src/physics/ordinates.rs): the step difference or step
 // characteristics (thesis 5.3.1-5.3.2), both never negative and conservative.
 //
-// Per voxel and direction the kernel adds, in a fixed order (octants in turn, directions in
-// order, one invocation per column): the fluence w I, the scattered source
+// Per voxel the kernel adds, in a fixed order (octants in turn, directions in order, one
+// invocation per voxel and octant): the fluence w I, the scattered source
 // sum_s A[s][m] I_s at each storage direction (src/physics/angular.rs), and the light toward
 // the camera sum_s w_s p(s . o) I_s. After the last octant (7) each block finishes its voxels
 // as scatter.comp does: Q_m = F_m + sigma_s sum_s A[s][m] I_s, camera = 4 pi gathered / norm
@@ -25,8 +26,6 @@
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
-// The largest block edge (dom.block) the shared face arrays hold.
-const uint MAX_B = 16u;
 
 layout(std430, binding = 0) buffer Pool { float pool[]; };                // slots x record
 layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };        // by octant: xyz, w weight (sr)
@@ -35,6 +34,9 @@ layout(std430, binding = 3) readonly buffer Geometry { float geometry[]; }; // p
 layout(std430, binding = 4) readonly buffer Scatter { float scatter[]; };   // A[s][m]
 // Per work group: (slot, upwind slot along x, y, z or ~0u), (lower corner xyz, edges packed).
 layout(std430, binding = 5) readonly buffer Work { uvec4 work[]; };
+// Per work group of a dispatch: its columns' last outgoing faces, [2][3][S][B^2] (coherent: the
+// work group's invocations read each other's through the barrier between planes).
+layout(std430, binding = 6) coherent buffer Scratch { float scratch[]; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;       // grid voxels xyz, w = block edge B
@@ -47,7 +49,6 @@ layout(push_constant) uniform Push {
     float pad0, pad1, pad2;
 } pc;
 
-shared float faces[2][3][MAX_B * MAX_B];
 
 // (1 - e^-x) / x and (x - 1 + e^-x) / x^2 without cancellation near 0 (sweep.comp's).
 vec2 phi_psi(float x) {
@@ -87,6 +88,9 @@ uint face_index(int axis, ivec3 l) {
     return axis == 0 ? uint(l.y) + B * uint(l.z) : (axis == 1 ? uint(l.x) + B * uint(l.z) : uint(l.x) + B * uint(l.y));
 }
 
+// The storage directions whose scattered source a voxel sums in a local array (product-8x16).
+const uint MAX_LOCAL = 128u;
+
 void main() {
     uint B = pc.dims.w;
     uvec4 w0 = work[2u * (pc.octant.w + gl_WorkGroupID.x)];
@@ -97,27 +101,49 @@ void main() {
     ivec3 ext = ivec3(w1.w & 0xffu, (w1.w >> 8) & 0xffu, (w1.w >> 16) & 0xffu);
     uint o = pc.octant.x;
     uint first_dir = pc.octant.y, count = pc.octant.z;
-    uint c = pc.modes.x, M = pc.layout_.z, mode = pc.modes.y;
+    uint c = pc.modes.x, M = pc.layout_.z, mode = pc.modes.y, S = pc.layout_.w;
     ivec3 sgn = ivec3((o & 1u) != 0u ? -1 : 1, (o & 2u) != 0u ? -1 : 1, (o & 4u) != 0u ? -1 : 1);
-    uint columns = uint(ext.x * ext.y);
     int planes = ext.x + ext.y + ext.z - 2;
     float h = pc.grid.w;
-    for (uint k = 0u; k < count; ++k) {
-        uint s = first_dir + k;
-        vec4 d = dirs[s];
-        vec3 a = abs(d.xyz);
-        for (int w = 0; w < planes; ++w) {
-            uint cur = uint(w) & 1u, prev = cur ^ 1u;
-            for (uint col = gl_LocalInvocationID.x; col < columns; col += gl_WorkGroupSize.x) {
-                ivec3 l = ivec3(int(col) % ext.x, int(col) / ext.x, 0);
-                l.z = w - l.x - l.y;
-                if (l.z < 0 || l.z >= ext.z) continue;
-                // Block-local voxel (x fastest, stride B) from octant-local coordinates.
-                ivec3 q = ivec3(sgn.x > 0 ? l.x : ext.x - 1 - l.x,
-                                sgn.y > 0 ? l.y : ext.y - 1 - l.y,
-                                sgn.z > 0 ? l.z : ext.z - 1 - l.z);
-                uint vb = uint(q.x) + B * (uint(q.y) + B * uint(q.z));
-                float st = pool[base + off_sigma_t(c) + vb];
+    // This work group's column faces: [parity][axis][direction][column].
+    uint sbase = gl_WorkGroupID.x * 6u * S * B * B;
+    bool start = o == 0u;
+    for (int w = 0; w < planes; ++w) {
+        uint cur = uint(w) & 1u, prev = cur ^ 1u;
+        // The plane's voxels, enumerated row by row (x), so no invocation idles on a column the
+        // plane misses.
+        int a_lo = max(0, w - (ext.y - 1) - (ext.z - 1)), a_hi = min(ext.x - 1, w);
+        for (uint idx = gl_LocalInvocationID.x;; idx += gl_WorkGroupSize.x) {
+            ivec3 l = ivec3(-1);
+            uint left = idx;
+            for (int la = a_lo; la <= a_hi; ++la) {
+                int b_lo = max(0, w - la - (ext.z - 1)), b_hi = min(ext.y - 1, w - la);
+                uint n = uint(max(0, b_hi - b_lo + 1));
+                if (left < n) {
+                    l = ivec3(la, b_lo + int(left), 0);
+                    break;
+                }
+                left -= n;
+            }
+            if (l.x < 0) break;
+            l.z = w - l.x - l.y;
+            // Block-local voxel (x fastest, stride B) from octant-local coordinates.
+            ivec3 q = ivec3(sgn.x > 0 ? l.x : ext.x - 1 - l.x,
+                            sgn.y > 0 ? l.y : ext.y - 1 - l.y,
+                            sgn.z > 0 ? l.z : ext.z - 1 - l.z);
+            uint vb = uint(q.x) + B * (uint(q.y) + B * uint(q.z));
+            uint col = uint(l.x) + B * uint(l.y);
+            float st = pool[base + off_sigma_t(c) + vb];
+            vec3 centre = pc.grid.xyz + (vec3(lo + q) + 0.5) * h;
+            vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+            float fluence = 0.0, gathered = 0.0;
+            float scattered[MAX_LOCAL];
+            bool local_sum = M <= MAX_LOCAL;
+            if (local_sum) for (uint m = 0u; m < M; ++m) scattered[m] = 0.0;
+            for (uint k = 0u; k < count; ++k) {
+                uint s = first_dir + k;
+                vec4 d = dirs[s];
+                vec3 a = abs(d.xyz);
                 float src;
                 if (mode == 0u) {
                     src = pool[base + off_source(c, 0u) + vb];
@@ -135,7 +161,7 @@ void main() {
                     if (l[axis] > 0) {
                         ivec3 u = l;
                         u[axis] -= 1;
-                        l_in[axis] = faces[prev][axis][uint(u.x) + B * uint(u.y)];
+                        l_in[axis] = scratch[sbase + ((prev * 3u + uint(axis)) * S + k) * B * B + uint(u.x) + B * uint(u.y)];
                     } else if (up[axis] != 0xffffffffu) {
                         l_in[axis] = pool[up[axis] * pc.layout_.x + off_faces(uint(axis), k) + face_index(axis, l)];
                     }
@@ -145,8 +171,7 @@ void main() {
                 if (pc.modes.z == 0u) {
                     // Step difference: the upwind voxels' mean radiances are the faces.
                     float inflow = 0.0;
-                    for (int axis = 0; axis < 3; ++axis)
-                        if (l[axis] > 0 || up[axis] != 0xffffffffu) inflow += a[axis] * l_in[axis];
+                    for (int axis = 0; axis < 3; ++axis) inflow += a[axis] * l_in[axis];
                     radiance = (src + inflow / h) / (st + (a.x + a.y + a.z) / h);
                     out_face = float[3](radiance, radiance, radiance);
                 } else {
@@ -168,26 +193,35 @@ void main() {
                     }
                 }
                 for (int axis = 0; axis < 3; ++axis) {
-                    faces[cur][axis][uint(l.x) + B * uint(l.y)] = out_face[axis];
+                    scratch[sbase + ((cur * 3u + uint(axis)) * S + k) * B * B + col] = out_face[axis];
                     if (l[axis] == ext[axis] - 1)
                         pool[base + off_faces(uint(axis), k) + face_index(axis, l)] = out_face[axis];
                 }
-                // The voxel's accumulators; the first direction of octant 0 starts them.
-                bool start = o == 0u && k == 0u;
-                uint fl = base + off_fluence(c) + vb;
-                pool[fl] = (start ? 0.0 : pool[fl]) + d.w * radiance;
+                fluence += d.w * radiance;
+                gathered += d.w * hg_eval(pc.g, dot(d.xyz, to_eye)) * radiance;
+                if (local_sum) {
+                    for (uint m = 0u; m < M; ++m) scattered[m] += scatter[s * M + m] * radiance;
+                } else {
+                    for (uint m = 0u; m < M; ++m) {
+                        uint sc = base + off_scattered(c, m) + vb;
+                        pool[sc] = (start && k == 0u ? 0.0 : pool[sc]) + scatter[s * M + m] * radiance;
+                    }
+                }
+            }
+            // The voxel's accumulators, octant by octant; octant 0 starts them.
+            uint fl = base + off_fluence(c) + vb;
+            pool[fl] = (start ? 0.0 : pool[fl]) + fluence;
+            uint ga = base + off_gathered(c) + vb;
+            pool[ga] = (start ? 0.0 : pool[ga]) + gathered;
+            if (local_sum) {
                 for (uint m = 0u; m < M; ++m) {
                     uint sc = base + off_scattered(c, m) + vb;
-                    pool[sc] = (start ? 0.0 : pool[sc]) + scatter[s * M + m] * radiance;
+                    pool[sc] = (start ? 0.0 : pool[sc]) + scattered[m];
                 }
-                vec3 centre = pc.grid.xyz + (vec3(lo + q) + 0.5) * h;
-                vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
-                uint ga = base + off_gathered(c) + vb;
-                pool[ga] = (start ? 0.0 : pool[ga]) + d.w * hg_eval(pc.g, dot(d.xyz, to_eye)) * radiance;
             }
-            memoryBarrierShared();
-            barrier();
         }
+        memoryBarrierBuffer();
+        barrier();
     }
     if (o != 7u) return;
     // The last octant: this channel's sweep of the block is complete. Finish its voxels.

@@ -36,8 +36,8 @@ use super::SolverError;
 pub const BLOCK_SWEEP: Kernel =
     Kernel { shader: shader!("ordinates/block_sweep"), push_bytes: std::mem::size_of::<BlockPush>(), spec: &[] };
 
-/// The largest block edge the kernel's shared face arrays hold (MAX_B in block_sweep.comp).
-pub const MAX_BLOCK: u32 = 16;
+/// The largest block edge (dom.block).
+pub const MAX_BLOCK: u32 = 32;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -169,6 +169,14 @@ impl BlockLayout {
         }
         planes
     }
+    /// Floats of a work group's column faces ([2][3][S][B^2], block_sweep.comp's scratch).
+    pub fn scratch(&self) -> u64 {
+        6 * self.slots as u64 * (self.b as u64).pow(2)
+    }
+    /// The most blocks one block plane holds (the most work groups of one dispatch).
+    pub fn widest_plane(&self) -> u32 {
+        (0..8).flat_map(|o| self.planes(o).into_iter().map(|p| p.len() as u32)).max().unwrap_or(1)
+    }
     /// Slots the sweep needs at once at least: a block and its upwind neighbours.
     pub fn min_slots(&self) -> u32 {
         1 + self.nb.iter().filter(|n| **n > 1).count() as u32
@@ -188,7 +196,7 @@ impl Store {
                 let bad = |e: std::io::Error| {
                     SolverError::Unsupported(format!(
                         "dom.store: cannot keep {} MiB of blocks in {}: {e}; name a writable directory with room",
-                        floats * 4 >> 20,
+                        (floats * 4) >> 20,
                         dir.display()
                     ))
                 };
@@ -304,6 +312,9 @@ pub struct BlockSweeper {
     geometry: Buffer,
     scatter: Buffer,
     work: Buffer,
+    scratch: Buffer,
+    /// Work groups (blocks) one dispatch may hold: the scratch's entries.
+    groups: u32,
     store: Store,
     residency: Residency,
     last_use: Vec<Option<SyncPoint>>,
@@ -364,25 +375,40 @@ impl BlockSweeper {
         let blocks = layout.blocks();
         let max_binding = gpu.info().max_storage_buffer_range;
         let binding_slots = (max_binding / record_bytes).min(u32::MAX as u64) as u32;
-        let wanted = match opts.budget {
+        // The pool's slots and the dispatch's scratch: a chunk has at most min(slots, widest
+        // plane) blocks, each with its scratch.
+        let scratch_bytes = layout.scratch() * 4;
+        let widest = layout.widest_plane() as u64;
+        // (slots, work groups a dispatch may hold)
+        let (wanted, groups) = match opts.budget {
             Some(budget) => {
-                let need = fixed + layout.min_slots() as u64 * record_bytes;
+                let need = fixed + layout.min_slots() as u64 * record_bytes + scratch_bytes;
                 if budget < need {
+                    // (checked before any work: one line naming the smallest budget)
                     return Err(SolverError::Unsupported(format!(
-                        "dom.budget = {:.2} MiB is below this sweep's working set ({} blocks of {} KiB and {} KiB of \
-                         tables): set dom.budget to at least {} (MiB) or a smaller dom.block",
+                        "dom.budget = {:.2} MiB is below this sweep's working set ({} blocks of {} KiB, {} KiB of \
+                         scratch and {} KiB of tables): set dom.budget to at least {} (MiB) or a smaller dom.block",
                         budget as f64 / 1048576.0,
                         layout.min_slots(),
                         record_bytes >> 10,
+                        scratch_bytes >> 10,
                         fixed >> 10,
                         (need as f64 / 1048576.0 * 100.0).ceil() / 100.0
                     )));
                 }
-                ((budget - fixed) / record_bytes).min(u32::MAX as u64) as u32
+                // As many work groups per dispatch as the slots allow, down to one.
+                let left = budget - fixed;
+                (1..=widest)
+                    .rev()
+                    .filter_map(|e| Some((left.checked_sub(e * scratch_bytes)? / record_bytes, e)))
+                    .find(|(p, e)| *p >= (*e).max(layout.min_slots() as u64))
+                    .expect("one work group fits the smallest budget")
             }
-            None => blocks,
+            None => (blocks as u64, widest),
         };
+        let wanted = wanted.min(u32::MAX as u64) as u32;
         let pool_slots = wanted.min(blocks).min(binding_slots);
+        let groups = groups.min(pool_slots as u64) as u32;
         if pool_slots < layout.min_slots() {
             return Err(SolverError::Unsupported(format!(
                 "a dom block record ({} KiB) is too large for this device's largest binding ({} MiB): lower dom.block",
@@ -421,6 +447,8 @@ impl BlockSweeper {
             geometry: gpu.buffer_with("dom block geometry", &t.geometry)?,
             scatter: gpu.buffer_with("dom block scattering", &t.scatter)?,
             work: gpu.buffer("dom block order", 8 * s.channels as u64 * blocks as u64 * 32)?,
+            scratch: gpu.buffer("dom block scratch", groups as u64 * scratch_bytes)?,
+            groups,
             store,
             residency: Residency::new(pool_slots, blocks),
             last_use: vec![None; pool_slots as usize],
@@ -443,7 +471,7 @@ impl BlockSweeper {
 
     /// Device bytes the sweeper holds (never above `dom.budget`; the staging ring is host memory).
     pub fn device_bytes(&self) -> u64 {
-        [&self.pool, &self.dirs, &self.upsample, &self.geometry, &self.scatter, &self.work]
+        [&self.pool, &self.dirs, &self.upsample, &self.geometry, &self.scatter, &self.work, &self.scratch]
             .iter()
             .map(|b| b.size())
             .sum()
@@ -504,7 +532,8 @@ impl BlockSweeper {
                             let mut more: Vec<u32> = vec![b];
                             more.extend(l.upwind(b, o).iter().flatten());
                             let extra = more.iter().filter(|x| !needed.contains(x)).count();
-                            if !chunk.is_empty() && needed.len() + extra > cap {
+                            if !chunk.is_empty() && (needed.len() + extra > cap || chunk.len() >= self.groups as usize)
+                            {
                                 break;
                             }
                             for x in more {
@@ -555,6 +584,7 @@ impl BlockSweeper {
             .read(3, &self.geometry)
             .read(4, &self.scatter)
             .read(5, &self.work)
+            .read_write(6, &self.scratch)
             .push(&BlockPush {
                 dims: [l.dims[0], l.dims[1], l.dims[2], l.b],
                 layout: [l.record() as u32, l.channels, l.storage, l.slots],

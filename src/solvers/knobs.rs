@@ -28,6 +28,8 @@ pub enum Range {
     Choice(&'static [&'static str]),
     /// `true` or `false`.
     Bool,
+    /// One of these words, or the prefix followed by a non-empty argument (`file:DIR`).
+    ChoiceOrPrefix(&'static [&'static str], &'static str),
 }
 
 impl Range {
@@ -80,6 +82,13 @@ impl Range {
                 "true" | "false" => Ok(()),
                 _ => Err(format!("{t:?} is not {self}")),
             },
+            Range::ChoiceOrPrefix(words, prefix) => {
+                if words.contains(&t) || t.strip_prefix(prefix).is_some_and(|rest| !rest.is_empty()) {
+                    Ok(())
+                } else {
+                    Err(format!("{t:?} is not {self}"))
+                }
+            }
         }
     }
 }
@@ -96,6 +105,7 @@ impl fmt::Display for Range {
             }
             Range::Choice(words) => write!(f, "one of {}", words.join(", ")),
             Range::Bool => write!(f, "true or false"),
+            Range::ChoiceOrPrefix(words, prefix) => write!(f, "one of {} or {prefix}PATH", words.join(", ")),
         }
     }
 }

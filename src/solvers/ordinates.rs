@@ -248,7 +248,20 @@ impl Tables {
 
 impl Sweeper {
     pub fn new(gpu: &Gpu, s: &SweepSetup) -> Result<Sweeper, SolverError> {
+        Self::with_sweeps(gpu, s, true)
+    }
+
+    /// A sweeper for the direct source only (deposits and binning, [`Sweeper::read_first`]):
+    /// the field, faces and fluence that whole-grid sweeps need are left out, for when the
+    /// block sweeper (`solvers::blocks`) sweeps.
+    pub fn for_source(gpu: &Gpu, s: &SweepSetup) -> Result<Sweeper, SolverError> {
+        Self::with_sweeps(gpu, s, false)
+    }
+
+    fn with_sweeps(gpu: &Gpu, s: &SweepSetup, sweeps: bool) -> Result<Sweeper, SolverError> {
         let v = s.dims.iter().map(|d| *d as u64).product::<u64>();
+        // Without sweeps the per-direction buffers are one-float stand-ins.
+        let sv = if sweeps { v } else { 0 };
         let Tables {
             swept,
             storage,
@@ -266,7 +279,7 @@ impl Sweeper {
         let slots = count.iter().copied().max().unwrap_or(1).max(1);
         let nch = s.channels as u64;
         let characteristics = s.scheme == Scheme::Characteristics;
-        let face_bytes = if characteristics { 8 * slots as u64 * v * 4 } else { 4 };
+        let face_bytes = if characteristics { 8 * slots as u64 * sv * 4 } else { 4 };
         Ok(Sweeper {
             sweep: gpu.pipeline(&SWEEP, &[])?,
             scatter: gpu.pipeline(&SCATTER, &[])?,
@@ -294,7 +307,7 @@ impl Sweeper {
             footprint: gpu.buffer_with("ordinates storage footprints", &footprint)?,
             upsample: gpu.buffer_with("ordinates upsampling", &upsample)?,
             scatter_matrix: gpu.buffer_with("ordinates scattering", &scatter)?,
-            field: gpu.buffer("ordinates field", 8 * slots as u64 * v * 4)?,
+            field: gpu.buffer("ordinates field", 8 * slots as u64 * sv * 4)?,
             geometry: gpu.buffer_with("ordinates characteristics geometry", &geometry)?,
             faces: [
                 gpu.buffer("ordinates faces x", face_bytes)?,
@@ -302,8 +315,8 @@ impl Sweeper {
                 gpu.buffer("ordinates faces z", face_bytes)?,
             ],
             scheme: s.scheme,
-            fluence: gpu.buffer("ordinates fluence", nch * 8 * v * 4)?,
-            camera: gpu.buffer("ordinates toward the camera", nch * v * 4)?,
+            fluence: gpu.buffer("ordinates fluence", nch * 8 * sv * 4)?,
+            camera: gpu.buffer("ordinates toward the camera", nch * sv * 4)?,
             first_dir,
             count,
             slots,
@@ -312,16 +325,26 @@ impl Sweeper {
 
     /// Device bytes [`Sweeper::new`] allocates for `channels` channels of `voxels` voxels,
     /// `q` swept and `storage` stored (the memory estimate's figure).
-    pub fn bytes(voxels: u64, channels: u64, q: &Quadrature, storage: &Quadrature, scheme: Scheme) -> u64 {
+    /// Without `sweeps` ([`Sweeper::for_source`]) the field, faces, fluence and camera are left out.
+    pub fn bytes(
+        voxels: u64,
+        channels: u64,
+        q: &Quadrature,
+        storage: &Quadrature,
+        scheme: Scheme,
+        sweeps: bool,
+    ) -> u64 {
         let slots = q.by_octant().2.iter().copied().max().unwrap_or(1).max(1) as u64;
         let (n, m) = (q.len() as u64, storage.len() as u64);
         let upsampled = m > 1 && storage.name != q.name;
-        let floats = voxels * channels * (2 + 2 * m + 8 + 1)  // sigma_t, sigma_s, source, first, fluence, camera
-            + 8 * slots * voxels                              // the field
+        let sv = if sweeps { voxels } else { 0 };
+        let floats = voxels * channels * (2 + 2 * m)          // sigma_t, sigma_s, source, first
+            + sv * channels * (8 + 1)                         // fluence, camera
+            + 8 * slots * sv                                  // the field
             + n * 4 + m * 4 + m * 4                           // directions, storage directions, footprints
             + n * m                                           // the scattering matrix
             + if upsampled { n * m } else { 1 } // the upsampling (one float when unused)
-            + if scheme == Scheme::Characteristics { 20 * n + 3 * 8 * slots * voxels } else { 1 + 3 };
+            + if scheme == Scheme::Characteristics { 20 * n + 3 * 8 * slots * sv } else { 1 + 3 };
         4 * floats
     }
 
@@ -431,6 +454,11 @@ impl Sweeper {
                 pad: [0; 3],
             })
             .cover([v, 1, 1])
+    }
+
+    /// The first-scattering source the bin pass stored ([c][m][v], per unit volume and sr).
+    pub fn read_first(&self, gpu: &Gpu) -> Result<Vec<f32>, SolverError> {
+        Ok(gpu.read_buffer_as(&self.first)?)
     }
 
     /// Set the first-scattering source ([c][m][v], per unit volume and sr) and start the
