@@ -517,3 +517,28 @@ fn device_anisotropic_iteration_matches_the_cpu_oracle() {
     }
     assert_clean(&gpu);
 }
+
+/// The slab reference against DISORT (CDISORT 32 streams through `nanodisort`, run by
+/// tools/disort-crosscheck.py outside CI; its answers are constants here): the reflected and
+/// transmitted fluxes of the slabs the tests use, isotropic and DISORT's test problem 3 phase
+/// function (HG g 0.75), normal and oblique incidence, and the lossless slab.
+#[test]
+fn slab_reference_agrees_with_disort() {
+    let disort = [
+        // (tau, albedo, g, mu0, R, T)
+        (2.0, 0.8, 0.0, 1.0, 0.265939, 0.285950),
+        (2.0, 0.8, 0.75, 1.0, 0.061777, 0.534941),
+        (1.0, 0.9, 0.5, 0.5, 0.273592, 0.527525),
+        (2.0, 1.0, 0.75, 1.0, 0.163176, 0.836824),
+    ];
+    for (tau, albedo, g, mu0, r, t) in disort {
+        let a = slab_discrete_ordinates(tau, albedo, g, mu0, 12, 2000);
+        let (er, et) = (a.reflected / r - 1.0, a.transmitted / t - 1.0);
+        assert!(
+            er.abs() < 1e-3 && et.abs() < 1e-3,
+            "tau {tau}, albedo {albedo}, g {g}, mu0 {mu0}: R {:.6} vs DISORT {r} ({er:+.2e}), T {:.6} vs {t} ({et:+.2e})",
+            a.reflected,
+            a.transmitted
+        );
+    }
+}
