@@ -462,8 +462,29 @@ impl Solver for Dom {
             + view::device_bytes(scene, &set.view))
     }
 
-    fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
-        [8u32, 16, 24, 32, 48].iter().map(|g| Rung::one("dom.grid", g)).collect()
+    /// Over the grid and the number of directions N (issue 13's ladder), cheapest first: level-
+    /// symmetric sets where s6 resolves the phase function, product sets where |g| >= 0.8
+    /// (as `dom.directions=auto` picks).
+    fn ladder(&self, scene: &Scene) -> Vec<Rung> {
+        let rungs: &[(u32, &str)] = if scene.medium.g.abs() >= 0.8 {
+            &[
+                (16, "product-8x16"),
+                (24, "product-8x16"),
+                (32, "product-8x16"),
+                (32, "product-16x32"),
+                (48, "product-16x32"),
+            ]
+        } else {
+            &[(16, "s4"), (24, "s4"), (32, "s4"), (32, "s6"), (48, "s6"), (48, "s8")]
+        };
+        rungs
+            .iter()
+            .map(|(g, n)| Rung {
+                knob: "dom.grid".into(),
+                value: format!("{g}/{}", n.trim_start_matches("product-")),
+                sets: vec![("dom.grid".into(), g.to_string()), ("dom.directions".into(), n.to_string())],
+            })
+            .collect()
     }
 
     fn stability(&self) -> Vec<Variant> {
