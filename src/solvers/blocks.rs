@@ -12,7 +12,8 @@
 //! own block coordinates) in order, a precomputed block order; a dispatch sweeps a *chunk* of
 //! one plane, as many of its blocks as fit the pool with their upwind neighbours (whose outgoing
 //! faces are the chunk's incoming ones). Before a chunk runs, its missing blocks are loaded,
-//! evicting the least recently used slots outside the chunk (written back first when dirty).
+//! evicting the slots outside the chunk whose blocks are needed again farthest ahead (the whole
+//! iteration's schedule is known: Belady's order), written back first when dirty.
 //! Uploads and write-backs are buffer copies on the `trace` role's queue, ordered against the
 //! sweeps on the `diffuse` role by timeline semaphores: a copy waits only for the last sweep
 //! that used its slot, and a sweep for the copies before it, so on a device whose roles have
@@ -249,8 +250,6 @@ struct Residency {
     slot_block: Vec<Option<u32>>,
     block_slot: Vec<Option<u32>>,
     dirty: Vec<bool>,
-    tick: Vec<u64>,
-    now: u64,
 }
 
 impl Residency {
@@ -259,24 +258,25 @@ impl Residency {
             slot_block: vec![None; slots as usize],
             block_slot: vec![None; blocks as usize],
             dirty: vec![false; slots as usize],
-            tick: vec![0; slots as usize],
-            now: 0,
         }
     }
-    /// Make `needed` resident, evicting the least recently used slots outside it (free ones
-    /// first, then the oldest; ties by slot): (slot, evicted dirty block, loaded block).
-    fn admit(&mut self, needed: &[u32]) -> Vec<(u32, Option<u32>, u32)> {
-        self.now += 1;
+    /// Make `needed` resident, evicting slots outside it: free ones first, then the one whose
+    /// block `next_use` puts farthest ahead (ties by slot). Returns (slot, evicted dirty block,
+    /// loaded block) per load.
+    fn admit(&mut self, needed: &[u32], next_use: impl Fn(u32) -> usize) -> Vec<(u32, Option<u32>, u32)> {
         let pinned: HashSet<u32> = needed.iter().filter_map(|b| self.block_slot[*b as usize]).collect();
         let mut loads = Vec::new();
-        let mut taken = pinned.clone();
+        let mut taken = pinned;
         for &b in needed {
             if self.block_slot[b as usize].is_some() {
                 continue;
             }
             let victim = (0..self.slot_block.len() as u32)
                 .filter(|s| !taken.contains(s))
-                .min_by_key(|s| (self.slot_block[*s as usize].is_some(), self.tick[*s as usize], *s))
+                .max_by_key(|s| match self.slot_block[*s as usize] {
+                    None => (1, usize::MAX, u32::MAX - s),
+                    Some(e) => (0, next_use(e), u32::MAX - s),
+                })
                 .expect("the pool holds a chunk's working set");
             taken.insert(victim);
             let evicted = self.slot_block[victim as usize].take();
@@ -288,10 +288,6 @@ impl Residency {
             self.block_slot[b as usize] = Some(victim);
             self.dirty[victim as usize] = false;
             loads.push((victim, written, b));
-        }
-        for &b in needed {
-            let s = self.block_slot[b as usize].expect("admitted") as usize;
-            self.tick[s] = self.now;
         }
         loads
     }
@@ -514,8 +510,9 @@ impl BlockSweeper {
     fn plan_iteration(&mut self) -> (Vec<Step>, Vec<[u32; 4]>) {
         let l = self.layout;
         let cap = self.pool_slots as usize;
-        let mut steps = Vec::new();
-        let mut work: Vec<[u32; 4]> = Vec::new();
+        // The chunks in sweep order: channel, octant, block plane, then as many of the plane's
+        // blocks as fit the pool with their upwind neighbours.
+        let mut chunks: Vec<(u32, u32, Vec<u32>, Vec<u32>)> = Vec::new();
         for c in 0..l.channels {
             for o in 0..8u32 {
                 if self.count[o as usize] == 0 {
@@ -524,7 +521,6 @@ impl BlockSweeper {
                 for plane in l.planes(o) {
                     let mut i = 0;
                     while i < plane.len() {
-                        // Grow the chunk while its blocks and their upwind neighbours fit.
                         let mut chunk: Vec<u32> = Vec::new();
                         let mut needed: Vec<u32> = Vec::new();
                         while i < plane.len() {
@@ -544,32 +540,42 @@ impl BlockSweeper {
                             chunk.push(b);
                             i += 1;
                         }
-                        let loads = self.residency.admit(&needed);
-                        let work_first = (work.len() / 2) as u32;
-                        for &b in &chunk {
-                            let slot = self.residency.block_slot[b as usize].expect("resident");
-                            self.residency.dirty[slot as usize] = true;
-                            let up = l.upwind(b, o).map(|u| {
-                                u.map_or(u32::MAX, |u| self.residency.block_slot[u as usize].expect("resident"))
-                            });
-                            let lo = l.lo(b);
-                            let e = l.ext(b);
-                            work.push([slot, up[0], up[1], up[2]]);
-                            work.push([lo[0], lo[1], lo[2], e[0] | e[1] << 8 | e[2] << 16]);
-                        }
-                        let slots =
-                            needed.iter().map(|b| self.residency.block_slot[*b as usize].expect("resident")).collect();
-                        steps.push(Step {
-                            loads,
-                            channel: c,
-                            octant: o,
-                            work_first,
-                            work_count: chunk.len() as u32,
-                            slots,
-                        });
+                        chunks.push((c, o, chunk, needed));
                     }
                 }
             }
+        }
+        // Every block's uses, in order: the whole iteration's schedule is known, so eviction
+        // takes the block needed again farthest ahead (Belady's order, optimal for loads).
+        let mut uses: Vec<std::collections::VecDeque<usize>> = vec![Default::default(); l.blocks() as usize];
+        for (i, (_, _, _, needed)) in chunks.iter().enumerate() {
+            for &b in needed {
+                uses[b as usize].push_back(i);
+            }
+        }
+        let mut steps = Vec::new();
+        let mut work: Vec<[u32; 4]> = Vec::new();
+        for (i, (c, o, chunk, needed)) in chunks.into_iter().enumerate() {
+            for &b in &needed {
+                while uses[b as usize].front().is_some_and(|u| *u <= i) {
+                    uses[b as usize].pop_front();
+                }
+            }
+            let loads = self.residency.admit(&needed, |b| uses[b as usize].front().copied().unwrap_or(usize::MAX));
+            let work_first = (work.len() / 2) as u32;
+            for &b in &chunk {
+                let slot = self.residency.block_slot[b as usize].expect("resident");
+                self.residency.dirty[slot as usize] = true;
+                let up = l
+                    .upwind(b, o)
+                    .map(|u| u.map_or(u32::MAX, |u| self.residency.block_slot[u as usize].expect("resident")));
+                let lo = l.lo(b);
+                let e = l.ext(b);
+                work.push([slot, up[0], up[1], up[2]]);
+                work.push([lo[0], lo[1], lo[2], e[0] | e[1] << 8 | e[2] << 16]);
+            }
+            let slots = needed.iter().map(|b| self.residency.block_slot[*b as usize].expect("resident")).collect();
+            steps.push(Step { loads, channel: c, octant: o, work_first, work_count: chunk.len() as u32, slots });
         }
         (steps, work)
     }
