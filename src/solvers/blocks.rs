@@ -31,7 +31,7 @@ use crate::gpu::{Buffer, Copy, Gpu, Kernel, Pass, Pipeline, QueueRole, SyncPoint
 use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 
-use super::ordinates::{to_vec4, Eye, Storage, SweepSetup, Tables};
+use super::ordinates::{to_vec4, Storage, SweepSetup, Tables};
 use super::SolverError;
 
 pub const BLOCK_SWEEP: Kernel =
@@ -322,19 +322,10 @@ pub struct BlockSweeper {
     grid: [f32; 4],
     eye: [f32; 4],
     g: f32,
-    /// The storage directions (by octant when they are the swept set).
-    pub storage: Quadrature,
-    pub quadrature_g: f64,
     pub stats: StreamStats,
 }
 
 impl BlockSweeper {
-    /// Device bytes of everything but the pool, for `channels`, the swept set `q` and storage.
-    fn fixed_bytes(layout: &BlockLayout, n: u64, m: u64, upsampled: bool, characteristics: bool) -> u64 {
-        let work = 8 * layout.channels as u64 * layout.blocks() as u64 * 32;
-        4 * (4 * n + if upsampled { n * m } else { 1 } + if characteristics { 20 * n } else { 1 } + n * m) + work
-    }
-
     /// The layout and the fixed device bytes for a setup (the memory estimate's figures).
     pub fn plan(
         dims: [u32; 3],
@@ -347,8 +338,14 @@ impl BlockSweeper {
         let slots = q.by_octant().2.iter().copied().max().unwrap_or(1).max(1);
         let m = storage.len() as u32;
         let layout = BlockLayout::new(dims, block, channels, m, slots);
+        // Everything but the pool and the scratch: directions, upsampling (one float when
+        // unused), characteristics' geometry, the scattering matrix and the work table.
+        let (n, m) = (q.len() as u64, m as u64);
         let upsampled = m > 1 && storage.name != q.name;
-        let fixed = Self::fixed_bytes(&layout, q.len() as u64, m as u64, upsampled, scheme == Scheme::Characteristics);
+        let characteristics = scheme == Scheme::Characteristics;
+        let work = 8 * channels as u64 * layout.blocks() as u64 * 32;
+        let fixed =
+            4 * (4 * n + if upsampled { n * m } else { 1 } + if characteristics { 20 * n } else { 1 } + n * m) + work;
         (layout, fixed)
     }
 
@@ -357,17 +354,8 @@ impl BlockSweeper {
             return Err(SolverError::Unsupported(format!("dom.block must be 1..={MAX_BLOCK}, got {}", opts.block)));
         }
         let t = Tables::new(s)?;
-        let slots = t.count.iter().copied().max().unwrap_or(1).max(1);
-        let m = t.storage.len() as u32;
-        let layout = BlockLayout::new(s.dims, opts.block, s.channels, m, slots);
+        let (layout, fixed) = Self::plan(s.dims, s.channels, s.quadrature, s.storage, s.scheme, opts.block);
         let record_bytes = layout.record() * 4;
-        let fixed = Self::fixed_bytes(
-            &layout,
-            t.swept.len() as u64,
-            m as u64,
-            t.mode == Storage::Upsampled,
-            s.scheme == Scheme::Characteristics,
-        );
         let blocks = layout.blocks();
         let max_binding = gpu.info().max_storage_buffer_range;
         let binding_slots = (max_binding / record_bytes).min(u32::MAX as u64) as u32;
@@ -454,13 +442,8 @@ impl BlockSweeper {
             count: t.count,
             n_dirs: t.swept.len() as u32,
             grid: [s.origin[0], s.origin[1], s.origin[2], s.h],
-            eye: match s.eye {
-                Eye::Point(p) => [p[0], p[1], p[2], 0.0],
-                Eye::Toward(d) => [d[0], d[1], d[2], 1.0],
-            },
+            eye: s.eye.packed(),
             g: s.g as f32,
-            storage: t.storage,
-            quadrature_g: t.quadrature_g,
             stats: StreamStats { blocks, pool_slots, record_bytes, ..Default::default() },
         })
     }

@@ -112,7 +112,9 @@ impl DomSettings {
         let scheme: String = k.get("scheme")?;
         let block: String = k.get("block")?;
         let budget: f64 = k.get("budget")?;
-        if block == "0" && (budget > 0.0 || k.is_set("store")) {
+        let store: String = k.get("store")?;
+        let streams = budget > 0.0 || k.is_set("store");
+        if block == "0" && streams {
             return Err(k.invalid("budget", "dom.budget and dom.store stream blocks: set dom.block to 1..16 too"));
         }
         Ok(DomSettings {
@@ -122,24 +124,15 @@ impl DomSettings {
             scheme: if scheme == "step" { Scheme::Step } else { Scheme::Characteristics },
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
-            block: {
-                let b: String = k.get("block")?;
-                match b.as_str() {
-                    "auto" if budget > 0.0 || k.is_set("store") => Some(16),
-                    "auto" => None,
-                    n => Some(n.parse().map_err(|_| k.invalid("block", "not a whole number"))?),
-                }
+            block: match block.as_str() {
+                "auto" if streams => Some(16),
+                "auto" => None,
+                n => Some(n.parse().map_err(|_| k.invalid("block", "not a whole number"))?),
             },
-            budget: {
-                let mib: f64 = k.get("budget")?;
-                (mib > 0.0).then(|| (mib * 1048576.0) as u64)
-            },
-            store: {
-                let store: String = k.get("store")?;
-                match store.strip_prefix("file:") {
-                    Some(dir) => StoreKind::File(dir.into()),
-                    None => StoreKind::Memory,
-                }
+            budget: (budget > 0.0).then(|| (budget * 1048576.0) as u64),
+            store: match store.strip_prefix("file:") {
+                Some(dir) => StoreKind::File(dir.into()),
+                None => StoreKind::Memory,
             },
             march: MarchSettings::parse(k, geom.lambda)?,
             view: ViewSettings::parse(k, "view_", scene)?,

@@ -98,6 +98,16 @@ pub enum Eye {
     Toward([f32; 3]),
 }
 
+impl Eye {
+    /// As the kernels read it: xyz the position (w = 0) or the direction toward it (w = 1).
+    pub(crate) fn packed(self) -> [f32; 4] {
+        match self {
+            Eye::Point(p) => [p[0], p[1], p[2], 0.0],
+            Eye::Toward(d) => [d[0], d[1], d[2], 1.0],
+        }
+    }
+}
+
 /// What a [`Sweeper`] sweeps: a grid of cubic voxels, per channel extinction and scattering,
 /// the swept and the storage directions.
 pub struct SweepSetup<'a> {
@@ -294,10 +304,7 @@ impl Sweeper {
             mode,
             g: s.g as f32,
             grid: [s.origin[0], s.origin[1], s.origin[2], s.h],
-            eye: match s.eye {
-                Eye::Point(p) => [p[0], p[1], p[2], 0.0],
-                Eye::Toward(d) => [d[0], d[1], d[2], 1.0],
-            },
+            eye: s.eye.packed(),
             sigma_t: gpu.buffer_with("ordinates sigma_t", s.sigma_t)?,
             sigma_s: gpu.buffer_with("ordinates sigma_s", s.sigma_s)?,
             source: gpu.buffer("ordinates source", nch * m * v * 4)?,
