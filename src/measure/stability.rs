@@ -252,7 +252,12 @@ fn judge(case: &Case, r: &solvers::RenderOutput, bound: Option<&(Image, f64)>, e
         Some((bi, bv)) => {
             let sx: f64 = img.data.iter().map(|v| *v as f64).sum();
             let sb: f64 = bi.data.iter().map(|v| *v as f64).sum();
-            let ok = sx <= sb + 5.0 * (r.total_variance() + bv).sqrt() + 1e-6 * sb.abs();
+            // Plus an absolute 1e-12 per pixel: where the medium is thousands of mean free paths
+            // thick, path's lossless paths end at their depth limit before leaving, its bound is
+            // exactly 0, and a deterministic solver's leakage of 1e-19 (dom, tau 1e4) would fail
+            // a check that no image file can resolve (docs/devices/nvidia-h100-2026-11-25).
+            let floor = 1e-12 * img.data.len() as f64;
+            let ok = sx <= sb + 5.0 * (r.total_variance() + bv).sqrt() + 1e-6 * sb.abs() + floor;
             (ok, if sb > 0.0 { sx / sb - 1.0 } else { 0.0 })
         }
     };

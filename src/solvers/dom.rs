@@ -152,7 +152,7 @@ impl Solver for Dom {
 
     fn knobs(&self) -> Vec<Knob> {
         let mut k = vec![
-            Knob::fixed("grid", "32", Range::int(2, 256), "voxels along the medium's longest side"),
+            Knob::fixed("grid", "32", Range::int(2, 512), "voxels along the medium's longest side"),
             Knob::fixed(
                 "directions",
                 "auto",
