@@ -131,6 +131,30 @@ fn buffers_round_trip() {
     assert_clean(&gpu);
 }
 
+/// The host-work counters (reports' `host`) count what the core did, with the bytes it moved,
+/// and start again from zero once taken.
+#[test]
+fn host_work_is_counted() {
+    let gpu = gpu();
+    gpu.take_host_times();
+    let data: Vec<u32> = (0..1000).collect();
+    let b = gpu.buffer_with("counted", &data).unwrap();
+    let _z = gpu.buffer("counted zeros", 4096).unwrap();
+    let back = gpu.read_buffer(&b).unwrap();
+    assert_eq!(back.len(), 4000);
+    let h = gpu.take_host_times();
+    assert!(h.allocations.count >= 2, "{h:?}");
+    assert!(h.allocations.bytes >= 4000 + 4096, "{h:?}");
+    assert_eq!(h.fills.count, 2, "{h:?}");
+    assert_eq!(h.fills.bytes, 4000 + 4096, "{h:?}");
+    assert_eq!((h.uploads.count, h.uploads.bytes), (1, 4000), "{h:?}");
+    assert_eq!((h.readbacks.count, h.readbacks.bytes), (1, 4000), "{h:?}");
+    assert!([h.allocations.ms, h.fills.ms, h.uploads.ms, h.readbacks.ms].iter().all(|ms| *ms >= 0.0 && ms.is_finite()));
+    let again = gpu.take_host_times();
+    assert_eq!(again, scatterlab::gpu::HostTimes::default());
+    assert_clean(&gpu);
+}
+
 /// The majorant grid bounds the trilinear density everywhere (a low majorant would bias
 /// delta tracking): dense random points against the CPU reference interpolation.
 #[test]

@@ -108,6 +108,7 @@ impl Solver for Absorber {
             device_bytes: 0,
             passes: Vec::new(),
             gpu_ms: 0.0,
+            host: Default::default(),
             stats: Stats::new(()),
             warnings: Vec::new(),
         };

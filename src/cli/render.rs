@@ -306,6 +306,7 @@ fn write_outputs(
             "device_bytes": r.device_bytes,
             "gpu_ms": r.gpu_ms,
             "wall_s": wall_s,
+            "host": r.host,
             "passes": r.passes,
             "stats": r.stats,
             "warnings": r.warnings,
@@ -348,6 +349,9 @@ fn print_summary(
     }
     eprintln!("{}", r.modelled.describe());
     eprintln!("{} passes, GPU {:.1} ms, wall {:.2} s", r.passes.len(), r.gpu_ms, wall_s);
+    if let Some(line) = r.host.summary() {
+        eprintln!("{line}");
+    }
     for line in solver.summary(r) {
         eprintln!("{line}");
     }

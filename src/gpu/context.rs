@@ -405,6 +405,7 @@ fn choose(cands: Vec<Candidate>, wanted: Option<&str>) -> Result<Candidate> {
 pub struct Gpu {
     pub(crate) shared: Arc<Shared>,
     pub(crate) submit: Arc<Mutex<super::submit::SubmitState>>,
+    pub(crate) host: Arc<Mutex<super::host::HostTimes>>,
     pub(crate) timeout: Duration,
 }
 
@@ -573,8 +574,19 @@ impl Gpu {
         Ok(Gpu {
             shared: Arc::new(shared),
             submit: Arc::new(Mutex::new(super::submit::SubmitState::default())),
+            host: Arc::new(Mutex::new(super::host::HostTimes::default())),
             timeout: opts.timeout,
         })
+    }
+
+    /// Count `bytes` of host work of `kind` that began at `started` (super::host).
+    pub(crate) fn host_add(&self, kind: super::host::HostKind, bytes: u64, started: std::time::Instant) {
+        self.host.lock().expect("host times lock").add(kind, bytes, started);
+    }
+
+    /// Take the host work counted so far ([`super::HostTimes`]) and start again from zero.
+    pub fn take_host_times(&self) -> super::HostTimes {
+        std::mem::take(&mut *self.host.lock().expect("host times lock"))
     }
 
     pub fn info(&self) -> &DeviceInfo {

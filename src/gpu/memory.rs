@@ -2,6 +2,7 @@
 //! when the last reference (including an in-flight submission's) is dropped.
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
@@ -9,6 +10,7 @@ use gpu_allocator::MemoryLocation;
 
 use super::context::{Gpu, Shared};
 use super::error::{GpuError, Result, VkContext};
+use super::host::HostKind;
 
 pub(crate) struct BufferInner {
     pub shared: Arc<Shared>,
@@ -151,6 +153,7 @@ impl Gpu {
         usage: vk::BufferUsageFlags,
         location: MemoryLocation,
     ) -> Result<Buffer> {
+        let started = Instant::now();
         let s = &self.shared;
         let (mode, fams) = self.sharing(&s.sharing_families);
         let info = vk::BufferCreateInfo::default()
@@ -181,6 +184,7 @@ impl Gpu {
         unsafe { s.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) }
             .vk("vkBindBufferMemory")?;
         s.name_object(raw, name);
+        self.host_add(HostKind::Allocations, size, started);
         Ok(Buffer {
             inner: Arc::new(BufferInner {
                 shared: s.clone(),
@@ -210,13 +214,17 @@ impl Gpu {
     }
 
     fn fill_zero(&self, b: &Buffer) -> Result<()> {
+        let started = Instant::now();
         if let Some(p) = b.mapped() {
             unsafe { std::ptr::write_bytes(p, 0, b.size() as usize) };
+            self.host_add(HostKind::Fills, b.size(), started);
             return Ok(());
         }
         let raw = b.raw();
         let size = b.size();
-        self.one_shot(&[b.clone()], &[], |d, cb| unsafe { d.cmd_fill_buffer(cb, raw, 0, size, 0) })
+        self.one_shot(&[b.clone()], &[], |d, cb| unsafe { d.cmd_fill_buffer(cb, raw, 0, size, 0) })?;
+        self.host_add(HostKind::Fills, size, started);
+        Ok(())
     }
 
     /// Write `bytes` at `offset` (direct when the memory is host-visible, else via staging).
@@ -233,10 +241,12 @@ impl Gpu {
         if bytes.is_empty() {
             return Ok(());
         }
+        let started = Instant::now();
         if let Some(p) = b.mapped() {
             // Host writes to coherent memory are made visible by the next queue submission.
             self.wait_idle_roles()?;
             unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p.add(offset as usize), bytes.len()) };
+            self.host_add(HostKind::Uploads, bytes.len() as u64, started);
             return Ok(());
         }
         let (stage, p) = self.staging("staging upload", bytes.len() as u64, MemoryLocation::CpuToGpu)?;
@@ -244,7 +254,9 @@ impl Gpu {
         let (src, dst, n) = (stage.raw(), b.raw(), bytes.len() as u64);
         self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
             d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size: n }])
-        })
+        })?;
+        self.host_add(HostKind::Uploads, n, started);
+        Ok(())
     }
 
     /// Read the whole buffer back to the host, after all submitted work has finished.
@@ -256,10 +268,12 @@ impl Gpu {
     /// submitted work has finished.
     pub fn read_buffer_prefix(&self, b: &Buffer, bytes: u64) -> Result<Vec<u8>> {
         let n = bytes.min(b.size());
+        let started = Instant::now();
         self.wait_idle_roles()?;
         if let Some(p) = b.mapped() {
             let mut out = vec![0u8; n as usize];
             unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
+            self.host_add(HostKind::Readbacks, n, started);
             return Ok(out);
         }
         let (stage, p) = self.staging("staging readback", n, MemoryLocation::GpuToCpu)?;
@@ -269,6 +283,7 @@ impl Gpu {
         })?;
         let mut out = vec![0u8; n as usize];
         unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
+        self.host_add(HostKind::Readbacks, n, started);
         Ok(out)
     }
 

@@ -4,6 +4,7 @@
 
 mod context;
 mod error;
+mod host;
 mod memory;
 mod pipeline;
 mod queues;
@@ -13,6 +14,7 @@ pub use context::{
     choose_device, list_devices, DeviceInfo, DeviceSummary, Gpu, GpuOptions, ENV_DEVICE, ENV_TIMEOUT, ENV_VALIDATE,
 };
 pub use error::{GpuError, Result};
+pub use host::{HostCost, HostTimes};
 pub use memory::{Buffer, Image3d, VolumeFormat};
 pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, Reflection, ShaderSource, Spec, SpecKind};
 pub use queues::{map_roles, FamilyInfo, MappingKind, QueueRole, QueueSlot, RoleMapping};

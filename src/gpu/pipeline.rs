@@ -232,6 +232,7 @@ impl Gpu {
     /// shader with the same type (a mismatch is an error naming the shader, never a silent
     /// default).
     pub fn pipeline(&self, kernel: &Kernel, spec: &[(u32, Spec)]) -> Result<Pipeline> {
+        let started = std::time::Instant::now();
         let src = &kernel.shader;
         let reflection = reflect(src)?;
         let given: BTreeMap<u32, SpecKind> = spec.iter().map(|(id, v)| (*id, v.kind())).collect();
@@ -300,6 +301,7 @@ impl Gpu {
         unsafe { d.destroy_shader_module(module, None) };
         let pipeline = pipeline.map_err(|(_, e)| GpuError::Vk { call: "vkCreateComputePipelines", result: e })?[0];
         s.name_object(pipeline, src.name);
+        self.host_add(super::host::HostKind::Pipelines, 0, started);
         Ok(Pipeline {
             inner: Arc::new(PipelineInner { shared: s.clone(), pipeline, layout, set_layout }),
             name: src.name,

@@ -386,35 +386,53 @@ impl Gpu {
         let keep: Vec<Resource> =
             stages.iter().flatten().flat_map(|c| [Resource::from(&c.src), Resource::from(&c.dst)]).collect();
         let d = self.shared.device.clone();
-        self.record_and_submit(role, waits, vec!["copies".into()], keep, Vec::new(), None, |cb, _| unsafe {
-            for (i, stage) in stages.iter().enumerate() {
-                if i > 0 {
-                    let mb = vk::MemoryBarrier2::default()
-                        .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                        .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ)
-                        .dst_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                        .dst_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ);
-                    d.cmd_pipeline_barrier2(
-                        cb,
-                        &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)),
-                    );
+        // Timed like a pass (one "copies" entry on the role's timeline), so streaming shows in
+        // the overlap figures and the Perfetto trace beside the sweeps it feeds.
+        let s = &self.shared;
+        let timed = s.info.queue_families.iter().any(|f| f.index == s.role(role).family && f.timestamp_valid_bits > 0);
+        self.record_and_submit(
+            role,
+            waits,
+            vec!["copies".into()],
+            keep,
+            Vec::new(),
+            timed.then_some(2),
+            |cb, pool| unsafe {
+                if let Some(p) = pool {
+                    d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::ALL_TRANSFER, p, 0);
                 }
-                for c in stage {
-                    d.cmd_copy_buffer(
-                        cb,
-                        c.src.raw(),
-                        c.dst.raw(),
-                        &[vk::BufferCopy { src_offset: c.src_offset, dst_offset: c.dst_offset, size: c.size }],
-                    );
+                for (i, stage) in stages.iter().enumerate() {
+                    if i > 0 {
+                        let mb = vk::MemoryBarrier2::default()
+                            .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+                            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ)
+                            .dst_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+                            .dst_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ);
+                        d.cmd_pipeline_barrier2(
+                            cb,
+                            &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)),
+                        );
+                    }
+                    for c in stage {
+                        d.cmd_copy_buffer(
+                            cb,
+                            c.src.raw(),
+                            c.dst.raw(),
+                            &[vk::BufferCopy { src_offset: c.src_offset, dst_offset: c.dst_offset, size: c.size }],
+                        );
+                    }
                 }
-            }
-            let mb = vk::MemoryBarrier2::default()
-                .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-                .dst_access_mask(vk::AccessFlags2::HOST_READ);
-            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
-        })
+                let mb = vk::MemoryBarrier2::default()
+                    .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+                    .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                    .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+                    .dst_access_mask(vk::AccessFlags2::HOST_READ);
+                d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+                if let Some(p) = pool {
+                    d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::ALL_TRANSFER, p, 1);
+                }
+            },
+        )
     }
 
     /// Record a command buffer with `record` and submit it on `role` with waits and a signal.
@@ -429,6 +447,7 @@ impl Gpu {
         query_count: Option<u32>,
         record: impl FnOnce(vk::CommandBuffer, Option<vk::QueryPool>),
     ) -> Result<SyncPoint> {
+        let started = Instant::now();
         let s = self.shared.clone();
         let d = &s.device;
         let rq = s.role(role);
@@ -517,6 +536,8 @@ impl Gpu {
             _pipelines: pipelines,
             calibration,
         });
+        drop(st);
+        self.host_add(super::host::HostKind::Submits, 0, started);
         Ok(point)
     }
 
@@ -552,6 +573,7 @@ impl Gpu {
         let info = vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values);
         let started = Instant::now();
         let r = unsafe { s.device.wait_semaphores(&info, self.timeout.as_nanos().min(u64::MAX as u128) as u64) };
+        self.host_add(super::host::HostKind::Waits, 0, started);
         match r {
             Ok(()) => self.collect(),
             Err(vk::Result::TIMEOUT) => {

@@ -232,6 +232,8 @@ pub struct StreamStats {
     pub uploads: u64,
     pub write_backs: u64,
     pub dispatches: u64,
+    /// Host ms spent copying records between the store and the staging ring (both ways).
+    pub staging_ms: f64,
 }
 
 /// One chunk of the plan: the copies before it and its dispatch.
@@ -633,9 +635,11 @@ impl BlockSweeper {
                             rec as usize,
                         )
                     };
+                    let t = std::time::Instant::now();
                     dst.copy_from_slice(
                         &self.store.data()[(loaded as u64 * rec) as usize..((loaded as u64 + 1) * rec) as usize],
                     );
+                    self.stats.staging_ms += t.elapsed().as_secs_f64() * 1e3;
                     up.push(Copy {
                         src: self.staging.clone(),
                         src_offset: (region + 1) * bytes,
@@ -656,11 +660,13 @@ impl BlockSweeper {
     /// Copy what the ring's finished write-backs hold into the store.
     fn settle(&mut self, regions: &[(u64, u32)]) {
         let rec = self.layout.record() as usize;
+        let t = std::time::Instant::now();
         for &(region, block) in regions {
             // Safety: the copy into this region has completed (the caller waited for it).
             let src = unsafe { std::slice::from_raw_parts(self.staging_ptr.add(region as usize * rec), rec) };
             self.store.data_mut()[block as usize * rec..(block as usize + 1) * rec].copy_from_slice(src);
         }
+        self.stats.staging_ms += t.elapsed().as_secs_f64() * 1e3;
     }
 
     /// One scattering iteration of every channel: sweep the stored source over the blocks, then

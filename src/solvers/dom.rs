@@ -20,7 +20,6 @@
 //!    camera by the phase function at each voxel (scatter.comp), trilinear between voxel
 //!    centres; nothing is counted twice.
 //!
-//! Not yet (issue 13): blocks and out-of-core streaming.
 
 use serde::Serialize;
 
@@ -66,6 +65,9 @@ pub struct DomStats {
     pub streaming: Option<StreamStats>,
     /// Device bytes of the block sweeps (pool and tables), within dom.budget.
     pub sweep_device_bytes: u64,
+    /// Wall-clock ms of the render's stages, in order (setup, direct source, blocks,
+    /// iterations, view): where the time goes when the GPU is not the bottleneck.
+    pub stages_ms: Vec<(&'static str, f64)>,
 }
 
 struct DomSettings {
@@ -147,7 +149,7 @@ impl Solver for Dom {
 
     fn about(&self) -> &'static str {
         "modified discrete ordinates: marched first-scattering source binned into storage directions, octant sweeps \
-         with step characteristics, source iteration on the device (thesis ch. 5; in-core so far)"
+         with step characteristics, source iteration on the device (thesis ch. 5; blocks stream from host memory or a file past dom.budget)"
     }
 
     fn knobs(&self) -> Vec<Knob> {
@@ -226,6 +228,12 @@ impl Solver for Dom {
         let k = req.knobs(self)?;
         let set = DomSettings::parse(&k, scene)?;
         k.finish()?;
+        let mut stages: Vec<(&'static str, f64)> = Vec::new();
+        let mut t = std::time::Instant::now();
+        let mut stage = |name: &'static str| {
+            stages.push((name, t.elapsed().as_secs_f64() * 1e3));
+            t = std::time::Instant::now();
+        };
         let gs = GpuScene::upload(gpu, scene, req.force_full)?;
         // One channel when the medium and every light are grey (as lbl's lattice).
         let nch = gpu_scene::channels(scene, gs.modelled.chromatic);
@@ -268,6 +276,7 @@ impl Solver for Dom {
         });
         let sweeper = if block > 0 { Sweeper::for_source(gpu, &setup)? } else { Sweeper::new(gpu, &setup)? };
 
+        stage("setup");
         // 5.2: march the light, summing each voxel's deposits per beam.
         let beams = marcher.beams.len();
         let sums = sweeper.deposit_sums(gpu, beams)?;
@@ -294,11 +303,13 @@ impl Solver for Dom {
         let point =
             gpu.submit(QueueRole::Diffuse, &[sweeper.bin_pass(&sums, &table, beams as u32, marcher.scale)], &[])?;
         gpu.wait(point)?;
+        stage("direct source");
         let v = geom.voxels() as usize;
         let mut blocked = if block > 0 {
             let opts = BlockOptions { block, budget: set.budget, store: set.store.clone() };
             let mut b = BlockSweeper::new(gpu, &setup, &opts)?;
             b.set_first(gpu, &sweeper.read_first(gpu)?)?;
+            stage("block store");
             Some(b)
         } else {
             None
@@ -333,6 +344,7 @@ impl Solver for Dom {
                 break;
             }
         }
+        stage("iterations");
         // The light each voxel scatters toward the camera, as the energy per voxel that the view
         // pass scatters isotropically (fluence = energy / lambda^2, as lbl's lattice).
         let camera = match &blocked {
@@ -348,6 +360,7 @@ impl Solver for Dom {
             flux: FluxUse::None,
         };
         let res = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
+        stage("view");
         let device = gs.bytes
             + marcher.device_bytes()
             + sweeper.device_bytes()
@@ -379,6 +392,7 @@ impl Solver for Dom {
             block,
             streaming: blocked.as_ref().map(|b| b.stats),
             sweep_device_bytes: blocked.as_ref().map_or(0, |b| b.device_bytes()),
+            stages_ms: stages,
         };
         if !converged {
             report.warnings.push(format!(
@@ -523,6 +537,14 @@ impl Solver for Dom {
                 st.write_backs,
                 s.sweep_device_bytes as f64 / 1048576.0
             ));
+        }
+        if !s.stages_ms.is_empty() {
+            let parts: Vec<String> = s.stages_ms.iter().map(|(n, ms)| format!("{n} {:.0} ms", ms)).collect();
+            let staging = match &s.streaming {
+                Some(st) if st.staging_ms >= 1.0 => format!(" (staging copies on the host {:.0} ms)", st.staging_ms),
+                _ => String::new(),
+            };
+            lines.push(format!("dom: wall {}{staging}", parts.join(", ")));
         }
         lines
     }

@@ -301,6 +301,8 @@ pub struct RenderReport {
     pub device_bytes: u64,
     pub passes: Vec<PassTiming>,
     pub gpu_ms: f64,
+    /// The Vulkan core's host work during the render (pipelines, allocations, copies, waits).
+    pub host: crate::gpu::HostTimes,
     pub stats: Stats,
     pub warnings: Vec<String>,
 }
@@ -322,6 +324,7 @@ impl RenderReport {
             modelled,
             device_bytes,
             gpu_ms: passes.iter().map(|p| p.duration_ms()).sum(),
+            host: gpu.take_host_times(),
             passes,
             stats,
             warnings: Vec::new(),
