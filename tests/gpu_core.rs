@@ -155,6 +155,34 @@ fn host_work_is_counted() {
     assert_clean(&gpu);
 }
 
+/// The transfer role copies between buffers made for it (host staging and transfer buffers),
+/// ordered against the compute roles by timeline semaphores, and refuses any other buffer (on
+/// a device with a transfer-only family its queue could not touch one).
+#[test]
+fn transfer_role_copies_only_buffers_made_for_it() {
+    use scatterlab::gpu::Copy;
+    let gpu = gpu();
+    let n = 256u64;
+    let (stage, ptr) = gpu.host_buffer("transfer staging", n * 4).unwrap();
+    let data: Vec<f32> = (0..n).map(|i| i as f32 * 0.5).collect();
+    unsafe { std::ptr::copy_nonoverlapping(data.as_ptr() as *const u8, ptr, (n * 4) as usize) };
+    let pool = gpu.transfer_buffer("transfer pool", n * 4).unwrap();
+    let up = Copy { src: stage.clone(), src_offset: 0, dst: pool.clone(), dst_offset: 0, size: n * 4 };
+    let p = gpu.submit_copies(QueueRole::Transfer, &[vec![up]], &[]).unwrap();
+    assert_eq!(p.role, QueueRole::Transfer);
+    gpu.wait(p).unwrap();
+    let back: Vec<f32> = gpu.read_buffer_as(&pool).unwrap();
+    assert_eq!(back, data);
+    let plain = gpu.buffer("plain", n * 4).unwrap();
+    let bad = Copy { src: stage.clone(), src_offset: 0, dst: plain, dst_offset: 0, size: n * 4 };
+    let e = gpu.submit_copies(QueueRole::Transfer, &[vec![bad]], &[]).unwrap_err().to_string();
+    assert!(e.contains("\"plain\"") && e.contains("transfer_buffer"), "{e}");
+    // The copy is timed on the transfer role's track.
+    let timings = gpu.take_timings();
+    assert!(timings.iter().any(|t| t.role == QueueRole::Transfer && t.name == "copies"), "{timings:?}");
+    assert_clean(&gpu);
+}
+
 /// The majorant grid bounds the trilinear density everywhere (a low majorant would bias
 /// delta tracking): dense random points against the CPU reference interpolation.
 #[test]

@@ -7,6 +7,7 @@ use serde_json::{json, Value};
 
 const T: QueueRole = QueueRole::Trace;
 const D: QueueRole = QueueRole::Diffuse;
+const X: QueueRole = QueueRole::Transfer;
 
 fn pass(role: QueueRole, start_ns: i128, end_ns: i128) -> PassTiming {
     PassTiming { name: format!("{}@{start_ns}", role.name()), role, submission: 0, start_ns, end_ns, host_clock: true }
@@ -18,9 +19,10 @@ fn timeline(passes: &[(QueueRole, i128, i128)]) -> Vec<PassTiming> {
 
 /// (busy trace, busy diffuse, passes trace, passes diffuse)
 fn per_queue(s: &TimelineSummary) -> (i128, i128, usize, usize) {
-    assert_eq!(s.per_queue.len(), 2);
+    assert_eq!(s.per_queue.len(), 3);
     assert_eq!(s.per_queue[0].role, T);
     assert_eq!(s.per_queue[1].role, D);
+    assert_eq!(s.per_queue[2].role, X);
     (s.per_queue[0].busy_ns, s.per_queue[1].busy_ns, s.per_queue[0].passes, s.per_queue[1].passes)
 }
 
@@ -137,6 +139,21 @@ fn reversed_pass_counts_as_zero_length() {
     assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (20, 20, 0, 20));
 }
 
+/// Copies on the transfer role overlap sweeps like any other role: the overlap is the time at
+/// least two roles are busy, counted once where all three are.
+#[test]
+fn transfer_role_overlap_counts_two_or_more_busy() {
+    // trace [0, 10), diffuse [5, 20), transfer [8, 30): two or more busy on [5, 20) = 15.
+    let s = summarize(&timeline(&[(T, 0, 10), (D, 5, 20), (X, 8, 30)]));
+    assert_eq!(per_queue(&s), (10, 15, 1, 1));
+    assert_eq!((s.per_queue[2].busy_ns, s.per_queue[2].passes), (22, 1));
+    assert_eq!((s.span_ns, s.union_busy_ns, s.overlap_ns, s.serial_ns), (30, 30, 15, 47));
+    // Touching intervals do not overlap; a transfer inside a gap adds none.
+    let s = summarize(&timeline(&[(T, 0, 10), (X, 10, 20), (D, 20, 30), (X, 25, 26)]));
+    assert_eq!(s.overlap_ns, 1);
+    assert!((s.overlap_fraction - 1.0 / 30.0).abs() < 1e-12);
+}
+
 fn trace_passes() -> Vec<PassTiming> {
     let t0: i128 = 1_700_000_000_123_456_789; // a host clock reading, in ns
     let mut v = timeline(&[(D, 2_500, 9_000), (T, 0, 3_000), (T, 3_000, 3_000), (T, 4_000, 12_345), (D, 9_000, 9_001)]);
@@ -156,7 +173,7 @@ fn check_chrome_trace(v: &Value, passes: &[PassTiming], meta: &Value) {
     let meta_events: Vec<&Value> = events.iter().filter(|e| e["ph"] == "M").collect();
     let process = meta_events.iter().find(|e| e["name"] == "process_name").expect("process_name");
     assert_eq!((&process["pid"], &process["args"]["name"]), (&json!(1), &json!("scatterlab GPU")));
-    for (tid, name) in [(1, "trace"), (2, "diffuse")] {
+    for (tid, name) in [(1, "trace"), (2, "diffuse"), (3, "transfer")] {
         assert!(
             meta_events
                 .iter()

@@ -94,9 +94,15 @@ pub(crate) struct Shared {
     pub debug_device: Option<ash::ext::debug_utils::Device>,
     pub push_descriptor: ash::khr::push_descriptor::Device,
     pub calibrated: Option<ash::ext::calibrated_timestamps::Device>,
-    pub roles: [RoleQueue; 2],
+    /// Query pools are reset from the host (Vulkan 1.2 hostQueryReset): a transfer-only queue
+    /// cannot record vkCmdResetQueryPool, and its copies are timed like passes.
+    pub host_query_reset: bool,
+    pub roles: [RoleQueue; 3],
     pub info: DeviceInfo,
+    /// Families of the compute roles (ordinary buffers are shared among these).
     pub sharing_families: Vec<u32>,
+    /// Every family in use, the transfer role's included (buffers the copies touch).
+    pub copy_families: Vec<u32>,
     pub validation: Arc<ValidationLog>,
     _validation_box: Option<Box<Arc<ValidationLog>>>,
 }
@@ -406,6 +412,8 @@ pub struct Gpu {
     pub(crate) shared: Arc<Shared>,
     pub(crate) submit: Arc<Mutex<super::submit::SubmitState>>,
     pub(crate) host: Arc<Mutex<super::host::HostTimes>>,
+    /// Staging buffers kept between uploads [0] and readbacks [1] (super::memory).
+    pub(crate) staging_cache: Arc<Mutex<[Option<super::memory::Staging>; 2]>>,
     pub(crate) timeout: Duration,
 }
 
@@ -467,7 +475,14 @@ impl Gpu {
         if calibrated {
             ext_names.push(ash::ext::calibrated_timestamps::NAME.as_ptr());
         }
-        let mut f12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
+        let host_query_reset = {
+            let mut q12 = vk::PhysicalDeviceVulkan12Features::default();
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut q12);
+            unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+            q12.host_query_reset == vk::TRUE
+        };
+        let mut f12 =
+            vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true).host_query_reset(host_query_reset);
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true);
         let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
             .shader_buffer_float32_atomics(float_atomics)
@@ -512,7 +527,7 @@ impl Gpu {
             .vk("vkCreateCommandPool")?;
             Ok(RoleQueue { queue, family: slot.family, timeline, pool })
         };
-        let roles = [make_role(QueueRole::Trace)?, make_role(QueueRole::Diffuse)?];
+        let roles = [make_role(QueueRole::Trace)?, make_role(QueueRole::Diffuse)?, make_role(QueueRole::Transfer)?];
 
         let allocator = Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
@@ -559,6 +574,7 @@ impl Gpu {
         let shared = Shared {
             push_descriptor: ash::khr::push_descriptor::Device::new(&instance, &device),
             calibrated: calibrated.then(|| ash::ext::calibrated_timestamps::Device::new(&instance, &device)),
+            host_query_reset,
             _entry: entry,
             instance,
             device,
@@ -566,7 +582,13 @@ impl Gpu {
             debug_utils,
             debug_device,
             roles,
-            sharing_families: mapping.families(),
+            sharing_families: {
+                let mut f = vec![mapping.trace.family, mapping.diffuse.family];
+                f.sort_unstable();
+                f.dedup();
+                f
+            },
+            copy_families: mapping.families(),
             info,
             validation: log,
             _validation_box: boxed,
@@ -575,6 +597,7 @@ impl Gpu {
             shared: Arc::new(shared),
             submit: Arc::new(Mutex::new(super::submit::SubmitState::default())),
             host: Arc::new(Mutex::new(super::host::HostTimes::default())),
+            staging_cache: Arc::new(Mutex::new([None, None])),
             timeout: opts.timeout,
         })
     }

@@ -18,6 +18,8 @@ pub(crate) struct BufferInner {
     pub allocation: Option<Allocation>,
     pub size: u64,
     pub name: String,
+    /// Shared with the transfer role's family too (`Gpu::transfer_buffer`, `Gpu::host_buffer`).
+    pub transfer: bool,
 }
 
 /// Return an allocation to gpu-allocator (after its Vulkan object is destroyed). A failure
@@ -116,7 +118,46 @@ impl VolumeFormat {
     }
 }
 
+/// A host-visible staging buffer kept for the next upload or readback, with its mapping.
+pub(crate) struct Staging {
+    buffer: Buffer,
+    ptr: *mut u8,
+}
+
+// Safety: the mapping lives as long as the buffer; it is used under the cache's lock only.
+unsafe impl Send for Staging {}
+
+/// Staging buffers up to this size are kept for reuse (one for uploads, one for readbacks);
+/// larger ones are made for the copy and freed after it.
+const STAGING_KEEP: u64 = 256 << 20;
+
 impl Gpu {
+    /// Run `f` with a staging buffer of at least `n` bytes for uploads (`readback` false) or
+    /// readbacks, reusing the one kept from the last copy of that kind. Making and mapping a
+    /// fresh one per copy cost ~6 ms per 8 MB readback on the H100 (mostly first-touch faults
+    /// of the new mapping), 121-153 ms of lbl's 128^3 frame.
+    fn with_staging<R>(&self, n: u64, readback: bool, f: impl FnOnce(&Buffer, *mut u8) -> Result<R>) -> Result<R> {
+        let (location, name) = if readback {
+            (MemoryLocation::GpuToCpu, "staging readback")
+        } else {
+            (MemoryLocation::CpuToGpu, "staging upload")
+        };
+        if n > STAGING_KEEP {
+            let (b, p) = self.staging(name, n, location, false)?;
+            return f(&b, p);
+        }
+        let mut cache = self.staging_cache.lock().expect("staging cache lock");
+        let slot = &mut cache[readback as usize];
+        if slot.as_ref().is_none_or(|s| s.buffer.size() < n) {
+            *slot = None;
+            let size = n.next_power_of_two().clamp(1 << 20, STAGING_KEEP);
+            let (buffer, ptr) = self.staging(name, size, location, false)?;
+            *slot = Some(Staging { buffer, ptr });
+        }
+        let st = slot.as_ref().expect("made above");
+        f(&st.buffer, st.ptr)
+    }
+
     fn sharing<'a>(&'a self, families: &'a [u32]) -> (vk::SharingMode, &'a [u32]) {
         // Roles on different families share resources concurrently rather than by ownership
         // transfers: small and obvious, and lavapipe can never exercise the transfer path.
@@ -129,11 +170,29 @@ impl Gpu {
 
     /// A storage buffer of `size` bytes in device memory, zero-filled.
     pub fn buffer(&self, name: &str, size: u64) -> Result<Buffer> {
+        self.storage_buffer(name, size, false)
+    }
+
+    /// A storage buffer that the `transfer` role may also copy to and from (dom's block pool):
+    /// shared with the transfer-only family where the device has one. Ordinary buffers are not,
+    /// since concurrent sharing with a third family costs on some drivers (the H100's marching
+    /// pass ran 2x longer with every buffer shared three ways).
+    pub fn transfer_buffer(&self, name: &str, size: u64) -> Result<Buffer> {
+        self.storage_buffer(name, size, true)
+    }
+
+    fn storage_buffer(&self, name: &str, size: u64, transfer: bool) -> Result<Buffer> {
         let max = self.shared.info.max_storage_buffer_range;
         if size > max {
             return Err(GpuError::BindingTooLarge { name: name.into(), bytes: size, max });
         }
-        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::STORAGE_BUFFER, MemoryLocation::GpuOnly)?;
+        let b = self.raw_buffer(
+            name,
+            size.max(4),
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            MemoryLocation::GpuOnly,
+            transfer,
+        )?;
         self.fill_zero(&b)?;
         Ok(b)
     }
@@ -152,10 +211,11 @@ impl Gpu {
         size: u64,
         usage: vk::BufferUsageFlags,
         location: MemoryLocation,
+        transfer: bool,
     ) -> Result<Buffer> {
         let started = Instant::now();
         let s = &self.shared;
-        let (mode, fams) = self.sharing(&s.sharing_families);
+        let (mode, fams) = self.sharing(if transfer { &s.copy_families } else { &s.sharing_families });
         let info = vk::BufferCreateInfo::default()
             .size(size)
             .usage(usage | vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST)
@@ -192,6 +252,7 @@ impl Gpu {
                 allocation: Some(allocation),
                 size,
                 name: name.into(),
+                transfer,
             }),
         })
     }
@@ -199,11 +260,11 @@ impl Gpu {
     /// A host-visible buffer of `size` bytes for copies to and from device buffers
     /// ([`Gpu::submit_copies`]), with its mapped pointer (valid while the buffer lives).
     pub fn host_buffer(&self, name: &str, size: u64) -> Result<(Buffer, *mut u8)> {
-        self.staging(name, size, MemoryLocation::GpuToCpu)
+        self.staging(name, size, MemoryLocation::GpuToCpu, true)
     }
 
-    fn staging(&self, name: &str, size: u64, location: MemoryLocation) -> Result<(Buffer, *mut u8)> {
-        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::empty(), location)?;
+    fn staging(&self, name: &str, size: u64, location: MemoryLocation, transfer: bool) -> Result<(Buffer, *mut u8)> {
+        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::empty(), location, transfer)?;
         let a = b.inner.allocation.as_ref().expect("allocated");
         let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc {
             name: name.into(),
@@ -249,11 +310,13 @@ impl Gpu {
             self.host_add(HostKind::Uploads, bytes.len() as u64, started);
             return Ok(());
         }
-        let (stage, p) = self.staging("staging upload", bytes.len() as u64, MemoryLocation::CpuToGpu)?;
-        unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p, bytes.len()) };
-        let (src, dst, n) = (stage.raw(), b.raw(), bytes.len() as u64);
-        self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
-            d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size: n }])
+        let n = bytes.len() as u64;
+        self.with_staging(n, false, |stage, p| {
+            unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p, bytes.len()) };
+            let (src, dst) = (stage.raw(), b.raw());
+            self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
+                d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size: n }])
+            })
         })?;
         self.host_add(HostKind::Uploads, n, started);
         Ok(())
@@ -276,13 +339,15 @@ impl Gpu {
             self.host_add(HostKind::Readbacks, n, started);
             return Ok(out);
         }
-        let (stage, p) = self.staging("staging readback", n, MemoryLocation::GpuToCpu)?;
-        let (src, dst) = (b.raw(), stage.raw());
-        self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
-            d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: n }])
+        let out = self.with_staging(n, true, |stage, p| {
+            let (src, dst) = (b.raw(), stage.raw());
+            self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
+                d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: n }])
+            })?;
+            let mut out = vec![0u8; n as usize];
+            unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
+            Ok(out)
         })?;
-        let mut out = vec![0u8; n as usize];
-        unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
         self.host_add(HostKind::Readbacks, n, started);
         Ok(out)
     }
@@ -376,7 +441,7 @@ impl Gpu {
             }),
         };
 
-        let (stage, p) = self.staging("staging volume upload", voxels * 4, MemoryLocation::CpuToGpu)?;
+        let (stage, p) = self.staging("staging volume upload", voxels * 4, MemoryLocation::CpuToGpu, false)?;
         unsafe { std::ptr::copy_nonoverlapping(data.as_ptr() as *const u8, p, data.len() * 4) };
         let src = stage.raw();
         self.one_shot(&[stage.clone()], &[image.clone()], |d, cb| unsafe {

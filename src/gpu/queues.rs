@@ -1,6 +1,6 @@
 //! Queue roles and their mapping onto the device's queue families.
 //!
-//! Solvers name a *role* (`trace`, `diffuse`); the mapping to real queues is decided once, when
+//! Solvers name a *role* (`trace`, `diffuse`, `transfer`); the mapping to real queues is decided once, when
 //! the device is created, by [`map_roles`], a pure function of the queue-family table so it can
 //! be tested against the tables of real GPUs without owning one (see docs/design.md, "Vulkan facts").
 
@@ -8,20 +8,24 @@ use serde::Serialize;
 
 /// The queue roles of the engine. Tracing-like work runs on `Trace`, stencil/diffusion work on
 /// `Diffuse`; on a device with one queue both roles share it and the same graph runs serialised.
+/// `Transfer` carries buffer copies only (dom's block streaming): a transfer-only family's
+/// queue (the copy engines) where the device has one, else the `Trace` queue.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum QueueRole {
     Trace,
     Diffuse,
+    Transfer,
 }
 
 impl QueueRole {
-    pub const ALL: [QueueRole; 2] = [QueueRole::Trace, QueueRole::Diffuse];
+    pub const ALL: [QueueRole; 3] = [QueueRole::Trace, QueueRole::Diffuse, QueueRole::Transfer];
 
     pub fn name(self) -> &'static str {
         match self {
             QueueRole::Trace => "trace",
             QueueRole::Diffuse => "diffuse",
+            QueueRole::Transfer => "transfer",
         }
     }
 
@@ -54,7 +58,7 @@ pub struct QueueSlot {
     pub index: u32,
 }
 
-/// How the two roles were placed, strongest concurrency first.
+/// How the two compute roles were placed, strongest concurrency first.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum MappingKind {
@@ -73,6 +77,8 @@ pub struct RoleMapping {
     pub kind: MappingKind,
     pub trace: QueueSlot,
     pub diffuse: QueueSlot,
+    /// The copy role: a transfer-only family's first queue, or the trace queue.
+    pub transfer: QueueSlot,
 }
 
 impl RoleMapping {
@@ -80,23 +86,36 @@ impl RoleMapping {
         match role {
             QueueRole::Trace => self.trace,
             QueueRole::Diffuse => self.diffuse,
+            QueueRole::Transfer => self.transfer,
         }
     }
 
+    /// Whether the two compute roles share one queue (no compute overlap possible).
     pub fn shared(&self) -> bool {
         self.trace == self.diffuse
     }
 
+    /// Whether copies have a queue of their own (a transfer-only family).
+    pub fn own_transfer(&self) -> bool {
+        self.transfer != self.trace && self.transfer != self.diffuse
+    }
+
     /// Distinct families used, for `VK_SHARING_MODE_CONCURRENT` and queue creation.
     pub fn families(&self) -> Vec<u32> {
-        let mut f = vec![self.trace.family, self.diffuse.family];
+        let mut f = vec![self.trace.family, self.diffuse.family, self.transfer.family];
+        f.sort_unstable();
         f.dedup();
         f
     }
 
     pub fn describe(&self) -> String {
+        let transfer = if self.own_transfer() {
+            format!("family {} queue {}", self.transfer.family, self.transfer.index)
+        } else {
+            "the trace queue".to_string()
+        };
         format!(
-            "{:?}: trace -> family {} queue {}, diffuse -> family {} queue {}",
+            "{:?}: trace -> family {} queue {}, diffuse -> family {} queue {}, transfer -> {transfer}",
             self.kind, self.trace.family, self.trace.index, self.diffuse.family, self.diffuse.index
         )
     }
@@ -107,12 +126,24 @@ impl RoleMapping {
 /// schedule"). Returns `None` when no family can run compute at all. Families whose
 /// timestamps are not valid are avoided where an alternative exists, since every pass is timed.
 pub fn map_roles(families: &[FamilyInfo]) -> Option<RoleMapping> {
+    let mut m = map_compute_roles(families)?;
+    // Copies: a timed transfer-only family (the DMA engines beside the compute queues: NVIDIA
+    // families 1, 3 and 4, AMD's SDMA), the widest timestamps first; else the trace queue.
+    let copy = families
+        .iter()
+        .filter(|f| f.transfer && !f.compute && !f.graphics && f.queue_count > 0 && f.timestamp_valid_bits > 0)
+        .max_by_key(|f| (f.timestamp_valid_bits, std::cmp::Reverse(f.index)));
+    m.transfer = copy.map_or(m.trace, |f| QueueSlot { family: f.index, index: 0 });
+    Some(m)
+}
+
+fn map_compute_roles(families: &[FamilyInfo]) -> Option<RoleMapping> {
     let compute: Vec<&FamilyInfo> = families.iter().filter(|f| f.compute && f.queue_count > 0).collect();
     if compute.is_empty() {
         return None;
     }
     let slot = |f: &FamilyInfo, index: u32| QueueSlot { family: f.index, index };
-    let two = |kind, f: &FamilyInfo| RoleMapping { kind, trace: slot(f, 0), diffuse: slot(f, 1) };
+    let two = |kind, f: &FamilyInfo| RoleMapping { kind, trace: slot(f, 0), diffuse: slot(f, 1), transfer: slot(f, 0) };
     let timed = |f: &&&FamilyInfo| f.timestamp_valid_bits > 0;
 
     if let Some(f) = compute.iter().filter(timed).find(|f| !f.graphics && f.queue_count >= 2) {
@@ -130,10 +161,16 @@ pub fn map_roles(families: &[FamilyInfo]) -> Option<RoleMapping> {
             kind: MappingKind::TwoFamilies,
             trace: slot(sorted[0], 0),
             diffuse: slot(sorted[1], 0),
+            transfer: slot(sorted[0], 0),
         });
     }
     let best = timed_families.first().copied().unwrap_or(&compute[0]);
-    Some(RoleMapping { kind: MappingKind::Shared, trace: slot(best, 0), diffuse: slot(best, 0) })
+    Some(RoleMapping {
+        kind: MappingKind::Shared,
+        trace: slot(best, 0),
+        diffuse: slot(best, 0),
+        transfer: slot(best, 0),
+    })
 }
 
 #[cfg(test)]
@@ -150,6 +187,25 @@ mod tests {
         let m = map_roles(&t).unwrap();
         assert_eq!(m.kind, MappingKind::TwoComputeOnly);
         assert_eq!((m.trace, m.diffuse), (QueueSlot { family: 2, index: 0 }, QueueSlot { family: 2, index: 1 }));
+        assert_eq!(m.transfer, QueueSlot { family: 1, index: 0 });
+        assert!(m.own_transfer());
+        assert_eq!(m.families(), vec![1, 2]);
+    }
+
+    /// The H100's table as the driver reports it (docs/devices/nvidia-h100-2026-11-25): copies go
+    /// to family 1 (64-bit timestamps), not family 3 (32-bit) or 4 (one queue, 64-bit, later).
+    #[test]
+    fn h100_copies_on_a_transfer_family() {
+        let mut t = [
+            fam(0, 16, true, true),
+            fam(1, 2, false, false),
+            fam(2, 8, false, true),
+            fam(3, 7, false, false),
+            fam(4, 1, false, false),
+        ];
+        t[3].timestamp_valid_bits = 32;
+        let m = map_roles(&t).unwrap();
+        assert_eq!(m.transfer, QueueSlot { family: 1, index: 0 });
     }
 
     #[test]
@@ -173,6 +229,8 @@ mod tests {
         let m = map_roles(&[fam(0, 1, true, true)]).unwrap();
         assert_eq!(m.kind, MappingKind::Shared);
         assert!(m.shared());
+        assert_eq!(m.transfer, m.trace);
+        assert!(!m.own_transfer());
         assert_eq!(m.families(), vec![0]);
     }
 

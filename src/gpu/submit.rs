@@ -225,7 +225,7 @@ struct InFlight {
 
 #[derive(Default)]
 pub(crate) struct SubmitState {
-    submitted: [u64; 2],
+    submitted: [u64; 3],
     in_flight: Vec<InFlight>,
     timings: Vec<PassTiming>,
 }
@@ -383,13 +383,33 @@ impl Gpu {
     /// transfer barrier between them), and a last barrier makes what they wrote visible to the
     /// host once the returned point is reached. Streaming (src/solvers/blocks.rs) uses it.
     pub fn submit_copies(&self, role: QueueRole, stages: &[Vec<Copy>], waits: &[SyncPoint]) -> Result<SyncPoint> {
+        // A buffer the transfer family was not given (Gpu::transfer_buffer, Gpu::host_buffer)
+        // cannot be touched from its queue: refused here, not left to the validation layer.
+        if role == QueueRole::Transfer {
+            if let Some(b) = stages.iter().flatten().flat_map(|c| [&c.src, &c.dst]).find(|b| !b.inner.transfer) {
+                return Err(GpuError::Binding {
+                    pass: "copies".into(),
+                    binding: 0,
+                    reason: format!(
+                        "buffer \"{}\" is copied on the transfer role but was not made with Gpu::transfer_buffer or \
+                         Gpu::host_buffer",
+                        b.name()
+                    ),
+                });
+            }
+        }
         let keep: Vec<Resource> =
             stages.iter().flatten().flat_map(|c| [Resource::from(&c.src), Resource::from(&c.dst)]).collect();
         let d = self.shared.device.clone();
         // Timed like a pass (one "copies" entry on the role's timeline), so streaming shows in
         // the overlap figures and the Perfetto trace beside the sweeps it feeds.
         let s = &self.shared;
-        let timed = s.info.queue_families.iter().any(|f| f.index == s.role(role).family && f.timestamp_valid_bits > 0);
+        // (A transfer-only queue cannot reset a query pool itself: the host must.)
+        let timed = s.info.queue_families.iter().any(|f| {
+            f.index == s.role(role).family
+                && f.timestamp_valid_bits > 0
+                && (s.host_query_reset || f.compute || f.graphics)
+        });
         self.record_and_submit(
             role,
             waits,
@@ -488,7 +508,11 @@ impl Gpu {
             )
             .vk("vkBeginCommandBuffer")?;
             if let (Some(p), Some(n)) = (pool, query_count) {
-                d.cmd_reset_query_pool(cb, p, 0, n);
+                if s.host_query_reset {
+                    d.reset_query_pool(p, 0, n);
+                } else {
+                    d.cmd_reset_query_pool(cb, p, 0, n);
+                }
             }
             // Earlier submissions on the same queue are ordered but not made visible without a
             // barrier or semaphore: one global barrier at the start covers that.
@@ -612,7 +636,7 @@ impl Gpu {
         let s = &self.shared;
         let d = &s.device;
         let mut st = self.submit.lock().expect("submit lock");
-        let mut reached = [0u64; 2];
+        let mut reached = [0u64; 3];
         for role in QueueRole::ALL {
             reached[role.index()] =
                 unsafe { d.get_semaphore_counter_value(s.role(role).timeline) }.vk("vkGetSemaphoreCounterValue")?;

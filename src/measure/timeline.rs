@@ -31,14 +31,14 @@ pub struct QueueStats {
 /// Summary of a set of pass timings. All times in nanoseconds.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TimelineSummary {
-    /// One entry per role, in [`QueueRole::ALL`] order (trace, diffuse), present even when the
+    /// One entry per role, in [`QueueRole::ALL`] order (trace, diffuse, transfer), present even when the
     /// role ran no pass.
     pub per_queue: Vec<QueueStats>,
     /// Earliest start to latest end over all passes; 0 when there are none.
     pub span_ns: i128,
     /// Length of the union of all pass intervals (time at least one role was busy).
     pub union_busy_ns: i128,
-    /// Time both roles were busy: `|U(trace) ∩ U(diffuse)|`.
+    /// Time at least two roles were busy at once (with two roles: `|U(trace) ∩ U(diffuse)|`).
     pub overlap_ns: i128,
     /// `overlap_ns / union_busy_ns` in [0, 1]; 0 when `union_busy_ns` is 0 (never NaN).
     pub overlap_fraction: f64,
@@ -88,6 +88,26 @@ fn intersection_length(a: &[(i128, i128)], b: &[(i128, i128)]) -> i128 {
     total
 }
 
+/// Total time at least two of the lists are busy at once (each list sorted and disjoint): a
+/// sweep over the boundaries counting the busy lists.
+fn multi_busy_length(lists: &[Vec<(i128, i128)>]) -> i128 {
+    if lists.len() == 2 {
+        return intersection_length(&lists[0], &lists[1]);
+    }
+    let mut edges: Vec<(i128, i32)> = lists.iter().flatten().flat_map(|&(s, e)| [(s, 1), (e, -1)]).collect();
+    // Ends before starts at the same instant: touching intervals do not overlap.
+    edges.sort_unstable();
+    let (mut busy, mut since, mut total) = (0i32, 0i128, 0i128);
+    for (t, d) in edges {
+        if busy >= 2 {
+            total += t - since;
+        }
+        busy += d;
+        since = t;
+    }
+    total
+}
+
 /// Busy time per role, overlap between the roles and the serial baseline of `timings`.
 pub fn summarize(timings: &[PassTiming]) -> TimelineSummary {
     let role_union = |role: QueueRole| union(timings.iter().filter(|t| t.role == role).map(interval).collect());
@@ -106,7 +126,7 @@ pub fn summarize(timings: &[PassTiming]) -> TimelineSummary {
         _ => 0,
     };
     let union_busy_ns = length(&union(timings.iter().map(interval).collect()));
-    let overlap_ns = intersection_length(&unions[0], &unions[1]);
+    let overlap_ns = multi_busy_length(&unions);
     let overlap_fraction = if union_busy_ns > 0 { overlap_ns as f64 / union_busy_ns as f64 } else { 0.0 };
     let serial_ns = timings
         .iter()
@@ -123,11 +143,12 @@ pub const TRACE_PID: u32 = 1;
 /// Name of the GPU process in the Chrome trace.
 pub const TRACE_PROCESS_NAME: &str = "scatterlab GPU";
 
-/// Thread id of a role's track in the Chrome trace: 1 = trace, 2 = diffuse.
+/// Thread id of a role's track in the Chrome trace: 1 = trace, 2 = diffuse, 3 = transfer.
 pub fn trace_tid(role: QueueRole) -> u32 {
     match role {
         QueueRole::Trace => 1,
         QueueRole::Diffuse => 2,
+        QueueRole::Transfer => 3,
     }
 }
 
