@@ -604,6 +604,9 @@ pub fn run_lattice(
     progress(Progress::work("setup: pipelines, raymaps, lattice", 1, 1));
     progress(Progress::work("marching rounds", 0, rounds as u64));
     let mut transfers: Vec<SyncPoint> = Vec::with_capacity(rounds as usize);
+    // Rounds reported done so far: the count never goes back (on a GPU the queues run ahead of
+    // the submissions, so rounds are seen done here before the waits below).
+    let mut reached = 0;
     for st in &steps {
         let waits: Vec<SyncPoint> = st.waits.iter().map(|w| points[*w]).collect();
         if warm && matches!(st.step, Step::Diffuse(_)) {
@@ -628,7 +631,6 @@ pub fn run_lattice(
             transfers.push(point);
         }
         // Submission can block while the queues work (lavapipe's does): report what has run.
-        let mut reached = 0;
         while reached < transfers.len() && gpu.reached(transfers[reached])? {
             reached += 1;
         }
@@ -636,7 +638,7 @@ pub fn run_lattice(
     }
     // Rounds count when their transfer has run, not when it was submitted (the queues run
     // ahead of the host): wait for each in turn, which delays nothing since all is submitted.
-    for (n, point) in transfers.iter().enumerate() {
+    for (n, point) in transfers.iter().enumerate().skip(reached) {
         gpu.wait(*point)?;
         progress(Progress::work("marching rounds", n as u64 + 1, rounds as u64));
     }
