@@ -121,6 +121,7 @@ impl Case {
             .current_dir(self.dir.path())
             .env_remove("SCATTERLAB_DEVICE")
             .env_remove("SCATTERLAB_VALIDATE")
+            .env_remove("SCATTERLAB_QUEUES")
             .env("NO_COLOR", "1")
             .output()
             .expect("run scatterlab")
@@ -737,6 +738,39 @@ fn output_directory_missing() {
         .concat(),
         &["--json", "missing", "does not exist"],
     );
+}
+
+/// `--queues`: a mapping the device cannot give is one line naming the flag, the device and
+/// its families, and nothing is written; one it can give is used and reported.
+#[test]
+fn queue_mapping_is_forced_or_refused_in_one_line() {
+    let c = Case::new();
+    let s = c.scene(&base());
+    let gpu = crate::common::gpu();
+    let fams = gpu.info().queue_families.clone();
+    for choice in ["same-family", "separate-families"] {
+        match scatterlab::gpu::map_roles_as(&fams, scatterlab::gpu::QueueChoice::parse(choice).unwrap()) {
+            // lavapipe (one family, one queue): refused before any work.
+            Err(_) => {
+                c.render_fails(
+                    &s,
+                    &[&["--queues", choice][..], &TINY[..]].concat(),
+                    &[&format!("--queues {choice}"), "cannot", "use --queues auto or shared"],
+                );
+            }
+            Ok(m) => {
+                let out = c.render(&s, &[&["--queues", choice][..], &TINY[..]].concat());
+                succeeded(&out);
+                let doc = read_json(&c.path("out/x.json"));
+                assert_eq!(doc["device"]["mapping"]["diffuse"]["family"], m.diffuse.family, "{choice}");
+            }
+        }
+    }
+    let out = c.render(&s, &[&["--queues", "shared"][..], &TINY[..]].concat());
+    succeeded(&out);
+    let doc = read_json(&c.path("out/x.json"));
+    assert_eq!(doc["device"]["mapping"]["kind"], "shared");
+    assert_eq!(doc["device"]["mapping"]["trace"], doc["device"]["mapping"]["transfer"]);
 }
 
 #[test]

@@ -85,6 +85,9 @@ pub(super) fn gpu_options(a: &GpuArgs) -> GpuOptions {
     if a.device.is_some() {
         o.device = a.device.clone();
     }
+    if a.queues.is_some() {
+        o.queues = a.queues.clone();
+    }
     o
 }
 

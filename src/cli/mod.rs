@@ -36,6 +36,12 @@ pub struct GpuArgs {
     /// Any validation error makes the command fail.
     #[arg(long, global = true)]
     pub validate: bool,
+    /// Queue mapping for concurrency experiments: auto (the strongest the device offers),
+    /// shared (one queue for every role), same-family (two queues of one compute family),
+    /// separate-families (two compute families); copies use a transfer-only family where there is
+    /// one, except when shared. One line of error where the device cannot. Env SCATTERLAB_QUEUES.
+    #[arg(long, global = true, value_parser = clap::builder::PossibleValuesParser::new(crate::gpu::QueueChoice::NAMES))]
+    pub queues: Option<String>,
 }
 
 #[derive(Subcommand, Debug)]

@@ -16,6 +16,7 @@ use super::queues::{map_roles, FamilyInfo, QueueRole, RoleMapping};
 pub const ENV_VALIDATE: &str = "SCATTERLAB_VALIDATE";
 pub const ENV_DEVICE: &str = "SCATTERLAB_DEVICE";
 pub const ENV_TIMEOUT: &str = "SCATTERLAB_GPU_TIMEOUT";
+pub const ENV_QUEUES: &str = "SCATTERLAB_QUEUES";
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
 
@@ -28,17 +29,21 @@ pub struct GpuOptions {
     pub device: Option<String>,
     /// Limit on every host wait; a wait that runs past it fails loudly instead of hanging.
     pub timeout: Duration,
+    /// The queue mapping asked for (`auto`, `shared`, `same-family`, `separate-families`);
+    /// `None` is `auto`. Checked when the device opens.
+    pub queues: Option<String>,
 }
 
 impl Default for GpuOptions {
     /// Validation from `SCATTERLAB_VALIDATE=1`, device from `SCATTERLAB_DEVICE`, timeout from
-    /// `SCATTERLAB_GPU_TIMEOUT` (seconds, default 300).
+    /// `SCATTERLAB_GPU_TIMEOUT` (seconds, default 300), queue mapping from `SCATTERLAB_QUEUES`.
     fn default() -> Self {
         let validate = std::env::var(ENV_VALIDATE).map(|v| v != "0" && !v.is_empty()).unwrap_or(false);
         let device = std::env::var(ENV_DEVICE).ok().filter(|s| !s.is_empty());
         let secs =
             std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
-        GpuOptions { validate, device, timeout: Duration::from_secs_f64(secs) }
+        let queues = std::env::var(ENV_QUEUES).ok().filter(|s| !s.is_empty());
+        GpuOptions { validate, device, timeout: Duration::from_secs_f64(secs), queues }
     }
 }
 
@@ -441,7 +446,16 @@ impl Gpu {
         let chosen = choose(candidates(&instance)?, opts.device.as_deref())?;
         let pd = chosen.physical;
         let props = chosen.props;
-        let mapping = chosen.summary.mapping.expect("checked by missing_features");
+        let mut mapping = chosen.summary.mapping.expect("checked by missing_features");
+        if let Some(q) = opts.queues.as_deref() {
+            let choice = super::queues::QueueChoice::parse(q).ok_or_else(|| GpuError::Queues {
+                choice: q.into(),
+                device: chosen.summary.name.clone(),
+                reason: format!("unknown mapping; one of {}", super::queues::QueueChoice::NAMES.join(", ")),
+            })?;
+            mapping = super::queues::map_roles_as(&chosen.summary.queue_families, choice)
+                .map_err(|reason| GpuError::Queues { choice: q.into(), device: chosen.summary.name.clone(), reason })?;
+        }
 
         // Queues: clamp the count to what the family reports (lavapipe accepts more and only
         // the validation layer complains; vulkan-notes.md).

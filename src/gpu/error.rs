@@ -57,6 +57,8 @@ pub enum GpuError {
         shader fault)"
     )]
     DeviceLost { passes: String },
+    #[error("--queues {choice}: device {device:?} cannot: {reason}; use --queues auto or shared")]
+    Queues { choice: String, device: String, reason: String },
     #[error("buffer {name:?}: read of {wanted} bytes at offset {offset} is outside its {size} bytes")]
     OutOfRange { name: String, offset: u64, wanted: u64, size: u64 },
 }

@@ -11,11 +11,12 @@ mod queues;
 mod submit;
 
 pub use context::{
-    choose_device, list_devices, DeviceInfo, DeviceSummary, Gpu, GpuOptions, ENV_DEVICE, ENV_TIMEOUT, ENV_VALIDATE,
+    choose_device, list_devices, DeviceInfo, DeviceSummary, Gpu, GpuOptions, ENV_DEVICE, ENV_QUEUES, ENV_TIMEOUT,
+    ENV_VALIDATE,
 };
 pub use error::{GpuError, Result};
 pub use host::{HostCost, HostTimes};
 pub use memory::{Buffer, Image3d, VolumeFormat};
 pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, Reflection, ShaderSource, Spec, SpecKind};
-pub use queues::{map_roles, FamilyInfo, MappingKind, QueueRole, QueueSlot, RoleMapping};
+pub use queues::{map_roles, map_roles_as, FamilyInfo, MappingKind, QueueChoice, QueueRole, QueueSlot, RoleMapping};
 pub use submit::{Access, Bind, Copy, Pass, PassTiming, Resource, SyncPoint};

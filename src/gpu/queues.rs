@@ -173,6 +173,103 @@ fn map_compute_roles(families: &[FamilyInfo]) -> Option<RoleMapping> {
     })
 }
 
+/// A queue mapping asked for by the user (`--queues`, env `SCATTERLAB_QUEUES`), for queue
+/// concurrency experiments: the same work under each mapping the device offers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum QueueChoice {
+    /// The strongest concurrency the device offers ([`map_roles`]).
+    #[default]
+    Auto,
+    /// Every role on one queue (copies included): no overlap possible.
+    Shared,
+    /// Trace and diffuse on two queues of one compute family; copies on a transfer-only family
+    /// where there is one.
+    SameFamily,
+    /// Trace and diffuse on queues of two different compute families; copies as above.
+    SeparateFamilies,
+}
+
+impl QueueChoice {
+    pub const NAMES: [&'static str; 4] = ["auto", "shared", "same-family", "separate-families"];
+
+    pub fn parse(s: &str) -> Option<QueueChoice> {
+        Some(match s {
+            "auto" => QueueChoice::Auto,
+            "shared" => QueueChoice::Shared,
+            "same-family" => QueueChoice::SameFamily,
+            "separate-families" => QueueChoice::SeparateFamilies,
+            _ => return None,
+        })
+    }
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+}
+
+/// The mapping `choice` asks for on this queue-family table, or why the device cannot give it
+/// (one line, naming the families it has).
+pub fn map_roles_as(families: &[FamilyInfo], choice: QueueChoice) -> Result<RoleMapping, String> {
+    let auto = map_roles(families).ok_or("no queue family can run compute")?;
+    let table = || {
+        families
+            .iter()
+            .map(|f| {
+                let what = match (f.graphics, f.compute) {
+                    (true, true) => "graphics+compute",
+                    (false, true) => "compute",
+                    _ => "transfer",
+                };
+                format!("{}: {} x{}", f.index, what, f.queue_count)
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let timed: Vec<&FamilyInfo> =
+        families.iter().filter(|f| f.compute && f.queue_count > 0 && f.timestamp_valid_bits > 0).collect();
+    let slot = |f: &FamilyInfo, index: u32| QueueSlot { family: f.index, index };
+    match choice {
+        QueueChoice::Auto => Ok(auto),
+        QueueChoice::Shared => {
+            let q = auto.trace;
+            Ok(RoleMapping { kind: MappingKind::Shared, trace: q, diffuse: q, transfer: q })
+        }
+        QueueChoice::SameFamily => {
+            let f = timed
+                .iter()
+                .filter(|f| f.queue_count >= 2)
+                .min_by_key(|f| f.graphics)
+                .ok_or_else(|| format!("no compute family offers two queues (families {})", table()))?;
+            let kind = if f.graphics { MappingKind::TwoComputeCapable } else { MappingKind::TwoComputeOnly };
+            Ok(RoleMapping { kind, trace: slot(f, 0), diffuse: slot(f, 1), transfer: auto.transfer })
+                .map(|m| with_copies(m, auto))
+        }
+        QueueChoice::SeparateFamilies => {
+            let mut two = timed.clone();
+            two.sort_by_key(|f| f.graphics);
+            if two.len() < 2 {
+                return Err(format!("only one compute family (families {})", table()));
+            }
+            Ok(with_copies(
+                RoleMapping {
+                    kind: MappingKind::TwoFamilies,
+                    trace: slot(two[0], 0),
+                    diffuse: slot(two[1], 0),
+                    transfer: auto.transfer,
+                },
+                auto,
+            ))
+        }
+    }
+}
+
+/// Copies on the transfer-only family the automatic mapping found, else on the trace queue.
+fn with_copies(mut m: RoleMapping, auto: RoleMapping) -> RoleMapping {
+    m.transfer = if auto.own_transfer() { auto.transfer } else { m.trace };
+    m
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -222,6 +319,42 @@ mod tests {
     fn general_family_with_two_queues() {
         let m = map_roles(&[fam(0, 4, true, true)]).unwrap();
         assert_eq!(m.kind, MappingKind::TwoComputeCapable);
+    }
+
+    #[test]
+    fn forced_mappings_on_the_h100_table() {
+        let t = [
+            fam(0, 16, true, true),
+            fam(1, 2, false, false),
+            fam(2, 8, false, true),
+            fam(3, 7, false, false),
+            fam(4, 1, false, false),
+        ];
+        let shared = map_roles_as(&t, QueueChoice::Shared).unwrap();
+        assert!(shared.shared() && !shared.own_transfer());
+        assert_eq!((shared.trace, shared.transfer), (QueueSlot { family: 2, index: 0 }, shared.trace));
+        let same = map_roles_as(&t, QueueChoice::SameFamily).unwrap();
+        assert_eq!(same.kind, MappingKind::TwoComputeOnly);
+        assert_eq!((same.trace.family, same.diffuse.family, same.diffuse.index), (2, 2, 1));
+        assert_eq!(same.transfer, QueueSlot { family: 1, index: 0 });
+        let sep = map_roles_as(&t, QueueChoice::SeparateFamilies).unwrap();
+        assert_eq!(sep.kind, MappingKind::TwoFamilies);
+        assert_eq!((sep.trace.family, sep.diffuse.family, sep.transfer.family), (2, 0, 1));
+        assert_eq!(map_roles_as(&t, QueueChoice::Auto).unwrap(), map_roles(&t).unwrap());
+    }
+
+    #[test]
+    fn lavapipe_refuses_what_it_cannot_map() {
+        let t = [fam(0, 1, true, true)];
+        assert!(map_roles_as(&t, QueueChoice::Shared).unwrap().shared());
+        let e = map_roles_as(&t, QueueChoice::SameFamily).unwrap_err();
+        assert!(e.contains("two queues") && e.contains("0: graphics+compute x1"), "{e}");
+        let e = map_roles_as(&t, QueueChoice::SeparateFamilies).unwrap_err();
+        assert!(e.contains("one compute family"), "{e}");
+        for n in QueueChoice::NAMES {
+            assert_eq!(QueueChoice::parse(n).unwrap().name(), n);
+        }
+        assert!(QueueChoice::parse("both").is_none());
     }
 
     #[test]
