@@ -3,6 +3,7 @@
 //! fraction of the grid's size, or from a memory-mapped file, gives bit-identical results; the
 //! device bytes never exceed `dom.budget`, and a budget below the working set is one clear error.
 
+use scatterlab::gpu::QueueRole;
 use scatterlab::physics::ordinates::{OrdinatesGrid, Scheme};
 use scatterlab::physics::quadrature::Quadrature;
 use scatterlab::physics::rng::Pcg32;
@@ -96,7 +97,8 @@ fn block_sweeps_match_the_oracle_and_stream_bit_identically() {
             }
             (phi, b.camera(), b.stats, b.device_bytes())
         };
-        let (phi, camera, stats, _) = run(BlockOptions { block: 3, budget: None, store: StoreKind::Memory });
+        let (phi, camera, stats, _) =
+            run(BlockOptions { block: 3, budget: None, store: StoreKind::Memory, copies: QueueRole::Transfer });
         assert_eq!((stats.blocks, stats.pool_slots), (12, 12));
         assert_eq!(stats.uploads, 12, "in-core: every block loaded once");
         let worst = phi.iter().zip(&host.fluence).map(|(d, h)| (*d as f64 - h).abs() / scale).fold(0.0, f64::max);
@@ -112,7 +114,7 @@ fn block_sweeps_match_the_oracle_and_stream_bit_identically() {
         let (layout, fixed) = BlockSweeper::plan(s.dims, 1, &q, &storage, scheme, 3);
         let budget = fixed + 4 * record + 4 * layout.scratch();
         let (phi_s, camera_s, stats_s, bytes) =
-            run(BlockOptions { block: 3, budget: Some(budget), store: StoreKind::Memory });
+            run(BlockOptions { block: 3, budget: Some(budget), store: StoreKind::Memory, copies: QueueRole::Transfer });
         assert_eq!(stats_s.pool_slots, 4);
         assert!(stats_s.uploads > 20 * 12 && stats_s.write_backs > 0, "streamed: {stats_s:?}");
         assert!(bytes <= budget, "device bytes {bytes} above the budget {budget}");
@@ -123,6 +125,8 @@ fn block_sweeps_match_the_oracle_and_stream_bit_identically() {
             block: 3,
             budget: Some(fixed + 6 * record + 4 * 4 * layout.scratch()),
             store: StoreKind::File(dir.path().to_path_buf()),
+            // The copies on a compute queue (dom.copies=compute) give the same records.
+            copies: QueueRole::Trace,
         });
         assert!(phi_f == phi && camera_f == camera, "{stored}, g {g}: file store differs from in-core");
     }
@@ -137,15 +141,23 @@ fn a_budget_below_the_working_set_names_the_smallest() {
     let q = Quadrature::named("s4").unwrap();
     let iso = Quadrature::isotropic();
     let s = setup(&c, &q, &iso, 0.0, Scheme::Characteristics);
-    let err = BlockSweeper::new(&gpu, &s, &BlockOptions { block: 4, budget: Some(1000), store: StoreKind::Memory })
-        .err()
-        .expect("a 1000-byte budget cannot hold four blocks")
-        .to_string();
+    let err = BlockSweeper::new(
+        &gpu,
+        &s,
+        &BlockOptions { block: 4, budget: Some(1000), store: StoreKind::Memory, copies: QueueRole::Transfer },
+    )
+    .err()
+    .expect("a 1000-byte budget cannot hold four blocks")
+    .to_string();
     assert!(err.contains("dom.budget") && err.contains("at least"), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
     let (layout, fixed) = BlockSweeper::plan(s.dims, 1, &q, &iso, Scheme::Characteristics, 4);
     let smallest = fixed + (layout.min_slots() as u64 * layout.record() + layout.scratch()) * 4;
-    let ok = BlockSweeper::new(&gpu, &s, &BlockOptions { block: 4, budget: Some(smallest), store: StoreKind::Memory });
+    let ok = BlockSweeper::new(
+        &gpu,
+        &s,
+        &BlockOptions { block: 4, budget: Some(smallest), store: StoreKind::Memory, copies: QueueRole::Transfer },
+    );
     assert!(ok.is_ok(), "the smallest budget works: {:?}", ok.err().map(|e| e.to_string()));
     assert_clean(&gpu);
 }

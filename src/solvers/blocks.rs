@@ -71,6 +71,8 @@ pub struct BlockOptions {
     /// binding can hold it.
     pub budget: Option<u64>,
     pub store: StoreKind,
+    /// The role the uploads and write-backs run on (`dom.copies`): Transfer or Trace.
+    pub copies: QueueRole,
 }
 
 /// The record layout (floats), as block_sweep.comp reads it.
@@ -341,6 +343,7 @@ pub struct BlockSweeper {
     groups: u32,
     store: Store,
     residency: Residency,
+    copies: QueueRole,
     last_use: Vec<Option<SyncPoint>>,
     mode: Storage,
     scheme: Scheme,
@@ -463,6 +466,7 @@ impl BlockSweeper {
             groups,
             store,
             residency: Residency::new(pool_slots, blocks),
+            copies: opts.copies,
             last_use: vec![None; pool_slots as usize],
             mode: t.mode,
             scheme: s.scheme,
@@ -681,7 +685,7 @@ impl BlockSweeper {
                 });
             }
             self.stats.staging_ms += t.elapsed().as_secs_f64() * 1e3;
-            let point = gpu.submit_copies(QueueRole::Transfer, &[wb, up], &waits)?;
+            let point = gpu.submit_copies(self.copies, &[wb, up], &waits)?;
             ring.busy[ring.current as usize] = Some(point);
             last = Some(point);
         }
