@@ -766,6 +766,9 @@ fn queue_mapping_is_forced_or_refused_in_one_line() {
             }
         }
     }
+    // `devices` shows the asked mapping beside the automatic one, or why there is none.
+    let (stdout, _) = succeeded(&c.run(["devices", "--queues", "same-family"]));
+    assert!(stdout.contains("roles with --queues same-family: "), "{stdout}");
     let out = c.render(&s, &[&["--queues", "shared"][..], &TINY[..]].concat());
     succeeded(&out);
     let doc = read_json(&c.path("out/x.json"));

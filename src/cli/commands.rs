@@ -257,6 +257,17 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
             Some(m) => outln!("    roles: {}", m.describe()),
             None => outln!("    roles: none (no compute queue)"),
         }
+        // The mapping `--queues` (or SCATTERLAB_QUEUES) asks for, where it is not `auto`.
+        let asked = gpu.queues.clone().or(std::env::var(crate::gpu::ENV_QUEUES).ok()).filter(|q| q != "auto");
+        if let Some(q) = asked {
+            let forced = crate::gpu::QueueChoice::parse(&q)
+                .ok_or_else(|| format!("unknown mapping; one of {}", crate::gpu::QueueChoice::NAMES.join(", ")))
+                .and_then(|c| crate::gpu::map_roles_as(&d.queue_families, c));
+            match forced {
+                Ok(m) => outln!("    roles with --queues {q}: {}", m.describe()),
+                Err(e) => outln!("    roles with --queues {q}: not available ({e})"),
+            }
+        }
         if d.missing.is_empty() {
             outln!("    usable: yes");
         } else {
