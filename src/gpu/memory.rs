@@ -174,9 +174,11 @@ impl Gpu {
     }
 
     /// A storage buffer that the `transfer` role may also copy to and from (dom's block pool):
-    /// shared with the transfer-only family where the device has one. Ordinary buffers are not,
-    /// since concurrent sharing with a third family costs on some drivers (the H100's marching
-    /// pass ran 2x longer with every buffer shared three ways).
+    /// shared with the transfer-only family where the device has one. Ordinary buffers are not:
+    /// concurrent sharing may cost a driver its per-family optimisations, and the copies' reach
+    /// stays explicit (a copy on the transfer role of any other buffer is refused). (On the H100
+    /// a marching pass that ran 2x longer once every buffer was shared three ways stayed so
+    /// when they were not: the cause was the queues' overlap, docs/devices.)
     pub fn transfer_buffer(&self, name: &str, size: u64) -> Result<Buffer> {
         self.storage_buffer(name, size, true)
     }
