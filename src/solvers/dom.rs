@@ -253,7 +253,7 @@ impl Solver for Dom {
         // One channel when the medium and every light are grey (as lbl's lattice).
         let nch = gpu_scene::channels(scene, gs.modelled.chromatic);
         let geom = LatticeGeom::new(scene, set.grid);
-        let marcher = Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false)?;
+        let marcher = Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false, false)?;
         let density: Vec<f32> = gpu.read_buffer_as(&marcher.density)?;
         let m = &scene.medium;
         let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
@@ -475,7 +475,7 @@ impl Solver for Dom {
         // The sweeper's buffers, the deposits' fixed-point sums per beam, each ray's beam and
         // the beam table.
         Ok(gpu_scene::scene_bytes(scene)
-            + m.device_bytes(&geom, rays, nch as u32, false)
+            + m.device_bytes(&geom, rays, nch as u32, false, false)
             + Sweeper::bytes(v, nch, &set.quadrature, &set.storage, set.scheme, block == 0)
             + blocked
             + nch * beams * v * 4

@@ -237,7 +237,7 @@ impl Solver for Lbl {
         // A warm start's wave field lives only while the lattice is seeded; it counts at peak.
         let warm = set.warm_start.map_or(0, |w| w.device_bytes(scene, chromatic, &geom));
         Ok(gpu_scene::scene_bytes(scene)
-            + m.device_bytes(&geom, rays, p.nch, p.directed)
+            + m.device_bytes(&geom, rays, p.nch, p.directed, true)
             + p.diffuser_bytes()
             + p.injector_bytes()
             + warm
@@ -591,7 +591,7 @@ pub fn run_lattice(
     // Float atomics are the fast path where the device has them; fixed point is deterministic.
     let fixed = set.deterministic || !info.float_atomics;
     let params = lattice_params(scene, set, &geom, nch);
-    let marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed, params.directed)?;
+    let marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed, params.directed, true)?;
     let mut lattice = Diffuser::new(gpu, marcher.density.clone(), &params)?;
     let injector = Injector::new(gpu, &params, fixed, marcher.scale)?;
     let rounds = marcher.rounds;

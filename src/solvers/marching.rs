@@ -136,10 +136,11 @@ impl MarchSettings {
     }
 
     /// Device bytes of a [`Marcher`] on `geom` with `ray_count` rays (as [`raymaps`] makes
-    /// them) and `nch` channels: density, rays, history, sums (with the deposits' fluxes when
-    /// `directed`).
-    pub fn device_bytes(&self, geom: &LatticeGeom, ray_count: u64, nch: u32, directed: bool) -> u64 {
-        geom.voxels() * 4 * (1 + sum_slots(nch, directed)) + ray_count * (RAY_BYTES + self.k as u64 * 16)
+    /// them) and `nch` channels: density, rays, history, and with `sums` the grid's deposit sums
+    /// (with the deposits' fluxes when `directed`; else a 4-byte stand-in).
+    pub fn device_bytes(&self, geom: &LatticeGeom, ray_count: u64, nch: u32, directed: bool, sums: bool) -> u64 {
+        let sum_bytes = if sums { geom.voxels() * 4 * sum_slots(nch, directed) } else { 4 };
+        geom.voxels() * 4 + sum_bytes + ray_count * (RAY_BYTES + self.k as u64 * 16)
     }
 }
 
@@ -305,13 +306,17 @@ pub struct Marcher {
     set: MarchSettings,
     max_steps: u32,
     march: Pipeline,
-    transfer: Pipeline,
+    /// The transfer kernel, where the marcher keeps grid sums.
+    transfer: Option<Pipeline>,
 }
 
 impl Marcher {
     /// Resample the density onto `geom`, build the raymaps and the buffers for `nch` channels.
     /// `fixed`: deterministic fixed-point transfer instead of float atomics. `directed`: also
     /// sum the deposits' fluxes (the first moment of anisotropic media's once-scattered light).
+    /// `sums`: keep the grid's deposit sums and the transfer pass (lbl); without them (dom, which
+    /// sums its deposits per beam itself) the marcher holds no per-voxel sums: at 512^3 that is
+    /// 512 MiB per channel not allocated.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         gpu: &Gpu,
@@ -322,6 +327,7 @@ impl Marcher {
         nch: u32,
         fixed: bool,
         directed: bool,
+        sums: bool,
     ) -> Result<Marcher, SolverError> {
         let v = geom.voxels();
         // Transfer kernels include lattice.glsl for the channel count; they never read links.
@@ -329,7 +335,11 @@ impl Marcher {
         let transfer_spec = [(SPEC_NCH, Spec::U32(nch)), (SPEC_LINKS, Spec::U32(links))];
         let resample = gpu.pipeline(&RESAMPLE, &gs.modelled.spec())?;
         let march = gpu.pipeline(&MARCH, &gs.modelled.spec())?;
-        let transfer = gpu.pipeline(if fixed { &TRANSFER_FIXED } else { &TRANSFER_FLOAT }, &transfer_spec)?;
+        let transfer = if sums {
+            Some(gpu.pipeline(if fixed { &TRANSFER_FIXED } else { &TRANSFER_FLOAT }, &transfer_spec)?)
+        } else {
+            None
+        };
         let density = gpu.buffer("marching density", v * 4)?;
         let p = gs
             .bind(Pass::new("marching.resample", QueueRole::Trace, &resample))
@@ -347,7 +357,11 @@ impl Marcher {
         let total_power: f64 = (0..3).map(|c| rays.iter().map(|r| r.power[c] as f64).sum::<f64>()).fold(0.0, f64::max);
         let ray_buf = gpu.buffer_with("marching rays", &rays)?;
         let history = gpu.buffer("marching ray history", ray_count as u64 * set.k as u64 * 16)?;
-        let sums = gpu.buffer("marching deposit sums", sum_slots(nch, directed) * v * 4)?;
+        let sums = if sums {
+            gpu.buffer("marching deposit sums", sum_slots(nch, directed) * v * 4)?
+        } else {
+            gpu.buffer("marching deposit sums (none kept)", 4)?
+        };
         let diag = (geom.max() - geom.min()).length();
         let max_steps = (diag / set.step).ceil() as u32 + 2;
         let rounds = max_steps.div_ceil(set.k);
@@ -392,7 +406,8 @@ impl Marcher {
     /// Add the last round's history into the sums, on queue role `role`.
     pub fn transfer_pass(&self, role: QueueRole) -> Pass {
         let entries = self.ray_count * self.set.k;
-        Pass::new("marching.transfer", role, &self.transfer)
+        let transfer = self.transfer.as_ref().expect("a marcher made with sums (Marcher::new's `sums`)");
+        Pass::new("marching.transfer", role, transfer)
             .read(0, &self.history)
             .read_write(1, &self.sums)
             .read(2, &self.rays)
