@@ -258,12 +258,8 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
             None => outln!("    roles: none (no compute queue)"),
         }
         // The mapping `--queues` (or SCATTERLAB_QUEUES) asks for, where it is not `auto`.
-        let asked = gpu.queues.clone().or(std::env::var(crate::gpu::ENV_QUEUES).ok()).filter(|q| q != "auto");
-        if let Some(q) = asked {
-            let forced = crate::gpu::QueueChoice::parse(&q)
-                .ok_or_else(|| format!("unknown mapping; one of {}", crate::gpu::QueueChoice::NAMES.join(", ")))
-                .and_then(|c| crate::gpu::map_roles_as(&d.queue_families, c));
-            match forced {
+        if let Some(q) = gpu_options(gpu).queues.filter(|q| q != "auto") {
+            match crate::gpu::map_roles_named(&d.queue_families, &q) {
                 Ok(m) => outln!("    roles with --queues {q}: {}", m.describe()),
                 Err(e) => outln!("    roles with --queues {q}: not available ({e})"),
             }

@@ -448,12 +448,7 @@ impl Gpu {
         let props = chosen.props;
         let mut mapping = chosen.summary.mapping.expect("checked by missing_features");
         if let Some(q) = opts.queues.as_deref() {
-            let choice = super::queues::QueueChoice::parse(q).ok_or_else(|| GpuError::Queues {
-                choice: q.into(),
-                device: chosen.summary.name.clone(),
-                reason: format!("unknown mapping; one of {}", super::queues::QueueChoice::NAMES.join(", ")),
-            })?;
-            mapping = super::queues::map_roles_as(&chosen.summary.queue_families, choice)
+            mapping = super::queues::map_roles_named(&chosen.summary.queue_families, q)
                 .map_err(|reason| GpuError::Queues { choice: q.into(), device: chosen.summary.name.clone(), reason })?;
         }
 
@@ -596,12 +591,7 @@ impl Gpu {
             debug_utils,
             debug_device,
             roles,
-            sharing_families: {
-                let mut f = vec![mapping.trace.family, mapping.diffuse.family];
-                f.sort_unstable();
-                f.dedup();
-                f
-            },
+            sharing_families: mapping.compute_families(),
             copy_families: mapping.families(),
             info,
             validation: log,

@@ -18,5 +18,7 @@ pub use error::{GpuError, Result};
 pub use host::{HostCost, HostTimes};
 pub use memory::{Buffer, Image3d, VolumeFormat};
 pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, Reflection, ShaderSource, Spec, SpecKind};
-pub use queues::{map_roles, map_roles_as, FamilyInfo, MappingKind, QueueChoice, QueueRole, QueueSlot, RoleMapping};
+pub use queues::{
+    map_roles, map_roles_as, map_roles_named, FamilyInfo, MappingKind, QueueChoice, QueueRole, QueueSlot, RoleMapping,
+};
 pub use submit::{Access, Bind, Copy, Pass, PassTiming, Resource, SyncPoint};

@@ -102,10 +102,12 @@ impl RoleMapping {
 
     /// Distinct families used, for `VK_SHARING_MODE_CONCURRENT` and queue creation.
     pub fn families(&self) -> Vec<u32> {
-        let mut f = vec![self.trace.family, self.diffuse.family, self.transfer.family];
-        f.sort_unstable();
-        f.dedup();
-        f
+        distinct(vec![self.trace.family, self.diffuse.family, self.transfer.family])
+    }
+
+    /// Distinct families of the two compute roles (what ordinary buffers are shared among).
+    pub fn compute_families(&self) -> Vec<u32> {
+        distinct(vec![self.trace.family, self.diffuse.family])
     }
 
     pub fn describe(&self) -> String {
@@ -119,6 +121,12 @@ impl RoleMapping {
             self.kind, self.trace.family, self.trace.index, self.diffuse.family, self.diffuse.index
         )
     }
+}
+
+fn distinct(mut f: Vec<u32>) -> Vec<u32> {
+    f.sort_unstable();
+    f.dedup();
+    f
 }
 
 /// Map the roles onto queues: two compute-only queues, else two compute-capable queues of
@@ -229,6 +237,11 @@ pub fn map_roles_as(families: &[FamilyInfo], choice: QueueChoice) -> Result<Role
     let timed: Vec<&FamilyInfo> =
         families.iter().filter(|f| f.compute && f.queue_count > 0 && f.timestamp_valid_bits > 0).collect();
     let slot = |f: &FamilyInfo, index: u32| QueueSlot { family: f.index, index };
+    // Copies on the transfer-only family the automatic mapping found, else on the trace queue.
+    let with_copies = |kind, trace: QueueSlot, diffuse| {
+        let transfer = if auto.own_transfer() { auto.transfer } else { trace };
+        RoleMapping { kind, trace, diffuse, transfer }
+    };
     match choice {
         QueueChoice::Auto => Ok(auto),
         QueueChoice::Shared => {
@@ -242,8 +255,7 @@ pub fn map_roles_as(families: &[FamilyInfo], choice: QueueChoice) -> Result<Role
                 .min_by_key(|f| f.graphics)
                 .ok_or_else(|| format!("no compute family offers two queues (families {})", table()))?;
             let kind = if f.graphics { MappingKind::TwoComputeCapable } else { MappingKind::TwoComputeOnly };
-            Ok(RoleMapping { kind, trace: slot(f, 0), diffuse: slot(f, 1), transfer: auto.transfer })
-                .map(|m| with_copies(m, auto))
+            Ok(with_copies(kind, slot(f, 0), slot(f, 1)))
         }
         QueueChoice::SeparateFamilies => {
             let mut two = timed.clone();
@@ -251,23 +263,17 @@ pub fn map_roles_as(families: &[FamilyInfo], choice: QueueChoice) -> Result<Role
             if two.len() < 2 {
                 return Err(format!("only one compute family (families {})", table()));
             }
-            Ok(with_copies(
-                RoleMapping {
-                    kind: MappingKind::TwoFamilies,
-                    trace: slot(two[0], 0),
-                    diffuse: slot(two[1], 0),
-                    transfer: auto.transfer,
-                },
-                auto,
-            ))
+            Ok(with_copies(MappingKind::TwoFamilies, slot(two[0], 0), slot(two[1], 0)))
         }
     }
 }
 
-/// Copies on the transfer-only family the automatic mapping found, else on the trace queue.
-fn with_copies(mut m: RoleMapping, auto: RoleMapping) -> RoleMapping {
-    m.transfer = if auto.own_transfer() { auto.transfer } else { m.trace };
-    m
+/// [`map_roles_as`] for a mapping named as `--queues` takes it (an unknown name is an error
+/// listing the names).
+pub fn map_roles_named(families: &[FamilyInfo], name: &str) -> Result<RoleMapping, String> {
+    let choice =
+        QueueChoice::parse(name).ok_or_else(|| format!("unknown mapping; one of {}", QueueChoice::NAMES.join(", ")))?;
+    map_roles_as(families, choice)
 }
 
 #[cfg(test)]

@@ -265,9 +265,7 @@ impl Gpu {
         let s = self.shared.clone();
         let d = &s.device;
         let push = &s.push_descriptor;
-        let with_queries =
-            s.info.queue_families.iter().any(|f| f.index == s.role(role).family && f.timestamp_valid_bits > 0)
-                && !passes.is_empty();
+        let with_queries = self.timed(role) && !passes.is_empty();
         self.record_and_submit(
             role,
             waits,
@@ -403,13 +401,7 @@ impl Gpu {
         let d = self.shared.device.clone();
         // Timed like a pass (one "copies" entry on the role's timeline), so streaming shows in
         // the overlap figures and the Perfetto trace beside the sweeps it feeds.
-        let s = &self.shared;
-        // (A transfer-only queue cannot reset a query pool itself: the host must.)
-        let timed = s.info.queue_families.iter().any(|f| {
-            f.index == s.role(role).family
-                && f.timestamp_valid_bits > 0
-                && (s.host_query_reset || f.compute || f.graphics)
-        });
+        let timed = self.timed(role);
         self.record_and_submit(
             role,
             waits,
@@ -453,6 +445,17 @@ impl Gpu {
                 }
             },
         )
+    }
+
+    /// Whether work on `role` can be timed: its family has valid timestamps, and its query pools
+    /// can be reset (from the host, or by the queue: a transfer-only queue cannot).
+    fn timed(&self, role: QueueRole) -> bool {
+        let s = &self.shared;
+        s.info.queue_families.iter().any(|f| {
+            f.index == s.role(role).family
+                && f.timestamp_valid_bits > 0
+                && (s.host_query_reset || f.compute || f.graphics)
+        })
     }
 
     /// Record a command buffer with `record` and submit it on `role` with waits and a signal.

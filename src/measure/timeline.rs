@@ -70,30 +70,9 @@ fn length(v: &[(i128, i128)]) -> i128 {
     v.iter().map(|&(s, e)| e - s).sum()
 }
 
-/// Length of the intersection of two sorted, disjoint interval lists.
-fn intersection_length(a: &[(i128, i128)], b: &[(i128, i128)]) -> i128 {
-    let (mut i, mut j, mut total) = (0, 0, 0i128);
-    while i < a.len() && j < b.len() {
-        let lo = a[i].0.max(b[j].0);
-        let hi = a[i].1.min(b[j].1);
-        if hi > lo {
-            total += hi - lo;
-        }
-        if a[i].1 < b[j].1 {
-            i += 1;
-        } else {
-            j += 1;
-        }
-    }
-    total
-}
-
 /// Total time at least two of the lists are busy at once (each list sorted and disjoint): a
 /// sweep over the boundaries counting the busy lists.
 fn multi_busy_length(lists: &[Vec<(i128, i128)>]) -> i128 {
-    if lists.len() == 2 {
-        return intersection_length(&lists[0], &lists[1]);
-    }
     let mut edges: Vec<(i128, i32)> = lists.iter().flatten().flat_map(|&(s, e)| [(s, 1), (e, -1)]).collect();
     // Ends before starts at the same instant: touching intervals do not overlap.
     edges.sort_unstable();

@@ -14,7 +14,8 @@
 //! faces are the chunk's incoming ones). Before a chunk runs, its missing blocks are loaded,
 //! evicting the slots outside the chunk whose blocks are needed again farthest ahead (the whole
 //! iteration's schedule is known: Belady's order), written back first when dirty.
-//! Uploads and write-backs are buffer copies on the `trace` role's queue, ordered against the
+//! Uploads and write-backs are buffer copies on the `trace` role's queue (`dom.copies=compute`)
+//! or the `transfer` role's (`dom.copies=transfer`), ordered against the
 //! sweeps on the `diffuse` role by timeline semaphores: a copy waits only for the last sweep
 //! that used its slot, and a sweep for the copies before it, so on a device whose roles have
 //! separate queues the streaming of one chunk overlaps the sweep of the previous one (on
@@ -247,6 +248,15 @@ pub struct StreamStats {
     pub staging_ms: f64,
 }
 
+/// One dispatch's blocks (of one block plane of one channel and octant) and the blocks it needs
+/// resident: its own and their upwind neighbours.
+struct Chunk {
+    channel: u32,
+    octant: u32,
+    blocks: Vec<u32>,
+    needed: Vec<u32>,
+}
+
 /// One chunk of the plan: the copies before it and its dispatch.
 struct Step {
     /// (slot, block written back first or none, block loaded)
@@ -339,10 +349,10 @@ pub struct BlockSweeper {
     scatter: Buffer,
     work: Buffer,
     scratch: Buffer,
-    /// Work groups (blocks) one dispatch may hold: the scratch's entries.
-    groups: u32,
     store: Store,
     residency: Residency,
+    /// The iteration's chunks ([`BlockSweeper::chunks`]).
+    chunks: Vec<Chunk>,
     copies: QueueRole,
     last_use: Vec<Option<SyncPoint>>,
     mode: Storage,
@@ -463,9 +473,9 @@ impl BlockSweeper {
             scatter: gpu.buffer_with("dom block scattering", &t.scatter)?,
             work: gpu.buffer("dom block order", 8 * s.channels as u64 * blocks as u64 * 32)?,
             scratch: gpu.buffer("dom block scratch", groups as u64 * scratch_bytes)?,
-            groups,
             store,
             residency: Residency::new(pool_slots, blocks),
+            chunks: Self::chunks(&layout, &t.count, pool_slots as usize, groups as usize),
             copies: opts.copies,
             last_use: vec![None; pool_slots as usize],
             mode: t.mode,
@@ -518,23 +528,20 @@ impl BlockSweeper {
         Ok(())
     }
 
-    /// Plan one iteration: every channel, octant and block plane in order, cut into chunks that
-    /// fit the pool, with the loads before each. Returns the steps and the work table.
-    fn plan_iteration(&mut self) -> (Vec<Step>, Vec<[u32; 4]>) {
-        let l = self.layout;
-        let cap = self.pool_slots as usize;
-        // The chunks in sweep order: channel, octant, block plane, then as many of the plane's
-        // blocks as fit the pool with their upwind neighbours.
-        let mut chunks: Vec<(u32, u32, Vec<u32>, Vec<u32>)> = Vec::new();
-        for c in 0..l.channels {
-            for o in 0..8u32 {
-                if self.count[o as usize] == 0 {
+    /// The iteration's chunks, in sweep order: channel, octant, block plane, then as many of the
+    /// plane's blocks as fit the pool with their upwind neighbours. They depend on the layout and
+    /// the pool only, never on residency: made once, the same every iteration.
+    fn chunks(l: &BlockLayout, count: &[u32; 8], cap: usize, groups: usize) -> Vec<Chunk> {
+        let mut chunks = Vec::new();
+        for channel in 0..l.channels {
+            for octant in 0..8u32 {
+                if count[octant as usize] == 0 {
                     continue;
                 }
-                for plane in l.planes(o) {
+                for plane in l.planes(octant) {
                     let mut i = 0;
                     while i < plane.len() {
-                        let mut chunk: Vec<u32> = Vec::new();
+                        let mut blocks: Vec<u32> = Vec::new();
                         let mut needed: Vec<u32> = Vec::new();
                         // Membership of `needed` (a linear search cost seconds per iteration
                         // at 512^3, where a chunk needs over a thousand blocks).
@@ -542,10 +549,9 @@ impl BlockSweeper {
                         while i < plane.len() {
                             let b = plane[i];
                             let mut more: Vec<u32> = vec![b];
-                            more.extend(l.upwind(b, o).iter().flatten());
+                            more.extend(l.upwind(b, octant).iter().flatten());
                             let extra = more.iter().filter(|x| !in_needed.contains(x)).count();
-                            if !chunk.is_empty() && (needed.len() + extra > cap || chunk.len() >= self.groups as usize)
-                            {
+                            if !blocks.is_empty() && (needed.len() + extra > cap || blocks.len() >= groups) {
                                 break;
                             }
                             for x in more {
@@ -553,45 +559,65 @@ impl BlockSweeper {
                                     needed.push(x);
                                 }
                             }
-                            chunk.push(b);
+                            blocks.push(b);
                             i += 1;
                         }
-                        chunks.push((c, o, chunk, needed));
+                        chunks.push(Chunk { channel, octant, blocks, needed });
                     }
                 }
             }
         }
+        chunks
+    }
+
+    /// Plan one iteration: the chunks with the loads before each (from the current residency)
+    /// and the work table. Returns the steps and the work table.
+    fn plan_iteration(&mut self) -> (Vec<Step>, Vec<[u32; 4]>) {
+        let l = self.layout;
         // Every block's uses, in order: the whole iteration's schedule is known, so eviction
         // takes the block needed again farthest ahead (Belady's order, optimal for loads).
-        let mut uses: Vec<std::collections::VecDeque<usize>> = vec![Default::default(); l.blocks() as usize];
-        for (i, (_, _, _, needed)) in chunks.iter().enumerate() {
-            for &b in needed {
-                uses[b as usize].push_back(i);
+        let mut uses: Vec<Vec<usize>> = vec![Vec::new(); l.blocks() as usize];
+        for (i, chunk) in self.chunks.iter().enumerate() {
+            for &b in &chunk.needed {
+                uses[b as usize].push(i);
             }
         }
+        // Per block, its first use after the chunk being planned.
+        let mut next = vec![0usize; l.blocks() as usize];
         let mut steps = Vec::new();
         let mut work: Vec<[u32; 4]> = Vec::new();
-        for (i, (c, o, chunk, needed)) in chunks.into_iter().enumerate() {
-            for &b in &needed {
-                while uses[b as usize].front().is_some_and(|u| *u <= i) {
-                    uses[b as usize].pop_front();
+        for (i, chunk) in self.chunks.iter().enumerate() {
+            for &b in &chunk.needed {
+                let u = &uses[b as usize];
+                while next[b as usize] < u.len() && u[next[b as usize]] <= i {
+                    next[b as usize] += 1;
                 }
             }
-            let loads = self.residency.admit(&needed, |b| uses[b as usize].front().copied().unwrap_or(usize::MAX));
+            let loads = self
+                .residency
+                .admit(&chunk.needed, |b| uses[b as usize].get(next[b as usize]).copied().unwrap_or(usize::MAX));
             let work_first = (work.len() / 2) as u32;
-            for &b in &chunk {
+            for &b in &chunk.blocks {
                 let slot = self.residency.block_slot[b as usize].expect("resident");
                 self.residency.dirty[slot as usize] = true;
                 let up = l
-                    .upwind(b, o)
+                    .upwind(b, chunk.octant)
                     .map(|u| u.map_or(u32::MAX, |u| self.residency.block_slot[u as usize].expect("resident")));
                 let lo = l.lo(b);
                 let e = l.ext(b);
                 work.push([slot, up[0], up[1], up[2]]);
                 work.push([lo[0], lo[1], lo[2], e[0] | e[1] << 8 | e[2] << 16]);
             }
-            let slots = needed.iter().map(|b| self.residency.block_slot[*b as usize].expect("resident")).collect();
-            steps.push(Step { loads, channel: c, octant: o, work_first, work_count: chunk.len() as u32, slots });
+            let slots =
+                chunk.needed.iter().map(|b| self.residency.block_slot[*b as usize].expect("resident")).collect();
+            steps.push(Step {
+                loads,
+                channel: chunk.channel,
+                octant: chunk.octant,
+                work_first,
+                work_count: chunk.blocks.len() as u32,
+                slots,
+            });
         }
         (steps, work)
     }
@@ -696,27 +722,20 @@ impl BlockSweeper {
     fn settle(&mut self, regions: &[(u64, u32)]) {
         let rec = self.layout.record() as usize;
         let t = std::time::Instant::now();
-        let mut blocks: Vec<u32> = regions.iter().map(|r| r.1).collect();
-        blocks.sort_unstable();
-        blocks.dedup();
-        if blocks.len() == regions.len() {
-            // Distinct blocks: their records are disjoint, copied in parallel.
+        // The last write-back of each block wins (a block written back twice in one half keeps
+        // its later record); the records are then disjoint and copied in parallel.
+        let latest: std::collections::HashMap<u32, u64> =
+            regions.iter().map(|&(region, block)| (block, region)).collect();
+        {
             use rayon::prelude::*;
             let (staging, store) = (SendPtr(self.staging_ptr), SendPtr(self.store.data_mut().as_mut_ptr()));
-            regions.par_iter().for_each(|&(region, block)| {
+            latest.par_iter().for_each(|(&block, &region)| {
                 // Safety: the copy into this region has completed (the caller waited for it);
                 // each block's record is written by one task only.
                 let src = unsafe { std::slice::from_raw_parts(staging.at(region as usize * rec), rec) };
                 let dst = unsafe { std::slice::from_raw_parts_mut(store.at(block as usize * rec), rec) };
                 dst.copy_from_slice(src);
             });
-        } else {
-            // A block written back twice: in order, the later write-back last.
-            for &(region, block) in regions {
-                // Safety: the copy into this region has completed (the caller waited for it).
-                let src = unsafe { std::slice::from_raw_parts(self.staging_ptr.add(region as usize * rec), rec) };
-                self.store.data_mut()[block as usize * rec..(block as usize + 1) * rec].copy_from_slice(src);
-            }
         }
         self.stats.staging_ms += t.elapsed().as_secs_f64() * 1e3;
     }
