@@ -8,6 +8,7 @@
 // storage directions' footprints f_m): src/physics/angular.rs, StorageMap::shares, which the
 // host computes for parallel beams; for a point light's beam it is found here by the same
 // bisection. Emission per unit volume and sr: F_m = sum_b E_b share_m / (w_m lambda^3).
+// One slab of whole layers at a time (deposit.comp): voxel v of the slab is base + v of the grid.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -20,14 +21,14 @@ layout(std430, binding = 4) buffer First { float first[]; };                // [
 layout(std430, binding = 5) writeonly buffer Source { float source[]; };    // the same, the iteration's start
 
 layout(push_constant) uniform Push {
-    uvec4 dims;      // voxels xyz, w = V
+    uvec4 dims;      // the grid's voxels xyz, w = the slab's voxels V (the grid's when whole)
     vec4 grid;       // xyz the grid's lower corner, w lambda
     uint beam_count; // B
     uint storage;    // M
     uint channels;
     float scale;     // fixed-point quanta per W
     float g;         // the medium's asymmetry
-    uint pad0;
+    uint base;       // the slab's first voxel
     uint pad1;
     uint pad2;
 } pc;
@@ -61,7 +62,8 @@ void main() {
     uint V = pc.dims.w;
     if (v >= V) return;
     uint M = pc.storage;
-    ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
+    uint gv = pc.base + v;
+    ivec3 p = ivec3(gv % pc.dims.x, (gv / pc.dims.x) % pc.dims.y, gv / (pc.dims.x * pc.dims.y));
     vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
     float per_volume = 1.0 / (pc.scale * pc.grid.w * pc.grid.w * pc.grid.w);
     for (uint c = 0u; c < pc.channels; ++c)

@@ -8,6 +8,9 @@
 // directions afterwards, in float: binning each deposit here instead would quantise shares of a
 // few quanta to nothing (issue 13 names the thesis's per-ray slots merged by sort-search-compact,
 // which the thesis needed for want of atomics; docs/decisions.md).
+// Out of core (dom.budget), the sums cover one slab of whole layers, voxels base .. base + voxels
+// (z outermost: contiguous), and deposits elsewhere wait for their slab's pass; each voxel's sum
+// is the same integer whichever slab plan it is made in.
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 0) readonly buffer History { uvec4 rhb[]; };
@@ -16,12 +19,12 @@ layout(std430, binding = 2) readonly buffer RayBeam { uint ray_beam[]; }; // per
 
 layout(push_constant) uniform Push {
     uint entries;    // rays * k
-    uint voxels;     // V
+    uint voxels;     // voxels in the slab (V for the whole grid)
     uint k;          // history slots per ray: entry e belongs to ray e / k
     uint beams;      // B
     float scale;     // fixed-point quanta per W
     uint channels;   // 1 or 3
-    uint pad0;
+    uint base;       // the slab's first voxel
     uint pad1;
 } pc;
 
@@ -29,9 +32,9 @@ void main() {
     uint e = gl_GlobalInvocationID.x;
     if (e >= pc.entries) return;
     uvec4 s = rhb[e];
-    if (s.x == 0xffffffffu) return;
+    if (s.x == 0xffffffffu || s.x < pc.base || s.x - pc.base >= pc.voxels) return;
     vec3 dep = uintBitsToFloat(s.yzw);
     uint b = ray_beam[e / pc.k];
     for (uint c = 0u; c < pc.channels; ++c)
-        atomicAdd(acc[(c * pc.beams + b) * pc.voxels + s.x], uint(dep[c] * pc.scale + 0.5));
+        atomicAdd(acc[(c * pc.beams + b) * pc.voxels + (s.x - pc.base)], uint(dep[c] * pc.scale + 0.5));
 }

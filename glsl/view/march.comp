@@ -72,12 +72,13 @@ layout(push_constant) uniform Push {
     uint budget;         // own-counted loop iterations per invocation per dispatch
     uint slot;           // which unfinished-counter this dispatch reports into
     uint ms_flux;        // 1: the volume carries the vector irradiance after the fluence (two-term); 2: a lattice's (HG lobe)
-    uint pad1;
+    uint ms_only;        // 1: this run adds the volume's light alone (no direct light, no background): a later slab
     uint pad2;
     uvec4 ms_dims;       // volume voxels xyz (x = 0: no multiple-scattering volume), w = channels
     vec4 ms_origin;      // volume min corner, w = lambda (voxel edge)
     vec4 octave;         // octaves: attenuation a, contribution b, eccentricity c, w = 1: bounded
     uvec4 shadow_dims;   // shadow volume voxels xyz (the density grid's; x = 0: none), w = depths per unit
+    uvec4 ms_window;     // the volume's layers held (x first, y count) and counted here (z first, w end)
 } pc;
 
 // Multiply scattered radiance scattered at p toward the camera (travelling along -d), per
@@ -104,14 +105,24 @@ layout(push_constant) uniform Push {
 
 float ms_trilinear(uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) { return TRILINEAR(ms_energy, base, n, i0, i1, f); }
 
+// Out of core (dom), the volume comes in slabs of whole layers, one view run each: a run holds
+// layers ms_window.x .. + ms_window.y and counts the samples whose layer is in [ms_window.z,
+// ms_window.w) (the held layers reach one beyond, for the trilinear corners), so each sample is
+// counted in exactly one run; the whole grid is one window.
 vec3 ms_inscatter(vec3 p, vec3 d) {
     if (pc.ms_dims.x == 0u) return vec3(0.0);
     ivec3 n = ivec3(pc.ms_dims.xyz);
-    uint V = pc.ms_dims.x * pc.ms_dims.y * pc.ms_dims.z;
+    vec3 g = (p - pc.ms_origin.xyz) / pc.ms_origin.w;
+    int layer = clamp(int(floor(g.z)), 0, n.z - 1);
+    if (layer < int(pc.ms_window.z) || layer >= int(pc.ms_window.w)) return vec3(0.0);
+    uint V = pc.ms_dims.x * pc.ms_dims.y * pc.ms_window.y;
     uint C = pc.ms_dims.w;
     ivec3 i0, i1;
     vec3 f;
-    grid_corners((p - pc.ms_origin.xyz) / pc.ms_origin.w - 0.5, n, i0, i1, f);
+    grid_corners(g - 0.5, n, i0, i1, f);
+    // (the held layers from index 0; the grid's own dims clamp the corners)
+    i0.z -= int(pc.ms_window.x);
+    i1.z -= int(pc.ms_window.x);
     vec3 e = vec3(0.0);
     for (uint c = 0u; c < C; ++c) {
         iters++;
@@ -360,7 +371,8 @@ void main() {
         if (uint(scene.lights[l].pos_kind.w) == LIGHT_ENVIRONMENT) env += scene.lights[l].value.rgb;
     }
     // Light units per step; none when nothing scatters (a pure absorber needs no shadow rays).
-    uint units = max3(scene.albedo.xyz) > 0.0 ? unit_count() : 0u;
+    uint units = max3(scene.albedo.xyz) > 0.0 && pc.ms_only == 0u ? unit_count() : 0u;
+    if (pc.ms_only != 0u) env = vec3(0.0);
 
     while (iters < pc.budget && k < total) {
         iters++;

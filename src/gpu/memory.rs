@@ -276,7 +276,8 @@ impl Gpu {
         Ok((b, p.as_ptr() as *mut u8))
     }
 
-    fn fill_zero(&self, b: &Buffer) -> Result<()> {
+    /// Zero every byte of `b` (a fill on the device, or a memset where it is host-visible).
+    pub fn fill_zero(&self, b: &Buffer) -> Result<()> {
         let started = Instant::now();
         if let Some(p) = b.mapped() {
             unsafe { std::ptr::write_bytes(p, 0, b.size() as usize) };

@@ -366,6 +366,12 @@ pub struct BlockSweeper {
     pub stats: StreamStats,
 }
 
+/// The least device memory block sweeps of `layout` run in: a block and its upwind neighbours,
+/// one dispatch's scratch and the `fixed` tables ([`BlockSweeper::plan`]).
+pub fn working_set(layout: &BlockLayout, fixed: u64) -> u64 {
+    fixed + layout.min_slots() as u64 * layout.record() * 4 + layout.scratch() * 4
+}
+
 impl BlockSweeper {
     /// The layout and the fixed device bytes for a setup (the memory estimate's figures).
     pub fn plan(
@@ -407,7 +413,7 @@ impl BlockSweeper {
         // (slots, work groups a dispatch may hold)
         let (wanted, groups) = match opts.budget {
             Some(budget) => {
-                let need = fixed + layout.min_slots() as u64 * record_bytes + scratch_bytes;
+                let need = working_set(&layout, fixed);
                 if budget < need {
                     // (checked before any work: one line naming the smallest budget)
                     return Err(SolverError::Unsupported(format!(

@@ -23,7 +23,7 @@
 
 use serde::Serialize;
 
-use crate::gpu::{Gpu, Kernel, QueueRole};
+use crate::gpu::{Buffer, Gpu, Kernel, QueueRole};
 use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 use crate::scene::{CameraKind, Scene};
@@ -32,8 +32,8 @@ use super::blocks::{self, BlockOptions, BlockSweeper, StoreKind, StreamStats, MA
 use super::gpu_scene::{self, GpuScene};
 use super::lattice::LatticeGeom;
 use super::marching::{self, MarchSettings, Marcher};
-use super::ordinates::{self, Eye, SweepSetup, Sweeper};
-use super::view::{self, FluxUse, MsVolume, ViewSettings};
+use super::ordinates::{self, Eye, Slab, SweepSetup, Sweeper};
+use super::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
 use super::{
     Convergence, Figure, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver,
     SolverError, Stats, Variant,
@@ -65,6 +65,16 @@ pub struct DomStats {
     pub streaming: Option<StreamStats>,
     /// Device bytes of the block sweeps (pool and tables), within dom.budget.
     pub sweep_device_bytes: u64,
+    /// The direct source was made in this many slabs of at most `source_layers` layers (one
+    /// with plane sweeps; as many as dom.budget and one binding need with blocks).
+    pub source_slabs: u32,
+    pub source_layers: u32,
+    /// Device bytes of the direct source's grid-sized buffers and tables (the binning tables,
+    /// one slab's deposit sums, sources and density), within dom.budget; the marcher's rays and
+    /// history (`dom.rays`) come on top.
+    pub source_device_bytes: u64,
+    /// View runs: one, or one per slab of the light toward the camera under dom.budget.
+    pub view_slabs: u32,
     /// Wall-clock ms of the render's stages, in order (setup, direct source, blocks,
     /// iterations, view): where the time goes when the GPU is not the bottleneck.
     pub stages_ms: Vec<(&'static str, f64)>,
@@ -148,6 +158,151 @@ impl DomSettings {
     }
 }
 
+fn sweep_setup<'a>(
+    set: &'a DomSettings,
+    geom: &LatticeGeom,
+    nch: u32,
+    g: f64,
+    eye: Eye,
+    sigma_t: &'a [f32],
+    sigma_s: &'a [f32],
+) -> SweepSetup<'a> {
+    SweepSetup {
+        dims: geom.dims,
+        h: geom.lambda,
+        origin: geom.origin,
+        channels: nch,
+        sigma_t,
+        sigma_s,
+        quadrature: &set.quadrature,
+        storage: &set.storage,
+        g,
+        eye,
+        scheme: set.scheme,
+    }
+}
+
+/// The view's slabs of the light toward the camera: the whole grid (None) where it fits
+/// `budget` and one binding, else windows of whole layers, each holding one more layer each side
+/// for the trilinear corners (so at least three held layers: [`SourcePlan::layers`] checks the
+/// budget holds them), the first adding the direct light.
+fn view_windows(plan: &SourcePlan, budget: Option<u64>, max_binding: u64) -> Vec<Option<MsWindow>> {
+    let nz = plan.dims[2];
+    let fits = budget.unwrap_or(u64::MAX).min(max_binding) / plan.view_layer().max(1);
+    if fits >= nz as u64 {
+        return vec![None];
+    }
+    let own = (fits.saturating_sub(2) as u32).max(1);
+    (0..nz).step_by(own as usize).map(|lo| Some(MsWindow::new(lo, (lo + own).min(nz), nz, lo == 0))).collect()
+}
+
+/// dom's light toward the camera (or a slab of it) as the view pass's volume.
+fn ms_volume<'a>(energy: &'a Buffer, geom: &LatticeGeom, nch: u32, window: Option<MsWindow>) -> MsVolume<'a> {
+    MsVolume {
+        energy,
+        dims: geom.dims,
+        channels: nch,
+        origin: geom.origin,
+        lambda: geom.lambda,
+        flux: FluxUse::None,
+        window,
+    }
+}
+
+/// Plane sweeps keep the sweeper that made the direct source.
+fn plane(s: &Option<Sweeper>) -> &Sweeper {
+    s.as_ref().expect("plane sweeps keep their sweeper")
+}
+
+/// The direct source's device memory, slab by slab of whole layers (thesis 5.2.2 streams the
+/// source by blocks; runs of layers are blocks as wide as the grid, which the marched rays and
+/// the bin pass need no halo for). What a slab holds: per beam and channel the deposits' sums,
+/// per channel and storage direction the first-scattering source and its copy as the stored
+/// source, and the resampled density. Beside it the binning tables and the beam table; the
+/// marcher's rays and history are `dom.rays`'s, not the grid's, and dom.budget leaves them out.
+struct SourcePlan {
+    dims: [u32; 3],
+    /// Bytes of one layer: all the slab's buffers, and the largest single one.
+    layer_bytes: u64,
+    layer_widest: u64,
+    /// The binning tables and the beam table.
+    fixed: u64,
+    channels: u32,
+}
+
+impl SourcePlan {
+    fn new(set: &DomSettings, geom: &LatticeGeom, nch: u32, beams: u64) -> SourcePlan {
+        let layer = geom.dims[0] as u64 * geom.dims[1] as u64;
+        let (nch64, m) = (nch as u64, set.storage.len() as u64);
+        SourcePlan {
+            dims: geom.dims,
+            layer_bytes: layer * 4 * (nch64 * beams + 2 * nch64 * m + 1),
+            layer_widest: layer * 4 * (nch64 * beams).max(nch64 * m),
+            fixed: Sweeper::bytes(geom.voxels(), nch64, &set.quadrature, &set.storage, set.scheme, false, 0)
+                + beams * 32,
+            channels: nch,
+        }
+    }
+
+    /// Bytes of one layer of the light toward the camera (all channels) that the view reads.
+    fn view_layer(&self) -> u64 {
+        self.dims[0] as u64 * self.dims[1] as u64 * self.channels as u64 * 4
+    }
+
+    /// Device bytes of a slab of `layers` layers and the tables (the marcher's rays apart).
+    fn bytes(&self, layers: u32) -> u64 {
+        self.fixed + layers as u64 * self.layer_bytes
+    }
+
+    /// The most layers a slab may have: the whole grid unless `budget` (bytes) or one binding
+    /// (`max_binding`) asks for fewer. A budget that holds neither one layer nor the block
+    /// sweeps' working set is one line naming the smallest that holds both.
+    fn layers(&self, set: &DomSettings, max_binding: u64, block: u32) -> Result<u32, SolverError> {
+        let nz = self.dims[2];
+        let by_binding = (max_binding / self.layer_widest.max(1)).min(nz as u64) as u32;
+        if by_binding == 0 {
+            return Err(SolverError::Unsupported(format!(
+                "one layer of dom's direct source ({} KiB of deposit sums per beam and channel, or of source per \
+                 storage direction) exceeds this device's largest binding ({} MiB): lower dom.grid, dom.env_lights \
+                 or dom.storage",
+                self.layer_widest >> 10,
+                max_binding >> 20
+            )));
+        }
+        let Some(budget) = set.budget else { return Ok(by_binding) };
+        let (layout, fixed) = BlockSweeper::plan(
+            self.dims,
+            self.channels,
+            &set.quadrature,
+            &set.storage,
+            set.scheme,
+            block.min(MAX_BLOCK),
+        );
+        let sweeps = blocks::working_set(&layout, fixed);
+        let source = self.bytes(1);
+        let view = self.view_layer() * nz.min(3) as u64;
+        let need = sweeps.max(source).max(view);
+        if budget < need {
+            return Err(SolverError::Unsupported(format!(
+                "dom.budget = {:.2} MiB is below this render's working set (sweeps: {} blocks of {} KiB, {} KiB of \
+                 scratch and {} KiB of tables; direct source: one layer of {} KiB and {} KiB of tables; view: {} \
+                 layers of {} KiB): set dom.budget to at least {} (MiB) or a smaller dom.block",
+                budget as f64 / 1048576.0,
+                layout.min_slots(),
+                (layout.record() * 4) >> 10,
+                (layout.scratch() * 4) >> 10,
+                fixed >> 10,
+                self.layer_bytes >> 10,
+                self.fixed >> 10,
+                nz.min(3),
+                self.view_layer() >> 10,
+                (need as f64 / 1048576.0 * 100.0).ceil() / 100.0
+            )));
+        }
+        Ok((((budget - self.fixed) / self.layer_bytes) as u32).min(by_binding))
+    }
+}
+
 impl Solver for Dom {
     fn name(&self) -> &'static str {
         "dom"
@@ -205,8 +360,10 @@ impl Solver for Dom {
                 "budget",
                 "0",
                 Range::non_negative(),
-                "MiB of device memory the block sweeps may hold (pool and tables); blocks beyond it stream from the \
-                 host store; 0: the whole grid when one binding holds it",
+                "MiB of device memory for the grid in each phase: the direct source made slab by slab, the block \
+                 sweeps' pool and tables (blocks beyond it stream from the host store), the view reading the light \
+                 toward the camera slab by slab (the rays of dom.rays come on top); 0: the whole grid when one \
+                 binding holds it",
             ),
             Knob::fixed(
                 "store",
@@ -254,29 +411,20 @@ impl Solver for Dom {
         let nch = gpu_scene::channels(scene, gs.modelled.chromatic);
         let geom = LatticeGeom::new(scene, set.grid);
         let marcher = Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false, false)?;
-        let density: Vec<f32> = gpu.read_buffer_as(&marcher.density)?;
+        let resampler = marching::resampler(gpu, &gs)?;
         let m = &scene.medium;
-        let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
-        for c in 0..nch as usize {
-            sigma_t.extend(density.iter().map(|d| m.sigma_t[c] * d));
-            sigma_s.extend(density.iter().map(|d| m.albedo[c] * m.sigma_t[c] * d));
-        }
         let eye = match scene.camera.kind {
             CameraKind::Perspective { .. } => Eye::Point(scene.camera.origin.to_array()),
             CameraKind::Orthographic { .. } => Eye::Toward((-scene.camera.basis().2).to_array()),
         };
-        let setup = SweepSetup {
-            dims: geom.dims,
-            h: geom.lambda,
-            origin: geom.origin,
-            channels: nch,
-            sigma_t: &sigma_t,
-            sigma_s: &sigma_s,
-            quadrature: &set.quadrature,
-            storage: &set.storage,
-            g: m.g as f64,
-            eye,
-            scheme: set.scheme,
+        let v = geom.voxels() as usize;
+        let extinction = |density: &[f32]| {
+            let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
+            for c in 0..nch as usize {
+                sigma_t.extend(density.iter().map(|d| m.sigma_t[c] * d));
+                sigma_s.extend(density.iter().map(|d| m.albedo[c] * m.sigma_t[c] * d));
+            }
+            (sigma_t, sigma_s)
         };
         // auto: whole-grid plane sweeps while their largest buffer (the field, or a face
         // array) fits one binding, else blocks.
@@ -289,45 +437,111 @@ impl Solver for Dom {
                 16
             }
         });
-        let sweeper = if block > 0 { Sweeper::for_source(gpu, &setup)? } else { Sweeper::new(gpu, &setup)? };
+        let beams = marcher.beams.len();
+        // Plane sweeps hold the whole grid: the direct source is one slab, binned straight into
+        // their buffers. Block sweeps make it slab by slab within dom.budget (and one binding),
+        // the density resampled and the source read back per slab: nothing grid-sized stays on
+        // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
+        let plan = SourcePlan::new(&set, &geom, nch, beams as u64);
+        let mut density = vec![0f32; v];
+        let (sigma_t, sigma_s, sweeper, layers) = if block == 0 {
+            let d = marching::resample(gpu, &gs, &geom, &resampler, 0, geom.dims[2])?;
+            density = gpu.read_buffer_as(&d)?;
+            let (sigma_t, sigma_s) = extinction(&density);
+            let sweeper = Sweeper::new(gpu, &sweep_setup(&set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s))?;
+            (sigma_t, sigma_s, sweeper, geom.dims[2])
+        } else {
+            let layers = plan.layers(&set, gpu.info().max_storage_buffer_range, block)?;
+            (
+                Vec::new(),
+                Vec::new(),
+                Sweeper::for_source(gpu, &sweep_setup(&set, &geom, nch, m.g as f64, eye, &[], &[]), layers)?,
+                layers,
+            )
+        };
 
         stage("setup");
-        // 5.2: march the light, summing each voxel's deposits per beam.
-        let beams = marcher.beams.len();
+        // 5.2: march the light, summing each voxel's deposits per beam; slab by slab, the rays
+        // march again from their start for each (the same steps: each voxel's integer sum is the
+        // same whatever the slabs).
         let sums = sweeper.deposit_sums(gpu, beams)?;
         let ray_beam = gpu.buffer_with("dom ray beams", &marcher.ray_beam)?;
-        let entries = marcher.ray_count * marcher.history_slots();
-        for round in 0..marcher.rounds {
-            (req.progress)(Progress::work("marching the direct source", round as u64, marcher.rounds as u64));
-            let deposit = sweeper.deposit_pass(
-                &marcher.history,
-                &ray_beam,
-                entries,
-                marcher.history_slots(),
-                beams as u32,
-                marcher.scale,
-                &sums,
-            );
-            let point = gpu.submit(QueueRole::Trace, &[marcher.march_pass(&gs), deposit], &[])?;
-            gpu.wait(point)?;
-        }
-        (req.progress)(Progress::work("marching the direct source", marcher.rounds as u64, marcher.rounds as u64));
-        // Each voxel's once-scattered power per beam, shared among the storage directions: the
-        // first-scattering source (per unit volume and sr), on the device.
         let table = gpu.buffer_with("dom beams", &sweeper.beam_table(m.g as f64, &marcher.beams))?;
-        let point =
-            gpu.submit(QueueRole::Diffuse, &[sweeper.bin_pass(&sums, &table, beams as u32, marcher.scale)], &[])?;
-        gpu.wait(point)?;
+        let entries = marcher.ray_count * marcher.history_slots();
+        let layer = geom.dims[0] * geom.dims[1];
+        let slabs: Vec<Slab> = (0..geom.dims[2])
+            .step_by(layers as usize)
+            .map(|z0| Slab { z0, layers: layers.min(geom.dims[2] - z0), layer })
+            .collect();
+        let storage_m = sweeper.storage.len();
+        let mut first = if block > 0 { vec![0f32; nch as usize * storage_m * v] } else { Vec::new() };
+        let work = (marcher.rounds as usize * slabs.len()) as u64;
+        let mut density_bytes = 0;
+        for (i, slab) in slabs.iter().enumerate() {
+            if i > 0 {
+                marcher.reset(gpu)?;
+                gpu.fill_zero(&sums)?;
+            }
+            if block > 0 {
+                let d = marching::resample(gpu, &gs, &geom, &resampler, slab.z0, slab.layers)?;
+                density_bytes = density_bytes.max(d.size());
+                let base = slab.base() as usize;
+                density[base..base + slab.voxels() as usize].copy_from_slice(&gpu.read_buffer_as::<f32>(&d)?);
+            }
+            for round in 0..marcher.rounds {
+                let done = (i * marcher.rounds as usize + round as usize) as u64;
+                (req.progress)(Progress::work("marching the direct source", done, work));
+                let deposit = sweeper.deposit_pass(
+                    &marcher.history,
+                    &ray_beam,
+                    entries,
+                    marcher.history_slots(),
+                    beams as u32,
+                    marcher.scale,
+                    &sums,
+                    *slab,
+                );
+                let point = gpu.submit(QueueRole::Trace, &[marcher.march_pass(&gs), deposit], &[])?;
+                gpu.wait(point)?;
+            }
+            // Each voxel's once-scattered power per beam, shared among the storage directions:
+            // the first-scattering source (per unit volume and sr).
+            let bin = sweeper.bin_pass(&sums, &table, beams as u32, marcher.scale, *slab);
+            let point = gpu.submit(QueueRole::Diffuse, &[bin], &[])?;
+            gpu.wait(point)?;
+            if block > 0 {
+                let part = sweeper.read_first(gpu, *slab)?;
+                let (sv, base) = (slab.voxels() as usize, slab.base() as usize);
+                for (cm, chunk) in part.chunks_exact(sv).enumerate() {
+                    first[cm * v + base..cm * v + base + sv].copy_from_slice(chunk);
+                }
+            }
+        }
+        (req.progress)(Progress::work("marching the direct source", work, work));
+        if block == 0 {
+            density_bytes = geom.voxels() * 4;
+        }
+        // Device bytes while the direct source is made: the marcher, the binning and the slab's
+        // sums and density (with plane sweeps the sweeper is all of the grid's buffers).
+        let budgeted = sweeper.device_bytes() + sums.size() + table.size() + density_bytes;
+        let source_bytes = budgeted + marcher.device_bytes() + ray_beam.size();
+        let (quadrature_g, upsampled) = (sweeper.quadrature_g, sweeper.upsampled());
+        drop((sums, ray_beam, table, marcher));
         stage("direct source");
-        let v = geom.voxels() as usize;
-        let mut blocked = if block > 0 {
+        let (sigma_t, sigma_s) = if block > 0 { extinction(&density) } else { (sigma_t, sigma_s) };
+        drop(density);
+        let setup = sweep_setup(&set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s);
+        let (mut blocked, sweeper) = if block > 0 {
+            // The direct source's buffers go before the pool comes: dom.budget bounds each phase.
+            drop(sweeper);
             let opts = BlockOptions { block, budget: set.budget, store: set.store.clone(), copies: set.copies };
             let mut b = BlockSweeper::new(gpu, &setup, &opts)?;
-            b.set_first(gpu, &sweeper.read_first(gpu)?)?;
+            b.set_first(gpu, &first)?;
+            drop(first);
             stage("block store");
-            Some(b)
+            (Some(b), None)
         } else {
-            None
+            (None, Some(sweeper))
         };
 
         // 5.3.4: scattering iterations, each sweeping every channel and updating the stored
@@ -338,7 +552,7 @@ impl Solver for Dom {
         while iterations < set.max_iterations {
             let phi = match blocked.as_mut() {
                 Some(b) => b.iterate(gpu)?,
-                None => sweeper.iterate(gpu)?,
+                None => plane(&sweeper).iterate(gpu)?,
             };
             iterations += 1;
             let scale = phi.iter().fold(0.0f64, |m, x| m.max(*x as f64));
@@ -362,28 +576,63 @@ impl Solver for Dom {
         stage("iterations");
         // The light each voxel scatters toward the camera, as the energy per voxel that the view
         // pass scatters isotropically (fluence = energy / lambda^2, as lbl's lattice).
-        let camera = match &blocked {
-            Some(b) => gpu.buffer_with("dom toward the camera", &b.camera())?,
-            None => sweeper.camera.clone(),
+        // With blocks the pool goes before the view, which takes the volume in slabs of whole
+        // layers where it does not fit dom.budget (or one binding): one view run per slab, the
+        // images added (view::MsWindow).
+        let (res, sweeps, streaming, sweep_device_bytes, view_slabs) = match blocked.take() {
+            Some(b) => {
+                let (stats, pool) = (b.stats, b.device_bytes());
+                let camera = b.camera();
+                drop(b);
+                let windows = view_windows(&plan, set.budget, gpu.info().max_storage_buffer_range);
+                let mut total: Option<view::ViewResult> = None;
+                for w in &windows {
+                    let part = match w {
+                        Some(w) => {
+                            let (first, count) = ((w.held[0] * layer) as usize, (w.held[1] * layer) as usize);
+                            let held: Vec<f32> =
+                                camera.chunks_exact(v).flat_map(|c| &c[first..first + count]).copied().collect();
+                            gpu.buffer_with("dom toward the camera (slab)", &held)?
+                        }
+                        None => gpu.buffer_with("dom toward the camera", &camera)?,
+                    };
+                    let mut r = view::march(gpu, scene, &gs, &set.view, Some(&ms_volume(&part, &geom, nch, *w)))?;
+                    r.device_bytes += part.size();
+                    total = Some(match total {
+                        None => r,
+                        Some(mut t) => {
+                            t.image.data.iter_mut().zip(&r.image.data).for_each(|(a, b)| *a += b);
+                            t.dispatches += r.dispatches;
+                            t.max_loop_iterations = t.max_loop_iterations.max(r.max_loop_iterations);
+                            t.nonfinite_pixels += r.nonfinite_pixels;
+                            t.device_bytes = t.device_bytes.max(r.device_bytes);
+                            t
+                        }
+                    });
+                }
+                let res = total.expect("at least one view window");
+                (res, pool, Some(stats), pool, windows.len() as u32)
+            }
+            None => {
+                let res = view::march(
+                    gpu,
+                    scene,
+                    &gs,
+                    &set.view,
+                    Some(&ms_volume(&plane(&sweeper).camera, &geom, nch, None)),
+                )?;
+                (res, plane(&sweeper).device_bytes(), None, 0, 1)
+            }
         };
-        let ms = MsVolume {
-            energy: &camera,
-            dims: geom.dims,
-            channels: nch,
-            origin: geom.origin,
-            lambda: geom.lambda,
-            flux: FluxUse::None,
-        };
-        let res = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
         stage("view");
+        // The largest of the phases: making the direct source, sweeping, viewing (plane sweeps
+        // keep their sweeper through the view; blocks hand the view their camera volume).
         let device = gs.bytes
-            + marcher.device_bytes()
-            + sweeper.device_bytes()
-            + blocked.as_ref().map_or(0, |b| b.device_bytes() + camera.size())
-            + sums.size()
-            + ray_beam.size()
-            + table.size()
-            + res.device_bytes;
+            + if block > 0 {
+                source_bytes.max(sweeps).max(res.device_bytes)
+            } else {
+                source_bytes.max(sweeps + res.device_bytes)
+            };
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device, Stats::new(()));
         let sweep_ms = report
             .passes
@@ -399,14 +648,18 @@ impl Solver for Dom {
             storage_directions: set.storage.len(),
             scheme: set.scheme,
             channels: nch,
-            quadrature_g: (sweeper.quadrature_g * 1e6).round() / 1e6 + 0.0,
+            quadrature_g: (quadrature_g * 1e6).round() / 1e6 + 0.0,
             iterations,
             converged,
             final_change: change,
             sweep_ms,
             block,
-            streaming: blocked.as_ref().map(|b| b.stats),
-            sweep_device_bytes: blocked.as_ref().map_or(0, |b| b.device_bytes()),
+            streaming,
+            sweep_device_bytes,
+            view_slabs,
+            source_slabs: slabs.len() as u32,
+            source_layers: layers,
+            source_device_bytes: budgeted,
             stages_ms: stages,
         };
         if !converged {
@@ -428,7 +681,7 @@ impl Solver for Dom {
         let updates = geom.voxels() as f64 * set.quadrature.len() as f64 * nch as f64 * iterations as f64;
         if sweep_ms > 0.0 {
             let per_second = updates / (sweep_ms / 1e3);
-            let bytes = 24.0 + if sweeper.upsampled() { 4.0 * sweeper.storage.len() as f64 } else { 0.0 };
+            let bytes = 24.0 + if upsampled { 4.0 * storage_m as f64 } else { 0.0 };
             stats.throughput = vec![
                 Figure { figure: "cell-direction updates/s".into(), value: per_second, unit: "1/s".into() },
                 Figure { figure: "grind time".into(), value: 1e9 / per_second, unit: "ns".into() },
@@ -451,11 +704,11 @@ impl Solver for Dom {
         let (rays, beams) = (rays.len() as u64, beams.len() as u64);
         let v = geom.voxels();
         let nch = gpu_scene::channels(scene, gpu_scene::modelled(scene, false).chromatic) as u64;
-        // Block sweeps: the pool (the whole grid, or what dom.budget allows) and tables, and
-        // the light toward the camera handed to the view pass.
+        // Block sweeps: the pool (the whole grid, or what dom.budget allows) and tables; then the
+        // light toward the camera handed to the view pass (whole, or its largest slab).
         // (auto counts as plane sweeps: the binding limit is the device's)
         let block = set.block.unwrap_or(0);
-        let blocked = if block > 0 {
+        let (sweeps, source_voxels) = if block > 0 {
             let (layout, fixed) = BlockSweeper::plan(
                 geom.dims,
                 nch as u32,
@@ -468,20 +721,44 @@ impl Solver for Dom {
                 + (layout.blocks() as u64 * layout.record()
                     + layout.blocks().min(layout.widest_plane()) as u64 * layout.scratch())
                     * 4;
-            set.budget.map_or(all, |b| b.min(all)) + nch * v * 4
+            let plan = SourcePlan::new(&set, &geom, nch as u32, beams);
+            let layers = plan.layers(&set, u64::MAX, block)?;
+            // Each view run: its slab of the light toward the camera and the view's buffers, the
+            // shadow volume in the run that adds the direct light only.
+            let (view, shadow) = (view::device_bytes(scene, &set.view), view::shadow_bytes(scene, &set.view));
+            let viewing = view_windows(&plan, set.budget, u64::MAX)
+                .iter()
+                .map(|w| match w {
+                    None => v * nch * 4 + view,
+                    Some(w) => w.held[1] as u64 * plan.view_layer() + view - if w.direct { 0 } else { shadow },
+                })
+                .max()
+                .unwrap_or(0);
+            (
+                Some((set.budget.map_or(all, |b| b.min(all)), viewing)),
+                geom.dims[0] as u64 * geom.dims[1] as u64 * layers as u64,
+            )
         } else {
-            0
+            (None, v)
         };
-        // The sweeper's buffers, the deposits' fixed-point sums per beam, each ray's beam and
-        // the beam table.
-        Ok(gpu_scene::scene_bytes(scene)
-            + m.device_bytes(&geom, rays, nch as u32, false, false)
-            + Sweeper::bytes(v, nch, &set.quadrature, &set.storage, set.scheme, block == 0)
-            + blocked
-            + nch * beams * v * 4
+        // Making the direct source: the marcher, the sweeper's buffers (all of them with plane
+        // sweeps, the binning's and one slab's sources with blocks), the slab's deposit sums per
+        // beam and density, each ray's beam and the beam table. Then the sweeps and the view.
+        let source = m.device_bytes(&geom, rays, nch as u32, false, false)
+            + Sweeper::bytes(v, nch, &set.quadrature, &set.storage, set.scheme, block == 0, source_voxels)
+            + nch * beams * source_voxels * 4
+            + source_voxels * 4
             + rays * 4
-            + beams * 32
-            + view::device_bytes(scene, &set.view))
+            + beams * 32;
+        Ok(gpu_scene::scene_bytes(scene)
+            + match sweeps {
+                // The pool, then the view runs.
+                Some((pool, viewing)) => source.max(pool).max(viewing),
+                None => source.max(
+                    Sweeper::bytes(v, nch, &set.quadrature, &set.storage, set.scheme, true, v)
+                        + view::device_bytes(scene, &set.view),
+                ),
+            })
     }
 
     /// Over the grid and the number of directions N (issue 13's ladder), cheapest first: level-
@@ -551,6 +828,14 @@ impl Solver for Dom {
                 st.uploads,
                 st.write_backs,
                 s.sweep_device_bytes as f64 / 1048576.0
+            ));
+            lines.push(format!(
+                "dom: direct source in {} slab{} of {} layer{}, {:.1} MiB of grid buffers",
+                s.source_slabs,
+                if s.source_slabs == 1 { "" } else { "s" },
+                s.source_layers,
+                if s.source_layers == 1 { "" } else { "s" },
+                s.source_device_bytes as f64 / 1048576.0
             ));
         }
         if !s.stages_ms.is_empty() {

@@ -180,6 +180,7 @@ impl Solver for Lbl {
             origin: g.origin,
             lambda: g.lambda,
             flux: if lat.stats.flux { set.flux } else { view::FluxUse::None },
+            window: None,
         };
         let mut view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
         if let Some(n) = &lat.stats.near_light {

@@ -136,11 +136,12 @@ impl MarchSettings {
     }
 
     /// Device bytes of a [`Marcher`] on `geom` with `ray_count` rays (as [`raymaps`] makes
-    /// them) and `nch` channels: density, rays, history, and with `sums` the grid's deposit sums
-    /// (with the deposits' fluxes when `directed`; else a 4-byte stand-in).
+    /// them) and `nch` channels: rays, history, with `sums` the grid's deposit sums (with the
+    /// deposits' fluxes when `directed`) and the resampled density (each a 4-byte stand-in
+    /// without `sums`: see [`Marcher::new`]).
     pub fn device_bytes(&self, geom: &LatticeGeom, ray_count: u64, nch: u32, directed: bool, sums: bool) -> u64 {
-        let sum_bytes = if sums { geom.voxels() * 4 * sum_slots(nch, directed) } else { 4 };
-        geom.voxels() * 4 + sum_bytes + ray_count * (RAY_BYTES + self.k as u64 * 16)
+        let grid_bytes = if sums { geom.voxels() * 4 * (sum_slots(nch, directed) + 1) } else { 8 };
+        grid_bytes + ray_count * (RAY_BYTES + self.k as u64 * 16)
     }
 }
 
@@ -283,11 +284,42 @@ fn sum_slots(nch: u32, directed: bool) -> u64 {
 
 /// Photon marching on one voxel grid: the resampled density, the rays, the Ray History
 /// Buffer and the per-voxel deposit sums, with the passes that advance and transfer them.
+/// The resampling kernel for `gs`'s medium.
+pub fn resampler(gpu: &Gpu, gs: &GpuScene) -> Result<Pipeline, SolverError> {
+    Ok(gpu.pipeline(&RESAMPLE, &gs.modelled.spec())?)
+}
+
+/// The medium's density at the voxel centres of layers `z0 .. z0 + layers` of `geom` (0 outside
+/// the medium), on the device, indexed from the slab's first voxel.
+/// `pipeline` is [`resampler`]'s.
+pub fn resample(
+    gpu: &Gpu,
+    gs: &GpuScene,
+    geom: &LatticeGeom,
+    pipeline: &Pipeline,
+    z0: u32,
+    layers: u32,
+) -> Result<Buffer, SolverError> {
+    let dims = [geom.dims[0], geom.dims[1], layers];
+    let density = gpu.buffer("marching density", dims.iter().map(|d| *d as u64).product::<u64>() * 4)?;
+    let p = gs
+        .bind(Pass::new("marching.resample", QueueRole::Trace, pipeline))
+        .write(3, &density)
+        .push(&GeomPush { dims: [dims[0], dims[1], dims[2], z0], origin: geom.origin4() })
+        .cover(dims);
+    let pt = gpu.submit(QueueRole::Trace, &[p], &[])?;
+    gpu.wait(pt)?;
+    Ok(density)
+}
+
 pub struct Marcher {
     pub geom: LatticeGeom,
-    /// The medium's density at every voxel centre (0 outside the medium).
+    /// The medium's density at every voxel centre (0 outside the medium); a 4-byte stand-in
+    /// without grid sums (dom resamples slab by slab, [`resample`]).
     pub density: Buffer,
     pub rays: Buffer,
+    /// The rays as they start ([`Marcher::reset`]).
+    start: Vec<RayInit>,
     pub history: Buffer,
     /// Deposit sums per channel and voxel ([c * V + v]): float bits, or fixed point of
     /// `scale` quanta per W when `fixed`; when `directed`, each voxel's deposit flux (deposit
@@ -314,9 +346,10 @@ impl Marcher {
     /// Resample the density onto `geom`, build the raymaps and the buffers for `nch` channels.
     /// `fixed`: deterministic fixed-point transfer instead of float atomics. `directed`: also
     /// sum the deposits' fluxes (the first moment of anisotropic media's once-scattered light).
-    /// `sums`: keep the grid's deposit sums and the transfer pass (lbl); without them (dom, which
-    /// sums its deposits per beam itself) the marcher holds no per-voxel sums: at 512^3 that is
-    /// 512 MiB per channel not allocated.
+    /// `sums`: keep the grid's deposit sums, the resampled density and the transfer pass (lbl);
+    /// without them (dom, which sums its deposits per beam and resamples the density slab by
+    /// slab itself) the marcher holds nothing per voxel: at 512^3 that is 512 MiB per channel
+    /// and 512 MiB of density not allocated.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         gpu: &Gpu,
@@ -333,21 +366,17 @@ impl Marcher {
         // Transfer kernels include lattice.glsl for the channel count; they never read links.
         let links = super::lattice::Lattice::D3q6.links();
         let transfer_spec = [(SPEC_NCH, Spec::U32(nch)), (SPEC_LINKS, Spec::U32(links))];
-        let resample = gpu.pipeline(&RESAMPLE, &gs.modelled.spec())?;
         let march = gpu.pipeline(&MARCH, &gs.modelled.spec())?;
         let transfer = if sums {
             Some(gpu.pipeline(if fixed { &TRANSFER_FIXED } else { &TRANSFER_FLOAT }, &transfer_spec)?)
         } else {
             None
         };
-        let density = gpu.buffer("marching density", v * 4)?;
-        let p = gs
-            .bind(Pass::new("marching.resample", QueueRole::Trace, &resample))
-            .write(3, &density)
-            .push(&GeomPush { dims: geom.dims4(), origin: geom.origin4() })
-            .cover(geom.dims);
-        let pt = gpu.submit(QueueRole::Trace, &[p], &[])?;
-        gpu.wait(pt)?;
+        let density = if sums {
+            resample(gpu, gs, &geom, &resampler(gpu, gs)?, 0, geom.dims[2])?
+        } else {
+            gpu.buffer("marching density (none kept)", 4)?
+        };
 
         let (rays, ray_beam, beam_list) = beams(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
         let ray_count = rays.len() as u32;
@@ -370,6 +399,7 @@ impl Marcher {
             geom,
             density,
             rays: ray_buf,
+            start: rays,
             history,
             sums,
             directed,
@@ -384,6 +414,12 @@ impl Marcher {
             march,
             transfer,
         })
+    }
+
+    /// Every ray back at its start, to march the light again (dom's direct source, slab by
+    /// slab: the same steps and deposits each time).
+    pub fn reset(&self, gpu: &Gpu) -> Result<(), SolverError> {
+        Ok(gpu.write_buffer(&self.rays, 0, bytemuck::cast_slice(&self.start))?)
     }
 
     /// One round: every ray advances `k` steps, writing its deposits into the history.

@@ -73,7 +73,9 @@ struct DepositPush {
     beams: u32,
     scale: f32,
     channels: u32,
-    pad: [u32; 2],
+    /// The slab's first voxel (`voxels` is its size).
+    base: u32,
+    pad: u32,
 }
 
 #[repr(C)]
@@ -86,7 +88,9 @@ struct BinPush {
     channels: u32,
     scale: f32,
     g: f32,
-    pad: [u32; 3],
+    /// The slab's first voxel (dims.w is its size).
+    base: u32,
+    pad: [u32; 2],
 }
 
 /// Where the camera is, for the light each voxel scatters toward it.
@@ -188,6 +192,31 @@ pub struct Sweeper {
     count: [u32; 8],
     /// Field slots per octant: its largest direction count.
     slots: u32,
+    /// Voxels the first-scattering and stored sources hold: the grid's, or one slab's
+    /// ([`Sweeper::for_source`]).
+    source_voxels: u32,
+}
+
+/// A run of whole layers of the grid (z outermost, so its voxels are contiguous): the direct
+/// source is made slab by slab when the whole grid's sums would not fit `dom.budget` or one
+/// binding (src/solvers/dom.rs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Slab {
+    /// The first layer and the number of layers.
+    pub z0: u32,
+    pub layers: u32,
+    /// Voxels per layer.
+    pub layer: u32,
+}
+
+impl Slab {
+    /// The slab's first voxel.
+    pub fn base(&self) -> u32 {
+        self.z0 * self.layer
+    }
+    pub fn voxels(&self) -> u32 {
+        self.layers * self.layer
+    }
 }
 
 /// The angular tables both sweepers upload: the swept directions by octant, the storage set
@@ -258,20 +287,22 @@ impl Tables {
 
 impl Sweeper {
     pub fn new(gpu: &Gpu, s: &SweepSetup) -> Result<Sweeper, SolverError> {
-        Self::with_sweeps(gpu, s, true)
+        Self::with_sweeps(gpu, s, true, s.dims[2])
     }
 
-    /// A sweeper for the direct source only (deposits and binning, [`Sweeper::read_first`]):
-    /// the field, faces and fluence that whole-grid sweeps need are left out, for when the
-    /// block sweeper (`solvers::blocks`) sweeps.
-    pub fn for_source(gpu: &Gpu, s: &SweepSetup) -> Result<Sweeper, SolverError> {
-        Self::with_sweeps(gpu, s, false)
+    /// A sweeper for the direct source only (deposits and binning, [`Sweeper::read_first`]),
+    /// slabs of at most `layers` layers at a time: the extinction, field, faces and fluence that
+    /// whole-grid sweeps need are left out, for when the block sweeper (`solvers::blocks`)
+    /// sweeps.
+    pub fn for_source(gpu: &Gpu, s: &SweepSetup, layers: u32) -> Result<Sweeper, SolverError> {
+        Self::with_sweeps(gpu, s, false, layers)
     }
 
-    fn with_sweeps(gpu: &Gpu, s: &SweepSetup, sweeps: bool) -> Result<Sweeper, SolverError> {
+    fn with_sweeps(gpu: &Gpu, s: &SweepSetup, sweeps: bool, layers: u32) -> Result<Sweeper, SolverError> {
         let v = s.dims.iter().map(|d| *d as u64).product::<u64>();
-        // Without sweeps the per-direction buffers are one-float stand-ins.
+        // Without sweeps the per-voxel buffers but the sources are one-float stand-ins.
         let sv = if sweeps { v } else { 0 };
+        let source_voxels = s.dims[0] as u64 * s.dims[1] as u64 * layers.min(s.dims[2]) as u64;
         let Tables {
             swept,
             storage,
@@ -305,10 +336,10 @@ impl Sweeper {
             g: s.g as f32,
             grid: [s.origin[0], s.origin[1], s.origin[2], s.h],
             eye: s.eye.packed(),
-            sigma_t: gpu.buffer_with("ordinates sigma_t", s.sigma_t)?,
-            sigma_s: gpu.buffer_with("ordinates sigma_s", s.sigma_s)?,
-            source: gpu.buffer("ordinates source", nch * m * v * 4)?,
-            first: gpu.buffer("ordinates first source", nch * m * v * 4)?,
+            sigma_t: gpu.buffer_with("ordinates sigma_t", if sweeps { s.sigma_t } else { &[0.0] })?,
+            sigma_s: gpu.buffer_with("ordinates sigma_s", if sweeps { s.sigma_s } else { &[0.0] })?,
+            source: gpu.buffer("ordinates source", nch * m * source_voxels * 4)?,
+            first: gpu.buffer("ordinates first source", nch * m * source_voxels * 4)?,
             dirs: gpu.buffer_with("ordinates directions", &to_vec4(&swept))?,
             storage_dirs: gpu.buffer_with("ordinates storage directions", &to_vec4(&storage))?,
             footprint: gpu.buffer_with("ordinates storage footprints", &footprint)?,
@@ -327,12 +358,14 @@ impl Sweeper {
             first_dir,
             count,
             slots,
+            source_voxels: source_voxels as u32,
         })
     }
 
     /// Device bytes [`Sweeper::new`] allocates for `channels` channels of `voxels` voxels,
     /// `q` swept and `storage` stored (the memory estimate's figure).
-    /// Without `sweeps` ([`Sweeper::for_source`]) the field, faces, fluence and camera are left out.
+    /// Without `sweeps` ([`Sweeper::for_source`], its sources `source_voxels` long) the
+    /// extinction, field, faces, fluence and camera are left out.
     pub fn bytes(
         voxels: u64,
         channels: u64,
@@ -340,18 +373,22 @@ impl Sweeper {
         storage: &Quadrature,
         scheme: Scheme,
         sweeps: bool,
+        source_voxels: u64,
     ) -> u64 {
         let slots = q.by_octant().2.iter().copied().max().unwrap_or(1).max(1) as u64;
         let (n, m) = (q.len() as u64, storage.len() as u64);
         let upsampled = m > 1 && storage.name != q.name;
         let sv = if sweeps { voxels } else { 0 };
-        let floats = voxels * channels * (2 + 2 * m)          // sigma_t, sigma_s, source, first
-            + sv * channels * (8 + 1)                         // fluence, camera
-            + 8 * slots * sv                                  // the field
+        // A buffer the sweeps alone need is a one-float stand-in without them.
+        let kept = |floats: u64| if sweeps { floats } else { 1 };
+        let source_voxels = if sweeps { voxels } else { source_voxels };
+        let floats = 2 * kept(voxels * channels) + source_voxels * channels * 2 * m // sigma_t, sigma_s, source, first
+            + kept(sv * channels * 8) + kept(sv * channels)   // fluence, camera
+            + kept(8 * slots * sv)                            // the field
             + n * 4 + m * 4 + m * 4                           // directions, storage directions, footprints
             + n * m                                           // the scattering matrix
             + if upsampled { n * m } else { 1 } // the upsampling (one float when unused)
-            + if scheme == Scheme::Characteristics { 20 * n + 3 * 8 * slots * sv } else { 1 + 3 };
+            + if scheme == Scheme::Characteristics { 20 * n + 3 * kept(8 * slots * sv) } else { 1 + 3 };
         4 * floats
     }
 
@@ -389,14 +426,20 @@ impl Sweeper {
         self.dims.iter().product()
     }
 
-    /// A zeroed buffer for [`Sweeper::deposit_pass`]'s fixed-point sums ([c][beam][v]).
+    /// A zeroed buffer for [`Sweeper::deposit_pass`]'s fixed-point sums ([c][beam][v]) of a
+    /// slab as large as the sources hold.
     pub fn deposit_sums(&self, gpu: &Gpu, beams: usize) -> Result<Buffer, SolverError> {
-        Ok(gpu.buffer("ordinates deposits", self.channels as u64 * beams as u64 * self.voxels() as u64 * 4)?)
+        Ok(gpu.buffer("ordinates deposits", self.channels as u64 * beams as u64 * self.source_voxels as u64 * 4)?)
+    }
+
+    /// The whole grid as one slab.
+    pub fn whole(&self) -> Slab {
+        Slab { z0: 0, layers: self.dims[2], layer: self.dims[0] * self.dims[1] }
     }
 
     #[allow(clippy::too_many_arguments)]
-    /// One marching round's transfer into `sums`: each deposit added to its voxel's sum for its
-    /// ray's beam (`ray_beam`), in fixed point of `scale` quanta per W.
+    /// One marching round's transfer into `sums`: each deposit in `slab` added to its voxel's
+    /// sum for its ray's beam (`ray_beam`), in fixed point of `scale` quanta per W.
     pub fn deposit_pass(
         &self,
         history: &Buffer,
@@ -406,19 +449,22 @@ impl Sweeper {
         beams: u32,
         scale: f32,
         sums: &Buffer,
+        slab: Slab,
     ) -> Pass {
+        assert!(slab.voxels() <= self.source_voxels, "a slab the sources hold");
         Pass::new("ordinates.deposit", QueueRole::Trace, &self.deposit)
             .read(0, history)
             .read_write(1, sums)
             .read(2, ray_beam)
             .push(&DepositPush {
                 entries,
-                voxels: self.voxels(),
+                voxels: slab.voxels(),
                 k,
                 beams,
                 scale,
                 channels: self.channels,
-                pad: [0; 2],
+                base: slab.base(),
+                pad: 0,
             })
             .cover([entries, 1, 1])
     }
@@ -438,11 +484,12 @@ impl Sweeper {
             .collect()
     }
 
-    /// Share the deposits' sums (`sums`, [`Sweeper::deposit_pass`]) among the storage
-    /// directions: the first-scattering source, and the first iteration's (bin.comp).
-    pub fn bin_pass(&self, sums: &Buffer, beam_table: &Buffer, beams: u32, scale: f32) -> Pass {
+    /// Share the deposits' sums of `slab` (`sums`, [`Sweeper::deposit_pass`]) among the storage
+    /// directions: the slab's first-scattering source, and the first iteration's (bin.comp),
+    /// [c][m][v] over the slab's voxels.
+    pub fn bin_pass(&self, sums: &Buffer, beam_table: &Buffer, beams: u32, scale: f32, slab: Slab) -> Pass {
         let [nx, ny, nz] = self.dims;
-        let v = nx * ny * nz;
+        let v = slab.voxels();
         Pass::new("ordinates.bin", QueueRole::Diffuse, &self.bin)
             .read(0, sums)
             .read(1, beam_table)
@@ -458,14 +505,17 @@ impl Sweeper {
                 channels: self.channels,
                 scale,
                 g: self.g,
-                pad: [0; 3],
+                base: slab.base(),
+                pad: [0; 2],
             })
             .cover([v, 1, 1])
     }
 
-    /// The first-scattering source the bin pass stored ([c][m][v], per unit volume and sr).
-    pub fn read_first(&self, gpu: &Gpu) -> Result<Vec<f32>, SolverError> {
-        Ok(gpu.read_buffer_as(&self.first)?)
+    /// The first-scattering source the bin pass stored for `slab` ([c][m][v] over its voxels,
+    /// per unit volume and sr).
+    pub fn read_first(&self, gpu: &Gpu, slab: Slab) -> Result<Vec<f32>, SolverError> {
+        let floats = self.channels as u64 * self.storage.len() as u64 * slab.voxels() as u64;
+        Ok(bytemuck::pod_collect_to_vec(&gpu.read_buffer_prefix(&self.first, floats * 4)?))
     }
 
     /// Set the first-scattering source ([c][m][v], per unit volume and sr) and start the

@@ -34,7 +34,9 @@ pub struct ViewPush {
     pub slot: u32,
     /// 1: the multiple-scattering volume carries the vector irradiance after the fluence.
     pub ms_flux: u32,
-    pub pad: [u32; 2],
+    /// 1: the volume's light alone (a later slab of an out-of-core volume, [`MsWindow`]).
+    pub ms_only: u32,
+    pub pad: u32,
     /// Volume voxels xyz and channels (x = 0: no multiple-scattering volume).
     pub ms_dims: [u32; 4],
     /// Volume min corner and voxel edge lambda.
@@ -44,6 +46,8 @@ pub struct ViewPush {
     /// Shadow volume voxels xyz (x = 0: none; every shadow ray is marched), w = depths per
     /// unit and voxel (1 or 2).
     pub shadow_dims: [u32; 4],
+    /// The volume's layers held (first, count) and counted (first, end): [`MsWindow`].
+    pub ms_window: [u32; 4],
 }
 
 /// Push constants of glsl/view/shadow.comp.
@@ -115,8 +119,9 @@ fn shadow_grid<'a>(scene: &'a Scene, v: &ViewSettings) -> Option<&'a crate::scen
     }
 }
 
-/// Device bytes of the shadow volume for `v` on `scene` (0 when it marches).
-fn shadow_bytes(scene: &Scene, v: &ViewSettings) -> u64 {
+/// Device bytes of the shadow volume for `v` on `scene` (0 when it marches; a run of a later
+/// [`MsWindow`] builds none).
+pub fn shadow_bytes(scene: &Scene, v: &ViewSettings) -> u64 {
     shadow_grid(scene, v).map_or(0, |g| {
         shadow_sides(v) as u64
             * light_units(scene, v.env_dirs) as u64
@@ -304,6 +309,30 @@ pub struct MsVolume<'a> {
     pub lambda: f32,
     /// What follows the fluence, and how the view pass scatters it.
     pub flux: FluxUse,
+    /// One slab of the volume (None: all of it).
+    pub window: Option<MsWindow>,
+}
+
+/// A slab of whole layers of a volume too large for the device at once (`dom`'s light toward the
+/// camera under dom.budget): the view runs once per slab and the images add up. The run counts
+/// the samples whose layer is in `own` and holds the layers `held` (one more each side, where
+/// the grid has them, for the trilinear corners); the run with `direct` also adds the direct
+/// light and the background, so nothing is counted twice.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MsWindow {
+    /// First layer held and how many.
+    pub held: [u32; 2],
+    /// First layer counted and one past the last.
+    pub own: [u32; 2],
+    pub direct: bool,
+}
+
+impl MsWindow {
+    /// The window counting layers `lo .. hi` of a grid of `nz` layers.
+    pub fn new(lo: u32, hi: u32, nz: u32, direct: bool) -> MsWindow {
+        let first = lo.saturating_sub(1);
+        MsWindow { held: [first, (hi + 1).min(nz) - first], own: [lo, hi], direct }
+    }
 }
 
 /// How the view pass scatters a volume's multiply scattered light toward the camera
@@ -357,7 +386,9 @@ pub fn march(
     let stats = gpu.buffer("view stats", resumable::STATS_WORDS * 4)?;
     // The shadow volume, when the settings ask for one: every unit's depth at every voxel
     // centre (both ways for the bounded octaves), in one dispatch before the march.
-    let (shadow_buf, shadow_dims) = match shadow_grid(scene, v) {
+    let window = ms.and_then(|m| m.window);
+    let direct = window.is_none_or(|w| w.direct);
+    let (shadow_buf, shadow_dims) = match shadow_grid(scene, v).filter(|_| direct) {
         Some(g) => {
             let units = light_units(scene, v.env_dirs);
             let voxels = g.dims.iter().map(|d| *d as u64).product::<u64>();
@@ -376,6 +407,11 @@ pub fn march(
     };
     // One stand-in for whichever volume binding this render leaves unused.
     let unused = if ms.is_none() || shadow_buf.is_none() { Some(gpu.buffer("unused view volume", 4)?) } else { None };
+    let ms_window = match (ms, window) {
+        (_, Some(w)) => [w.held[0], w.held[1], w.own[0], w.own[1]],
+        (Some(m), None) => [0, m.dims[2], 0, m.dims[2]],
+        (None, None) => [0; 4],
+    };
     let (ms_buf, ms_dims, ms_origin, ms_flux) = match ms {
         Some(m) => (
             m.energy,
@@ -400,11 +436,13 @@ pub fn march(
             budget: v.budget,
             slot,
             ms_flux,
-            pad: [0; 2],
+            ms_only: !direct as u32,
+            pad: 0,
             ms_dims,
             ms_origin,
             octave: [o.a, o.b, o.c, if o.bounded { 1.0 } else { 0.0 }],
             shadow_dims,
+            ms_window,
         };
         gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline))
             .write(3, &out)

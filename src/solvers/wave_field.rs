@@ -392,6 +392,7 @@ impl WaveVolume {
             origin: self.geom.origin,
             lambda: self.geom.lambda,
             flux: super::view::FluxUse::TwoTerm,
+            window: None,
         }
     }
 }
