@@ -226,15 +226,15 @@ fn streamed_render_from_the_command_line_matches_in_core() {
 /// phase stay within the budget. The first-scattering source is the same bits whatever the
 /// slabs (each voxel's deposits are integer sums), so with the sweeps bit-identical too the image
 /// differs from the in-core one only by the order the view's slabs add up in.
-/// Two cases: a sun-lit isotropic sphere at 40^3 (the light toward the camera is the largest
-/// buffer, so the view runs in slabs), and a point light inside a chromatic anisotropic cloud
-/// under a sky (rays marching both ways through the slabs, many beams, 48 storage directions).
+/// Two cases: the isotropic sphere under its sun and sky at 40^3 (15 beams: the deposit sums
+/// are most of a layer, so the beams are summed in groups and the slabs are thicker; the light
+/// toward the camera is larger than the budget, so the view runs in slabs), and a point light
+/// inside a chromatic anisotropic cloud under a sky (rays marching both ways through the slabs,
+/// 48 storage directions).
 #[test]
 fn direct_source_and_view_stream_slab_by_slab_within_the_budget() {
     let gpu = gpu();
-    let sphere =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/homogeneous-sphere.toml")).unwrap();
-    let sun = crate::common::scene(&sphere[..sphere.find("# A faint uniform sky").expect("the sphere's sky")]);
+    let sphere = crate::common::repo_scene("scenes/homogeneous-sphere.toml", &[]);
     let cloud = crate::common::repo_scene("scenes/point-light-in-cloud.toml", &[]);
     let sky = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/point-light-in-cloud.toml"))
         .unwrap()
@@ -250,8 +250,8 @@ fn direct_source_and_view_stream_slab_by_slab_within_the_budget() {
     assert_eq!(cloud_sky.lights.len(), cloud.lights.len() + 1);
     let cases: [(&str, &scatterlab::scene::Scene, &[(&str, &str)], f64, bool); 2] = [
         (
-            "sun-lit sphere, 40^3",
-            &sun,
+            "sphere under a sun and a sky, 40^3",
+            &sphere,
             &[
                 ("dom.grid", "40"),
                 ("dom.block", "8"),
@@ -287,11 +287,12 @@ fn direct_source_and_view_stream_slab_by_slab_within_the_budget() {
         let (w, s) = (detail(&whole), detail(&streamed));
         let bytes = (budget_mib * 1048576.0) as u64;
         eprintln!(
-            "{name}: in-core 1 slab ({} B of source buffers), streamed {} source slabs of {} layers ({} B), {} view \
-             slabs, pool {} B",
+            "{name}: in-core 1 slab ({} B of source buffers), streamed {} source slabs of {} layers x {} groups of \
+             beams ({} B), {} view slabs, pool {} B",
             w.source_device_bytes,
             s.source_slabs,
             s.source_layers,
+            s.source_groups,
             s.source_device_bytes,
             s.view_slabs,
             s.sweep_device_bytes
@@ -300,6 +301,9 @@ fn direct_source_and_view_stream_slab_by_slab_within_the_budget() {
         assert!(w.source_device_bytes > bytes, "{name}: the case must need streaming");
         assert!(s.source_slabs > 1, "{name}: the direct source streamed");
         assert_eq!(s.view_slabs > 1, view_slabs, "{name}: view slabs {}", s.view_slabs);
+        // The sphere's sums (15 beams) are most of a layer: summed beam by beam the slabs are
+        // thicker than with all beams at once.
+        assert_eq!(s.source_groups > 1, view_slabs, "{name}: beam groups {}", s.source_groups);
         assert!(s.source_device_bytes <= bytes && s.sweep_device_bytes <= bytes, "{name}: within the budget");
         // `scene info`'s estimate is what the streamed render allocates at its peak.
         let knobs: Vec<(String, String)> = streamed_sets

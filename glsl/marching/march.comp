@@ -28,17 +28,21 @@ layout(std430, binding = 3) buffer Rays { Ray rays[]; };
 layout(std430, binding = 4) writeonly buffer History { uvec4 rhb[]; };
 
 layout(push_constant) uniform Push {
-    uvec4 dims;          // lattice voxels xyz, w = ray count
+    uvec4 dims;          // lattice voxels xyz, w = rays this dispatch marches
     vec4 origin;         // lattice min corner, w = lambda (voxel edge)
     float step;          // marching step, scene units
     float threshold;     // a ray dies below this fraction of its starting power
     uint k;              // Ray History Buffer slots per ray per round
     uint max_steps;
+    uint first_ray;      // the first of them (dom marches one group of beams' rays at a time)
+    uint pad0;
+    uint pad1;
+    uint pad2;
 } pc;
 
 void main() {
-    uint r = gl_GlobalInvocationID.x;
-    if (r >= pc.dims.w) return;
+    if (gl_GlobalInvocationID.x >= pc.dims.w) return;
+    uint r = pc.first_ray + gl_GlobalInvocationID.x;
     Ray ray = rays[r];
     vec3 x = ray.pos_steps.xyz;
     float steps = ray.pos_steps.w;

@@ -8,7 +8,9 @@
 // storage directions' footprints f_m): src/physics/angular.rs, StorageMap::shares, which the
 // host computes for parallel beams; for a point light's beam it is found here by the same
 // bisection. Emission per unit volume and sr: F_m = sum_b E_b share_m / (w_m lambda^3).
-// One slab of whole layers at a time (deposit.comp): voxel v of the slab is base + v of the grid.
+// One slab of whole layers at a time (deposit.comp): voxel v of the slab is base + v of the grid;
+// and one group of beams at a time, beam0 .. beam0 + beam_count, added in order to what the
+// groups before left (the same additions in the same order as one pass over all the beams).
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -23,13 +25,13 @@ layout(std430, binding = 5) writeonly buffer Source { float source[]; };    // t
 layout(push_constant) uniform Push {
     uvec4 dims;      // the grid's voxels xyz, w = the slab's voxels V (the grid's when whole)
     vec4 grid;       // xyz the grid's lower corner, w lambda
-    uint beam_count; // B
+    uint beam_count; // B: the group's beams
     uint storage;    // M
     uint channels;
     float scale;     // fixed-point quanta per W
     float g;         // the medium's asymmetry
     uint base;       // the slab's first voxel
-    uint pad1;
+    uint beam0;      // the group's first beam (0: the first group, which starts the sums)
     uint pad2;
 } pc;
 
@@ -66,8 +68,9 @@ void main() {
     ivec3 p = ivec3(gv % pc.dims.x, (gv / pc.dims.x) % pc.dims.y, gv / (pc.dims.x * pc.dims.y));
     vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
     float per_volume = 1.0 / (pc.scale * pc.grid.w * pc.grid.w * pc.grid.w);
-    for (uint c = 0u; c < pc.channels; ++c)
-        for (uint m = 0u; m < M; ++m) first[(c * M + m) * V + v] = 0.0;
+    if (pc.beam0 == 0u)
+        for (uint c = 0u; c < pc.channels; ++c)
+            for (uint m = 0u; m < M; ++m) first[(c * M + m) * V + v] = 0.0;
     for (uint b = 0u; b < pc.beam_count; ++b) {
         vec3 e = vec3(0.0);
         bool any_light = false;
@@ -76,12 +79,12 @@ void main() {
             any_light = any_light || e[c] > 0.0;
         }
         if (!any_light) continue;
-        vec4 a = beams[2u * b];
+        vec4 a = beams[2u * (pc.beam0 + b)];
         vec3 away = centre - a.xyz;
         // A point light at the voxel centre lights it from every side: isotropic shares.
         bool at_light = a.w != 0.0 && dot(away, away) < 1e-12 * pc.grid.w * pc.grid.w;
         vec3 d = a.w == 0.0 ? a.xyz : (at_light ? vec3(0.0, 0.0, 1.0) : normalize(away));
-        float g = a.w == 0.0 ? beams[2u * b + 1u].x : (at_light ? 0.0 : matched_g(d));
+        float g = a.w == 0.0 ? beams[2u * (pc.beam0 + b) + 1u].x : (at_light ? 0.0 : matched_g(d));
         float norm = 0.0;
         for (uint m = 0u; m < M; ++m) norm += storage_dirs[m].w * hg_eval(g, dot(d, storage_dirs[m].xyz));
         for (uint m = 0u; m < M; ++m) {

@@ -18,23 +18,26 @@ layout(std430, binding = 1) buffer Accum { uint acc[]; };               // [c][b
 layout(std430, binding = 2) readonly buffer RayBeam { uint ray_beam[]; }; // per ray
 
 layout(push_constant) uniform Push {
-    uint entries;    // rays * k
+    uint entries;    // rays * k, of the group of beams this pass sums
     uint voxels;     // voxels in the slab (V for the whole grid)
     uint k;          // history slots per ray: entry e belongs to ray e / k
-    uint beams;      // B
+    uint beams;      // B: the group's beams
     float scale;     // fixed-point quanta per W
     uint channels;   // 1 or 3
     uint base;       // the slab's first voxel
+    uint first_entry; // the group's first entry (its first ray times k)
+    uint beam0;      // the group's first beam
+    uint pad0;
     uint pad1;
 } pc;
 
 void main() {
-    uint e = gl_GlobalInvocationID.x;
-    if (e >= pc.entries) return;
+    if (gl_GlobalInvocationID.x >= pc.entries) return;
+    uint e = pc.first_entry + gl_GlobalInvocationID.x;
     uvec4 s = rhb[e];
     if (s.x == 0xffffffffu || s.x < pc.base || s.x - pc.base >= pc.voxels) return;
     vec3 dep = uintBitsToFloat(s.yzw);
-    uint b = ray_beam[e / pc.k];
+    uint b = ray_beam[e / pc.k] - pc.beam0;
     for (uint c = 0u; c < pc.channels; ++c)
         atomicAdd(acc[(c * pc.beams + b) * pc.voxels + (s.x - pc.base)], uint(dep[c] * pc.scale + 0.5));
 }

@@ -32,7 +32,7 @@ use super::blocks::{self, BlockOptions, BlockSweeper, StoreKind, StreamStats, MA
 use super::gpu_scene::{self, GpuScene};
 use super::lattice::LatticeGeom;
 use super::marching::{self, MarchSettings, Marcher};
-use super::ordinates::{self, Eye, Slab, SweepSetup, Sweeper};
+use super::ordinates::{self, BeamGroup, Eye, Slab, SweepSetup, Sweeper};
 use super::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
 use super::{
     Convergence, Figure, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver,
@@ -58,6 +58,10 @@ pub struct DomStats {
     pub iterations: u32,
     pub converged: bool,
     pub final_change: f64,
+    /// With dom.extrapolate, where the extrapolated fluence converged: the increments' decay
+    /// per iteration and the share of the fluence the added tail stands for.
+    pub tail_ratio: Option<f64>,
+    pub tail_share: Option<f64>,
     pub sweep_ms: f64,
     /// Block edge (0: whole-grid plane sweeps).
     pub block: u32,
@@ -69,6 +73,8 @@ pub struct DomStats {
     /// with plane sweeps; as many as dom.budget and one binding need with blocks).
     pub source_slabs: u32,
     pub source_layers: u32,
+    /// Groups of beams per slab (each ray marches once per slab, in its group's pass).
+    pub source_groups: u32,
     /// Device bytes of the direct source's grid-sized buffers and tables (the binning tables,
     /// one slab's deposit sums, sources and density), within dom.budget; the marcher's rays and
     /// history (`dom.rays`) come on top.
@@ -87,6 +93,7 @@ struct DomSettings {
     scheme: Scheme,
     tol: f64,
     max_iterations: u32,
+    extrapolate: bool,
     /// Block edge (0: whole-grid plane sweeps; None: auto, decided by the device's binding
     /// limit), the device budget in bytes and the store.
     block: Option<u32>,
@@ -138,6 +145,7 @@ impl DomSettings {
             scheme: if scheme == "step" { Scheme::Step } else { Scheme::Characteristics },
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
+            extrapolate: k.get("extrapolate")?,
             block: match block.as_str() {
                 "auto" if streams => Some(16),
                 "auto" => None,
@@ -196,6 +204,17 @@ fn view_windows(plan: &SourcePlan, budget: Option<u64>, max_binding: u64) -> Vec
     (0..nz).step_by(own as usize).map(|lo| Some(MsWindow::new(lo, (lo + own).min(nz), nz, lo == 0))).collect()
 }
 
+/// The source iteration's extrapolated tail (dom.extrapolate).
+struct Tail {
+    /// The increments' decay per iteration, and the share of the fluence the tail stands for.
+    ratio: f64,
+    share: f64,
+    /// The light toward the camera two iterations before the last, and the decay of its own
+    /// pair increments, rho^2 (at most the fluence's: its tail never counts more bounces).
+    camera_before2: Vec<f32>,
+    camera_ratio2: f64,
+}
+
 /// dom's light toward the camera (or a slab of it) as the view pass's volume.
 fn ms_volume<'a>(energy: &'a Buffer, geom: &LatticeGeom, nch: u32, window: Option<MsWindow>) -> MsVolume<'a> {
     MsVolume {
@@ -216,18 +235,34 @@ fn plane(s: &Option<Sweeper>) -> &Sweeper {
 
 /// The direct source's device memory, slab by slab of whole layers (thesis 5.2.2 streams the
 /// source by blocks; runs of layers are blocks as wide as the grid, which the marched rays and
-/// the bin pass need no halo for). What a slab holds: per beam and channel the deposits' sums,
-/// per channel and storage direction the first-scattering source and its copy as the stored
-/// source, and the resampled density. Beside it the binning tables and the beam table; the
-/// marcher's rays and history are `dom.rays`'s, not the grid's, and dom.budget leaves them out.
+/// the bin pass need no halo for), and group by group of beams. What a slab holds: per beam of
+/// the group and channel the deposits' sums, per channel and storage direction the
+/// first-scattering source and its copy as the stored source, and the resampled density. Beside
+/// it the binning tables and the beam table; the marcher's rays and history are `dom.rays`'s,
+/// not the grid's, and dom.budget leaves them out.
+///
+/// Every ray marches once per slab (in its group's pass), so the marching costs the number of
+/// slabs; fewer beams per group make a layer smaller and the slabs thicker. The plan takes the
+/// fewest slabs, and of those the largest groups (fewer, fuller dispatches).
 struct SourcePlan {
     dims: [u32; 3],
-    /// Bytes of one layer: all the slab's buffers, and the largest single one.
-    layer_bytes: u64,
-    layer_widest: u64,
+    beams: u64,
+    /// Bytes per layer: the sums of one beam, and the sources and density.
+    layer_beam: u64,
+    layer_rest: u64,
+    /// Bytes per layer of one storage direction's source (with the sums, what one binding holds).
+    layer_source: u64,
     /// The binning tables and the beam table.
     fixed: u64,
     channels: u32,
+}
+
+/// How the direct source is made: slabs of at most `layers` layers, groups of at most `group`
+/// beams.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct SourceCut {
+    layers: u32,
+    group: u32,
 }
 
 impl SourcePlan {
@@ -236,8 +271,10 @@ impl SourcePlan {
         let (nch64, m) = (nch as u64, set.storage.len() as u64);
         SourcePlan {
             dims: geom.dims,
-            layer_bytes: layer * 4 * (nch64 * beams + 2 * nch64 * m + 1),
-            layer_widest: layer * 4 * (nch64 * beams).max(nch64 * m),
+            beams,
+            layer_beam: layer * 4 * nch64,
+            layer_rest: layer * 4 * (2 * nch64 * m + 1),
+            layer_source: layer * 4 * nch64 * m,
             fixed: Sweeper::bytes(geom.voxels(), nch64, &set.quadrature, &set.storage, set.scheme, false, 0)
                 + beams * 32,
             channels: nch,
@@ -249,57 +286,73 @@ impl SourcePlan {
         self.dims[0] as u64 * self.dims[1] as u64 * self.channels as u64 * 4
     }
 
-    /// Device bytes of a slab of `layers` layers and the tables (the marcher's rays apart).
-    fn bytes(&self, layers: u32) -> u64 {
-        self.fixed + layers as u64 * self.layer_bytes
+    /// Bytes of one layer with groups of `group` beams.
+    fn layer_bytes(&self, group: u32) -> u64 {
+        group as u64 * self.layer_beam + self.layer_rest
     }
 
-    /// The most layers a slab may have: the whole grid unless `budget` (bytes) or one binding
-    /// (`max_binding`) asks for fewer. A budget that holds neither one layer nor the block
-    /// sweeps' working set is one line naming the smallest that holds both.
-    fn layers(&self, set: &DomSettings, max_binding: u64, block: u32) -> Result<u32, SolverError> {
+    /// Device bytes of a slab of `layers` layers with groups of `group` beams and the tables
+    /// (the marcher's rays apart).
+    fn bytes(&self, cut: SourceCut) -> u64 {
+        self.fixed + cut.layers as u64 * self.layer_bytes(cut.group)
+    }
+
+    /// The cut: the whole grid and every beam at once unless `budget` (bytes) or one binding
+    /// (`max_binding`) asks for less. A budget below one layer of one beam, the block sweeps'
+    /// working set or three layers of the view's volume is one line naming the smallest that
+    /// holds them all.
+    fn cut(&self, set: &DomSettings, max_binding: u64, block: u32) -> Result<SourceCut, SolverError> {
         let nz = self.dims[2];
-        let by_binding = (max_binding / self.layer_widest.max(1)).min(nz as u64) as u32;
-        if by_binding == 0 {
-            return Err(SolverError::Unsupported(format!(
-                "one layer of dom's direct source ({} KiB of deposit sums per beam and channel, or of source per \
-                 storage direction) exceeds this device's largest binding ({} MiB): lower dom.grid, dom.env_lights \
-                 or dom.storage",
-                self.layer_widest >> 10,
+        let beams = self.beams.max(1) as u32;
+        if let Some(budget) = set.budget {
+            let (layout, fixed) = BlockSweeper::plan(
+                self.dims,
+                self.channels,
+                &set.quadrature,
+                &set.storage,
+                set.scheme,
+                block.min(MAX_BLOCK),
+            );
+            let sweeps = blocks::working_set(&layout, fixed);
+            let source = self.bytes(SourceCut { layers: 1, group: 1 });
+            let view = self.view_layer() * nz.min(3) as u64;
+            let need = sweeps.max(source).max(view);
+            if budget < need {
+                return Err(SolverError::Unsupported(format!(
+                    "dom.budget = {:.2} MiB is below this render's working set (sweeps: {} blocks of {} KiB, {} KiB \
+                     of scratch and {} KiB of tables; direct source: one layer of {} KiB and {} KiB of tables; view: \
+                     {} layers of {} KiB): set dom.budget to at least {} (MiB) or a smaller dom.block",
+                    budget as f64 / 1048576.0,
+                    layout.min_slots(),
+                    (layout.record() * 4) >> 10,
+                    (layout.scratch() * 4) >> 10,
+                    fixed >> 10,
+                    self.layer_bytes(1) >> 10,
+                    self.fixed >> 10,
+                    nz.min(3),
+                    self.view_layer() >> 10,
+                    (need as f64 / 1048576.0 * 100.0).ceil() / 100.0
+                )));
+            }
+        }
+        // The most layers with groups of `group`: within the budget, and each buffer in one binding.
+        let layers = |group: u32| -> u32 {
+            let widest = (group as u64 * self.layer_beam).max(self.layer_source).max(1);
+            let by_binding = max_binding / widest;
+            let by_budget = set.budget.map_or(u64::MAX, |b| (b - self.fixed) / self.layer_bytes(group));
+            by_binding.min(by_budget).min(nz as u64) as u32
+        };
+        let slabs = |group: u32| nz.div_ceil(layers(group).max(1));
+        let best = (1..=beams).rev().filter(|g| layers(*g) > 0).min_by_key(|g| slabs(*g)).ok_or_else(|| {
+            SolverError::Unsupported(format!(
+                "one layer of dom's direct source ({} KiB of source per storage direction, {} KiB of deposit sums \
+                     per beam) exceeds this device's largest binding ({} MiB): lower dom.grid or dom.storage",
+                self.layer_source >> 10,
+                self.layer_beam >> 10,
                 max_binding >> 20
-            )));
-        }
-        let Some(budget) = set.budget else { return Ok(by_binding) };
-        let (layout, fixed) = BlockSweeper::plan(
-            self.dims,
-            self.channels,
-            &set.quadrature,
-            &set.storage,
-            set.scheme,
-            block.min(MAX_BLOCK),
-        );
-        let sweeps = blocks::working_set(&layout, fixed);
-        let source = self.bytes(1);
-        let view = self.view_layer() * nz.min(3) as u64;
-        let need = sweeps.max(source).max(view);
-        if budget < need {
-            return Err(SolverError::Unsupported(format!(
-                "dom.budget = {:.2} MiB is below this render's working set (sweeps: {} blocks of {} KiB, {} KiB of \
-                 scratch and {} KiB of tables; direct source: one layer of {} KiB and {} KiB of tables; view: {} \
-                 layers of {} KiB): set dom.budget to at least {} (MiB) or a smaller dom.block",
-                budget as f64 / 1048576.0,
-                layout.min_slots(),
-                (layout.record() * 4) >> 10,
-                (layout.scratch() * 4) >> 10,
-                fixed >> 10,
-                self.layer_bytes >> 10,
-                self.fixed >> 10,
-                nz.min(3),
-                self.view_layer() >> 10,
-                (need as f64 / 1048576.0 * 100.0).ceil() / 100.0
-            )));
-        }
-        Ok((((budget - self.fixed) / self.layer_bytes) as u32).min(by_binding))
+            ))
+        })?;
+        Ok(SourceCut { layers: layers(best), group: best })
     }
 }
 
@@ -331,6 +384,15 @@ impl Solver for Dom {
                 "source iteration stops when the fluence changes by less than this, relative to its largest value",
             ),
             Knob::fixed("max_iterations", "2000", Range::int(1, 1_000_000), "source iterations at most"),
+            Knob::fixed(
+                "extrapolate",
+                "true",
+                Range::Bool,
+                "add the source iteration's geometric tail (the last iteration's increment times r / (1 - r), r the \
+                 decay of the increments: the light of the bounces not swept, as the thesis's progressive G'' \
+                 measures it) and test convergence on the extrapolated fluence (docs/dom.md); false: stop on the \
+                 plain fluence's change",
+            ),
             Knob::fixed(
                 "scheme",
                 "characteristics",
@@ -444,30 +506,28 @@ impl Solver for Dom {
         // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
         let plan = SourcePlan::new(&set, &geom, nch, beams as u64);
         let mut density = vec![0f32; v];
-        let (sigma_t, sigma_s, sweeper, layers) = if block == 0 {
+        let (sigma_t, sigma_s, sweeper, cut) = if block == 0 {
             let d = marching::resample(gpu, &gs, &geom, &resampler, 0, geom.dims[2])?;
             density = gpu.read_buffer_as(&d)?;
             let (sigma_t, sigma_s) = extinction(&density);
             let sweeper = Sweeper::new(gpu, &sweep_setup(&set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s))?;
-            (sigma_t, sigma_s, sweeper, geom.dims[2])
+            (sigma_t, sigma_s, sweeper, SourceCut { layers: geom.dims[2], group: beams.max(1) as u32 })
         } else {
-            let layers = plan.layers(&set, gpu.info().max_storage_buffer_range, block)?;
-            (
-                Vec::new(),
-                Vec::new(),
-                Sweeper::for_source(gpu, &sweep_setup(&set, &geom, nch, m.g as f64, eye, &[], &[]), layers)?,
-                layers,
-            )
+            let cut = plan.cut(&set, gpu.info().max_storage_buffer_range, block)?;
+            let setup = sweep_setup(&set, &geom, nch, m.g as f64, eye, &[], &[]);
+            (Vec::new(), Vec::new(), Sweeper::for_source(gpu, &setup, cut.layers)?, cut)
         };
 
         stage("setup");
-        // 5.2: march the light, summing each voxel's deposits per beam; slab by slab, the rays
-        // march again from their start for each (the same steps: each voxel's integer sum is the
-        // same whatever the slabs).
-        let sums = sweeper.deposit_sums(gpu, beams)?;
+        // 5.2: march the light, summing each voxel's deposits per beam; slab by slab and group by
+        // group of beams, each ray marching from its start once per slab in its group's pass
+        // (the same steps: each voxel's integer sum is the same whatever the cut, and the groups
+        // are binned in beam order, so the source is the same bits).
+        let layers = cut.layers;
+        let groups = BeamGroup::split(&marcher.ray_beam, beams as u32, cut.group);
+        let sums = sweeper.deposit_sums(gpu, cut.group as usize)?;
         let ray_beam = gpu.buffer_with("dom ray beams", &marcher.ray_beam)?;
         let table = gpu.buffer_with("dom beams", &sweeper.beam_table(m.g as f64, &marcher.beams))?;
-        let entries = marcher.ray_count * marcher.history_slots();
         let layer = geom.dims[0] * geom.dims[1];
         let slabs: Vec<Slab> = (0..geom.dims[2])
             .step_by(layers as usize)
@@ -475,14 +535,18 @@ impl Solver for Dom {
             .collect();
         let storage_m = sweeper.storage.len();
         let mut first = if block > 0 { vec![0f32; nch as usize * storage_m * v] } else { Vec::new() };
-        let work = (marcher.rounds as usize * slabs.len()) as u64;
+        let passes: Vec<(Slab, &BeamGroup)> = slabs.iter().flat_map(|s| groups.iter().map(move |g| (*s, g))).collect();
+        let work = (marcher.rounds as usize * passes.len()) as u64;
         let mut density_bytes = 0;
-        for (i, slab) in slabs.iter().enumerate() {
+        for (i, (slab, group)) in passes.iter().enumerate() {
+            let (slab, first_group) = (*slab, group.beams.start == 0);
             if i > 0 {
-                marcher.reset(gpu)?;
+                if first_group {
+                    marcher.reset(gpu)?;
+                }
                 gpu.fill_zero(&sums)?;
             }
-            if block > 0 {
+            if block > 0 && first_group {
                 let d = marching::resample(gpu, &gs, &geom, &resampler, slab.z0, slab.layers)?;
                 density_bytes = density_bytes.max(d.size());
                 let base = slab.base() as usize;
@@ -491,26 +555,22 @@ impl Solver for Dom {
             for round in 0..marcher.rounds {
                 let done = (i * marcher.rounds as usize + round as usize) as u64;
                 (req.progress)(Progress::work("marching the direct source", done, work));
-                let deposit = sweeper.deposit_pass(
-                    &marcher.history,
-                    &ray_beam,
-                    entries,
-                    marcher.history_slots(),
-                    beams as u32,
-                    marcher.scale,
-                    &sums,
-                    *slab,
-                );
-                let point = gpu.submit(QueueRole::Trace, &[marcher.march_pass(&gs), deposit], &[])?;
+                if group.rays.is_empty() {
+                    continue;
+                }
+                let k = marcher.history_slots();
+                let deposit = sweeper.deposit_pass(&marcher.history, &ray_beam, k, group, marcher.scale, &sums, slab);
+                let march = marcher.march_pass(&gs, group.rays.clone());
+                let point = gpu.submit(QueueRole::Trace, &[march, deposit], &[])?;
                 gpu.wait(point)?;
             }
             // Each voxel's once-scattered power per beam, shared among the storage directions:
             // the first-scattering source (per unit volume and sr).
-            let bin = sweeper.bin_pass(&sums, &table, beams as u32, marcher.scale, *slab);
+            let bin = sweeper.bin_pass(&sums, &table, group, marcher.scale, slab);
             let point = gpu.submit(QueueRole::Diffuse, &[bin], &[])?;
             gpu.wait(point)?;
-            if block > 0 {
-                let part = sweeper.read_first(gpu, *slab)?;
+            if block > 0 && group.beams.end == beams as u32 {
+                let part = sweeper.read_first(gpu, slab)?;
                 let (sv, base) = (slab.voxels() as usize, slab.base() as usize);
                 for (cm, chunk) in part.chunks_exact(sv).enumerate() {
                     first[cm * v + base..cm * v + base + sv].copy_from_slice(chunk);
@@ -545,33 +605,127 @@ impl Solver for Dom {
         };
 
         // 5.3.4: scattering iterations, each sweeping every channel and updating the stored
-        // source on the device; the host reads the fluence to judge convergence.
-        let mut previous: Vec<f32> = vec![0.0; nch as usize * v];
+        // source on the device; the host reads the fluence to judge convergence. Iteration n's
+        // increment Phi_n - Phi_(n-1) is the light of the n-th bounce (the thesis's G'', what
+        // its progressive scheme sweeps). Once the increments decay geometrically, the bounces
+        // not yet swept add up to a geometric tail. It is taken over pairs of iterations: a
+        // back-scattering medium's slow modes alternate in sign (at g -0.9 the ratio of
+        // successive increments swings 0.73 / 0.76 / 0.74 ...), and the last increment alone,
+        // times r / (1 - r), put the image 1.6e-4 above the converged one. With the pair
+        // P_n = Phi_n - Phi_(n-2) and rho^2 = sum P_n / sum P_(n-2), the tail is
+        // P_n rho^2 / (1 - rho^2): exact for the slowest mode, the alternating ones damped.
+        // With dom.extrapolate the convergence is tested on the extrapolated fluence (same
+        // tolerance, between successive iterations), and at convergence the same tail (with the
+        // light toward the camera's own decay, at most the fluence's) is added to that light.
+        let read_camera =
+            |blocked: &Option<BlockSweeper>, sweeper: &Option<Sweeper>| -> Result<Vec<f32>, SolverError> {
+                Ok(match blocked {
+                    Some(b) => b.camera(),
+                    None => gpu.read_buffer_as(&plane(sweeper).camera)?,
+                })
+            };
+        let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
+        // rho^2 from the sums of the pair increments (newest last), when it is a decay.
+        let decay2 = |s: &[f64]| -> Option<f64> {
+            match s {
+                [.., a, _, c] if *a > 0.0 && *c > 0.0 => Some(c / a).filter(|r| *r < 1.0),
+                _ => None,
+            }
+        };
+        let zero = vec![0.0f32; nch as usize * v];
+        // The fluence and the light toward the camera after the last two iterations (newest last).
+        let (mut fluences, mut cameras): (Vec<Vec<f32>>, Vec<Vec<f32>>) = (vec![zero.clone(), zero], Vec::new());
+        let (mut pair_sums, mut camera_pair_sums) = (Vec::<f64>::new(), Vec::<f64>::new());
+        let mut previous_extrapolated = None::<Vec<f32>>;
         let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
         let mut last_change: Option<(f64, u64)> = None;
+        let mut tail: Option<Tail> = None;
         while iterations < set.max_iterations {
             let phi = match blocked.as_mut() {
                 Some(b) => b.iterate(gpu)?,
                 None => plane(&sweeper).iterate(gpu)?,
             };
             iterations += 1;
+            let (before, before2) = (&fluences[1], &fluences[0]);
             let scale = phi.iter().fold(0.0f64, |m, x| m.max(*x as f64));
-            change = phi.iter().zip(&previous).fold(0.0f64, |m, (a, b)| m.max((*a as f64 - *b as f64).abs()))
-                / if scale > 0.0 { scale } else { 1.0 };
-            previous = phi;
+            let scale = if scale > 0.0 { scale } else { 1.0 };
+            change = phi.iter().zip(before).fold(0.0f64, |m, (a, b)| m.max((*a as f64 - *b as f64).abs())) / scale;
+            let mut extrapolated_change = None;
+            let mut ratio = None;
+            // The light toward the camera two iterations back.
+            let mut camera_before2 = None;
+            if set.extrapolate {
+                let camera = read_camera(&blocked, &sweeper)?;
+                if cameras.len() == 2 {
+                    let b2 = cameras.remove(0);
+                    camera_pair_sums.push(diff_sum(&camera, &b2));
+                    camera_before2 = Some(b2);
+                }
+                cameras.push(camera);
+                if iterations >= 2 {
+                    pair_sums.push(diff_sum(&phi, before2));
+                }
+                ratio = decay2(&pair_sums);
+                match ratio {
+                    Some(r2) => {
+                        let f = (r2 / (1.0 - r2)) as f32;
+                        let e: Vec<f32> = phi.iter().zip(before2).map(|(a, b)| a + (a - b).max(0.0) * f).collect();
+                        let e_scale = e.iter().fold(0.0f64, |m, x| m.max(*x as f64)).max(f64::MIN_POSITIVE);
+                        if let Some(pe) = &previous_extrapolated {
+                            extrapolated_change = Some(
+                                e.iter().zip(pe).fold(0.0f64, |m, (a, b)| m.max((*a as f64 - *b as f64).abs()))
+                                    / e_scale,
+                            );
+                        }
+                        previous_extrapolated = Some(e);
+                    }
+                    None => previous_extrapolated = None,
+                }
+            }
+            let shown = extrapolated_change.map_or(change, |e| e.min(change));
             (req.progress)(Progress::converging(
                 "source iterations",
                 iterations as u64,
-                change,
+                shown,
                 set.tol,
                 last_change,
                 (set.max_iterations - iterations) as u64,
             ));
-            last_change = Some((change, iterations as u64));
+            last_change = Some((shown, iterations as u64));
             if change <= set.tol {
                 converged = true;
+            } else if let (Some(e), Some(r2)) = (extrapolated_change, ratio) {
+                if e <= set.tol {
+                    converged = true;
+                    change = e;
+                    let (total, pair) = (phi.iter().map(|x| *x as f64).sum::<f64>(), diff_sum(&phi, before2));
+                    let added = pair * r2 / (1.0 - r2);
+                    tail = Some(Tail {
+                        ratio: r2.sqrt(),
+                        share: added / (total + added).max(f64::MIN_POSITIVE),
+                        camera_ratio2: decay2(&camera_pair_sums)
+                            .filter(|_| camera_before2.is_some())
+                            .map_or(0.0, |c| c.min(r2)),
+                        camera_before2: camera_before2.take().unwrap_or_default(),
+                    });
+                }
+            }
+            fluences.remove(0);
+            fluences.push(phi);
+            if converged {
                 break;
             }
+        }
+        // The tail toward the camera: the last pair increment of the gathered light times
+        // rho^2 / (1 - rho^2).
+        let camera_tail = |camera: &mut Vec<f32>, t: &Tail| {
+            let f = (t.camera_ratio2 / (1.0 - t.camera_ratio2)) as f32;
+            camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c += (*c - p).max(0.0) * f);
+        };
+        if let (Some(t), None) = (&tail, &blocked) {
+            let mut camera = read_camera(&blocked, &sweeper)?;
+            camera_tail(&mut camera, t);
+            gpu.write_buffer(&plane(&sweeper).camera, 0, bytemuck::cast_slice(&camera))?;
         }
         stage("iterations");
         // The light each voxel scatters toward the camera, as the energy per voxel that the view
@@ -582,7 +736,10 @@ impl Solver for Dom {
         let (res, sweeps, streaming, sweep_device_bytes, view_slabs) = match blocked.take() {
             Some(b) => {
                 let (stats, pool) = (b.stats, b.device_bytes());
-                let camera = b.camera();
+                let mut camera = b.camera();
+                if let Some(t) = &tail {
+                    camera_tail(&mut camera, t);
+                }
                 drop(b);
                 let windows = view_windows(&plan, set.budget, gpu.info().max_storage_buffer_range);
                 let mut total: Option<view::ViewResult> = None;
@@ -652,6 +809,8 @@ impl Solver for Dom {
             iterations,
             converged,
             final_change: change,
+            tail_ratio: tail.as_ref().map(|t| t.ratio),
+            tail_share: tail.as_ref().map(|t| t.share),
             sweep_ms,
             block,
             streaming,
@@ -659,6 +818,7 @@ impl Solver for Dom {
             view_slabs,
             source_slabs: slabs.len() as u32,
             source_layers: layers,
+            source_groups: groups.len() as u32,
             source_device_bytes: budgeted,
             stages_ms: stages,
         };
@@ -708,7 +868,7 @@ impl Solver for Dom {
         // light toward the camera handed to the view pass (whole, or its largest slab).
         // (auto counts as plane sweeps: the binding limit is the device's)
         let block = set.block.unwrap_or(0);
-        let (sweeps, source_voxels) = if block > 0 {
+        let (sweeps, source_voxels, group) = if block > 0 {
             let (layout, fixed) = BlockSweeper::plan(
                 geom.dims,
                 nch as u32,
@@ -722,7 +882,7 @@ impl Solver for Dom {
                     + layout.blocks().min(layout.widest_plane()) as u64 * layout.scratch())
                     * 4;
             let plan = SourcePlan::new(&set, &geom, nch as u32, beams);
-            let layers = plan.layers(&set, u64::MAX, block)?;
+            let cut = plan.cut(&set, u64::MAX, block)?;
             // Each view run: its slab of the light toward the camera and the view's buffers, the
             // shadow volume in the run that adds the direct light only.
             let (view, shadow) = (view::device_bytes(scene, &set.view), view::shadow_bytes(scene, &set.view));
@@ -736,17 +896,18 @@ impl Solver for Dom {
                 .unwrap_or(0);
             (
                 Some((set.budget.map_or(all, |b| b.min(all)), viewing)),
-                geom.dims[0] as u64 * geom.dims[1] as u64 * layers as u64,
+                geom.dims[0] as u64 * geom.dims[1] as u64 * cut.layers as u64,
+                cut.group as u64,
             )
         } else {
-            (None, v)
+            (None, v, beams.max(1))
         };
         // Making the direct source: the marcher, the sweeper's buffers (all of them with plane
         // sweeps, the binning's and one slab's sources with blocks), the slab's deposit sums per
-        // beam and density, each ray's beam and the beam table. Then the sweeps and the view.
+        // beam of a group and density, each ray's beam and the beam table. Then the sweeps and the view.
         let source = m.device_bytes(&geom, rays, nch as u32, false, false)
             + Sweeper::bytes(v, nch, &set.quadrature, &set.storage, set.scheme, block == 0, source_voxels)
-            + nch * beams * source_voxels * 4
+            + nch * group * source_voxels * 4
             + source_voxels * 4
             + rays * 4
             + beams * 32;
@@ -798,7 +959,7 @@ impl Solver for Dom {
         let d = s.grid.dims;
         let mut lines = vec![format!(
             "dom: {}x{}x{} voxels, {:?}, {} ({} directions), source stored at {} ({} direction{}, g {:.3} on the \
-             quadrature), {} channel{}, {} source iterations{} (change {:.1e}), sweeps {:.1} ms",
+             quadrature), {} channel{}, {} source iterations{} (change {:.1e}{}), sweeps {:.1} ms",
             d[0],
             d[1],
             d[2],
@@ -814,6 +975,10 @@ impl Solver for Dom {
             s.iterations,
             if s.converged { "" } else { ", NOT converged" },
             s.final_change,
+            match (s.tail_ratio, s.tail_share) {
+                (Some(r), Some(share)) => format!("; tail of {:.2}% of the fluence added, decay {r:.4}", share * 100.0),
+                _ => String::new(),
+            },
             s.sweep_ms
         )];
         if let Some(st) = &s.streaming {
@@ -830,11 +995,13 @@ impl Solver for Dom {
                 s.sweep_device_bytes as f64 / 1048576.0
             ));
             lines.push(format!(
-                "dom: direct source in {} slab{} of {} layer{}, {:.1} MiB of grid buffers",
+                "dom: direct source in {} slab{} of {} layer{} x {} group{} of beams, {:.1} MiB of grid buffers",
                 s.source_slabs,
                 if s.source_slabs == 1 { "" } else { "s" },
                 s.source_layers,
                 if s.source_layers == 1 { "" } else { "s" },
+                s.source_groups,
+                if s.source_groups == 1 { "" } else { "s" },
                 s.source_device_bytes as f64 / 1048576.0
             ));
         }

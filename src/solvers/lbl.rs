@@ -616,7 +616,7 @@ pub fn run_lattice(
             continue;
         }
         let passes = match st.step {
-            Step::March(_) => vec![marcher.march_pass(gs)],
+            Step::March(_) => vec![marcher.march_pass(gs, 0..marcher.ray_count)],
             Step::Transfer(_) => {
                 let mut p = vec![marcher.transfer_pass(QueueRole::Diffuse)];
                 if !warm {

@@ -36,6 +36,9 @@ struct MarchPush {
     threshold: f32,
     k: u32,
     max_steps: u32,
+    /// The first ray this dispatch marches (dims.w: how many).
+    first_ray: u32,
+    pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -422,21 +425,24 @@ impl Marcher {
         Ok(gpu.write_buffer(&self.rays, 0, bytemuck::cast_slice(&self.start))?)
     }
 
-    /// One round: every ray advances `k` steps, writing its deposits into the history.
-    pub fn march_pass(&self, gs: &GpuScene) -> Pass {
+    /// One round: every ray in `rays` advances `k` steps, writing its deposits into the history.
+    pub fn march_pass(&self, gs: &GpuScene, rays: std::ops::Range<u32>) -> Pass {
         let g = &self.geom;
+        let count = rays.end - rays.start;
         gs.bind(Pass::new("marching.march", QueueRole::Trace, &self.march))
             .read_write(3, &self.rays)
             .write(4, &self.history)
             .push(&MarchPush {
-                dims: [g.dims[0], g.dims[1], g.dims[2], self.ray_count],
+                dims: [g.dims[0], g.dims[1], g.dims[2], count],
                 origin: g.origin4(),
                 step: self.set.step,
                 threshold: self.set.threshold,
                 k: self.set.k,
                 max_steps: self.max_steps,
+                first_ray: rays.start,
+                pad: [0; 3],
             })
-            .cover([self.ray_count, 1, 1])
+            .cover([count, 1, 1])
     }
 
     /// Add the last round's history into the sums, on queue role `role`.

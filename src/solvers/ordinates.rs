@@ -75,7 +75,10 @@ struct DepositPush {
     channels: u32,
     /// The slab's first voxel (`voxels` is its size).
     base: u32,
-    pad: u32,
+    /// The group of beams: its first history entry and first beam (`entries`, `beams`: its size).
+    first_entry: u32,
+    beam0: u32,
+    pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -90,7 +93,9 @@ struct BinPush {
     g: f32,
     /// The slab's first voxel (dims.w is its size).
     base: u32,
-    pad: [u32; 2],
+    /// The group's first beam (`beams` is its size).
+    beam0: u32,
+    pad: u32,
 }
 
 /// Where the camera is, for the light each voxel scatters toward it.
@@ -207,6 +212,29 @@ pub struct Slab {
     pub layers: u32,
     /// Voxels per layer.
     pub layer: u32,
+}
+
+/// Beams whose deposits are summed and binned together, and their rays (the rays of a beam are
+/// contiguous, beam after beam: `marching::beams`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BeamGroup {
+    pub beams: std::ops::Range<u32>,
+    pub rays: std::ops::Range<u32>,
+}
+
+impl BeamGroup {
+    /// The beams cut into groups of at most `size`, with their rays (`ray_beam`: each ray's beam,
+    /// non-decreasing).
+    pub fn split(ray_beam: &[u32], beams: u32, size: u32) -> Vec<BeamGroup> {
+        let first_ray = |b: u32| ray_beam.partition_point(|x| *x < b) as u32;
+        (0..beams)
+            .step_by(size.max(1) as usize)
+            .map(|b0| {
+                let b1 = (b0 + size.max(1)).min(beams);
+                BeamGroup { beams: b0..b1, rays: first_ray(b0)..first_ray(b1) }
+            })
+            .collect()
+    }
 }
 
 impl Slab {
@@ -426,8 +454,8 @@ impl Sweeper {
         self.dims.iter().product()
     }
 
-    /// A zeroed buffer for [`Sweeper::deposit_pass`]'s fixed-point sums ([c][beam][v]) of a
-    /// slab as large as the sources hold.
+    /// A zeroed buffer for [`Sweeper::deposit_pass`]'s fixed-point sums ([c][beam][v]) of
+    /// `beams` beams on a slab as large as the sources hold.
     pub fn deposit_sums(&self, gpu: &Gpu, beams: usize) -> Result<Buffer, SolverError> {
         Ok(gpu.buffer("ordinates deposits", self.channels as u64 * beams as u64 * self.source_voxels as u64 * 4)?)
     }
@@ -438,19 +466,20 @@ impl Sweeper {
     }
 
     #[allow(clippy::too_many_arguments)]
-    /// One marching round's transfer into `sums`: each deposit in `slab` added to its voxel's
-    /// sum for its ray's beam (`ray_beam`), in fixed point of `scale` quanta per W.
+    /// One marching round's transfer into `sums`: each deposit of the rays of `group` that
+    /// falls in `slab` added to its voxel's sum for its ray's beam (`ray_beam`), in fixed point
+    /// of `scale` quanta per W.
     pub fn deposit_pass(
         &self,
         history: &Buffer,
         ray_beam: &Buffer,
-        entries: u32,
         k: u32,
-        beams: u32,
+        group: &BeamGroup,
         scale: f32,
         sums: &Buffer,
         slab: Slab,
     ) -> Pass {
+        let entries = (group.rays.end - group.rays.start) * k;
         assert!(slab.voxels() <= self.source_voxels, "a slab the sources hold");
         Pass::new("ordinates.deposit", QueueRole::Trace, &self.deposit)
             .read(0, history)
@@ -460,11 +489,13 @@ impl Sweeper {
                 entries,
                 voxels: slab.voxels(),
                 k,
-                beams,
+                beams: group.beams.end - group.beams.start,
                 scale,
                 channels: self.channels,
                 base: slab.base(),
-                pad: 0,
+                first_entry: group.rays.start * k,
+                beam0: group.beams.start,
+                pad: [0; 2],
             })
             .cover([entries, 1, 1])
     }
@@ -484,10 +515,10 @@ impl Sweeper {
             .collect()
     }
 
-    /// Share the deposits' sums of `slab` (`sums`, [`Sweeper::deposit_pass`]) among the storage
-    /// directions: the slab's first-scattering source, and the first iteration's (bin.comp),
-    /// [c][m][v] over the slab's voxels.
-    pub fn bin_pass(&self, sums: &Buffer, beam_table: &Buffer, beams: u32, scale: f32, slab: Slab) -> Pass {
+    /// Share the deposits' sums of `group` on `slab` (`sums`, [`Sweeper::deposit_pass`]) among
+    /// the storage directions, added to the groups' before: the slab's first-scattering source,
+    /// and the first iteration's (bin.comp), [c][m][v] over the slab's voxels.
+    pub fn bin_pass(&self, sums: &Buffer, beam_table: &Buffer, group: &BeamGroup, scale: f32, slab: Slab) -> Pass {
         let [nx, ny, nz] = self.dims;
         let v = slab.voxels();
         Pass::new("ordinates.bin", QueueRole::Diffuse, &self.bin)
@@ -500,13 +531,14 @@ impl Sweeper {
             .push(&BinPush {
                 dims: [nx, ny, nz, v],
                 grid: self.grid,
-                beams,
+                beams: group.beams.end - group.beams.start,
                 storage: self.storage.len() as u32,
                 channels: self.channels,
                 scale,
                 g: self.g,
                 base: slab.base(),
-                pad: [0; 2],
+                beam0: group.beams.start,
+                pad: 0,
             })
             .cover([v, 1, 1])
     }
