@@ -17,6 +17,7 @@ mod path_extremes_tests;
 mod phase_gpu;
 mod physics_tests;
 mod registry_tests;
+mod report_tests;
 mod scene_tests;
 mod slab_reference;
 mod solvers;

@@ -40,6 +40,7 @@ pub fn run(cli: Cli) -> Result<()> {
         } => bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache }, &gpu),
         Command::Scene { command: SceneCommand::Info { scene, set, json } } => scene_info(&scene, &set, json),
         Command::Knobs { solver, markdown } => knobs(solver.as_deref(), markdown),
+        Command::Report { out, quick, scenes, compare, gpu } => report(out, quick, scenes, compare, &gpu),
     }
 }
 
@@ -569,5 +570,63 @@ fn knobs(solver: Option<&str>, markdown: bool) -> Result<()> {
             outln!("{}", solvers::knobs::reference_text(s));
         }
     }
+    Ok(())
+}
+
+/// `scatterlab report`: run it (report.json and report.md land together at the end, nothing on
+/// a failure), or compare two.
+fn report(
+    out: Option<PathBuf>,
+    quick: bool,
+    scenes: PathBuf,
+    compare: Option<Vec<PathBuf>>,
+    gpu: &GpuArgs,
+) -> Result<()> {
+    use crate::measure::report;
+    let load = |p: &Path| -> Result<report::Report> {
+        let text = std::fs::read_to_string(p).map_err(|e| anyhow!("cannot read {}: {e}", p.display()))?;
+        serde_json::from_str(&text).map_err(|e| anyhow!("{} is not a scatterlab report.json: {e}", p.display()))
+    };
+    if let Some(files) = compare {
+        let (a, b) = (load(&files[0])?, load(&files[1])?);
+        let name = |r: &report::Report| r.device.get("name").and_then(|v| v.as_str()).unwrap_or("?").to_string();
+        outln!("A: {} ({})\nB: {} ({})", name(&a), a.engine, name(&b), b.engine);
+        outln!("{:<70} {:>14} {:>14} {:>9}", "figure", "A", "B", "B / A");
+        let cell = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{v:.4e}"));
+        for c in report::compare(&a, &b) {
+            let ratio = c.ratio.map_or("-".into(), |r| format!("{r:.3}"));
+            outln!("{:<70} {:>14} {:>14} {:>9}", c.figure, cell(c.a), cell(c.b), ratio);
+        }
+        return Ok(());
+    }
+    let out = out.expect("clap requires --out without --compare");
+    if !scenes.join("cloud.toml").exists() {
+        bail!(
+            "--scenes {}: no cloud.toml there; run from the repository root or pass --scenes PATH/TO/scenes",
+            scenes.display()
+        );
+    }
+    let g = Gpu::new(&gpu_options(gpu))?;
+    std::fs::create_dir_all(&out).map_err(|e| anyhow!("cannot create {}: {e}", out.display()))?;
+    eprintln!("device: {}, queues: {}", g.info().name, g.info().mapping.describe());
+    let opts = report::ReportOptions { quick, scenes, out: out.clone(), gpu: gpu_options(gpu) };
+    let r = report::run(&g, serde_json::to_value(g.info())?, &opts).map_err(|e| anyhow!("report: {e}"))?;
+    check_validation(&g)?;
+    let md = report::markdown(&r);
+    // Both land together: staged, then moved into place.
+    let mut staging = output::Staging::new();
+    let write = |p: &Path, text: &[u8]| {
+        std::fs::write(p, text).map_err(|source| output::OutputError::Io {
+            path: p.to_owned(),
+            action: "write",
+            source,
+        })
+    };
+    let json_text = serde_json::to_vec_pretty(&r)?;
+    staging.stage(&out.join("report.json"), |p| write(p, &json_text))?;
+    staging.stage(&out.join("report.md"), |p| write(p, md.as_bytes()))?;
+    staging.commit()?;
+    outln!("{md}");
+    eprintln!("wrote {} and {}", out.join("report.json").display(), out.join("report.md").display());
     Ok(())
 }

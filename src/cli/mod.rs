@@ -124,6 +124,26 @@ pub enum Command {
         #[command(subcommand)]
         command: SceneCommand,
     },
+    /// Characterise a Vulkan device for scattering workloads: its memory bandwidth, every
+    /// solver's headline workload (time, throughput, share of the bandwidth) and the queue
+    /// concurrency under every mapping it offers; report.json, report.md and a Perfetto trace
+    /// per mapping in --out. `--compare A.json B.json` prints two reports side by side.
+    Report {
+        /// Output directory (created if missing).
+        #[arg(long, required_unless_present = "compare")]
+        out: Option<PathBuf>,
+        /// Small sizes (CI; minutes on lavapipe) instead of the seeds' headline sizes.
+        #[arg(long)]
+        quick: bool,
+        /// Where the scenes are (the repository's scenes/).
+        #[arg(long, default_value = "scenes")]
+        scenes: PathBuf,
+        /// Two report.json files: print their figures side by side (ratio B / A).
+        #[arg(long, num_args = 2, value_names = ["A", "B"], conflicts_with_all = ["out", "quick"])]
+        compare: Option<Vec<PathBuf>>,
+        #[command(flatten)]
+        gpu: GpuArgs,
+    },
     /// Every knob of every solver (or of one): default, range and meaning, as `--set
     /// solver.knob=value` takes them.
     Knobs {

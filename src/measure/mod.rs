@@ -3,6 +3,7 @@
 //! only through [`crate::solvers::Solver`]: nothing here names one.
 
 pub mod bench;
+pub mod report;
 pub mod stability;
 pub mod timeline;
 

@@ -35,8 +35,8 @@ use super::marching::{self, MarchSettings, Marcher};
 use super::ordinates::{self, BeamGroup, Eye, Slab, SweepSetup, Sweeper};
 use super::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
 use super::{
-    Convergence, Figure, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver,
-    SolverError, Stats, Variant,
+    Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung,
+    Solver, SolverError, Stats, Variant,
 };
 
 pub struct Dom;
@@ -920,6 +920,24 @@ impl Solver for Dom {
                         + view::device_bytes(scene, &set.view),
                 ),
             })
+    }
+
+    /// The thesis's headline (5.4): 128^3, N 24 in 5.3 s per frame; two iterations, as its
+    /// frames were rendered.
+    fn headline(&self, quick: bool) -> Option<Headline> {
+        let (grid, size) = if quick { ("16", "64") } else { ("128", "512") };
+        Some(Headline::new(
+            format!("dom homogeneous sphere {grid}^3, N 24, two iterations, {size}^2"),
+            "homogeneous-sphere.toml",
+            &[
+                ("render.width", size),
+                ("render.height", size),
+                ("dom.grid", grid),
+                ("dom.directions", "s4"),
+                ("dom.max_iterations", "2"),
+            ],
+            if quick { "" } else { "thesis 5.4: 128^3, N 24 in 5.3 s per frame (GTX 580, 2011)" },
+        ))
     }
 
     /// Over the grid and the number of directions N (issue 13's ladder), cheapest first: level-

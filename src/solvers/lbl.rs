@@ -30,8 +30,8 @@ use super::view::{self, MsVolume, ViewSettings};
 use super::wave_field::{self, wave_volume, WaveSettings};
 use super::Progress;
 use super::{
-    Convergence, Figure, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
-    SolverError, Stats, Variant,
+    Convergence, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule,
+    Solver, SolverError, Stats, Variant,
 };
 
 pub struct Lbl;
@@ -243,6 +243,36 @@ impl Solver for Lbl {
             + p.injector_bytes()
             + warm
             + view::device_bytes(scene, &set.view))
+    }
+
+    /// The thesis's headline (ch. 4): a 128^3 lattice and a 1024^2 image at 8 fps.
+    fn headline(&self, quick: bool) -> Option<Headline> {
+        Some(if quick {
+            Headline::new(
+                "lbl cloud 16^3, 64^2",
+                "cloud.toml",
+                &[("render.width", "64"), ("render.height", "64"), ("lbl.grid", "16"), ("lbl.rays", "4096")],
+                "",
+            )
+        } else {
+            Headline::new(
+                "lbl cloud 128^3, 1024^2",
+                "cloud.toml",
+                &[("render.width", "1024"), ("render.height", "1024"), ("lbl.grid", "128")],
+                "thesis ch. 4: a 128^3 lattice and a 1024^2 image at 8 fps (GTX 580, 2011)",
+            )
+        })
+    }
+
+    /// Marching on the trace role beside the lattice on the diffuse role.
+    fn concurrency(&self, quick: bool) -> Option<Headline> {
+        let (grid, size) = if quick { ("16", "64") } else { ("64", "256") };
+        Some(Headline::new(
+            format!("lbl homogeneous sphere {grid}^3, {size}^2"),
+            "homogeneous-sphere.toml",
+            &[("render.width", size), ("render.height", size), ("lbl.grid", grid), ("lbl.rays", "16384")],
+            "",
+        ))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {

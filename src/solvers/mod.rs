@@ -104,9 +104,42 @@ pub trait Solver: Sync {
     fn inapplicable(&self, _scene: &Scene) -> Option<String> {
         None
     }
+    /// The seed paper's headline workload for `scatterlab report` (at CI size with `quick`),
+    /// if the solver has one: each solver adds its own.
+    fn headline(&self, _quick: bool) -> Option<Headline> {
+        None
+    }
+    /// A workload whose passes run on both queue roles, for `report`'s queue-concurrency
+    /// matrix (the solver has a `schedule` knob), if it has one.
+    fn concurrency(&self, _quick: bool) -> Option<Headline> {
+        None
+    }
     /// Lines for the terminal after a render, beyond what every render prints.
     fn summary(&self, _report: &RenderReport) -> Vec<String> {
         Vec::new()
+    }
+}
+
+/// A workload of `scatterlab report`: a scene of `scenes/` with keys set, and what the seed
+/// paper reports for it.
+#[derive(Clone, Debug)]
+pub struct Headline {
+    pub name: String,
+    /// A file in the repository's `scenes/`.
+    pub scene: &'static str,
+    pub sets: Vec<(String, String)>,
+    /// The seed's figure, its hardware and year (empty where no seed times it).
+    pub seed: &'static str,
+}
+
+impl Headline {
+    pub fn new(name: impl Into<String>, scene: &'static str, sets: &[(&str, &str)], seed: &'static str) -> Headline {
+        Headline {
+            name: name.into(),
+            scene,
+            sets: sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
+            seed,
+        }
     }
 }
 

@@ -39,8 +39,8 @@ use crate::scene::{CameraKind, Light, Scene};
 use super::gpu_scene::{self, GpuScene, SCENE_SPEC};
 use super::Progress;
 use super::{
-    resumable, Figure, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats,
-    Variant,
+    resumable, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver,
+    SolverError, Stats, Variant,
 };
 
 pub struct Path;
@@ -593,6 +593,17 @@ impl Solver for Path {
         };
         let light = if traced.is_empty() { 0 } else { pixels * LIGHT_BYTES_PER_PIXEL + stats + 16 };
         Ok(gpu_scene::scene_bytes_with(scene, knobs.get("majorant_cell")?) + camera + light)
+    }
+
+    /// The ground truth on the cloud, for scale (no seed times it).
+    fn headline(&self, quick: bool) -> Option<Headline> {
+        let (size, spp) = if quick { ("64", "4") } else { ("512", "16") };
+        Some(Headline::new(
+            format!("path cloud {size}^2, {spp} spp"),
+            "cloud.toml",
+            &[("render.width", size), ("render.height", size), ("render.spp", spp)],
+            "",
+        ))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {

@@ -23,7 +23,23 @@ pub struct PhasePush {
 pub const PHASE: Kernel =
     Kernel { shader: shader!("probe/phase"), push_bytes: std::mem::size_of::<PhasePush>(), spec: &[] };
 
+/// Push constants of glsl/probe/bandwidth.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct BandwidthPush {
+    /// vec4s to move.
+    pub count: u32,
+    /// Invocations in the dispatch (the grid-stride loop's step).
+    pub stride: u32,
+    pub scale: f32,
+    pub pad: u32,
+}
+
+/// glsl/probe/bandwidth.comp: the memory bandwidth probe of `scatterlab report`.
+pub const BANDWIDTH: Kernel =
+    Kernel { shader: shader!("probe/bandwidth"), push_bytes: std::mem::size_of::<BandwidthPush>(), spec: &[] };
+
 /// Every probe kernel.
 pub fn kernels() -> Vec<Kernel> {
-    vec![PHASE]
+    vec![PHASE, BANDWIDTH]
 }

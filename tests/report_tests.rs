@@ -1,0 +1,108 @@
+//! `scatterlab report` (issue 14) on lavapipe with `--quick`, validation on: the bandwidth
+//! probe's byte count is exact and its rate positive; every solver's headline workload ran and
+//! its GB/s figures are read against the probe; the queue matrix runs the shared mapping with a
+//! trace and records the mappings lavapipe lacks with their reason; report.json round-trips
+//! through its type and holds its schema; `--compare` of a report with itself gives ratio 1; a
+//! forced mapping the device lacks is one line of error and leaves no report.
+
+use std::path::Path;
+use std::process::Command;
+
+use scatterlab::measure::report::{Report, SCHEMA};
+
+const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
+
+fn report(out: &Path, extra: &[&str]) -> std::process::Output {
+    Command::new(BIN)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["report", "--quick", "--validate", "--out"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn quick_report_measures_bandwidth_workloads_and_queues() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = report(dir.path(), &[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(dir.path().join("report.json")).unwrap();
+    let r: Report = serde_json::from_str(&text).expect("report.json parses as a Report");
+    // Round trip: the type holds every field the file has.
+    let again: serde_json::Value = serde_json::to_value(&r).unwrap();
+    assert_eq!(again, serde_json::from_str::<serde_json::Value>(&text).unwrap(), "report.json round-trips");
+    assert_eq!(r.schema, SCHEMA);
+    assert!(r.quick);
+    assert!(r.device.get("name").and_then(|n| n.as_str()).is_some_and(|n| !n.is_empty()), "device facts");
+
+    // The probe: 16 MiB buffers, each run reads and writes all of it.
+    assert_eq!(r.bandwidth.len(), 2);
+    for b in &r.bandwidth {
+        assert_eq!(b.buffer_bytes, 16 << 20, "{}", b.method);
+        assert_eq!(b.bytes_moved, 2 * b.buffer_bytes, "{}", b.method);
+        assert!(b.runs >= 1 && b.best_ms > 0.0 && b.best_ms <= b.median_ms, "{b:?}");
+        let rate = b.bytes_moved as f64 / (b.best_ms * 1e-3) / 1e9;
+        assert!((b.gb_per_s - rate).abs() <= 1e-9 * rate && rate > 0.0, "{b:?}");
+    }
+    let peak = r.peak_gb_per_s().unwrap();
+
+    // Every solver with a headline workload ran it; GB/s figures are a share of the probe.
+    let expected: Vec<String> = scatterlab::solvers::SOLVERS
+        .iter()
+        .filter(|s| s.headline(true).is_some())
+        .map(|s| s.name().to_string())
+        .collect();
+    let ran: Vec<String> = r.workloads.iter().map(|w| w.solver.clone()).collect();
+    assert_eq!(ran, expected);
+    assert!(expected.len() >= 4, "lbl, wavefront, dom and path have headlines: {expected:?}");
+    for w in &r.workloads {
+        assert!(w.error.is_none(), "{}: {:?}", w.name, w.error);
+        assert!(w.wall_ms > 0.0 && w.gpu_ms > 0.0 && w.device_bytes > 0, "{w:?}");
+        for f in &w.figures {
+            assert!(f.value.is_finite() && f.value > 0.0, "{}: {f:?}", w.name);
+            match f.fraction_of_bandwidth {
+                Some(x) => assert!(f.unit == "GB/s" && (x - f.value / peak).abs() < 1e-12, "{f:?}"),
+                None => assert_ne!(f.unit, "GB/s", "{f:?}"),
+            }
+        }
+    }
+
+    // lavapipe has one queue: shared runs (no gain to claim), the others are not offered.
+    assert_eq!(r.queues.len(), 3);
+    for q in &r.queues {
+        if q.mapping == "shared" {
+            assert!(q.unavailable.is_none() && q.gain.is_none(), "{q:?}");
+            assert!(q.sequential_ms > 0.0 && q.concurrent_ms > 0.0 && q.images_rel_l2 < 1e-4, "{q:?}");
+            let trace = dir.path().join(q.trace.as_ref().expect("a trace per mapping that ran"));
+            let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(trace).unwrap()).unwrap();
+            assert!(t.get("traceEvents").and_then(|e| e.as_array()).is_some_and(|e| !e.is_empty()), "trace events");
+        } else {
+            let why = q.unavailable.as_deref().expect("lavapipe has one queue");
+            assert!(why.contains(&q.mapping) && why.contains("cannot"), "{why}");
+        }
+    }
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(md.contains("## Memory bandwidth") && md.contains("## Headline workloads") && md.contains("## Queue"));
+
+    // The same report twice: every ratio is 1.
+    let json = dir.path().join("report.json");
+    let cmp = Command::new(BIN).args(["report", "--compare"]).arg(&json).arg(&json).output().unwrap();
+    assert!(cmp.status.success(), "{}", String::from_utf8_lossy(&cmp.stderr));
+    let table = String::from_utf8_lossy(&cmp.stdout);
+    let rows: Vec<&str> = table.lines().filter(|l| l.contains("bandwidth") || l.contains(": wall ms")).collect();
+    assert!(rows.len() >= 6, "{table}");
+    assert!(rows.iter().all(|l| l.trim_end().ends_with("1.000")), "{table}");
+}
+
+#[test]
+fn a_mapping_the_device_lacks_is_one_line_and_no_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = report(&dir.path().join("r"), &["--queues", "separate-families"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("separate-families"), "{err}");
+    assert!(!dir.path().join("r").join("report.json").exists(), "no partial report");
+}
