@@ -304,3 +304,43 @@ fn light_inside_cloud_error_within_2x_of_light_outside() {
     );
     assert_clean(&gpu);
 }
+
+/// `path.schedule` (issue 14): where a point light is traced from the light side beside other
+/// lights (camera paths for those), the light paths run on the diffuse role from a second host
+/// thread beside the camera paths on the trace role. The image is the same, bit for bit, as
+/// one after the other on one role, and the passes are on both roles (validation on).
+#[test]
+fn camera_and_light_paths_run_on_two_roles_with_the_same_image() {
+    let gpu = gpu();
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/point-light-in-cloud.toml"))
+        .unwrap()
+        + "\n[[light]]\nkind = \"environment\"\nradiance = [0.05, 0.07, 0.1]\n";
+    let s = scatterlab::scene::Scene::from_str(
+        &text,
+        "point-light-in-cloud-with-sky.toml",
+        std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes")),
+        &[],
+        &Default::default(),
+    )
+    .unwrap();
+    let size = [("render.width", "32"), ("render.height", "32"), ("render.spp", "8")];
+    let run = |schedule: &'static str| {
+        let out = render(&gpu, &s, PATH, &[&size[..], &[("path.schedule", schedule)]].concat());
+        let st = out.report.detail::<PathStats>().expect("path stats").clone();
+        assert_eq!(st.light_traced, vec![0], "{schedule}: the point light is traced from the light side");
+        assert!(st.camera.is_some(), "{schedule}: camera paths for the sky");
+        out
+    };
+    let (c, q) = (run("concurrent"), run("sequential"));
+    assert_eq!(c.image.data, q.image.data, "the same image on one role or two");
+    assert_eq!(c.variance.as_ref().unwrap().data, q.variance.as_ref().unwrap().data, "and the same variance");
+    let roles = |o: &RenderOutput| {
+        let mut r: Vec<String> = o.report.passes.iter().map(|p| format!("{:?}", p.role)).collect();
+        r.sort();
+        r.dedup();
+        r
+    };
+    assert_eq!(roles(&c), ["Diffuse", "Trace"]);
+    assert_eq!(roles(&q), ["Trace"]);
+    assert_clean(&gpu);
+}

@@ -39,7 +39,7 @@ use crate::scene::{CameraKind, Light, Scene};
 use super::gpu_scene::{self, GpuScene, SCENE_SPEC};
 use super::Progress;
 use super::{
-    resumable, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver,
+    resumable, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
     SolverError, Stats, Variant,
 };
 
@@ -406,6 +406,14 @@ impl Solver for Path {
                     cell crossings (16 measured best on llvmpipe for 64^3 clouds; docs/measurements.md)",
             ),
             Knob::fixed(
+                "schedule",
+                "concurrent",
+                Range::Choice(&["concurrent", "sequential"]),
+                "where both camera and light paths run (a point light traced from the light side beside others): \
+                 concurrent runs the light paths on the diffuse role beside the camera paths on the trace role (at \
+                 once where the device has two queues); sequential one after the other. The same image either way",
+            ),
+            Knob::fixed(
                 "collision_cap",
                 "1048576",
                 Range::int(1, u32::MAX as u64),
@@ -475,6 +483,7 @@ impl Solver for Path {
         let lt_mode: String = k.get("light_tracing")?;
         let light_batches: u32 = k.get("light_batches")?;
         let majorant_cell: u32 = k.get("majorant_cell")?;
+        let schedule: Schedule = k.get("schedule")?;
         k.finish()?;
         if scene.lights.len() >= MAX_LIGHTS {
             return Err(SolverError::Unsupported(format!(
@@ -525,21 +534,41 @@ impl Solver for Path {
             rr_depth,
             rr_threshold,
         };
-        let camera = if camera_lights > 0 || traced.is_empty() {
-            Some(camera_paths(&common, batch, equiangular, &|done| {
-                (req.progress)(Progress::work("samples per pixel", done, total))
-            })?)
+        let needs_camera = camera_lights > 0 || traced.is_empty();
+        let batches = light_batches.min(spp);
+        let (camera, light) = if needs_camera && !traced.is_empty() && schedule == Schedule::Concurrent {
+            // Both kernels, independent (they estimate disjoint sets of paths into buffers of
+            // their own): the light paths on the diffuse role from a second host thread, the
+            // camera paths on the trace role here, so a device with two queues runs them at
+            // once. Each is the same computation as on one role: the same image, bit for bit.
+            let (cam, lt) = std::thread::scope(|s| {
+                let light = s.spawn(|| light_paths(&common, scene, &traced, batches, QueueRole::Diffuse, &|_| {}));
+                let cam = camera_paths(&common, batch, equiangular, QueueRole::Trace, &|done| {
+                    (req.progress)(Progress::work("samples per pixel (camera paths)", done, total))
+                });
+                (cam, light.join())
+            });
+            let lt = lt.map_err(|_| SolverError::Unsupported("path: the light-path thread panicked".into()))?;
+            (Some(cam?), Some(lt?))
         } else {
-            None
+            let camera = if needs_camera {
+                Some(camera_paths(&common, batch, equiangular, QueueRole::Trace, &|done| {
+                    (req.progress)(Progress::work("samples per pixel", done, total))
+                })?)
+            } else {
+                None
+            };
+            let offset = if camera.is_some() { spp as u64 } else { 0 };
+            let light = if traced.is_empty() {
+                None
+            } else {
+                Some(light_paths(&common, scene, &traced, batches, QueueRole::Trace, &|done| {
+                    (req.progress)(Progress::work(stage, offset + done, total))
+                })?)
+            };
+            (camera, light)
         };
-        let offset = if camera.is_some() { spp as u64 } else { 0 };
-        let light = if traced.is_empty() {
-            None
-        } else {
-            Some(light_paths(&common, scene, &traced, light_batches.min(spp), &|done| {
-                (req.progress)(Progress::work(stage, offset + done, total))
-            })?)
-        };
+        (req.progress)(Progress::work(stage, total, total));
 
         // The two kernels estimate disjoint sets of paths (partition by light): means and
         // variances (independent estimates) add.
@@ -675,6 +704,7 @@ fn camera_paths(
     c: &Common,
     batch: u32,
     equiangular: u32,
+    role: QueueRole,
     progress: &dyn Fn(u64),
 ) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
@@ -688,9 +718,9 @@ fn camera_paths(
     let mut rounds = 1u32; // a batch usually ends in its first dispatch; learnt from the last one
     while sample_end < c.spp {
         sample_end = sample_end.saturating_add(batch).min(c.spp);
-        let (n, _) = resumable::run_until_done(gpu, "path", &stats, &mut rounds, |slot| {
+        let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut rounds, |slot| {
             let push = PathPush { head: c.head(sample_end, slot), equiangular };
-            gs.bind(Pass::new("path.trace", QueueRole::Trace, &pipeline))
+            gs.bind(Pass::new("path.trace", role, &pipeline))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
                 .read_write(5, &state)
@@ -750,6 +780,7 @@ fn light_paths(
     scene: &Scene,
     traced: &[usize],
     batches: u32,
+    role: QueueRole,
     progress: &dyn Fn(u64),
 ) -> Result<(Part, LightStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
@@ -784,13 +815,13 @@ fn light_paths(
         let start = sample_end;
         sample_end += rounds;
         gpu.write_buffer(&splats, 0, &zeros)?;
-        let (n, _) = resumable::run_until_done(gpu, "path", &stats, &mut first_rounds, |slot| {
+        let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut first_rounds, |slot| {
             let push = LightPush {
                 head: c.head(sample_end, slot),
                 inv_quantum: inv_quantum as f32,
                 power_sum: power_sum as f32,
             };
-            gs.bind(Pass::new("path.light", QueueRole::Trace, &pipeline))
+            gs.bind(Pass::new("path.light", role, &pipeline))
                 .read_write(3, &splats)
                 .read_write(4, &stats)
                 .read_write(5, &state)

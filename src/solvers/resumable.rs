@@ -40,6 +40,7 @@ pub fn budget_knob() -> Knob {
 /// submission, not a wrong result.
 pub fn run_until_done(
     gpu: &Gpu,
+    role: QueueRole,
     solver: &str,
     stats: &Buffer,
     rounds: &mut u32,
@@ -50,7 +51,7 @@ pub fn run_until_done(
     loop {
         gpu.write_buffer(stats, 12, &[0u8; ROUNDS_PER_SUBMIT as usize * 4])?;
         let passes: Vec<Pass> = (0..n).map(&make_pass).collect();
-        let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+        let point = gpu.submit(role, &passes, &[])?;
         gpu.wait(point)?;
         let st: Vec<u32> = gpu.read_buffer_as(stats)?;
         if st[2] >= LOOP_GUARD {

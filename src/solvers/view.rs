@@ -424,7 +424,7 @@ pub fn march(
     let shadow_ref = shadow_buf.as_ref().or(unused.as_ref()).expect("made when there is no shadow volume");
     let seed = scene.render.seed;
     let mut rounds = resumable::ROUNDS_PER_SUBMIT; // one run: nothing to learn from
-    let (dispatches, st) = resumable::run_until_done(gpu, "view", &stats, &mut rounds, |slot| {
+    let (dispatches, st) = resumable::run_until_done(gpu, QueueRole::Trace, "view", &stats, &mut rounds, |slot| {
         let push = ViewPush {
             step: v.step,
             shadow_step: v.shadow_step,
