@@ -666,18 +666,19 @@ fn render_rejects_bad_flags() {
         // Solver flags stand for knobs: a solver without the knob is told which have it.
         fails("solver_flags/max-depth with lbl", base(), &["--max-depth", "max_depth knob", "(path)", "lbl"])
             .and_args(&["--solver", "lbl", "--max-depth", "2"]),
-        fails("solver_flags/schedule with path", base(), &["--schedule", "schedule knob", "(lbl)", "path"])
-            .and_args(&["--schedule", "sequential"]),
+        fails(
+            "solver_flags/schedule with wavefront",
+            base(),
+            &["--schedule", "schedule knob", "(path, lbl)", "wavefront"],
+        )
+        .and_args(&["--solver", "wavefront", "--schedule", "sequential"]),
         fails("solver_flags/deterministic with single", base(), &["--deterministic", "(lbl)", "single"]).and_args(&[
             "--solver",
             "single",
             "--deterministic",
         ]),
-        fails("solver_flags/compare-schedules with wavefront", base(), &["--compare-schedules", "(lbl)"]).and_args(&[
-            "--solver",
-            "wavefront",
-            "--compare-schedules",
-        ]),
+        fails("solver_flags/compare-schedules with wavefront", base(), &["--compare-schedules", "(path, lbl)"])
+            .and_args(&["--solver", "wavefront", "--compare-schedules"]),
         // A knob out of its range, and one of a mode the render does not use.
         fails("knob_range/lbl.grid=1", base(), &["--set lbl.grid", "2..=512", "scatterlab knobs lbl"]).and_args(&[
             "--solver",
@@ -904,6 +905,31 @@ fn failed_writes_name_the_users_file() {
         for bad in ["partial", ".tmp", "uncorrupted", "/proc/."] {
             assert!(!line.contains(bad), "{flag}: the error names a temporary file or the wrong cause: {line}");
         }
+    }
+}
+
+/// Outputs are the user's files: created as `File::create` would (0666 less the umask), not
+/// with the private 0600 of a temporary file (images came out unreadable to the group).
+#[cfg(unix)]
+#[test]
+fn outputs_have_the_permissions_of_an_ordinary_file() {
+    use std::os::unix::fs::PermissionsExt;
+    let c = Case::new();
+    let s = c.scene(&base());
+    let (exr, png, json) = (c.path("out.exr"), c.path("out.png"), c.path("out.json"));
+    let out = c.run(
+        [
+            &["render", s.to_str().unwrap(), "-q", "--out", exr.to_str().unwrap(), "--png", png.to_str().unwrap()][..],
+            &["--json", json.to_str().unwrap()],
+            &TINY[..],
+        ]
+        .concat(),
+    );
+    succeeded(&out);
+    let ordinary = c.write("ordinary", b"x");
+    let mode = |p: &Path| fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    for p in [&exr, &png, &json] {
+        assert_eq!(mode(p), mode(&ordinary), "{}: mode {:o}", p.display(), mode(p));
     }
 }
 

@@ -1,7 +1,7 @@
 //! `scatterlab report` (issue 14) on lavapipe with `--quick`, validation on: the bandwidth
 //! probe's byte count is exact and its rate positive; every solver's headline workload ran and
 //! its GB/s figures are read against the probe; the queue matrix runs the shared mapping with a
-//! trace and records the mappings lavapipe lacks with their reason; report.json round-trips
+//! trace and a timeline SVG and records the mappings lavapipe lacks with their reason; report.json round-trips
 //! through its type and holds its schema; `--compare` of a report with itself gives ratio 1; a
 //! forced mapping the device lacks is one line of error and leaves no report.
 
@@ -77,6 +77,9 @@ fn quick_report_measures_bandwidth_workloads_and_queues() {
             let trace = dir.path().join(q.trace.as_ref().expect("a trace per mapping that ran"));
             let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(trace).unwrap()).unwrap();
             assert!(t.get("traceEvents").and_then(|e| e.as_array()).is_some_and(|e| !e.is_empty()), "trace events");
+            let svg =
+                std::fs::read_to_string(dir.path().join(q.svg.as_ref().expect("a timeline per mapping"))).unwrap();
+            assert!(svg.starts_with("<svg") && svg.contains("<rect x=") && svg.trim_end().ends_with("</svg>"), "{svg}");
         } else {
             let why = q.unavailable.as_deref().expect("lavapipe has one queue");
             assert!(why.contains(&q.mapping) && why.contains("cannot"), "{why}");

@@ -94,6 +94,8 @@ pub struct QueueRun {
     pub images_rel_l2: f64,
     /// The Perfetto (Chrome JSON) trace of the concurrent schedule, beside the report.
     pub trace: Option<String>,
+    /// Its timeline drawn as an SVG (a row per role, a bar per pass), beside the report.
+    pub svg: Option<String>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -262,6 +264,7 @@ fn queue_runs(
             overlap_fraction: 0.0,
             images_rel_l2: 0.0,
             trace: None,
+            svg: None,
         };
         let gopts = GpuOptions { queues: Some(mapping.into()), ..opts.gpu.clone() };
         let gpu = match Gpu::new(&gopts) {
@@ -288,12 +291,61 @@ fn queue_runs(
             serde_json::json!({ "mapping": mapping, "workload": name }),
         )?;
         run.trace = Some(trace);
+        let svg = format!("overlap-{}-{mapping}.svg", solver.name());
+        let title = format!(
+            "{} under {mapping}: {:.1}% of the busy time with two roles busy",
+            name,
+            100.0 * c.concurrent.overlap_fraction
+        );
+        crate::output::write_text(&opts.out.join(&svg), timeline_svg(&rendered.report.passes, &title))?;
+        run.svg = Some(svg);
         if gpu.validation_errors() > 0 {
             return Err(format!("the validation layer reported errors under {mapping}").into());
         }
         out.push(run);
     }
     Ok(out)
+}
+
+/// A timeline as an SVG: a row per queue role, a bar per pass (time from the first start), so
+/// the overlap of the roles shows at a glance.
+pub fn timeline_svg(passes: &[crate::gpu::PassTiming], title: &str) -> String {
+    let (w, row, left, top) = (960.0f64, 28.0f64, 90.0f64, 40.0f64);
+    let t0 = passes.iter().map(|p| p.start_ns).min().unwrap_or(0);
+    let t1 = passes.iter().map(|p| p.end_ns).max().unwrap_or(1).max(t0 + 1);
+    let x = |t: i128| left + (t - t0) as f64 / (t1 - t0) as f64 * (w - left - 10.0);
+    let roles = QueueRole::ALL;
+    let h = top + row * roles.len() as f64 + 30.0;
+    let mut s = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" \
+         font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"10\" y=\"20\">{}</text>\n",
+        title.replace('&', "&amp;").replace('<', "&lt;")
+    );
+    let colours = ["#4477aa", "#ee6677", "#228833"];
+    for (i, role) in roles.iter().enumerate() {
+        let y = top + row * i as f64;
+        s += &format!("<text x=\"10\" y=\"{:.1}\">{}</text>\n", y + row * 0.65, role.name());
+        for p in passes.iter().filter(|p| p.role == *role) {
+            let (a, b) = (x(p.start_ns), x(p.end_ns.max(p.start_ns)));
+            s += &format!(
+                "<rect x=\"{a:.2}\" y=\"{:.1}\" width=\"{:.2}\" height=\"{:.1}\" fill=\"{}\"><title>{} {:.3} ms</title></rect>\n",
+                y + 4.0,
+                (b - a).max(0.5),
+                row - 8.0,
+                colours[i % colours.len()],
+                p.name,
+                p.duration_ms()
+            );
+        }
+    }
+    s += &format!(
+        "<text x=\"{left}\" y=\"{:.1}\">0</text><text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{:.1} ms</text>\n</svg>\n",
+        h - 8.0,
+        w - 10.0,
+        h - 8.0,
+        (t1 - t0) as f64 * 1e-6
+    );
+    s
 }
 
 /// Run the whole report on `gpu` (the device, with the mapping the user asked for).
@@ -369,20 +421,24 @@ pub fn markdown(r: &Report) -> String {
             w.seed
         );
     }
-    s += "\n## Queue concurrency (lbl: marching and lattice on their roles)\n\n| mapping | roles | sequential ms | concurrent ms | gain | overlap | trace |\n| --- | --- | --- | --- | --- | --- | --- |\n";
+    s += "\n## Queue concurrency (each solver's concurrent workload under each mapping)\n\n| workload | mapping | roles | sequential ms | concurrent ms | gain | overlap | trace, timeline |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n";
     for q in &r.queues {
         match &q.unavailable {
-            Some(e) => s += &format!("| {} | not offered: {} | | | | | |\n", q.mapping, e.replace('|', "/")),
+            Some(e) => {
+                s += &format!("| {} | {} | not offered: {} | | | | | |\n", q.workload, q.mapping, e.replace('|', "/"))
+            }
             None => {
                 s += &format!(
-                    "| {} | {} | {:.1} | {:.1} | {} | {:.1}% | {} |\n",
+                    "| {} | {} | {} | {:.1} | {:.1} | {} | {:.1}% | {} {} |\n",
+                    q.workload,
                     q.mapping,
                     q.roles.as_deref().unwrap_or(""),
                     q.sequential_ms,
                     q.concurrent_ms,
                     q.gain.map_or("- (one queue)".into(), |g| format!("{g:.2}x")),
                     100.0 * q.overlap_fraction,
-                    q.trace.as_deref().unwrap_or("")
+                    q.trace.as_deref().unwrap_or(""),
+                    q.svg.as_deref().unwrap_or("")
                 )
             }
         }

@@ -48,11 +48,15 @@ fn temp_beside(path: &Path, suffix: &str) -> Result<NamedTempFile, OutputError> 
             ),
         });
     }
-    tempfile::Builder::new()
-        .prefix(&format!(".{}.", name.to_string_lossy()))
-        .suffix(&format!(".{suffix}"))
-        .tempfile_in(&dir)
-        .map_err(|e| io(without_temp_path(e)))
+    let (prefix, suffix) = (format!(".{}.", name.to_string_lossy()), format!(".{suffix}"));
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(&prefix).suffix(&suffix);
+    // An output is the user's file, not a secret: created as File::create would (0666 less the
+    // umask), not with tempfile's private 0600 (images and reports came out unreadable to the
+    // group and to a web server).
+    #[cfg(unix)]
+    builder.permissions(<fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o666));
+    builder.tempfile_in(&dir).map_err(|e| io(without_temp_path(e)))
 }
 
 /// tempfile's errors append the temporary file's path ("... at path \"/d/.x.exr.Ab12.tmp\"");
