@@ -35,6 +35,16 @@ pub fn repo_scene(rel: &str, sets: &[(&str, &str)]) -> Scene {
     Scene::load(&path, &sets, &LoadOptions::default()).unwrap_or_else(|e| panic!("{rel}: {e}"))
 }
 
+/// A scene file of the repository with `appended` added to its text (another `[[light]]`),
+/// its grid files found beside it.
+pub fn repo_scene_plus(rel: &str, appended: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{rel}: {e}")) + appended;
+    let dir = path.parent().expect("a file in a folder");
+    Scene::from_str(&text, rel, dir, &[], &LoadOptions::default())
+        .unwrap_or_else(|e| panic!("{rel} + {appended:?}: {e}"))
+}
+
 pub fn scene(text: &str) -> Scene {
     Scene::from_str(text, "test.toml", Path::new("."), &[], &LoadOptions::default())
         .unwrap_or_else(|e| panic!("test scene invalid: {e}"))

@@ -236,17 +236,10 @@ fn direct_source_and_view_stream_slab_by_slab_within_the_budget() {
     let gpu = gpu();
     let sphere = crate::common::repo_scene("scenes/homogeneous-sphere.toml", &[]);
     let cloud = crate::common::repo_scene("scenes/point-light-in-cloud.toml", &[]);
-    let sky = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/point-light-in-cloud.toml"))
-        .unwrap()
-        + "\n[[light]]\nkind = \"environment\"\nradiance = [0.02, 0.03, 0.05]\n";
-    let cloud_sky = scatterlab::scene::Scene::from_str(
-        &sky,
-        "point-light-in-cloud-with-sky.toml",
-        std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes")),
-        &[],
-        &Default::default(),
-    )
-    .unwrap();
+    let cloud_sky = crate::common::repo_scene_plus(
+        "scenes/point-light-in-cloud.toml",
+        "\n[[light]]\nkind = \"environment\"\nradiance = [0.02, 0.03, 0.05]\n",
+    );
     assert_eq!(cloud_sky.lights.len(), cloud.lights.len() + 1);
     let cases: [(&str, &scatterlab::scene::Scene, &[(&str, &str)], f64, bool); 2] = [
         (

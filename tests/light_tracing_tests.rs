@@ -312,17 +312,10 @@ fn light_inside_cloud_error_within_2x_of_light_outside() {
 #[test]
 fn camera_and_light_paths_run_on_two_roles_with_the_same_image() {
     let gpu = gpu();
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/point-light-in-cloud.toml"))
-        .unwrap()
-        + "\n[[light]]\nkind = \"environment\"\nradiance = [0.05, 0.07, 0.1]\n";
-    let s = scatterlab::scene::Scene::from_str(
-        &text,
-        "point-light-in-cloud-with-sky.toml",
-        std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes")),
-        &[],
-        &Default::default(),
-    )
-    .unwrap();
+    let s = crate::common::repo_scene_plus(
+        "scenes/point-light-in-cloud.toml",
+        "\n[[light]]\nkind = \"environment\"\nradiance = [0.05, 0.07, 0.1]\n",
+    );
     let size = [("render.width", "32"), ("render.height", "32"), ("render.spp", "8")];
     let run = |schedule: &'static str| {
         let out = render(&gpu, &s, PATH, &[&size[..], &[("path.schedule", schedule)]].concat());
