@@ -357,3 +357,29 @@ impl std::ops::Deref for SceneText {
         &self.0
     }
 }
+
+/// What an extrapolated iteration (lbl's lattice, dom's source iteration) buys over its plain
+/// stop, summed over a test's cases: relL2 to the converged image and iterations of each.
+#[derive(Default)]
+pub struct TailTally {
+    pub err_ext: f64,
+    pub err_plain: f64,
+    pub it_ext: u32,
+    pub it_plain: u32,
+}
+
+impl TailTally {
+    pub fn add(&mut self, err_ext: f64, err_plain: f64, it_ext: u32, it_plain: u32) {
+        self.err_ext += err_ext;
+        self.err_plain += err_plain;
+        self.it_ext += it_ext;
+        self.it_plain += it_plain;
+    }
+
+    /// Print the sums and require a quarter fewer iterations in all.
+    pub fn assert_a_quarter_fewer(&self) {
+        let (e, p, ie, ip) = (self.err_ext, self.err_plain, self.it_ext, self.it_plain);
+        eprintln!("summed relL2 plain {p:.2e} extrapolated {e:.2e}; iterations {ip} -> {ie}");
+        assert!(4 * ie < 3 * ip, "iterations {ip} -> {ie}");
+    }
+}
