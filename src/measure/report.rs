@@ -114,7 +114,7 @@ pub struct Report {
 impl Report {
     /// The best probed bandwidth, GB/s.
     pub fn peak_gb_per_s(&self) -> Option<f64> {
-        self.bandwidth.iter().map(|b| b.gb_per_s).fold(None, |m, x| Some(m.map_or(x, |m: f64| m.max(x))))
+        self.bandwidth.iter().map(|b| b.gb_per_s).reduce(f64::max)
     }
 }
 

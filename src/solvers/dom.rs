@@ -192,7 +192,7 @@ fn sweep_setup<'a>(
 
 /// The view's slabs of the light toward the camera: the whole grid (None) where it fits
 /// `budget` and one binding, else windows of whole layers, each holding one more layer each side
-/// for the trilinear corners (so at least three held layers: [`SourcePlan::layers`] checks the
+/// for the trilinear corners (so at least three held layers: [`SourcePlan::cut`] checks the
 /// budget holds them), the first adding the direct light.
 fn view_windows(plan: &SourcePlan, budget: Option<u64>, max_binding: u64) -> Vec<Option<MsWindow>> {
     let nz = plan.dims[2];
@@ -505,7 +505,8 @@ impl Solver for Dom {
         // the density resampled and the source read back per slab: nothing grid-sized stays on
         // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
         let plan = SourcePlan::new(&set, &geom, nch, beams as u64);
-        let mut density = vec![0f32; v];
+        // The density on the host: read whole for plane sweeps, filled slab by slab for blocks.
+        let mut density: Vec<f32>;
         let (sigma_t, sigma_s, sweeper, cut) = if block == 0 {
             let d = marching::resample(gpu, &gs, &geom, &resampler, 0, geom.dims[2])?;
             density = gpu.read_buffer_as(&d)?;
@@ -514,6 +515,7 @@ impl Solver for Dom {
             (sigma_t, sigma_s, sweeper, SourceCut { layers: geom.dims[2], group: beams.max(1) as u32 })
         } else {
             let cut = plan.cut(&set, gpu.info().max_storage_buffer_range, block)?;
+            density = vec![0f32; v];
             let setup = sweep_setup(&set, &geom, nch, m.g as f64, eye, &[], &[]);
             (Vec::new(), Vec::new(), Sweeper::for_source(gpu, &setup, cut.layers)?, cut)
         };
@@ -717,15 +719,17 @@ impl Solver for Dom {
             }
         }
         // The tail toward the camera: the last pair increment of the gathered light times
-        // rho^2 / (1 - rho^2).
-        let camera_tail = |camera: &mut Vec<f32>, t: &Tail| {
+        // rho^2 / (1 - rho^2), added to the light the last iteration read (with a tail, the
+        // iteration extrapolated, so it read it: no second readback or gather).
+        let tail_stats = tail.as_ref().map(|t| (t.ratio, t.share));
+        let mut camera_with_tail = tail.map(|t| {
+            let mut camera = cameras.pop().expect("an extrapolating iteration reads the light toward the camera");
             let f = (t.camera_ratio2 / (1.0 - t.camera_ratio2)) as f32;
             camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c += (*c - p).max(0.0) * f);
-        };
-        if let (Some(t), None) = (&tail, &blocked) {
-            let mut camera = read_camera(&blocked, &sweeper)?;
-            camera_tail(&mut camera, t);
-            gpu.write_buffer(&plane(&sweeper).camera, 0, bytemuck::cast_slice(&camera))?;
+            camera
+        });
+        if let (Some(camera), None) = (&camera_with_tail, &blocked) {
+            gpu.write_buffer(&plane(&sweeper).camera, 0, bytemuck::cast_slice(camera))?;
         }
         stage("iterations");
         // The light each voxel scatters toward the camera, as the energy per voxel that the view
@@ -736,10 +740,7 @@ impl Solver for Dom {
         let (res, sweeps, streaming, sweep_device_bytes, view_slabs) = match blocked.take() {
             Some(b) => {
                 let (stats, pool) = (b.stats, b.device_bytes());
-                let mut camera = b.camera();
-                if let Some(t) = &tail {
-                    camera_tail(&mut camera, t);
-                }
+                let camera = camera_with_tail.take().unwrap_or_else(|| b.camera());
                 drop(b);
                 let windows = view_windows(&plan, set.budget, gpu.info().max_storage_buffer_range);
                 let mut total: Option<view::ViewResult> = None;
@@ -809,8 +810,8 @@ impl Solver for Dom {
             iterations,
             converged,
             final_change: change,
-            tail_ratio: tail.as_ref().map(|t| t.ratio),
-            tail_share: tail.as_ref().map(|t| t.share),
+            tail_ratio: tail_stats.map(|t| t.0),
+            tail_share: tail_stats.map(|t| t.1),
             sweep_ms,
             block,
             streaming,

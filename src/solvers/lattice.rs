@@ -236,10 +236,6 @@ impl LatticeGeom {
     pub fn max(&self) -> Vec3 {
         self.min() + Vec3::new(self.dims[0] as f32, self.dims[1] as f32, self.dims[2] as f32) * self.lambda
     }
-    /// `dims` with the voxel count as w (push-constant layout of the grid kernels).
-    pub fn dims4(&self) -> [u32; 4] {
-        [self.dims[0], self.dims[1], self.dims[2], self.voxels() as u32]
-    }
     /// `origin` with `lambda` as w (push-constant layout of the grid kernels).
     pub fn origin4(&self) -> [f32; 4] {
         [self.origin[0], self.origin[1], self.origin[2], self.lambda]
