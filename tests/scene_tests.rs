@@ -647,11 +647,12 @@ fn scene_never_panics_on_odd_input() {
 
 // ---------------------------------------------------------------------------- shipped scenes
 
-const SHIPPED: [&str; 6] = [
+const SHIPPED: [&str; 7] = [
     "homogeneous-sphere.toml",
     "anisotropic-cube.toml",
     "cloud.toml",
     "point-light-in-cloud.toml",
+    "lightning-at-dusk.toml",
     "thick-slab.toml",
     "default.toml",
 ];

@@ -426,19 +426,22 @@ impl Gpu {
     pub fn new(opts: &GpuOptions) -> Result<Gpu> {
         let entry = load_entry()?;
         let log = Arc::new(ValidationLog::default());
-        let (instance, boxed, debug) = create_instance(&entry, opts.validate, &log)?;
-        // From here on, any early return must destroy the instance.
-        let result = Self::open_device(entry.clone(), instance.clone(), boxed, debug, log, opts);
+        let (instance, mut boxed, debug) = create_instance(&entry, opts.validate, &log)?;
+        // From here on, any early return must destroy the instance, and only then free the
+        // messengers' user data: the layer may report through the create-time messenger while
+        // the instance is destroyed, and the callback would write through a freed pointer.
+        let result = Self::open_device(entry.clone(), instance.clone(), &mut boxed, debug, log, opts);
         if result.is_err() {
             unsafe { instance.destroy_instance(None) };
         }
+        drop(boxed);
         result
     }
 
     fn open_device(
         entry: ash::Entry,
         instance: ash::Instance,
-        boxed: Option<Box<Arc<ValidationLog>>>,
+        boxed: &mut Option<Box<Arc<ValidationLog>>>,
         debug: bool,
         log: Arc<ValidationLog>,
         opts: &GpuOptions,
@@ -595,7 +598,7 @@ impl Gpu {
             copy_families: mapping.families(),
             info,
             validation: log,
-            _validation_box: boxed,
+            _validation_box: boxed.take(),
         };
         Ok(Gpu {
             shared: Arc::new(shared),

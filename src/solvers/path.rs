@@ -635,6 +635,18 @@ impl Solver for Path {
         ))
     }
 
+    /// The light-traced core light's paths on the diffuse role beside the sun's and sky's camera
+    /// paths on the trace role (scenes/lightning-at-dusk.toml).
+    fn concurrency(&self, quick: bool) -> Option<Headline> {
+        let (size, spp) = if quick { ("32", "4") } else { ("256", "32") };
+        Some(Headline::new(
+            format!("path lightning at dusk {size}^2, {spp} spp"),
+            "lightning-at-dusk.toml",
+            &[("render.width", size), ("render.height", size), ("render.spp", spp)],
+            "",
+        ))
+    }
+
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
         [4u32, 16, 64, 256, 1024].iter().map(|s| Rung::one("render.spp", s)).collect()
     }
