@@ -33,6 +33,27 @@ fn quick_report_measures_bandwidth_workloads_and_queues() {
     let again: serde_json::Value = serde_json::to_value(&r).unwrap();
     assert_eq!(again, serde_json::from_str::<serde_json::Value>(&text).unwrap(), "report.json round-trips");
     assert_eq!(r.schema, SCHEMA);
+    // The published schema (docs/report.schema.json) holds the file: every field typed, none
+    // missing, none unknown.
+    let schema: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/report.schema.json")).unwrap(),
+    )
+    .unwrap();
+    let validator = jsonschema::validator_for(&schema).expect("docs/report.schema.json is a valid schema");
+    let instance: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let errors: Vec<String> =
+        validator.iter_errors(&instance).map(|e| format!("{} at {}", e, e.instance_path())).collect();
+    assert!(errors.is_empty(), "report.json against docs/report.schema.json: {errors:#?}");
+    // ... and is strict: an unknown field, a missing one or a NaN written as null is refused.
+    let mut extra = instance.clone();
+    extra["workloads"][0]["fps"] = serde_json::json!(8.0);
+    let mut missing = instance.clone();
+    missing["bandwidth"][0].as_object_mut().unwrap().remove("gb_per_s");
+    let mut nan = instance.clone();
+    nan["queues"][0]["images_rel_l2"] = serde_json::Value::Null;
+    for (what, bad) in [("unknown field", extra), ("missing field", missing), ("null number", nan)] {
+        assert!(!validator.is_valid(&bad), "the schema lets a report with a {what} through");
+    }
     assert!(r.quick);
     assert!(r.device.get("name").and_then(|n| n.as_str()).is_some_and(|n| !n.is_empty()), "device facts");
 

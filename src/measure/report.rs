@@ -75,7 +75,7 @@ pub struct Workload {
     pub figures: Vec<Figure>,
 }
 
-/// lbl's two roles under one queue mapping.
+/// A concurrent workload (`Solver::concurrency`: lbl, path) under one queue mapping.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct QueueRun {
     pub mapping: String,
