@@ -20,7 +20,7 @@ layout(std430, binding = 1) readonly buffer Beams { vec4 beams[]; };        // 2
 layout(std430, binding = 2) readonly buffer Storage { vec4 storage_dirs[]; }; // xyz, w weight (sr)
 layout(std430, binding = 3) readonly buffer Footprint { vec4 footprint[]; }; // xyz per storage direction
 layout(std430, binding = 4) buffer First { float first[]; };                // [c][m][voxel]
-layout(std430, binding = 5) writeonly buffer Source { float source[]; };    // the same, the iteration's start
+layout(std430, binding = 5) writeonly buffer Source { float source[]; };    // the same, the iteration's start (write_source)
 
 layout(push_constant) uniform Push {
     uvec4 dims;      // the grid's voxels xyz, w = the slab's voxels V (the grid's when whole)
@@ -32,7 +32,8 @@ layout(push_constant) uniform Push {
     float g;         // the medium's asymmetry
     uint base;       // the slab's first voxel
     uint beam0;      // the group's first beam (0: the first group, which starts the sums)
-    uint pad2;
+    uint write_source; // 1: also start the stored source (plane sweeps iterate from it); 0: the
+                       // direct source alone, read back slab by slab (the source is a stand-in)
 } pc;
 
 const float G_LIMIT = 0.9999;
@@ -93,6 +94,7 @@ void main() {
             for (uint c = 0u; c < pc.channels; ++c) first[(c * M + m) * V + v] += e[c] * per_sr;
         }
     }
+    if (pc.write_source == 0u) return;
     for (uint c = 0u; c < pc.channels; ++c)
         for (uint m = 0u; m < M; ++m) source[(c * M + m) * V + v] = first[(c * M + m) * V + v];
 }

@@ -247,7 +247,7 @@ fn plane(s: &Option<Sweeper>) -> &Sweeper {
 struct SourcePlan {
     dims: [u32; 3],
     beams: u64,
-    /// Bytes per layer: the sums of one beam, and the sources and density.
+    /// Bytes per layer: the sums of one beam, and the first-scattering source and density.
     layer_beam: u64,
     layer_rest: u64,
     /// Bytes per layer of one storage direction's source (with the sums, what one binding holds).
@@ -273,7 +273,7 @@ impl SourcePlan {
             dims: geom.dims,
             beams,
             layer_beam: layer * 4 * nch64,
-            layer_rest: layer * 4 * (2 * nch64 * m + 1),
+            layer_rest: layer * 4 * (nch64 * m + 1), // the slab's first-scattering source and density
             layer_source: layer * 4 * nch64 * m,
             fixed: Sweeper::bytes(geom.voxels(), nch64, &set.quadrature, &set.storage, set.scheme, false, 0)
                 + beams * 32,

@@ -95,7 +95,8 @@ struct BinPush {
     base: u32,
     /// The group's first beam (`beams` is its size).
     beam0: u32,
-    pad: u32,
+    /// 1 to start the stored source too (whole-grid sweeps), 0 for the direct source alone.
+    write_source: u32,
 }
 
 /// Where the camera is, for the light each voxel scatters toward it.
@@ -153,6 +154,9 @@ pub(crate) enum Storage {
 /// A grid ready to sweep: extinction, directions and the angular maps on the device, the
 /// directions grouped by octant.
 pub struct Sweeper {
+    /// Whether it sweeps the whole grid ([`Sweeper::new`]) or only makes the direct source
+    /// ([`Sweeper::for_source`]).
+    sweeps: bool,
     sweep: Pipeline,
     scatter: Pipeline,
     deposit: Pipeline,
@@ -350,6 +354,7 @@ impl Sweeper {
         let characteristics = s.scheme == Scheme::Characteristics;
         let face_bytes = if characteristics { 8 * slots as u64 * sv * 4 } else { 4 };
         Ok(Sweeper {
+            sweeps,
             sweep: gpu.pipeline(&SWEEP, &[])?,
             scatter: gpu.pipeline(&SCATTER, &[])?,
             deposit: gpu.pipeline(&DEPOSIT, &[])?,
@@ -366,7 +371,9 @@ impl Sweeper {
             eye: s.eye.packed(),
             sigma_t: gpu.buffer_with("ordinates sigma_t", if sweeps { s.sigma_t } else { &[0.0] })?,
             sigma_s: gpu.buffer_with("ordinates sigma_s", if sweeps { s.sigma_s } else { &[0.0] })?,
-            source: gpu.buffer("ordinates source", nch * m * source_voxels * 4)?,
+            // Without sweeps the direct source is read back from `first` slab by slab: the
+            // stored source would be a second copy nothing reads (bin.comp's write_source).
+            source: gpu.buffer("ordinates source", if sweeps { nch * m * source_voxels * 4 } else { 4 })?,
             first: gpu.buffer("ordinates first source", nch * m * source_voxels * 4)?,
             dirs: gpu.buffer_with("ordinates directions", &to_vec4(&swept))?,
             storage_dirs: gpu.buffer_with("ordinates storage directions", &to_vec4(&storage))?,
@@ -410,7 +417,8 @@ impl Sweeper {
         // A buffer the sweeps alone need is a one-float stand-in without them.
         let kept = |floats: u64| if sweeps { floats } else { 1 };
         let source_voxels = if sweeps { voxels } else { source_voxels };
-        let floats = 2 * kept(voxels * channels) + source_voxels * channels * 2 * m // sigma_t, sigma_s, source, first
+        let floats = 2 * kept(voxels * channels) + kept(source_voxels * channels * m) // sigma_t, sigma_s, source
+            + source_voxels * channels * m                    // first
             + kept(sv * channels * 8) + kept(sv * channels)   // fluence, camera
             + kept(8 * slots * sv)                            // the field
             + n * 4 + m * 4 + m * 4                           // directions, storage directions, footprints
@@ -538,7 +546,7 @@ impl Sweeper {
                 g: self.g,
                 base: slab.base(),
                 beam0: group.beams.start,
-                pad: 0,
+                write_source: self.sweeps as u32,
             })
             .cover([v, 1, 1])
     }
