@@ -677,7 +677,7 @@ fn render_rejects_bad_flags() {
             "single",
             "--deterministic",
         ]),
-        fails("solver_flags/compare-schedules with wavefront", base(), &["--compare-schedules", "(path, lbl)"])
+        fails("solver_flags/compare-schedules with wavefront", base(), &["--compare-schedules", "(path, lbl, dom)"])
             .and_args(&["--solver", "wavefront", "--compare-schedules"]),
         // A knob out of its range, and one of a mode the render does not use.
         fails("knob_range/lbl.grid=1", base(), &["--set lbl.grid", "2..=512", "scatterlab knobs lbl"]).and_args(&[

@@ -90,32 +90,36 @@ fn quick_report_measures_bandwidth_workloads_and_queues() {
     }
 
     // Every solver with a concurrent workload (lbl's marching beside its lattice, path's light
-    // paths beside its camera paths) under each of the three mappings. lavapipe has one queue:
+    // paths beside its camera paths, dom's streaming copies beside its sweeps) under each of
+    // the three mappings. lavapipe has one queue:
     // shared runs (no gain to claim), the others are not offered.
     let concurrent: Vec<String> = scatterlab::solvers::SOLVERS
         .iter()
         .filter(|s| s.concurrency(true).is_some())
         .map(|s| s.name().to_string())
         .collect();
-    assert!(["path", "lbl"].iter().all(|n| concurrent.iter().any(|c| c == n)), "{concurrent:?}");
+    assert!(["path", "lbl", "dom"].iter().all(|n| concurrent.iter().any(|c| c == n)), "{concurrent:?}");
     assert_eq!(r.queues.len(), 3 * concurrent.len());
     for q in &r.queues {
         if q.mapping == "shared" {
             assert!(q.unavailable.is_none() && q.gain.is_none(), "{q:?}");
             assert!(q.sequential_ms > 0.0 && q.concurrent_ms > 0.0 && q.images_rel_l2 < 1e-4, "{q:?}");
-            if q.workload.starts_with("path") {
-                // Both schedules trace the same paths: the same image, bit for bit.
+            if q.workload.starts_with("path") || q.workload.starts_with("dom") {
+                // Both schedules compute the same paths, or the same sweeps of the same blocks:
+                // the same image, bit for bit.
                 assert_eq!(q.images_rel_l2, 0.0, "{q:?}");
             }
             let trace = dir.path().join(q.trace.as_ref().expect("a trace per mapping that ran"));
             let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(trace).unwrap()).unwrap();
             let events = t.get("traceEvents").and_then(|e| e.as_array()).expect("trace events");
-            // The concurrent schedule's passes are on both roles (tid 1 trace, 2 diffuse).
+            // The concurrent schedule's passes are on their roles (tid 1 trace, 2 diffuse, 3
+            // transfer): path's and lbl's on trace and diffuse, dom's copies on transfer too.
             let mut tids: Vec<u64> =
                 events.iter().filter(|e| e["ph"] == "X").filter_map(|e| e["tid"].as_u64()).collect();
             tids.sort();
             tids.dedup();
-            assert_eq!(tids, [1, 2], "{}: passes on both roles", q.workload);
+            let want: &[u64] = if q.workload.starts_with("dom") { &[1, 2, 3] } else { &[1, 2] };
+            assert_eq!(tids, want, "{}: passes on their roles", q.workload);
             let svg =
                 std::fs::read_to_string(dir.path().join(q.svg.as_ref().expect("a timeline per mapping"))).unwrap();
             assert!(svg.starts_with("<svg") && svg.contains("<rect x=") && svg.trim_end().ends_with("</svg>"), "{svg}");

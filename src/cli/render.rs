@@ -86,7 +86,15 @@ fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<Strin
         bail!("--repeats counts the renders of --compare-schedules; add --compare-schedules or drop --repeats");
     }
     if a.compare_schedules {
-        require_knob(solver, "--compare-schedules", "schedule")?;
+        if solver.schedules().is_none() {
+            let having: Vec<&str> =
+                solvers::SOLVERS.iter().filter(|s| s.schedules().is_some()).map(|s| s.name()).collect();
+            bail!(
+                "--compare-schedules applies to solvers with queue schedules to compare ({}); --solver {} has none",
+                having.join(", "),
+                solver.name()
+            );
+        }
         if a.schedule.is_some() {
             bail!("--schedule and --compare-schedules exclude each other (the comparison runs both)");
         }

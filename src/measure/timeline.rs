@@ -268,33 +268,37 @@ impl ScheduleComparison {
     }
 }
 
-/// Render `req` with `solver` under `schedule=sequential` and then `schedule=concurrent`,
-/// `repeats` times in turn; returns the last concurrent render (the one kept) and the
-/// comparison. The solver must have a `schedule` knob, and the request must not set it.
+/// Render `req` with `solver` under its two schedules ([`Solver::schedules`]: by default
+/// `schedule=sequential` and then `schedule=concurrent`; dom's streaming copies on the
+/// compute queue and then on the transfer role's), `repeats` times in turn; returns the last
+/// concurrent render (the one kept) and the comparison. The request must not set the knob.
+///
+/// [`Solver::schedules`]: crate::solvers::Solver::schedules
 pub fn compare_schedules(
     gpu: &crate::gpu::Gpu,
     solver: &dyn crate::solvers::Solver,
     req: &crate::solvers::RenderRequest,
     repeats: u32,
 ) -> Result<(crate::solvers::RenderOutput, ScheduleComparison), crate::solvers::SolverError> {
-    use crate::solvers::{RenderRequest, Schedule, SolverError};
-    let key = format!("{}.schedule", solver.name());
-    if !solver.knobs().iter().any(|k| k.name == "schedule") {
+    use crate::solvers::{RenderRequest, SolverError};
+    let Some((knob, apart, overlapped)) = solver.schedules() else {
         return Err(SolverError::Unsupported(format!(
-            "solver {} has no queue schedule to compare (no {key} knob)",
+            "solver {} has no queue schedule to compare (no {}.schedule knob)",
+            solver.name(),
             solver.name()
         )));
-    }
-    let run = |schedule: Schedule| {
-        let settings = req.settings.with(&key, schedule.name());
+    };
+    let key = format!("{}.{knob}", solver.name());
+    let run = |value: &str| {
+        let settings = req.settings.with(&key, value);
         let r = RenderRequest { settings: &settings, ..*req };
         solver.render(gpu, &r)
     };
     let (mut sequential_ms, mut concurrent_ms) = (Vec::new(), Vec::new());
     let mut last = None;
     for _ in 0..repeats.max(1) {
-        let seq = run(Schedule::Sequential)?;
-        let out = run(Schedule::Concurrent)?;
+        let seq = run(apart)?;
+        let out = run(overlapped)?;
         let (s, c) = (summarize(&seq.report.passes), summarize(&out.report.passes));
         sequential_ms.push(s.span_ns as f64 * 1e-6);
         concurrent_ms.push(c.span_ns as f64 * 1e-6);

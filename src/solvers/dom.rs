@@ -941,6 +941,32 @@ impl Solver for Dom {
         ))
     }
 
+    /// The sweeps on the trace role beside the blocks' streaming copies (5.2.2, 5.3.4), with
+    /// the grid eight times the budget: the copies on the compute queue, in order with the
+    /// sweeps, against the copies on the transfer role's queue (`dom.copies`).
+    fn concurrency(&self, quick: bool) -> Option<Headline> {
+        let (grid, size, block, budget) = if quick { ("16", "32", "4", "0.05") } else { ("64", "256", "8", "1") };
+        Some(Headline::new(
+            format!("dom homogeneous sphere {grid}^3 streamed under {budget} MiB, N 24, two iterations, {size}^2"),
+            "homogeneous-sphere.toml",
+            &[
+                ("render.width", size),
+                ("render.height", size),
+                ("dom.grid", grid),
+                ("dom.directions", "s4"),
+                ("dom.max_iterations", "2"),
+                ("dom.block", block),
+                ("dom.budget", budget),
+                ("dom.rays", "16384"),
+            ],
+            "",
+        ))
+    }
+
+    fn schedules(&self) -> Option<(&'static str, &'static str, &'static str)> {
+        Some(("copies", "compute", "transfer"))
+    }
+
     /// Over the grid and the number of directions N (issue 13's ladder), cheapest first: level-
     /// symmetric sets where s6 resolves the phase function, product sets where |g| >= 0.8
     /// (as `dom.directions=auto` picks).

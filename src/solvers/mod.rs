@@ -109,10 +109,17 @@ pub trait Solver: Sync {
     fn headline(&self, _quick: bool) -> Option<Headline> {
         None
     }
-    /// A workload whose passes run on both queue roles, for `report`'s queue-concurrency
-    /// matrix (the solver has a `schedule` knob), if it has one.
+    /// A workload whose passes run on more than one queue role, for `report`'s
+    /// queue-concurrency matrix (the solver has [`Solver::schedules`]), if it has one.
     fn concurrency(&self, _quick: bool) -> Option<Headline> {
         None
+    }
+    /// The knob whose two values `--compare-schedules` and `report`'s queue matrix compare:
+    /// (knob, its value with the roles' work one after the other, its value with the work
+    /// free to overlap). By default the `schedule` knob (sequential, concurrent) where the
+    /// solver has one.
+    fn schedules(&self) -> Option<(&'static str, &'static str, &'static str)> {
+        self.knobs().iter().any(|k| k.name == "schedule").then_some(("schedule", "sequential", "concurrent"))
     }
     /// Lines for the terminal after a render, beyond what every render prints.
     fn summary(&self, _report: &RenderReport) -> Vec<String> {
