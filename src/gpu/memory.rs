@@ -195,7 +195,8 @@ impl Gpu {
             MemoryLocation::GpuOnly,
             transfer,
         )?;
-        self.fill_zero(&b)?;
+        // A new buffer: no submitted work can touch it yet, so no wait before the memset.
+        self.zero(&b, false)?;
         Ok(b)
     }
 
@@ -278,8 +279,17 @@ impl Gpu {
 
     /// Zero every byte of `b` (a fill on the device, or a memset where it is host-visible).
     pub fn fill_zero(&self, b: &Buffer) -> Result<()> {
+        self.zero(b, true)
+    }
+
+    /// [`Gpu::fill_zero`]; `in_use`: work already submitted may still read or write `b`, so a
+    /// memset waits for it (as [`Gpu::write_buffer`] does).
+    fn zero(&self, b: &Buffer, in_use: bool) -> Result<()> {
         let started = Instant::now();
         if let Some(p) = b.mapped() {
+            if in_use {
+                self.wait_idle_roles()?;
+            }
             unsafe { std::ptr::write_bytes(p, 0, b.size() as usize) };
             self.host_add(HostKind::Fills, b.size(), started);
             return Ok(());

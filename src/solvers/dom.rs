@@ -23,7 +23,7 @@
 
 use serde::Serialize;
 
-use crate::gpu::{Buffer, Gpu, Kernel, QueueRole};
+use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
 use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 use crate::scene::{CameraKind, Scene};
@@ -40,6 +40,9 @@ use super::{
 };
 
 pub struct Dom;
+
+/// Marching rounds (a march and a deposit pass each) per submission of the direct source.
+const ROUNDS_PER_SUBMIT: u32 = 8;
 
 /// `dom`'s own stats.
 #[derive(Clone, Debug, Serialize)]
@@ -554,16 +557,27 @@ impl Solver for Dom {
                 let base = slab.base() as usize;
                 density[base..base + slab.voxels() as usize].copy_from_slice(&gpu.read_buffer_as::<f32>(&d)?);
             }
-            for round in 0..marcher.rounds {
+            // The rounds in submissions of ROUNDS_PER_SUBMIT (march, deposit) pairs: one wait per
+            // batch rather than per round (the passes' hazards put the barriers between them).
+            let k = marcher.history_slots();
+            let mut round = 0;
+            while round < marcher.rounds {
                 let done = (i * marcher.rounds as usize + round as usize) as u64;
                 (req.progress)(Progress::work("marching the direct source", done, work));
+                let batch = ROUNDS_PER_SUBMIT.min(marcher.rounds - round);
+                round += batch;
                 if group.rays.is_empty() {
                     continue;
                 }
-                let k = marcher.history_slots();
-                let deposit = sweeper.deposit_pass(&marcher.history, &ray_beam, k, group, marcher.scale, &sums, slab);
-                let march = marcher.march_pass(&gs, group.rays.clone());
-                let point = gpu.submit(QueueRole::Trace, &[march, deposit], &[])?;
+                let passes: Vec<Pass> = (0..batch)
+                    .flat_map(|_| {
+                        [
+                            marcher.march_pass(&gs, group.rays.clone()),
+                            sweeper.deposit_pass(&marcher.history, &ray_beam, k, group, marcher.scale, &sums, slab),
+                        ]
+                    })
+                    .collect();
+                let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
                 gpu.wait(point)?;
             }
             // Each voxel's once-scattered power per beam, shared among the storage directions:
