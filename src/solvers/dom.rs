@@ -44,6 +44,15 @@ pub struct Dom;
 /// Marching rounds (a march and a deposit pass each) per submission of the direct source.
 const ROUNDS_PER_SUBMIT: u32 = 8;
 
+/// `report`'s workloads on the homogeneous sphere: N 24 (s4), two iterations, `grid`^3 voxels,
+/// `size`^2 pixels, and `more` settings.
+fn sphere_workload(name: String, grid: &str, size: &str, more: &[(&str, &str)], seed: &'static str) -> Headline {
+    let mut sets = vec![("render.width", size), ("render.height", size), ("dom.grid", grid), ("dom.directions", "s4")];
+    sets.push(("dom.max_iterations", "2"));
+    sets.extend_from_slice(more);
+    Headline::new(name, "homogeneous-sphere.toml", &sets, seed)
+}
+
 /// `dom`'s own stats.
 #[derive(Clone, Debug, Serialize)]
 pub struct DomStats {
@@ -941,38 +950,26 @@ impl Solver for Dom {
     /// frames were rendered.
     fn headline(&self, quick: bool) -> Option<Headline> {
         let (grid, size) = if quick { ("16", "64") } else { ("128", "512") };
-        Some(Headline::new(
+        Some(sphere_workload(
             format!("dom homogeneous sphere {grid}^3, N 24, two iterations, {size}^2"),
-            "homogeneous-sphere.toml",
-            &[
-                ("render.width", size),
-                ("render.height", size),
-                ("dom.grid", grid),
-                ("dom.directions", "s4"),
-                ("dom.max_iterations", "2"),
-            ],
+            grid,
+            size,
+            &[],
             if quick { "" } else { "thesis 5.4: 128^3, N 24 in 5.3 s per frame (GTX 580, 2011)" },
         ))
     }
 
-    /// The sweeps on the trace role beside the blocks' streaming copies (5.2.2, 5.3.4), with
-    /// the grid eight times the budget: the copies on the compute queue, in order with the
-    /// sweeps, against the copies on the transfer role's queue (`dom.copies`).
+    /// The sweeps on the trace role beside the blocks' streaming copies (5.2.2, 5.3.4), the
+    /// pool holding under a tenth of the blocks (64^3: 39 slots for 512 blocks): the copies on
+    /// the compute queue, in order with the sweeps, against the copies on the transfer role's
+    /// queue (`dom.copies`).
     fn concurrency(&self, quick: bool) -> Option<Headline> {
         let (grid, size, block, budget) = if quick { ("16", "32", "4", "0.05") } else { ("64", "256", "8", "1") };
-        Some(Headline::new(
+        Some(sphere_workload(
             format!("dom homogeneous sphere {grid}^3 streamed under {budget} MiB, N 24, two iterations, {size}^2"),
-            "homogeneous-sphere.toml",
-            &[
-                ("render.width", size),
-                ("render.height", size),
-                ("dom.grid", grid),
-                ("dom.directions", "s4"),
-                ("dom.max_iterations", "2"),
-                ("dom.block", block),
-                ("dom.budget", budget),
-                ("dom.rays", "16384"),
-            ],
+            grid,
+            size,
+            &[("dom.block", block), ("dom.budget", budget), ("dom.rays", "16384")],
             "",
         ))
     }
