@@ -332,3 +332,28 @@ fn direct_source_and_view_stream_slab_by_slab_within_the_budget() {
     }
     assert_clean(&gpu);
 }
+
+/// dom's queue schedules (`Solver::schedules`) are its streaming copies' queue: on the compute
+/// queue in order with the sweeps, or on the transfer role's. The comparison names them, and
+/// both give the same image bit for bit (the same sweeps of the same blocks).
+#[test]
+fn schedule_comparison_runs_the_copies_on_either_queue() {
+    use scatterlab::measure::timeline::compare_schedules;
+    use scatterlab::solvers::{RenderRequest, Settings};
+    let gpu = gpu();
+    let h = DOM.concurrency(true).expect("dom has a concurrent workload");
+    let (scene_sets, knobs): (Vec<_>, Vec<_>) =
+        h.sets.iter().cloned().partition(|(k, _)| scatterlab::scene::is_scene_key(k));
+    let scene_sets: Vec<(&str, &str)> = scene_sets.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let scene = crate::common::repo_scene(&format!("scenes/{}", h.scene), &scene_sets);
+    let settings = Settings::new(&knobs);
+    let req = RenderRequest { scene: &scene, settings: &settings, force_full: false, progress: &|_| {} };
+    let (out, c) = compare_schedules(&gpu, DOM, &req, 1).expect("comparison");
+    assert_eq!(c.labels, ["dom.copies=compute".to_string(), "dom.copies=transfer".to_string()]);
+    assert!(c.describe().contains("dom.copies=compute") && c.describe().contains("dom.copies=transfer"));
+    assert_eq!(c.images_rel_l2, 0.0, "{c:?}");
+    let s = out.report.detail::<scatterlab::solvers::dom::DomStats>().expect("dom's stats");
+    let st = s.streaming.as_ref().expect("block sweeps");
+    assert!(st.pool_slots < st.blocks && st.uploads > st.blocks as u64, "the blocks stream: {st:?}");
+    assert_clean(&gpu);
+}

@@ -248,6 +248,7 @@ fn schedule_gain_is_reported_only_above_noise_and_with_overlap_possible() {
     let c = ScheduleComparison::from_spans(s(), s(), vec![147.0, 150.0, 153.0], vec![99.0, 100.0, 101.0], false, 0.0);
     assert!((c.gain.unwrap() - 1.5).abs() < 1e-12 && (c.noise - 0.02).abs() < 1e-12 && c.significant, "{c:?}");
     assert!(c.describe().contains("concurrency gain 1.500x;"), "{}", c.describe());
+    assert!(c.describe().starts_with("schedules: sequential 150.0 ms, concurrent 100.0 ms"), "{}", c.describe());
 
     let c = ScheduleComparison::from_spans(s(), s(), vec![97.0, 102.0, 107.0], vec![100.0, 100.0, 100.0], false, 0.0);
     assert!(!c.significant && (c.noise - 5.0 / 102.0).abs() < 1e-12, "{c:?}");

@@ -202,6 +202,10 @@ pub struct ScheduleComparison {
     pub shared_queue: bool,
     /// relL2 between the two images (the schedules must agree to floating-point tolerance).
     pub images_rel_l2: f64,
+    /// What the two schedules are: `sequential` and `concurrent`, or the knob settings where
+    /// the solver's schedules are another knob's values (dom: `copies=compute`,
+    /// `copies=transfer`).
+    pub labels: [String; 2],
 }
 
 impl ScheduleComparison {
@@ -239,6 +243,7 @@ impl ScheduleComparison {
             significant,
             shared_queue,
             images_rel_l2,
+            labels: ["sequential".into(), "concurrent".into()],
         }
     }
 
@@ -246,8 +251,10 @@ impl ScheduleComparison {
     pub fn describe(&self) -> String {
         let med = |v: &[f64]| crate::measure::median(v);
         let spans = format!(
-            "sequential {:.1} ms, concurrent {:.1} ms (GPU span, median of {})",
+            "{} {:.1} ms, {} {:.1} ms (GPU span, median of {})",
+            self.labels[0],
             med(&self.sequential_ms),
+            self.labels[1],
             med(&self.concurrent_ms),
             self.sequential_ms.len()
         );
@@ -307,7 +314,7 @@ pub fn compare_schedules(
     let (seq, out, sequential, concurrent) = last.expect("at least one repeat");
     let images_rel_l2 = crate::output::compare(&out.image, &seq.image).map(|m| m.rel_l2).unwrap_or(f64::NAN);
     let shared_queue = gpu.info().mapping.shared();
-    let c = ScheduleComparison::from_spans(
+    let mut c = ScheduleComparison::from_spans(
         sequential,
         concurrent,
         sequential_ms,
@@ -315,5 +322,8 @@ pub fn compare_schedules(
         shared_queue,
         images_rel_l2,
     );
+    if knob != "schedule" {
+        c.labels = [format!("{key}={apart}"), format!("{key}={overlapped}")];
+    }
     Ok((out, c))
 }
