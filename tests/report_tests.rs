@@ -131,6 +131,11 @@ fn quick_report_measures_bandwidth_workloads_and_queues() {
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(md.contains("## Memory bandwidth") && md.contains("## Headline workloads") && md.contains("## Queue"));
 
+    // Every figure has a name of its own (--compare matches them by name).
+    let names: Vec<String> = scatterlab::measure::report::figures(&r).into_iter().map(|(n, _)| n).collect();
+    let unique: std::collections::HashSet<&String> = names.iter().collect();
+    assert_eq!(unique.len(), names.len(), "figure names repeat: {names:#?}");
+
     // The same report twice: every ratio is 1.
     let json = dir.path().join("report.json");
     let cmp = Command::new(BIN).args(["report", "--compare"]).arg(&json).arg(&json).output().unwrap();

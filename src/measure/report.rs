@@ -128,11 +128,6 @@ pub struct ReportOptions {
 
 type Error = Box<dyn std::error::Error + Send + Sync>;
 
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
-
 /// The bandwidth probe: `bytes` per buffer (rounded down to vec4s and to one binding), `runs`
 /// times each method; the bytes moved are twice the buffer (read and written).
 pub fn probe_bandwidth(gpu: &Gpu, bytes: u64, runs: u32) -> Result<Vec<Bandwidth>, Error> {
@@ -176,7 +171,7 @@ pub fn probe_bandwidth(gpu: &Gpu, bytes: u64, runs: u32) -> Result<Vec<Bandwidth
             bytes_moved: 2 * bytes,
             runs: n,
             best_ms: best,
-            median_ms: median(&mut times),
+            median_ms: super::median(&times),
             gb_per_s: 2.0 * bytes as f64 / (best * 1e-3) / 1e9,
         });
     }
@@ -279,8 +274,8 @@ fn queue_runs(
         let (scene, settings) = load_scene(dir, h)?;
         let req = RenderRequest { scene: &scene, settings: &settings, force_full: false, progress: &|_| {} };
         let (rendered, c) = super::timeline::compare_schedules(&gpu, solver, &req, repeats)?;
-        run.sequential_ms = median(&mut c.sequential_ms.clone());
-        run.concurrent_ms = median(&mut c.concurrent_ms.clone());
+        run.sequential_ms = super::median(&c.sequential_ms);
+        run.concurrent_ms = super::median(&c.concurrent_ms);
         run.gain = c.gain;
         run.overlap_fraction = c.concurrent.overlap_fraction;
         run.images_rel_l2 = c.images_rel_l2;
@@ -460,8 +455,8 @@ pub fn figures(r: &Report) -> Vec<(String, f64)> {
         }
     }
     for q in r.queues.iter().filter(|q| q.unavailable.is_none()) {
-        out.push((format!("queues {}: sequential ms", q.mapping), q.sequential_ms));
-        out.push((format!("queues {}: concurrent ms", q.mapping), q.concurrent_ms));
+        out.push((format!("queues {} under {}: sequential ms", q.workload, q.mapping), q.sequential_ms));
+        out.push((format!("queues {} under {}: concurrent ms", q.workload, q.mapping), q.concurrent_ms));
     }
     out
 }
