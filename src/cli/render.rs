@@ -86,15 +86,7 @@ fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<Strin
         bail!("--repeats counts the renders of --compare-schedules; add --compare-schedules or drop --repeats");
     }
     if a.compare_schedules {
-        if solver.schedules().is_none() {
-            let having: Vec<&str> =
-                solvers::SOLVERS.iter().filter(|s| s.schedules().is_some()).map(|s| s.name()).collect();
-            bail!(
-                "--compare-schedules applies to solvers with queue schedules to compare ({}); --solver {} has none",
-                having.join(", "),
-                solver.name()
-            );
-        }
+        require(solver, "--compare-schedules", "queue schedules to compare", |s| s.schedules().is_some())?;
         if a.schedule.is_some() {
             bail!("--schedule and --compare-schedules exclude each other (the comparison runs both)");
         }
@@ -151,12 +143,16 @@ impl ImageFormat {
 /// `flag` stands for `--set <solver>.<knob>`; an error naming the solvers that have it if
 /// this one does not.
 fn require_knob(solver: &dyn Solver, flag: &str, knob: &str) -> Result<()> {
-    if solver.knobs().iter().any(|k| k.name == knob) {
+    require(solver, flag, &format!("a {knob} knob"), |s| s.knobs().iter().any(|k| k.name == knob))
+}
+
+/// `flag` needs a solver with `what` (`has`): else one line naming the solvers that have it.
+fn require(solver: &dyn Solver, flag: &str, what: &str, has: impl Fn(&dyn Solver) -> bool) -> Result<()> {
+    if has(solver) {
         return Ok(());
     }
-    let having: Vec<&str> =
-        solvers::SOLVERS.iter().filter(|s| s.knobs().iter().any(|k| k.name == knob)).map(|s| s.name()).collect();
-    bail!("{flag} applies to solvers with a {knob} knob ({}); --solver {} has none", having.join(", "), solver.name())
+    let having: Vec<&str> = solvers::SOLVERS.iter().filter(|s| has(**s)).map(|s| s.name()).collect();
+    bail!("{flag} applies to solvers with {what} ({}); --solver {} has none", having.join(", "), solver.name())
 }
 
 /// Every output path is checked before any work.
