@@ -249,7 +249,8 @@ fn plane(s: &Option<Sweeper>) -> &Sweeper {
 /// source by blocks; runs of layers are blocks as wide as the grid, which the marched rays and
 /// the bin pass need no halo for), and group by group of beams. What a slab holds: per beam of
 /// the group and channel the deposits' sums, per channel and storage direction the
-/// first-scattering source and its copy as the stored source, and the resampled density. Beside
+/// first-scattering source (no copy as the stored source: the block sweeps take it from the
+/// host), and the resampled density. Beside
 /// it the binning tables and the beam table; the marcher's rays and history are `dom.rays`'s,
 /// not the grid's, and dom.budget leaves them out.
 ///
@@ -400,10 +401,10 @@ impl Solver for Dom {
                 "extrapolate",
                 "true",
                 Range::Bool,
-                "add the source iteration's geometric tail (the last iteration's increment times r / (1 - r), r the \
-                 decay of the increments: the light of the bounces not swept, as the thesis's progressive G'' \
-                 measures it) and test convergence on the extrapolated fluence (docs/dom.md); false: stop on the \
-                 plain fluence's change",
+                "add the source iteration's geometric tail (the last pair of iterations' increment times rho^2 / (1 - \
+                 rho^2), rho^2 the decay of those increments: the light of the bounces not swept, as the thesis's \
+                 progressive G'' measures it) and test convergence on the extrapolated fluence (docs/dom.md); false: \
+                 stop on the plain fluence's change",
             ),
             Knob::fixed(
                 "scheme",
@@ -549,10 +550,10 @@ impl Solver for Dom {
             .collect();
         let storage_m = sweeper.storage.len();
         let mut first = if block > 0 { vec![0f32; nch as usize * storage_m * v] } else { Vec::new() };
-        let passes: Vec<(Slab, &BeamGroup)> = slabs.iter().flat_map(|s| groups.iter().map(move |g| (*s, g))).collect();
-        let work = (marcher.rounds as usize * passes.len()) as u64;
+        let runs: Vec<(Slab, &BeamGroup)> = slabs.iter().flat_map(|s| groups.iter().map(move |g| (*s, g))).collect();
+        let work = (marcher.rounds as usize * runs.len()) as u64;
         let mut density_bytes = 0;
-        for (i, (slab, group)) in passes.iter().enumerate() {
+        for (i, (slab, group)) in runs.iter().enumerate() {
             let (slab, first_group) = (*slab, group.beams.start == 0);
             if i > 0 {
                 if first_group {
@@ -650,6 +651,10 @@ impl Solver for Dom {
                 })
             };
         let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
+        let max_diff = |a: &[f32], b: &[f32]| -> f64 {
+            a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()))
+        };
+        let peak = |a: &[f32]| -> f64 { a.iter().fold(0.0f64, |m, x| m.max(*x as f64)) };
         // rho^2 from the sums of the pair increments (newest last), when it is a decay.
         let decay2 = |s: &[f64]| -> Option<f64> {
             match s {
@@ -672,9 +677,8 @@ impl Solver for Dom {
             };
             iterations += 1;
             let (before, before2) = (&fluences[1], &fluences[0]);
-            let scale = phi.iter().fold(0.0f64, |m, x| m.max(*x as f64));
-            let scale = if scale > 0.0 { scale } else { 1.0 };
-            change = phi.iter().zip(before).fold(0.0f64, |m, (a, b)| m.max((*a as f64 - *b as f64).abs())) / scale;
+            let scale = peak(&phi);
+            change = max_diff(&phi, before) / if scale > 0.0 { scale } else { 1.0 };
             let mut extrapolated_change = None;
             let mut ratio = None;
             // The light toward the camera two iterations back.
@@ -695,12 +699,8 @@ impl Solver for Dom {
                     Some(r2) => {
                         let f = (r2 / (1.0 - r2)) as f32;
                         let e: Vec<f32> = phi.iter().zip(before2).map(|(a, b)| a + (a - b).max(0.0) * f).collect();
-                        let e_scale = e.iter().fold(0.0f64, |m, x| m.max(*x as f64)).max(f64::MIN_POSITIVE);
                         if let Some(pe) = &previous_extrapolated {
-                            extrapolated_change = Some(
-                                e.iter().zip(pe).fold(0.0f64, |m, (a, b)| m.max((*a as f64 - *b as f64).abs()))
-                                    / e_scale,
-                            );
+                            extrapolated_change = Some(max_diff(&e, pe) / peak(&e).max(f64::MIN_POSITIVE));
                         }
                         previous_extrapolated = Some(e);
                     }
