@@ -72,9 +72,11 @@ fn block_sweeps_match_the_oracle_and_stream_bit_identically() {
         let m = whole.storage.len();
         let first = first_source(m, voxels, 3);
         whole.set_first(&gpu, &first).expect("first");
-        let mut reference = Vec::new();
+        // Progressive iterations (thesis 5.3.3): each returns its bounce; the solution is their sum.
+        let mut reference = vec![0f32; voxels];
         for _ in 0..20 {
-            reference = whole.iterate(&gpu).expect("iterate");
+            let bounce = whole.iterate(&gpu).expect("iterate");
+            reference.iter_mut().zip(&bounce).for_each(|(r, b)| *r += b);
         }
         let reference_camera: Vec<f32> = gpu.read_buffer_as(&whole.camera).expect("camera");
         let grid = OrdinatesGrid {
@@ -93,9 +95,10 @@ fn block_sweeps_match_the_oracle_and_stream_bit_identically() {
         let run = |opts: BlockOptions| {
             let mut b = BlockSweeper::new(&gpu, &s, &opts).expect("block sweeper");
             b.set_first(&gpu, &first).expect("first");
-            let mut phi = Vec::new();
+            let mut phi = vec![0f32; voxels];
             for _ in 0..20 {
-                phi = b.iterate(&gpu).expect("iterate");
+                let bounce = b.iterate(&gpu).expect("iterate");
+                phi.iter_mut().zip(&bounce).for_each(|(p, b)| *p += b);
             }
             (phi, b.camera(), b.stats, b.device_bytes())
         };

@@ -11,6 +11,8 @@
 // One slab of whole layers at a time (deposit.comp): voxel v of the slab is base + v of the grid;
 // and one group of beams at a time, beam0 .. beam0 + beam_count, added in order to what the
 // groups before left (the same additions in the same order as one pass over all the beams).
+// The sums are the source the first sweep propagates: the thesis's G'' initialised with G_dir
+// (5.3.3's progressive scheme; glsl/ordinates/scatter.comp).
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -19,8 +21,7 @@ layout(std430, binding = 0) readonly buffer Accum { uint acc[]; };          // [
 layout(std430, binding = 1) readonly buffer Beams { vec4 beams[]; };        // 2 per beam: (xyz, 0 parallel / 1 point), (g', -, -, -)
 layout(std430, binding = 2) readonly buffer Storage { vec4 storage_dirs[]; }; // xyz, w weight (sr)
 layout(std430, binding = 3) readonly buffer Footprint { vec4 footprint[]; }; // xyz per storage direction
-layout(std430, binding = 4) buffer First { float first[]; };                // [c][m][voxel]
-layout(std430, binding = 5) writeonly buffer Source { float source[]; };    // the same, the iteration's start (write_source)
+layout(std430, binding = 4) buffer Source { float source[]; };              // [c][m][voxel]
 
 layout(push_constant) uniform Push {
     uvec4 dims;      // the grid's voxels xyz, w = the slab's voxels V (the grid's when whole)
@@ -32,8 +33,7 @@ layout(push_constant) uniform Push {
     float g;         // the medium's asymmetry
     uint base;       // the slab's first voxel
     uint beam0;      // the group's first beam (0: the first group, which starts the sums)
-    uint write_source; // 1: also start the stored source (plane sweeps iterate from it); 0: the
-                       // direct source alone, read back slab by slab (the source is a stand-in)
+    uint pad;
 } pc;
 
 const float G_LIMIT = 0.9999;
@@ -71,7 +71,7 @@ void main() {
     float per_volume = 1.0 / (pc.scale * pc.grid.w * pc.grid.w * pc.grid.w);
     if (pc.beam0 == 0u)
         for (uint c = 0u; c < pc.channels; ++c)
-            for (uint m = 0u; m < M; ++m) first[(c * M + m) * V + v] = 0.0;
+            for (uint m = 0u; m < M; ++m) source[(c * M + m) * V + v] = 0.0;
     for (uint b = 0u; b < pc.beam_count; ++b) {
         vec3 e = vec3(0.0);
         bool any_light = false;
@@ -91,10 +91,7 @@ void main() {
         for (uint m = 0u; m < M; ++m) {
             // share_m / w_m: the emission per sr.
             float per_sr = hg_eval(g, dot(d, storage_dirs[m].xyz)) / norm;
-            for (uint c = 0u; c < pc.channels; ++c) first[(c * M + m) * V + v] += e[c] * per_sr;
+            for (uint c = 0u; c < pc.channels; ++c) source[(c * M + m) * V + v] += e[c] * per_sr;
         }
     }
-    if (pc.write_source == 0u) return;
-    for (uint c = 0u; c < pc.channels; ++c)
-        for (uint m = 0u; m < M; ++m) source[(c * M + m) * V + v] = first[(c * M + m) * V + v];
 }

@@ -19,8 +19,10 @@
 // invocation per voxel and octant): the fluence w I, the scattered source
 // sum_s A[s][m] I_s at each storage direction (src/physics/angular.rs), and the light toward
 // the camera sum_s w_s p(s . o) I_s. After the last octant (7) each block finishes its voxels
-// as scatter.comp does: Q_m = F_m + sigma_s sum_s A[s][m] I_s, camera = 4 pi gathered / norm
-// lambda^2. Deterministic: no atomics.
+// as scatter.comp does (the thesis's progressive scheme, 5.3.3): the next sweep's source is
+// this one's scattering, Q'_m = sigma_s sum_s A[s][m] I_s (its G' becoming G''), and
+// 4 pi gathered / norm lambda^2 is added to the light toward the camera of the bounces before
+// (what the view reads of G). Deterministic: no atomics.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -69,18 +71,18 @@ vec2 phi_psi(float x) {
 }
 
 // Record layout (floats, Bv = B^3 voxels, x fastest, F = B^2): sigma_t [C][Bv], sigma_s [C][Bv],
-// first [C][M][Bv], source [C][M][Bv], scattered [C][M][Bv], fluence [C][Bv], gathered [C][Bv],
-// camera [C][Bv], then the outgoing faces of the current channel and octant [3][S][F].
+// source [C][M][Bv] (G''), scattered [C][M][Bv] (G'), fluence [C][Bv] (this bounce's),
+// gathered [C][Bv], camera [C][Bv] (all bounces'), then the outgoing faces of the current
+// channel and octant [3][S][F].
 uint bv() { return pc.dims.w * pc.dims.w * pc.dims.w; }
 uint off_sigma_t(uint c) { return c * bv(); }
 uint off_sigma_s(uint c) { return (pc.layout_.y + c) * bv(); }
-uint off_first(uint c, uint m) { return (2u * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
-uint off_source(uint c, uint m) { return ((2u + pc.layout_.z) * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
-uint off_scattered(uint c, uint m) { return ((2u + 2u * pc.layout_.z) * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
-uint off_fluence(uint c) { return ((2u + 3u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
-uint off_gathered(uint c) { return ((3u + 3u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
-uint off_camera(uint c) { return ((4u + 3u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
-uint off_faces(uint axis, uint k) { return (5u + 3u * pc.layout_.z) * pc.layout_.y * bv() + (axis * pc.layout_.w + k) * pc.dims.w * pc.dims.w; }
+uint off_source(uint c, uint m) { return (2u * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
+uint off_scattered(uint c, uint m) { return ((2u + pc.layout_.z) * pc.layout_.y + c * pc.layout_.z + m) * bv(); }
+uint off_fluence(uint c) { return ((2u + 2u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
+uint off_gathered(uint c) { return ((3u + 2u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
+uint off_camera(uint c) { return ((4u + 2u * pc.layout_.z) * pc.layout_.y + c) * bv(); }
+uint off_faces(uint axis, uint k) { return (5u + 2u * pc.layout_.z) * pc.layout_.y * bv() + (axis * pc.layout_.w + k) * pc.dims.w * pc.dims.w; }
 
 // A voxel's index on the face across `axis` (the two other block-local coordinates).
 uint face_index(int axis, ivec3 l) {
@@ -237,12 +239,9 @@ void main() {
             norm += d.w * hg_eval(pc.g, dot(d.xyz, to_eye));
         }
         float gathered = pool[base + off_gathered(c) + vb];
-        pool[base + off_camera(c) + vb] = norm > 0.0 ? 4.0 * PI * gathered / norm * h * h : 0.0;
+        if (norm > 0.0) pool[base + off_camera(c) + vb] += 4.0 * PI * gathered / norm * h * h;
         float sigma = pool[base + off_sigma_s(c) + vb];
-        for (uint m = 0u; m < M; ++m) {
-            float first = pool[base + off_first(c, m) + vb];
-            pool[base + off_source(c, m) + vb] =
-                sigma > 0.0 ? first + sigma * pool[base + off_scattered(c, m) + vb] : first;
-        }
+        for (uint m = 0u; m < M; ++m)
+            pool[base + off_source(c, m) + vb] = sigma > 0.0 ? sigma * pool[base + off_scattered(c, m) + vb] : 0.0;
     }
 }

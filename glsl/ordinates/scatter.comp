@@ -1,14 +1,21 @@
 #version 460
 // ordinates/scatter: after a sweep of channel c, every voxel turns its swept field I_s (all N
 // propagation directions) into
-//  1. the next iteration's source at the M storage directions (thesis 5.3.4's scattering
-//     iteration): Q_m = F_m + sigma_s sum_s A[s][m] I_s, with F the first-scattering source
-//     and A the quadrature-normalised phase function of src/physics/angular.rs
-//     (sum_m w_m A[s][m] = w_s, so what is stored carries sigma_s phi exactly);
+//  1. the source the next sweep propagates, Q'_m = sigma_s sum_s A[s][m] I_s, with A the
+//     quadrature-normalised phase function of src/physics/angular.rs (sum_m w_m A[s][m] = w_s,
+//     so what is stored carries sigma_s phi exactly). This is the thesis's progressive scheme
+//     (5.3.3): a sweep propagates only the source the previous iteration scattered (its G''),
+//     the sweep's scattering is the next one (its G'), and the solution is their sum (its G).
+//     The first sweep propagates the first-scattering source (G'' = G_dir, glsl/ordinates/
+//     bin.comp), so sweep n carries the light scattered n times and each iteration's fluence
+//     is that bounce's alone: what convergence and the geometric tail measure (src/solvers/
+//     dom.rs), exactly rather than as a difference of two nearly equal totals;
 //  2. the light it scatters toward the camera (thesis 5.3.5's view gathering), as the fluence
 //     the view pass scatters isotropically: 4 pi sum_s w_s p(s . o) I_s / sum_s w_s p(s . o),
 //     o the direction from the voxel centre to the camera, times lambda^2 (the view pass reads
-//     energy per voxel). The normalisation makes an isotropic field gather to its own fluence.
+//     energy per voxel), added to what the bounces before gathered. The normalisation makes an
+//     isotropic field gather to its own fluence. G itself is needed only for this view, so
+//     the view's sum is kept (one float per voxel and channel) instead of the M of G.
 // One invocation per voxel, directions in a fixed order: deterministic.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
@@ -21,10 +28,9 @@ const uint MAX_LOCAL = 96u;
 layout(std430, binding = 0) readonly buffer Field { float field[]; };     // [octant][its direction][voxel]
 layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };        // by octant: xyz, w weight (sr)
 layout(std430, binding = 2) readonly buffer Scatter { float scatter[]; }; // A[s][m]
-layout(std430, binding = 3) readonly buffer First { float first[]; };     // [c][m][voxel]
-layout(std430, binding = 4) readonly buffer SigmaS { float sigma_s[]; };  // [c][voxel], 1/unit
-layout(std430, binding = 5) writeonly buffer Source { float source[]; };  // [c][m][voxel]
-layout(std430, binding = 6) writeonly buffer Camera { float camera[]; };  // [c][voxel]
+layout(std430, binding = 3) readonly buffer SigmaS { float sigma_s[]; };  // [c][voxel], 1/unit
+layout(std430, binding = 4) writeonly buffer Source { float source[]; };  // [c][m][voxel]
+layout(std430, binding = 5) buffer Camera { float camera[]; };            // [c][voxel], summed over bounces
 
 layout(push_constant) uniform Push {
     uvec4 dims;      // voxels xyz, w = voxel count
@@ -66,10 +72,10 @@ void main() {
     }
     // The gathered light is kept where nothing scatters too: the view pass interpolates
     // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
-    camera[c * V + v] = norm > 0.0 ? 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w : 0.0;
+    if (norm > 0.0) camera[c * V + v] += 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w;
     if (sigma <= 0.0) {
-        // Nothing scatters here: the stored source stays the first one (0 where nothing does).
-        for (uint m = 0u; m < M; ++m) source[(c * M + m) * V + v] = first[(c * M + m) * V + v];
+        // Nothing scatters here: no source for the next bounce.
+        for (uint m = 0u; m < M; ++m) source[(c * M + m) * V + v] = 0.0;
         return;
     }
     for (uint m = 0u; m < M; ++m) {
@@ -84,6 +90,6 @@ void main() {
                     scattered += scatter[(first_dir + k) * M + m] * field[(o * pc.slots + k) * V + v];
             }
         }
-        source[(c * M + m) * V + v] = first[(c * M + m) * V + v] + sigma * scattered;
+        source[(c * M + m) * V + v] = sigma * scattered;
     }
 }

@@ -1,9 +1,10 @@
 //! Block sweeps and out-of-core streaming for `dom` (issue 13; thesis 5.3.3-5.3.4).
 //!
 //! The grid is cut into blocks of B^3 voxels. Each block is one *record*: its extinction and
-//! scattering, its first-scattering and stored source at the M storage directions, the
-//! accumulators of a sweep (fluence, scattered source, light toward the camera) and its outgoing
-//! faces for the octant being swept (layout in [`BlockLayout`], mirrored by
+//! scattering, the source the sweep propagates and the one it scatters at the M storage
+//! directions (the thesis's G'' and G', 5.3.3: each iteration sweeps only the last one's
+//! scattering), the accumulators of a sweep (fluence, light toward the camera, the latter
+//! summed over the iterations) and its outgoing faces for the octant being swept (layout in [`BlockLayout`], mirrored by
 //! glsl/ordinates/block_sweep.comp). The records live in a host store (memory, or an unnamed
 //! memory-mapped file for volumes larger than host memory: `dom.store=file:DIR`); the device
 //! holds a *pool* of record slots sized by `dom.budget`.
@@ -98,7 +99,7 @@ impl BlockLayout {
     }
     /// Floats per record.
     pub fn record(&self) -> u64 {
-        (5 + 3 * self.storage as u64) * self.channels as u64 * self.bv()
+        (5 + 2 * self.storage as u64) * self.channels as u64 * self.bv()
             + 3 * self.slots as u64 * (self.b as u64).pow(2)
     }
     pub fn blocks(&self) -> u32 {
@@ -110,17 +111,14 @@ impl BlockLayout {
     fn off_sigma_s(&self, c: u32) -> u64 {
         (self.channels + c) as u64 * self.bv()
     }
-    fn off_first(&self, c: u32, m: u32) -> u64 {
+    fn off_source(&self, c: u32, m: u32) -> u64 {
         (2 * self.channels + c * self.storage + m) as u64 * self.bv()
     }
-    fn off_source(&self, c: u32, m: u32) -> u64 {
-        ((2 + self.storage) * self.channels + c * self.storage + m) as u64 * self.bv()
-    }
     fn off_fluence(&self, c: u32) -> u64 {
-        ((2 + 3 * self.storage) * self.channels + c) as u64 * self.bv()
+        ((2 + 2 * self.storage) * self.channels + c) as u64 * self.bv()
     }
     fn off_camera(&self, c: u32) -> u64 {
-        ((4 + 3 * self.storage) * self.channels + c) as u64 * self.bv()
+        ((4 + 2 * self.storage) * self.channels + c) as u64 * self.bv()
     }
     fn coords(&self, block: u32) -> [u32; 3] {
         [block % self.nb[0], (block / self.nb[0]) % self.nb[1], block / (self.nb[0] * self.nb[1])]
@@ -514,8 +512,9 @@ impl BlockSweeper {
         self.pool_slots >= self.layout.blocks()
     }
 
-    /// Set the first-scattering source ([c][m][v], per unit volume and sr) and start the stored
-    /// source from it. Drops what the pool holds (the store has it all after an iteration).
+    /// Start the iteration from a first-scattering source ([c][m][v], per unit volume and sr):
+    /// the first sweep propagates it, and nothing is gathered toward the camera yet. Drops what
+    /// the pool holds (the store has it all after an iteration).
     pub fn set_first(&mut self, gpu: &Gpu, first: &[f32]) -> Result<(), SolverError> {
         gpu.wait_idle_roles()?;
         let l = self.layout;
@@ -523,10 +522,9 @@ impl BlockSweeper {
         l.fill_records(self.store.data_mut(), |r, i, off| {
             for c in 0..l.channels {
                 for m in 0..l.storage {
-                    let x = first[(c * l.storage + m) as usize * v + i];
-                    r[l.off_first(c, m) as usize + off] = x;
-                    r[l.off_source(c, m) as usize + off] = x;
+                    r[l.off_source(c, m) as usize + off] = first[(c * l.storage + m) as usize * v + i];
                 }
+                r[l.off_camera(c) as usize + off] = 0.0;
             }
         });
         self.residency = Residency::new(self.pool_slots, l.blocks());
@@ -746,9 +744,12 @@ impl BlockSweeper {
         self.stats.staging_ms += t.elapsed().as_secs_f64() * 1e3;
     }
 
-    /// One scattering iteration of every channel: sweep the stored source over the blocks, then
-    /// store the next one and the light toward the camera (block_sweep.comp, octant 7). Returns
-    /// the swept fluence per channel and voxel ([c][v]); afterwards the store holds every block.
+    /// One scattering iteration of every channel: sweep the source the last iteration scattered
+    /// (the first-scattering source the first time) over the blocks, then store what this sweep
+    /// scatters as the next one and add its light toward the camera (block_sweep.comp, octant 7).
+    /// Returns this iteration's fluence per channel and voxel ([c][v]): the light of this bounce
+    /// alone (the sum over the iterations is the solution); afterwards the store holds every
+    /// block.
     pub fn iterate(&mut self, gpu: &Gpu) -> Result<Vec<f32>, SolverError> {
         let (steps, work) = self.plan_iteration();
         gpu.write_buffer(&self.work, 0, bytemuck::cast_slice(&work))?;
@@ -832,7 +833,7 @@ impl BlockSweeper {
     }
 
     /// The light toward the camera per channel and voxel ([c][v], energy per voxel as the view
-    /// pass reads it), after an iteration.
+    /// pass reads it), summed over the iterations so far.
     pub fn camera(&self) -> Vec<f32> {
         self.gather(|l, c| l.off_camera(c))
     }

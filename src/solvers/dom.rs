@@ -11,10 +11,13 @@
 //!    characteristics (5.3.1-5.3.2, the voxel mean from its balance) or the step difference
 //!    (`dom.scheme`; `solvers::ordinates`, checked against the CPU oracle `physics::ordinates`):
 //!    never negative, conservative. The swept emission is the stored one upsampled from M to N
-//!    directions (`physics::angular`). Source iteration on the device
-//!    (glsl/ordinates/scatter.comp): the stored source of the next sweep is the first-scattering
-//!    one plus sigma_s sum_n A[n][m] I_n, until the fluence changes by less than `dom.tol`
-//!    (relative, largest over voxels) or `dom.max_iterations`; both are reported.
+//!    directions (`physics::angular`). The thesis's progressive iteration on the device
+//!    (5.3.3, glsl/ordinates/scatter.comp): the first sweep propagates the first-scattering
+//!    source (its G'' = G_dir), and each next sweep only what the previous one scattered,
+//!    sigma_s sum_n A[n][m] I_n (its G' becoming G''), so iteration n's fluence is the n-th
+//!    bounce's; the solution is their sum, its light toward the camera summed on the device.
+//!    It stops when a bounce adds less than `dom.tol` of the summed fluence (relative, largest
+//!    over voxels) or at `dom.max_iterations`; both are reported.
 //! 3. **View gathering (5.3.5).** The shared view pass: exact single scattering of the direct
 //!    light, plus the swept field (the light scattered once and more) scattered toward the
 //!    camera by the phase function at each voxel (scatter.comp), trilinear between voxel
@@ -216,13 +219,13 @@ fn view_windows(plan: &SourcePlan, budget: Option<u64>, max_binding: u64) -> Vec
     (0..nz).step_by(own as usize).map(|lo| Some(MsWindow::new(lo, (lo + own).min(nz), nz, lo == 0))).collect()
 }
 
-/// The source iteration's extrapolated tail (dom.extrapolate).
+/// The iteration's extrapolated tail (dom.extrapolate).
 struct Tail {
-    /// The increments' decay per iteration, and the share of the fluence the tail stands for.
+    /// The bounces' decay per iteration, and the share of the fluence the tail stands for.
     ratio: f64,
     share: f64,
     /// The light toward the camera two iterations before the last, and the decay of its own
-    /// pair increments, rho^2 (at most the fluence's: its tail never counts more bounces).
+    /// pairs of bounces, rho^2 (at most the fluence's: its tail never counts more bounces).
     camera_before2: Vec<f32>,
     camera_ratio2: f64,
 }
@@ -249,8 +252,8 @@ fn plane(s: &Option<Sweeper>) -> &Sweeper {
 /// source by blocks; runs of layers are blocks as wide as the grid, which the marched rays and
 /// the bin pass need no halo for), and group by group of beams. What a slab holds: per beam of
 /// the group and channel the deposits' sums, per channel and storage direction the
-/// first-scattering source (no copy as the stored source: the block sweeps take it from the
-/// host), and the resampled density. Beside
+/// first-scattering source (read back to the host, where the block sweeps take it), and the
+/// resampled density. Beside
 /// it the binning tables and the beam table; the marcher's rays and history are `dom.rays`'s,
 /// not the grid's, and dom.budget leaves them out.
 ///
@@ -376,7 +379,7 @@ impl Solver for Dom {
 
     fn about(&self) -> &'static str {
         "modified discrete ordinates: marched first-scattering source binned into storage directions, octant sweeps \
-         with step characteristics, source iteration on the device (thesis ch. 5; blocks stream from host memory or a file past dom.budget)"
+         with step characteristics, progressive scattering iterations on the device (thesis ch. 5; blocks stream from host memory or a file past dom.budget)"
     }
 
     fn knobs(&self) -> Vec<Knob> {
@@ -394,17 +397,21 @@ impl Solver for Dom {
                 "tol",
                 "1e-4",
                 Range::Real { min: 0.0, max: 1.0, min_open: true, max_open: true },
-                "source iteration stops when the fluence changes by less than this, relative to its largest value",
+                "the iterations stop when a bounce adds less than this to the fluence, relative to its largest value",
             ),
-            Knob::fixed("max_iterations", "2000", Range::int(1, 1_000_000), "source iterations at most"),
+            Knob::fixed(
+                "max_iterations",
+                "2000",
+                Range::int(1, 1_000_000),
+                "scattering iterations (bounces swept) at most",
+            ),
             Knob::fixed(
                 "extrapolate",
                 "true",
                 Range::Bool,
-                "add the source iteration's geometric tail (the last pair of iterations' increment times rho^2 / (1 - \
-                 rho^2), rho^2 the decay of those increments: the light of the bounces not swept, as the thesis's \
-                 progressive G'' measures it) and test convergence on the extrapolated fluence (docs/dom.md); false: \
-                 stop on the plain fluence's change",
+                "add the iteration's geometric tail (the last two bounces times rho^2 / (1 - rho^2), rho^2 the decay \
+                 of such pairs: the light of the bounces not swept) and test convergence on the extrapolated fluence \
+                 (docs/dom.md); false: stop when a bounce adds less than dom.tol",
             ),
             Knob::fixed(
                 "scheme",
@@ -630,19 +637,20 @@ impl Solver for Dom {
             (None, Some(sweeper))
         };
 
-        // 5.3.4: scattering iterations, each sweeping every channel and updating the stored
-        // source on the device; the host reads the fluence to judge convergence. Iteration n's
-        // increment Phi_n - Phi_(n-1) is the light of the n-th bounce (the thesis's G'', what
-        // its progressive scheme sweeps). Once the increments decay geometrically, the bounces
-        // not yet swept add up to a geometric tail. It is taken over pairs of iterations: a
-        // back-scattering medium's slow modes alternate in sign (at g -0.9 the ratio of
-        // successive increments swings 0.73 / 0.76 / 0.74 ...), and the last increment alone,
-        // times r / (1 - r), put the image 1.6e-4 above the converged one. With the pair
-        // P_n = Phi_n - Phi_(n-2) and rho^2 = sum P_n / sum P_(n-2), the tail is
-        // P_n rho^2 / (1 - rho^2): exact for the slowest mode, the alternating ones damped.
-        // With dom.extrapolate the convergence is tested on the extrapolated fluence (same
-        // tolerance, between successive iterations), and at convergence the same tail (with the
-        // light toward the camera's own decay, at most the fluence's) is added to that light.
+        // 5.3.3-5.3.4: the progressive scattering iterations, each sweeping every channel on the
+        // device; the host reads the fluence of each bounce to judge convergence and sums them.
+        // Iteration n sweeps the light scattered n - 1 times (the thesis's G''), so its fluence
+        // is the n-th bounce's, computed as such rather than as the difference of two nearly
+        // equal totals. Once the bounces decay geometrically, the bounces not yet swept add up to
+        // a geometric tail. It is taken over pairs of iterations: a back-scattering medium's
+        // slow modes alternate in sign (at g -0.9 the ratio of successive bounces swings
+        // 0.73 / 0.76 / 0.74 ...), and the last bounce alone, times r / (1 - r), put the image
+        // 1.6e-4 above the converged one. With the pair P_n = B_n + B_(n-1) and
+        // rho^2 = sum P_n / sum P_(n-2), the tail is P_n rho^2 / (1 - rho^2): exact for the
+        // slowest mode, the alternating ones damped. With dom.extrapolate the convergence is
+        // tested on the extrapolated fluence (same tolerance, between successive iterations), and
+        // at convergence the same tail (with the light toward the camera's own decay, at most the
+        // fluence's) is added to that light.
         let read_camera =
             |blocked: &Option<BlockSweeper>, sweeper: &Option<Sweeper>| -> Result<Vec<f32>, SolverError> {
                 Ok(match blocked {
@@ -651,34 +659,38 @@ impl Solver for Dom {
                 })
             };
         let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
+        let sum = |a: &[f32]| -> f64 { a.iter().map(|x| *x as f64).sum() };
         let max_diff = |a: &[f32], b: &[f32]| -> f64 {
             a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()))
         };
         let peak = |a: &[f32]| -> f64 { a.iter().fold(0.0f64, |m, x| m.max(*x as f64)) };
-        // rho^2 from the sums of the pair increments (newest last), when it is a decay.
+        // rho^2 from the sums of the pairs of bounces (newest last), when it is a decay.
         let decay2 = |s: &[f64]| -> Option<f64> {
             match s {
                 [.., a, _, c] if *a > 0.0 && *c > 0.0 => Some(c / a).filter(|r| *r < 1.0),
                 _ => None,
             }
         };
-        let zero = vec![0.0f32; nch as usize * v];
-        // The fluence and the light toward the camera after the last two iterations (newest last).
-        let (mut fluences, mut cameras): (Vec<Vec<f32>>, Vec<Vec<f32>>) = (vec![zero.clone(), zero], Vec::new());
+        // The fluence summed over the bounces, the last bounce's, and the light toward the camera
+        // (summed on the device) after the last two iterations (newest last).
+        let mut fluence = vec![0.0f32; nch as usize * v];
+        let mut last_bounce = fluence.clone();
+        let mut cameras: Vec<Vec<f32>> = Vec::new();
         let (mut pair_sums, mut camera_pair_sums) = (Vec::<f64>::new(), Vec::<f64>::new());
         let mut previous_extrapolated = None::<Vec<f32>>;
         let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
         let mut last_change: Option<(f64, u64)> = None;
         let mut tail: Option<Tail> = None;
         while iterations < set.max_iterations {
-            let phi = match blocked.as_mut() {
+            let bounce = match blocked.as_mut() {
                 Some(b) => b.iterate(gpu)?,
                 None => plane(&sweeper).iterate(gpu)?,
             };
             iterations += 1;
-            let (before, before2) = (&fluences[1], &fluences[0]);
-            let scale = peak(&phi);
-            change = max_diff(&phi, before) / if scale > 0.0 { scale } else { 1.0 };
+            fluence.iter_mut().zip(&bounce).for_each(|(f, b)| *f += b);
+            let scale = peak(&fluence);
+            // What this bounce added, against the summed fluence's largest value.
+            change = peak(&bounce) / if scale > 0.0 { scale } else { 1.0 };
             let mut extrapolated_change = None;
             let mut ratio = None;
             // The light toward the camera two iterations back.
@@ -692,13 +704,14 @@ impl Solver for Dom {
                 }
                 cameras.push(camera);
                 if iterations >= 2 {
-                    pair_sums.push(diff_sum(&phi, before2));
+                    pair_sums.push(sum(&bounce) + sum(&last_bounce));
                 }
                 ratio = decay2(&pair_sums);
                 match ratio {
                     Some(r2) => {
                         let f = (r2 / (1.0 - r2)) as f32;
-                        let e: Vec<f32> = phi.iter().zip(before2).map(|(a, b)| a + (a - b).max(0.0) * f).collect();
+                        let e: Vec<f32> =
+                            fluence.iter().zip(&bounce).zip(&last_bounce).map(|((t, b), l)| t + (b + l) * f).collect();
                         if let Some(pe) = &previous_extrapolated {
                             extrapolated_change = Some(max_diff(&e, pe) / peak(&e).max(f64::MIN_POSITIVE));
                         }
@@ -709,7 +722,7 @@ impl Solver for Dom {
             }
             let shown = extrapolated_change.map_or(change, |e| e.min(change));
             (req.progress)(Progress::converging(
-                "source iterations",
+                "scattering iterations",
                 iterations as u64,
                 shown,
                 set.tol,
@@ -723,7 +736,7 @@ impl Solver for Dom {
                 if e <= set.tol {
                     converged = true;
                     change = e;
-                    let (total, pair) = (phi.iter().map(|x| *x as f64).sum::<f64>(), diff_sum(&phi, before2));
+                    let (total, pair) = (sum(&fluence), sum(&bounce) + sum(&last_bounce));
                     let added = pair * r2 / (1.0 - r2);
                     tail = Some(Tail {
                         ratio: r2.sqrt(),
@@ -735,8 +748,7 @@ impl Solver for Dom {
                     });
                 }
             }
-            fluences.remove(0);
-            fluences.push(phi);
+            last_bounce = bounce;
             if converged {
                 break;
             }
@@ -848,7 +860,7 @@ impl Solver for Dom {
         };
         if !converged {
             report.warnings.push(format!(
-                "dom: source iteration did not converge in {iterations} iterations (change {change:.2e}, tolerance \
+                "dom: the scattering iterations did not converge in {iterations} iterations (change {change:.2e}, tolerance \
                  {:.1e}); raise dom.max_iterations or dom.tol",
                 set.tol
             ));
@@ -1015,7 +1027,7 @@ impl Solver for Dom {
         let d = s.grid.dims;
         let mut lines = vec![format!(
             "dom: {}x{}x{} voxels, {:?}, {} ({} directions), source stored at {} ({} direction{}, g {:.3} on the \
-             quadrature), {} channel{}, {} source iterations{} (change {:.1e}{}), sweeps {:.1} ms",
+             quadrature), {} channel{}, {} scattering iterations{} (change {:.1e}{}), sweeps {:.1} ms",
             d[0],
             d[1],
             d[2],

@@ -7,8 +7,8 @@
 //! its own fluence slice, so the fluence sums in a fixed order (deterministic, no atomics).
 //! The emission is stored at M storage directions and upsampled to the N swept ones
 //! (`physics::angular`); after each channel's sweep, glsl/ordinates/scatter.comp turns the
-//! field into the next iteration's stored source and the light scattered toward the camera,
-//! on the device. glsl/ordinates/deposit.comp bins the marched first-scattering deposits into
+//! field into the source the next sweep propagates (what this one scattered: the thesis's
+//! progressive scheme, 5.3.3) and adds the light it scatters toward the camera, on the device. glsl/ordinates/deposit.comp bins the marched first-scattering deposits into
 //! the storage directions.
 
 use bytemuck::{Pod, Zeroable};
@@ -95,8 +95,7 @@ struct BinPush {
     base: u32,
     /// The group's first beam (`beams` is its size).
     beam0: u32,
-    /// 1 to start the stored source too (whole-grid sweeps), 0 for the direct source alone.
-    write_source: u32,
+    pad: u32,
 }
 
 /// Where the camera is, for the light each voxel scatters toward it.
@@ -154,9 +153,6 @@ pub(crate) enum Storage {
 /// A grid ready to sweep: extinction, directions and the angular maps on the device, the
 /// directions grouped by octant.
 pub struct Sweeper {
-    /// Whether it sweeps the whole grid ([`Sweeper::new`]) or only makes the direct source
-    /// ([`Sweeper::for_source`]).
-    sweeps: bool,
     sweep: Pipeline,
     scatter: Pipeline,
     deposit: Pipeline,
@@ -176,10 +172,10 @@ pub struct Sweeper {
     eye: [f32; 4],
     sigma_t: Buffer,
     sigma_s: Buffer,
-    /// The stored source [c][m][v], per unit volume and sr.
+    /// The source the next sweep propagates [c][m][v], per unit volume and sr: the
+    /// first-scattering source as the bin pass sums it, then the light the last sweep scattered
+    /// (the thesis's G'', 5.3.3; glsl/ordinates/scatter.comp).
     source: Buffer,
-    /// The first-scattering source, the same layout.
-    first: Buffer,
     dirs: Buffer,
     storage_dirs: Buffer,
     footprint: Buffer,
@@ -201,7 +197,7 @@ pub struct Sweeper {
     count: [u32; 8],
     /// Field slots per octant: its largest direction count.
     slots: u32,
-    /// Voxels the first-scattering and stored sources hold: the grid's, or one slab's
+    /// Voxels the source holds: the grid's, or one slab's
     /// ([`Sweeper::for_source`]).
     source_voxels: u32,
 }
@@ -354,7 +350,6 @@ impl Sweeper {
         let characteristics = s.scheme == Scheme::Characteristics;
         let face_bytes = if characteristics { 8 * slots as u64 * sv * 4 } else { 4 };
         Ok(Sweeper {
-            sweeps,
             sweep: gpu.pipeline(&SWEEP, &[])?,
             scatter: gpu.pipeline(&SCATTER, &[])?,
             deposit: gpu.pipeline(&DEPOSIT, &[])?,
@@ -371,10 +366,9 @@ impl Sweeper {
             eye: s.eye.packed(),
             sigma_t: gpu.buffer_with("ordinates sigma_t", if sweeps { s.sigma_t } else { &[0.0] })?,
             sigma_s: gpu.buffer_with("ordinates sigma_s", if sweeps { s.sigma_s } else { &[0.0] })?,
-            // Without sweeps the direct source is read back from `first` slab by slab: the
-            // stored source would be a second copy nothing reads (bin.comp's write_source).
-            source: gpu.buffer("ordinates source", if sweeps { nch * m * source_voxels * 4 } else { 4 })?,
-            first: gpu.buffer("ordinates first source", nch * m * source_voxels * 4)?,
+            // The bin pass sums the first-scattering source into it; without sweeps it is
+            // read back slab by slab.
+            source: gpu.buffer("ordinates source", nch * m * source_voxels * 4)?,
             dirs: gpu.buffer_with("ordinates directions", &to_vec4(&swept))?,
             storage_dirs: gpu.buffer_with("ordinates storage directions", &to_vec4(&storage))?,
             footprint: gpu.buffer_with("ordinates storage footprints", &footprint)?,
@@ -417,8 +411,7 @@ impl Sweeper {
         // A buffer the sweeps alone need is a one-float stand-in without them.
         let kept = |floats: u64| if sweeps { floats } else { 1 };
         let source_voxels = if sweeps { voxels } else { source_voxels };
-        let floats = 2 * kept(voxels * channels) + kept(source_voxels * channels * m) // sigma_t, sigma_s, source
-            + source_voxels * channels * m                    // first
+        let floats = 2 * kept(voxels * channels) + source_voxels * channels * m // sigma_t, sigma_s, source
             + kept(sv * channels * 8) + kept(sv * channels)   // fluence, camera
             + kept(8 * slots * sv)                            // the field
             + n * 4 + m * 4 + m * 4                           // directions, storage directions, footprints
@@ -434,7 +427,6 @@ impl Sweeper {
             &self.sigma_t,
             &self.sigma_s,
             &self.source,
-            &self.first,
             &self.dirs,
             &self.storage_dirs,
             &self.footprint,
@@ -524,8 +516,8 @@ impl Sweeper {
     }
 
     /// Share the deposits' sums of `group` on `slab` (`sums`, [`Sweeper::deposit_pass`]) among
-    /// the storage directions, added to the groups' before: the slab's first-scattering source,
-    /// and the first iteration's (bin.comp), [c][m][v] over the slab's voxels.
+    /// the storage directions, added to the groups' before: the slab's first-scattering source
+    /// (bin.comp), [c][m][v] over the slab's voxels, which the first sweep propagates.
     pub fn bin_pass(&self, sums: &Buffer, beam_table: &Buffer, group: &BeamGroup, scale: f32, slab: Slab) -> Pass {
         let [nx, ny, nz] = self.dims;
         let v = slab.voxels();
@@ -534,8 +526,7 @@ impl Sweeper {
             .read(1, beam_table)
             .read(2, &self.storage_dirs)
             .read(3, &self.footprint)
-            .read_write(4, &self.first)
-            .write(5, &self.source)
+            .read_write(4, &self.source)
             .push(&BinPush {
                 dims: [nx, ny, nz, v],
                 grid: self.grid,
@@ -546,7 +537,7 @@ impl Sweeper {
                 g: self.g,
                 base: slab.base(),
                 beam0: group.beams.start,
-                write_source: self.sweeps as u32,
+                pad: 0,
             })
             .cover([v, 1, 1])
     }
@@ -555,14 +546,14 @@ impl Sweeper {
     /// per unit volume and sr).
     pub fn read_first(&self, gpu: &Gpu, slab: Slab) -> Result<Vec<f32>, SolverError> {
         let floats = self.channels as u64 * self.storage.len() as u64 * slab.voxels() as u64;
-        Ok(bytemuck::pod_collect_to_vec(&gpu.read_buffer_prefix(&self.first, floats * 4)?))
+        Ok(bytemuck::pod_collect_to_vec(&gpu.read_buffer_prefix(&self.source, floats * 4)?))
     }
 
-    /// Set the first-scattering source ([c][m][v], per unit volume and sr) and start the
-    /// stored source from it.
+    /// Start the iteration from a first-scattering source ([c][m][v], per unit volume and sr):
+    /// the first sweep propagates it, and nothing is gathered toward the camera yet.
     pub fn set_first(&self, gpu: &Gpu, first: &[f32]) -> Result<(), SolverError> {
-        gpu.write_buffer(&self.first, 0, bytemuck::cast_slice(first))?;
         gpu.write_buffer(&self.source, 0, bytemuck::cast_slice(first))?;
+        gpu.fill_zero(&self.camera)?;
         Ok(())
     }
 
@@ -610,10 +601,9 @@ impl Sweeper {
             .read(0, &self.field)
             .read(1, &self.dirs)
             .read(2, &self.scatter_matrix)
-            .read(3, &self.first)
-            .read(4, &self.sigma_s)
-            .write(5, &self.source)
-            .write(6, &self.camera)
+            .read(3, &self.sigma_s)
+            .write(4, &self.source)
+            .read_write(5, &self.camera)
             .push(&ScatterPush {
                 dims: [nx, ny, nz, v],
                 storage: self.storage.len() as u32,
@@ -652,9 +642,12 @@ impl Sweeper {
         Ok(phi)
     }
 
-    /// One scattering iteration of every channel on the device: sweep the stored source, then
-    /// store the next one (first-scattering plus scattered) and the light toward the camera.
-    /// Returns the swept fluence per channel and voxel ([c][v]).
+    /// One scattering iteration of every channel on the device (the thesis's progressive scheme,
+    /// 5.3.3): sweep the source the last iteration scattered (the first-scattering source the
+    /// first time), store what this sweep scatters as the next one, and add the light it
+    /// scatters toward the camera to the bounces' before ([`Sweeper::camera`]). Returns this
+    /// iteration's fluence per channel and voxel ([c][v]): the light of this bounce alone, so
+    /// the solution after n iterations is the sum of the n returned.
     pub fn iterate(&self, gpu: &Gpu) -> Result<Vec<f32>, SolverError> {
         let mut passes = Vec::new();
         for c in 0..self.channels {
