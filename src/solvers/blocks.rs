@@ -75,6 +75,21 @@ pub struct BlockOptions {
     pub store: StoreKind,
     /// The role the uploads and write-backs run on (`dom.copies`): Transfer or Trace.
     pub copies: QueueRole,
+    /// How a load picks the slot it evicts (`dom.evict`).
+    pub evict: Evict,
+}
+
+/// How a load picks the slot it evicts, of those the chunk being loaded does not need.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Evict {
+    /// Free slots first, then the block needed again farthest ahead (Belady's order: the fewest
+    /// loads). Its victims are often the blocks the sweep just submitted has finished with
+    /// (their next use is the next octant), so the copies wait for that sweep.
+    Belady,
+    /// Free slots first, then slots the sweeps submitted since the last copies do not use (so
+    /// the copies may run while those sweeps do, on a device whose roles have separate
+    /// queues), each tier in Belady's order.
+    Overlap,
 }
 
 /// The record layout (floats), as block_sweep.comp reads it.
@@ -242,6 +257,9 @@ pub struct StreamStats {
     pub uploads: u64,
     pub write_backs: u64,
     pub dispatches: u64,
+    /// Loads into a slot that the sweeps submitted just before them use: those copies cannot
+    /// start before those sweeps end, whatever the queues.
+    pub serialised_loads: u64,
     /// Host ms spent copying records between the store and the staging ring (both ways).
     pub staging_ms: f64,
 }
@@ -281,10 +299,15 @@ impl Residency {
             dirty: vec![false; slots as usize],
         }
     }
-    /// Make `needed` resident, evicting slots outside it: free ones first, then the one whose
-    /// block `next_use` puts farthest ahead (ties by slot). Returns (slot, evicted dirty block,
-    /// loaded block) per load.
-    fn admit(&mut self, needed: &[u32], next_use: impl Fn(u32) -> usize) -> Vec<(u32, Option<u32>, u32)> {
+    /// Make `needed` resident, evicting slots outside it: free ones first, then (unless `busy`
+    /// is empty) those outside `busy`, then the one whose block `next_use` puts farthest ahead
+    /// (ties by slot). Returns (slot, evicted dirty block, loaded block) per load.
+    fn admit(
+        &mut self,
+        needed: &[u32],
+        busy: &HashSet<u32>,
+        next_use: impl Fn(u32) -> usize,
+    ) -> Vec<(u32, Option<u32>, u32)> {
         let pinned: HashSet<u32> = needed.iter().filter_map(|b| self.block_slot[*b as usize]).collect();
         let mut loads = Vec::new();
         let missing = needed.iter().filter(|b| self.block_slot[**b as usize].is_none()).count();
@@ -295,12 +318,12 @@ impl Residency {
         // next uses do not change, and a slot taken is never a candidate again), so taking the
         // largest key per load is taking the `missing` largest keys, best first. (Scanning every
         // slot per load cost seconds per iteration at 512^3: 251060 loads x 1752 slots.)
-        let mut candidates: Vec<((u32, usize, u32), u32)> = (0..self.slot_block.len() as u32)
+        let mut candidates: Vec<((u8, usize, u32), u32)> = (0..self.slot_block.len() as u32)
             .filter(|s| !pinned.contains(s))
             .map(|s| {
                 let key = match self.slot_block[s as usize] {
-                    None => (1, usize::MAX, u32::MAX - s),
-                    Some(e) => (0, next_use(e), u32::MAX - s),
+                    None => (2, usize::MAX, u32::MAX - s),
+                    Some(e) => ((!busy.contains(&s)) as u8, next_use(e), u32::MAX - s),
                 };
                 (key, s)
             })
@@ -352,7 +375,10 @@ pub struct BlockSweeper {
     /// The iteration's chunks ([`BlockSweeper::chunks`]).
     chunks: Vec<Chunk>,
     copies: QueueRole,
+    evict: Evict,
     last_use: Vec<Option<SyncPoint>>,
+    /// The last submission of sweeps.
+    last_sweep: Option<SyncPoint>,
     mode: Storage,
     scheme: Scheme,
     first_dir: [u32; 8],
@@ -452,6 +478,15 @@ impl BlockSweeper {
         let half = (pool_slots / 4).min((32u64 << 20).div_ceil(2 * record_bytes).max(1) as u32).max(1);
         let staging_records = 4 * half;
         let (staging, ptr) = gpu.host_buffer("dom block staging", staging_records as u64 * record_bytes)?;
+        // The blocks one dispatch may need. Streaming with dom.evict=overlap, half the pool (at
+        // least a block's working set): the other half takes the next chunk's loads while this
+        // chunk sweeps (double buffering); a chunk filling the pool leaves its successor's
+        // loads nothing to evict but its own slots, so they wait for it.
+        let chunk_cap = if opts.evict == Evict::Overlap && pool_slots < blocks {
+            (pool_slots / 2).max(layout.min_slots())
+        } else {
+            pool_slots
+        };
         let mut store = Store::new(&opts.store, blocks as u64 * layout.record())?;
         {
             let v = s.dims.iter().map(|d| *d as usize).product::<usize>();
@@ -479,8 +514,10 @@ impl BlockSweeper {
             scratch: gpu.buffer("dom block scratch", groups as u64 * scratch_bytes)?,
             store,
             residency: Residency::new(pool_slots, blocks),
-            chunks: Self::chunks(&layout, &t.count, pool_slots as usize, groups as usize),
+            chunks: Self::chunks(&layout, &t.count, chunk_cap as usize, groups as usize),
             copies: opts.copies,
+            evict: opts.evict,
+            last_sweep: None,
             last_use: vec![None; pool_slots as usize],
             mode: t.mode,
             scheme: s.scheme,
@@ -588,6 +625,10 @@ impl BlockSweeper {
         }
         // Per block, its first use after the chunk being planned.
         let mut next = vec![0usize; l.blocks() as usize];
+        // The slots of the chunks since the last one with loads: their sweeps are submitted
+        // together just before the next copies (BlockSweeper::iterate), so a copy into one of
+        // them waits for them (dom.evict=overlap avoids them).
+        let mut busy: HashSet<u32> = HashSet::new();
         let mut steps = Vec::new();
         let mut work: Vec<[u32; 4]> = Vec::new();
         for (i, chunk) in self.chunks.iter().enumerate() {
@@ -597,9 +638,10 @@ impl BlockSweeper {
                     next[b as usize] += 1;
                 }
             }
+            let avoid = if self.evict == Evict::Overlap { &busy } else { &HashSet::new() };
             let loads = self
                 .residency
-                .admit(&chunk.needed, |b| uses[b as usize].get(next[b as usize]).copied().unwrap_or(usize::MAX));
+                .admit(&chunk.needed, avoid, |b| uses[b as usize].get(next[b as usize]).copied().unwrap_or(usize::MAX));
             let work_first = (work.len() / 2) as u32;
             for &b in &chunk.blocks {
                 let slot = self.residency.block_slot[b as usize].expect("resident");
@@ -612,8 +654,12 @@ impl BlockSweeper {
                 work.push([slot, up[0], up[1], up[2]]);
                 work.push([lo[0], lo[1], lo[2], e[0] | e[1] << 8 | e[2] << 16]);
             }
-            let slots =
+            let slots: Vec<u32> =
                 chunk.needed.iter().map(|b| self.residency.block_slot[*b as usize].expect("resident")).collect();
+            if !loads.is_empty() {
+                busy.clear();
+            }
+            busy.extend(&slots);
             steps.push(Step {
                 loads,
                 channel: chunk.channel,
@@ -670,6 +716,9 @@ impl BlockSweeper {
             let mut waits: Vec<SyncPoint> = Vec::new();
             for (k, &(slot, written, loaded)) in batch.iter().enumerate() {
                 let region = (base + 2 * k as u32) as u64;
+                if loaded != u32::MAX && self.last_use[slot as usize].is_some_and(|p| Some(p) == self.last_sweep) {
+                    self.stats.serialised_loads += 1;
+                }
                 if let Some(p) = self.last_use[slot as usize] {
                     if waits.iter().all(|w| w.value < p.value) {
                         waits.retain(|w| w.role != p.role);
@@ -801,6 +850,7 @@ impl BlockSweeper {
         }
         let waits: Vec<SyncPoint> = copies.into_iter().collect();
         let point = gpu.submit(QueueRole::Diffuse, pending, &waits)?;
+        self.last_sweep = Some(point);
         for s in slots.drain(..) {
             self.last_use[s as usize] = Some(point);
         }

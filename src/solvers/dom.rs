@@ -31,7 +31,7 @@ use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 use crate::scene::{CameraKind, Scene};
 
-use super::blocks::{self, BlockOptions, BlockSweeper, StoreKind, StreamStats, MAX_BLOCK};
+use super::blocks::{self, BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MAX_BLOCK};
 use super::gpu_scene::{self, GpuScene};
 use super::lattice::LatticeGeom;
 use super::marching::{self, MarchSettings, Marcher};
@@ -116,6 +116,7 @@ struct DomSettings {
     store: StoreKind,
     /// The queue role the streaming copies run on.
     copies: QueueRole,
+    evict: Evict,
     march: MarchSettings,
     view: ViewSettings,
 }
@@ -174,6 +175,10 @@ impl DomSettings {
             copies: match k.get::<String>("copies")?.as_str() {
                 "transfer" => QueueRole::Transfer,
                 _ => QueueRole::Trace,
+            },
+            evict: match k.get::<String>("evict")?.as_str() {
+                "belady" => Evict::Belady,
+                _ => Evict::Overlap,
             },
             march: MarchSettings::parse(k, geom.lambda)?,
             view: ViewSettings::parse(k, "view_", scene)?,
@@ -463,6 +468,15 @@ impl Solver for Dom {
                  compute-queue copies moved the blocks 1.9x faster and cost the sweeps 4-10%: iterations 20-23% \
                  shorter (docs/devices)",
             ),
+            Knob::fixed(
+                "evict",
+                "overlap",
+                Range::Choice(&["overlap", "belady"]),
+                "which pool slot a streamed block replaces: overlap (slots the sweeps submitted since the last copies \
+                 do not use first, so the copies can run beside them where the copies have their own queue; then \
+                 Belady's order) or belady (the block needed again farthest ahead: the fewest loads, but its copies \
+                 mostly wait for the sweep before them); docs/dom.md",
+            ),
         ];
         k.extend(marching::knobs());
         k.extend(view::knobs().into_iter().map(|k| k.prefixed("view_")));
@@ -627,7 +641,13 @@ impl Solver for Dom {
         let (mut blocked, sweeper) = if block > 0 {
             // The direct source's buffers go before the pool comes: dom.budget bounds each phase.
             drop(sweeper);
-            let opts = BlockOptions { block, budget: set.budget, store: set.store.clone(), copies: set.copies };
+            let opts = BlockOptions {
+                block,
+                budget: set.budget,
+                store: set.store.clone(),
+                copies: set.copies,
+                evict: set.evict,
+            };
             let mut b = BlockSweeper::new(gpu, &setup, &opts)?;
             b.set_first(gpu, &first)?;
             drop(first);
@@ -1051,14 +1071,15 @@ impl Solver for Dom {
         )];
         if let Some(st) = &s.streaming {
             lines.push(format!(
-                "dom: blocks of {}^3: {} blocks, pool {} slots of {} KiB ({}), {} uploads, {} write-backs, sweep device \
-                 bytes {:.1} MiB",
+                "dom: blocks of {}^3: {} blocks, pool {} slots of {} KiB ({}), {} uploads ({} waiting for the sweep \
+                 before them), {} write-backs, sweep device bytes {:.1} MiB",
                 s.block,
                 st.blocks,
                 st.pool_slots,
                 st.record_bytes >> 10,
                 if st.pool_slots >= st.blocks { "in-core" } else { "streamed" },
                 st.uploads,
+                st.serialised_loads,
                 st.write_backs,
                 s.sweep_device_bytes as f64 / 1048576.0
             ));
