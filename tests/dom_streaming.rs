@@ -385,7 +385,8 @@ fn schedule_comparison_runs_the_copies_on_either_queue() {
     assert_clean(&gpu);
 }
 
-/// `dom.evict=overlap` (the default) against Belady's order, the sphere's 512 blocks of 2^3
+/// `dom.evict=overlap` (auto's choice where the copies have a queue of their own) against
+/// Belady's order (auto's where they share the sweeps' queue, as on lavapipe), the sphere's 512 blocks of 2^3
 /// streamed through 36 slots: with Belady most loads evict a slot the sweeps submitted just
 /// before use (their blocks are done until the next octant: the farthest next use), so those
 /// copies cannot start before those sweeps end (5685 of 6892); with half-pool chunks and the

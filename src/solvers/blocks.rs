@@ -86,9 +86,10 @@ pub enum Evict {
     /// loads). Its victims are often the blocks the sweep just submitted has finished with
     /// (their next use is the next octant), so the copies wait for that sweep.
     Belady,
-    /// Free slots first, then slots the sweeps submitted since the last copies do not use (so
-    /// the copies may run while those sweeps do, on a device whose roles have separate
-    /// queues), each tier in Belady's order.
+    /// Double buffering: a streaming chunk needs at most half the pool (where the pool holds
+    /// four working sets of a block), and a load evicts free slots first, then slots the sweeps
+    /// submitted since the last copies do not use (so the copies may run while those sweeps
+    /// do, on a device whose roles have separate queues), each tier in Belady's order.
     Overlap,
 }
 
@@ -478,12 +479,14 @@ impl BlockSweeper {
         let half = (pool_slots / 4).min((32u64 << 20).div_ceil(2 * record_bytes).max(1) as u32).max(1);
         let staging_records = 4 * half;
         let (staging, ptr) = gpu.host_buffer("dom block staging", staging_records as u64 * record_bytes)?;
-        // The blocks one dispatch may need. Streaming with dom.evict=overlap, half the pool (at
-        // least a block's working set): the other half takes the next chunk's loads while this
-        // chunk sweeps (double buffering); a chunk filling the pool leaves its successor's
-        // loads nothing to evict but its own slots, so they wait for it.
-        let chunk_cap = if opts.evict == Evict::Overlap && pool_slots < blocks {
-            (pool_slots / 2).max(layout.min_slots())
+        // The blocks one dispatch may need. Streaming with dom.evict=overlap, half the pool: the
+        // other half takes the next chunk's loads while this chunk sweeps (double buffering); a
+        // chunk filling the pool leaves its successor's loads nothing to evict but its own
+        // slots, so they wait for it. Only where half the pool still holds two blocks' working
+        // sets: below that a chunk would sweep one block, one work group per dispatch (the cloud
+        // at 64^3 in 6 slots: sweeps 25% slower on lavapipe, 13% more loads).
+        let chunk_cap = if opts.evict == Evict::Overlap && pool_slots < blocks && pool_slots >= 4 * layout.min_slots() {
+            pool_slots / 2
         } else {
             pool_slots
         };

@@ -116,7 +116,8 @@ struct DomSettings {
     store: StoreKind,
     /// The queue role the streaming copies run on.
     copies: QueueRole,
-    evict: Evict,
+    /// `dom.evict`; None: auto (overlap where the copies have a queue apart from the sweeps').
+    evict: Option<Evict>,
     march: MarchSettings,
     view: ViewSettings,
 }
@@ -177,8 +178,9 @@ impl DomSettings {
                 _ => QueueRole::Trace,
             },
             evict: match k.get::<String>("evict")?.as_str() {
-                "belady" => Evict::Belady,
-                _ => Evict::Overlap,
+                "belady" => Some(Evict::Belady),
+                "overlap" => Some(Evict::Overlap),
+                _ => None,
             },
             march: MarchSettings::parse(k, geom.lambda)?,
             view: ViewSettings::parse(k, "view_", scene)?,
@@ -470,12 +472,13 @@ impl Solver for Dom {
             ),
             Knob::fixed(
                 "evict",
-                "overlap",
-                Range::Choice(&["overlap", "belady"]),
-                "which pool slot a streamed block replaces: overlap (slots the sweeps submitted since the last copies \
-                 do not use first, so the copies can run beside them where the copies have their own queue; then \
-                 Belady's order) or belady (the block needed again farthest ahead: the fewest loads, but its copies \
-                 mostly wait for the sweep before them); docs/dom.md",
+                "auto",
+                Range::Choice(&["auto", "overlap", "belady"]),
+                "which pool slot a streamed block replaces: belady (the block needed again farthest ahead: the fewest \
+                 loads, but 77-89% of them wait for the sweep before them) or overlap (double buffering: chunks of \
+                 half the pool where it holds 16 blocks' working sets, loads avoiding the slots of the sweeps just \
+                 submitted: 0-2% wait); auto: overlap where the copies' queue is not the sweeps' (dom.copies on the \
+                 device's mapping), else belady (one queue: nothing to overlap; docs/dom.md)",
             ),
         ];
         k.extend(marching::knobs());
@@ -646,7 +649,14 @@ impl Solver for Dom {
                 budget: set.budget,
                 store: set.store.clone(),
                 copies: set.copies,
-                evict: set.evict,
+                evict: set.evict.unwrap_or({
+                    let m = gpu.info().mapping;
+                    if m.slot(set.copies) == m.slot(QueueRole::Diffuse) {
+                        Evict::Belady
+                    } else {
+                        Evict::Overlap
+                    }
+                }),
             };
             let mut b = BlockSweeper::new(gpu, &setup, &opts)?;
             b.set_first(gpu, &first)?;
