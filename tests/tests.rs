@@ -11,6 +11,7 @@ mod export_tests;
 mod gpu_core;
 mod lbl;
 mod light_tracing_tests;
+mod networks_tests;
 mod octaves_tests;
 mod output_tests;
 mod path_extremes_tests;
