@@ -101,7 +101,7 @@ impl Particles {
         let volume = size.x as f64 * size.y as f64 * size.z as f64;
         let integral = sum / cells * volume;
         let max = scene.max_density();
-        if !(integral > 0.0) || !(max > 0.0) {
+        if integral.is_nan() || integral <= 0.0 || max.is_nan() || max <= 0.0 {
             return Err(SolverError::Unsupported(
                 "networks: the medium has no density to place particles in".to_string(),
             ));
