@@ -32,10 +32,11 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use crate::gpu::{Gpu, Kernel, Pass, QueueRole};
+use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
 use crate::physics::rng::Pcg32;
-use crate::scene::Scene;
+use crate::scene::{Light, Scene};
 
+use super::gpu_scene::GpuScene;
 use super::SolverError;
 
 pub const COUNT: Kernel =
@@ -44,10 +45,64 @@ pub const FILL: Kernel =
     Kernel { shader: shader!("networks/fill"), push_bytes: std::mem::size_of::<NetworkPush>(), spec: &[] };
 pub const LINK: Kernel =
     Kernel { shader: shader!("networks/link"), push_bytes: std::mem::size_of::<NetworkPush>(), spec: &[] };
+pub const DIRECT: Kernel = Kernel {
+    shader: shader!("networks/direct"),
+    push_bytes: std::mem::size_of::<DirectPush>(),
+    spec: super::gpu_scene::SCENE_SPEC,
+};
+pub const ITERATE: Kernel =
+    Kernel { shader: shader!("networks/iterate"), push_bytes: std::mem::size_of::<IteratePush>(), spec: &[] };
 
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
-    vec![COUNT, FILL, LINK]
+    vec![COUNT, FILL, LINK, DIRECT, ITERATE]
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct DirectPush {
+    step: f32,
+    min_r2: f32,
+    particles: u32,
+    units: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct IteratePush {
+    alpha: [f32; 4],
+    albedo: [f32; 4],
+    sky: [f32; 4],
+    particles: u32,
+    directions: u32,
+    units: u32,
+    pad: u32,
+}
+
+/// The lights the direct term takes (point and directional; environments reach the particles
+/// through the network's sky), in scene order.
+pub fn light_units(scene: &Scene) -> Vec<&Light> {
+    scene.lights.iter().filter(|l| !matches!(l, Light::Environment { .. })).collect()
+}
+
+/// The sky's radiance: the environments' summed (W/(m^2 sr)).
+pub fn sky(scene: &Scene) -> Vec3 {
+    scene
+        .lights
+        .iter()
+        .map(|l| match l {
+            Light::Environment { radiance } => *radiance,
+            _ => Vec3::ZERO,
+        })
+        .sum()
+}
+
+/// The direct term's light at one particle from one light unit: irradiance (per channel,
+/// through the medium) and the light's direction of travel there.
+#[derive(Clone, Copy, Debug)]
+pub struct DirectLight {
+    pub irradiance: [f64; 3],
+    pub travel: Vec3,
 }
 
 /// No particle upstream: the sky is seen (V's value).
@@ -55,6 +110,10 @@ pub const NONE: u32 = u32::MAX;
 
 /// The largest window resolution M (D M^2 buckets of three u32 each).
 pub const MAX_WINDOW: u32 = 2048;
+
+/// The most particles one window column may hold: link.comp sorts a column in one invocation,
+/// k (k - 1) / 2 + 2k loop iterations, kept under the 60000 of glsl/include/budget.glsl's guard.
+pub const MAX_COLUMN: u32 = 340;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -312,6 +371,18 @@ impl Network {
         // The buckets' offsets: an exclusive prefix sum of the counts (D M^2 of them; on the
         // host between the passes, a few milliseconds at the paper's sizes).
         let c: Vec<u32> = gpu.read_buffer_as(&counts)?;
+        // link.comp's loops for a bucket of k particles: the insertion sort's k (k - 1) / 2 moves
+        // at most, and 2k for its outer loop and the links. llvmpipe ends every loop of an
+        // invocation silently after 65535 iterations (glsl/include/budget.glsl), so a bucket
+        // that could reach that is refused before it runs: at most MAX_COLUMN particles.
+        let crowded = c.iter().copied().max().unwrap_or(0);
+        if crowded > MAX_COLUMN {
+            return Err(SolverError::Unsupported(format!(
+                "networks: a window column holds {crowded} particles, more than one sort takes ({MAX_COLUMN}); \
+                 use a finer window (M = {} now) or fewer particles",
+                self.window.m
+            )));
+        }
         let mut sum = 0u32;
         let o: Vec<u32> = c
             .iter()
@@ -345,4 +416,219 @@ impl Network {
         gpu.wait(point)?;
         Ok(gpu.read_buffer_as(&visible)?)
     }
+}
+
+impl Network {
+    /// A particle's radius b: the ball of its share of the occupied volume, (3 V / 4 pi N)^(1/3).
+    pub fn particle_radius(&self) -> f64 {
+        let n = self.particles.positions.len().max(1) as f64;
+        (3.0 * self.particles.occupied / (4.0 * std::f64::consts::PI * n)).cbrt()
+    }
+
+    /// The least squared distance a point light is taken at: b^2 / 3, where the mean of
+    /// 1 / r^2 over the particle's ball (3 / b^2) stands for a light inside it.
+    pub fn min_r2(&self) -> f64 {
+        self.particle_radius().powi(2) / 3.0
+    }
+
+    /// The direct term's light on the device (glsl/networks/direct.comp), [p][unit] as two vec4:
+    /// (irradiance rgb through the medium, the march's loop count), (direction of travel, 0).
+    /// `step`: the transmittance's midpoint step (scene units).
+    pub fn direct(
+        &self,
+        gpu: &Gpu,
+        scene: &Scene,
+        gs: &GpuScene,
+        positions: &Buffer,
+        step: f32,
+    ) -> Result<Buffer, SolverError> {
+        let n = self.particles.positions.len() as u32;
+        let units = light_units(scene).len() as u32;
+        let out = gpu.buffer("networks direct light", 32 * n.max(1) as u64 * units.max(1) as u64)?;
+        if units > 0 {
+            // The march's steps: at most the bounds' diagonal over `step`, kept under the
+            // per-invocation loop guard (glsl/include/budget.glsl).
+            let diagonal = (scene.medium.bounds_max - scene.medium.bounds_min).length();
+            let steps = (diagonal / step).ceil() as u64 + scene.lights.len() as u64;
+            if steps > 60_000 {
+                return Err(SolverError::Unsupported(format!(
+                    "networks: the transmittance step {step} takes {steps} steps across the medium; at most 60000"
+                )));
+            }
+            let pipeline = gpu.pipeline(&DIRECT, &gs.modelled.spec())?;
+            let pass = gs
+                .bind(Pass::new("networks.direct", QueueRole::Trace, &pipeline))
+                .read(3, positions)
+                .write(4, &out)
+                .push(&DirectPush { step, min_r2: self.min_r2() as f32, particles: n, units })
+                .cover([n, units, 1]);
+            let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
+            gpu.wait(point)?;
+        }
+        Ok(out)
+    }
+
+    /// The direct term's light on the host ([p][unit]), in double precision with the same
+    /// midpoint rule: the oracle of [`Network::direct`].
+    pub fn direct_cpu(&self, scene: &Scene, step: f64) -> Vec<DirectLight> {
+        let units = light_units(scene);
+        let sigma = scene.medium.sigma_t.as_dvec3();
+        let min_r2 = self.min_r2();
+        let mut out = Vec::with_capacity(self.particles.positions.len() * units.len());
+        for x in &self.particles.positions {
+            for l in &units {
+                let (wi, dist, irradiance) = match **l {
+                    Light::Point { position, intensity } => {
+                        let to = (position - *x).as_dvec3();
+                        let r2 = to.length_squared();
+                        let d = r2.sqrt();
+                        let wi = if d > 0.0 { to / d } else { glam::DVec3::Z };
+                        (wi, d, intensity.as_dvec3() / r2.max(min_r2))
+                    }
+                    Light::Directional { direction, irradiance } => {
+                        (-direction.as_dvec3(), f64::INFINITY, irradiance.as_dvec3())
+                    }
+                    Light::Environment { .. } => unreachable!("not a unit"),
+                };
+                let depth = density_depth(scene, x.as_dvec3(), wi, dist, step);
+                let t = (-sigma * depth).exp();
+                let e = irradiance * t;
+                out.push(DirectLight { irradiance: e.to_array(), travel: (-wi).as_vec3() });
+            }
+        }
+        out
+    }
+
+    /// `iterations` steps of the network's iteration on the device (glsl/networks/iterate.comp)
+    /// from I = 0, over the visibility network `visible` ([p][i]): I [p][i] rgb.
+    pub fn iterate(
+        &self,
+        gpu: &Gpu,
+        scene: &Scene,
+        visible: &[u32],
+        iterations: u32,
+        step: f32,
+    ) -> Result<Vec<[f32; 4]>, SolverError> {
+        let n = self.particles.positions.len() as u32;
+        let d = self.directions.len() as u32;
+        let gs = GpuScene::upload(gpu, scene, true)?;
+        let positions: Vec<[f32; 4]> = self.particles.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
+        let positions = gpu.buffer_with("networks particles", &positions)?;
+        let direct = self.direct(gpu, scene, &gs, &positions, step)?;
+        let frames: Vec<[f32; 4]> =
+            self.directions.frames.iter().flat_map(|f| f.map(|a| [a.x, a.y, a.z, 0.0])).collect();
+        let dirs = gpu.buffer_with("networks directions", &frames)?;
+        let visible = gpu.buffer_with("networks visibility", visible)?;
+        let field = [
+            gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
+            gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
+        ];
+        let pipeline = gpu.pipeline(&ITERATE, &[])?;
+        let m = &scene.medium;
+        let alpha = m.sigma_t.as_dvec3().map(|s| self.opacity(s)).as_vec3();
+        let sky = sky(scene);
+        let push = IteratePush {
+            alpha: [alpha.x, alpha.y, alpha.z, 0.0],
+            albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
+            sky: [sky.x, sky.y, sky.z, 0.0],
+            particles: n,
+            directions: d,
+            units: light_units(scene).len() as u32,
+            pad: 0,
+        };
+        let passes: Vec<Pass> = (0..iterations as usize)
+            .map(|k| {
+                Pass::new("networks.iterate", QueueRole::Diffuse, &pipeline)
+                    .read(0, &visible)
+                    .read(1, &dirs)
+                    .read(2, &direct)
+                    .read(3, &field[k % 2])
+                    .write(4, &field[(k + 1) % 2])
+                    .push(&push)
+                    .cover([n, d, 1])
+            })
+            .collect();
+        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+        gpu.wait(point)?;
+        Ok(gpu.read_buffer_as(&field[iterations as usize % 2])?)
+    }
+
+    /// The same iteration on the host in double precision: the oracle of
+    /// [`Network::iterate`].
+    pub fn iterate_cpu(
+        &self,
+        scene: &Scene,
+        visible: &[u32],
+        direct: &[DirectLight],
+        iterations: u32,
+    ) -> Vec<[f64; 3]> {
+        let n = self.particles.positions.len();
+        let d = self.directions.len();
+        let units = light_units(scene).len();
+        let m = &scene.medium;
+        let alpha = m.sigma_t.as_dvec3().map(|s| self.opacity(s));
+        let albedo = m.albedo.as_dvec3();
+        let g = m.g as f64;
+        let sky = sky(scene).as_dvec3();
+        let hg = |c: f64| (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * c).powf(1.5));
+        let w: Vec<glam::DVec3> = self.directions.frames.iter().map(|f| f[2].as_dvec3()).collect();
+        let mut cur = vec![glam::DVec3::ZERO; n * d];
+        for _ in 0..iterations {
+            let mut next = vec![glam::DVec3::ZERO; n * d];
+            for p in 0..n {
+                for i in 0..d {
+                    let vp = visible[p * d + i];
+                    if vp == NONE {
+                        next[p * d + i] = sky;
+                        continue;
+                    }
+                    let vp = vp as usize;
+                    let mut lit = glam::DVec3::ZERO;
+                    for j in 0..units {
+                        let e = direct[vp * units + j];
+                        lit += glam::DVec3::from_array(e.irradiance) * hg(e.travel.as_dvec3().dot(w[i]));
+                    }
+                    let mut scattered = glam::DVec3::ZERO;
+                    for k in 0..d {
+                        scattered += cur[vp * d + k] * hg(w[k].dot(w[i]));
+                    }
+                    let four_pi = 4.0 * std::f64::consts::PI;
+                    next[p * d + i] =
+                        (1.0 - alpha) * cur[vp * d + i] + alpha * albedo * (lit + scattered * (four_pi / d as f64));
+                }
+            }
+            cur = next;
+        }
+        cur.into_iter().map(|v| v.to_array()).collect()
+    }
+}
+
+/// The density's integral from `x` along `w` over [0, t_far] inside the medium's support, by
+/// the midpoint rule in steps of at most `step` (glsl/include/view.glsl's density_depth).
+fn density_depth(scene: &Scene, x: glam::DVec3, w: glam::DVec3, t_far: f64, step: f64) -> f64 {
+    let m = &scene.medium;
+    let (lo, hi) = (m.bounds_min.as_dvec3(), m.bounds_max.as_dvec3());
+    let inv = glam::DVec3::ONE / w;
+    let (ta, tb) = ((lo - x) * inv, (hi - x) * inv);
+    let (tn, tf) = (ta.min(tb), ta.max(tb));
+    let (mut a, mut b) = (tn.max_element(), tf.min_element());
+    if let crate::scene::Density::Sphere { center, radius } = m.density {
+        let oc = x - center.as_dvec3();
+        let half_b = oc.dot(w);
+        let disc = half_b * half_b - (oc.length_squared() - (radius as f64).powi(2));
+        if disc < 0.0 {
+            return 0.0;
+        }
+        let s = disc.sqrt();
+        a = a.max(-half_b - s);
+        b = b.min(-half_b + s);
+    }
+    let (a, b) = (a.max(0.0), b.min(t_far));
+    if a >= b {
+        return 0.0;
+    }
+    let len = b - a;
+    let k = (len / step).ceil().max(1.0);
+    let dt = len / k;
+    (0..k as u64).map(|i| scene.density_at((x + w * (a + (i as f64 + 0.5) * dt)).as_vec3()) as f64).sum::<f64>() * dt
 }

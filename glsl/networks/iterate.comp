@@ -1,0 +1,58 @@
+#version 460
+// networks/iterate: one step of the illumination network's iteration (illumination networks
+// 3.3, with the paper's typo mended: the in-scattering factor is opacity x albedo, as its
+// eq. 2 and its shader have it, not opacity x opacity). For every particle p and direction i
+// (of travel), with vp = V[p][i] the particle upstream:
+//   I'[p][i] = (1 - alpha) I[vp][i] + alpha albedo (sum_j L_j(vp) p(w_j . w_i)
+//              + 4 pi / D sum_d I[vp][d] p(w_d . w_i)),
+// L_j the direct light j's irradiance at vp through the medium (networks/direct.comp), p the
+// Henyey-Greenstein phase function (1/sr); and the sky's radiance where no particle is
+// upstream. Every particle has the same opacity (each holds the same share of the extinction,
+// src/solvers/networks.rs) and the medium's albedo and g. Ping-pong: reads I, writes I'.
+// Deterministic: fixed order, no atomics.
+#extension GL_GOOGLE_include_directive : require
+#include "../include/phase.glsl"
+
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+
+layout(std430, binding = 0) readonly buffer Visible { uint visible[]; };     // [p][i]
+layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };           // u, v, w per direction
+layout(std430, binding = 2) readonly buffer Direct { vec4 direct[]; };       // networks/direct.comp
+layout(std430, binding = 3) readonly buffer Current { vec4 current[]; };     // I [p][i], rgb
+layout(std430, binding = 4) writeonly buffer Next { vec4 next[]; };          // I' [p][i]
+
+layout(push_constant) uniform Push {
+    vec4 alpha;      // rgb opacity of a particle
+    vec4 albedo;     // rgb; w = g
+    vec4 sky;        // rgb: the environment's radiance
+    uint particles;
+    uint directions;
+    uint units;
+    uint pad;
+} pc;
+
+const uint NONE = 0xffffffffu;
+
+void main() {
+    uint p = gl_GlobalInvocationID.x, i = gl_GlobalInvocationID.y;
+    if (p >= pc.particles || i >= pc.directions) return;
+    uint D = pc.directions;
+    uint vp = visible[p * D + i];
+    if (vp == NONE) {
+        next[p * D + i] = vec4(pc.sky.rgb, 0.0);
+        return;
+    }
+    vec3 wi = dirs[3u * i + 2u].xyz;
+    float g = pc.albedo.w;
+    vec3 lit = vec3(0.0);
+    for (uint j = 0u; j < pc.units; ++j) {
+        uint e = 2u * (vp * pc.units + j);
+        lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, wi));
+    }
+    vec3 scattered = vec3(0.0);
+    for (uint d = 0u; d < D; ++d)
+        scattered += current[vp * D + d].rgb * hg_eval(g, dot(dirs[3u * d + 2u].xyz, wi));
+    vec3 a = pc.alpha.rgb;
+    vec3 r = (1.0 - a) * current[vp * D + i].rgb + a * pc.albedo.rgb * (lit + scattered * (4.0 * PI / float(D)));
+    next[p * D + i] = vec4(r, 0.0);
+}
