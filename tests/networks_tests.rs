@@ -174,3 +174,47 @@ fn direct_light_and_iteration_on_the_device_match_the_host() {
     }
     assert_clean(&gpu);
 }
+
+/// The phase function's quadrature on the directions is balanced (`phase_matrix`): as the paper
+/// gives it (4 pi / D p) a forward-peaked lobe's rows sum far from 1 (g 0.9, D 32), balanced
+/// every row and column sums to 1 and the matrix stays symmetric. So the network's furnace
+/// (albedo 1, nothing but a uniform sky of radiance 1, g 0.9) climbs from 0 toward 1 without
+/// ever passing it (no energy created) and is within 1% of it after 200 iterations.
+#[test]
+fn the_network_furnace_stays_at_the_sky() {
+    use scatterlab::solvers::networks::phase_matrix;
+    let gpu = gpu();
+    let s = crate::common::scene(
+        "[render]\nwidth = 8\nheight = 8\nseed = 3\n\
+         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 6.0\nalbedo = 1.0\ng = 0.9\n\
+         density = { kind = \"constant\" }\n\
+         [[light]]\nkind = \"environment\"\nradiance = 1.0\n",
+    );
+    let particles = Particles::sample(&s, 300, 3).unwrap();
+    let window = Window::new(&s, &particles, 32, None);
+    let net = Network { particles, directions: Directions::new(32, 3), window };
+    let (p, before) = phase_matrix(&net.directions, 0.9);
+    eprintln!("rows of the unbalanced quadrature off 1 by up to {before:.3}");
+    assert!(before > 0.1, "the quadrature as given misses 1 by {before}");
+    for i in 0..32 {
+        let row: f64 = (0..32).map(|k| p[i * 32 + k] as f64).sum();
+        assert!((row - 1.0).abs() < 1e-5, "row {i} sums to {row}");
+        for k in 0..32 {
+            assert!((p[i * 32 + k] - p[k * 32 + i]).abs() <= 1e-6 * p[i * 32 + k].abs().max(1e-30), "symmetric");
+        }
+    }
+    let v = net.visibility(&gpu).expect("network");
+    for (k, floor) in [(20u32, 0.0f64), (200, 0.99)] {
+        let i = net.iterate(&gpu, &s, &v, k, 0.01).expect("iteration");
+        let (lo, hi) = i
+            .iter()
+            .flat_map(|x| x[..3].iter().map(|c| *c as f64))
+            .fold((f64::MAX, 0.0f64), |(l, h), c| (l.min(c), h.max(c)));
+        let mean = i.iter().map(|x| x[0] as f64).sum::<f64>() / i.len() as f64;
+        eprintln!("furnace after {k} iterations: min {lo:.5}, mean {mean:.5}, max {hi:.7}");
+        assert!(hi <= 1.0 + 1e-5, "{k} iterations: radiance {hi} above the sky's");
+        assert!(mean >= floor, "{k} iterations: mean {mean}");
+    }
+    assert_clean(&gpu);
+}

@@ -4,10 +4,12 @@
 // eq. 2 and its shader have it, not opacity x opacity). For every particle p and direction i
 // (of travel), with vp = V[p][i] the particle upstream:
 //   I'[p][i] = (1 - alpha) I[vp][i] + alpha albedo (sum_j L_j(vp) p(w_j . w_i)
-//              + 4 pi / D sum_d I[vp][d] p(w_d . w_i)),
+//              + sum_d I[vp][d] P[d][i]),
 // L_j the direct light j's irradiance at vp through the medium (networks/direct.comp), p the
-// Henyey-Greenstein phase function (1/sr); and the sky's radiance where no particle is
-// upstream. Every particle has the same opacity (each holds the same share of the extinction,
+// Henyey-Greenstein phase function (1/sr), P the paper's Monte Carlo quadrature of it,
+// 4 pi / D p(w_d . w_i), balanced on the host so that every row and column sums to 1
+// (src/solvers/networks.rs, `phase_matrix`: scattering conserves energy on the directions);
+// and the sky's radiance where no particle is upstream. Every particle has the same opacity (each holds the same share of the extinction,
 // src/solvers/networks.rs) and the medium's albedo and g. Ping-pong: reads I, writes I'.
 // Deterministic: fixed order, no atomics.
 #extension GL_GOOGLE_include_directive : require
@@ -20,6 +22,7 @@ layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };           // 
 layout(std430, binding = 2) readonly buffer Direct { vec4 direct[]; };       // networks/direct.comp
 layout(std430, binding = 3) readonly buffer Current { vec4 current[]; };     // I [p][i], rgb
 layout(std430, binding = 4) writeonly buffer Next { vec4 next[]; };          // I' [p][i]
+layout(std430, binding = 5) readonly buffer Phase { float phase[]; };        // P[d][i]
 
 layout(push_constant) uniform Push {
     vec4 alpha;      // rgb opacity of a particle
@@ -50,9 +53,8 @@ void main() {
         lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, wi));
     }
     vec3 scattered = vec3(0.0);
-    for (uint d = 0u; d < D; ++d)
-        scattered += current[vp * D + d].rgb * hg_eval(g, dot(dirs[3u * d + 2u].xyz, wi));
+    for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];
     vec3 a = pc.alpha.rgb;
-    vec3 r = (1.0 - a) * current[vp * D + i].rgb + a * pc.albedo.rgb * (lit + scattered * (4.0 * PI / float(D)));
+    vec3 r = (1.0 - a) * current[vp * D + i].rgb + a * pc.albedo.rgb * (lit + scattered);
     next[p * D + i] = vec4(r, 0.0);
 }

@@ -97,6 +97,36 @@ pub fn sky(scene: &Scene) -> Vec3 {
         .sum()
 }
 
+/// The paper's quadrature of the phase function on the directions, P[d][i] ~ 4 pi / D
+/// p(w_d . w_i) ([d * D + i]), scaled symmetrically (P' = S P S, S diagonal: Sinkhorn's
+/// balancing of a symmetric matrix) until every row and column sums to 1 within 1e-7. As
+/// given, a row's sum is the quadrature's estimate of the phase function's integral, 1 only
+/// on average: a forward-peaked lobe falls between the directions and the sums scatter, so at
+/// albedo 1 some directions would gain energy on every scattering. Balanced, scattering
+/// conserves it on the directions exactly and the network's furnace (albedo 1 under a uniform
+/// sky) stays at the sky's radiance. Returns the matrix and the largest |row sum - 1| before
+/// balancing.
+pub fn phase_matrix(directions: &Directions, g: f64) -> (Vec<f32>, f64) {
+    let w: Vec<glam::DVec3> = directions.frames.iter().map(|f| f[2].as_dvec3()).collect();
+    let d = w.len();
+    let hg = |c: f64| (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * c).max(1e-300).powf(1.5));
+    let weight = 4.0 * std::f64::consts::PI / d as f64;
+    let p: Vec<f64> = (0..d * d).map(|k| weight * hg(w[k / d].dot(w[k % d]))).collect();
+    let sums = |s: &[f64]| -> Vec<f64> { (0..d).map(|i| (0..d).map(|k| s[i] * p[i * d + k] * s[k]).sum()).collect() };
+    let before = sums(&vec![1.0; d]).iter().map(|r| (r - 1.0).abs()).fold(0.0, f64::max);
+    let mut s = vec![1.0f64; d];
+    for _ in 0..10_000 {
+        if sums(&s).iter().map(|r| (r - 1.0).abs()).fold(0.0, f64::max) < 1e-7 {
+            break;
+        }
+        // s_i <- sqrt(s_i / (P s)_i): its fixed point makes S P S doubly stochastic (a
+        // positive symmetric matrix has one).
+        let ps: Vec<f64> = (0..d).map(|i| (0..d).map(|k| p[i * d + k] * s[k]).sum()).collect();
+        s = (0..d).map(|i| (s[i] / ps[i]).sqrt()).collect();
+    }
+    ((0..d * d).map(|k| (s[k / d] * p[k] * s[k % d]) as f32).collect(), before)
+}
+
 /// The direct term's light at one particle from one light unit: irradiance (per channel,
 /// through the medium) and the light's direction of travel there.
 #[derive(Clone, Copy, Debug)]
@@ -525,6 +555,7 @@ impl Network {
         ];
         let pipeline = gpu.pipeline(&ITERATE, &[])?;
         let m = &scene.medium;
+        let phase = gpu.buffer_with("networks phase", &phase_matrix(&self.directions, m.g as f64).0)?;
         let alpha = m.sigma_t.as_dvec3().map(|s| self.opacity(s)).as_vec3();
         let sky = sky(scene);
         let push = IteratePush {
@@ -544,6 +575,7 @@ impl Network {
                     .read(2, &direct)
                     .read(3, &field[k % 2])
                     .write(4, &field[(k + 1) % 2])
+                    .read(5, &phase)
                     .push(&push)
                     .cover([n, d, 1])
             })
@@ -572,6 +604,7 @@ impl Network {
         let sky = sky(scene).as_dvec3();
         let hg = |c: f64| (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * c).powf(1.5));
         let w: Vec<glam::DVec3> = self.directions.frames.iter().map(|f| f[2].as_dvec3()).collect();
+        let phase = phase_matrix(&self.directions, g).0;
         let mut cur = vec![glam::DVec3::ZERO; n * d];
         for _ in 0..iterations {
             let mut next = vec![glam::DVec3::ZERO; n * d];
@@ -590,11 +623,9 @@ impl Network {
                     }
                     let mut scattered = glam::DVec3::ZERO;
                     for k in 0..d {
-                        scattered += cur[vp * d + k] * hg(w[k].dot(w[i]));
+                        scattered += cur[vp * d + k] * phase[k * d + i] as f64;
                     }
-                    let four_pi = 4.0 * std::f64::consts::PI;
-                    next[p * d + i] =
-                        (1.0 - alpha) * cur[vp * d + i] + alpha * albedo * (lit + scattered * (four_pi / d as f64));
+                    next[p * d + i] = (1.0 - alpha) * cur[vp * d + i] + alpha * albedo * (lit + scattered);
                 }
             }
             cur = next;
