@@ -539,50 +539,9 @@ impl Network {
         iterations: u32,
         step: f32,
     ) -> Result<Vec<[f32; 4]>, SolverError> {
-        let n = self.particles.positions.len() as u32;
-        let d = self.directions.len() as u32;
-        let gs = GpuScene::upload(gpu, scene, true)?;
-        let positions: Vec<[f32; 4]> = self.particles.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
-        let positions = gpu.buffer_with("networks particles", &positions)?;
-        let direct = self.direct(gpu, scene, &gs, &positions, step)?;
-        let frames: Vec<[f32; 4]> =
-            self.directions.frames.iter().flat_map(|f| f.map(|a| [a.x, a.y, a.z, 0.0])).collect();
-        let dirs = gpu.buffer_with("networks directions", &frames)?;
-        let visible = gpu.buffer_with("networks visibility", visible)?;
-        let field = [
-            gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
-            gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
-        ];
-        let pipeline = gpu.pipeline(&ITERATE, &[])?;
-        let m = &scene.medium;
-        let phase = gpu.buffer_with("networks phase", &phase_matrix(&self.directions, m.g as f64).0)?;
-        let alpha = m.sigma_t.as_dvec3().map(|s| self.opacity(s)).as_vec3();
-        let sky = sky(scene);
-        let push = IteratePush {
-            alpha: [alpha.x, alpha.y, alpha.z, 0.0],
-            albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
-            sky: [sky.x, sky.y, sky.z, 0.0],
-            particles: n,
-            directions: d,
-            units: light_units(scene).len() as u32,
-            pad: 0,
-        };
-        let passes: Vec<Pass> = (0..iterations as usize)
-            .map(|k| {
-                Pass::new("networks.iterate", QueueRole::Diffuse, &pipeline)
-                    .read(0, &visible)
-                    .read(1, &dirs)
-                    .read(2, &direct)
-                    .read(3, &field[k % 2])
-                    .write(4, &field[(k + 1) % 2])
-                    .read(5, &phase)
-                    .push(&push)
-                    .cover([n, d, 1])
-            })
-            .collect();
-        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
-        gpu.wait(point)?;
-        Ok(gpu.read_buffer_as(&field[iterations as usize % 2])?)
+        let mut state = Illumination::new(gpu, self, scene, visible, step)?;
+        state.step(gpu, iterations)?;
+        state.radiance(gpu)
     }
 
     /// The same iteration on the host in double precision: the oracle of
@@ -662,4 +621,154 @@ fn density_depth(scene: &Scene, x: glam::DVec3, w: glam::DVec3, t_far: f64, step
     let k = (len / step).ceil().max(1.0);
     let dt = len / k;
     (0..k as u64).map(|i| scene.density_at((x + w * (a + (i as f64 + 0.5) * dt)).as_vec3()) as f64).sum::<f64>() * dt
+}
+
+/// The illumination network on the device, ready to iterate: the particles, directions,
+/// visibility network, phase matrix, direct light and the two radiance buffers (ping-pong).
+/// It outlives a light's move: [`Illumination::set_lights`] recomputes the direct light and
+/// keeps I, the paper's warm start (4: "we take the solution of the previous light position
+/// as the initial value").
+pub struct Illumination {
+    positions: Buffer,
+    dirs: Buffer,
+    visible: Buffer,
+    phase: Buffer,
+    direct: Buffer,
+    field: [Buffer; 2],
+    /// Which of `field` holds the current I.
+    current: usize,
+    pipeline: crate::gpu::Pipeline,
+    push: IteratePush,
+    step: f32,
+    min_r2: f32,
+    particles: u32,
+    /// Iterations run since the start (or the last light move).
+    pub iterations: u32,
+}
+
+/// How an iteration to a tolerance ended.
+#[derive(Clone, Copy, Debug)]
+pub struct Converged {
+    pub iterations: u32,
+    pub converged: bool,
+    /// The last step's largest change of I against I's largest value.
+    pub change: f64,
+}
+
+impl Illumination {
+    pub fn new(
+        gpu: &Gpu,
+        net: &Network,
+        scene: &Scene,
+        visible: &[u32],
+        step: f32,
+    ) -> Result<Illumination, SolverError> {
+        let n = net.particles.positions.len() as u32;
+        let d = net.directions.len() as u32;
+        let positions: Vec<[f32; 4]> = net.particles.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
+        let frames: Vec<[f32; 4]> =
+            net.directions.frames.iter().flat_map(|f| f.map(|a| [a.x, a.y, a.z, 0.0])).collect();
+        let m = &scene.medium;
+        let positions = gpu.buffer_with("networks particles", &positions)?;
+        let gs = GpuScene::upload(gpu, scene, true)?;
+        let direct = net.direct(gpu, scene, &gs, &positions, step)?;
+        let alpha = m.sigma_t.as_dvec3().map(|s| net.opacity(s)).as_vec3();
+        let sky = sky(scene);
+        Ok(Illumination {
+            dirs: gpu.buffer_with("networks directions", &frames)?,
+            visible: gpu.buffer_with("networks visibility", visible)?,
+            phase: gpu.buffer_with("networks phase", &phase_matrix(&net.directions, m.g as f64).0)?,
+            direct,
+            positions,
+            field: [
+                gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
+                gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
+            ],
+            current: 0,
+            pipeline: gpu.pipeline(&ITERATE, &[])?,
+            push: IteratePush {
+                alpha: [alpha.x, alpha.y, alpha.z, 0.0],
+                albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
+                sky: [sky.x, sky.y, sky.z, 0.0],
+                particles: n,
+                directions: d,
+                units: light_units(scene).len() as u32,
+                pad: 0,
+            },
+            step,
+            min_r2: net.min_r2() as f32,
+            particles: n,
+            iterations: 0,
+        })
+    }
+
+    /// The lights moved (same medium, same number of light units): recompute the direct light
+    /// and the sky, keep I as the next iteration's start.
+    pub fn set_lights(&mut self, gpu: &Gpu, net: &Network, scene: &Scene) -> Result<(), SolverError> {
+        if light_units(scene).len() as u32 != self.push.units {
+            return Err(SolverError::Unsupported("networks: a warm start keeps the number of lights".to_string()));
+        }
+        let gs = GpuScene::upload(gpu, scene, true)?;
+        debug_assert_eq!(self.min_r2, net.min_r2() as f32);
+        self.direct = net.direct(gpu, scene, &gs, &self.positions, self.step)?;
+        let sky = sky(scene);
+        self.push.sky = [sky.x, sky.y, sky.z, 0.0];
+        self.iterations = 0;
+        Ok(())
+    }
+
+    /// `k` iterations, one submission.
+    pub fn step(&mut self, gpu: &Gpu, k: u32) -> Result<(), SolverError> {
+        let d = self.push.directions;
+        let passes: Vec<Pass> = (0..k as usize)
+            .map(|j| {
+                let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
+                Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
+                    .read(0, &self.visible)
+                    .read(1, &self.dirs)
+                    .read(2, &self.direct)
+                    .read(3, &self.field[from])
+                    .write(4, &self.field[to])
+                    .read(5, &self.phase)
+                    .push(&self.push)
+                    .cover([self.particles, d, 1])
+            })
+            .collect();
+        if passes.is_empty() {
+            return Ok(());
+        }
+        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+        gpu.wait(point)?;
+        self.current = (self.current + k as usize) % 2;
+        self.iterations += k;
+        Ok(())
+    }
+
+    /// I [p][i] (rgb, w unused) as it stands.
+    pub fn radiance(&self, gpu: &Gpu) -> Result<Vec<[f32; 4]>, SolverError> {
+        Ok(gpu.read_buffer_as(&self.field[self.current])?)
+    }
+
+    /// Iterate until a step changes I by less than `tol` of its largest value, or `max` steps:
+    /// both reported.
+    pub fn solve(&mut self, gpu: &Gpu, tol: f64, max: u32) -> Result<Converged, SolverError> {
+        let mut before = self.radiance(gpu)?;
+        let mut change = f64::INFINITY;
+        for k in 1..=max {
+            self.step(gpu, 1)?;
+            let now = self.radiance(gpu)?;
+            let peak = now.iter().flat_map(|x| x[..3].iter()).fold(0f32, |m, c| m.max(*c)) as f64;
+            let diff = now
+                .iter()
+                .zip(&before)
+                .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs()))
+                .fold(0f32, f32::max) as f64;
+            change = diff / peak.max(f64::MIN_POSITIVE);
+            before = now;
+            if change <= tol {
+                return Ok(Converged { iterations: k, converged: true, change });
+            }
+        }
+        Ok(Converged { iterations: max, converged: false, change })
+    }
 }
