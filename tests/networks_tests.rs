@@ -269,3 +269,4 @@ fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
     assert!(e_cold > 3.0 * e_warm, "warm {e_warm} against cold {e_cold}");
     assert_clean(&gpu);
 }
+
