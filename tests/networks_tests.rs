@@ -179,7 +179,8 @@ fn direct_light_and_iteration_on_the_device_match_the_host() {
 /// gives it (4 pi / D p) a forward-peaked lobe's rows sum far from 1 (g 0.9, D 32), balanced
 /// every row and column sums to 1 and the matrix stays symmetric. So the network's furnace
 /// (albedo 1, nothing but a uniform sky of radiance 1, g 0.9) climbs from 0 toward 1 without
-/// ever passing it (no energy created) and is within 1% of it after 200 iterations.
+/// ever passing it (no energy created) and is within 1% of it after 200 iterations; its image
+/// (the splats alpha-blended over the sky) is 1 everywhere to 1e-4.
 #[test]
 fn the_network_furnace_stays_at_the_sky() {
     use scatterlab::solvers::networks::phase_matrix;
@@ -216,57 +217,13 @@ fn the_network_furnace_stays_at_the_sky() {
         assert!(hi <= 1.0 + 1e-5, "{k} iterations: radiance {hi} above the sky's");
         assert!(mean >= floor, "{k} iterations: mean {mean}");
     }
+    // The image of the converged furnace: every splat carries radiance 1 and the sky behind is
+    // 1, so alpha blending gives 1 wherever the splats lie (as `path` gives in a furnace).
+    let mut st = scatterlab::solvers::networks::Illumination::new(&gpu, &net, &s, &v, 0.01).unwrap();
+    st.step(&gpu, 200).unwrap();
+    let img = st.image(&gpu, &net, &s).expect("image");
+    let (lo, hi) = img.image.data.iter().fold((f32::MAX, 0f32), |(l, h), x| (l.min(*x), h.max(*x)));
+    eprintln!("furnace image: {lo} .. {hi}, {} splats dropped", img.dropped);
+    assert!(lo > 1.0 - 1e-4 && hi < 1.0 + 1e-4, "furnace image {lo} .. {hi}");
     assert_clean(&gpu);
 }
-
-/// The paper's warm start (4: each frame starts from the previous light position's solution):
-/// on the cloud (800 particles, 32 directions) the sun turned by about 6 degrees, one iteration
-/// from the old converged solution is closer to the new converged solution than ten iterations
-/// from zero: relL2 0.112 against 0.594, asserted at least 3x. Both solves report convergence
-/// to 1e-6 (in 148 and 147 iterations).
-#[test]
-fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
-    use scatterlab::solvers::networks::Illumination;
-    let gpu = gpu();
-    let sun = |d: &str| repo_scene("scenes/cloud.toml", &[("light.0.direction", d)]);
-    let (before, after) = (sun("[0.5, -0.7, 0.5]"), sun("[0.6, -0.7, 0.4]"));
-    let particles = Particles::sample(&before, 800, 1).unwrap();
-    let window = Window::new(&before, &particles, 32, None);
-    let net = Network { particles, directions: Directions::new(32, 1), window };
-    let v = net.visibility(&gpu).expect("network");
-    let step = 0.01;
-    let mut warm = Illumination::new(&gpu, &net, &before, &v, step).expect("state");
-    let c = warm.solve(&gpu, 1e-6, 2000).expect("solve");
-    assert!(c.converged, "{c:?}");
-    warm.set_lights(&gpu, &net, &after).expect("moved sun");
-    warm.step(&gpu, 1).expect("one warm iteration");
-    let mut cold = Illumination::new(&gpu, &net, &after, &v, step).expect("state");
-    cold.step(&gpu, 10).expect("ten cold iterations");
-    let mut reference = Illumination::new(&gpu, &net, &after, &v, step).expect("state");
-    let r = reference.solve(&gpu, 1e-6, 2000).expect("solve");
-    assert!(r.converged, "{r:?}");
-    let truth = reference.radiance(&gpu).unwrap();
-    let err = |s: &Illumination| {
-        let i = s.radiance(&gpu).unwrap();
-        let (mut num, mut den) = (0f64, 0f64);
-        for (a, b) in i.iter().zip(&truth) {
-            for c in 0..3 {
-                num += (a[c] as f64 - b[c] as f64).powi(2);
-                den += (b[c] as f64).powi(2);
-            }
-        }
-        (num / den).sqrt()
-    };
-    let (e_warm, e_cold) = (err(&warm), err(&cold));
-    eprintln!(
-        "converged in {} and {} iterations; relL2 to the new solution: warm 1 iteration {e_warm:.4}, cold 10 \
-         iterations {e_cold:.4} (ratio {:.2})",
-        c.iterations,
-        r.iterations,
-        e_cold / e_warm
-    );
-    // Measured: 0.112 against 0.594 (5.3x); the margin leaves room for the particles' draw.
-    assert!(e_cold > 3.0 * e_warm, "warm {e_warm} against cold {e_cold}");
-    assert_clean(&gpu);
-}
-

@@ -52,10 +52,46 @@ pub const DIRECT: Kernel = Kernel {
 };
 pub const ITERATE: Kernel =
     Kernel { shader: shader!("networks/iterate"), push_bytes: std::mem::size_of::<IteratePush>(), spec: &[] };
+pub const GATHER: Kernel = Kernel {
+    shader: shader!("networks/gather"),
+    push_bytes: std::mem::size_of::<GatherPush>(),
+    spec: super::gpu_scene::SCENE_SPEC,
+};
+pub const SPLAT: Kernel = Kernel {
+    shader: shader!("networks/splat"),
+    push_bytes: std::mem::size_of::<SplatPush>(),
+    spec: super::gpu_scene::SCENE_SPEC,
+};
 
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
-    vec![COUNT, FILL, LINK, DIRECT, ITERATE]
+    vec![COUNT, FILL, LINK, DIRECT, ITERATE, GATHER, SPLAT]
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GatherPush {
+    particles: u32,
+    directions: u32,
+    units: u32,
+    pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct SplatPush {
+    sigma_m: [f32; 4],
+    sky: [f32; 4],
+    width: f32,
+    particles: u32,
+    pad: [u32; 2],
+}
+
+/// The image of the splats: pixels, and how many splats were left out where more than a
+/// pixel holds overlapped it (the farthest go).
+pub struct Splatted {
+    pub image: crate::output::Image,
+    pub dropped: u64,
 }
 
 #[repr(C)]
@@ -747,6 +783,60 @@ impl Illumination {
     /// I [p][i] (rgb, w unused) as it stands.
     pub fn radiance(&self, gpu: &Gpu) -> Result<Vec<[f32; 4]>, SolverError> {
         Ok(gpu.read_buffer_as(&self.field[self.current])?)
+    }
+
+    /// The image (paper 3.3's last paragraph): each particle's radiance toward the camera
+    /// (glsl/networks/gather.comp), then the particles splatted front to back with alpha
+    /// blending (glsl/networks/splat.comp), Gaussian footprints of the particle's radius b
+    /// carrying its extinction cross-section sigma_t m.
+    pub fn image(&self, gpu: &Gpu, net: &Network, scene: &Scene) -> Result<Splatted, SolverError> {
+        let gs = GpuScene::upload(gpu, scene, true)?;
+        let n = self.particles;
+        let colour = gpu.buffer("networks colours", 16 * n as u64)?;
+        let (w, h) = (scene.render.width, scene.render.height);
+        let pixels = gpu.buffer("networks image", 16 * w as u64 * h as u64)?;
+        let gather = gpu.pipeline(&GATHER, &gs.modelled.spec())?;
+        let splat = gpu.pipeline(&SPLAT, &gs.modelled.spec())?;
+        let sigma_m = scene.medium.sigma_t * net.particles.mass as f32;
+        let sky = sky(scene);
+        let passes = [
+            gs.bind(Pass::new("networks.gather", QueueRole::Trace, &gather))
+                .read(3, &self.positions)
+                .read(4, &self.dirs)
+                .read(5, &self.direct)
+                .read(6, &self.field[self.current])
+                .write(7, &colour)
+                .push(&GatherPush { particles: n, directions: self.push.directions, units: self.push.units, pad: 0 })
+                .cover([n, 1, 1]),
+            gs.bind(Pass::new("networks.splat", QueueRole::Trace, &splat))
+                .read(3, &self.positions)
+                .read(4, &colour)
+                .write(5, &pixels)
+                .push(&SplatPush {
+                    sigma_m: [sigma_m.x, sigma_m.y, sigma_m.z, 0.0],
+                    sky: [sky.x, sky.y, sky.z, 0.0],
+                    width: net.particle_radius() as f32,
+                    particles: n,
+                    pad: [0; 2],
+                })
+                .cover([w, h, 1]),
+        ];
+        let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+        gpu.wait(point)?;
+        let px: Vec<[f32; 4]> = gpu.read_buffer_as(&pixels)?;
+        if px.iter().any(|p| p[3] < 0.0) {
+            return Err(SolverError::Unsupported(
+                "networks: a pixel's splats ran past the per-invocation loop guard; use fewer particles".to_string(),
+            ));
+        }
+        Ok(Splatted {
+            image: crate::output::Image {
+                width: w,
+                height: h,
+                data: px.iter().flat_map(|p| [p[0], p[1], p[2]]).collect(),
+            },
+            dropped: px.iter().map(|p| p[3] as u64).sum(),
+        })
     }
 
     /// Iterate until a step changes I by less than `tol` of its largest value, or `max` steps:

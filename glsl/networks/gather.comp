@@ -1,0 +1,53 @@
+#version 460
+// networks/gather: each particle's radiance toward the camera, per unit of its opacity
+// (illumination networks 3.3, last paragraph: "the reflection from the sampled incoming
+// directions to the viewing direction", plus the direct term of the lights): for outgoing
+// direction o (from the particle toward the eye),
+//   c = albedo (sum_j L_j p(w_j . o) + sum_d I[d] p(w_d . o) / sum_d p(w_d . o)),
+// the incoming samples' phase weights normalised over the directions (as the balanced matrix
+// does among them: a uniform I gives I back), L_j the direct light (networks/direct.comp).
+// networks/splat composites c alpha in depth order.
+#extension GL_GOOGLE_include_directive : require
+
+#define SCENE_BINDING 0
+#define DENSITY_BINDING 1
+#define MAJORANT_BINDING 2
+#include "../include/scene.glsl"
+#include "../include/phase.glsl"
+
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+
+layout(std430, binding = 3) readonly buffer Positions { vec4 positions[]; };
+layout(std430, binding = 4) readonly buffer Dirs { vec4 dirs[]; };
+layout(std430, binding = 5) readonly buffer Direct { vec4 direct[]; };
+layout(std430, binding = 6) readonly buffer Radiance { vec4 radiance[]; };   // I [p][i]
+layout(std430, binding = 7) writeonly buffer Colour { vec4 colour[]; };     // [p]: rgb
+
+layout(push_constant) uniform Push {
+    uint particles;
+    uint directions;
+    uint units;
+    uint pad;
+} pc;
+
+void main() {
+    uint p = gl_GlobalInvocationID.x;
+    if (p >= pc.particles) return;
+    vec3 x = positions[p].xyz;
+    vec3 o = scene.cam_origin.w < 0.5 ? normalize(scene.cam_origin.xyz - x) : -scene.cam_forward.xyz;
+    float g = scene.albedo.w;
+    vec3 lit = vec3(0.0);
+    for (uint j = 0u; j < pc.units; ++j) {
+        uint e = 2u * (p * pc.units + j);
+        lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, o));
+    }
+    vec3 sum = vec3(0.0);
+    float norm = 0.0;
+    for (uint d = 0u; d < pc.directions; ++d) {
+        float w = hg_eval(g, dot(dirs[3u * d + 2u].xyz, o));
+        sum += radiance[p * pc.directions + d].rgb * w;
+        norm += w;
+    }
+    vec3 c = scene.albedo.rgb * (lit + (norm > 0.0 ? sum / norm : vec3(0.0)));
+    colour[p] = vec4(c, 0.0);
+}

@@ -1,0 +1,84 @@
+#version 460
+// networks/splat: the image (illumination networks 3.3: "sorts the particles according to their
+// distance from the camera, splats them, and adds their contributions with alpha blending").
+// One invocation per pixel, through the pixel's centre: every particle within three widths of
+// the ray is a splat with a Gaussian footprint of width s, its extinction cross-section
+// sigma_t m spread over it (the column density integrates to m over the plane, so a splat
+// stops as much light in all as the particle holds), opacity alpha = 1 - exp(-sigma_t m K(rho)),
+// K the normalised 2D Gaussian at the ray's distance rho from the particle. Front to back:
+//   L = sum_k c_k alpha_k prod_(j before k) (1 - alpha_j) + sky prod_all (1 - alpha_j),
+// c_k from networks/gather. The splats on a pixel are kept in a local array (at most MAX_SPLATS,
+// the nearest first once full; overflow counted) and composited in depth order, (depth, index)
+// breaking ties: deterministic.
+#extension GL_GOOGLE_include_directive : require
+
+#define SCENE_BINDING 0
+#define DENSITY_BINDING 1
+#define MAJORANT_BINDING 2
+#include "../include/scene.glsl"
+#include "../include/budget.glsl"
+
+layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+
+layout(std430, binding = 3) readonly buffer Positions { vec4 positions[]; };
+layout(std430, binding = 4) readonly buffer Colour { vec4 colour[]; };
+// rgb; w = splats dropped, or -1 where the loops reached the guard (glsl/include/budget.glsl)
+layout(std430, binding = 5) writeonly buffer Image { vec4 image[]; };
+
+layout(push_constant) uniform Push {
+    vec4 sigma_m;     // rgb: sigma_t m, a particle's extinction cross-section (scene units^2)
+    vec4 sky;         // rgb: the background's radiance
+    float width;      // s, the footprint's width (scene units)
+    uint particles;
+    uint pad0, pad1;
+} pc;
+
+const uint MAX_SPLATS = 96u;
+
+void main() {
+    uvec2 px = gl_GlobalInvocationID.xy;
+    if (px.x >= scene.image.x || px.y >= scene.image.y) return;
+    vec3 o, d;
+    camera_ray(vec2(px) + 0.5, o, d);
+    float depth[MAX_SPLATS];
+    uint which[MAX_SPLATS];
+    uint n = 0u, dropped = 0u;
+    float reach2 = 9.0 * pc.width * pc.width;
+    for (uint k = 0u; k < pc.particles; ++k) {
+        iters++;
+        vec3 v = positions[k].xyz - o;
+        float t = dot(v, d);
+        if (t <= 0.0) continue;
+        vec3 off = v - t * d;
+        if (dot(off, off) > reach2) continue;
+        // Insert by (depth, index); when full, the farthest goes.
+        if (n == MAX_SPLATS) {
+            ++dropped;
+            if (t >= depth[n - 1u]) continue;
+            --n;
+        }
+        uint at = n;
+        while (at > 0u && depth[at - 1u] > t) {
+            iters++;
+            depth[at] = depth[at - 1u];
+            which[at] = which[at - 1u];
+            --at;
+        }
+        depth[at] = t;
+        which[at] = k;
+        ++n;
+    }
+    vec3 L = vec3(0.0), T = vec3(1.0);
+    float norm = 1.0 / (2.0 * PI * pc.width * pc.width);
+    for (uint j = 0u; j < n; ++j) {
+        iters++;
+        uint k = which[j];
+        vec3 v = positions[k].xyz - o;
+        vec3 off = v - dot(v, d) * d;
+        float kernel = norm * exp(-dot(off, off) / (2.0 * pc.width * pc.width));
+        vec3 alpha = vec3(1.0) - exp(-pc.sigma_m.rgb * kernel);
+        L += T * alpha * colour[k].rgb;
+        T *= vec3(1.0) - alpha;
+    }
+    image[px.y * scene.image.x + px.x] = vec4(L + T * pc.sky.rgb, iters > LOOP_GUARD ? -1.0 : float(dropped));
+}
