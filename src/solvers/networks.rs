@@ -318,7 +318,8 @@ pub struct Window {
 impl Window {
     /// The bounding sphere of the medium's bounds, and M set, or by the paper's rule (3.2):
     /// D (R tau)^2 / pi >= M^2, tau the mean extinction (mean over the channels of sigma_t) where
-    /// the density is non-zero; at least 1 and at most [`MAX_WINDOW`].
+    /// the density is non-zero; at least sqrt(N / 64) (so a thin medium's columns stay sortable)
+    /// and at most [`MAX_WINDOW`].
     pub fn new(scene: &Scene, particles: &Particles, directions: u32, m: Option<u32>) -> Window {
         let med = &scene.medium;
         let centre = (med.bounds_min + med.bounds_max) * 0.5;
@@ -328,7 +329,11 @@ impl Window {
             let sigma = med.sigma_t.dot(Vec3::ONE) as f64 / 3.0;
             let tau = sigma * particles.mass * n / particles.occupied.max(f64::MIN_POSITIVE);
             let rule = (directions as f64 / std::f64::consts::PI).sqrt() * radius as f64 * tau;
-            rule.floor().clamp(1.0, MAX_WINDOW as f64) as u32
+            // Not coarser than 64 particles a pixel on average over the window: in a thin
+            // medium the rule asks for few pixels (M = 1 below R tau ~ 0.3 at D = 128), and a
+            // column sorted by one invocation holds at most MAX_COLUMN particles.
+            let crowding = (n / 64.0).sqrt().ceil();
+            rule.floor().max(crowding).clamp(1.0, MAX_WINDOW as f64) as u32
         });
         Window { centre, radius, m: m.clamp(1, MAX_WINDOW) }
     }
