@@ -8,7 +8,8 @@
 // K the normalised 2D Gaussian at the ray's distance rho from the particle. Front to back:
 //   L = sum_k c_k alpha_k prod_(j before k) (1 - alpha_j) + sky prod_all (1 - alpha_j),
 // c_k from networks/gather. The splats on a pixel are kept in a local array (at most MAX_SPLATS,
-// the nearest first once full; overflow counted) and composited in depth order, (depth, index)
+// the nearest first once full; overflow counted: at 96 the cloud's centre at 1024 particles
+// dropped 23158 splats over 64 x 64 pixels, at 256 none) and composited in depth order, (depth, index)
 // breaking ties: deterministic.
 #extension GL_GOOGLE_include_directive : require
 
@@ -33,7 +34,7 @@ layout(push_constant) uniform Push {
     uint pad0, pad1;
 } pc;
 
-const uint MAX_SPLATS = 96u;
+const uint MAX_SPLATS = 256u;
 
 void main() {
     uvec2 px = gl_GlobalInvocationID.xy;

@@ -794,7 +794,8 @@ impl Illumination {
     /// (glsl/networks/gather.comp), then the particles splatted front to back with alpha
     /// blending (glsl/networks/splat.comp), Gaussian footprints of the particle's radius b
     /// carrying its extinction cross-section sigma_t m.
-    pub fn image(&self, gpu: &Gpu, net: &Network, scene: &Scene) -> Result<Splatted, SolverError> {
+    /// `width`: the footprint's width in particle radii.
+    pub fn image(&self, gpu: &Gpu, net: &Network, scene: &Scene, width: f32) -> Result<Splatted, SolverError> {
         let gs = GpuScene::upload(gpu, scene, true)?;
         let n = self.particles;
         let colour = gpu.buffer("networks colours", 16 * n as u64)?;
@@ -820,7 +821,7 @@ impl Illumination {
                 .push(&SplatPush {
                     sigma_m: [sigma_m.x, sigma_m.y, sigma_m.z, 0.0],
                     sky: [sky.x, sky.y, sky.z, 0.0],
-                    width: net.particle_radius() as f32,
+                    width: net.particle_radius() as f32 * width,
                     particles: n,
                     pad: [0; 2],
                 })
