@@ -387,6 +387,15 @@ pub struct Network {
 }
 
 impl Network {
+    /// The particles' positions (vec4 each) and the directions' frames (u, v, w as three vec4
+    /// each) on the device, as every networks kernel reads them.
+    fn upload(&self, gpu: &Gpu) -> Result<(Buffer, Buffer), SolverError> {
+        let positions: Vec<[f32; 4]> = self.particles.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
+        let frames: Vec<[f32; 4]> =
+            self.directions.frames.iter().flat_map(|f| f.map(|a| [a.x, a.y, a.z, 0.0])).collect();
+        Ok((gpu.buffer_with("networks particles", &positions)?, gpu.buffer_with("networks directions", &frames)?))
+    }
+
     /// Opacity of a particle across one window pixel for extinction `sigma_t` (1/unit):
     /// 1 - exp(-sigma_t m / A).
     pub fn opacity(&self, sigma_t: f64) -> f64 {
@@ -433,11 +442,7 @@ impl Network {
             particles: n,
             directions: d,
         };
-        let positions: Vec<[f32; 4]> = self.particles.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
-        let frames: Vec<[f32; 4]> =
-            self.directions.frames.iter().flat_map(|f| f.map(|a| [a.x, a.y, a.z, 0.0])).collect();
-        let positions = gpu.buffer_with("networks particles", &positions)?;
-        let dirs = gpu.buffer_with("networks directions", &frames)?;
+        let (positions, dirs) = self.upload(gpu)?;
         let counts = gpu.buffer("networks bucket counts", buckets * 4)?;
         let offsets = gpu.buffer("networks bucket offsets", buckets * 4)?;
         let cursor = gpu.buffer("networks bucket cursors", buckets * 4)?;
@@ -721,17 +726,14 @@ impl Illumination {
     ) -> Result<Illumination, SolverError> {
         let n = net.particles.positions.len() as u32;
         let d = net.directions.len() as u32;
-        let positions: Vec<[f32; 4]> = net.particles.positions.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
-        let frames: Vec<[f32; 4]> =
-            net.directions.frames.iter().flat_map(|f| f.map(|a| [a.x, a.y, a.z, 0.0])).collect();
         let m = &scene.medium;
-        let positions = gpu.buffer_with("networks particles", &positions)?;
+        let (positions, dirs) = net.upload(gpu)?;
         let gs = GpuScene::upload(gpu, scene, true)?;
         let direct = net.direct(gpu, scene, &gs, &positions, step)?;
         let alpha = m.sigma_t.as_dvec3().map(|s| net.opacity(s)).as_vec3();
         let sky = sky(scene);
         Ok(Illumination {
-            dirs: gpu.buffer_with("networks directions", &frames)?,
+            dirs,
             visible: gpu.buffer_with("networks visibility", visible)?,
             phase: gpu.buffer_with("networks phase", &phase_matrix(&net.directions, m.g as f64).0)?,
             direct,
