@@ -1,7 +1,8 @@
 //! Illumination networks (issue 15; Szirmay-Kalos, Sbert, Umenhoffer, "Real-time multiple
 //! scattering in participating media with illumination networks", EGSR 2005): the particle
-//! model (2.1) and the visibility network (3.1-3.2), built on the device. Not yet a solver:
-//! the direct term, the iteration (3.3), the image and the moving lights are still to come
+//! model (2.1), the visibility network (3.1-3.2), the direct term, the iteration (3.3) with
+//! warm starts and the splatted image, built on the device. Not yet a solver: its knobs and
+//! registration, `scatterlab animate` and the measurements are still to come
 //! (docs/networks.md says what is built and what is not).
 //!
 //! **Particles (2.1).** N points sampled with probability proportional to the density (so to
