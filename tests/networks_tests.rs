@@ -244,7 +244,7 @@ fn a_thin_medium_keeps_its_columns_sortable() {
 /// on the cloud (800 particles, 32 directions) the sun turned by about 6 degrees, one iteration
 /// from the old converged solution is closer to the new converged solution than ten iterations
 /// from zero: relL2 0.112 against 0.594, asserted at least 3x. Both solves report convergence
-/// to 1e-6 (in 148 and 147 iterations).
+/// to 1e-6 (in 148 and 146 iterations).
 #[test]
 fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
     use scatterlab::solvers::networks::Illumination;

@@ -766,7 +766,9 @@ impl Solver for Dom {
                 if e <= set.tol {
                     converged = true;
                     change = e;
-                    let (total, pair) = (sum(&fluence), sum(&bounce) + sum(&last_bounce));
+                    // The pair the decay was taken from (pushed above), not summed again.
+                    let pair = *pair_sums.last().expect("a decay needs pairs");
+                    let total = sum(&fluence);
                     let added = pair * r2 / (1.0 - r2);
                     tail = Some(Tail {
                         ratio: r2.sqrt(),

@@ -34,10 +34,13 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
+use crate::physics::angular::hg;
+use crate::physics::geometry::{ray_box, ray_sphere};
 use crate::physics::rng::Pcg32;
 use crate::scene::{Light, Scene};
 
 use super::gpu_scene::GpuScene;
+use super::resumable::LOOP_GUARD;
 use super::SolverError;
 
 pub const COUNT: Kernel =
@@ -146,9 +149,8 @@ pub fn sky(scene: &Scene) -> Vec3 {
 pub fn phase_matrix(directions: &Directions, g: f64) -> (Vec<f32>, f64) {
     let w: Vec<glam::DVec3> = directions.frames.iter().map(|f| f[2].as_dvec3()).collect();
     let d = w.len();
-    let hg = |c: f64| (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * c).max(1e-300).powf(1.5));
     let weight = 4.0 * std::f64::consts::PI / d as f64;
-    let p: Vec<f64> = (0..d * d).map(|k| weight * hg(w[k / d].dot(w[k % d]))).collect();
+    let p: Vec<f64> = (0..d * d).map(|k| weight * hg(g, w[k / d].dot(w[k % d]))).collect();
     let sums = |s: &[f64]| -> Vec<f64> { (0..d).map(|i| (0..d).map(|k| s[i] * p[i * d + k] * s[k]).sum()).collect() };
     let before = sums(&vec![1.0; d]).iter().map(|r| (r - 1.0).abs()).fold(0.0, f64::max);
     let mut s = vec![1.0f64; d];
@@ -183,8 +185,9 @@ pub const MAX_WINDOW: u32 = 2048;
 pub const OPACITY_DEPTH: f64 = 0.3;
 
 /// The most particles one window column may hold: link.comp sorts a column in one invocation,
-/// k (k - 1) / 2 + 2k loop iterations, kept under the 60000 of glsl/include/budget.glsl's guard.
+/// k (k - 1) / 2 + 2k loop iterations, kept under the loop guard of glsl/include/budget.glsl.
 pub const MAX_COLUMN: u32 = 340;
+const _: () = assert!(MAX_COLUMN * (MAX_COLUMN - 1) / 2 + 2 * MAX_COLUMN <= LOOP_GUARD);
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -542,9 +545,9 @@ impl Network {
             // per-invocation loop guard (glsl/include/budget.glsl).
             let diagonal = (scene.medium.bounds_max - scene.medium.bounds_min).length();
             let steps = (diagonal / step).ceil() as u64 + scene.lights.len() as u64;
-            if steps > 60_000 {
+            if steps > LOOP_GUARD as u64 {
                 return Err(SolverError::Unsupported(format!(
-                    "networks: the transmittance step {step} takes {steps} steps across the medium; at most 60000"
+                    "networks: the transmittance step {step} takes {steps} steps across the medium; at most {LOOP_GUARD}"
                 )));
             }
             let pipeline = gpu.pipeline(&DIRECT, &gs.modelled.spec())?;
@@ -623,7 +626,6 @@ impl Network {
         let albedo = m.albedo.as_dvec3();
         let g = m.g as f64;
         let sky = sky(scene).as_dvec3();
-        let hg = |c: f64| (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * c).powf(1.5));
         let w: Vec<glam::DVec3> = self.directions.frames.iter().map(|f| f[2].as_dvec3()).collect();
         let phase = phase_matrix(&self.directions, g).0;
         let mut cur = vec![glam::DVec3::ZERO; n * d];
@@ -640,7 +642,7 @@ impl Network {
                     let mut lit = glam::DVec3::ZERO;
                     for j in 0..units {
                         let e = direct[vp * units + j];
-                        lit += glam::DVec3::from_array(e.irradiance) * hg(e.travel.as_dvec3().dot(w[i]));
+                        lit += glam::DVec3::from_array(e.irradiance) * hg(g, e.travel.as_dvec3().dot(w[i]));
                     }
                     let mut scattered = glam::DVec3::ZERO;
                     for k in 0..d {
@@ -659,22 +661,14 @@ impl Network {
 /// the midpoint rule in steps of at most `step` (glsl/include/view.glsl's density_depth).
 fn density_depth(scene: &Scene, x: glam::DVec3, w: glam::DVec3, t_far: f64, step: f64) -> f64 {
     let m = &scene.medium;
-    let (lo, hi) = (m.bounds_min.as_dvec3(), m.bounds_max.as_dvec3());
-    let inv = glam::DVec3::ONE / w;
-    let (ta, tb) = ((lo - x) * inv, (hi - x) * inv);
-    let (tn, tf) = (ta.min(tb), ta.max(tb));
-    let (mut a, mut b) = (tn.max_element(), tf.min_element());
+    let (xf, wf) = (x.as_vec3(), w.as_vec3());
+    // The support: the box, and the sphere for sphere density (view.glsl's medium_interval).
+    let Some((mut a, mut b)) = ray_box(xf, wf, m.bounds_min, m.bounds_max) else { return 0.0 };
     if let crate::scene::Density::Sphere { center, radius } = m.density {
-        let oc = x - center.as_dvec3();
-        let half_b = oc.dot(w);
-        let disc = half_b * half_b - (oc.length_squared() - (radius as f64).powi(2));
-        if disc < 0.0 {
-            return 0.0;
-        }
-        let s = disc.sqrt();
-        a = a.max(-half_b - s);
-        b = b.min(-half_b + s);
+        let Some((s0, s1)) = ray_sphere(xf, wf, center, radius) else { return 0.0 };
+        (a, b) = (a.max(s0), b.min(s1));
     }
+    let (a, b) = (a as f64, b as f64);
     let (a, b) = (a.max(0.0), b.min(t_far));
     if a >= b {
         return 0.0;
@@ -702,8 +696,6 @@ pub struct Illumination {
     pipeline: crate::gpu::Pipeline,
     push: IteratePush,
     step: f32,
-    min_r2: f32,
-    particles: u32,
     /// Iterations run since the start (or the last light move).
     pub iterations: u32,
 }
@@ -755,8 +747,6 @@ impl Illumination {
                 pad: 0,
             },
             step,
-            min_r2: net.min_r2() as f32,
-            particles: n,
             iterations: 0,
         })
     }
@@ -768,7 +758,6 @@ impl Illumination {
             return Err(SolverError::Unsupported("networks: a warm start keeps the number of lights".to_string()));
         }
         let gs = GpuScene::upload(gpu, scene, true)?;
-        debug_assert_eq!(self.min_r2, net.min_r2() as f32);
         self.direct = net.direct(gpu, scene, &gs, &self.positions, self.step)?;
         let sky = sky(scene);
         self.push.sky = [sky.x, sky.y, sky.z, 0.0];
@@ -790,7 +779,7 @@ impl Illumination {
                     .write(4, &self.field[to])
                     .read(5, &self.phase)
                     .push(&self.push)
-                    .cover([self.particles, d, 1])
+                    .cover([self.push.particles, d, 1])
             })
             .collect();
         if passes.is_empty() {
@@ -815,7 +804,7 @@ impl Illumination {
     /// `width`: the footprint's width in particle radii.
     pub fn image(&self, gpu: &Gpu, net: &Network, scene: &Scene, width: f32) -> Result<Splatted, SolverError> {
         let gs = GpuScene::upload(gpu, scene, true)?;
-        let n = self.particles;
+        let n = self.push.particles;
         let colour = gpu.buffer("networks colours", 16 * n as u64)?;
         let (w, h) = (scene.render.width, scene.render.height);
         let pixels = gpu.buffer("networks image", 16 * w as u64 * h as u64)?;

@@ -8,8 +8,9 @@
 //! The emission is stored at M storage directions and upsampled to the N swept ones
 //! (`physics::angular`); after each channel's sweep, glsl/ordinates/scatter.comp turns the
 //! field into the source the next sweep propagates (what this one scattered: the thesis's
-//! progressive scheme, 5.3.3) and adds the light it scatters toward the camera, on the device. glsl/ordinates/deposit.comp bins the marched first-scattering deposits into
-//! the storage directions.
+//! progressive scheme, 5.3.3) and adds the light it scatters toward the camera, on the device.
+//! glsl/ordinates/deposit.comp bins the marched first-scattering deposits into the storage
+//! directions.
 
 use bytemuck::{Pod, Zeroable};
 
