@@ -125,7 +125,7 @@ fn a_column_too_crowded_to_sort_is_refused() {
     let gpu = gpu();
     let net = network("scenes/homogeneous-sphere.toml", &[], 400, 4, Some(1));
     let err = net.visibility(&gpu).expect_err("a 400-particle column").to_string();
-    assert!(err.contains("window column holds 400 particles") && err.contains("finer window"), "{err}");
+    assert!(err.contains("window column holds 400 particles") && err.contains("finer networks.window"), "{err}");
     let ok = network("scenes/homogeneous-sphere.toml", &[], 400, 4, None);
     assert!(ok.window.m > 1, "the rule's window: M {}", ok.window.m);
     assert_eq!(ok.visibility(&gpu).expect("the rule's window"), ok.visibility_cpu());
@@ -151,7 +151,7 @@ fn direct_light_and_iteration_on_the_device_match_the_host() {
         let step = 0.01f32;
         let host_direct = net.direct_cpu(&s, step as f64);
         let host = net.iterate_cpu(&s, &v, &host_direct, 12);
-        let device = net.iterate(&gpu, &s, &v, 12, step).expect("device iteration");
+        let device = net.iterate(&gpu, &s, 12, step).expect("device iteration");
         let scale = host.iter().flat_map(|x| x.iter().copied()).fold(0.0f64, f64::max);
         assert!(scale > 0.0, "{scene}: some light");
         let worst = device
@@ -205,9 +205,8 @@ fn the_network_furnace_stays_at_the_sky() {
             assert!((p[i * 32 + k] - p[k * 32 + i]).abs() <= 1e-6 * p[i * 32 + k].abs().max(1e-30), "symmetric");
         }
     }
-    let v = net.visibility(&gpu).expect("network");
     for (k, floor) in [(20u32, 0.0f64), (200, 0.99)] {
-        let i = net.iterate(&gpu, &s, &v, k, 0.01).expect("iteration");
+        let i = net.iterate(&gpu, &s, k, 0.01).expect("iteration");
         let (lo, hi) = i
             .iter()
             .flat_map(|x| x[..3].iter().map(|c| *c as f64))
@@ -219,9 +218,9 @@ fn the_network_furnace_stays_at_the_sky() {
     }
     // The image of the converged furnace: every splat carries radiance 1 and the sky behind is
     // 1, so alpha blending gives 1 wherever the splats lie (as `path` gives in a furnace).
-    let mut st = scatterlab::solvers::networks::Illumination::new(&gpu, &net, &s, &v, 0.01).unwrap();
+    let mut st = scatterlab::solvers::networks::Illumination::new(&gpu, &net, &s, 0.01, true).unwrap();
     st.step(&gpu, 200).unwrap();
-    let img = st.image(&gpu, &net, &s, 1.0).expect("image");
+    let img = st.image(&gpu, &net, 1.0).expect("image");
     let (lo, hi) = img.image.data.iter().fold((f32::MAX, 0f32), |(l, h), x| (l.min(*x), h.max(*x)));
     eprintln!("furnace image: {lo} .. {hi}, {} splats dropped", img.dropped);
     assert!(lo > 1.0 - 1e-4 && hi < 1.0 + 1e-4, "furnace image {lo} .. {hi}");
@@ -254,17 +253,16 @@ fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
     let particles = Particles::sample(&before, 800, 1).unwrap();
     let window = Window::new(&before, &particles, 32, None);
     let net = Network { particles, directions: Directions::new(32, 1), window };
-    let v = net.visibility(&gpu).expect("network");
     let step = 0.01;
-    let mut warm = Illumination::new(&gpu, &net, &before, &v, step).expect("state");
-    let c = warm.solve(&gpu, 1e-6, 2000).expect("solve");
+    let mut warm = Illumination::new(&gpu, &net, &before, step, true).expect("state");
+    let c = warm.solve(&gpu, 1e-6, 2000, &|_| {}).expect("solve");
     assert!(c.converged, "{c:?}");
     warm.set_lights(&gpu, &net, &after).expect("moved sun");
     warm.step(&gpu, 1).expect("one warm iteration");
-    let mut cold = Illumination::new(&gpu, &net, &after, &v, step).expect("state");
+    let mut cold = Illumination::new(&gpu, &net, &after, step, true).expect("state");
     cold.step(&gpu, 10).expect("ten cold iterations");
-    let mut reference = Illumination::new(&gpu, &net, &after, &v, step).expect("state");
-    let r = reference.solve(&gpu, 1e-6, 2000).expect("solve");
+    let mut reference = Illumination::new(&gpu, &net, &after, step, true).expect("state");
+    let r = reference.solve(&gpu, 1e-6, 2000, &|_| {}).expect("solve");
     assert!(r.converged, "{r:?}");
     let truth = reference.radiance(&gpu).unwrap();
     let err = |s: &Illumination| {

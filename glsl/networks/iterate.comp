@@ -11,7 +11,13 @@
 // (src/solvers/networks.rs, `phase_matrix`: scattering conserves energy on the directions);
 // and the sky's radiance where no particle is upstream. Every particle has the same opacity (each holds the same share of the extinction,
 // src/solvers/networks.rs) and the medium's albedo and g. Ping-pong: reads I, writes I'.
-// Deterministic: fixed order, no atomics.
+// Deterministic: fixed order; the one atomic is a max (order-free).
+//
+// Convergence is judged on the device: each workgroup reduces, in shared memory, the largest
+// change |I' - I| and the largest I' over its invocations and channels, and one atomicMax per
+// workgroup folds them into slot pc.slot of `stats` (as uint bits: for non-negative floats the
+// order of the bits is the order of the values, and a NaN, 0x7fc00000, sorts above +inf, so a
+// non-finite value cannot hide). The host reads 8 bytes per iteration instead of all of I.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -23,6 +29,7 @@ layout(std430, binding = 2) readonly buffer Direct { vec4 direct[]; };       // 
 layout(std430, binding = 3) readonly buffer Current { vec4 current[]; };     // I [p][i], rgb
 layout(std430, binding = 4) writeonly buffer Next { vec4 next[]; };          // I' [p][i]
 layout(std430, binding = 5) readonly buffer Phase { float phase[]; };        // P[d][i]
+layout(std430, binding = 6) buffer Stats { uint stats[]; };                  // [slot]: max change, max I'
 
 layout(push_constant) uniform Push {
     vec4 alpha;      // rgb opacity of a particle
@@ -31,20 +38,19 @@ layout(push_constant) uniform Push {
     uint particles;
     uint directions;
     uint units;
-    uint pad;
+    uint slot;       // where this iteration's change and peak go in `stats`
 } pc;
 
 const uint NONE = 0xffffffffu;
 
-void main() {
-    uint p = gl_GlobalInvocationID.x, i = gl_GlobalInvocationID.y;
-    if (p >= pc.particles || i >= pc.directions) return;
+shared float change_max[64];
+shared float peak_max[64];
+
+// I'[p][i] (rgb) for an invocation inside the grid.
+vec3 step_one(uint p, uint i) {
     uint D = pc.directions;
     uint vp = visible[p * D + i];
-    if (vp == NONE) {
-        next[p * D + i] = vec4(pc.sky.rgb, 0.0);
-        return;
-    }
+    if (vp == NONE) return pc.sky.rgb;
     vec3 wi = dirs[3u * i + 2u].xyz;
     float g = pc.albedo.w;
     vec3 lit = vec3(0.0);
@@ -55,6 +61,35 @@ void main() {
     vec3 scattered = vec3(0.0);
     for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];
     vec3 a = pc.alpha.rgb;
-    vec3 r = (1.0 - a) * current[vp * D + i].rgb + a * pc.albedo.rgb * (lit + scattered);
-    next[p * D + i] = vec4(r, 0.0);
+    return (1.0 - a) * current[vp * D + i].rgb + a * pc.albedo.rgb * (lit + scattered);
+}
+
+void main() {
+    uint p = gl_GlobalInvocationID.x, i = gl_GlobalInvocationID.y;
+    uint l = gl_LocalInvocationIndex;
+    float change = 0.0, peak = 0.0;
+    if (p < pc.particles && i < pc.directions) {
+        uint k = p * pc.directions + i;
+        vec3 r = step_one(p, i);
+        next[k] = vec4(r, 0.0);
+        vec3 dr = abs(r - current[k].rgb);
+        // max() drops a NaN operand on most hardware: carry it through explicitly.
+        change = any(isnan(dr)) ? uintBitsToFloat(0x7fc00000u) : max(dr.r, max(dr.g, dr.b));
+        peak = any(isnan(r)) ? uintBitsToFloat(0x7fc00000u) : max(r.r, max(r.g, r.b));
+    }
+    change_max[l] = change;
+    peak_max[l] = peak;
+    barrier();
+    for (uint s = 32u; s > 0u; s >>= 1) {
+        if (l < s) {
+            float c = change_max[l + s], q = peak_max[l + s];
+            change_max[l] = (isnan(c) || c > change_max[l]) ? c : change_max[l];
+            peak_max[l] = (isnan(q) || q > peak_max[l]) ? q : peak_max[l];
+        }
+        barrier();
+    }
+    if (l == 0u) {
+        atomicMax(stats[2u * pc.slot], floatBitsToUint(change_max[0]));
+        atomicMax(stats[2u * pc.slot + 1u], floatBitsToUint(peak_max[0]));
+    }
 }

@@ -96,6 +96,8 @@ struct SplatPush {
 pub struct Splatted {
     pub image: crate::output::Image,
     pub dropped: u64,
+    /// Pixels that came out non-finite and were set to 0.
+    pub nonfinite: u32,
 }
 
 #[repr(C)]
@@ -116,7 +118,7 @@ struct IteratePush {
     particles: u32,
     directions: u32,
     units: u32,
-    pad: u32,
+    slot: u32,
 }
 
 /// The lights the direct term takes (point and directional; environments reach the particles
@@ -436,6 +438,13 @@ impl Network {
     /// The visibility network built on the device ([p][i], [`NONE`] where the sky is seen):
     /// count, prefix sum (on the host, between two submissions), fill, link.
     pub fn visibility(&self, gpu: &Gpu) -> Result<Vec<u32>, SolverError> {
+        let (positions, dirs) = self.upload(gpu)?;
+        Ok(gpu.read_buffer_as(&self.visibility_on(gpu, &positions, &dirs)?)?)
+    }
+
+    /// [`Network::visibility`] left on the device, over uploaded positions and directions
+    /// ([`Network::upload`]); the bucket buffers are freed on return.
+    fn visibility_on(&self, gpu: &Gpu, positions: &Buffer, dirs: &Buffer) -> Result<Buffer, SolverError> {
         let n = self.particles.positions.len() as u32;
         let d = self.directions.len() as u32;
         let buckets = d as u64 * (self.window.m as u64).pow(2);
@@ -446,7 +455,6 @@ impl Network {
             particles: n,
             directions: d,
         };
-        let (positions, dirs) = self.upload(gpu)?;
         let counts = gpu.buffer("networks bucket counts", buckets * 4)?;
         let offsets = gpu.buffer("networks bucket offsets", buckets * 4)?;
         let cursor = gpu.buffer("networks bucket cursors", buckets * 4)?;
@@ -456,8 +464,8 @@ impl Network {
         let fill = gpu.pipeline(&FILL, &[])?;
         let link = gpu.pipeline(&LINK, &[])?;
         let pass = Pass::new("networks.count", QueueRole::Trace, &count)
-            .read(0, &positions)
-            .read(1, &dirs)
+            .read(0, positions)
+            .read(1, dirs)
             .read_write(2, &counts)
             .push(&push)
             .cover([n, d, 1]);
@@ -474,7 +482,7 @@ impl Network {
         if crowded > MAX_COLUMN {
             return Err(SolverError::Unsupported(format!(
                 "networks: a window column holds {crowded} particles, more than one sort takes ({MAX_COLUMN}); \
-                 use a finer window (M = {} now) or fewer particles",
+                 set a finer networks.window (M = {} now) or fewer networks.particles",
                 self.window.m
             )));
         }
@@ -490,16 +498,16 @@ impl Network {
         gpu.write_buffer(&offsets, 0, bytemuck::cast_slice(&o))?;
         let passes = [
             Pass::new("networks.fill", QueueRole::Trace, &fill)
-                .read(0, &positions)
-                .read(1, &dirs)
+                .read(0, positions)
+                .read(1, dirs)
                 .read(2, &offsets)
                 .read_write(3, &cursor)
                 .write(4, &entries)
                 .push(&push)
                 .cover([n, d, 1]),
             Pass::new("networks.link", QueueRole::Trace, &link)
-                .read(0, &positions)
-                .read(1, &dirs)
+                .read(0, positions)
+                .read(1, dirs)
                 .read(2, &counts)
                 .read(3, &offsets)
                 .read_write(4, &entries)
@@ -509,7 +517,15 @@ impl Network {
         ];
         let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
         gpu.wait(point)?;
-        Ok(gpu.read_buffer_as(&visible)?)
+        Ok(visible)
+    }
+
+    /// Device bytes the visibility network's construction holds besides the network itself:
+    /// three u32 per bucket (counts, offsets, cursors) and the bucket entries, one u32 per
+    /// particle and direction.
+    pub fn build_bytes(&self) -> u64 {
+        let (n, d) = (self.particles.positions.len() as u64, self.directions.len() as u64);
+        3 * 4 * d * (self.window.m as u64).pow(2) + 4 * n * d
     }
 }
 
@@ -536,10 +552,10 @@ impl Network {
         gs: &GpuScene,
         positions: &Buffer,
         step: f32,
-    ) -> Result<Buffer, SolverError> {
+        out: &Buffer,
+    ) -> Result<(), SolverError> {
         let n = self.particles.positions.len() as u32;
         let units = light_units(scene).len() as u32;
-        let out = gpu.buffer("networks direct light", 32 * n.max(1) as u64 * units.max(1) as u64)?;
         if units > 0 {
             // The march's steps: at most the bounds' diagonal over `step`, kept under the
             // per-invocation loop guard (glsl/include/budget.glsl).
@@ -554,13 +570,18 @@ impl Network {
             let pass = gs
                 .bind(Pass::new("networks.direct", QueueRole::Trace, &pipeline))
                 .read(3, positions)
-                .write(4, &out)
+                .write(4, out)
                 .push(&DirectPush { step, min_r2: self.min_r2() as f32, particles: n, units })
                 .cover([n, units, 1]);
             let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
             gpu.wait(point)?;
         }
-        Ok(out)
+        Ok(())
+    }
+
+    /// Bytes of the direct light buffer: two vec4 per particle and light unit.
+    pub fn direct_bytes(&self, scene: &Scene) -> u64 {
+        32 * self.particles.positions.len().max(1) as u64 * light_units(scene).len().max(1) as u64
     }
 
     /// The direct term's light on the host ([p][unit]), in double precision with the same
@@ -595,16 +616,9 @@ impl Network {
     }
 
     /// `iterations` steps of the network's iteration on the device (glsl/networks/iterate.comp)
-    /// from I = 0, over the visibility network `visible` ([p][i]): I [p][i] rgb.
-    pub fn iterate(
-        &self,
-        gpu: &Gpu,
-        scene: &Scene,
-        visible: &[u32],
-        iterations: u32,
-        step: f32,
-    ) -> Result<Vec<[f32; 4]>, SolverError> {
-        let mut state = Illumination::new(gpu, self, scene, visible, step)?;
+    /// from I = 0, over the device's visibility network: I [p][i] rgb.
+    pub fn iterate(&self, gpu: &Gpu, scene: &Scene, iterations: u32, step: f32) -> Result<Vec<[f32; 4]>, SolverError> {
+        let mut state = Illumination::new(gpu, self, scene, step, true)?;
         state.step(gpu, iterations)?;
         state.radiance(gpu)
     }
@@ -679,25 +693,41 @@ fn density_depth(scene: &Scene, x: glam::DVec3, w: glam::DVec3, t_far: f64, step
     (0..k as u64).map(|i| scene.density_at((x + w * (a + (i as f64 + 0.5) * dt)).as_vec3()) as f64).sum::<f64>() * dt
 }
 
-/// The illumination network on the device, ready to iterate: the particles, directions,
+/// Iterations per submission; each writes its change and peak into its own slot of the
+/// stats buffer, read back once per submission.
+pub const BATCH: u32 = 8;
+
+/// The illumination network on the device, ready to iterate: the scene, particles, directions,
 /// visibility network, phase matrix, direct light and the two radiance buffers (ping-pong).
 /// It outlives a light's move: [`Illumination::set_lights`] recomputes the direct light and
 /// keeps I, the paper's warm start (4: "we take the solution of the previous light position
 /// as the initial value").
 pub struct Illumination {
+    gs: GpuScene,
     positions: Buffer,
     dirs: Buffer,
     visible: Buffer,
     phase: Buffer,
     direct: Buffer,
     field: [Buffer; 2],
+    /// Per iteration of a submission: the largest change of I and the largest I (f32 bits).
+    stats: Buffer,
     /// Which of `field` holds the current I.
     current: usize,
     pipeline: crate::gpu::Pipeline,
     push: IteratePush,
     step: f32,
+    /// The image's size and a particle's extinction cross-section sigma_t m (rgb, units^2).
+    size: [u32; 2],
+    sigma_m: Vec3,
     /// Iterations run since the start (or the last light move).
     pub iterations: u32,
+    /// The last iteration's change of I against I's largest value (infinite before one ran).
+    pub change: f64,
+    /// Iterations whose change or peak came back negative or not finite.
+    pub faults: u64,
+    /// The most device bytes held at once, building included ([`Illumination::device_bytes`]).
+    pub bytes: u64,
 }
 
 /// How an iteration to a tolerance ended.
@@ -710,31 +740,33 @@ pub struct Converged {
 }
 
 impl Illumination {
+    /// Upload the scene, build the visibility network on the device, compute the direct light
+    /// (transmittance step `step`, scene units) and start from I = 0. `force_full`: model every
+    /// scene feature (the kernels' specialisation), as `--force-full` asks.
     pub fn new(
         gpu: &Gpu,
         net: &Network,
         scene: &Scene,
-        visible: &[u32],
         step: f32,
+        force_full: bool,
     ) -> Result<Illumination, SolverError> {
         let n = net.particles.positions.len() as u32;
         let d = net.directions.len() as u32;
         let m = &scene.medium;
+        let gs = GpuScene::upload(gpu, scene, force_full)?;
         let (positions, dirs) = net.upload(gpu)?;
-        let gs = GpuScene::upload(gpu, scene, true)?;
-        let direct = net.direct(gpu, scene, &gs, &positions, step)?;
+        let visible = net.visibility_on(gpu, &positions, &dirs)?;
+        let direct = gpu.buffer("networks direct light", net.direct_bytes(scene))?;
+        net.direct(gpu, scene, &gs, &positions, step, &direct)?;
         let alpha = m.sigma_t.as_dvec3().map(|s| net.opacity(s)).as_vec3();
         let sky = sky(scene);
         Ok(Illumination {
-            dirs,
-            visible: gpu.buffer_with("networks visibility", visible)?,
             phase: gpu.buffer_with("networks phase", &phase_matrix(&net.directions, m.g as f64).0)?,
-            direct,
-            positions,
             field: [
                 gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
                 gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
             ],
+            stats: gpu.buffer("networks iteration stats", 8 * BATCH as u64)?,
             current: 0,
             pipeline: gpu.pipeline(&ITERATE, &[])?,
             push: IteratePush {
@@ -744,52 +776,106 @@ impl Illumination {
                 particles: n,
                 directions: d,
                 units: light_units(scene).len() as u32,
-                pad: 0,
+                slot: 0,
             },
             step,
+            size: [scene.render.width, scene.render.height],
+            sigma_m: m.sigma_t * net.particles.mass as f32,
             iterations: 0,
+            change: f64::INFINITY,
+            faults: 0,
+            bytes: Self::device_bytes(net, scene),
+            gs,
+            positions,
+            dirs,
+            visible,
+            direct,
         })
     }
 
-    /// The lights moved (same medium, same number of light units): recompute the direct light
-    /// and the sky, keep I as the next iteration's start.
+    /// The most device bytes an [`Illumination`] and its image hold at once: the scene,
+    /// particles, directions and visibility network throughout; then the larger of the
+    /// construction's buckets (freed once the network is built) and the iteration's state with
+    /// the image's buffers.
+    pub fn device_bytes(net: &Network, scene: &Scene) -> u64 {
+        let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
+        let base = super::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
+        let state = 4 * d * d + net.direct_bytes(scene) + 2 * 16 * n * d + 8 * BATCH as u64;
+        let image = 16 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
+        base + net.build_bytes().max(state + image)
+    }
+
+    /// The lights moved (same medium, same lights of the same kinds): recompute the direct
+    /// light and the sky, keep I as the next iteration's start.
     pub fn set_lights(&mut self, gpu: &Gpu, net: &Network, scene: &Scene) -> Result<(), SolverError> {
-        if light_units(scene).len() as u32 != self.push.units {
+        // The scene block (header and lights), rewritten in place: same size, same layout.
+        let (header, lights) = super::gpu_scene::scene_block(scene);
+        let mut bytes = bytemuck::bytes_of(&header).to_vec();
+        bytes.extend_from_slice(bytemuck::cast_slice(&lights));
+        if light_units(scene).len() as u32 != self.push.units || bytes.len() as u64 != self.gs.block.size() {
             return Err(SolverError::Unsupported("networks: a warm start keeps the number of lights".to_string()));
         }
-        let gs = GpuScene::upload(gpu, scene, true)?;
-        self.direct = net.direct(gpu, scene, &gs, &self.positions, self.step)?;
+        gpu.write_buffer(&self.gs.block, 0, &bytes)?;
+        net.direct(gpu, scene, &self.gs, &self.positions, self.step, &self.direct)?;
         let sky = sky(scene);
         self.push.sky = [sky.x, sky.y, sky.z, 0.0];
         self.iterations = 0;
+        self.change = f64::INFINITY;
         Ok(())
     }
 
-    /// `k` iterations, one submission.
-    pub fn step(&mut self, gpu: &Gpu, k: u32) -> Result<(), SolverError> {
+    /// `k` iterations, [`BATCH`] to a submission: for each, the largest change of I against
+    /// the largest I, measured on the device (non-finite where a value went negative or not
+    /// finite, which also counts a fault).
+    pub fn step(&mut self, gpu: &Gpu, k: u32) -> Result<Vec<f64>, SolverError> {
         let d = self.push.directions;
-        let passes: Vec<Pass> = (0..k as usize)
-            .map(|j| {
-                let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
-                Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
-                    .read(0, &self.visible)
-                    .read(1, &self.dirs)
-                    .read(2, &self.direct)
-                    .read(3, &self.field[from])
-                    .write(4, &self.field[to])
-                    .read(5, &self.phase)
-                    .push(&self.push)
-                    .cover([self.push.particles, d, 1])
-            })
-            .collect();
-        if passes.is_empty() {
-            return Ok(());
+        let mut changes = Vec::with_capacity(k as usize);
+        let mut left = k;
+        while left > 0 {
+            let b = left.min(BATCH);
+            gpu.fill_zero(&self.stats)?;
+            let passes: Vec<Pass> = (0..b as usize)
+                .map(|j| {
+                    let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
+                    Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
+                        .read(0, &self.visible)
+                        .read(1, &self.dirs)
+                        .read(2, &self.direct)
+                        .read(3, &self.field[from])
+                        .write(4, &self.field[to])
+                        .read(5, &self.phase)
+                        .read_write(6, &self.stats)
+                        .push(&IteratePush { slot: j as u32, ..self.push })
+                        .cover([self.push.particles, d, 1])
+                })
+                .collect();
+            let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+            gpu.wait(point)?;
+            self.current = (self.current + b as usize) % 2;
+            self.iterations += b;
+            left -= b;
+            let raw: Vec<u32> = gpu.read_buffer_as(&self.stats)?;
+            for j in 0..b as usize {
+                let (change, peak) = (f32::from_bits(raw[2 * j]) as f64, f32::from_bits(raw[2 * j + 1]) as f64);
+                // A negative value's bits sort above every positive one: it shows as a
+                // negative (or NaN) maximum.
+                let c = if change.is_finite() && peak.is_finite() && change >= 0.0 && peak >= 0.0 {
+                    if peak > 0.0 {
+                        change / peak
+                    } else {
+                        0.0
+                    }
+                } else {
+                    self.faults += 1;
+                    f64::NAN
+                };
+                changes.push(c);
+            }
         }
-        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
-        gpu.wait(point)?;
-        self.current = (self.current + k as usize) % 2;
-        self.iterations += k;
-        Ok(())
+        if let Some(c) = changes.last() {
+            self.change = *c;
+        }
+        Ok(changes)
     }
 
     /// I [p][i] (rgb, w unused) as it stands.
@@ -797,21 +883,20 @@ impl Illumination {
         Ok(gpu.read_buffer_as(&self.field[self.current])?)
     }
 
-    /// The image (paper 3.3's last paragraph): each particle's radiance toward the camera
-    /// (glsl/networks/gather.comp), then the particles splatted front to back with alpha
-    /// blending (glsl/networks/splat.comp), Gaussian footprints of the particle's radius b
-    /// carrying its extinction cross-section sigma_t m.
+    /// The image (paper 3.3's last paragraph) with the scene's camera: each particle's
+    /// radiance toward the camera (glsl/networks/gather.comp), then the particles splatted
+    /// front to back with alpha blending (glsl/networks/splat.comp), Gaussian footprints of the
+    /// particle's radius b carrying its extinction cross-section sigma_t m.
     /// `width`: the footprint's width in particle radii.
-    pub fn image(&self, gpu: &Gpu, net: &Network, scene: &Scene, width: f32) -> Result<Splatted, SolverError> {
-        let gs = GpuScene::upload(gpu, scene, true)?;
+    pub fn image(&self, gpu: &Gpu, net: &Network, width: f32) -> Result<Splatted, SolverError> {
+        let gs = &self.gs;
         let n = self.push.particles;
         let colour = gpu.buffer("networks colours", 16 * n as u64)?;
-        let (w, h) = (scene.render.width, scene.render.height);
+        let [w, h] = self.size;
         let pixels = gpu.buffer("networks image", 16 * w as u64 * h as u64)?;
         let gather = gpu.pipeline(&GATHER, &gs.modelled.spec())?;
         let splat = gpu.pipeline(&SPLAT, &gs.modelled.spec())?;
-        let sigma_m = scene.medium.sigma_t * net.particles.mass as f32;
-        let sky = sky(scene);
+        let (sigma_m, sky) = (self.sigma_m, self.push.sky);
         let passes = [
             gs.bind(Pass::new("networks.gather", QueueRole::Trace, &gather))
                 .read(3, &self.positions)
@@ -827,7 +912,7 @@ impl Illumination {
                 .write(5, &pixels)
                 .push(&SplatPush {
                     sigma_m: [sigma_m.x, sigma_m.y, sigma_m.z, 0.0],
-                    sky: [sky.x, sky.y, sky.z, 0.0],
+                    sky,
                     width: net.particle_radius() as f32 * width,
                     particles: n,
                     pad: [0; 2],
@@ -839,39 +924,55 @@ impl Illumination {
         let px: Vec<[f32; 4]> = gpu.read_buffer_as(&pixels)?;
         if px.iter().any(|p| p[3] < 0.0) {
             return Err(SolverError::Unsupported(
-                "networks: a pixel's splats ran past the per-invocation loop guard; use fewer particles".to_string(),
+                "networks: a pixel's splats ran past the per-invocation loop guard; use fewer networks.particles"
+                    .to_string(),
             ));
         }
+        let mut nonfinite = 0u32;
+        let data = px
+            .iter()
+            .flat_map(|p| {
+                let ok = p[..3].iter().all(|c| c.is_finite());
+                nonfinite += (!ok) as u32;
+                if ok {
+                    [p[0], p[1], p[2]]
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect();
         Ok(Splatted {
-            image: crate::output::Image {
-                width: w,
-                height: h,
-                data: px.iter().flat_map(|p| [p[0], p[1], p[2]]).collect(),
-            },
+            image: crate::output::Image { width: w, height: h, data },
             dropped: px.iter().map(|p| p[3] as u64).sum(),
+            nonfinite,
         })
     }
 
-    /// Iterate until a step changes I by less than `tol` of its largest value, or `max` steps:
-    /// both reported.
-    pub fn solve(&mut self, gpu: &Gpu, tol: f64, max: u32) -> Result<Converged, SolverError> {
-        let mut before = self.radiance(gpu)?;
-        let mut change = f64::INFINITY;
-        for k in 1..=max {
-            self.step(gpu, 1)?;
-            let now = self.radiance(gpu)?;
-            let peak = now.iter().flat_map(|x| x[..3].iter()).fold(0f32, |m, c| m.max(*c)) as f64;
-            let diff = now
-                .iter()
-                .zip(&before)
-                .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs()))
-                .fold(0f32, f32::max) as f64;
-            change = diff / peak.max(f64::MIN_POSITIVE);
-            before = now;
-            if change <= tol {
-                return Ok(Converged { iterations: k, converged: true, change });
+    /// Iterate until a step changes I by less than `tol` of its largest value, or `max` steps
+    /// (checked once per [`BATCH`]; the iterations reported are those run), reporting progress.
+    /// Stops at the first fault (a negative or non-finite value).
+    pub fn solve(
+        &mut self,
+        gpu: &Gpu,
+        tol: f64,
+        max: u32,
+        progress: &dyn Fn(super::Progress),
+    ) -> Result<Converged, SolverError> {
+        let mut earlier: Option<(f64, u64)> = None;
+        while self.iterations < max {
+            let changes = self.step(gpu, BATCH.min(max - self.iterations))?;
+            let it = self.iterations as u64;
+            if self.faults > 0 {
+                break;
+            }
+            if changes.iter().any(|c| *c <= tol) {
+                return Ok(Converged { iterations: self.iterations, converged: true, change: self.change });
+            }
+            progress(super::Progress::converging("networks iteration", it, self.change, tol, earlier, max as u64));
+            if earlier.is_none() {
+                earlier = Some((self.change, it));
             }
         }
-        Ok(Converged { iterations: max, converged: false, change })
+        Ok(Converged { iterations: self.iterations, converged: false, change: self.change })
     }
 }
