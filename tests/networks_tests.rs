@@ -220,7 +220,7 @@ fn the_network_furnace_stays_at_the_sky() {
     // 1, so alpha blending gives 1 wherever the splats lie (as `path` gives in a furnace).
     let mut st = scatterlab::solvers::networks::Illumination::new(&gpu, &net, &s, 0.01, true).unwrap();
     st.step(&gpu, 200).unwrap();
-    let img = st.image(&gpu, &net, 1.0).expect("image");
+    let img = st.image(&gpu, &net, 1.0, 0.0).expect("image");
     let (lo, hi) = img.image.data.iter().fold((f32::MAX, 0f32), |(l, h), x| (l.min(*x), h.max(*x)));
     eprintln!("furnace image: {lo} .. {hi}, {} splats dropped", img.dropped);
     assert!(lo > 1.0 - 1e-4 && hi < 1.0 + 1e-4, "furnace image {lo} .. {hi}");

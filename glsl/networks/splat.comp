@@ -11,6 +11,15 @@
 // the nearest first once full; overflow counted: at 96 the cloud's centre at 1024 particles
 // dropped 23158 splats over 64 x 64 pixels, at 256 none) and composited in depth order, (depth, index)
 // breaking ties: deterministic.
+//
+// Transmittance (pc.step > 0, `networks.transmittance = medium`, the default): the splats'
+// optical depths along the ray are scaled, per channel, so that they sum to the medium's own
+// optical depth along it, sigma_t times the density's integral (view.glsl's density_depth,
+// midpoint steps of pc.step): the particles still decide where along the ray the light is
+// scattered and with what radiance, but how much of the sky and of each splat the ray lets
+// through is the medium's, not the particles' (a few thousand particles give each pixel a
+// noisy sample of its optical depth: the paper's splats, pc.step = 0, keep it). A ray that
+// crosses medium but meets no splat sees the sky through the medium and no in-scattering.
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
@@ -18,6 +27,7 @@
 #define MAJORANT_BINDING 2
 #include "../include/scene.glsl"
 #include "../include/budget.glsl"
+#include "../include/view.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
@@ -31,7 +41,8 @@ layout(push_constant) uniform Push {
     vec4 sky;         // rgb: the background's radiance
     float width;      // s, the footprint's width (scene units)
     uint particles;
-    uint pad0, pad1;
+    float step;       // > 0: the medium's transmittance along the ray, by this step; 0: the splats'
+    uint pad1;
 } pc;
 
 const uint MAX_SPLATS = 256u;
@@ -69,17 +80,40 @@ void main() {
         which[at] = k;
         ++n;
     }
-    vec3 L = vec3(0.0), T = vec3(1.0);
     float norm = 1.0 / (2.0 * PI * pc.width * pc.width);
+    float inv2w2 = 1.0 / (2.0 * pc.width * pc.width);
+    // Each splat's optical depth is sigma_m K(rho) times `scale` (per channel).
+    vec3 scale = vec3(1.0);
+    vec3 T_medium = vec3(1.0);
+    if (pc.step > 0.0) {
+        vec3 tau = scene.sigma_t.rgb * density_depth(o, d, 1e30, pc.step);
+        float kernels = 0.0;
+        for (uint j = 0u; j < n; ++j) {
+            iters++;
+            vec3 v = positions[which[j]].xyz - o;
+            vec3 off = v - dot(v, d) * d;
+            kernels += norm * exp(-dot(off, off) * inv2w2);
+        }
+        vec3 splats = pc.sigma_m.rgb * kernels;
+        scale = vec3(
+            splats.r > 0.0 ? tau.r / splats.r : 0.0,
+            splats.g > 0.0 ? tau.g / splats.g : 0.0,
+            splats.b > 0.0 ? tau.b / splats.b : 0.0);
+        T_medium = exp(-tau);
+    }
+    vec3 L = vec3(0.0), T = vec3(1.0);
     for (uint j = 0u; j < n; ++j) {
         iters++;
         uint k = which[j];
         vec3 v = positions[k].xyz - o;
         vec3 off = v - dot(v, d) * d;
-        float kernel = norm * exp(-dot(off, off) / (2.0 * pc.width * pc.width));
-        vec3 alpha = vec3(1.0) - exp(-pc.sigma_m.rgb * kernel);
+        float kernel = norm * exp(-dot(off, off) * inv2w2);
+        vec3 alpha = vec3(1.0) - exp(-pc.sigma_m.rgb * kernel * scale);
         L += T * alpha * colour[k].rgb;
         T *= vec3(1.0) - alpha;
     }
+    // With the medium's transmittance, what the splats let through is exp(-tau) by
+    // construction where any splat is met; where none is, T is 1 and the medium's applies.
+    if (pc.step > 0.0) T = T_medium;
     image[px.y * scene.image.x + px.x] = vec4(L + T * pc.sky.rgb, iters > LOOP_GUARD ? -1.0 : float(dropped));
 }

@@ -56,8 +56,15 @@ pub use knobs::{Knob, Knobs, Range, Settings};
 
 /// Every solver this build ships, in the order they are listed and benched. Adding a solver
 /// is one line here (plus its own file and shader folder): `docs/architecture.md`.
-pub static SOLVERS: &[&dyn Solver] =
-    &[&path::Path, &single::Single, &lbl::Lbl, &wavefront::Wavefront, &octaves::OctavesSolver, &dom::Dom];
+pub static SOLVERS: &[&dyn Solver] = &[
+    &path::Path,
+    &single::Single,
+    &lbl::Lbl,
+    &wavefront::Wavefront,
+    &octaves::OctavesSolver,
+    &dom::Dom,
+    &networks::Networks,
+];
 
 #[derive(Debug, Error)]
 #[non_exhaustive]
@@ -243,8 +250,7 @@ pub fn names() -> Vec<&'static str> {
 /// Every kernel of every registered solver and of the test probes, each shader once.
 pub fn kernels() -> Vec<Kernel> {
     let mut out: Vec<Kernel> = Vec::new();
-    // networks: not yet a registered solver (issue 15), its kernels built and tested.
-    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(probes::kernels()).chain(networks::kernels()) {
+    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(probes::kernels()) {
         if !out.iter().any(|o| o.shader.name == k.shader.name) {
             out.push(k);
         }

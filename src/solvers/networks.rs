@@ -30,8 +30,11 @@
 //! particle to its predecessor (link.comp). [`Network::visibility_cpu`] is the same
 //! construction on the host, operation for operation, which the tests compare bit for bit.
 
+use std::time::Instant;
+
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
+use serde::Serialize;
 
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
 use crate::physics::angular::hg;
@@ -41,7 +44,10 @@ use crate::scene::{Light, Scene};
 
 use super::gpu_scene::GpuScene;
 use super::resumable::LOOP_GUARD;
-use super::SolverError;
+use super::{
+    Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung,
+    Solver, SolverError, Stats, Variant,
+};
 
 pub const COUNT: Kernel =
     Kernel { shader: shader!("networks/count"), push_bytes: std::mem::size_of::<NetworkPush>(), spec: &[] };
@@ -88,7 +94,10 @@ struct SplatPush {
     sky: [f32; 4],
     width: f32,
     particles: u32,
-    pad: [u32; 2],
+    /// > 0: each camera ray's splats scaled to the medium's optical depth along it, marched in
+    /// steps of this (scene units); 0: the splats' own transmittance (the paper's).
+    step: f32,
+    pad: u32,
 }
 
 /// The image of the splats: pixels, and how many splats were left out where more than a
@@ -887,8 +896,11 @@ impl Illumination {
     /// radiance toward the camera (glsl/networks/gather.comp), then the particles splatted
     /// front to back with alpha blending (glsl/networks/splat.comp), Gaussian footprints of the
     /// particle's radius b carrying its extinction cross-section sigma_t m.
-    /// `width`: the footprint's width in particle radii.
-    pub fn image(&self, gpu: &Gpu, net: &Network, width: f32) -> Result<Splatted, SolverError> {
+    /// `width`: the footprint's width in particle radii. `medium_step`: > 0 scales each
+    /// camera ray's splats so that their optical depths sum to the medium's along the ray
+    /// (marched in steps of it, scene units; `networks.transmittance = medium`), 0 keeps the
+    /// splats' own (the paper's).
+    pub fn image(&self, gpu: &Gpu, net: &Network, width: f32, medium_step: f32) -> Result<Splatted, SolverError> {
         let gs = &self.gs;
         let n = self.push.particles;
         let colour = gpu.buffer("networks colours", 16 * n as u64)?;
@@ -915,7 +927,8 @@ impl Illumination {
                     sky,
                     width: net.particle_radius() as f32 * width,
                     particles: n,
-                    pad: [0; 2],
+                    step: medium_step,
+                    pad: 0,
                 })
                 .cover([w, h, 1]),
         ];
@@ -974,5 +987,309 @@ impl Illumination {
             }
         }
         Ok(Converged { iterations: self.iterations, converged: false, change: self.change })
+    }
+}
+
+/// The solver `networks`: the particle model, visibility network, iteration to a tolerance and
+/// splatted image above, with its knobs.
+pub struct Networks;
+
+/// `networks`' own stats.
+#[derive(Clone, Debug, Serialize)]
+pub struct NetworksStats {
+    pub particles: u32,
+    pub directions: u32,
+    /// M: the windows' resolution.
+    pub window: u32,
+    /// A particle's opacity across a window pixel (rgb).
+    pub opacity: [f64; 3],
+    /// b: a particle's radius (scene units), the splats' footprint width at networks.footprint 1.
+    pub particle_radius: f64,
+    pub iterations: u32,
+    pub converged: bool,
+    pub final_change: f64,
+    pub splats_dropped: u64,
+    pub nonfinite_pixels: u32,
+    /// Host wall time of each stage: particles, visibility network and direct light; the
+    /// iteration; the image.
+    pub build_ms: f64,
+    pub iterate_ms: f64,
+    pub image_ms: f64,
+}
+
+/// `networks`' knob values, checked.
+#[derive(Clone, Copy, Debug)]
+pub struct NetworksSettings {
+    pub particles: u32,
+    pub directions: u32,
+    pub window: Option<u32>,
+    pub tol: f64,
+    pub max_iterations: u32,
+    pub iterations_per_frame: u32,
+    /// The direct light's (and the image's medium transmittance's) march step, scene units.
+    pub step: f32,
+    /// The splats' footprint width in particle radii.
+    pub footprint: f32,
+    /// Scale each camera ray's splats to the medium's optical depth along it.
+    pub medium_transmittance: bool,
+}
+
+impl NetworksSettings {
+    pub fn parse(k: &Knobs, scene: &Scene) -> Result<NetworksSettings, SolverError> {
+        let step: f32 = k.get_or("step", super::view::ViewSettings::default_step(scene))?;
+        let diagonal = (scene.medium.bounds_max - scene.medium.bounds_min).length();
+        if diagonal / step > (LOOP_GUARD / 2) as f32 {
+            return Err(k.invalid(
+                "step",
+                format!("{step} takes over {} steps across the medium's diagonal {diagonal}", LOOP_GUARD / 2),
+            ));
+        }
+        Ok(NetworksSettings {
+            particles: k.get("particles")?,
+            directions: k.get("directions")?,
+            window: if k.is_set("window") { Some(k.get("window")?) } else { None },
+            tol: k.get("tol")?,
+            max_iterations: k.get("max_iterations")?,
+            iterations_per_frame: k.get("iterations_per_frame")?,
+            step,
+            footprint: k.get("footprint")?,
+            medium_transmittance: k.get::<String>("transmittance")? == "medium",
+        })
+    }
+
+    /// The particle model, directions and windows of these settings for `scene` (its seed).
+    pub fn network(&self, scene: &Scene) -> Result<Network, SolverError> {
+        let seed = scene.render.seed;
+        let particles = Particles::sample(scene, self.particles, seed)?;
+        let window = Window::new(scene, &particles, self.directions, self.window);
+        Ok(Network { particles, directions: Directions::new(self.directions, seed), window })
+    }
+
+    /// The image's medium-transmittance step (0: the splats' own).
+    pub fn image_step(&self) -> f32 {
+        if self.medium_transmittance {
+            self.step
+        } else {
+            0.0
+        }
+    }
+}
+
+impl Networks {
+    /// Render with a built network and a (possibly warm) [`Illumination`]: iterate to the
+    /// tolerance, splat, report.
+    fn finish(
+        &self,
+        gpu: &Gpu,
+        req: &RenderRequest,
+        k: &Knobs,
+        set: &NetworksSettings,
+        net: &Network,
+        st: &mut Illumination,
+        build_ms: f64,
+    ) -> Result<RenderOutput, SolverError> {
+        let t = Instant::now();
+        let c = st.solve(gpu, set.tol, set.max_iterations, req.progress)?;
+        let iterate_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let img = st.image(gpu, net, set.footprint, set.image_step())?;
+        let image_ms = t.elapsed().as_secs_f64() * 1e3;
+        let m = &req.scene.medium;
+        let detail = NetworksStats {
+            particles: set.particles,
+            directions: set.directions,
+            window: net.window.m,
+            opacity: m.sigma_t.as_dvec3().map(|s| net.opacity(s)).to_array(),
+            particle_radius: net.particle_radius(),
+            iterations: c.iterations,
+            converged: c.converged,
+            final_change: c.change,
+            splats_dropped: img.dropped,
+            nonfinite_pixels: img.nonfinite,
+            build_ms,
+            iterate_ms,
+            image_ms,
+        };
+        let mut stats = Stats::new(detail);
+        stats.convergence = Some(Convergence {
+            iterations: c.iterations as u64,
+            converged: c.converged,
+            final_change: c.change,
+            tolerance: set.tol,
+        });
+        stats.faults = st.faults + img.nonfinite as u64;
+        let modelled = super::gpu_scene::modelled(req.scene, req.force_full);
+        let mut report = RenderReport::finish(gpu, self, k, modelled, st.bytes, stats);
+        let iterate_gpu_ms: f64 =
+            report.passes.iter().filter(|p| p.name == "networks.iterate").map(|p| p.duration_ms()).sum();
+        if c.iterations > 0 && iterate_gpu_ms > 0.0 {
+            let updates = set.particles as f64 * set.directions as f64 * c.iterations as f64;
+            report.stats.throughput = vec![Figure {
+                figure: "network updates/s (particle x direction)".into(),
+                value: updates / (iterate_gpu_ms * 1e-3),
+                unit: "1/s".into(),
+            }];
+        }
+        if !c.converged {
+            report.warnings.push(format!(
+                "networks: the iteration did not converge in {} iterations (change {:.2e} of the largest radiance, \
+                 tolerance {:.1e}); raise networks.max_iterations or networks.tol",
+                c.iterations, c.change, set.tol
+            ));
+        }
+        if st.faults > 0 {
+            report.warnings.push(format!(
+                "networks: the iteration went negative or non-finite ({} iterations); the image is of the last state",
+                st.faults
+            ));
+        }
+        if img.dropped > 0 {
+            report.warnings.push(format!(
+                "networks: {} splats were left out where over {MAX_SPLATS} overlapped a pixel (the farthest); use fewer \
+                 networks.particles or a smaller networks.footprint",
+                img.dropped
+            ));
+        }
+        report.warnings.extend(super::nonfinite_warning(img.nonfinite));
+        Ok(RenderOutput { image: img.image, variance: None, report })
+    }
+}
+
+/// The most splats a pixel composites (glsl/networks/splat.comp's MAX_SPLATS).
+pub const MAX_SPLATS: u32 = 256;
+
+impl Solver for Networks {
+    fn name(&self) -> &'static str {
+        "networks"
+    }
+
+    fn about(&self) -> &'static str {
+        "illumination networks over a particle model, iterated on the GPU (Szirmay-Kalos, Sbert, Umenhoffer 2005)"
+    }
+
+    fn knobs(&self) -> Vec<Knob> {
+        vec![
+            Knob::fixed(
+                "particles",
+                "1024",
+                Range::int(16, 16384),
+                "particles N, drawn in proportion to the density (the paper's 1024-particle cloud)",
+            ),
+            Knob::fixed(
+                "directions",
+                "128",
+                Range::int(4, 1024),
+                "discrete directions D shared by all particles (the paper's 128); an iteration costs N D^2",
+            ),
+            Knob::derived(
+                "window",
+                "the paper's rule D (R tau)^2 / pi >= M^2, capped so a particle's optical depth across a pixel is at \
+                 most 0.3, at least sqrt(N / 64)",
+                Range::int(1, MAX_WINDOW as u64),
+                "window resolution M (M x M pixels per direction)",
+            ),
+            Knob::fixed(
+                "tol",
+                "1e-4",
+                Range::open_unit(),
+                "convergence: largest change of the radiance in one iteration, relative to its largest value",
+            ),
+            Knob::fixed("max_iterations", "2000", Range::int(1, 1 << 20), "iterations at most"),
+            Knob::fixed(
+                "iterations_per_frame",
+                "1",
+                Range::int(1, 1 << 20),
+                "scatterlab animate: iterations per frame after a light move, from the previous frame's solution \
+                 (the paper uses 1)",
+            ),
+            Knob::derived(
+                "step",
+                "1/128 of the medium's diagonal",
+                Range::positive(),
+                "transmittance march step (scene units) of the direct light and the image's medium transmittance",
+            ),
+            Knob::fixed(
+                "footprint",
+                "1",
+                Range::Real { min: 0.1, max: 4.0, min_open: false, max_open: false },
+                "splat width in particle radii (Gaussian; cut at three widths)",
+            ),
+            Knob::fixed(
+                "transmittance",
+                "medium",
+                Range::Choice(&["medium", "splats"]),
+                "medium: each camera ray's splats scaled to the medium's optical depth along it (exact \
+                 transmittance); splats: the splats' own opacity (the paper's)",
+            ),
+        ]
+    }
+
+    fn kernels(&self) -> Vec<Kernel> {
+        kernels()
+    }
+
+    fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
+        let scene = req.scene;
+        let k = req.knobs(self)?;
+        let set = NetworksSettings::parse(&k, scene)?;
+        k.finish()?;
+        let t = Instant::now();
+        (req.progress)(Progress::work("network", 0, 1));
+        let net = set.network(scene)?;
+        let mut st = Illumination::new(gpu, &net, scene, set.step, req.force_full)?;
+        (req.progress)(Progress::work("network", 1, 1));
+        let build_ms = t.elapsed().as_secs_f64() * 1e3;
+        self.finish(gpu, req, &k, &set, &net, &mut st, build_ms)
+    }
+
+    fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
+        let set = NetworksSettings::parse(knobs, scene)?;
+        Ok(Illumination::device_bytes(&set.network(scene)?, scene))
+    }
+
+    fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
+        // Particles and directions grow together (an iteration costs N D^2); the paper's
+        // setting (1024 x 128) is the third rung.
+        [(256u32, 32u32), (512, 64), (1024, 128), (4096, 128), (4096, 256), (16384, 256)]
+            .iter()
+            .map(|(n, d)| Rung {
+                knob: "networks.particles".into(),
+                value: format!("{n}/{d}"),
+                sets: vec![("networks.particles".into(), n.to_string()), ("networks.directions".into(), d.to_string())],
+            })
+            .collect()
+    }
+
+    fn stability(&self) -> Vec<Variant> {
+        vec![Variant::new("", &[("networks.particles", "256"), ("networks.directions", "32")])]
+    }
+
+    fn headline(&self, quick: bool) -> Option<Headline> {
+        let (n, d, size) = if quick { ("256", "32", "64") } else { ("1024", "128", "512") };
+        Some(Headline::new(
+            format!("networks cloud {n} particles x {d} directions, {size}^2"),
+            "cloud.toml",
+            &[("render.width", size), ("render.height", size), ("networks.particles", n), ("networks.directions", d)],
+            if quick { "" } else { "networks paper: 1024 particles x 128 directions at 26 fps (NV6800GT, 2005)" },
+        ))
+    }
+
+    fn summary(&self, report: &RenderReport) -> Vec<String> {
+        let Some(s) = report.detail::<NetworksStats>() else { return Vec::new() };
+        vec![format!(
+            "networks: {} particles x {} directions, {}x{} windows (particle opacity {:.2}), {} iterations ({}, change \
+             {:.1e}); network {:.0} ms, iteration {:.0} ms, image {:.0} ms",
+            s.particles,
+            s.directions,
+            s.window,
+            s.window,
+            s.opacity.iter().fold(0.0f64, |a, b| a.max(*b)),
+            s.iterations,
+            if s.converged { "converged" } else { "NOT converged" },
+            s.final_change,
+            s.build_ms,
+            s.iterate_ms,
+            s.image_ms
+        )]
     }
 }
