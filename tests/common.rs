@@ -12,6 +12,7 @@ pub const PATH: &dyn Solver = &scatterlab::solvers::path::Path;
 pub const SINGLE: &dyn Solver = &scatterlab::solvers::single::Single;
 pub const LBL: &dyn Solver = &scatterlab::solvers::lbl::Lbl;
 pub const WAVEFRONT: &dyn Solver = &scatterlab::solvers::wavefront::Wavefront;
+pub const NETWORKS: &dyn Solver = &scatterlab::solvers::networks::Networks;
 
 /// The device every GPU test uses, validation layer on. A missing device or layer fails the
 /// test: a test never passes for want of a device.
