@@ -30,6 +30,7 @@ macro_rules! outln {
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => super::render::render(a),
+        Command::Animate(a) => super::animate::animate(a),
         Command::Compare(a) => compare(a),
         Command::Export(a) => export(a),
         Command::Devices { gpu, json } => devices(&gpu, json),

@@ -1,6 +1,7 @@
 //! The command line: parse raw arguments (clap), validate them into a ready-to-run request,
 //! run it, and turn any error into one line on stderr and a non-zero exit code.
 
+mod animate;
 mod commands;
 mod render;
 
@@ -44,10 +45,48 @@ pub struct GpuArgs {
     pub queues: Option<String>,
 }
 
+#[derive(Args, Debug)]
+pub struct AnimateArgs {
+    /// Scene file (TOML): its first light (point or directional) orbits.
+    pub scene: PathBuf,
+    /// The solver: one that keeps its solution from frame to frame.
+    #[arg(long, value_parser = solver_names())]
+    pub solver: String,
+    /// Degrees the light turns per frame.
+    #[arg(long, value_name = "DEG", default_value_t = 5.0, allow_negative_numbers = true)]
+    pub orbit_light: f64,
+    /// Frames (the first iterates from zero to the solver's tolerance).
+    #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub frames: u32,
+    /// Directory for frame-NNNN.exr and frames.csv (created if missing).
+    #[arg(long)]
+    pub out_dir: PathBuf,
+    /// Also write each frame as a tone-mapped PNG (the scene's render.exposure).
+    #[arg(long)]
+    pub png: bool,
+    /// Skip the converged reference of every frame (no relL2 column; half the work or less).
+    #[arg(long)]
+    pub no_reference: bool,
+    /// Override a scene key or set a solver knob, as `render --set` (the per-frame iterations:
+    /// the solver's `iterations_per_frame` knob where it has one). Repeatable.
+    #[arg(long, value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// No progress bar and no per-frame lines.
+    #[arg(long)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub gpu: GpuArgs,
+}
+
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Render a scene to EXR or PFM (linear) and/or PNG (tone-mapped), with a JSON report.
     Render(RenderArgs),
+    /// Render a sequence in which the first light orbits the medium (about +y through its
+    /// centre), each frame warm started from the previous frame's solution, for solvers that
+    /// keep one: the frames and frames.csv (per frame: time, iterations, relL2 and energy ratio
+    /// against the same frame iterated to the tolerance).
+    Animate(AnimateArgs),
     /// Compare two EXR images: relL2 (and without the images' noise where they carry variance
     /// layers), relMSE, RMSE, energy ratio, max error, NaN/Inf count.
     Compare(CompareArgs),

@@ -2,6 +2,7 @@
 //! and the commands that walk solvers over scenes (`bench`, `stability`). Solvers are reached
 //! only through [`crate::solvers::Solver`]: nothing here names one.
 
+pub mod animate;
 pub mod bench;
 pub mod report;
 pub mod stability;

@@ -30,8 +30,8 @@ use super::view::{self, MsVolume, ViewSettings};
 use super::wave_field::{self, wave_volume, WaveSettings};
 use super::Progress;
 use super::{
-    Convergence, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule,
-    Solver, SolverError, Stats, Variant,
+    Animation, Convergence, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung,
+    Schedule, Solver, SolverError, Stats, Variant,
 };
 
 pub struct Lbl;
@@ -81,6 +81,13 @@ impl Solver for Lbl {
                  with lbl.extrapolate)",
             ),
             Knob::fixed("max_iters", "20000", Range::int(1, 1 << 26), "lattice iterations at most"),
+            Knob::derived(
+                "iterations_per_frame",
+                "to the tolerance (lbl.tol)",
+                Range::int(1, 1 << 26),
+                "scatterlab animate: lattice iterations of each frame after the first, from the previous frame's \
+                 field (d3q6)",
+            ),
             Knob::fixed(
                 "extrapolate",
                 "true",
@@ -166,65 +173,30 @@ impl Solver for Lbl {
     }
 
     fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
-        let scene = req.scene;
         let k = req.knobs(self)?;
-        let set = LblSettings::parse(&k, scene)?;
+        let set = LblSettings::parse(&k, req.scene)?;
         k.finish()?;
-        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-        let lat = run_lattice(gpu, scene, &gs, &set, req.progress)?;
-        let g = &lat.stats.lattice;
-        let ms = MsVolume {
-            energy: &lat.irradiance_buffer,
-            dims: g.dims,
-            channels: lat.stats.channels,
-            origin: g.origin,
-            lambda: g.lambda,
-            flux: if lat.stats.flux { set.flux } else { view::FluxUse::None },
-            window: None,
-        };
-        let mut view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
-        if let Some(n) = &lat.stats.near_light {
-            // The near ball's light, lumped into the light: 1 / (1 - k) times the image
-            // (NearLight).
-            for px in view.image.data.chunks_exact_mut(3) {
-                for c in 0..3 {
-                    px[c] = (px[c] as f64 / (1.0 - n.k[c])) as f32;
-                }
+        Ok(self.render_with(gpu, req.scene, req.force_full, &k, &set, req.progress)?.0)
+    }
+
+    fn animation(&self, req: &RenderRequest, converge: bool) -> Result<Option<Box<dyn Animation>>, SolverError> {
+        let knobs = req.knobs(self)?;
+        let mut set = LblSettings::parse(&knobs, req.scene)?;
+        knobs.finish()?;
+        if set.lattice != Lattice::D3q6 {
+            return Err(knobs.invalid("lattice", "animate starts each frame from the last on the d3q6 lattice only"));
+        }
+        if set.near_light > 0.0 {
+            if knobs.is_set("near_light") {
+                return Err(knobs.invalid(
+                    "near_light",
+                    "a frame started from the previous frame's field cannot lump the near ball; set lbl.near_light=0",
+                ));
             }
+            // Derived: off for the whole sequence, so every frame is the same method.
+            set.near_light = 0.0;
         }
-        let bytes = gs.bytes + view.device_bytes + lat.stats.device_bytes;
-        let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, Stats::new(()));
-        let mut ls = lat.stats;
-        ls.diffuse_ms = report.passes.iter().filter(|p| p.name == "lattice.diffuse").map(|p| p.duration_ms()).sum();
-        ls.view_dispatches = view.dispatches;
-        if !ls.converged {
-            report.warnings.push(format!(
-                "lbl: the lattice did not converge in {} iterations (relative change {:.2e} per iteration, tolerance \
-                    {:.1e}); raise lbl.max_iters or lbl.tol",
-                ls.iterations, ls.final_change, set.tol
-            ));
-        }
-        report.warnings.extend(super::nonfinite_warning(view.nonfinite_pixels));
-        let mut stats = Stats::new(ls.clone());
-        stats.convergence = Some(Convergence {
-            iterations: ls.iterations as u64,
-            converged: ls.converged,
-            final_change: ls.final_change,
-            tolerance: set.tol as f64,
-        });
-        stats.faults = view.nonfinite_pixels as u64;
-        if ls.diffuse_ms > 0.0 {
-            let ups = ls.lattice.voxels() as f64 * ls.iterations as f64 / (ls.diffuse_ms * 1e-3);
-            // Per voxel-update at least: 6 links read and written, 1 irradiance
-            // read-modify-write, 1 density read, 4 bytes each, per channel.
-            let bytes = (ls.channels as f64 * (6.0 * 2.0 + 2.0) + 1.0) * 4.0;
-            stats.throughput = vec![
-                Figure { figure: "lattice voxel-updates/s".into(), value: ups, unit: "1/s".into() },
-                Figure { figure: "lattice effective bandwidth".into(), value: ups * bytes / 1e9, unit: "GB/s".into() },
-            ];
-        }
-        report.stats = stats;
-        Ok(RenderOutput { image: view.image, variance: None, report })
+        Ok(Some(Box::new(LblAnimation { knobs, set, converge })))
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
@@ -306,6 +278,102 @@ impl Solver for Lbl {
                 (true, Some(t)) => format!("converged; tail extrapolated: {:.1}% of the fluence", 100.0 * t.share),
             }
         )]
+    }
+}
+
+impl Lbl {
+    /// A render with parsed settings; also returns the lattice's time-integrated field (the
+    /// irradiance buffer, [c V + v]) for the next frame of an animation to start from.
+    fn render_with(
+        &self,
+        gpu: &Gpu,
+        scene: &Scene,
+        force_full: bool,
+        k: &Knobs,
+        set: &LblSettings,
+        progress: &dyn Fn(Progress),
+    ) -> Result<(RenderOutput, Vec<f32>), SolverError> {
+        let gs = GpuScene::upload(gpu, scene, force_full)?;
+        let lat = run_lattice(gpu, scene, &gs, set, progress)?;
+        let g = &lat.stats.lattice;
+        let ms = MsVolume {
+            energy: &lat.irradiance_buffer,
+            dims: g.dims,
+            channels: lat.stats.channels,
+            origin: g.origin,
+            lambda: g.lambda,
+            flux: if lat.stats.flux { set.flux } else { view::FluxUse::None },
+            window: None,
+        };
+        let mut view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
+        if let Some(n) = &lat.stats.near_light {
+            // The near ball's light, lumped into the light: 1 / (1 - k) times the image
+            // (NearLight).
+            for px in view.image.data.chunks_exact_mut(3) {
+                for c in 0..3 {
+                    px[c] = (px[c] as f64 / (1.0 - n.k[c])) as f32;
+                }
+            }
+        }
+        let bytes = gs.bytes + view.device_bytes + lat.stats.device_bytes;
+        let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), bytes, Stats::new(()));
+        let mut ls = lat.stats;
+        ls.diffuse_ms = report.passes.iter().filter(|p| p.name == "lattice.diffuse").map(|p| p.duration_ms()).sum();
+        ls.view_dispatches = view.dispatches;
+        if !ls.converged {
+            report.warnings.push(format!(
+                "lbl: the lattice did not converge in {} iterations (relative change {:.2e} per iteration, tolerance \
+                    {:.1e}); raise lbl.max_iters or lbl.tol",
+                ls.iterations, ls.final_change, set.tol
+            ));
+        }
+        report.warnings.extend(super::nonfinite_warning(view.nonfinite_pixels));
+        let mut stats = Stats::new(ls.clone());
+        stats.convergence = Some(Convergence {
+            iterations: ls.iterations as u64,
+            converged: ls.converged,
+            final_change: ls.final_change,
+            tolerance: set.tol as f64,
+        });
+        stats.faults = view.nonfinite_pixels as u64;
+        if ls.diffuse_ms > 0.0 {
+            let ups = ls.lattice.voxels() as f64 * ls.iterations as f64 / (ls.diffuse_ms * 1e-3);
+            // Per voxel-update at least: 6 links read and written, 1 irradiance
+            // read-modify-write, 1 density read, 4 bytes each, per channel.
+            let bytes = (ls.channels as f64 * (6.0 * 2.0 + 2.0) + 1.0) * 4.0;
+            stats.throughput = vec![
+                Figure { figure: "lattice voxel-updates/s".into(), value: ups, unit: "1/s".into() },
+                Figure { figure: "lattice effective bandwidth".into(), value: ups * bytes / 1e9, unit: "GB/s".into() },
+            ];
+        }
+        report.stats = stats;
+        Ok((RenderOutput { image: view.image, variance: None, report }, lat.irradiance))
+    }
+}
+
+/// An `lbl` sequence: every frame marches its light anew; after the first, the lattice starts
+/// from the previous frame's field (the wavefront paper's initial guess, section 1.1, with
+/// the last frame as the guess) and runs `lbl.iterations_per_frame` steps, or to the
+/// tolerance.
+struct LblAnimation {
+    knobs: Knobs,
+    set: LblSettings,
+    converge: bool,
+}
+
+impl Animation for LblAnimation {
+    fn frame(&mut self, gpu: &Gpu, scene: &Scene, progress: &dyn Fn(Progress)) -> Result<RenderOutput, SolverError> {
+        let mut set = self.set.clone();
+        if set.previous.is_some() {
+            // Later frames: no cascade (the previous field is the guess).
+            set.cascade = 0;
+            if let (false, Some(k)) = (self.converge, set.iterations_per_frame) {
+                set.max_iters = k;
+            }
+        }
+        let (out, field) = Lbl.render_with(gpu, scene, false, &self.knobs, &set, progress)?;
+        self.set.previous = Some(field);
+        Ok(out)
     }
 }
 
@@ -391,6 +459,11 @@ pub struct LblSettings {
     /// Anisotropic media: how the view pass scatters the lattice's flux (`lbl.flux`; `None`:
     /// the lattice keeps no flux).
     pub flux: view::FluxUse,
+    /// `scatterlab animate`: the previous frame's time-integrated field (the lattice's
+    /// irradiance buffer, [c V + v]) to start from, and the iterations of a frame after the
+    /// first (`lbl.iterations_per_frame`; `None`: to the tolerance).
+    pub previous: Option<Vec<f32>>,
+    pub iterations_per_frame: Option<u32>,
 }
 
 impl LblSettings {
@@ -436,6 +509,12 @@ impl LblSettings {
                 "lobe" => view::FluxUse::Lobe,
                 _ => view::FluxUse::None,
             },
+            previous: None,
+            iterations_per_frame: if k.is_set("iterations_per_frame") {
+                Some(k.get("iterations_per_frame")?)
+            } else {
+                None
+            },
         };
         let lattice = out.lattice;
         let mut out = LblSettings { cascade: k.get("cascade")?, ..out };
@@ -473,7 +552,7 @@ impl LblSettings {
     /// Whether the lattice runs all rounds of marching before it iterates (a warm start or a
     /// cascadic start needs every deposit first).
     fn seeded(&self) -> bool {
-        self.warm_start.is_some() || self.cascade > 0
+        self.warm_start.is_some() || self.cascade > 0 || self.previous.is_some()
     }
 
     /// Channels the lattice carries ([`gpu_scene::channels`]).
@@ -685,6 +764,26 @@ pub fn run_lattice(
     } else if set.cascade > 0 {
         let (guess, iterations) = cascade(gpu, set, &marcher, &params)?;
         cascade_iterations = iterations;
+        let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
+        seed(gpu, &mut lattice, &guess.links(nch as usize, v as usize), Some(&inject), None)?;
+    } else if let Some(previous) = &set.previous {
+        // The previous frame's field, same lattice: its fluence as it is, and its flux where
+        // the lattice integrated one (params.flux), else by Fick's law (the cascade's
+        // prolongation at a factor of 1).
+        let e = nch as usize * v as usize;
+        if previous.len() != e && previous.len() != 4 * e {
+            return Err(SolverError::Unsupported(
+                "lbl: the previous frame's lattice has another size or channel count".to_string(),
+            ));
+        }
+        let (energy, flux) = previous.split_at(e);
+        let g = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: nch as usize };
+        let guess = if flux.is_empty() {
+            let density = lattice::read_f32(gpu, &marcher.density)?;
+            prolong(&g, geom.dims, geom.lambda, geom.dims, geom.lambda, &density, &params)
+        } else {
+            g
+        };
         let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
         seed(gpu, &mut lattice, &guess.links(nch as usize, v as usize), Some(&inject), None)?;
     }

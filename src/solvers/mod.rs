@@ -133,6 +133,21 @@ pub trait Solver: Sync {
     fn summary(&self, _report: &RenderReport) -> Vec<String> {
         Vec::new()
     }
+    /// A sequence of frames in which the lights move (`scatterlab animate`), each frame warm
+    /// started from the previous frame's solution, where the solver has a solution to start
+    /// from: `None` where it has not. `converge`: every frame iterates to the solver's
+    /// tolerance (the reference a warm sequence is measured against), else each frame after the
+    /// first runs the solver's per-frame iterations. `req.scene` is the first frame.
+    fn animation(&self, _req: &RenderRequest, _converge: bool) -> Result<Option<Box<dyn Animation>>, SolverError> {
+        Ok(None)
+    }
+}
+
+/// The state of a warm-started sequence ([`Solver::animation`]).
+pub trait Animation {
+    /// Render `scene`: the first frame's medium, camera and image size with its lights moved
+    /// (same number and kinds). The first call iterates from a cold start to the tolerance.
+    fn frame(&mut self, gpu: &Gpu, scene: &Scene, progress: &dyn Fn(Progress)) -> Result<RenderOutput, SolverError>;
 }
 
 /// A workload of `scatterlab report`: a scene of `scenes/` with keys set, and what the seed

@@ -1076,30 +1076,30 @@ impl NetworksSettings {
 }
 
 impl Networks {
-    /// Render with a built network and a (possibly warm) [`Illumination`]: iterate to the
-    /// tolerance, splat, report.
+    /// The image and report of an [`Illumination`] after its iteration (`c`, in `iterate_ms`
+    /// of host wall time; `build_ms` before it).
+    #[allow(clippy::too_many_arguments)]
     fn finish(
         &self,
         gpu: &Gpu,
-        req: &RenderRequest,
+        scene: &Scene,
+        force_full: bool,
         k: &Knobs,
         set: &NetworksSettings,
         net: &Network,
-        st: &mut Illumination,
+        st: &Illumination,
+        c: Converged,
         build_ms: f64,
+        iterate_ms: f64,
     ) -> Result<RenderOutput, SolverError> {
-        let t = Instant::now();
-        let c = st.solve(gpu, set.tol, set.max_iterations, req.progress)?;
-        let iterate_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
         let img = st.image(gpu, net, set.footprint, set.image_step())?;
         let image_ms = t.elapsed().as_secs_f64() * 1e3;
-        let m = &req.scene.medium;
         let detail = NetworksStats {
             particles: set.particles,
             directions: set.directions,
             window: net.window.m,
-            opacity: m.sigma_t.as_dvec3().map(|s| net.opacity(s)).to_array(),
+            opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.opacity(s)).to_array(),
             particle_radius: net.particle_radius(),
             iterations: c.iterations,
             converged: c.converged,
@@ -1118,7 +1118,7 @@ impl Networks {
             tolerance: set.tol,
         });
         stats.faults = st.faults + img.nonfinite as u64;
-        let modelled = super::gpu_scene::modelled(req.scene, req.force_full);
+        let modelled = super::gpu_scene::modelled(scene, force_full);
         let mut report = RenderReport::finish(gpu, self, k, modelled, st.bytes, stats);
         let iterate_gpu_ms: f64 =
             report.passes.iter().filter(|p| p.name == "networks.iterate").map(|p| p.duration_ms()).sum();
@@ -1130,7 +1130,7 @@ impl Networks {
                 unit: "1/s".into(),
             }];
         }
-        if !c.converged {
+        if !c.converged && c.change > set.tol {
             report.warnings.push(format!(
                 "networks: the iteration did not converge in {} iterations (change {:.2e} of the largest radiance, \
                  tolerance {:.1e}); raise networks.max_iterations or networks.tol",
@@ -1152,6 +1152,42 @@ impl Networks {
         }
         report.warnings.extend(super::nonfinite_warning(img.nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
+    }
+}
+
+/// A `networks` sequence: the network is built once (the medium does not move); each frame
+/// recomputes the direct light and iterates from the previous frame's radiance (paper 4).
+struct NetworksAnimation {
+    knobs: Knobs,
+    set: NetworksSettings,
+    net: Network,
+    state: Option<Illumination>,
+    converge: bool,
+    force_full: bool,
+}
+
+impl super::Animation for NetworksAnimation {
+    fn frame(&mut self, gpu: &Gpu, scene: &Scene, progress: &dyn Fn(Progress)) -> Result<RenderOutput, SolverError> {
+        let set = self.set;
+        let t = Instant::now();
+        let first = self.state.is_none();
+        let st = match &mut self.state {
+            Some(st) => {
+                st.set_lights(gpu, &self.net, scene)?;
+                st
+            }
+            None => self.state.insert(Illumination::new(gpu, &self.net, scene, set.step, self.force_full)?),
+        };
+        let build_ms = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let c = if first || self.converge {
+            st.solve(gpu, set.tol, set.max_iterations, progress)?
+        } else {
+            st.step(gpu, set.iterations_per_frame)?;
+            Converged { iterations: st.iterations, converged: st.change <= set.tol, change: st.change }
+        };
+        let iterate_ms = t.elapsed().as_secs_f64() * 1e3;
+        Networks.finish(gpu, scene, self.force_full, &self.knobs, &set, &self.net, st, c, build_ms, iterate_ms)
     }
 }
 
@@ -1239,7 +1275,18 @@ impl Solver for Networks {
         let mut st = Illumination::new(gpu, &net, scene, set.step, req.force_full)?;
         (req.progress)(Progress::work("network", 1, 1));
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
-        self.finish(gpu, req, &k, &set, &net, &mut st, build_ms)
+        let t = Instant::now();
+        let c = st.solve(gpu, set.tol, set.max_iterations, req.progress)?;
+        let iterate_ms = t.elapsed().as_secs_f64() * 1e3;
+        self.finish(gpu, scene, req.force_full, &k, &set, &net, &st, c, build_ms, iterate_ms)
+    }
+
+    fn animation(&self, req: &RenderRequest, converge: bool) -> Result<Option<Box<dyn super::Animation>>, SolverError> {
+        let knobs = req.knobs(self)?;
+        let set = NetworksSettings::parse(&knobs, req.scene)?;
+        knobs.finish()?;
+        let net = set.network(req.scene)?;
+        Ok(Some(Box::new(NetworksAnimation { knobs, set, net, state: None, converge, force_full: req.force_full })))
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {

@@ -1,0 +1,125 @@
+//! `scatterlab animate`: flags to an orbit, the sequence ([`crate::measure::animate`]), each
+//! frame written as it finishes (EXR, and PNG on request) and `frames.csv` rewritten after
+//! every frame, so an interrupted run keeps what it finished. Nothing here knows a solver.
+
+use anyhow::{anyhow, bail, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::commands::{check_validation, gpu_options, parse_sets};
+use super::AnimateArgs;
+use crate::gpu::Gpu;
+use crate::measure::animate::{self, Orbit};
+use crate::output;
+use crate::scene::{is_scene_key, LoadOptions, Scene};
+use crate::solvers::{self, Progress, Settings};
+
+pub fn animate(a: AnimateArgs) -> Result<()> {
+    let solver = solvers::find(&a.solver)?;
+    if !a.orbit_light.is_finite() {
+        bail!("--orbit-light {}: degrees per frame must be a finite number", a.orbit_light);
+    }
+    let sets = parse_sets(&a.set)?;
+    let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = sets.into_iter().partition(|(k, _)| is_scene_key(k));
+    let settings = Settings::new(&knob_sets);
+    solvers::check_settings(&settings, &[solver])?;
+    let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions::default())?;
+    animate::orbit(&scene, 0.0).map_err(|e| anyhow!("{}: {e}", a.scene.display()))?;
+    // Before any device work: the solver must keep a solution to start the next frame from,
+    // and its knobs must make a sequence (a solver checks what its warm start needs).
+    let req = solvers::RenderRequest { scene: &scene, settings: &settings, force_full: false, progress: &|_| {} };
+    if solver.animation(&req, false)?.is_none() {
+        let able: Vec<&str> = solvers::SOLVERS
+            .iter()
+            .filter(|s| s.animation(&req, false).is_ok_and(|x| x.is_some()))
+            .map(|s| s.name())
+            .collect();
+        bail!(
+            "--solver {}: it keeps no solution to start the next frame from; animate takes {}",
+            solver.name(),
+            able.join(" or ")
+        );
+    }
+    if a.out_dir.is_file() {
+        bail!("--out-dir {}: a file is in the way; choose a directory", a.out_dir.display());
+    }
+    std::fs::create_dir_all(&a.out_dir)
+        .map_err(|e| anyhow!("--out-dir {}: cannot create the directory: {e}", a.out_dir.display()))?;
+    let gpu = Gpu::new(&gpu_options(&a.gpu))?;
+    if !a.quiet {
+        let info = gpu.info();
+        eprintln!("device: {} ({}), queues: {}", info.name, info.device_type, info.mapping.describe());
+    }
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(a.frames as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} frames ({elapsed}, eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_message(format!("{} {}", solver.name(), a.scene.display()));
+    bar.enable_steady_tick(std::time::Duration::from_millis(150));
+    let progress = |p: Progress| {
+        if let Progress::Converging { iteration, change, tol, .. } = p {
+            bar.set_message(format!(
+                "{} {}: iteration {iteration}, change {change:.1e} (tolerance {tol:.0e})",
+                solver.name(),
+                a.scene.display()
+            ));
+        }
+    };
+    let exposure = scene.render.exposure;
+    let csv_path = a.out_dir.join("frames.csv");
+    let mut rows = Vec::new();
+    let mut on_frame = |image: &output::Image, _: &solvers::RenderOutput, row: &animate::FrameRow| {
+        let stem = a.out_dir.join(format!("frame-{:04}", row.frame));
+        output::write_exr(&stem.with_extension("exr"), &[("", image)]).map_err(|e| e.to_string())?;
+        if a.png {
+            output::write_png_tonemapped(&stem.with_extension("png"), image, exposure).map_err(|e| e.to_string())?;
+        }
+        rows.push(row.clone());
+        output::write_text(&csv_path, animate::csv(&rows)?).map_err(|e| e.to_string())?;
+        bar.inc(1);
+        if !a.quiet {
+            bar.suspend(|| {
+                eprintln!(
+                    "frame {:4} at {:7.2} deg: {:8.1} ms, {:4} iterations{}",
+                    row.frame,
+                    row.angle_deg,
+                    row.time_ms,
+                    row.iterations,
+                    row.rel_l2
+                        .map(|r| format!(", relL2 {r:.2e} to the converged frame ({} iterations)", {
+                            row.reference_iterations.unwrap_or(0)
+                        }))
+                        .unwrap_or_default()
+                )
+            });
+        }
+        Ok(())
+    };
+    let orbit = Orbit { frames: a.frames, step_deg: a.orbit_light, reference: !a.no_reference };
+    let result = animate::run(&gpu, solver, &scene, &settings, &orbit, &progress, &mut on_frame);
+    bar.finish_and_clear();
+    let rows = result.map_err(|e| anyhow!(e))?;
+    check_validation(&gpu)?;
+    let later: Vec<&animate::FrameRow> = rows.iter().skip(1).collect();
+    if !later.is_empty() {
+        let mean_ms = later.iter().map(|r| r.time_ms).sum::<f64>() / later.len() as f64;
+        let errors: Vec<f64> = later.iter().filter_map(|r| r.rel_l2).collect();
+        eprintln!(
+            "{} frames after the first: {:.1} ms a frame ({:.2} frames/s){}",
+            later.len(),
+            mean_ms,
+            1e3 / mean_ms,
+            if errors.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    ", relL2 to the converged frames mean {:.2e}, largest {:.2e}",
+                    errors.iter().sum::<f64>() / errors.len() as f64,
+                    errors.iter().fold(0.0f64, |m, e| m.max(*e))
+                )
+            }
+        );
+    }
+    eprintln!("wrote {} frames and {} in {}", rows.len(), csv_path.display(), a.out_dir.display());
+    Ok(())
+}
