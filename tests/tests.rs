@@ -1,6 +1,7 @@
 //! All integration tests in one binary (ripgrep style) so ash and gpu-allocator link once.
 //! GPU tests run on whatever Vulkan device the loader finds (lavapipe in CI) with the
 //! validation layer on; a missing device is a failure, never a skip.
+mod animate_tests;
 mod bench_tests;
 mod cli_tests;
 mod common;
