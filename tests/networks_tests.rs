@@ -4,17 +4,22 @@
 //! construction exactly, and every window column is one chain from the sky down.
 
 use glam::Vec3;
-use scatterlab::solvers::networks::{Directions, Network, Particles, Window, MAX_COLUMN, NONE};
+use scatterlab::solvers::networks::{Directions, Network, Particles, Window, WindowRule, MAX_COLUMN, NONE};
 
 const _: () = assert!(400 > MAX_COLUMN, "the crowded test needs a column over the limit");
 
 use crate::common::{assert_clean, gpu, repo_scene};
 
 fn network(scene: &str, sets: &[(&str, &str)], n: u32, d: u32, m: Option<u32>) -> Network {
+    network_by(scene, sets, n, d, m, WindowRule::Fit)
+}
+
+fn network_by(scene: &str, sets: &[(&str, &str)], n: u32, d: u32, m: Option<u32>, rule: WindowRule) -> Network {
     let s = repo_scene(scene, sets);
     let particles = Particles::sample(&s, n, s.render.seed).expect("particles");
-    let window = Window::new(&s, &particles, d, m);
-    Network { particles, directions: Directions::new(d, s.render.seed), window }
+    let directions = Directions::new(d, s.render.seed);
+    let window = Window::new(&s, &particles, &directions, m, rule);
+    Network { particles, directions, window }
 }
 
 /// Particles land only where the density is (inside the sphere of the sphere scene, in
@@ -193,8 +198,9 @@ fn the_network_furnace_stays_at_the_sky() {
          [[light]]\nkind = \"environment\"\nradiance = 1.0\n",
     );
     let particles = Particles::sample(&s, 300, 3).unwrap();
-    let window = Window::new(&s, &particles, 32, None);
-    let net = Network { particles, directions: Directions::new(32, 3), window };
+    let directions = Directions::new(32, 3);
+    let window = Window::new(&s, &particles, &directions, None, WindowRule::Fit);
+    let net = Network { particles, directions, window };
     let (p, before) = phase_matrix(&net.directions, 0.9);
     eprintln!("rows of the unbalanced quadrature off 1 by up to {before:.3}");
     assert!(before > 0.1, "the quadrature as given misses 1 by {before}");
@@ -229,21 +235,38 @@ fn the_network_furnace_stays_at_the_sky() {
 
 /// A thin medium (optical radius 0.02): the paper's rule alone would give a 1 x 1 window, one
 /// column holding every particle, past what one sort takes; the window is kept at 64
-/// particles a pixel on average, and the network builds and equals the host's.
+/// particles a pixel on average, and the network builds and equals the host's. The default
+/// rule (`fit`) picks a finer window there, whose occupied columns hold 8 particles on average
+/// (and twice as fine, fewer).
 #[test]
 fn a_thin_medium_keeps_its_columns_sortable() {
     let gpu = gpu();
-    let net = network("scenes/homogeneous-sphere.toml", &[("medium.sigma_t", "0.05")], 1024, 16, None);
+    let thin = [("medium.sigma_t", "0.05")];
+    let net = network_by("scenes/homogeneous-sphere.toml", &thin, 1024, 16, None, WindowRule::Paper);
     assert_eq!(net.window.m, 4, "sqrt(1024 / 64)");
     assert_eq!(net.visibility(&gpu).expect("a thin network"), net.visibility_cpu());
+    let fit = network("scenes/homogeneous-sphere.toml", &thin, 1024, 16, None);
+    let column = |m: u32| {
+        scatterlab::solvers::networks::mean_column(
+            &fit.particles,
+            &fit.directions,
+            fit.window.centre,
+            fit.window.radius,
+            m,
+        )
+    };
+    let m = fit.window.m;
+    eprintln!("fit: M {m}, {:.1} particles to an occupied column ({:.1} at 2M)", column(m), column(2 * m));
+    assert!(m > 4 && column(m) >= 8.0 && column(2 * m) < 8.0, "M {m}: {} / {}", column(m), column(2 * m));
+    assert_eq!(fit.visibility(&gpu).expect("a thin network"), fit.visibility_cpu());
     assert_clean(&gpu);
 }
 
 /// The paper's warm start (4: each frame starts from the previous light position's solution):
 /// on the cloud (800 particles, 32 directions) the sun turned by about 6 degrees, one iteration
 /// from the old converged solution is closer to the new converged solution than ten iterations
-/// from zero: relL2 0.112 against 0.594, asserted at least 3x. Both solves report convergence
-/// to 1e-6 (in 148 and 146 iterations).
+/// from zero: relL2 0.104 against 0.324 (the default window rule, M 23), asserted at least
+/// 2.5x. Both solves report convergence to 1e-6 (in 88 and 80 iterations).
 #[test]
 fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
     use scatterlab::solvers::networks::Illumination;
@@ -251,8 +274,9 @@ fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
     let sun = |d: &str| repo_scene("scenes/cloud.toml", &[("light.0.direction", d)]);
     let (before, after) = (sun("[0.5, -0.7, 0.5]"), sun("[0.6, -0.7, 0.4]"));
     let particles = Particles::sample(&before, 800, 1).unwrap();
-    let window = Window::new(&before, &particles, 32, None);
-    let net = Network { particles, directions: Directions::new(32, 1), window };
+    let directions = Directions::new(32, 1);
+    let window = Window::new(&before, &particles, &directions, None, WindowRule::Fit);
+    let net = Network { particles, directions, window };
     let step = 0.01;
     let mut warm = Illumination::new(&gpu, &net, &before, step, true).expect("state");
     let c = warm.solve(&gpu, 1e-6, 2000, &|_| {}).expect("solve");
@@ -285,6 +309,83 @@ fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
         e_cold / e_warm
     );
     // Measured: 0.112 against 0.594 (5.3x); the margin leaves room for the particles' draw.
-    assert!(e_cold > 3.0 * e_warm, "warm {e_warm} against cold {e_cold}");
+    assert!(e_cold > 2.5 * e_warm, "warm {e_warm} against cold {e_cold}");
     assert_clean(&gpu);
+}
+
+/// Relative L2 error with the reference's own noise removed, and the energy ratio.
+fn judge(out: &scatterlab::output::Image, reference: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
+    let m = scatterlab::output::compare(out, &reference.image).unwrap();
+    let floor =
+        scatterlab::output::metrics::noise_floor(out, &reference.image, None, reference.variance.as_ref()).unwrap();
+    (floor.rel_l2_corrected.expect("path writes a variance layer"), m.energy_ratio)
+}
+
+#[test]
+#[ignore]
+fn zz_measure_networks_across_the_range() {
+    use crate::common::{render, NETWORKS, PATH};
+    let gpu = gpu();
+    let size = [("render.width", "24"), ("render.height", "24")];
+    for (sigma_t, albedo, g) in [
+        ("1", "0.5", "0"),
+        ("1", "0.99", "-0.9"),
+        ("1", "0.99", "0.9"),
+        ("5", "0.9", "0.6"),
+        ("20", "0.5", "0.9"),
+        ("20", "0.99", "0"),
+        ("20", "0.99", "-0.5"),
+    ] {
+        let s = repo_scene(
+            "scenes/anisotropic-cube.toml",
+            &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
+        );
+        let reference = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
+        for (n, d) in [("128", "32"), ("512", "64"), ("2048", "64")] {
+            let t = std::time::Instant::now();
+            let out = render(&gpu, &s, NETWORKS, &[("networks.particles", n), ("networks.directions", d)]);
+            let (rel, e) = judge(&out.image, &reference);
+            let c = out.report.stats.convergence.unwrap();
+            eprintln!(
+                "sigma_t {sigma_t} albedo {albedo} g {g} N {n} D {d}: energy {e:.4} relL2 {rel:.4} ({} its, {:.1} s)",
+                c.iterations,
+                t.elapsed().as_secs_f64()
+            );
+        }
+    }
+}
+
+#[test]
+#[ignore]
+fn zz_single_part() {
+    use crate::common::{render, PATH};
+    use scatterlab::solvers::networks::{Illumination, Networks, NetworksSettings};
+    use scatterlab::solvers::Solver;
+    let gpu = gpu();
+    let size = [("render.width", "24"), ("render.height", "24")];
+    for (sigma_t, albedo, g) in [("1", "0.99", "0.9"), ("1", "0.99", "0"), ("5", "0.9", "0.6")] {
+        let s = repo_scene(
+            "scenes/anisotropic-cube.toml",
+            &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
+        );
+        let r1 = render(&gpu, &s, PATH, &[("render.spp", "2048"), ("path.max_depth", "1")]);
+        let rall = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
+        let k = scatterlab::solvers::Knobs::defaults("networks", Networks.knobs());
+        let mut set = NetworksSettings::parse(&k, &s).unwrap();
+        set.particles = 512;
+        set.directions = 64;
+        let net = set.network(&s).unwrap();
+        let mut st = Illumination::new(&gpu, &net, &s, set.step, false).unwrap();
+        let ss = st.image(&gpu, &net, 1.0, set.step).unwrap();
+        st.solve(&gpu, 1e-6, 3000, &|_| {}).unwrap();
+        let all = st.image(&gpu, &net, 1.0, set.step).unwrap();
+        let sum = |i: &scatterlab::output::Image| i.data.iter().map(|x| *x as f64).sum::<f64>();
+        eprintln!(
+            "sigma_t {sigma_t} albedo {albedo} g {g}: path single {:.4} all {:.4}; networks single {:.4} all {:.4}",
+            sum(&r1.image),
+            sum(&rall.image),
+            sum(&ss.image),
+            sum(&all.image)
+        );
+    }
 }

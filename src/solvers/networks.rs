@@ -334,36 +334,83 @@ pub struct Window {
     pub m: u32,
 }
 
+/// How M is chosen where `networks.window` is not set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WindowRule {
+    /// The finest M at which a particle's optical depth across a pixel stays at most
+    /// [`OPACITY_DEPTH`] and the window's occupied columns hold [`COLUMN_PARTICLES`] particles
+    /// on average (the default; docs/networks.md).
+    Fit,
+    /// The paper's rule (3.2), D (R tau)^2 / pi >= M^2, with the same opacity cap.
+    Paper,
+}
+
+/// The mean number of particles in an occupied window column that [`WindowRule::Fit`] keeps.
+pub const COLUMN_PARTICLES: f64 = 8.0;
+
 impl Window {
-    /// The bounding sphere of the medium's bounds, and M set, or the largest M within the
-    /// paper's rule (3.2), D (R tau)^2 / pi >= M^2 (tau the mean extinction, mean over the
-    /// channels of sigma_t, where the density is non-zero), that keeps a particle's optical depth
-    /// across a pixel at most [`OPACITY_DEPTH`]; at least sqrt(N / 64) (so a thin medium's
-    /// columns stay sortable) and at most [`MAX_WINDOW`].
-    pub fn new(scene: &Scene, particles: &Particles, directions: u32, m: Option<u32>) -> Window {
+    /// The bounding sphere of the medium's bounds, and M set, or chosen by `rule`, at least
+    /// sqrt(N / 64) (so a thin medium's columns stay sortable) and at most [`MAX_WINDOW`].
+    pub fn new(
+        scene: &Scene,
+        particles: &Particles,
+        directions: &Directions,
+        m: Option<u32>,
+        rule: WindowRule,
+    ) -> Window {
         let med = &scene.medium;
         let centre = (med.bounds_min + med.bounds_max) * 0.5;
         let radius = (med.bounds_max - med.bounds_min).length() * 0.5;
         let m = m.unwrap_or_else(|| {
             let n = particles.positions.len() as f64;
-            let sigma = med.sigma_t.dot(Vec3::ONE) as f64 / 3.0;
-            let tau = sigma * particles.mass * n / particles.occupied.max(f64::MIN_POSITIVE);
-            let rule = (directions as f64 / std::f64::consts::PI).sqrt() * radius as f64 * tau;
-            // The rule bounds M from above; so does the particles' opacity. Every particle has
-            // the same, 1 - exp(-sigma_t m / A): on a fine window few particles share a column,
-            // each nearly opaque, and light leaks through the columns that happen to hold none
-            // (the expected transmittance of a column is then about exp(-count), not
-            // exp(-optical depth)). Measured on the sphere (1024 particles, D 128, against
-            // path): the rule's M 55 (alpha 0.98) energy 0.836, bias 0.340; M 32 (alpha 0.72)
-            // 0.903 / 0.257; M 16 (alpha 0.27) 0.951 / 0.205; M 8 (0.08) 0.949 / 0.205. So M
-            // keeps sigma_t m / A <= OPACITY_DEPTH (alpha <= 0.26) in the most opaque channel.
+            // The particles' opacity bounds M from above. Every particle has the same,
+            // 1 - exp(-sigma_t m / A): on a fine window few particles share a column, each nearly
+            // opaque, and light leaks through the columns that happen to hold none (the
+            // expected transmittance of a column is then about exp(-count), not exp(-optical
+            // depth)). Measured on the sphere (1024 particles, D 128, against path): M 55
+            // (alpha 0.98) energy 0.836, bias 0.340; M 32 (alpha 0.72) 0.903 / 0.257; M 16
+            // (alpha 0.27) 0.951 / 0.205; M 8 (0.08) 0.949 / 0.205. So M keeps
+            // sigma_t m / A <= OPACITY_DEPTH (alpha <= 0.26) in the most opaque channel.
             let sigma_max = med.sigma_t.max_element() as f64;
             let opacity = 2.0 * radius as f64 / (sigma_max * particles.mass / OPACITY_DEPTH).sqrt();
-            // Not coarser than 64 particles a pixel on average over the window: in a thin
-            // medium the rule asks for few pixels (M = 1 below R tau ~ 0.3 at D = 128), and a
-            // column sorted by one invocation holds at most MAX_COLUMN particles.
+            let upper = match rule {
+                // The paper's rule (an upper bound: a pixel seen from a mean free path away
+                // subtends at least a direction's solid angle), tau the mean extinction where
+                // the density is non-zero.
+                WindowRule::Paper => {
+                    let sigma = med.sigma_t.dot(Vec3::ONE) as f64 / 3.0;
+                    let tau = sigma * particles.mass * n / particles.occupied.max(f64::MIN_POSITIVE);
+                    ((directions.len() as f64 / std::f64::consts::PI).sqrt() * radius as f64 * tau).min(opacity)
+                }
+                // Coarse columns dilute: a particle's cross-section is spread over its whole
+                // pixel, the empty part beside the medium included, so light crosses a column
+                // more easily than the medium and the network loses multiple scattering. In a
+                // thin medium the paper's rule asks for coarse windows (a unit cube of optical
+                // thickness 1, albedo 0.99, 512 particles, D 64: M 3, energy 0.882, bias 0.122
+                // against path); with about 8 particles to an occupied column (M 10) 0.976 /
+                // 0.048, with 4 (M 16) 0.965 / 0.054.
+                // The mean falls as M grows: bisect for the largest M that keeps it.
+                WindowRule::Fit => {
+                    let full = |m: u32| mean_column(particles, directions, centre, radius, m) >= COLUMN_PARTICLES;
+                    let (mut lo, mut hi) = (1u32, opacity.floor().clamp(1.0, MAX_WINDOW as f64) as u32);
+                    if full(hi) {
+                        lo = hi;
+                    }
+                    while hi - lo > 1 {
+                        let mid = (lo + hi) / 2;
+                        if full(mid) {
+                            lo = mid;
+                        } else {
+                            hi = mid;
+                        }
+                    }
+                    lo as f64
+                }
+            };
+            // Not coarser than 64 particles a pixel on average over the window: a column
+            // sorted by one invocation holds at most MAX_COLUMN particles.
             let crowding = (n / 64.0).sqrt().ceil();
-            rule.min(opacity).floor().max(crowding).clamp(1.0, MAX_WINDOW as f64) as u32
+            upper.floor().max(crowding).clamp(1.0, MAX_WINDOW as f64) as u32
         });
         Window { centre, radius, m: m.clamp(1, MAX_WINDOW) }
     }
@@ -392,6 +439,22 @@ impl Window {
         let py = (((b + self.radius) * inv).floor() as i32).clamp(0, last);
         (py as u32 * self.m + px as u32, d)
     }
+}
+
+/// The mean number of particles in an occupied column of an M x M window, over up to eight
+/// of the directions (evenly spaced in the list).
+pub fn mean_column(particles: &Particles, directions: &Directions, centre: Vec3, radius: f32, m: u32) -> f64 {
+    let w = Window { centre, radius, m };
+    let d = directions.len().max(1);
+    let picks: Vec<usize> = (0..d.min(8)).map(|k| k * d / d.min(8)).collect();
+    let mut occupied = 0usize;
+    for &k in &picks {
+        let mut keys: Vec<u32> = particles.positions.iter().map(|x| w.key(*x, &directions.frames[k]).0).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        occupied += keys.len();
+    }
+    particles.positions.len() as f64 * picks.len() as f64 / occupied.max(1) as f64
 }
 
 /// A particle model with its directions and windows: what the networks are built over.
@@ -1023,6 +1086,7 @@ pub struct NetworksSettings {
     pub particles: u32,
     pub directions: u32,
     pub window: Option<u32>,
+    pub window_rule: WindowRule,
     pub tol: f64,
     pub max_iterations: u32,
     pub iterations_per_frame: u32,
@@ -1048,6 +1112,7 @@ impl NetworksSettings {
             particles: k.get("particles")?,
             directions: k.get("directions")?,
             window: if k.is_set("window") { Some(k.get("window")?) } else { None },
+            window_rule: if k.get::<String>("window_rule")? == "paper" { WindowRule::Paper } else { WindowRule::Fit },
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
             iterations_per_frame: k.get("iterations_per_frame")?,
@@ -1061,8 +1126,9 @@ impl NetworksSettings {
     pub fn network(&self, scene: &Scene) -> Result<Network, SolverError> {
         let seed = scene.render.seed;
         let particles = Particles::sample(scene, self.particles, seed)?;
-        let window = Window::new(scene, &particles, self.directions, self.window);
-        Ok(Network { particles, directions: Directions::new(self.directions, seed), window })
+        let directions = Directions::new(self.directions, seed);
+        let window = Window::new(scene, &particles, &directions, self.window, self.window_rule);
+        Ok(Network { particles, directions, window })
     }
 
     /// The image's medium-transmittance step (0: the splats' own).
@@ -1219,10 +1285,16 @@ impl Solver for Networks {
             ),
             Knob::derived(
                 "window",
-                "the paper's rule D (R tau)^2 / pi >= M^2, capped so a particle's optical depth across a pixel is at \
-                 most 0.3, at least sqrt(N / 64)",
+                "by networks.window_rule, at least sqrt(N / 64)",
                 Range::int(1, MAX_WINDOW as u64),
                 "window resolution M (M x M pixels per direction)",
+            ),
+            Knob::fixed(
+                "window_rule",
+                "fit",
+                Range::Choice(&["fit", "paper"]),
+                "fit: the finest M with a particle's optical depth across a pixel at most 0.3 and 8 particles to an \
+                 occupied column on average; paper: D (R tau)^2 / pi >= M^2 (3.2) with the same opacity cap",
             ),
             Knob::fixed(
                 "tol",
