@@ -4,7 +4,7 @@
 //! construction exactly, and every window column is one chain from the sky down.
 
 use glam::Vec3;
-use scatterlab::solvers::networks::{Directions, Network, Particles, Window, WindowRule, MAX_COLUMN, NONE};
+use scatterlab::solvers::networks::{Directions, Network, Opacity, Particles, Window, WindowRule, MAX_COLUMN, NONE};
 
 const _: () = assert!(400 > MAX_COLUMN, "the crowded test needs a column over the limit");
 
@@ -19,7 +19,7 @@ fn network_by(scene: &str, sets: &[(&str, &str)], n: u32, d: u32, m: Option<u32>
     let particles = Particles::sample(&s, n, s.render.seed).expect("particles");
     let directions = Directions::new(d, s.render.seed);
     let window = Window::new(&s, &particles, &directions, m, rule);
-    Network { particles, directions, window }
+    Network { particles, directions, window, opacity: Opacity::Linear }
 }
 
 /// Particles land only where the density is (inside the sphere of the sphere scene, in
@@ -200,7 +200,7 @@ fn the_network_furnace_stays_at_the_sky() {
     let particles = Particles::sample(&s, 300, 3).unwrap();
     let directions = Directions::new(32, 3);
     let window = Window::new(&s, &particles, &directions, None, WindowRule::Fit);
-    let net = Network { particles, directions, window };
+    let net = Network { particles, directions, window, opacity: Opacity::Linear };
     let (p, before) = phase_matrix(&net.directions, 0.9);
     eprintln!("rows of the unbalanced quadrature off 1 by up to {before:.3}");
     assert!(before > 0.1, "the quadrature as given misses 1 by {before}");
@@ -224,7 +224,7 @@ fn the_network_furnace_stays_at_the_sky() {
     }
     // The image of the converged furnace: every splat carries radiance 1 and the sky behind is
     // 1, so alpha blending gives 1 wherever the splats lie (as `path` gives in a furnace).
-    let mut st = scatterlab::solvers::networks::Illumination::new(&gpu, &net, &s, 0.01, true).unwrap();
+    let mut st = scatterlab::solvers::networks::Illumination::new(&gpu, &net, &s, 0.01, true, 0).unwrap();
     st.step(&gpu, 200).unwrap();
     let img = st.image(&gpu, &net, 1.0, 0.0).expect("image");
     let (lo, hi) = img.image.data.iter().fold((f32::MAX, 0f32), |(l, h), x| (l.min(*x), h.max(*x)));
@@ -276,16 +276,16 @@ fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
     let particles = Particles::sample(&before, 800, 1).unwrap();
     let directions = Directions::new(32, 1);
     let window = Window::new(&before, &particles, &directions, None, WindowRule::Fit);
-    let net = Network { particles, directions, window };
+    let net = Network { particles, directions, window, opacity: Opacity::Linear };
     let step = 0.01;
-    let mut warm = Illumination::new(&gpu, &net, &before, step, true).expect("state");
+    let mut warm = Illumination::new(&gpu, &net, &before, step, true, 0).expect("state");
     let c = warm.solve(&gpu, 1e-6, 2000, &|_| {}).expect("solve");
     assert!(c.converged, "{c:?}");
     warm.set_lights(&gpu, &net, &after).expect("moved sun");
     warm.step(&gpu, 1).expect("one warm iteration");
-    let mut cold = Illumination::new(&gpu, &net, &after, step, true).expect("state");
+    let mut cold = Illumination::new(&gpu, &net, &after, step, true, 0).expect("state");
     cold.step(&gpu, 10).expect("ten cold iterations");
-    let mut reference = Illumination::new(&gpu, &net, &after, step, true).expect("state");
+    let mut reference = Illumination::new(&gpu, &net, &after, step, true, 0).expect("state");
     let r = reference.solve(&gpu, 1e-6, 2000, &|_| {}).expect("solve");
     assert!(r.converged, "{r:?}");
     let truth = reference.radiance(&gpu).unwrap();
@@ -341,9 +341,15 @@ fn zz_measure_networks_across_the_range() {
             &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
         );
         let reference = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
-        for (n, d) in [("128", "32"), ("512", "64"), ("2048", "64")] {
+        for (n, d) in [("512", "64/particles"), ("512", "64/view")] {
+            let (d, mode) = d.split_once('/').unwrap();
             let t = std::time::Instant::now();
-            let out = render(&gpu, &s, NETWORKS, &[("networks.particles", n), ("networks.directions", d)]);
+            let out = render(
+                &gpu,
+                &s,
+                NETWORKS,
+                &[("networks.particles", n), ("networks.directions", d), ("networks.single", mode)],
+            );
             let (rel, e) = judge(&out.image, &reference);
             let c = out.report.stats.convergence.unwrap();
             eprintln!(
@@ -375,7 +381,7 @@ fn zz_single_part() {
         set.particles = 512;
         set.directions = 64;
         let net = set.network(&s).unwrap();
-        let mut st = Illumination::new(&gpu, &net, &s, set.step, false).unwrap();
+        let mut st = Illumination::new(&gpu, &net, &s, set.step, false, 0).unwrap();
         let ss = st.image(&gpu, &net, 1.0, set.step).unwrap();
         st.solve(&gpu, 1e-6, 3000, &|_| {}).unwrap();
         let all = st.image(&gpu, &net, 1.0, set.step).unwrap();

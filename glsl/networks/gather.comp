@@ -6,7 +6,9 @@
 //   c = albedo (sum_j L_j p(w_j . o) + sum_d I[d] p(w_d . o) / sum_d p(w_d . o)),
 // the incoming samples' phase weights normalised over the directions (as the balanced matrix
 // does among them: a uniform I gives I back), L_j the direct light (networks/direct.comp).
-// networks/splat composites c alpha in depth order.
+// networks/splat composites c alpha in depth order. With pc.direct = 0 (`networks.single =
+// view`) the direct term is left to the view pass, which computes every light's single
+// scattering exactly: c is then the light scattered at least twice.
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
@@ -27,7 +29,7 @@ layout(push_constant) uniform Push {
     uint particles;
     uint directions;
     uint units;
-    uint pad;
+    uint direct;      // 1: the direct term too (the paper's image); 0: the scattered light only
 } pc;
 
 void main() {
@@ -37,7 +39,7 @@ void main() {
     vec3 o = scene.cam_origin.w < 0.5 ? normalize(scene.cam_origin.xyz - x) : -scene.cam_forward.xyz;
     float g = scene.albedo.w;
     vec3 lit = vec3(0.0);
-    for (uint j = 0u; j < pc.units; ++j) {
+    for (uint j = 0u; pc.direct == 1u && j < pc.units; ++j) {
         uint e = 2u * (p * pc.units + j);
         lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, o));
     }

@@ -84,7 +84,7 @@ struct GatherPush {
     particles: u32,
     directions: u32,
     units: u32,
-    pad: u32,
+    direct: u32,
 }
 
 #[repr(C)]
@@ -116,6 +116,8 @@ struct DirectPush {
     min_r2: f32,
     particles: u32,
     units: u32,
+    env_dirs: u32,
+    pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -134,6 +136,12 @@ struct IteratePush {
 /// through the network's sky), in scene order.
 pub fn light_units(scene: &Scene) -> Vec<&Light> {
     scene.lights.iter().filter(|l| !matches!(l, Light::Environment { .. })).collect()
+}
+
+/// The direct term's units: one per point or directional light, then `env_dirs` per
+/// environment (0: environments reach the particles as the network's sky instead).
+pub fn unit_count(scene: &Scene, env_dirs: u32) -> u32 {
+    scene.lights.iter().map(|l| if matches!(l, Light::Environment { .. }) { env_dirs } else { 1 }).sum()
 }
 
 /// The sky's radiance: the environments' summed (W/(m^2 sr)).
@@ -462,6 +470,24 @@ pub struct Network {
     pub particles: Particles,
     pub directions: Directions,
     pub window: Window,
+    pub opacity: Opacity,
+}
+
+/// A particle's opacity across a window pixel, from its optical depth there c = sigma_t m / A.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Opacity {
+    /// alpha = min(c, 1) (the default). The particles fall at random, so the number k in a
+    /// stretch of column is Poisson with mean lambda, and the column lets through
+    /// E[(1 - alpha)^k] = exp(-lambda alpha): with alpha = c that is exp(-lambda c), the medium's
+    /// transmittance over the stretch, and a particle intercepts sigma_t m of the light, its
+    /// cross-section. With the paper's alpha, each particle holds 1 - e^-c < c: the columns leak
+    /// (at the window's cap c = 0.3, 13% of the optical depth) and the network loses multiply
+    /// scattered light. 64 x 64 against path (1024 particles, D 128; bias / energy): cloud
+    /// 0.109 / 0.951 -> 0.063 / 1.008, sphere 0.158 / 0.910 -> 0.112 / 0.943, anisotropic cube
+    /// 0.081 / 0.944 -> 0.054 / 1.001.
+    Linear,
+    /// alpha = 1 - exp(-c), the paper's (2.1).
+    Exponential,
 }
 
 impl Network {
@@ -474,10 +500,14 @@ impl Network {
         Ok((gpu.buffer_with("networks particles", &positions)?, gpu.buffer_with("networks directions", &frames)?))
     }
 
-    /// Opacity of a particle across one window pixel for extinction `sigma_t` (1/unit):
-    /// 1 - exp(-sigma_t m / A).
-    pub fn opacity(&self, sigma_t: f64) -> f64 {
-        -(-sigma_t * self.particles.mass / self.window.pixel_area()).exp_m1()
+    /// Opacity of a particle across one window pixel for extinction `sigma_t` (1/unit), by
+    /// [`Network::opacity`]'s model: min(c, 1) or 1 - exp(-c), c = sigma_t m / A.
+    pub fn alpha(&self, sigma_t: f64) -> f64 {
+        let c = sigma_t * self.particles.mass / self.window.pixel_area();
+        match self.opacity {
+            Opacity::Linear => c.min(1.0),
+            Opacity::Exponential => -(-c).exp_m1(),
+        }
     }
 
     /// The visibility network on the host ([p][i], [`NONE`] where the sky is seen): each
@@ -616,7 +646,9 @@ impl Network {
 
     /// The direct term's light on the device (glsl/networks/direct.comp), [p][unit] as two vec4:
     /// (irradiance rgb through the medium, the march's loop count), (direction of travel, 0).
-    /// `step`: the transmittance's midpoint step (scene units).
+    /// `step`: the transmittance's midpoint step (scene units); `env_dirs`: directions per
+    /// environment as units ([`unit_count`]; 0: none).
+    #[allow(clippy::too_many_arguments)]
     pub fn direct(
         &self,
         gpu: &Gpu,
@@ -624,10 +656,11 @@ impl Network {
         gs: &GpuScene,
         positions: &Buffer,
         step: f32,
+        env_dirs: u32,
         out: &Buffer,
     ) -> Result<(), SolverError> {
         let n = self.particles.positions.len() as u32;
-        let units = light_units(scene).len() as u32;
+        let units = unit_count(scene, env_dirs);
         if units > 0 {
             // The march's steps: at most the bounds' diagonal over `step`, kept under the
             // per-invocation loop guard (glsl/include/budget.glsl).
@@ -643,7 +676,7 @@ impl Network {
                 .bind(Pass::new("networks.direct", QueueRole::Trace, &pipeline))
                 .read(3, positions)
                 .write(4, out)
-                .push(&DirectPush { step, min_r2: self.min_r2() as f32, particles: n, units })
+                .push(&DirectPush { step, min_r2: self.min_r2() as f32, particles: n, units, env_dirs, pad: [0; 3] })
                 .cover([n, units, 1]);
             let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
             gpu.wait(point)?;
@@ -652,8 +685,8 @@ impl Network {
     }
 
     /// Bytes of the direct light buffer: two vec4 per particle and light unit.
-    pub fn direct_bytes(&self, scene: &Scene) -> u64 {
-        32 * self.particles.positions.len().max(1) as u64 * light_units(scene).len().max(1) as u64
+    pub fn direct_bytes(&self, scene: &Scene, env_dirs: u32) -> u64 {
+        32 * self.particles.positions.len().max(1) as u64 * unit_count(scene, env_dirs).max(1) as u64
     }
 
     /// The direct term's light on the host ([p][unit]), in double precision with the same
@@ -690,7 +723,7 @@ impl Network {
     /// `iterations` steps of the network's iteration on the device (glsl/networks/iterate.comp)
     /// from I = 0, over the device's visibility network: I [p][i] rgb.
     pub fn iterate(&self, gpu: &Gpu, scene: &Scene, iterations: u32, step: f32) -> Result<Vec<[f32; 4]>, SolverError> {
-        let mut state = Illumination::new(gpu, self, scene, step, true)?;
+        let mut state = Illumination::new(gpu, self, scene, step, true, 0)?;
         state.step(gpu, iterations)?;
         state.radiance(gpu)
     }
@@ -708,7 +741,7 @@ impl Network {
         let d = self.directions.len();
         let units = light_units(scene).len();
         let m = &scene.medium;
-        let alpha = m.sigma_t.as_dvec3().map(|s| self.opacity(s));
+        let alpha = m.sigma_t.as_dvec3().map(|s| self.alpha(s));
         let albedo = m.albedo.as_dvec3();
         let g = m.g as f64;
         let sky = sky(scene).as_dvec3();
@@ -794,6 +827,9 @@ pub struct Illumination {
     sigma_m: Vec3,
     /// Iterations run since the start (or the last light move).
     pub iterations: u32,
+    /// Environment directions taken as direct units (`networks.single = view`), 0 where the
+    /// environments are the network's sky.
+    env_dirs: u32,
     /// The last iteration's change of I against I's largest value (infinite before one ran).
     pub change: f64,
     /// Iterations whose change or peak came back negative or not finite.
@@ -814,13 +850,17 @@ pub struct Converged {
 impl Illumination {
     /// Upload the scene, build the visibility network on the device, compute the direct light
     /// (transmittance step `step`, scene units) and start from I = 0. `force_full`: model every
-    /// scene feature (the kernels' specialisation), as `--force-full` asks.
+    /// scene feature (the kernels' specialisation), as `--force-full` asks. `env_dirs` > 0: the
+    /// environments are direct units of that many directions each and the sky is 0, so the
+    /// network carries scattered light only (`networks.single = view`); 0: the environments
+    /// are the sky (the paper's).
     pub fn new(
         gpu: &Gpu,
         net: &Network,
         scene: &Scene,
         step: f32,
         force_full: bool,
+        env_dirs: u32,
     ) -> Result<Illumination, SolverError> {
         let n = net.particles.positions.len() as u32;
         let d = net.directions.len() as u32;
@@ -828,10 +868,10 @@ impl Illumination {
         let gs = GpuScene::upload(gpu, scene, force_full)?;
         let (positions, dirs) = net.upload(gpu)?;
         let visible = net.visibility_on(gpu, &positions, &dirs)?;
-        let direct = gpu.buffer("networks direct light", net.direct_bytes(scene))?;
-        net.direct(gpu, scene, &gs, &positions, step, &direct)?;
-        let alpha = m.sigma_t.as_dvec3().map(|s| net.opacity(s)).as_vec3();
-        let sky = sky(scene);
+        let direct = gpu.buffer("networks direct light", net.direct_bytes(scene, env_dirs))?;
+        net.direct(gpu, scene, &gs, &positions, step, env_dirs, &direct)?;
+        let alpha = m.sigma_t.as_dvec3().map(|s| net.alpha(s)).as_vec3();
+        let sky = if env_dirs > 0 { Vec3::ZERO } else { sky(scene) };
         Ok(Illumination {
             phase: gpu.buffer_with("networks phase", &phase_matrix(&net.directions, m.g as f64).0)?,
             field: [
@@ -847,16 +887,17 @@ impl Illumination {
                 sky: [sky.x, sky.y, sky.z, 0.0],
                 particles: n,
                 directions: d,
-                units: light_units(scene).len() as u32,
+                units: unit_count(scene, env_dirs),
                 slot: 0,
             },
+            env_dirs,
             step,
             size: [scene.render.width, scene.render.height],
             sigma_m: m.sigma_t * net.particles.mass as f32,
             iterations: 0,
             change: f64::INFINITY,
             faults: 0,
-            bytes: Self::device_bytes(net, scene),
+            bytes: Self::device_bytes(net, scene, env_dirs, 0),
             gs,
             positions,
             dirs,
@@ -869,12 +910,14 @@ impl Illumination {
     /// particles, directions and visibility network throughout; then the larger of the
     /// construction's buckets (freed once the network is built) and the iteration's state with
     /// the image's buffers.
-    pub fn device_bytes(net: &Network, scene: &Scene) -> u64 {
+    /// `view`: the view pass's bytes, where it runs after the splats (`networks.single =
+    /// view`; 0 otherwise).
+    pub fn device_bytes(net: &Network, scene: &Scene, env_dirs: u32, view: u64) -> u64 {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
         let base = super::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
-        let state = 4 * d * d + net.direct_bytes(scene) + 2 * 16 * n * d + 8 * BATCH as u64;
+        let state = 4 * d * d + net.direct_bytes(scene, env_dirs) + 2 * 16 * n * d + 8 * BATCH as u64;
         let image = 16 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
-        base + net.build_bytes().max(state + image)
+        base + net.build_bytes().max(state + image.max(view))
     }
 
     /// The lights moved (same medium, same lights of the same kinds): recompute the direct
@@ -884,12 +927,12 @@ impl Illumination {
         let (header, lights) = super::gpu_scene::scene_block(scene);
         let mut bytes = bytemuck::bytes_of(&header).to_vec();
         bytes.extend_from_slice(bytemuck::cast_slice(&lights));
-        if light_units(scene).len() as u32 != self.push.units || bytes.len() as u64 != self.gs.block.size() {
+        if unit_count(scene, self.env_dirs) != self.push.units || bytes.len() as u64 != self.gs.block.size() {
             return Err(SolverError::Unsupported("networks: a warm start keeps the number of lights".to_string()));
         }
         gpu.write_buffer(&self.gs.block, 0, &bytes)?;
-        net.direct(gpu, scene, &self.gs, &self.positions, self.step, &self.direct)?;
-        let sky = sky(scene);
+        net.direct(gpu, scene, &self.gs, &self.positions, self.step, self.env_dirs, &self.direct)?;
+        let sky = if self.env_dirs > 0 { Vec3::ZERO } else { sky(scene) };
         self.push.sky = [sky.x, sky.y, sky.z, 0.0];
         self.iterations = 0;
         self.change = f64::INFINITY;
@@ -950,6 +993,11 @@ impl Illumination {
         Ok(changes)
     }
 
+    /// The scene on the device (for the view pass of `networks.single = view`).
+    pub fn scene(&self) -> &GpuScene {
+        &self.gs
+    }
+
     /// I [p][i] (rgb, w unused) as it stands.
     pub fn radiance(&self, gpu: &Gpu) -> Result<Vec<[f32; 4]>, SolverError> {
         Ok(gpu.read_buffer_as(&self.field[self.current])?)
@@ -979,7 +1027,12 @@ impl Illumination {
                 .read(5, &self.direct)
                 .read(6, &self.field[self.current])
                 .write(7, &colour)
-                .push(&GatherPush { particles: n, directions: self.push.directions, units: self.push.units, pad: 0 })
+                .push(&GatherPush {
+                    particles: n,
+                    directions: self.push.directions,
+                    units: self.push.units,
+                    direct: (self.env_dirs == 0) as u32,
+                })
                 .cover([n, 1, 1]),
             gs.bind(Pass::new("networks.splat", QueueRole::Trace, &splat))
                 .read(3, &self.positions)
@@ -1087,6 +1140,7 @@ pub struct NetworksSettings {
     pub directions: u32,
     pub window: Option<u32>,
     pub window_rule: WindowRule,
+    pub opacity: Opacity,
     pub tol: f64,
     pub max_iterations: u32,
     pub iterations_per_frame: u32,
@@ -1096,6 +1150,10 @@ pub struct NetworksSettings {
     pub footprint: f32,
     /// Scale each camera ray's splats to the medium's optical depth along it.
     pub medium_transmittance: bool,
+    /// `networks.single = view`: the view pass computes every light's single scattering and
+    /// the particles carry the light scattered at least twice; `None`: the particles carry
+    /// everything (the paper's image).
+    pub view: Option<super::view::ViewSettings>,
 }
 
 impl NetworksSettings {
@@ -1113,13 +1171,30 @@ impl NetworksSettings {
             directions: k.get("directions")?,
             window: if k.is_set("window") { Some(k.get("window")?) } else { None },
             window_rule: if k.get::<String>("window_rule")? == "paper" { WindowRule::Paper } else { WindowRule::Fit },
+            opacity: if k.get::<String>("opacity")? == "exponential" { Opacity::Exponential } else { Opacity::Linear },
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
             iterations_per_frame: k.get("iterations_per_frame")?,
             step,
             footprint: k.get("footprint")?,
             medium_transmittance: k.get::<String>("transmittance")? == "medium",
+            view: if k.get::<String>("single")? == "view" {
+                Some(super::view::ViewSettings::parse(k, "view_", scene)?)
+            } else {
+                None
+            },
         })
+    }
+
+    /// Environment directions the direct term takes as units (0: the environments are the
+    /// network's sky).
+    pub fn env_dirs(&self) -> u32 {
+        self.view.as_ref().map_or(0, |v| v.env_dirs.max(1))
+    }
+
+    /// Device bytes of the view pass (0 without it).
+    pub fn view_bytes(&self, scene: &Scene) -> u64 {
+        self.view.as_ref().map_or(0, |v| super::view::device_bytes(scene, v))
     }
 
     /// The particle model, directions and windows of these settings for `scene` (its seed).
@@ -1128,7 +1203,7 @@ impl NetworksSettings {
         let particles = Particles::sample(scene, self.particles, seed)?;
         let directions = Directions::new(self.directions, seed);
         let window = Window::new(scene, &particles, &directions, self.window, self.window_rule);
-        Ok(Network { particles, directions, window })
+        Ok(Network { particles, directions, window, opacity: self.opacity })
     }
 
     /// The image's medium-transmittance step (0: the splats' own).
@@ -1159,13 +1234,23 @@ impl Networks {
         iterate_ms: f64,
     ) -> Result<RenderOutput, SolverError> {
         let t = Instant::now();
-        let img = st.image(gpu, net, set.footprint, set.image_step())?;
+        let mut img = st.image(gpu, net, set.footprint, set.image_step())?;
+        let mut view_nonfinite = 0;
+        if let Some(v) = &set.view {
+            // Every light's single scattering and the background, exactly (the view pass),
+            // beside the particles' light scattered at least twice.
+            let view = super::view::march(gpu, scene, st.scene(), v, None)?;
+            view_nonfinite = view.nonfinite_pixels;
+            for (a, b) in img.image.data.iter_mut().zip(&view.image.data) {
+                *a += *b;
+            }
+        }
         let image_ms = t.elapsed().as_secs_f64() * 1e3;
         let detail = NetworksStats {
             particles: set.particles,
             directions: set.directions,
             window: net.window.m,
-            opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.opacity(s)).to_array(),
+            opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
             particle_radius: net.particle_radius(),
             iterations: c.iterations,
             converged: c.converged,
@@ -1183,9 +1268,10 @@ impl Networks {
             final_change: c.change,
             tolerance: set.tol,
         });
-        stats.faults = st.faults + img.nonfinite as u64;
+        stats.faults = st.faults + img.nonfinite as u64 + view_nonfinite as u64;
         let modelled = super::gpu_scene::modelled(scene, force_full);
-        let mut report = RenderReport::finish(gpu, self, k, modelled, st.bytes, stats);
+        let bytes = Illumination::device_bytes(net, scene, set.env_dirs(), set.view_bytes(scene));
+        let mut report = RenderReport::finish(gpu, self, k, modelled, bytes, stats);
         let iterate_gpu_ms: f64 =
             report.passes.iter().filter(|p| p.name == "networks.iterate").map(|p| p.duration_ms()).sum();
         if c.iterations > 0 && iterate_gpu_ms > 0.0 {
@@ -1216,7 +1302,7 @@ impl Networks {
                 img.dropped
             ));
         }
-        report.warnings.extend(super::nonfinite_warning(img.nonfinite));
+        report.warnings.extend(super::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
     }
 }
@@ -1242,7 +1328,9 @@ impl super::Animation for NetworksAnimation {
                 st.set_lights(gpu, &self.net, scene)?;
                 st
             }
-            None => self.state.insert(Illumination::new(gpu, &self.net, scene, set.step, self.force_full)?),
+            None => {
+                self.state.insert(Illumination::new(gpu, &self.net, scene, set.step, self.force_full, set.env_dirs())?)
+            }
         };
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
@@ -1270,7 +1358,7 @@ impl Solver for Networks {
     }
 
     fn knobs(&self) -> Vec<Knob> {
-        vec![
+        let mut k = vec![
             Knob::fixed(
                 "particles",
                 "1024",
@@ -1302,6 +1390,14 @@ impl Solver for Networks {
                 Range::open_unit(),
                 "convergence: largest change of the radiance in one iteration, relative to its largest value",
             ),
+            Knob::fixed(
+                "opacity",
+                "linear",
+                Range::Choice(&["linear", "exponential"]),
+                "a particle's opacity across a window pixel from its optical depth c there: linear min(c, 1), the \
+                 medium's expected column transmittance for randomly placed particles; exponential 1 - exp(-c), the \
+                 paper's",
+            ),
             Knob::fixed("max_iterations", "2000", Range::int(1, 1 << 20), "iterations at most"),
             Knob::fixed(
                 "iterations_per_frame",
@@ -1329,11 +1425,23 @@ impl Solver for Networks {
                 "medium: each camera ray's splats scaled to the medium's optical depth along it (exact \
                  transmittance); splats: the splats' own opacity (the paper's)",
             ),
-        ]
+            Knob::fixed(
+                "single",
+                "view",
+                Range::Choice(&["view", "particles"]),
+                "view: every light's single scattering by the view pass (exact, as `single`), the particles carrying \
+                 the light scattered at least twice; particles: the particles carry all of it, direct term included \
+                 (the paper's image)",
+            ),
+        ];
+        k.extend(super::view::knobs().into_iter().map(|k| k.prefixed("view_").only_with("single=view")));
+        k
     }
 
     fn kernels(&self) -> Vec<Kernel> {
-        kernels()
+        let mut k = kernels();
+        k.extend([super::view::MARCH, super::view::SHADOW]);
+        k
     }
 
     fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
@@ -1344,7 +1452,7 @@ impl Solver for Networks {
         let t = Instant::now();
         (req.progress)(Progress::work("network", 0, 1));
         let net = set.network(scene)?;
-        let mut st = Illumination::new(gpu, &net, scene, set.step, req.force_full)?;
+        let mut st = Illumination::new(gpu, &net, scene, set.step, req.force_full, set.env_dirs())?;
         (req.progress)(Progress::work("network", 1, 1));
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
@@ -1363,7 +1471,7 @@ impl Solver for Networks {
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
         let set = NetworksSettings::parse(knobs, scene)?;
-        Ok(Illumination::device_bytes(&set.network(scene)?, scene))
+        Ok(Illumination::device_bytes(&set.network(scene)?, scene, set.env_dirs(), set.view_bytes(scene)))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
@@ -1380,7 +1488,10 @@ impl Solver for Networks {
     }
 
     fn stability(&self) -> Vec<Variant> {
-        vec![Variant::new("", &[("networks.particles", "256"), ("networks.directions", "32")])]
+        vec![Variant::new(
+            "",
+            &[("networks.particles", "256"), ("networks.directions", "32"), ("networks.view_env_dirs", "16")],
+        )]
     }
 
     fn headline(&self, quick: bool) -> Option<Headline> {
