@@ -321,77 +321,75 @@ fn judge(out: &scatterlab::output::Image, reference: &scatterlab::solvers::Rende
     (floor.rel_l2_corrected.expect("path writes a variance layer"), m.energy_ratio)
 }
 
+/// networks against path on the cube of `scenes/anisotropic-cube.toml` across the range a user
+/// meets: optical thickness 1 to 20 across, albedo 0.5 to 0.99, g -0.9 to 0.9 (24 x 24, path
+/// at 2048 spp). At 512 particles and 64 directions (measured energy / relL2): thin (sigma_t 1)
+/// albedo 0.5 0.998 / 0.028, albedo 0.99 g -0.9 0.858 / 0.198, g 0.9 0.967 / 0.110; sigma_t 5,
+/// albedo 0.9, g 0.6 0.987 / 0.114; thick (sigma_t 20: a mean free path of 0.05, the particles
+/// 0.12 apart) albedo 0.5 g 0.9 0.730 / 0.361, albedo 0.99 g 0 0.930 / 0.368, g -0.5
+/// 0.816 / 0.551. Each is held near its measurement; in every case the error falls from 128
+/// particles and 32 directions to 512 and 64 (at 2048 and 64 it falls again: 0.026 ... 0.26,
+/// docs/networks.md), and no case is brighter than path. At albedo 0 the image is `single`'s:
+/// the view pass alone (nothing scatters twice).
 #[test]
-#[ignore]
-fn zz_measure_networks_across_the_range() {
-    use crate::common::{render, NETWORKS, PATH};
+fn networks_approaches_path_across_thickness_albedo_and_g() {
+    use crate::common::{render, NETWORKS, PATH, SINGLE};
     let gpu = gpu();
     let size = [("render.width", "24"), ("render.height", "24")];
-    for (sigma_t, albedo, g) in [
-        ("1", "0.5", "0"),
-        ("1", "0.99", "-0.9"),
-        ("1", "0.99", "0.9"),
-        ("5", "0.9", "0.6"),
-        ("20", "0.5", "0.9"),
-        ("20", "0.99", "0"),
-        ("20", "0.99", "-0.5"),
+    // sigma_t, albedo, g, energy range, relL2 bound at 512 x 64.
+    for (sigma_t, albedo, g, energy, error) in [
+        ("1", "0.5", "0", (0.97, 1.03), 0.05),
+        ("1", "0.99", "-0.9", (0.8, 0.95), 0.25),
+        ("1", "0.99", "0.9", (0.92, 1.02), 0.15),
+        ("5", "0.9", "0.6", (0.95, 1.03), 0.15),
+        ("20", "0.5", "0.9", (0.65, 0.8), 0.45),
+        ("20", "0.99", "0", (0.85, 1.03), 0.45),
+        ("20", "0.99", "-0.5", (0.75, 0.9), 0.65),
     ] {
+        let case = format!("sigma_t {sigma_t}, albedo {albedo}, g {g}");
         let s = repo_scene(
             "scenes/anisotropic-cube.toml",
             &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
         );
         let reference = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
-        for (n, d) in [("512", "64/particles"), ("512", "64/view")] {
-            let (d, mode) = d.split_once('/').unwrap();
-            let t = std::time::Instant::now();
-            let out = render(
-                &gpu,
-                &s,
-                NETWORKS,
-                &[("networks.particles", n), ("networks.directions", d), ("networks.single", mode)],
-            );
-            let (rel, e) = judge(&out.image, &reference);
-            let c = out.report.stats.convergence.unwrap();
-            eprintln!(
-                "sigma_t {sigma_t} albedo {albedo} g {g} N {n} D {d}: energy {e:.4} relL2 {rel:.4} ({} its, {:.1} s)",
-                c.iterations,
-                t.elapsed().as_secs_f64()
-            );
-        }
+        let coarse = render(&gpu, &s, NETWORKS, &[("networks.particles", "128"), ("networks.directions", "32")]);
+        let fine = render(&gpu, &s, NETWORKS, &[("networks.particles", "512"), ("networks.directions", "64")]);
+        let (rc, ec) = judge(&coarse.image, &reference);
+        let (rf, ef) = judge(&fine.image, &reference);
+        eprintln!("{case}: 128 x 32 energy {ec:.3} relL2 {rc:.3}; 512 x 64 energy {ef:.3} relL2 {rf:.3}");
+        assert!(fine.report.stats.convergence.unwrap().converged, "{case}");
+        assert!(ef > energy.0 && ef < energy.1, "{case}: energy ratio {ef}");
+        assert!(rf < error, "{case}: relL2 {rf}");
+        assert!(rf < rc, "{case}: the error does not fall with the particles ({rc} -> {rf})");
     }
+    let s = repo_scene("scenes/anisotropic-cube.toml", &[&size[..], &[("medium.albedo", "0")]].concat());
+    let absorber = render(&gpu, &s, NETWORKS, &[("networks.particles", "128"), ("networks.directions", "32")]);
+    let single = render(&gpu, &s, SINGLE, &[]);
+    let m = scatterlab::output::compare(&absorber.image, &single.image).unwrap();
+    assert!(m.rel_l2 < 1e-6, "albedo 0: relL2 {} against single", m.rel_l2);
+    assert_clean(&gpu);
 }
 
+/// The cloud (a 64^3 grid, g 0.6, a sun and a blue sky) and the homogeneous sphere against
+/// path at 24 x 24, networks at 512 particles and 64 directions beside lbl at its defaults:
+/// measured energy / relL2 cloud 1.013 / 0.085 (lbl 0.958 / 0.098), sphere 0.914 / 0.167
+/// (lbl 0.987 / 0.072: on the sphere's steep lit side 512 particles are too few).
 #[test]
-#[ignore]
-fn zz_single_part() {
-    use crate::common::{render, PATH};
-    use scatterlab::solvers::networks::{Illumination, Networks, NetworksSettings};
-    use scatterlab::solvers::Solver;
+fn networks_on_the_cloud_and_the_sphere_beside_lbl() {
+    use crate::common::{render, LBL, NETWORKS, PATH};
     let gpu = gpu();
-    let size = [("render.width", "24"), ("render.height", "24")];
-    for (sigma_t, albedo, g) in [("1", "0.99", "0.9"), ("1", "0.99", "0"), ("5", "0.9", "0.6")] {
-        let s = repo_scene(
-            "scenes/anisotropic-cube.toml",
-            &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
-        );
-        let r1 = render(&gpu, &s, PATH, &[("render.spp", "2048"), ("path.max_depth", "1")]);
-        let rall = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
-        let k = scatterlab::solvers::Knobs::defaults("networks", Networks.knobs());
-        let mut set = NetworksSettings::parse(&k, &s).unwrap();
-        set.particles = 512;
-        set.directions = 64;
-        let net = set.network(&s).unwrap();
-        let mut st = Illumination::new(&gpu, &net, &s, set.step, false, 0).unwrap();
-        let ss = st.image(&gpu, &net, 1.0, set.step).unwrap();
-        st.solve(&gpu, 1e-6, 3000, &|_| {}).unwrap();
-        let all = st.image(&gpu, &net, 1.0, set.step).unwrap();
-        let sum = |i: &scatterlab::output::Image| i.data.iter().map(|x| *x as f64).sum::<f64>();
-        eprintln!(
-            "sigma_t {sigma_t} albedo {albedo} g {g}: path single {:.4} all {:.4}; networks single {:.4} all {:.4}",
-            sum(&r1.image),
-            sum(&rall.image),
-            sum(&ss.image),
-            sum(&all.image)
-        );
+    for (scene, spp, energy, error) in [
+        ("scenes/cloud.toml", "1024", (0.95, 1.05), 0.15),
+        ("scenes/homogeneous-sphere.toml", "2048", (0.88, 1.0), 0.2),
+    ] {
+        let s = repo_scene(scene, &[("render.width", "24"), ("render.height", "24")]);
+        let reference = render(&gpu, &s, PATH, &[("render.spp", spp)]);
+        let out = render(&gpu, &s, NETWORKS, &[("networks.particles", "512"), ("networks.directions", "64")]);
+        let (rel, e) = judge(&out.image, &reference);
+        let (lrel, le) = judge(&render(&gpu, &s, LBL, &[]).image, &reference);
+        eprintln!("{scene}: networks energy {e:.3} relL2 {rel:.3}; lbl {le:.3} {lrel:.3}");
+        assert!(e > energy.0 && e < energy.1, "{scene}: energy ratio {e}");
+        assert!(rel < error, "{scene}: relL2 {rel}");
     }
+    assert_clean(&gpu);
 }
