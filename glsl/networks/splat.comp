@@ -8,9 +8,9 @@
 // K the normalised 2D Gaussian at the ray's distance rho from the particle. Front to back:
 //   L = sum_k c_k alpha_k prod_(j before k) (1 - alpha_j) + sky prod_all (1 - alpha_j),
 // c_k from networks/gather. The splats on a pixel are kept in a local array (at most MAX_SPLATS,
-// the nearest first once full; overflow counted: at 96 the cloud's centre at 1024 particles
-// dropped 23158 splats over 64 x 64 pixels, at 256 none) and composited in depth order, (depth, index)
-// breaking ties: deterministic.
+// the nearest; overflow counted: at 96 the cloud's centre at 1024 particles dropped 23158 splats
+// over 64 x 64 pixels, at 256 none) and composited in the camera-distance order of `order`:
+// deterministic.
 //
 // Transmittance (pc.step > 0, `networks.transmittance = medium`, the default): the splats'
 // optical depths along the ray are scaled, per channel, so that they sum to the medium's own
@@ -35,6 +35,7 @@ layout(std430, binding = 3) readonly buffer Positions { vec4 positions[]; };
 layout(std430, binding = 4) readonly buffer Colour { vec4 colour[]; };
 // rgb; w = splats dropped, or -1 where the loops reached the guard (glsl/include/budget.glsl)
 layout(std430, binding = 5) writeonly buffer Image { vec4 image[]; };
+layout(std430, binding = 6) readonly buffer Order { uint order[]; };   // particles, nearest first
 
 layout(push_constant) uniform Push {
     vec4 sigma_m;     // rgb: sigma_t m, a particle's extinction cross-section (scene units^2)
@@ -52,32 +53,28 @@ void main() {
     if (px.x >= scene.image.x || px.y >= scene.image.y) return;
     vec3 o, d;
     camera_ray(vec2(px) + 0.5, o, d);
-    float depth[MAX_SPLATS];
     uint which[MAX_SPLATS];
     uint n = 0u, dropped = 0u;
     float reach2 = 9.0 * pc.width * pc.width;
-    for (uint k = 0u; k < pc.particles; ++k) {
+    // The particles come nearest the camera first (`order`, sorted on the host by distance
+    // from the camera, along its axis for an orthographic one, ties by index): each splat is
+    // appended, with no insertion loop whose lanes diverge (llvmpipe counts a SIMD batch's
+    // loop back-edges together, so per-lane counts could not see a divergent insertion sort
+    // reach its limiter: at 16384 particles it did, silently), and once MAX_SPLATS are kept
+    // the rest are the farthest, counted.
+    for (uint q = 0u; q < pc.particles; ++q) {
         iters++;
+        uint k = order[q];
         vec3 v = positions[k].xyz - o;
         float t = dot(v, d);
         if (t <= 0.0) continue;
         vec3 off = v - t * d;
         if (dot(off, off) > reach2) continue;
-        // Insert by (depth, index); when full, the farthest goes.
         if (n == MAX_SPLATS) {
             ++dropped;
-            if (t >= depth[n - 1u]) continue;
-            --n;
+            continue;
         }
-        uint at = n;
-        while (at > 0u && depth[at - 1u] > t) {
-            iters++;
-            depth[at] = depth[at - 1u];
-            which[at] = which[at - 1u];
-            --at;
-        }
-        depth[at] = t;
-        which[at] = k;
+        which[n] = k;
         ++n;
     }
     float norm = 1.0 / (2.0 * PI * pc.width * pc.width);

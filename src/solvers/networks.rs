@@ -140,8 +140,9 @@ pub fn light_units(scene: &Scene) -> Vec<&Light> {
 
 /// The direct term's units: one per point or directional light, then `env_dirs` per
 /// environment (0: environments reach the particles as the network's sky instead).
+/// (The view pass's count, `view::light_units`; direct.comp orders them lights first.)
 pub fn unit_count(scene: &Scene, env_dirs: u32) -> u32 {
-    scene.lights.iter().map(|l| if matches!(l, Light::Environment { .. }) { env_dirs } else { 1 }).sum()
+    super::view::light_units(scene, env_dirs)
 }
 
 /// The sky's radiance: the environments' summed (W/(m^2 sr)).
@@ -824,6 +825,8 @@ pub struct Illumination {
     step: f32,
     /// The image's size and a particle's extinction cross-section sigma_t m (rgb, units^2).
     size: [u32; 2],
+    /// The camera's origin and, for an orthographic one, its axis: the splats' order.
+    camera: (Vec3, Option<Vec3>),
     sigma_m: Vec3,
     /// Iterations run since the start (or the last light move).
     pub iterations: u32,
@@ -893,6 +896,13 @@ impl Illumination {
             env_dirs,
             step,
             size: [scene.render.width, scene.render.height],
+            camera: (
+                scene.camera.origin,
+                match scene.camera.kind {
+                    crate::scene::CameraKind::Orthographic { .. } => Some(scene.camera.basis().2),
+                    _ => None,
+                },
+            ),
             sigma_m: m.sigma_t * net.particles.mass as f32,
             iterations: 0,
             change: f64::INFINITY,
@@ -916,7 +926,7 @@ impl Illumination {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
         let base = super::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
         let state = 4 * d * d + net.direct_bytes(scene, env_dirs) + 2 * 16 * n * d + 8 * BATCH as u64;
-        let image = 16 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
+        let image = 20 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
         base + net.build_bytes().max(state + image.max(view))
     }
 
@@ -1017,6 +1027,17 @@ impl Illumination {
         let colour = gpu.buffer("networks colours", 16 * n as u64)?;
         let [w, h] = self.size;
         let pixels = gpu.buffer("networks image", 16 * w as u64 * h as u64)?;
+        // The particles nearest the camera first (distance from a perspective camera, depth
+        // along an orthographic one's axis; ties by index): splat.comp appends in this order.
+        let (origin, axis) = self.camera;
+        let key = |x: &Vec3| match axis {
+            Some(a) => (*x - origin).dot(a),
+            None => (*x - origin).length(),
+        };
+        let keys: Vec<f32> = net.particles.positions.iter().map(key).collect();
+        let mut order: Vec<u32> = (0..n).collect();
+        order.sort_by(|a, b| keys[*a as usize].total_cmp(&keys[*b as usize]).then(a.cmp(b)));
+        let order = gpu.buffer_with("networks splat order", &order)?;
         let gather = gpu.pipeline(&GATHER, &gs.modelled.spec())?;
         let splat = gpu.pipeline(&SPLAT, &gs.modelled.spec())?;
         let (sigma_m, sky) = (self.sigma_m, self.push.sky);
@@ -1038,6 +1059,7 @@ impl Illumination {
                 .read(3, &self.positions)
                 .read(4, &colour)
                 .write(5, &pixels)
+                .read(6, &order)
                 .push(&SplatPush {
                     sigma_m: [sigma_m.x, sigma_m.y, sigma_m.z, 0.0],
                     sky,

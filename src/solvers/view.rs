@@ -97,7 +97,7 @@ const MAX_SHADOW_VOLUME_BYTES: u64 = 1 << 27;
 
 /// Light units of the view pass: one per point or directional light, `env_dirs` per
 /// environment (glsl/include/view.glsl, `unit_light`).
-fn light_units(scene: &Scene, env_dirs: u32) -> u32 {
+pub fn light_units(scene: &Scene, env_dirs: u32) -> u32 {
     scene.lights.iter().map(|l| if matches!(l, crate::scene::Light::Environment { .. }) { env_dirs } else { 1 }).sum()
 }
 
