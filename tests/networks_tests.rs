@@ -246,15 +246,7 @@ fn a_thin_medium_keeps_its_columns_sortable() {
     assert_eq!(net.window.m, 4, "sqrt(1024 / 64)");
     assert_eq!(net.visibility(&gpu).expect("a thin network"), net.visibility_cpu());
     let fit = network("scenes/homogeneous-sphere.toml", &thin, 1024, 16, None);
-    let column = |m: u32| {
-        scatterlab::solvers::networks::mean_column(
-            &fit.particles,
-            &fit.directions,
-            fit.window.centre,
-            fit.window.radius,
-            m,
-        )
-    };
+    let column = |m: u32| Window { m, ..fit.window }.mean_column(&fit.particles, &fit.directions);
     let m = fit.window.m;
     eprintln!("fit: M {m}, {:.1} particles to an occupied column ({:.1} at 2M)", column(m), column(2 * m));
     assert!(m > 4 && column(m) >= 8.0 && column(2 * m) < 8.0, "M {m}: {} / {}", column(m), column(2 * m));

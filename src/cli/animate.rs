@@ -27,7 +27,7 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     // Before any device work: the solver must keep a solution to start the next frame from,
     // and its knobs must make a sequence (a solver checks what its warm start needs).
     let req = solvers::RenderRequest { scene: &scene, settings: &settings, force_full: false, progress: &|_| {} };
-    if solver.animation(&req, false)?.is_none() {
+    let Some(seq) = solver.animation(&req, false)? else {
         let able: Vec<&str> = solvers::SOLVERS
             .iter()
             .filter(|s| s.animation(&req, false).is_ok_and(|x| x.is_some()))
@@ -38,7 +38,8 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
             solver.name(),
             able.join(" or ")
         );
-    }
+    };
+    let reference = if a.no_reference { None } else { solver.animation(&req, true)? };
     if a.out_dir.is_file() {
         bail!("--out-dir {}: a file is in the way; choose a directory", a.out_dir.display());
     }
@@ -96,7 +97,7 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
         Ok(())
     };
     let orbit = Orbit { frames: a.frames, step_deg: a.orbit_light, reference: !a.no_reference };
-    let result = animate::run(&gpu, solver, &scene, &settings, &orbit, &progress, &mut on_frame);
+    let result = animate::run_sequences(&gpu, seq, reference, &scene, &orbit, &progress, &mut on_frame);
     bar.finish_and_clear();
     let rows = result.map_err(|e| anyhow!(e))?;
     check_validation(&gpu)?;

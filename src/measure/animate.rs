@@ -18,7 +18,7 @@ use serde::Serialize;
 use crate::gpu::Gpu;
 use crate::output::{self, Image};
 use crate::scene::{Light, Scene};
-use crate::solvers::{Progress, RenderOutput, RenderRequest, Settings, Solver, SolverError};
+use crate::solvers::{Animation, Progress, RenderOutput, RenderRequest, Settings, Solver, SolverError};
 
 /// One frame's figures (a row of `frames.csv`).
 #[derive(Clone, Debug, Serialize)]
@@ -71,6 +71,28 @@ pub fn orbit(scene: &Scene, deg: f64) -> Result<Scene, String> {
     Ok(s)
 }
 
+/// A warm-started sequence and its converged reference ([`sequences`]).
+pub type Sequences = (Box<dyn Animation>, Option<Box<dyn Animation>>);
+
+/// The solver's warm-started sequence for `scene` and, with `reference`, a second one that
+/// iterates every frame to the tolerance. Host work only (no device): a solver without a warm
+/// start, or knobs its sequence refuses, fail here before any rendering.
+pub fn sequences(
+    solver: &dyn Solver,
+    scene: &Scene,
+    settings: &Settings,
+    reference: bool,
+) -> Result<Sequences, String> {
+    orbit(scene, 0.0)?;
+    let req = RenderRequest { scene, settings, force_full: false, progress: &|_| {} };
+    let make = |converge: bool| {
+        solver.animation(&req, converge).map_err(|e| e.to_string())?.ok_or_else(|| {
+            format!("animate: solver {} keeps no solution to warm start the next frame from", solver.name())
+        })
+    };
+    Ok((make(false)?, if reference { Some(make(true)?) } else { None }))
+}
+
 /// Render the sequence: `on_frame` gets each frame's image and row as it is done (to write it
 /// at once: nothing is lost to a later failure). Errors as one line.
 pub fn run(
@@ -82,16 +104,20 @@ pub fn run(
     progress: &dyn Fn(Progress),
     on_frame: &mut dyn FnMut(&Image, &RenderOutput, &FrameRow) -> Result<(), String>,
 ) -> Result<Vec<FrameRow>, String> {
-    orbit(scene, 0.0)?;
-    let req = RenderRequest { scene, settings, force_full: false, progress: &|_| {} };
-    let no_warm_start =
-        |s: &dyn Solver| format!("animate: solver {} keeps no solution to warm start the next frame from", s.name());
-    let mut seq = solver.animation(&req, false).map_err(|e| e.to_string())?.ok_or_else(|| no_warm_start(solver))?;
-    let mut reference = if o.reference {
-        Some(solver.animation(&req, true).map_err(|e| e.to_string())?.ok_or_else(|| no_warm_start(solver))?)
-    } else {
-        None
-    };
+    let (seq, reference) = sequences(solver, scene, settings, o.reference)?;
+    run_sequences(gpu, seq, reference, scene, o, progress, on_frame)
+}
+
+/// [`run`] with the sequences already made ([`sequences`]).
+pub fn run_sequences(
+    gpu: &Gpu,
+    mut seq: Box<dyn Animation>,
+    mut reference: Option<Box<dyn Animation>>,
+    scene: &Scene,
+    o: &Orbit,
+    progress: &dyn Fn(Progress),
+    on_frame: &mut dyn FnMut(&Image, &RenderOutput, &FrameRow) -> Result<(), String>,
+) -> Result<Vec<FrameRow>, String> {
     let mut rows = Vec::with_capacity(o.frames as usize);
     for f in 0..o.frames {
         let angle = f as f64 * o.step_deg;
@@ -110,7 +136,7 @@ pub fn run(
             gpu_ms: out.report.gpu_ms,
             iterations: conv.map_or(0, |c| c.iterations),
             change: conv.map_or(0.0, |c| c.final_change),
-            converged: conv.is_none_or(|c| c.converged),
+            converged: conv.map_or(true, |c| c.converged),
             rel_l2: None,
             energy_ratio: None,
             reference_iterations: None,

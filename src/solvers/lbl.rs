@@ -363,7 +363,9 @@ struct LblAnimation {
 
 impl Animation for LblAnimation {
     fn frame(&mut self, gpu: &Gpu, scene: &Scene, progress: &dyn Fn(Progress)) -> Result<RenderOutput, SolverError> {
-        let mut set = self.set.clone();
+        // The previous field moves into this frame's settings (not copied with them).
+        let previous = self.set.previous.take();
+        let mut set = LblSettings { previous, ..self.set.clone() };
         if set.previous.is_some() {
             // Later frames: no cascade (the previous field is the guess).
             set.cascade = 0;

@@ -94,8 +94,8 @@ struct SplatPush {
     sky: [f32; 4],
     width: f32,
     particles: u32,
-    /// > 0: each camera ray's splats scaled to the medium's optical depth along it, marched in
-    /// steps of this (scene units); 0: the splats' own transmittance (the paper's).
+    /// Positive: each camera ray's splats scaled to the medium's optical depth along it, marched
+    /// in steps of this (scene units); 0: the splats' own transmittance (the paper's).
     step: f32,
     pad: u32,
 }
@@ -400,7 +400,8 @@ impl Window {
                 // 0.048, with 4 (M 16) 0.965 / 0.054.
                 // The mean falls as M grows: bisect for the largest M that keeps it.
                 WindowRule::Fit => {
-                    let full = |m: u32| mean_column(particles, directions, centre, radius, m) >= COLUMN_PARTICLES;
+                    let full =
+                        |m: u32| Window { centre, radius, m }.mean_column(particles, directions) >= COLUMN_PARTICLES;
                     let (mut lo, mut hi) = (1u32, opacity.floor().clamp(1.0, MAX_WINDOW as f64) as u32);
                     if full(hi) {
                         lo = hi;
@@ -422,6 +423,22 @@ impl Window {
             upper.floor().max(crowding).clamp(1.0, MAX_WINDOW as f64) as u32
         });
         Window { centre, radius, m: m.clamp(1, MAX_WINDOW) }
+    }
+
+    /// The mean number of particles in an occupied column of this window, over up to eight of
+    /// the directions (evenly spaced in the list).
+    pub fn mean_column(&self, particles: &Particles, directions: &Directions) -> f64 {
+        let d = directions.len().max(1);
+        let picks: Vec<usize> = (0..d.min(8)).map(|k| k * d / d.min(8)).collect();
+        let mut occupied = 0usize;
+        for &k in &picks {
+            let mut keys: Vec<u32> =
+                particles.positions.iter().map(|x| self.key(*x, &directions.frames[k]).0).collect();
+            keys.sort_unstable();
+            keys.dedup();
+            occupied += keys.len();
+        }
+        particles.positions.len() as f64 * picks.len() as f64 / occupied.max(1) as f64
     }
 
     /// Pixels per scene unit: M / (2R), as the kernels take it.
@@ -448,22 +465,6 @@ impl Window {
         let py = (((b + self.radius) * inv).floor() as i32).clamp(0, last);
         (py as u32 * self.m + px as u32, d)
     }
-}
-
-/// The mean number of particles in an occupied column of an M x M window, over up to eight
-/// of the directions (evenly spaced in the list).
-pub fn mean_column(particles: &Particles, directions: &Directions, centre: Vec3, radius: f32, m: u32) -> f64 {
-    let w = Window { centre, radius, m };
-    let d = directions.len().max(1);
-    let picks: Vec<usize> = (0..d.min(8)).map(|k| k * d / d.min(8)).collect();
-    let mut occupied = 0usize;
-    for &k in &picks {
-        let mut keys: Vec<u32> = particles.positions.iter().map(|x| w.key(*x, &directions.frames[k]).0).collect();
-        keys.sort_unstable();
-        keys.dedup();
-        occupied += keys.len();
-    }
-    particles.positions.len() as f64 * picks.len() as f64 / occupied.max(1) as f64
 }
 
 /// A particle model with its directions and windows: what the networks are built over.
@@ -837,8 +838,6 @@ pub struct Illumination {
     pub change: f64,
     /// Iterations whose change or peak came back negative or not finite.
     pub faults: u64,
-    /// The most device bytes held at once, building included ([`Illumination::device_bytes`]).
-    pub bytes: u64,
 }
 
 /// How an iteration to a tolerance ended.
@@ -907,7 +906,6 @@ impl Illumination {
             iterations: 0,
             change: f64::INFINITY,
             faults: 0,
-            bytes: Self::device_bytes(net, scene, env_dirs, 0),
             gs,
             positions,
             dirs,
@@ -1304,7 +1302,9 @@ impl Networks {
                 unit: "1/s".into(),
             }];
         }
-        if !c.converged && c.change > set.tol {
+        // Only a solve that ran out of iterations: an animation frame's fixed iterations after
+        // the first are meant to stop short of the tolerance.
+        if !c.converged && c.iterations >= set.max_iterations {
             report.warnings.push(format!(
                 "networks: the iteration did not converge in {} iterations (change {:.2e} of the largest radiance, \
                  tolerance {:.1e}); raise networks.max_iterations or networks.tol",
