@@ -12,8 +12,11 @@ use std::process::{Command, Output};
 
 use glam::Vec3;
 use roxmltree::{Document, Node};
+use scatterlab::scene::mesh::{load_obj, MeshTransform};
 use scatterlab::scene::mitsuba::export_mitsuba;
-use scatterlab::scene::mitsuba::{export_warnings, sphere_fits, sphere_grid_dims, vol_path_for, SPHERE_GRID_RES};
+use scatterlab::scene::mitsuba::{
+    export_warnings, obj_path_for, sphere_fits, sphere_grid_dims, vol_path_for, SPHERE_GRID_RES,
+};
 use scatterlab::scene::{CameraKind, Density, Light, LoadOptions, Scene};
 
 const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
@@ -241,18 +244,48 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
     assert_eq!(named(medium, "albedo").tag_name().name(), if grey(m.albedo) { "float" } else { "rgb" });
 
     let shape = only(root, "shape");
-    assert_eq!(attr(only(shape, "bsdf"), "type"), "null", "index-matched boundary");
+    let bsdf = only(shape, "bsdf");
+    match scene.object.as_ref().filter(|o| o.refractive()) {
+        Some(o) => {
+            assert_eq!(attr(bsdf, "type"), "dielectric", "a refractive object's boundary");
+            assert_eq!(value(bsdf, "float", "int_ior").parse::<f32>().unwrap(), o.ior);
+            assert_eq!(value(bsdf, "float", "ext_ior"), "1");
+        }
+        None => assert_eq!(attr(bsdf, "type"), "null", "index-matched boundary"),
+    }
+    // An object's mesh is written beside the XML in scene coordinates and reads back the same.
+    let obj_path = obj_path_for(&files[0]);
+    let files: Vec<PathBuf> = match &scene.object {
+        Some(o) => {
+            assert_eq!(attr(shape, "type"), "obj");
+            assert_eq!(dir.join(value(shape, "string", "filename")), obj_path, "the mesh beside the XML");
+            assert_eq!(value(shape, "boolean", "face_normals"), "true");
+            assert!(files.contains(&obj_path), "{files:?}");
+            let back = load_obj(&obj_path, &MeshTransform::identity()).expect("the exported mesh loads");
+            assert_eq!(back.triangles, o.mesh.triangles);
+            assert_eq!(back.positions, o.mesh.positions, "positions written exactly");
+            files.iter().filter(|f| **f != obj_path).cloned().collect()
+        }
+        None => {
+            assert!(!obj_path.exists());
+            files.to_vec()
+        }
+    };
+    let files = &files[..];
     let interior = named(shape, "interior");
     assert_eq!(interior.tag_name().name(), "ref");
     assert_eq!(attr(interior, "id"), "medium");
     let check_bounds_cube = || {
+        if scene.object.is_some() {
+            return; // the mesh is the shape
+        }
         assert_eq!(attr(shape, "type"), "cube");
         let (scale, translate) = scale_translate(shape);
         assert_eq!(scale, 0.5 * (m.bounds_max - m.bounds_min), "cube [-1, 1]^3 scaled to half the bounds");
         assert_eq!(translate, 0.5 * (m.bounds_max + m.bounds_min), "cube centred on the bounds");
     };
     let sphere_fits_bounds = match m.density {
-        Density::Sphere { center, radius } => sphere_fits(m, center, radius),
+        Density::Sphere { center, radius } => scene.object.is_none() && sphere_fits(m, center, radius),
         _ => false,
     };
     let vol_path = vol_path_for(&files[0]);

@@ -341,10 +341,11 @@ fn scene_error_raw_grid_size_mismatch() {
     assert_mentions(&msg, &["needs 256 bytes", "has 260 bytes"]);
     let msg = grid_error(&[("g.f32", f32_bytes(&[0.5; 64]))], &base().grid("g.f32"), &LoadOptions::default());
     assert_mentions(&msg, &["no dims", "dims = [nx, ny, nz]"]);
-    // OpenVDB's magic ("VDB " as a little-endian u32): named, with what to do until it is read.
+    // OpenVDB's magic ("VDB " as a little-endian u32) given as kind "grid": named, with the kind
+    // that reads it.
     let vdb = [&[0x20u8, 0x42, 0x44, 0x56][..], &[0u8; 60][..]].concat();
     let msg = grid_error(&[("c.vdb", vdb)], &base().grid("c.vdb"), &LoadOptions::default());
-    assert_mentions(&msg, &["c.vdb", "OpenVDB", "cannot read yet", ".vol", "dims = [nx, ny, nz]"]);
+    assert_mentions(&msg, &["c.vdb", "OpenVDB", "kind = \"vdb\""]);
     let msg = grid_error(
         &[("g.f32", f32_bytes(&[0.5; 64]))],
         &base().grid_with_dims("g.f32", [4, 0, 16]),

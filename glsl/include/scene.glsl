@@ -31,6 +31,7 @@ layout(std430, binding = SCENE_BINDING) readonly buffer SceneBlock {
     vec4 cam_right;      // unit
     vec4 cam_up;         // unit
     uvec4 image;         // width, height, light count, 0
+    vec4 object;         // the [[object]] (format v2): x = ior inside (1 without one)
     Light lights[];
 } scene;
 

@@ -51,22 +51,91 @@ const uint DONE_BIT = 1u << 31u;
 vec4 trk_saved[3];
 bool trk_resume = false;
 bool trk_paused = false;
+// With a mesh, a resumed tracker takes at least one step before it may pause again, whatever
+// the work that preceded it in this dispatch (a mesh traversal can cost more than a small
+// budget): every dispatch makes progress.
+bool trk_step_due = false;
 
 // Begin tracking along p + t w over the medium's interval (clipped to t_far when `clip`), or,
 // when a paused tracker is waiting (trk_resume), resume it: the caller reaches the same call
 // with the same ray, so the parts of the tracker that follow from the ray (segments_begin's
 // steps) are recomputed identically and only its progress is loaded.
 void track_start_on(vec3 p, vec3 w, vec2 iv);
+#ifdef MESH_NODES_BINDING
+// With an [[object]] (mesh.glsl), a tracked ray starts inside the mesh (a scattering point, or
+// a point just past a surface the path crossed inward): its first interval ends at the first
+// surface. A transmittance (clip) goes on through further inside intervals up to t_far when
+// the boundary is index-matched (trk_chain); a refractive one blocks it (trk_blocked): a
+// delta light or direction cannot be reached through a smooth dielectric by a straight ray.
+bool trk_chain = false;
+bool trk_blocked = false;
+float trk_far = INF;
+// The current inside interval's end, saved with the tracker (track_save_mesh) since a
+// chained interval is not the one track_start recomputes.
+vec4 trk_saved_mesh = vec4(0.0);
+
+// The next crossing of the mesh along p + t w with t in (t_min, t_max) whose facing is
+// `entering` (dot(w, n) < 0) or leaving: crossings of the other facing are stepped over, so
+// a ray through an edge shared by two triangles is not counted twice.
+bool mesh_crossing(vec3 p, vec3 w, float t_min, float t_max, bool entering, out float t) {
+    vec3 n;
+    t = t_min;
+    // A closed mesh alternates entries and exits; a few extra steps cover edge double hits.
+    for (uint k = 0u; k < 8u; k++) {
+        iters++;
+        if (!mesh_hit(p, w, t, t_max, t, n)) return false;
+        if ((dot(w, n) < 0.0) == entering) return true;
+    }
+    return false;
+}
+
+// The next inside interval of the ray after t_end (an exit), within the box and t_far: false
+// when there is none.
+bool next_inside_interval(vec3 p, vec3 w, float t_end, float t_far, out vec2 iv) {
+    float t_in, t_out;
+    iv = vec2(INF, -INF);
+    if (!(t_end < t_far) || !mesh_crossing(p, w, t_end, t_far, true, t_in)) return false;
+    if (!mesh_crossing(p, w, t_in, INF, false, t_out)) t_out = INF;
+    vec2 box = medium_interval(p, w);
+    iv = vec2(max(t_in, box.x), min(min(t_out, t_far), box.y));
+    return iv.x < iv.y;
+}
+#endif
+
 void track_start(vec3 p, vec3 w, float t_far, bool clip) {
     vec2 iv = medium_interval(p, w);
     iv.x = max(iv.x, 0.0);
+#ifdef MESH_NODES_BINDING
+    bool chain = false, blocked = false;
+    if (HAS_MESH) {
+        float t_exit;
+        if (!mesh_crossing(p, w, 0.0, INF, false, t_exit)) t_exit = INF;
+        iv.y = min(iv.y, t_exit);
+        if (clip && t_exit < t_far) {
+            if (REFRACTIVE) blocked = true;
+            else chain = true;
+        }
+    }
+#endif
     if (clip) iv.y = min(iv.y, t_far);
     track_start_on(p, w, iv);
+#ifdef MESH_NODES_BINDING
+    // After track_start_on, which clears them: a free flight never chains (it ends at the
+    // surface, where the path meets the boundary).
+    trk_chain = chain;
+    trk_blocked = blocked;
+    trk_far = clip ? t_far : INF;
+#endif
 }
 
 // track_start over an interval [iv.x, iv.y] of the ray the caller has already found (the
 // medium's, from t >= 0): saves the caller's second ray-medium intersection.
 void track_start_on(vec3 p, vec3 w, vec2 iv) {
+#ifdef MESH_NODES_BINDING
+    trk_chain = false;
+    trk_blocked = false;
+    trk_far = INF;
+#endif
     trk.s = segments_begin(p, w, iv.x, iv.y);
     trk.t = 0.0;
     trk.t1 = 0.0;
@@ -76,6 +145,9 @@ void track_start_on(vec3 p, vec3 w, vec2 iv) {
     trk.T = vec3(1.0);
     if (trk_resume) {
         trk_resume = false;
+#ifdef MESH_NODES_BINDING
+        trk_step_due = HAS_MESH;
+#endif
         vec4 a = trk_saved[0], b = trk_saved[1], c = trk_saved[2];
         uint bits = floatBitsToUint(c.w);
         trk.t = a.x;
@@ -94,8 +166,21 @@ void track_start_on(vec3 p, vec3 w, vec2 iv) {
         trk.s.next_t = b.xyz;
         trk.s.cell = ivec3(floatBitsToInt(b.w), int(bits & CELL_MASK), int((bits >> 14u) & CELL_MASK));
         trk.T = c.xyz;
+#ifdef MESH_NODES_BINDING
+        // A chained interval: its end (the DDA's steps follow from the direction alone).
+        if (HAS_MESH && trk_saved_mesh.w != 0.0) trk.s.t_max = trk_saved_mesh.x;
+#endif
     }
 }
+
+#ifdef MESH_NODES_BINDING
+// What track_start needs beyond track_save's words to resume a paused tracker in a chained
+// interval: its end, and a flag (zeros when none paused).
+vec4 track_save_mesh() {
+    return trk_paused && HAS_MESH ? vec4(trk.s.t_max, 0.0, 0.0, 1.0) : vec4(0.0);
+}
+
+#endif
 
 // The words that track_start loads to resume `trk` (zeros when no tracking loop paused).
 void track_save(out vec4 a, out vec4 b, out vec4 c) {
@@ -116,12 +201,24 @@ void track_save(out vec4 a, out vec4 b, out vec4 c) {
 int track_next(inout uvec2 rng) {
     float t0;
     while (true) {
-        if (iters >= iter_limit) {
+        if (iters >= iter_limit && !trk_step_due) {
             trk_paused = true;
             return -1;
         }
+        trk_step_due = false;
         if (!trk.in_seg) {
-            if (!segments_next(trk.s, t0, trk.t1, trk.smaj)) return 0;
+            if (!segments_next(trk.s, t0, trk.t1, trk.smaj)) {
+#ifdef MESH_NODES_BINDING
+                // A transmittance through an index-matched mesh: on into the next inside interval.
+                vec2 iv;
+                if (trk_chain && next_inside_interval(trk.s.org, trk.s.dir, trk.s.t_max, trk_far, iv)) {
+                    iters++;
+                    trk.s = segments_begin(trk.s.org, trk.s.dir, iv.x, iv.y);
+                    continue;
+                }
+#endif
+                return 0;
+            }
             iters++;
             if (trk.smaj <= 0.0) continue;
             trk.t = t0;
@@ -157,8 +254,25 @@ bool transmittance_run(inout uvec2 rng) {
     // against the majorant sigma_t is binary there (sigma_n = 0: T is 1 with probability
     // exp(-sigma_t d), else 0), as it is in pbrt-v4 and Mitsuba 3; its variance T (1 - T) is
     // what next-event estimation deep in an optically thick medium is made of.
+#ifdef MESH_NODES_BINDING
+    if (trk_blocked) {
+        trk.T = vec3(0.0);
+        trk.s.done = true;
+        return true;
+    }
+#endif
     if (DENSITY_KIND != DENSITY_GRID) {
         float d = trk.s.done ? 0.0 : max(trk.s.t_max - trk.s.t_min, 0.0);
+#ifdef MESH_NODES_BINDING
+        // Every inside interval up to t_far: their lengths add.
+        vec2 iv;
+        float t_end = trk.s.t_max;
+        while (trk_chain && next_inside_interval(trk.s.org, trk.s.dir, t_end, trk_far, iv)) {
+            iters++;
+            d += iv.y - iv.x;
+            t_end = iv.y;
+        }
+#endif
         trk.T = exp(-scene.sigma_t.xyz * d);
         trk.s.done = true;
         return true;

@@ -17,15 +17,24 @@
 // ray segment (Kulla & Fajardo 2012, "Importance sampling techniques for path tracing in
 // participating media"), combined with next-event estimation from the distance-sampled
 // scattering point by MIS: see eq_* and advance().
+// With an [[object]] (scene format v2, HAS_MESH) the medium lies inside a closed mesh and
+// outside is vacuum: a path flies to the mesh's surface (BVH, mesh.glsl) and crosses it, or,
+// where the boundary refracts (REFRACTIVE), meets a smooth dielectric there: reflection with
+// the Fresnel probability, else refraction by Snell's law, total internal reflection
+// included (surface_event). Both choices have weight 1; refraction scales the throughput by
+// eta^2 (radiance compression, transport of radiance as pbrt-v4 and Mitsuba 3 do).
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
 #define MAJORANT_BINDING 2
+#define MESH_NODES_BINDING 6
+#define MESH_TRIS_BINDING 7
 #include "../include/scene.glsl"
 #include "../include/rng.glsl"
 #include "../include/phase.glsl"
 #include "../include/budget.glsl"
+#include "../include/mesh.glsl"
 #include "../include/tracking.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
@@ -47,13 +56,15 @@ struct PathState {
     vec4 trk_a;        // the paused tracking loop (tracking.glsl, track_save)
     vec4 trk_b;
     vec4 trk_c;
+    vec4 trk_mesh;     // x, w: a paused tracker's chained interval (tracking.glsl, track_save_mesh); y: ev_t_surf
 };
 // The flags word: bit 0 a path is in flight, 1 it was truncated, 2 a tracking loop paused,
-// 3 ev_eq_on, 4-6 ev_step, 8-9 ev_sub, 12-31 ev_light (the host refuses 2^20 lights or more).
+// 3 ev_eq_on, 4-6 ev_step, 7 inside the mesh, 8-9 ev_sub, 12-31 ev_light (the host refuses 2^20 lights or more).
 const uint FLAG_IN_FLIGHT = 1u;
 const uint FLAG_TRUNCATED = 2u;
 const uint FLAG_TRACKING = 4u;
 const uint FLAG_EQ_ON = 8u;
+const uint FLAG_INSIDE = 128u;   // bit 7: the ray starts inside the [[object]]'s mesh
 layout(std430, binding = 5) buffer State { PathState state[]; };
 
 layout(push_constant) uniform Push {
@@ -195,6 +206,52 @@ bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
     return true;
 }
 
+// Whether the ray (o, d) of the current event starts inside the mesh (FLAG_INSIDE), and the
+// distance to its surface along it (INF: none), found at the event's start.
+bool inside = false;
+float ev_t_surf = INF;
+
+// The path meets the mesh at o + t d (unit outward normal n): it crosses an index-matched
+// boundary unchanged; a refractive one reflects with the Fresnel probability F and refracts
+// with 1 - F (both at weight 1: F / F and (1 - F) / (1 - F)), total internal reflection where
+// Snell's law has no solution (F = 1). A refraction from index n_i into n_t scales the throughput
+// by (n_i / n_t)^2: camera paths carry importance, and radiance leaving a denser medium is
+// compressed by that factor (Veach 1997, sec. 5.2; pbrt-v4 DielectricBxDF, Mitsuba 3
+// dielectric in radiance mode). The new origin is moved off the surface to the side the ray
+// leaves on, by a distance relative to the coordinates' magnitude (float rounding).
+void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_dir, inout uvec2 rng) {
+    // The hit's normal: the same ray finds the same triangle (the traversal is deterministic).
+    float t;
+    vec3 n;
+    mesh_hit(o, d, 0.0, INF, t, n);
+    vec3 p = o + d * t;
+    bool entering = dot(d, n) < 0.0;
+    vec3 nf = entering ? n : -n;   // facing the side the ray comes from
+    bool crosses = true;
+    if (REFRACTIVE) {
+        float ior = scene.object.x;
+        float eta = entering ? 1.0 / ior : ior;   // n_i / n_t
+        float cos_i = clamp(-dot(d, nf), 0.0, 1.0);
+        float cos_t;
+        float F = fresnel_dielectric(cos_i, eta, cos_t);
+        if (rnd(rng) < F) {
+            d = normalize(reflect(d, nf));
+            crosses = false;
+        } else {
+            d = refract_dir(d, nf, eta, cos_i, cos_t);
+            beta *= eta * eta;
+        }
+        pdf_dir = -1.0;
+    }
+    inside = crosses ? entering : !entering;
+    float eps = 1e-5 * max(1.0, max3(abs(p)));
+    o = p + (crosses ? -nf : nf) * eps;
+    // A path caught between surfaces (total internal reflection in a clear object) ends at the
+    // collision cap, counted and reported as truncated, never loops for ever.
+    collisions++;
+    if (collisions > collision_cap) { truncated = true; beta = vec3(0.0); }
+}
+
 // Outcomes of advance().
 const int EVENT_NEXT = 0;     // the path goes on
 const int EVENT_ENDED = 1;    // the path has ended
@@ -209,6 +266,21 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     // The ray's segment in the medium, as the free flight sees it; kept for the MIS weights.
     vec2 seg = medium_interval(o, d);
     seg.x = max(seg.x, 0.0);
+    // With a mesh: the medium is inside it, so the segment ends at the next surface, and a ray
+    // outside crosses vacuum to the surface (or escapes).
+    // The surface is found once per event and kept in the state (ev_t_surf), not recomputed
+    // when a paused event resumes: a traversal can cost more than a small budget, and an
+    // event that paid it again on every resume would never progress.
+    if (HAS_MESH && ev_step == EV_START) {
+        vec3 n_unused;
+        if (!mesh_hit(o, d, 0.0, INF, ev_t_surf, n_unused)) ev_t_surf = INF;
+    }
+    float t_surf = ev_t_surf;
+    bool surf = HAS_MESH && t_surf < INF;
+    if (HAS_MESH) {
+        if (inside) seg.y = min(seg.y, t_surf);
+        else seg = vec2(0.0, -1.0);
+    }
     if (ev_step == EV_START) {
         // Equiangular sampling only where a scattering vertex here would be allowed
         // (depth + 1 <= max_depth), exactly where the distance-sampled NEE below happens.
@@ -229,6 +301,10 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         ev_light = 0u;
         ev_sub = 0u;
         if (r == FLIGHT_ESCAPED) {
+            if (HAS_MESH && surf && max3(beta) > 0.0 && !truncated) {
+                surface_event(o, d, beta, pdf_dir, rng);
+                return EVENT_NEXT;
+            }
             ev_step = EV_ESCAPE;
         } else {
             depth++;
@@ -244,8 +320,9 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
                 iters++;
                 if (uint(scene.lights[ev_light].pos_kind.w) != LIGHT_ENVIRONMENT) continue;
                 // The camera ray sees the environment directly; later escapes share the
-                // environment with its next-event estimate by MIS.
-                float w = depth == 0u ? 1.0 : mis_power(pdf_dir, INV_4PI);
+                // environment with its next-event estimate by MIS, except past a refraction or
+                // reflection (pdf_dir < 0), which next-event estimation cannot reach.
+                float w = depth == 0u || pdf_dir < 0.0 ? 1.0 : mis_power(pdf_dir, INV_4PI);
                 L += beta * scene.lights[ev_light].value.rgb * w;
             }
         }
@@ -345,6 +422,9 @@ void main() {
     truncated = (flags & FLAG_TRUNCATED) != 0u;
     trk_resume = (flags & FLAG_TRACKING) != 0u;
     ev_eq_on = (flags & FLAG_EQ_ON) != 0u;
+    inside = (flags & FLAG_INSIDE) != 0u;
+    trk_saved_mesh = st.trk_mesh;
+    ev_t_surf = st.trk_mesh.y;
     ev_step = (flags >> 4u) & 7u;
     ev_sub = (flags >> 8u) & 3u;
     ev_light = flags >> 12u;
@@ -399,6 +479,7 @@ void main() {
             segs0 = 0u;
             truncated = false;
             in_flight = true;
+            inside = false;   // the camera is outside the mesh (the scene loader checks its origin)
             ev_step = EV_START;
         }
         iters++;
@@ -420,12 +501,15 @@ void main() {
     }
     if (in_flight) segs += collisions - segs0;
     flags = (in_flight ? FLAG_IN_FLIGHT : 0u) | (truncated ? FLAG_TRUNCATED : 0u) | (trk_paused ? FLAG_TRACKING : 0u)
-          | (ev_eq_on ? FLAG_EQ_ON : 0u) | (ev_step << 4u) | (ev_sub << 8u) | (ev_light << 12u);
+          | (ev_eq_on ? FLAG_EQ_ON : 0u) | (inside ? FLAG_INSIDE : 0u) | (ev_step << 4u) | (ev_sub << 8u)
+          | (ev_light << 12u);
     vec4 ta, tb, tc;
     track_save(ta, tb, tc);
+    vec4 tm = track_save_mesh();
+    tm.y = ev_t_surf;
     state[pixel] = PathState(vec4(o, pdf_dir), vec4(d, uintBitsToFloat(depth)), vec4(beta, uintBitsToFloat(rng.x)),
                              vec4(L, uintBitsToFloat(collisions)), uvec4(k, flags, floatBitsToUint(ev_s), rng.y),
-                             vec4(ev_v, 0.0), ta, tb, tc);
+                             vec4(ev_v, 0.0), ta, tb, tc, tm);
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);

@@ -34,7 +34,10 @@ impl Scene {
     /// trilinearly interpolated grid; 0 outside the bounds. Multiply by `sigma_t` for
     /// extinction.
     pub fn density_at(&self, p: Vec3) -> f32 {
-        self.medium.density_at(p)
+        match &self.object {
+            Some(object) if !object.contains(p) => 0.0,
+            _ => self.medium.density_at(p),
+        }
     }
 
     /// An upper bound of [`Scene::density_at`] (exact for every density kind: 1, or the
@@ -60,6 +63,15 @@ impl Light {
             Light::Point { intensity, .. } => intensity,
             Light::Directional { irradiance, .. } => irradiance,
             Light::Environment { radiance } => radiance,
+        }
+    }
+
+    /// Its `kind` in a scene file: "point", "directional" or "environment".
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            Light::Point { .. } => "point",
+            Light::Directional { .. } => "directional",
+            Light::Environment { .. } => "environment",
         }
     }
 }

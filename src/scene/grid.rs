@@ -139,10 +139,7 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
             }
             if magic == OPENVDB_MAGIC[..3] && is_openvdb(&req.resolved) {
                 return Err(req.err(
-                    "an OpenVDB file, which scatterlab cannot read yet; copy its density grid to a dense array \
-                        (pyopenvdb's copyToArray) and write it as a Mitsuba 3 .vol (float32, 1 channel, x fastest: \
-                        write_vol in tools/make-cloud shows the header) or as raw little-endian float32 with \
-                        dims = [nx, ny, nz]",
+                    "an OpenVDB file; read it with density = { kind = \"vdb\", file = ..., grid = \"density\" }",
                 ));
             }
             return Err(req.err(

@@ -69,6 +69,12 @@
 //!     the outermost centres and the faces, which is our grid convention exactly.
 //!   - A camera, or a point light, inside the medium's shape gets `<ref name="medium">` so
 //!     that Mitsuba knows the medium its rays start in (needed for the camera).
+//! * **Objects** (format v2): the mesh is written beside the XML as `OUT.mesh.obj` in scene
+//!   coordinates and loaded by an `obj` shape (`face_normals`, identity `to_world`) that
+//!   carries the medium as its `interior`; its BSDF is `null` at ior 1 and `dielectric`
+//!   (`int_ior` = ior, `ext_ior` = 1: smooth, Fresnel reflection and refraction,
+//!   `src/bsdfs/dielectric.cpp`) otherwise. A sphere density inside an object is rasterised
+//!   like a clipped sphere (the mesh, not a sphere shape, bounds the medium).
 //! * **Emitters**: `point` (`position`, `intensity` in W/sr), `directional` (`direction` =
 //!   the direction the light travels, `irradiance` in W/m^2), `environment` -> `constant`
 //!   (`radiance`). Values are always `<rgb>`. Render with an RGB variant (`scalar_rgb`,
@@ -84,6 +90,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
+use super::mesh::TriangleMesh;
 use super::{is_grey, Camera, CameraKind, Density, Light, Medium, Scene};
 use crate::output::{write_atomically, OutputError};
 
@@ -142,16 +149,30 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
 /// sphere, `vol_path_for(xml_path)`). Returns the files written, the XML first. On error
 /// nothing is left behind.
 pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, OutputError> {
-    let plan = plan_medium(&scene.medium);
+    let plan = plan_medium(scene);
     let vol_path = vol_path_for(xml_path);
     let vol_name = vol_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let obj_path = obj_path_for(xml_path);
+    let obj_name = obj_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let xml_name = xml_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let xml = scene_xml(scene, &plan, &xml_name, &vol_name);
+    let xml = scene_xml(scene, &plan, &xml_name, &vol_name, &obj_name);
 
     let mut written = Vec::new();
+    let cleanup = |written: &[PathBuf]| {
+        for p in written {
+            let _ = std::fs::remove_file(p);
+        }
+    };
     if let Plan::Grid(grid) = &plan {
         write_atomically(&vol_path, |tmp| write_vol_file(tmp, grid, &scene.medium))?;
         written.push(vol_path.clone());
+    }
+    if let Some(object) = &scene.object {
+        if let Err(e) = write_atomically(&obj_path, |tmp| write_obj_file(tmp, &object.mesh)) {
+            cleanup(&written);
+            return Err(e);
+        }
+        written.push(obj_path.clone());
     }
     let result = write_atomically(xml_path, |tmp| {
         std::fs::write(tmp, xml.as_bytes()).map_err(|source| OutputError::Io {
@@ -161,9 +182,7 @@ pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, Ou
         })
     });
     if let Err(e) = result {
-        for p in &written {
-            let _ = std::fs::remove_file(p);
-        }
+        cleanup(&written);
         return Err(e);
     }
     written.insert(0, xml_path.to_owned());
@@ -195,10 +214,38 @@ struct GridPlan<'a> {
     density: std::borrow::Cow<'a, [f32]>,
 }
 
-fn plan_medium(m: &Medium) -> Plan<'_> {
+/// The mesh written beside `xml_path` for a scene with an [[object]]: `OUT.mesh.obj`, in
+/// scene coordinates (the object's transform applied), so its shape's `to_world` is the identity.
+pub fn obj_path_for(xml_path: &Path) -> PathBuf {
+    let mut name = xml_path.file_stem().map(|s| s.to_os_string()).unwrap_or_default();
+    name.push(".mesh.obj");
+    xml_path.with_file_name(name)
+}
+
+/// The transformed mesh as OBJ: positions and faces only. Without normals Mitsuba's `obj`
+/// shape uses each face's geometric normal (`face_normals` is set as well), as `path` does.
+fn write_obj_file(path: &Path, mesh: &TriangleMesh) -> Result<(), OutputError> {
+    let mut text = String::with_capacity(mesh.positions.len() * 40 + mesh.triangles.len() * 24);
+    let _ = writeln!(text, "# {} exported by scatterlab in scene coordinates", mesh.file.display());
+    for p in &mesh.positions {
+        let _ = writeln!(text, "v {} {} {}", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        let _ = writeln!(text, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, text.as_bytes()).map_err(|source| OutputError::Io {
+        path: path.to_owned(),
+        action: "write",
+        source,
+    })
+}
+
+fn plan_medium(scene: &Scene) -> Plan<'_> {
+    let m = &scene.medium;
     match &m.density {
+        // In an object the mesh is the shape: a homogeneous medium needs no other.
         Density::Constant => Plan::Box,
-        Density::Sphere { center, radius } if sphere_fits(m, *center, *radius) => {
+        Density::Sphere { center, radius } if scene.object.is_none() && sphere_fits(m, *center, *radius) => {
             Plan::Sphere { center: *center, radius: *radius }
         }
         Density::Sphere { center, radius } => {
@@ -325,14 +372,17 @@ fn rgb(name: &str, v: Vec3) -> String {
 }
 
 /// True if `p` is inside the shape that carries the medium (strictly, for the sphere).
-fn in_medium_shape(plan: &Plan, m: &Medium, p: Vec3) -> bool {
+fn in_medium_shape(scene: &Scene, plan: &Plan, m: &Medium, p: Vec3) -> bool {
+    if let Some(object) = &scene.object {
+        return object.contains(p);
+    }
     match plan {
         Plan::Sphere { center, radius } => p.distance_squared(*center) < radius * radius,
         Plan::Box | Plan::Grid(_) => m.strictly_inside(p),
     }
 }
 
-fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str) -> String {
+fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str, obj_name: &str) -> String {
     let m = &scene.medium;
     let mut x = String::new();
     let mut line = |indent: usize, s: &str| {
@@ -397,6 +447,11 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str) -> Stri
     }
 
     match plan {
+        _ if scene.object.is_some() => {
+            line(1, r#"<shape type="obj">"#);
+            line(2, &format!(r#"<string name="filename" value="{}"/>"#, attr(obj_name)));
+            line(2, r#"<boolean name="face_normals" value="true"/>"#);
+        }
         Plan::Sphere { center, radius } => {
             line(1, r#"<shape type="sphere">"#);
             line(2, &format!(r#"<point name="center" value="{}"/>"#, vec3(*center)));
@@ -412,11 +467,20 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str) -> Stri
             line(2, "</transform>");
         }
     }
-    line(2, r#"<bsdf type="null"/>"#);
+    match scene.object.as_ref().filter(|o| o.refractive()) {
+        // A smooth dielectric boundary: Fresnel reflection and refraction (src/bsdfs/dielectric.cpp).
+        Some(object) => {
+            line(2, r#"<bsdf type="dielectric">"#);
+            line(3, &format!(r#"<float name="int_ior" value="{}"/>"#, num(object.ior)));
+            line(3, r#"<float name="ext_ior" value="1"/>"#);
+            line(2, "</bsdf>");
+        }
+        None => line(2, r#"<bsdf type="null"/>"#),
+    }
     line(2, r#"<ref name="interior" id="medium"/>"#);
     line(1, "</shape>");
 
-    sensor_xml(scene, &scene.camera, in_medium_shape(plan, m, scene.camera.origin), &mut line);
+    sensor_xml(scene, &scene.camera, in_medium_shape(scene, plan, m, scene.camera.origin), &mut line);
 
     for light in &scene.lights {
         match *light {
@@ -424,7 +488,7 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str) -> Stri
                 line(1, r#"<emitter type="point">"#);
                 line(2, &format!(r#"<point name="position" value="{}"/>"#, vec3(position)));
                 line(2, &rgb("intensity", intensity));
-                if in_medium_shape(plan, m, position) {
+                if in_medium_shape(scene, plan, m, position) {
                     line(2, r#"<ref name="medium" id="medium"/>"#);
                 }
             }

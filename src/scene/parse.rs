@@ -3,15 +3,20 @@
 
 use std::fmt;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::Vec3;
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
 
+use super::bvh::Bvh;
 use super::error::one_line;
 use super::grid::{load_grid, GridRequest};
+use super::mesh::{load_obj, MeshTransform};
+use super::vdb::{load_vdb, VdbRequest};
 use super::{
-    Camera, CameraKind, Density, Light, LoadOptions, Medium, RenderSettings, Scene, SceneError, MAX_IMAGE_SIZE,
+    Camera, CameraKind, Density, Light, LoadOptions, Medium, Object, RenderSettings, Scene, SceneError, MAX_IMAGE_SIZE,
+    MAX_IOR,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -24,7 +29,11 @@ use super::{
 struct RawScene {
     render: RawRender,
     camera: RawCamera,
-    medium: RawMedium,
+    /// Format v1's one box of medium; a scene has this or `[[object]]` entries.
+    medium: Option<RawMedium>,
+    /// `[[object]]` tables (format v2), deserialised one by one so errors name `object[i]`.
+    #[serde(default)]
+    object: Vec<toml::Value>,
     /// `[[light]]` tables, deserialised one by one so errors can name `light[i]`.
     #[serde(default)]
     light: Vec<toml::Value>,
@@ -78,7 +87,8 @@ fn default_up() -> [f32; 3] {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawMedium {
-    bounds: [[f32; 3]; 2],
+    /// Required in `[medium]`; in an object's medium it defaults to the mesh's bounds.
+    bounds: Option<[[f32; 3]; 2]>,
     sigma_t: Rgb,
     albedo: Rgb,
     #[serde(default)]
@@ -96,8 +106,40 @@ fn default_density() -> RawDensity {
 #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
 enum RawDensity {
     Constant {},
-    Sphere { center: [f32; 3], radius: f32 },
-    Grid { file: String, dims: Option<[i64; 3]> },
+    Sphere {
+        center: [f32; 3],
+        radius: f32,
+    },
+    Grid {
+        file: String,
+        dims: Option<[i64; 3]>,
+    },
+    /// An OpenVDB file's float grid (`grid`, default "density").
+    Vdb {
+        file: String,
+        grid: Option<String>,
+    },
+}
+
+/// One `[[object]]` (format v2): a closed mesh with a medium inside.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawObject {
+    mesh: String,
+    #[serde(default)]
+    translate: [f32; 3],
+    /// Degrees, XYZ Euler angles (X applied first).
+    #[serde(default)]
+    rotate: [f32; 3],
+    #[serde(default = "default_one")]
+    scale: f32,
+    #[serde(default = "default_one")]
+    ior: f32,
+    medium: RawMedium,
+}
+
+fn default_one() -> f32 {
+    1.0
 }
 
 /// One `[[light]]`.
@@ -191,19 +233,150 @@ impl Ctx<'_> {
             raw_lights.push(light);
         }
 
-        // Values: cheap checks first, the grid file last.
+        // Values: cheap checks first, the mesh and grid files last.
         let render = self.render(&raw.render)?;
         let camera = self.camera(&raw.camera)?;
-        let (bounds_min, bounds_max) = self.bounds(&raw.medium.bounds)?;
         let lights = self.lights(&raw_lights)?;
-        self.camera_sees_medium(&camera, &render, bounds_min, bounds_max)?;
 
-        let m = &raw.medium;
-        let sigma_t = self.rgb_non_negative("medium.sigma_t", m.sigma_t, "extinction")?;
-        let albedo = self.albedo(m.albedo)?;
+        let (medium, object) = match (raw.medium, raw.object.len()) {
+            (Some(m), 0) => {
+                let Some(b) = &m.bounds else {
+                    return Err(SceneError::MissingKey {
+                        file: self.file.to_path_buf(),
+                        key: "medium.bounds".into(),
+                        hint: "write bounds = [[min x, y, z], [max x, y, z]], the box that holds the medium".into(),
+                    });
+                };
+                let (bounds_min, bounds_max) = self.bounds("medium.bounds", b)?;
+                self.camera_sees_medium(&camera, &render, bounds_min, bounds_max)?;
+                (self.medium("medium", &m, bounds_min, bounds_max, base_dir, opts)?, None)
+            }
+            (None, 0) => {
+                return Err(SceneError::MissingKey {
+                    file: self.file.to_path_buf(),
+                    key: "medium".into(),
+                    hint: "a scene needs a [medium] table (a box of medium) or an [[object]] (a mesh with a medium \
+                        inside); see docs/scene-format.md"
+                        .into(),
+                })
+            }
+            (Some(_), _) => {
+                return Err(self.invalid(
+                    "object",
+                    "a scene has a [medium] or [[object]] entries, not both (a v1 box beside meshes is not \
+                        supported yet); put the box's medium in an object with a box mesh, or drop [medium]",
+                ))
+            }
+            (None, 1) => {
+                let value = raw.object.into_iter().next().expect("one object");
+                let o: RawObject = value.try_into().map_err(|e| self.serde_error("object[0]", &e))?;
+                let (object, bounds_min, bounds_max) = self.object(&o, base_dir)?;
+                self.camera_sees_medium(&camera, &render, bounds_min, bounds_max)?;
+                if object.contains(camera.origin) {
+                    return Err(self.invalid(
+                        "camera.origin",
+                        format!(
+                            "the camera {} is inside the object's mesh; cameras inside an object are not supported yet, \
+                                move it outside",
+                            fmt3(camera.origin)
+                        ),
+                    ));
+                }
+                let medium = self.medium("object[0].medium", &o.medium, bounds_min, bounds_max, base_dir, opts)?;
+                (medium, Some(object))
+            }
+            (None, n) => {
+                return Err(self.invalid(
+                    "object",
+                    format!(
+                        "{n} [[object]] entries; this version renders one object per scene (several are planned: \
+                            docs/scene-format.md); render them one at a time"
+                    ),
+                ))
+            }
+        };
+        Ok(Scene { source: self.file.to_path_buf(), render, camera, medium, object, lights })
+    }
+
+    /// An `[[object]]`'s mesh, transform and index, and the bounds its medium spans: the
+    /// given `medium.bounds`, else the transformed mesh's bounds.
+    fn object(&self, o: &RawObject, base_dir: &Path) -> Result<(Object, Vec3, Vec3), SceneError> {
+        let translate = self.vec3("object[0].translate", o.translate)?;
+        let rotate_deg = self.vec3("object[0].rotate", o.rotate)?;
+        if !(o.scale.is_finite() && o.scale > 0.0) {
+            return Err(self.invalid(
+                "object[0].scale",
+                format!("scale = {} must be a finite number > 0 (a uniform scale)", num32(o.scale)),
+            ));
+        }
+        if !(o.ior.is_finite() && o.ior > 0.0 && o.ior <= MAX_IOR) {
+            return Err(self.invalid(
+                "object[0].ior",
+                format!(
+                    "ior = {} must lie in (0, {MAX_IOR}] (the refractive index inside, relative to the vacuum \
+                        outside; 1 = index-matched, glass 1.5, water 1.33)",
+                    num32(o.ior)
+                ),
+            ));
+        }
+        let transform = MeshTransform { translate, rotate_deg, scale: o.scale };
+        let written = PathBuf::from(&o.mesh);
+        let resolved = if written.is_absolute() { written.clone() } else { base_dir.join(&written) };
+        let mesh = load_obj(&resolved, &transform).map_err(|e| {
+            let hint = if written.is_relative() && !resolved.exists() {
+                " (relative paths are resolved against the scene file's folder)"
+            } else {
+                ""
+            };
+            self.invalid("object[0].mesh", format!("`{}`: {e}{hint}", written.display()))
+        })?;
+        let (bounds_min, bounds_max) = match &o.medium.bounds {
+            Some(b) => {
+                let (lo, hi) = self.bounds("object[0].medium.bounds", b)?;
+                let (mlo, mhi) = mesh.bounds();
+                if !(lo.cmple(mlo).all() && hi.cmpge(mhi).all()) {
+                    return Err(self.invalid(
+                        "object[0].medium.bounds",
+                        format!(
+                            "{}..{} must contain the transformed mesh's bounds {}..{} (the medium fills the mesh); \
+                                widen them, or leave bounds out to use the mesh's",
+                            fmt3(lo),
+                            fmt3(hi),
+                            fmt3(mlo),
+                            fmt3(mhi)
+                        ),
+                    ));
+                }
+                (lo, hi)
+            }
+            None => {
+                // A hair beyond the mesh, so the box never clips a triangle by float rounding.
+                let (lo, hi) = mesh.bounds();
+                let pad = (hi - lo).length() * 1e-5 + 1e-6;
+                (lo - pad, hi + pad)
+            }
+        };
+        let bvh = Bvh::build(&mesh);
+        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), transform, ior: o.ior };
+        Ok((object, bounds_min, bounds_max))
+    }
+
+    /// A medium (`[medium]` or an object's `medium`) over the given bounds; `at` names it.
+    fn medium(
+        &self,
+        at: &str,
+        m: &RawMedium,
+        bounds_min: Vec3,
+        bounds_max: Vec3,
+        base_dir: &Path,
+        opts: &LoadOptions,
+    ) -> Result<Medium, SceneError> {
+        let key = |name: &str| format!("{at}.{name}");
+        let sigma_t = self.rgb_non_negative(&key("sigma_t"), m.sigma_t, "extinction")?;
+        let albedo = self.albedo(&key("albedo"), m.albedo)?;
         if !m.g.is_finite() || m.g.abs() >= 1.0 {
             return Err(self.invalid(
-                "medium.g",
+                &key("g"),
                 format!(
                     "g = {} must lie strictly inside (-1, 1) (Henyey-Greenstein mean cosine); use e.g. 0.99 for very forward scattering",
                     num32(m.g)
@@ -213,19 +386,19 @@ impl Ctx<'_> {
         let density = match &m.density {
             RawDensity::Constant {} => Density::Constant,
             RawDensity::Sphere { center, radius } => {
-                let center = self.vec3("medium.density.center", *center)?;
+                let center = self.vec3(&key("density.center"), *center)?;
                 if !radius.is_finite() || *radius <= 0.0 {
                     return Err(self.invalid(
-                        "medium.density.radius",
+                        &key("density.radius"),
                         format!("radius = {} must be a finite number > 0", num32(*radius)),
                     ));
                 }
                 let closest = center.clamp(bounds_min, bounds_max);
                 if closest.distance(center) >= *radius {
                     return Err(self.invalid(
-                        "medium.density",
+                        &key("density"),
                         format!(
-                            "the sphere (center {}, radius {}) does not overlap medium.bounds {}..{}, so the medium would be empty; move the sphere inside the bounds",
+                            "the sphere (center {}, radius {}) does not overlap the bounds {}..{}, so the medium would be empty; move the sphere inside the bounds",
                             fmt3(center), num32(*radius), fmt3(bounds_min), fmt3(bounds_max)
                         ),
                     ));
@@ -244,15 +417,19 @@ impl Ctx<'_> {
                 })?;
                 Density::Grid(grid)
             }
+            RawDensity::Vdb { file, grid } => {
+                let written = PathBuf::from(file);
+                let resolved = if written.is_absolute() { written.clone() } else { base_dir.join(&written) };
+                Density::Grid(load_vdb(&VdbRequest {
+                    scene_file: self.file,
+                    resolved,
+                    file_as_written: &written,
+                    grid: grid.as_deref().unwrap_or("density"),
+                    opts,
+                })?)
+            }
         };
-
-        Ok(Scene {
-            source: self.file.to_path_buf(),
-            render,
-            camera,
-            medium: Medium { bounds_min, bounds_max, sigma_t, albedo, g: m.g, density },
-            lights,
-        })
+        Ok(Medium { bounds_min, bounds_max, sigma_t, albedo, g: m.g, density })
     }
 
     // -------------------------------------------------------------------- sections
@@ -360,13 +537,13 @@ impl Ctx<'_> {
         Ok(Camera { kind, origin, target, up })
     }
 
-    fn bounds(&self, b: &[[f32; 3]; 2]) -> Result<(Vec3, Vec3), SceneError> {
-        let min = self.vec3("medium.bounds[0]", b[0])?;
-        let max = self.vec3("medium.bounds[1]", b[1])?;
+    fn bounds(&self, field: &str, b: &[[f32; 3]; 2]) -> Result<(Vec3, Vec3), SceneError> {
+        let min = self.vec3(&format!("{field}[0]"), b[0])?;
+        let max = self.vec3(&format!("{field}[1]"), b[1])?;
         for (axis, name) in ["x", "y", "z"].iter().enumerate() {
             if min[axis] >= max[axis] {
                 return Err(self.invalid(
-                    "medium.bounds",
+                    field,
                     format!(
                         "min {} must be less than max {} on every axis, but on {name} {} >= {}; write bounds = [[min x, y, z], [max x, y, z]]",
                         fmt3(min), fmt3(max), num32(min[axis]), num32(max[axis])
@@ -377,11 +554,11 @@ impl Ctx<'_> {
         Ok((min, max))
     }
 
-    fn albedo(&self, rgb: Rgb) -> Result<Vec3, SceneError> {
+    fn albedo(&self, field: &str, rgb: Rgb) -> Result<Vec3, SceneError> {
         for (c, &v) in rgb.0.iter().enumerate() {
             if !(0.0..=1.0).contains(&v) {
                 return Err(self.invalid(
-                    "medium.albedo",
+                    field,
                     format!(
                         "{} channel is {}, outside [0, 1]; albedo = sigma_s / sigma_t must lie in [0, 1]",
                         CHANNELS[c],
@@ -873,7 +1050,7 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
                         )
                     } else {
                         format!(
-                            "`{walked}` is not a section of the scene (render, camera, medium, light)"
+                            "`{walked}` is not a section of the scene (render, camera, medium, object, light)"
                         )
                     }
                 })?

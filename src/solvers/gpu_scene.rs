@@ -6,6 +6,7 @@ use glam::Vec3;
 use serde::Serialize;
 
 use crate::gpu::{Buffer, Gpu, Image3d, Pass, Spec, SpecKind, VolumeFormat};
+use crate::scene::bvh::{BvhNode, GpuTriangle};
 use crate::scene::{CameraKind, Density, Light, Scene};
 
 use super::SolverError;
@@ -26,6 +27,8 @@ pub struct SceneHeader {
     pub cam_right: [f32; 4],
     pub cam_up: [f32; 4],
     pub image: [u32; 4],
+    /// The [[object]] (format v2): x = ior inside (1 without one).
+    pub object: [f32; 4],
 }
 
 #[repr(C)]
@@ -45,9 +48,27 @@ pub const SPEC_DENSITY_KIND: u32 = 0;
 pub const SPEC_CHROMATIC: u32 = 1;
 pub const SPEC_ANISOTROPIC: u32 = 2;
 
+/// glsl/include/mesh.glsl's: the scene has an [[object]] mesh; its boundary refracts.
+pub const SPEC_HAS_MESH: u32 = 10;
+pub const SPEC_REFRACTIVE: u32 = 11;
+
 /// The specialisation constants of [`Modelled::spec`], as a kernel declares them.
 pub const SCENE_SPEC: &[(u32, SpecKind)] =
     &[(SPEC_DENSITY_KIND, SpecKind::U32), (SPEC_CHROMATIC, SpecKind::Bool), (SPEC_ANISOTROPIC, SpecKind::Bool)];
+
+/// [`SCENE_SPEC`] and mesh.glsl's, for kernels that trace the [[object]]'s mesh
+/// ([`Modelled::mesh_spec`]).
+pub const MESH_SPEC: &[(u32, SpecKind)] = &[
+    (SPEC_DENSITY_KIND, SpecKind::U32),
+    (SPEC_CHROMATIC, SpecKind::Bool),
+    (SPEC_ANISOTROPIC, SpecKind::Bool),
+    (SPEC_HAS_MESH, SpecKind::Bool),
+    (SPEC_REFRACTIVE, SpecKind::Bool),
+];
+
+/// Bindings of the mesh's BVH nodes and triangles in kernels that include mesh.glsl.
+pub const MESH_NODES_BINDING: u32 = 6;
+pub const MESH_TRIS_BINDING: u32 = 7;
 
 /// What a render modelled and what it skipped (docs/design.md: "model only what a scene requires").
 #[derive(Clone, Debug, Serialize)]
@@ -56,6 +77,10 @@ pub struct Modelled {
     pub chromatic: bool,
     pub anisotropic: bool,
     pub forced_full: bool,
+    /// Triangles of the [[object]]'s mesh (0: a v1 scene, no mesh is traced).
+    pub mesh_triangles: usize,
+    /// The mesh's boundary refracts (ior != 1): Fresnel and Snell at its surface.
+    pub refractive: bool,
 }
 
 impl Modelled {
@@ -67,9 +92,19 @@ impl Modelled {
         if !self.anisotropic {
             skipped.push("HG phase (isotropic, g = 0)");
         }
+        if self.mesh_triangles == 0 {
+            skipped.push("mesh (no [[object]])");
+        } else if !self.refractive {
+            skipped.push("Fresnel and refraction (ior 1)");
+        }
         let skipped = if skipped.is_empty() { "nothing".to_string() } else { skipped.join(", ") };
+        let mesh = match (self.mesh_triangles, self.refractive) {
+            (0, _) => String::new(),
+            (n, false) => format!(", a mesh of {n} triangles (index-matched)"),
+            (n, true) => format!(", a mesh of {n} triangles with a dielectric boundary"),
+        };
         format!(
-            "modelled: {} density, {} tracking, {} phase{}; skipped: {}",
+            "modelled: {} density, {} tracking, {} phase{mesh}{}; skipped: {}",
             self.density,
             if self.chromatic { "chromatic" } else { "grey" },
             if self.anisotropic { "Henyey-Greenstein" } else { "isotropic" },
@@ -90,6 +125,14 @@ impl Modelled {
             (SPEC_ANISOTROPIC, Spec::Bool(self.anisotropic)),
         ]
     }
+
+    /// [`Modelled::spec`] and the mesh's, as [`MESH_SPEC`] declares them.
+    pub fn mesh_spec(&self) -> Vec<(u32, Spec)> {
+        let mut spec = self.spec();
+        spec.push((SPEC_HAS_MESH, Spec::Bool(self.mesh_triangles > 0)));
+        spec.push((SPEC_REFRACTIVE, Spec::Bool(self.refractive)));
+        spec
+    }
 }
 
 /// Scene data resident on the device.
@@ -97,6 +140,10 @@ pub struct GpuScene {
     pub block: Buffer,
     pub density: Image3d,
     pub majorant: Buffer,
+    /// The [[object]]'s BVH nodes and triangles (src/scene/bvh.rs layout); one-element
+    /// placeholders without a mesh, bound because mesh.glsl's layout declares them.
+    pub mesh_nodes: Buffer,
+    pub mesh_tris: Buffer,
     pub modelled: Modelled,
     pub bytes: u64,
 }
@@ -200,6 +247,7 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
         cam_right: v4(right, 0.0),
         cam_up: v4(up, 0.0),
         image: [scene.render.width, scene.render.height, lights.len() as u32, 0],
+        object: [scene.object.as_ref().map_or(1.0, |o| o.ior), 0.0, 0.0, 0.0],
     };
     (header, lights)
 }
@@ -217,6 +265,8 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
         chromatic: f.chromatic || force_full,
         anisotropic: f.anisotropic || force_full,
         forced_full: force_full,
+        mesh_triangles: scene.object.as_ref().map_or(0, |o| o.mesh.triangles.len()),
+        refractive: scene.object.as_ref().is_some_and(|o| o.refractive()),
     }
 }
 
@@ -239,6 +289,8 @@ pub fn scene_bytes(scene: &Scene) -> u64 {
 /// [`scene_bytes`] with majorant cells of `cell` voxels on an edge (`path.majorant_cell`).
 pub fn scene_bytes_with(scene: &Scene, cell: u32) -> u64 {
     let block = (std::mem::size_of::<SceneHeader>() + scene.lights.len() * std::mem::size_of::<GpuLight>()) as u64;
+    let mesh = scene.object.as_ref().map_or(32 + 48, |o| o.bvh.bytes());
+    let block = block + mesh;
     match &scene.medium.density {
         Density::Grid(g) => {
             let md = majorant_dims(g.dims, cell);
@@ -257,7 +309,21 @@ impl GpuScene {
         pass.read(0, &self.block).read(1, &self.density).read(2, &self.majorant)
     }
 
+    /// [`GpuScene::bind`] and the mesh's BVH at [`MESH_NODES_BINDING`], [`MESH_TRIS_BINDING`].
+    pub fn bind_mesh(&self, pass: Pass) -> Pass {
+        self.bind(pass).read(MESH_NODES_BINDING, &self.mesh_nodes).read(MESH_TRIS_BINDING, &self.mesh_tris)
+    }
+
+    /// Upload for a solver that does not trace meshes: a scene with an [[object]] is refused
+    /// (one line, before any device work), never rendered as if its medium filled the box.
     pub fn upload(gpu: &Gpu, scene: &Scene, force_full: bool) -> Result<GpuScene, SolverError> {
+        if let Some(o) = &scene.object {
+            return Err(SolverError::Unsupported(format!(
+                "{}: only path renders [[object]] meshes so far (the object is {}); use --solver path, or a v1 [medium]",
+                scene.source.display(),
+                o.mesh.file.display()
+            )));
+        }
         Self::upload_with(gpu, scene, force_full, MAJORANT_CELL)
     }
 
@@ -285,10 +351,21 @@ impl GpuScene {
                 gpu.buffer_with("majorant (unused)", &[0f32])?,
             ),
         };
+        let (mesh_nodes, mesh_tris) = match &scene.object {
+            Some(o) => {
+                (gpu.buffer_with("mesh BVH nodes", &o.bvh.nodes)?, gpu.buffer_with("mesh triangles", &o.bvh.triangles)?)
+            }
+            None => (
+                gpu.buffer_with("mesh BVH nodes (unused)", &[BvhNode::zeroed()])?,
+                gpu.buffer_with("mesh triangles (unused)", &[GpuTriangle::zeroed()])?,
+            ),
+        };
         Ok(GpuScene {
             block,
             density,
             majorant,
+            mesh_nodes,
+            mesh_tris,
             modelled: modelled(scene, force_full),
             bytes: scene_bytes_with(scene, cell),
         })

@@ -77,6 +77,18 @@ pub enum SolverError {
     Unsupported(String),
 }
 
+/// Why `solver`, which does not trace meshes, cannot render `scene`: it has an [[object]]
+/// (scene format v2). Only `path` traces meshes so far (issue 16).
+pub fn meshes_unsupported(solver: &str, scene: &Scene) -> Option<String> {
+    scene.object.as_ref().map(|o| {
+        format!(
+            "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver path, or a v1 \
+                [medium]",
+            o.mesh.file.display()
+        )
+    })
+}
+
 /// A solver: a way of computing radiance toward the camera, with its own knobs and its own
 /// idea of quality. Implementations are unit structs registered in [`SOLVERS`].
 pub trait Solver: Sync {
@@ -109,8 +121,8 @@ pub trait Solver: Sync {
     fn stability(&self) -> Vec<Variant>;
     /// Why the method does not apply to this scene, if it does not (`bench` skips it there
     /// and says why, rather than plotting another solver's result under its name).
-    fn inapplicable(&self, _scene: &Scene) -> Option<String> {
-        None
+    fn inapplicable(&self, scene: &Scene) -> Option<String> {
+        meshes_unsupported(self.name(), scene)
     }
     /// The seed paper's headline workload for `scatterlab report` (at CI size with `quick`),
     /// if the solver has one: each solver adds its own.

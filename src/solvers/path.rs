@@ -36,7 +36,7 @@ use crate::gpu::{Gpu, Kernel, Pass, QueueRole};
 use crate::output::Image;
 use crate::scene::{CameraKind, Light, Scene};
 
-use super::gpu_scene::{self, GpuScene, SCENE_SPEC};
+use super::gpu_scene::{self, GpuScene, MESH_SPEC, SCENE_SPEC};
 use super::Progress;
 use super::{
     resumable, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
@@ -90,7 +90,7 @@ pub struct LightPush {
 }
 
 pub const TRACE: Kernel =
-    Kernel { shader: shader!("path/trace"), push_bytes: std::mem::size_of::<PathPush>(), spec: SCENE_SPEC };
+    Kernel { shader: shader!("path/trace"), push_bytes: std::mem::size_of::<PathPush>(), spec: MESH_SPEC };
 pub const LIGHT: Kernel =
     Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: SCENE_SPEC };
 
@@ -111,7 +111,13 @@ pub const MAX_LIGHT_TRACED: usize = 32;
 
 /// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp: the path, the progress
 /// of its current event, and a tracking loop paused mid-flight).
-pub const STATE_BYTES_PER_PIXEL: u64 = 144;
+pub const STATE_BYTES_PER_PIXEL: u64 = 160;
+/// Largest `path.budget` for a scene with an [[object]] mesh. llvmpipe's loop limiter counts a
+/// SIMD batch's loop back-edges together (glsl/include/budget.glsl), at most the sum of its 8
+/// lanes' own counts: 8 x (4096 + one event's overshoot) stays below 65535. Measured on the box
+/// mesh (max_depth 1, 20 x 20): budgets 64, 300, 1000 and 4096 give the same image bit for bit,
+/// 15000 a wrong one (one lane's count 7091 when the batch hit the limiter).
+pub const MESH_MAX_BUDGET: u32 = 4096;
 /// The kernels keep the index of the light an event is at in 20 bits.
 pub const MAX_LIGHTS: usize = 1 << 20;
 /// A paused tracking loop keeps its majorant cell along y and z in 14 bits each
@@ -259,6 +265,33 @@ pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
     mask
 }
 
+/// Refuse a point or directional light outside a refractive [[object]]: its light reaches the
+/// medium only through the smooth dielectric boundary, along refracted paths that a straight
+/// shadow ray cannot find and a scattered path reaches with probability 0 (a delta light
+/// behind a delta interface needs manifold next-event estimation; Hanika et al. 2015). The
+/// image would silently lack it.
+pub fn refractive_lights(scene: &Scene) -> Result<(), SolverError> {
+    let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(()) };
+    for (i, light) in scene.lights.iter().enumerate() {
+        let outside = match *light {
+            Light::Point { position, .. } => !object.contains(position),
+            Light::Directional { .. } => true,
+            Light::Environment { .. } => false,
+        };
+        if outside {
+            return Err(SolverError::Unsupported(format!(
+                "path: light {i} ({}) lies outside the object, whose boundary refracts (ior {}); path cannot carry a \
+                    point or directional light through a smooth dielectric (that needs manifold next-event \
+                    estimation, not built yet): light the object with an environment or a point light inside it, \
+                    or set object.ior = 1",
+                light.kind_name(),
+                object.ior
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
 /// note for each light `auto` declined although it is inside the medium.
 pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Vec<usize>, Vec<String>), SolverError> {
@@ -278,6 +311,19 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
     }
     let mut notes = Vec::new();
     let mut traced = Vec::new();
+    if scene.object.is_some() {
+        // Light paths (glsl/path/light.comp) do not trace meshes yet: camera paths render
+        // every light of a scene with an [[object]].
+        if mode == "on" {
+            return Err(SolverError::Setting {
+                key: "path.light_tracing".into(),
+                reason: "light paths do not trace [[object]] meshes yet; use auto or off (camera paths render \
+                    every light)"
+                    .into(),
+            });
+        }
+        return Ok((traced, notes));
+    }
     for (i, l) in scene.lights.iter().enumerate() {
         // A light with no power has nothing to trace; leave it to the (cheap) camera side.
         let Light::Point { position, intensity } = l else { continue };
@@ -475,6 +521,16 @@ impl Solver for Path {
         let default_batch = ((1u64 << 24) / pixels.max(1)).clamp(1, 1024) as u32;
         let batch: u32 = k.get_or("batch", default_batch)?;
         let budget: u32 = k.get("budget")?;
+        if scene.object.is_some() && budget > MESH_MAX_BUDGET {
+            return Err(SolverError::Setting {
+                key: "path.budget".into(),
+                reason: format!(
+                    "{budget} with an [[object]] mesh: its BVH traversal's divergent loops can take a SIMD batch past \
+                        llvmpipe's loop limiter above {MESH_MAX_BUDGET} (measured: a wrong image at 15000); use at \
+                        most {MESH_MAX_BUDGET}"
+                ),
+            });
+        }
         let collision_cap: u32 = k.get("collision_cap")?;
         let eq_mode: String = k.get("equiangular")?;
         let equiangular = equiangular_lights(scene, &eq_mode);
@@ -506,6 +562,7 @@ impl Solver for Path {
                 )));
             }
         }
+        refractive_lights(scene)?;
         let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
         let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
         // Camera paths are needed for every light not traced from the light side.
@@ -624,6 +681,11 @@ impl Solver for Path {
         Ok(gpu_scene::scene_bytes_with(scene, knobs.get("majorant_cell")?) + camera + light)
     }
 
+    /// Every scene: path traces [[object]] meshes too.
+    fn inapplicable(&self, _scene: &Scene) -> Option<String> {
+        None
+    }
+
     /// The ground truth on the cloud, for scale (no seed times it).
     fn headline(&self, quick: bool) -> Option<Headline> {
         let (size, spp) = if quick { ("64", "4") } else { ("512", "16") };
@@ -721,7 +783,7 @@ fn camera_paths(
 ) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
-    let pipeline = gpu.pipeline(&TRACE, &gs.modelled.spec())?;
+    let pipeline = gpu.pipeline(&TRACE, &gs.modelled.mesh_spec())?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
     let stats = gpu.buffer("path stats", resumable::STATS_WORDS * 4)?;
@@ -732,7 +794,7 @@ fn camera_paths(
         sample_end = sample_end.saturating_add(batch).min(c.spp);
         let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut rounds, |slot| {
             let push = PathPush { head: c.head(sample_end, slot), equiangular };
-            gs.bind(Pass::new("path.trace", role, &pipeline))
+            gs.bind_mesh(Pass::new("path.trace", role, &pipeline))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
                 .read_write(5, &state)

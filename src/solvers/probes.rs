@@ -3,7 +3,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::gpu::Kernel;
+use crate::gpu::{Kernel, SpecKind};
+
+use super::gpu_scene::{SPEC_HAS_MESH, SPEC_REFRACTIVE};
 
 /// Push constants of glsl/probe/phase.comp.
 #[repr(C)]
@@ -39,7 +41,36 @@ pub struct BandwidthPush {
 pub const BANDWIDTH: Kernel =
     Kernel { shader: shader!("probe/bandwidth"), push_bytes: std::mem::size_of::<BandwidthPush>(), spec: &[] };
 
+/// Push constants of glsl/probe/fresnel.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct FresnelPush {
+    /// Cases (cos_i, eta) to evaluate.
+    pub count: u32,
+}
+
+/// glsl/probe/fresnel.comp: Fresnel reflectance, Snell's law and total internal reflection of
+/// glsl/include/dielectric.glsl for tests/refraction_tests.rs.
+pub const FRESNEL: Kernel =
+    Kernel { shader: shader!("probe/fresnel"), push_bytes: std::mem::size_of::<FresnelPush>(), spec: &[] };
+
+/// Push constants of glsl/probe/bvh.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct BvhPush {
+    /// Rays to trace.
+    pub count: u32,
+}
+
+/// glsl/probe/bvh.comp: the GLSL BVH traversal (glsl/include/mesh.glsl), one ray per
+/// invocation, against `Bvh::intersect` in tests/refraction_tests.rs.
+pub const BVH: Kernel = Kernel {
+    shader: shader!("probe/bvh"),
+    push_bytes: std::mem::size_of::<BvhPush>(),
+    spec: &[(SPEC_HAS_MESH, SpecKind::Bool), (SPEC_REFRACTIVE, SpecKind::Bool)],
+};
+
 /// Every probe kernel.
 pub fn kernels() -> Vec<Kernel> {
-    vec![PHASE, BANDWIDTH]
+    vec![PHASE, BANDWIDTH, FRESNEL, BVH]
 }

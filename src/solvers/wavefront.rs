@@ -182,6 +182,9 @@ impl Solver for Wavefront {
     }
 
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
+        if let Some(why) = super::meshes_unsupported(self.name(), scene) {
+            return Some(why);
+        }
         wave_field::traced_lights(scene).is_empty().then(|| {
             "no point light inside the medium: the method traces none, and renders single scattering only".to_string()
         })

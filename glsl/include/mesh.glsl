@@ -1,0 +1,124 @@
+// mesh.glsl: the [[object]]'s closed triangle mesh (scene format v2) and its smooth dielectric
+// boundary. The BVH is built on the host (src/scene/bvh.rs, binned SAH, depth <= 64); its
+// layout and traversal here mirror `Bvh::intersect`, which the host tests against brute force.
+// Needs budget.glsl: the traversal counts every iteration of each of its three loops (nodes,
+// a leaf's triangles, popping the stack) into `iters`, since llvmpipe's loop limiter counts
+// every loop back-edge of an invocation's SIMD batch together, and a loop left uncounted let
+// the path kernel's batches reach it at the default budget (silently wrong images, caught by
+// rendering at several budgets: tests/refraction_tests.rs) and MESH_NODES_BINDING,
+// MESH_TRIS_BINDING defined first.
+#ifndef SCATTERLAB_MESH
+#define SCATTERLAB_MESH
+#include "dielectric.glsl"
+
+// std430: a vec3 then a uint pack into 16 bytes, so a node is 32 bytes (`BvhNode`).
+struct BvhNode {
+    vec3 lo;
+    uint left_or_first;   // interior (count 0): children left_or_first, left_or_first + 1
+    vec3 hi;
+    uint count;           // leaf: triangles [left_or_first, left_or_first + count)
+};
+struct Triangle {
+    vec4 v0;   // xyz: first vertex; e1 = v1 - v0, e2 = v2 - v0 (outward normal cross(e1, e2))
+    vec4 e1;
+    vec4 e2;
+};
+layout(std430, binding = MESH_NODES_BINDING) readonly buffer MeshNodes { BvhNode nodes[]; };
+layout(std430, binding = MESH_TRIS_BINDING) readonly buffer MeshTris { Triangle tris[]; };
+
+// Whether the scene has an [[object]] (its mesh bounds the medium), and whether its boundary
+// refracts (ior != 1). Specialised: v1 scenes compile none of this.
+layout(constant_id = 10) const bool HAS_MESH = false;
+layout(constant_id = 11) const bool REFRACTIVE = false;
+
+const int BVH_STACK = 64;
+// The far slab distance is widened by this fraction (bvh.rs FAR_SLACK), so a hit on a box face
+// is not lost to rounding.
+const float FAR_SLACK = 3.6e-7;
+
+// Slab test of a node's box: the entry distance clipped to t_min, or INF where the ray misses
+// the box within [t_min, t_max]. bvh.rs `slab`.
+float node_entry(BvhNode n, vec3 o, vec3 inv_d, float t_min, float t_max) {
+    vec3 ta = (n.lo - o) * inv_d;
+    vec3 tb = (n.hi - o) * inv_d;
+    float t0 = max(max(max(min(ta.x, tb.x), min(ta.y, tb.y)), min(ta.z, tb.z)), t_min);
+    float t1 = min(min(max(ta.x, tb.x), max(ta.y, tb.y)), max(ta.z, tb.z));
+    t1 = min(t1 + abs(t1) * FAR_SLACK, t_max);
+    return t0 <= t1 ? t0 : INF;
+}
+
+// 1 / d with zero components replaced by a huge value of their sign (bvh.rs `safe_inverse`).
+vec3 safe_inverse(vec3 d) {
+    return vec3(abs(d.x) < 1e-30 ? (d.x < 0.0 ? -1e30 : 1e30) : 1.0 / d.x,
+                abs(d.y) < 1e-30 ? (d.y < 0.0 ? -1e30 : 1e30) : 1.0 / d.y,
+                abs(d.z) < 1e-30 ? (d.z < 0.0 ? -1e30 : 1e30) : 1.0 / d.z);
+}
+
+// Moller-Trumbore (Moller & Trumbore 1997), either side: the ray parameter where o + t d meets
+// the triangle, or INF. Every test fails on a NaN (bvh.rs `moller_trumbore`).
+float triangle_t(Triangle tr, vec3 o, vec3 d) {
+    vec3 p = cross(d, tr.e2.xyz);
+    float det = dot(tr.e1.xyz, p);
+    if (det == 0.0) return INF;
+    float inv = 1.0 / det;
+    vec3 s = o - tr.v0.xyz;
+    float u = dot(s, p) * inv;
+    if (!(u >= 0.0 && u <= 1.0)) return INF;
+    vec3 q = cross(s, tr.e1.xyz);
+    float v = dot(d, q) * inv;
+    if (!(v >= 0.0 && u + v <= 1.0)) return INF;
+    float t = dot(tr.e2.xyz, q) * inv;
+    return isnan(t) ? INF : t;
+}
+
+// Closest crossing of the ray o + t d with t in (t_min, t_max), from either side: the
+// traversal of bvh.rs `Bvh::intersect` (explicit stack, nearer child first, the farther one
+// deferred with its entry distance and skipped once a closer hit is known). Returns false on
+// a miss; n is the unit outward geometric normal of the triangle hit.
+bool mesh_hit(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out vec3 n) {
+    t_hit = t_max;
+    n = vec3(0.0);
+    uint tri = 0xffffffffu;
+    vec3 inv_d = safe_inverse(d);
+    uint stack_node[BVH_STACK];
+    float stack_t[BVH_STACK];
+    int sp = 0;
+    if (node_entry(nodes[0], o, inv_d, t_min, t_hit) == INF) return false;
+    uint node = 0u;
+    while (true) {
+        iters++;
+        BvhNode nd = nodes[node];
+        bool descend = false;
+        if (nd.count > 0u) {
+            for (uint i = nd.left_or_first; i < nd.left_or_first + nd.count; i++) {
+                iters++;
+                float t = triangle_t(tris[i], o, d);
+                if (t > t_min && t < t_hit) { t_hit = t; tri = i; }
+            }
+        } else {
+            uint a = nd.left_or_first, b = a + 1u;
+            float ta = node_entry(nodes[a], o, inv_d, t_min, t_hit);
+            float tb = node_entry(nodes[b], o, inv_d, t_min, t_hit);
+            if (tb < ta) { uint x = a; a = b; b = x; float y = ta; ta = tb; tb = y; }
+            if (ta != INF) {
+                if (tb != INF && sp < BVH_STACK) { stack_node[sp] = b; stack_t[sp] = tb; sp++; }
+                node = a;
+                descend = true;
+            }
+        }
+        if (descend) continue;
+        // Nothing below this node: the nearest deferred child still in front of the closest hit.
+        bool next = false;
+        while (sp > 0) {
+            iters++;
+            sp--;
+            if (stack_t[sp] < t_hit) { node = stack_node[sp]; next = true; break; }
+        }
+        if (!next) break;
+    }
+    if (tri == 0xffffffffu) { t_hit = t_max; return false; }
+    n = normalize(cross(tris[tri].e1.xyz, tris[tri].e2.xyz));
+    return true;
+}
+
+#endif

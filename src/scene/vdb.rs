@@ -1,0 +1,141 @@
+//! OpenVDB density grids (`density = { kind = "vdb", file = "cloud.vdb", grid = "density" }`),
+//! read with the `vdb-rs` crate (pure Rust, plus its vendored Blosc) into the same dense grid
+//! as a `.vol`.
+//!
+//! The grid's active voxels and tiles are copied into a dense array over their index-space
+//! bounding box; inactive voxels take the value 0 (a density grid's background; a grid whose
+//! background is not 0 is rare and would read as 0 outside its active set). Voxel (i, j, k) of
+//! the box becomes sample (i - min.x, j - min.y, k - min.z) of the dense grid, which spans the
+//! medium's bounds like any grid (`docs/scene-format.md`): the file's own transform (voxel size,
+//! origin) is not used, as a `.vol` header's bounding box is not.
+
+use std::fs::File;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+use super::error::human_bytes;
+use super::{Grid, LoadOptions, SceneError};
+
+/// What `load_vdb` needs to read a grid and report on it.
+pub(crate) struct VdbRequest<'a> {
+    pub scene_file: &'a Path,
+    /// Resolved against the scene's folder.
+    pub resolved: PathBuf,
+    /// As written in the scene, for the hint about relative paths.
+    pub file_as_written: &'a Path,
+    /// The grid's name in the file.
+    pub grid: &'a str,
+    pub opts: &'a LoadOptions,
+}
+
+impl VdbRequest<'_> {
+    fn err(&self, message: impl Into<String>) -> SceneError {
+        SceneError::Grid { file: self.scene_file.to_path_buf(), grid: self.resolved.clone(), message: message.into() }
+    }
+}
+
+/// One active value: a voxel, or a tile of `edge`^3 voxels from its `min` corner.
+struct Active {
+    min: [i64; 3],
+    edge: i64,
+    value: f32,
+}
+
+/// Read float grid `req.grid` of an OpenVDB file into a dense [`Grid`].
+pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
+    let hint = if req.file_as_written.is_relative() {
+        "; relative paths are resolved against the scene file's folder"
+    } else {
+        ""
+    };
+    let file = File::open(&req.resolved).map_err(|e| req.err(format!("cannot open OpenVDB file: {e}{hint}")))?;
+    // vdb-rs indexes its node maps without checking them: a damaged file must be an error, not
+    // a panic, so the parse runs behind catch_unwind (its panic message is kept for the line).
+    let name = req.grid.to_owned();
+    let parsed = std::panic::catch_unwind(move || -> Result<Result<Vec<Active>, String>, String> {
+        let mut reader =
+            vdb_rs::VdbReader::new(BufReader::new(file)).map_err(|e| format!("not a readable OpenVDB file ({e})"))?;
+        let Some(descriptor) = reader.grid_descriptors.get(&name) else {
+            let mut names = reader.available_grids();
+            names.sort();
+            return Ok(Err(format!(
+                "has no grid named {name:?}; its grids are {}; set density.grid to one of them",
+                names.iter().map(|n| format!("{n:?}")).collect::<Vec<_>>().join(", ")
+            )));
+        };
+        if !descriptor.grid_type.contains("float") {
+            return Ok(Err(format!(
+                "grid {name:?} holds {} values, not float: a density grid is a FloatGrid",
+                descriptor.grid_type
+            )));
+        }
+        let grid = reader.read_grid::<f32>(&name).map_err(|e| format!("cannot read grid {name:?} ({e})"))?;
+        Ok(Ok(grid
+            .iter()
+            .map(|(c, value, level)| Active {
+                min: [c.x as i64, c.y as i64, c.z as i64],
+                edge: level.scale() as i64,
+                value,
+            })
+            .collect()))
+    });
+    let active = match parsed {
+        Ok(Ok(Ok(active))) => active,
+        Ok(Ok(Err(message))) | Ok(Err(message)) => return Err(req.err(message)),
+        Err(panic) => {
+            let why = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "unknown".into());
+            return Err(req.err(format!("a damaged or unsupported OpenVDB file (the reader failed: {why})")));
+        }
+    };
+    if active.is_empty() {
+        return Err(req.err(format!("grid {:?} has no active voxels: the medium would be empty", req.grid)));
+    }
+    for a in &active {
+        if !(a.value.is_finite() && a.value >= 0.0) {
+            return Err(req.err(format!(
+                "grid {:?} has the value {} at voxel ({}, {}, {}); densities must be finite and >= 0",
+                req.grid, a.value, a.min[0], a.min[1], a.min[2]
+            )));
+        }
+    }
+    let mut lo = [i64::MAX; 3];
+    let mut hi = [i64::MIN; 3];
+    for a in &active {
+        for axis in 0..3 {
+            lo[axis] = lo[axis].min(a.min[axis]);
+            hi[axis] = hi[axis].max(a.min[axis] + a.edge - 1);
+        }
+    }
+    let dims_wide = [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1];
+    let voxels = dims_wide.iter().map(|&d| d as u128).product::<u128>();
+    let needed = voxels.saturating_mul(4);
+    if needed > u128::from(req.opts.memory_budget_bytes) || dims_wide.iter().any(|&d| d > i64::from(u32::MAX)) {
+        return Err(req.err(format!(
+            "grid {:?} spans {} x {} x {} voxels, {} as a dense f32 grid, past the memory budget of {}; crop or \
+                resample it, or raise --memory-budget",
+            req.grid,
+            dims_wide[0],
+            dims_wide[1],
+            dims_wide[2],
+            human_bytes(u64::try_from(needed).unwrap_or(u64::MAX)),
+            human_bytes(req.opts.memory_budget_bytes)
+        )));
+    }
+    let dims = [dims_wide[0] as u32, dims_wide[1] as u32, dims_wide[2] as u32];
+    let (nx, ny) = (dims_wide[0] as usize, dims_wide[1] as usize);
+    let mut data = vec![0f32; voxels as usize];
+    for a in &active {
+        for k in a.min[2]..a.min[2] + a.edge {
+            for j in a.min[1]..a.min[1] + a.edge {
+                let row = ((k - lo[2]) as usize * ny + (j - lo[1]) as usize) * nx;
+                let x0 = (a.min[0] - lo[0]) as usize;
+                data[row + x0..row + x0 + a.edge as usize].fill(a.value);
+            }
+        }
+    }
+    Ok(Grid { dims, data, file: req.resolved.clone() })
+}

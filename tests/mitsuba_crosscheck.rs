@@ -1,0 +1,61 @@
+//! `path` against Mitsuba 3 on a refractive object (issue 16): the scene is exported with
+//! `scatterlab export --mitsuba` (the mesh beside the XML, Mitsuba's `dielectric` BSDF, the
+//! medium as its interior) and rendered by both (tools/mitsuba-crosscheck). Mitsuba is not
+//! part of CI: this runs where SCATTERLAB_MITSUBA_PYTHON names a Python with Mitsuba 3 (`pip
+//! install mitsuba numpy`) and is skipped, saying so, where it does not.
+
+use std::path::Path;
+use std::process::Command;
+
+fn mitsuba_python() -> Option<String> {
+    let python = std::env::var("SCATTERLAB_MITSUBA_PYTHON").ok()?;
+    let ok = Command::new(&python).args(["-c", "import mitsuba, numpy"]).status().is_ok_and(|s| s.success());
+    ok.then_some(python)
+}
+
+#[test]
+fn path_matches_mitsuba_on_a_glass_sphere_with_a_medium_inside() {
+    let Some(python) = mitsuba_python() else {
+        eprintln!(
+            "SKIPPED: no Mitsuba 3 (set SCATTERLAB_MITSUBA_PYTHON to a Python with `pip install mitsuba numpy`); \
+             path's dielectric is tested against closed forms and furnaces in refraction_tests"
+        );
+        return;
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let bin = root.join("target/checked/scatterlab");
+    assert!(bin.exists(), "build the checked binary first (tools/scatterlab builds it)");
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("glass.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "[render]\nwidth = 32\nheight = 32\nseed = 1\nspp = 64\n\
+             [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 34.0\n\
+             [[object]]\nmesh = \"{}\"\nior = 1.5\nscale = 0.8\n\
+             [object.medium]\nsigma_t = 3.0\nalbedo = [0.95, 0.9, 0.8]\ng = 0.3\n\
+             [[light]]\nkind = \"environment\"\nradiance = 0.3\n",
+            root.join("scenes/meshes/icosphere.obj").display()
+        ),
+    )
+    .unwrap();
+    let out = Command::new(&python)
+        .arg(root.join("tools/mitsuba-crosscheck"))
+        .arg(&scene)
+        .args(["--spp", "1024", "--mitsuba-spp", "2048", "--bin"])
+        .arg(&bin)
+        .output()
+        .expect("runs tools/mitsuba-crosscheck");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let json = &stdout[stdout.find('{').expect("a JSON object")..];
+    let r: serde_json::Value = serde_json::from_str(json).unwrap();
+    eprintln!("{r}");
+    let ratio = r["energy_ratio"].as_f64().unwrap();
+    let se = (r["mean_stderr_path"].as_f64().unwrap().powi(2) + r["mean_stderr_mitsuba"].as_f64().unwrap().powi(2))
+        .sqrt()
+        / r["mean_mitsuba"][0].as_f64().unwrap();
+    assert!((ratio - 1.0).abs() < 0.01 + 4.0 * se, "energy ratio {ratio} (stderr {se})");
+    let corrected = r["rel_l2_corrected"].as_f64().unwrap();
+    assert!(corrected < 0.05, "relL2 beyond the noise: {corrected}");
+}
