@@ -1336,3 +1336,33 @@ fn usage_errors_exit_nonzero_without_panic() {
         }
     }
 }
+
+#[test]
+fn object_scenes_from_the_command_line() {
+    // Scene format v2: `scene info` names the object and the solvers that refuse it; a solver
+    // without meshes refuses in one line and writes nothing; a mesh error names the file.
+    let c = Case::new();
+    let wax = repo("scenes/wax-blob.toml");
+    let (stdout, _) = succeeded(&c.run(["scene", "info", wax.to_str().unwrap()]));
+    assert!(
+        stdout.contains("object       ") && stdout.contains("5120 triangles") && stdout.contains("ior 1.45"),
+        "{stdout}"
+    );
+    assert!(stdout.lines().any(|l| l.trim_start().starts_with("path") && l.contains("MiB")), "{stdout}");
+    assert!(stdout.lines().any(|l| l.trim_start().starts_with("lbl") && l.contains("refused")), "{stdout}");
+    let (stdout, _) = succeeded(&c.run(["scene", "info", wax.to_str().unwrap(), "--json"]));
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
+    assert_eq!(v["object"]["triangles"], 5120, "{v}");
+    assert!(v["refused_by"]["single"].is_string() && v["device_bytes"]["path"].as_u64().is_some(), "{v}");
+    let out = c.path("out/x.exr");
+    c.fails(
+        ["render", wax.to_str().unwrap(), "--solver", "single", "--out", out.to_str().unwrap()],
+        &["single does not render [[object]] meshes", "--solver path"],
+    );
+    // An open mesh: the file and the edge.
+    std::fs::write(c.path("open.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\n").unwrap();
+    let text = std::fs::read_to_string(&wax).unwrap().replace("meshes/blob.obj", "open.obj");
+    let s = c.path("open.toml");
+    std::fs::write(&s, text).unwrap();
+    c.fails(["scene", "info", s.to_str().unwrap()], &["open.toml", "object[0].mesh", "open.obj", "not closed"]);
+}

@@ -23,6 +23,9 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     let settings = Settings::new(&knob_sets);
     solvers::check_settings(&settings, &[solver])?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions::default())?;
+    if let Some(why) = solver.mesh_refusal(&scene) {
+        bail!("{}: {why}", a.scene.display());
+    }
     animate::orbit(&scene, 0.0).map_err(|e| anyhow!("{}: {e}", a.scene.display()))?;
     // Before any device work: the solver must keep a solution to start the next frame from,
     // and its knobs must make a sequence (a solver checks what its warm start needs).

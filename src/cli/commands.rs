@@ -502,7 +502,14 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     solvers::check_settings(&settings, solvers::SOLVERS)?;
     let scene = Scene::load(path, &scene_sets, &LoadOptions::default())?;
     let f = scene.features();
-    let memory = solvers::memory_table(&scene, solvers::SOLVERS, &settings)?;
+    // Solvers that cannot render the scene at all (an [[object]] for those without meshes) are
+    // listed with the reason instead of a memory figure for a render that would be refused.
+    let refused: Vec<(&str, String)> =
+        solvers::SOLVERS.iter().filter_map(|s| s.mesh_refusal(&scene).map(|why| (s.name(), why))).collect();
+    let memory: Vec<_> = solvers::memory_table(&scene, solvers::SOLVERS, &settings)?
+        .into_iter()
+        .filter(|(name, _)| !refused.iter().any(|(r, _)| r == name))
+        .collect();
     if as_json {
         let mem: serde_json::Map<String, serde_json::Value> =
             memory.iter().map(|(k, b)| (k.to_string(), json!(b))).collect();
@@ -512,6 +519,11 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
                 "scene": path.display().to_string(),
                 "anisotropic": f.anisotropic, "chromatic": f.chromatic, "light_inside": f.light_inside,
                 "homogeneous": f.grid_dims.is_none(), "density": density_label(&scene.medium.density), "has_environment": f.has_environment, "grid_dims": f.grid_dims,
+                "object": scene.object.as_ref().map(|o| json!({
+                    "mesh": o.mesh.file.display().to_string(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
+                    "bvh_nodes": o.bvh.nodes.len(), "bvh_depth": o.bvh.depth, "bvh_bytes": o.bvh.bytes(),
+                })),
+                "refused_by": refused.iter().map(|(k, why)| (k.to_string(), json!(why))).collect::<serde_json::Map<_, _>>(),
                 "device_bytes": mem,
             }))?
         );
@@ -529,6 +541,18 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     outln!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
     outln!("chromatic    {}", yn(f.chromatic));
     outln!("density      {}", density_label(&scene.medium.density));
+    if let Some(o) = &scene.object {
+        outln!(
+            "object       {} ({} triangles), ior {}{}: the medium fills the mesh; BVH {} nodes, depth {}, {:.1} KiB",
+            o.mesh.file.display(),
+            o.mesh.triangles.len(),
+            o.ior,
+            if o.refractive() { " (a smooth dielectric boundary)" } else { " (index-matched)" },
+            o.bvh.nodes.len(),
+            o.bvh.depth,
+            o.bvh.bytes() as f64 / 1024.0
+        );
+    }
     outln!("light inside {}", yn(f.light_inside));
     outln!("environment  {}", yn(f.has_environment));
     outln!(
@@ -538,6 +562,9 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     for (name, b) in memory {
         outln!("  {:<10} {:>10.2} MiB", name, b as f64 / (1u64 << 20) as f64);
     }
+    for (name, _) in &refused {
+        outln!("  {:<10} refused: it does not render [[object]] meshes yet", name);
+    }
     Ok(())
 }
 
@@ -546,7 +573,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
 fn density_label(d: &crate::scene::Density) -> String {
     use crate::scene::Density;
     match d {
-        Density::Constant => "homogeneous: constant, filling the medium's box".into(),
+        Density::Constant => "homogeneous: constant, filling the medium's box (or the object's mesh)".into(),
         Density::Sphere { center, radius } => format!(
             "homogeneous: constant inside a sphere (centre [{}, {}, {}], radius {radius}), 0 outside",
             center.x, center.y, center.z

@@ -24,6 +24,9 @@ pub fn render(a: RenderArgs) -> Result<()> {
     check_outputs(&a)?;
     let budget = parse_bytes(&a.memory_budget)?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions { memory_budget_bytes: budget })?;
+    if let Some(why) = solver.mesh_refusal(&scene) {
+        bail!("{}: {why}", a.scene.display());
+    }
     let provenance = provenance(&a, solver, &scene, &overrides)?;
     let gpu = open_gpu(&a)?;
     let (out, comparison) = run(&gpu, solver, &scene, &settings, &a)?;

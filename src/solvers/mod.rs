@@ -122,7 +122,19 @@ pub trait Solver: Sync {
     /// Why the method does not apply to this scene, if it does not (`bench` skips it there
     /// and says why, rather than plotting another solver's result under its name).
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
-        meshes_unsupported(self.name(), scene)
+        self.mesh_refusal(scene)
+    }
+    /// Whether it renders scene format v2 [[object]] meshes (only `path` so far).
+    fn renders_meshes(&self) -> bool {
+        false
+    }
+    /// Why it refuses `scene`: an [[object]] it cannot trace (checked before any device work).
+    fn mesh_refusal(&self, scene: &Scene) -> Option<String> {
+        if self.renders_meshes() {
+            None
+        } else {
+            meshes_unsupported(self.name(), scene)
+        }
     }
     /// The seed paper's headline workload for `scatterlab report` (at CI size with `quick`),
     /// if the solver has one: each solver adds its own.
@@ -505,7 +517,7 @@ pub fn check_settings(settings: &Settings, solvers: &[&dyn Solver]) -> Result<()
             return Err(SolverError::Setting {
                 key: key.to_string(),
                 reason: format!(
-                    "unknown key; scene keys start with render., camera., medium. or light., solver knobs with a \
+                    "unknown key; scene keys start with render., camera., medium., object. or light., solver knobs with a \
                         solver name ({})",
                     names.join(", ")
                 ),

@@ -681,9 +681,9 @@ impl Solver for Path {
         Ok(gpu_scene::scene_bytes_with(scene, knobs.get("majorant_cell")?) + camera + light)
     }
 
-    /// Every scene: path traces [[object]] meshes too.
-    fn inapplicable(&self, _scene: &Scene) -> Option<String> {
-        None
+    /// path traces [[object]] meshes (glsl/include/mesh.glsl).
+    fn renders_meshes(&self) -> bool {
+        true
     }
 
     /// The ground truth on the cloud, for scale (no seed times it).

@@ -182,7 +182,7 @@ impl Solver for Wavefront {
     }
 
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
-        if let Some(why) = super::meshes_unsupported(self.name(), scene) {
+        if let Some(why) = self.mesh_refusal(scene) {
             return Some(why);
         }
         wave_field::traced_lights(scene).is_empty().then(|| {
