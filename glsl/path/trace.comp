@@ -210,6 +210,9 @@ bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
 // distance to its surface along it (INF: none), found at the event's start.
 bool inside = false;
 float ev_t_surf = INF;
+// The product of the 1 / eta^2 of the path's refractions: beta * eta_scale is the throughput
+// without radiance compression, what Russian roulette weighs (saved in the state's ev_v.w).
+float eta_scale = 1.0;
 
 // The path meets the mesh at o + t d (unit outward normal n): it crosses an index-matched
 // boundary unchanged; a refractive one reflects with the Fresnel probability F and refracts
@@ -240,6 +243,7 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
         } else {
             d = refract_dir(d, nf, eta, cos_i, cos_t);
             beta *= eta * eta;
+            eta_scale /= eta * eta;
         }
         pdf_dir = -1.0;
     }
@@ -386,7 +390,11 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
 
     // Russian roulette on the throughput; dividing by the survival probability keeps it unbiased.
     if (depth >= pc.rr_depth) {
-        float q = min(1.0, max3(beta) / pc.rr_threshold);
+        // With a refractive mesh the throughput carries eta^2 factors that cancel when the path
+        // leaves the object again; roulette on the throughput without them (pbrt-v4's
+        // etaScale), else every path inside glass would be cut at 1 / eta^2 survival.
+        float rr_beta = HAS_MESH ? max3(beta) * eta_scale : max3(beta);
+        float q = min(1.0, rr_beta / pc.rr_threshold);
         if (rnd(rng) >= q) return EVENT_ENDED;
         beta /= q;
     }
@@ -430,6 +438,7 @@ void main() {
     ev_light = flags >> 12u;
     ev_s = uintBitsToFloat(st.k_flight.z);
     ev_v = st.ev_v.xyz;
+    eta_scale = HAS_MESH ? st.ev_v.w : 1.0;
     trk_saved[0] = st.trk_a;
     trk_saved[1] = st.trk_b;
     trk_saved[2] = st.trk_c;
@@ -480,6 +489,7 @@ void main() {
             truncated = false;
             in_flight = true;
             inside = false;   // the camera is outside the mesh (the scene loader checks its origin)
+            eta_scale = 1.0;
             ev_step = EV_START;
         }
         iters++;
@@ -509,7 +519,7 @@ void main() {
     tm.y = ev_t_surf;
     state[pixel] = PathState(vec4(o, pdf_dir), vec4(d, uintBitsToFloat(depth)), vec4(beta, uintBitsToFloat(rng.x)),
                              vec4(L, uintBitsToFloat(collisions)), uvec4(k, flags, floatBitsToUint(ev_s), rng.y),
-                             vec4(ev_v, 0.0), ta, tb, tc, tm);
+                             vec4(ev_v, HAS_MESH ? eta_scale : 0.0), ta, tb, tc, tm);
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);
