@@ -34,6 +34,17 @@ impl VdbRequest<'_> {
     }
 }
 
+/// vdb-rs's error, said so a user can act on it: its I/O errors display as a bare "IoError".
+fn why(e: &vdb_rs::ParseError) -> String {
+    match e {
+        vdb_rs::ParseError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            "it ends early: the file is truncated".into()
+        }
+        vdb_rs::ParseError::IoError(io) => format!("{io}; the file may be damaged"),
+        other => format!("{other}; the file may be damaged or from a newer OpenVDB"),
+    }
+}
+
 /// One active value: a voxel, or a tile of `edge`^3 voxels from its `min` corner.
 struct Active {
     min: [i64; 3],
@@ -53,8 +64,8 @@ pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
     // a panic, so the parse runs behind catch_unwind (its panic message is kept for the line).
     let name = req.grid.to_owned();
     let parsed = std::panic::catch_unwind(move || -> Result<Result<Vec<Active>, String>, String> {
-        let mut reader =
-            vdb_rs::VdbReader::new(BufReader::new(file)).map_err(|e| format!("not a readable OpenVDB file ({e})"))?;
+        let mut reader = vdb_rs::VdbReader::new(BufReader::new(file))
+            .map_err(|e| format!("not a readable OpenVDB file ({})", why(&e)))?;
         let Some(descriptor) = reader.grid_descriptors.get(&name) else {
             let mut names = reader.available_grids();
             names.sort();
@@ -69,7 +80,7 @@ pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
                 descriptor.grid_type
             )));
         }
-        let grid = reader.read_grid::<f32>(&name).map_err(|e| format!("cannot read grid {name:?} ({e})"))?;
+        let grid = reader.read_grid::<f32>(&name).map_err(|e| format!("cannot read grid {name:?} ({})", why(&e)))?;
         Ok(Ok(grid
             .iter()
             .map(|(c, value, level)| Active {
