@@ -71,14 +71,16 @@ float triangle_t(Triangle tr, vec3 o, vec3 d) {
     return isnan(t) ? INF : t;
 }
 
+// Unit outward geometric normal of triangle `tri` (an index from mesh_hit_tri).
+vec3 triangle_normal(uint tri) { return normalize(cross(tris[tri].e1.xyz, tris[tri].e2.xyz)); }
+
 // Closest crossing of the ray o + t d with t in (t_min, t_max), from either side: the
 // traversal of bvh.rs `Bvh::intersect` (explicit stack, nearer child first, the farther one
 // deferred with its entry distance and skipped once a closer hit is known). Returns false on
-// a miss; n is the unit outward geometric normal of the triangle hit.
-bool mesh_hit(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out vec3 n) {
+// a miss; `tri` is the index of the triangle hit.
+bool mesh_hit_tri(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out uint tri) {
     t_hit = t_max;
-    n = vec3(0.0);
-    uint tri = 0xffffffffu;
+    tri = 0xffffffffu;
     vec3 inv_d = safe_inverse(d);
     uint stack_node[BVH_STACK];
     float stack_t[BVH_STACK];
@@ -117,8 +119,15 @@ bool mesh_hit(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out vec
         if (!next) break;
     }
     if (tri == 0xffffffffu) { t_hit = t_max; return false; }
-    n = normalize(cross(tris[tri].e1.xyz, tris[tri].e2.xyz));
     return true;
+}
+
+// mesh_hit_tri with the unit outward geometric normal n of the triangle hit.
+bool mesh_hit(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out vec3 n) {
+    uint tri;
+    bool hit = mesh_hit_tri(o, d, t_min, t_max, t_hit, tri);
+    n = hit ? triangle_normal(tri) : vec3(0.0);
+    return hit;
 }
 
 #endif

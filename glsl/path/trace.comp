@@ -56,7 +56,7 @@ struct PathState {
     vec4 trk_a;        // the paused tracking loop (tracking.glsl, track_save)
     vec4 trk_b;
     vec4 trk_c;
-    vec4 trk_mesh;     // x, w: a paused tracker's chained interval (tracking.glsl, track_save_mesh); y: ev_t_surf
+    vec4 trk_mesh;     // x, w: a paused tracker's chained interval (tracking.glsl, track_save_mesh); y, z: ev_t_surf, ev_surf_tri
 };
 // The flags word: bit 0 a path is in flight, 1 it was truncated, 2 a tracking loop paused,
 // 3 ev_eq_on, 4-6 ev_step, 7 inside the mesh, 8-9 ev_sub, 12-31 ev_light (the host refuses 2^20 lights or more).
@@ -210,6 +210,7 @@ bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
 // distance to its surface along it (INF: none), found at the event's start.
 bool inside = false;
 float ev_t_surf = INF;
+uint ev_surf_tri = 0u;
 // The product of the 1 / eta^2 of the path's refractions: beta * eta_scale is the throughput
 // without radiance compression, what Russian roulette weighs (saved in the state's ev_v.w).
 float eta_scale = 1.0;
@@ -223,11 +224,9 @@ float eta_scale = 1.0;
 // dielectric in radiance mode). The new origin is moved off the surface to the side the ray
 // leaves on, by a distance relative to the coordinates' magnitude (float rounding).
 void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_dir, inout uvec2 rng) {
-    // The hit's normal: the same ray finds the same triangle (the traversal is deterministic).
-    float t;
-    vec3 n;
-    mesh_hit(o, d, 0.0, INF, t, n);
-    vec3 p = o + d * t;
+    // The surface the event's start found (ev_t_surf, ev_surf_tri): no second traversal.
+    vec3 n = triangle_normal(ev_surf_tri);
+    vec3 p = o + d * ev_t_surf;
     bool entering = dot(d, n) < 0.0;
     vec3 nf = entering ? n : -n;   // facing the side the ray comes from
     bool crosses = true;
@@ -276,8 +275,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     // when a paused event resumes: a traversal can cost more than a small budget, and an
     // event that paid it again on every resume would never progress.
     if (HAS_MESH && ev_step == EV_START) {
-        vec3 n_unused;
-        if (!mesh_hit(o, d, 0.0, INF, ev_t_surf, n_unused)) ev_t_surf = INF;
+        if (!mesh_hit_tri(o, d, 0.0, INF, ev_t_surf, ev_surf_tri)) ev_t_surf = INF;
     }
     float t_surf = ev_t_surf;
     bool surf = HAS_MESH && t_surf < INF;
@@ -433,6 +431,7 @@ void main() {
     inside = (flags & FLAG_INSIDE) != 0u;
     trk_saved_mesh = st.trk_mesh;
     ev_t_surf = st.trk_mesh.y;
+    ev_surf_tri = floatBitsToUint(st.trk_mesh.z);
     ev_step = (flags >> 4u) & 7u;
     ev_sub = (flags >> 8u) & 3u;
     ev_light = flags >> 12u;
@@ -517,6 +516,7 @@ void main() {
     track_save(ta, tb, tc);
     vec4 tm = track_save_mesh();
     tm.y = ev_t_surf;
+    tm.z = uintBitsToFloat(ev_surf_tri);
     state[pixel] = PathState(vec4(o, pdf_dir), vec4(d, uintBitsToFloat(depth)), vec4(beta, uintBitsToFloat(rng.x)),
                              vec4(L, uintBitsToFloat(collisions)), uvec4(k, flags, floatBitsToUint(ev_s), rng.y),
                              vec4(ev_v, HAS_MESH ? eta_scale : 0.0), ta, tb, tc, tm);

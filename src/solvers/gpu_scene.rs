@@ -289,7 +289,9 @@ pub fn scene_bytes(scene: &Scene) -> u64 {
 /// [`scene_bytes`] with majorant cells of `cell` voxels on an edge (`path.majorant_cell`).
 pub fn scene_bytes_with(scene: &Scene, cell: u32) -> u64 {
     let block = (std::mem::size_of::<SceneHeader>() + scene.lights.len() * std::mem::size_of::<GpuLight>()) as u64;
-    let mesh = scene.object.as_ref().map_or(32 + 48, |o| o.bvh.bytes());
+    // Without an object: the one-element placeholders `upload_with` binds.
+    let placeholders = (std::mem::size_of::<BvhNode>() + std::mem::size_of::<GpuTriangle>()) as u64;
+    let mesh = scene.object.as_ref().map_or(placeholders, |o| o.bvh.bytes());
     let block = block + mesh;
     match &scene.medium.density {
         Density::Grid(g) => {
@@ -315,7 +317,9 @@ impl GpuScene {
     }
 
     /// Upload for a solver that does not trace meshes: a scene with an [[object]] is refused
-    /// (one line, before any device work), never rendered as if its medium filled the box.
+    /// in one line, never rendered as if its medium filled the box. The command line refuses
+    /// such scenes earlier, before opening the device (`Solver::mesh_refusal`); this is the
+    /// library's guard for callers that go straight to `Solver::render`.
     pub fn upload(gpu: &Gpu, scene: &Scene, force_full: bool) -> Result<GpuScene, SolverError> {
         if let Some(o) = &scene.object {
             return Err(SolverError::Unsupported(format!(
