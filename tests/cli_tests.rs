@@ -1353,11 +1353,12 @@ fn object_scenes_from_the_command_line() {
     let (stdout, _) = succeeded(&c.run(["scene", "info", wax.to_str().unwrap(), "--json"]));
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
     assert_eq!(v["object"]["triangles"], 5120, "{v}");
-    assert!(v["refused_by"]["single"].is_string() && v["device_bytes"]["path"].as_u64().is_some(), "{v}");
+    assert!(v["refused_by"]["lbl"].is_string() && v["device_bytes"]["path"].as_u64().is_some(), "{v}");
+    assert!(v["refused_by"]["single"].is_null() && v["device_bytes"]["single"].as_u64().is_some(), "{v}");
     let out = c.path("out/x.exr");
     c.fails(
-        ["render", wax.to_str().unwrap(), "--solver", "single", "--out", out.to_str().unwrap()],
-        &["single does not render [[object]] meshes", "--solver path"],
+        ["render", wax.to_str().unwrap(), "--solver", "lbl", "--out", out.to_str().unwrap()],
+        &["lbl does not render [[object]] meshes", "--solver path or single"],
     );
     // An open mesh: the file and the edge.
     std::fs::write(c.path("open.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\n").unwrap();

@@ -24,6 +24,7 @@ mod refraction_tests;
 mod registry_tests;
 mod report_tests;
 mod scene_tests;
+mod single_refraction_tests;
 mod slab_reference;
 mod solvers;
 mod stability_tests;

@@ -82,7 +82,7 @@ pub enum SolverError {
 pub fn meshes_unsupported(solver: &str, scene: &Scene) -> Option<String> {
     scene.object.as_ref().map(|o| {
         format!(
-            "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver path, or a v1 \
+            "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver path or single, or a v1 \
                 [medium]",
             o.mesh.file.display()
         )

@@ -112,12 +112,7 @@ pub const MAX_LIGHT_TRACED: usize = 32;
 /// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp: the path, the progress
 /// of its current event, and a tracking loop paused mid-flight).
 pub const STATE_BYTES_PER_PIXEL: u64 = 160;
-/// Largest `path.budget` for a scene with an [[object]] mesh. llvmpipe's loop limiter counts a
-/// SIMD batch's loop back-edges together (glsl/include/budget.glsl), at most the sum of its 8
-/// lanes' own counts: 8 x (4096 + one event's overshoot) stays below 65535. Measured on the box
-/// mesh (max_depth 1, 20 x 20): budgets 64, 300, 1000 and 4096 give the same image bit for bit,
-/// 15000 a wrong one (one lane's count 7091 when the batch hit the limiter).
-pub const MESH_MAX_BUDGET: u32 = 4096;
+pub use super::resumable::MESH_MAX_BUDGET;
 /// The kernels keep the index of the light an event is at in 20 bits.
 pub const MAX_LIGHTS: usize = 1 << 20;
 /// A paused tracking loop keeps its majorant cell along y and z in 14 bits each

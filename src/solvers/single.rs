@@ -1,7 +1,16 @@
 //! Solver `single`: the direct term by camera-ray marching with shadow transmittance to each
 //! light and the exact phase function: the shared view pass ([`super::view`]) with no
 //! multiple-scattering volume. It converges to `path --set path.max_depth=1` as the step
-//! shrinks (tests/solvers.rs). Knobs: the view march's, unprefixed (`scatterlab knobs single`).
+//! shrinks (tests/solvers.rs). Knobs: the view march's, unprefixed (`scatterlab knobs single`),
+//! and `refraction`.
+//!
+//! Scene format v2 [[object]] meshes: the medium is inside the mesh, and with ior != 1 the
+//! camera ray refracts where it enters (Fresnel F reflected, 1 - F refracted) and goes straight
+//! inside; shadow rays go straight toward each light, scaled by the Fresnel transmittance of
+//! every surface they cross (thesis 3.1.1, eq. 3.2 with L_t = F_t L_i). What it leaves out
+//! against `path --set path.max_depth=1`: light reaching a point along a refracted path (a
+//! point light outside is seen along the straight line, so its caustics and the focusing of
+//! the surface are missing) and internal reflections on the light's side (docs/refraction.md).
 
 use crate::gpu::{Gpu, Kernel};
 use crate::scene::Scene;
@@ -22,7 +31,15 @@ impl Solver for Single {
     }
 
     fn knobs(&self) -> Vec<Knob> {
-        view::knobs()
+        let mut k = view::knobs();
+        k.push(Knob::fixed(
+            "refraction",
+            "true",
+            super::Range::Bool,
+            "with a refractive [[object]] (ior != 1): Fresnel and Snell at its surface; false renders its boundary \
+             as index-matched (what refraction changes)",
+        ));
+        k
     }
 
     fn kernels(&self) -> Vec<Kernel> {
@@ -32,7 +49,8 @@ impl Solver for Single {
     fn render(&self, gpu: &Gpu, req: &RenderRequest) -> Result<RenderOutput, SolverError> {
         let scene = req.scene;
         let k = req.knobs(self)?;
-        let v = ViewSettings::parse(&k, "", scene)?;
+        let mut v = ViewSettings::parse(&k, "", scene)?;
+        v.refraction = k.get::<bool>("refraction")?;
         k.finish()?;
         view::render_alone(gpu, self, req, &k, &v)
     }
@@ -45,6 +63,11 @@ impl Solver for Single {
     fn ladder(&self, scene: &Scene) -> Vec<Rung> {
         let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
         [16.0f32, 32.0, 64.0, 128.0, 256.0].iter().map(|d| Rung::one("single.step", diag / d)).collect()
+    }
+
+    /// single traces [[object]] meshes (glsl/view/march.comp's chain, glsl/include/mesh.glsl).
+    fn renders_meshes(&self) -> bool {
+        true
     }
 
     fn stability(&self) -> Vec<Variant> {

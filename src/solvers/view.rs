@@ -84,7 +84,8 @@ impl Shadow {
     /// two per unit and voxel.
     fn resolve(mode: &str, scene: &Scene) -> Shadow {
         let grid = matches!(scene.medium.density, crate::scene::Density::Grid(_));
-        if mode != "march" && grid {
+        // Through a mesh the shadow depth needs the surfaces: always marched.
+        if mode != "march" && grid && scene.object.is_none() {
             Shadow::Volume
         } else {
             Shadow::March
@@ -156,8 +157,15 @@ pub const MARCH: Kernel = Kernel {
         (super::gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
         (SPEC_OCTAVES, SpecKind::U32),
         (SPEC_STEP_FIT, SpecKind::Bool),
+        (super::gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
+        (super::gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
     ],
 };
+
+/// Bindings of the [[object]]'s BVH nodes and triangles in glsl/view/march.comp (after the
+/// view pass's own 0-7).
+const VIEW_MESH_NODES_BINDING: u32 = 8;
+const VIEW_MESH_TRIS_BINDING: u32 = 9;
 
 /// The octave approximation of multiple scattering in the view pass (Wrenninge et al. 2013):
 /// light i's phase-weighted transmittance p(cos; g) T becomes
@@ -181,8 +189,9 @@ impl Octaves {
     pub const SINGLE: Octaves = Octaves { n: 1, a: 1.0, b: 1.0, c: 1.0, bounded: false };
 }
 
-/// Per-pixel resumable march state (`MarchState` in glsl/view/march.comp).
-pub const STATE_BYTES_PER_PIXEL: u64 = 64;
+/// Per-pixel resumable march state (`MarchState` in glsl/view/march.comp): 4 vec4 of the
+/// march, 3 of a camera ray's segment through a mesh.
+pub const STATE_BYTES_PER_PIXEL: u64 = 112;
 /// Longest shadow march (steps across the medium's diagonal) a single loop may take.
 pub const MAX_SHADOW_STEPS: f32 = 16384.0;
 
@@ -238,6 +247,9 @@ pub struct ViewSettings {
     /// Single scattering unless a solver sets octaves (`octaves`).
     pub octaves: Octaves,
     pub shadow: Shadow,
+    /// With a refractive [[object]]: Fresnel and Snell at its surface (`single.refraction`);
+    /// false renders it as if index-matched, for measuring what refraction buys.
+    pub refraction: bool,
 }
 
 impl ViewSettings {
@@ -260,7 +272,28 @@ impl ViewSettings {
             budget: k.get(&key("budget"))?,
             octaves: Octaves::SINGLE,
             shadow: Shadow::resolve(&k.get::<String>(&key("shadow"))?, scene),
+            refraction: true,
         };
+        if scene.object.is_some() && k.get::<String>(&key("shadow"))? == "volume" {
+            // The shadow volume holds the density integral alone; through a mesh the depth
+            // also needs the surfaces crossed (Fresnel) and the inside intervals.
+            return Err(k.invalid(
+                &key("shadow"),
+                "the shadow volume does not trace the [[object]]'s mesh; use march or auto (which marches with a mesh)"
+                    .to_string(),
+            ));
+        }
+        if scene.object.is_some() && v.budget > super::resumable::MESH_MAX_BUDGET {
+            return Err(k.invalid(
+                &key("budget"),
+                format!(
+                    "{} with an [[object]] mesh: its BVH traversal's divergent loops can take a SIMD batch past \
+                     llvmpipe's loop limiter above {} (path.budget's limit); use at most that",
+                    v.budget,
+                    super::resumable::MESH_MAX_BUDGET
+                ),
+            ));
+        }
         let v = v.fit_shadow(k, prefix, scene)?;
         for (name, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
@@ -375,12 +408,14 @@ pub fn march(
     let mut spec = gs.modelled.spec();
     spec.push((SPEC_OCTAVES, Spec::U32(v.octaves.n.clamp(1, MAX_OCTAVES))));
     spec.push((SPEC_STEP_FIT, Spec::Bool(step_fit(scene, v.step))));
+    spec.push((super::gpu_scene::SPEC_HAS_MESH, Spec::Bool(gs.modelled.mesh_triangles > 0)));
+    spec.push((super::gpu_scene::SPEC_REFRACTIVE, Spec::Bool(gs.modelled.refractive && v.refraction)));
     let pipeline = gpu.pipeline(&MARCH, &spec)?;
     let o = v.octaves;
     let pixels = w as u64 * h as u64;
     let out = gpu.buffer("view radiance", pixels * 16)?;
     // Every pixel starts at subsample 0, step 0, with transmittance 1.
-    let mut init = [0f32; 16];
+    let mut init = [0f32; (STATE_BYTES_PER_PIXEL / 4) as usize];
     init[..3].copy_from_slice(&[1.0; 3]);
     let state = gpu.buffer_with("view state", &vec![init; pixels as usize])?;
     let stats = gpu.buffer("view stats", resumable::STATS_WORDS * 4)?;
@@ -450,6 +485,8 @@ pub fn march(
             .read_write(5, &state)
             .read(6, ms_buf)
             .read(7, shadow_ref)
+            .read(VIEW_MESH_NODES_BINDING, &gs.mesh_nodes)
+            .read(VIEW_MESH_TRIS_BINDING, &gs.mesh_tris)
             .push(&push)
             .cover([w, h, 1])
     })?;
@@ -487,7 +524,13 @@ pub fn render_alone(
     v: &ViewSettings,
 ) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
-    let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+    let mut gs = if solver.renders_meshes() {
+        GpuScene::upload_with(gpu, scene, req.force_full, super::gpu_scene::MAJORANT_CELL)?
+    } else {
+        GpuScene::upload(gpu, scene, req.force_full)?
+    };
+    // Refraction turned off: the report says the boundary was taken as index-matched.
+    gs.modelled.refractive &= v.refraction;
     (req.progress)(Progress::work("view pass", 0, 1));
     let view = march(gpu, scene, &gs, v, None)?;
     (req.progress)(Progress::work("view pass", 1, 1));
