@@ -21,21 +21,27 @@ use crate::common::{
     assert_agree, assert_clean, gpu, mean_and_stderr, render, scene, try_render, worst_z, LBL, PATH, SINGLE,
 };
 
-fn mesh(name: &str) -> String {
+/// The path of a shipped mesh (scenes/meshes).
+pub(crate) fn mesh(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/meshes").join(name).display().to_string()
 }
 
 /// A scene of one object (`object` holds the `[[object]]` keys and `medium` its medium's) under
 /// the `light` table, seen by a perspective camera on +z.
 fn object_scene(object: &str, medium: &str, light: &str, size: u32, spp: u32) -> String {
+    object_scene_seeded(3, object, medium, light, size, spp)
+}
+
+/// [`object_scene`] with the render seed `seed`.
+pub(crate) fn object_scene_seeded(seed: u64, object: &str, medium: &str, light: &str, size: u32, spp: u32) -> String {
     format!(
-        "[render]\nwidth = {size}\nheight = {size}\nseed = 3\nspp = {spp}\n\
+        "[render]\nwidth = {size}\nheight = {size}\nseed = {seed}\nspp = {spp}\n\
          [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 34.0\n\
          [[object]]\n{object}\n[object.medium]\n{medium}\n[[light]]\n{light}\n"
     )
 }
 
-const ENV: &str = "kind = \"environment\"\nradiance = 1.0";
+pub(crate) const ENV: &str = "kind = \"environment\"\nradiance = 1.0";
 
 // ------------------------------------------------------------------ Fresnel and Snell
 

@@ -5,23 +5,14 @@
 //! the energy; against the same solver with refraction turned off; a furnace of an empty
 //! convex glass; energy never created in non-convex ones; split invariance.
 
-use std::path::Path;
-
 use crate::common::{assert_clean, gpu, render, scene, try_render, PATH, SINGLE};
+use crate::refraction_tests::{mesh, object_scene_seeded, ENV};
 
-fn mesh(name: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/meshes").join(name).display().to_string()
-}
-
+/// A one-object scene as refraction_tests', with this file's seed.
 fn object_scene(object: &str, medium: &str, light: &str, size: u32, spp: u32) -> String {
-    format!(
-        "[render]\nwidth = {size}\nheight = {size}\nseed = 5\nspp = {spp}\n\
-         [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 34.0\n\
-         [[object]]\n{object}\n[object.medium]\n{medium}\n[[light]]\n{light}\n"
-    )
+    object_scene_seeded(5, object, medium, light, size, spp)
 }
 
-const ENV: &str = "kind = \"environment\"\nradiance = 1.0";
 /// 4 x 4 rays per pixel: at 24 x 24 the silhouette's pixels decide relL2, and one ray at the
 /// pixel's centre against path's pixel area put 0.12 there on an index-matched torus.
 const SS: &[(&str, &str)] = &[("single.supersample", "4")];

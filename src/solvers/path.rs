@@ -516,16 +516,7 @@ impl Solver for Path {
         let default_batch = ((1u64 << 24) / pixels.max(1)).clamp(1, 1024) as u32;
         let batch: u32 = k.get_or("batch", default_batch)?;
         let budget: u32 = k.get("budget")?;
-        if scene.object.is_some() && budget > MESH_MAX_BUDGET {
-            return Err(SolverError::Setting {
-                key: "path.budget".into(),
-                reason: format!(
-                    "{budget} with an [[object]] mesh: its BVH traversal's divergent loops can take a SIMD batch past \
-                        llvmpipe's loop limiter above {MESH_MAX_BUDGET} (measured: a wrong image at 15000); use at \
-                        most {MESH_MAX_BUDGET}"
-                ),
-            });
-        }
+        super::resumable::check_mesh_budget(&k, "budget", budget, scene.object.is_some())?;
         let collision_cap: u32 = k.get("collision_cap")?;
         let eq_mode: String = k.get("equiangular")?;
         let equiangular = equiangular_lights(scene, &eq_mode);

@@ -10,14 +10,31 @@
 
 use crate::gpu::{Buffer, Gpu, Pass, QueueRole};
 
-use super::{Knob, Range, SolverError};
+use super::{Knob, Knobs, Range, SolverError};
 
-/// Largest budget (`path.budget`, `single.budget`) for a scene with an [[object]] mesh. llvmpipe's loop limiter counts a
-/// SIMD batch's loop back-edges together (glsl/include/budget.glsl), at most the sum of its 8
+/// Largest budget (`path.budget`, `single.budget`) for a scene with an [[object]] mesh.
+/// llvmpipe's loop limiter counts a SIMD batch's loop back-edges together (glsl/include/budget.glsl), at most the sum of its 8
 /// lanes' own counts: 8 x (4096 + one event's overshoot) stays below 65535. Measured on the box
 /// mesh (max_depth 1, 20 x 20): budgets 64, 300, 1000 and 4096 give the same image bit for bit,
 /// 15000 a wrong one (one lane's count 7091 when the batch hit the limiter).
 pub const MESH_MAX_BUDGET: u32 = 4096;
+
+/// Refuse the budget knob `name` (its value `budget`) past [`MESH_MAX_BUDGET`] where the
+/// scene has an [[object]] mesh: the kernels that trace it (path's, the view march) share
+/// the limit.
+pub fn check_mesh_budget(k: &Knobs, name: &str, budget: u32, has_mesh: bool) -> Result<(), SolverError> {
+    if has_mesh && budget > MESH_MAX_BUDGET {
+        return Err(k.invalid(
+            name,
+            format!(
+                "{budget} with an [[object]] mesh: its BVH traversal's divergent loops can take a SIMD batch past \
+                 llvmpipe's loop limiter above {MESH_MAX_BUDGET} (measured: a wrong image at 15000); use at most \
+                 {MESH_MAX_BUDGET}"
+            ),
+        ));
+    }
+    Ok(())
+}
 
 /// Dispatches per submission; each reports its unfinished invocations in its own counter.
 pub const ROUNDS_PER_SUBMIT: u32 = 4;

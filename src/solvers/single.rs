@@ -10,7 +10,7 @@
 //! every surface they cross (thesis 3.1.1, eq. 3.2 with L_t = F_t L_i). What it leaves out
 //! against `path --set path.max_depth=1`: light reaching a point along a refracted path (a
 //! point light outside is seen along the straight line, so its caustics and the focusing of
-//! the surface are missing) and internal reflections on the light's side (docs/refraction.md).
+//! the surface are missing) and internal reflections on the light's side (docs/measurements.md, "Objects in `single`").
 
 use crate::gpu::{Gpu, Kernel};
 use crate::scene::Scene;

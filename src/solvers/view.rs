@@ -263,6 +263,7 @@ impl ViewSettings {
         let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
         let key = |n: &str| format!("{prefix}{n}");
         let step: f32 = k.get_or(&key("step"), Self::default_step(scene))?;
+        let shadow_mode: String = k.get(&key("shadow"))?;
         let v = ViewSettings {
             step,
             shadow_step: k.get_or(&key("shadow_step"), step)?,
@@ -271,29 +272,18 @@ impl ViewSettings {
             jitter: k.get(&key("jitter"))?,
             budget: k.get(&key("budget"))?,
             octaves: Octaves::SINGLE,
-            shadow: Shadow::resolve(&k.get::<String>(&key("shadow"))?, scene),
+            shadow: Shadow::resolve(&shadow_mode, scene),
             refraction: true,
         };
-        if scene.object.is_some() && k.get::<String>(&key("shadow"))? == "volume" {
+        if scene.object.is_some() && shadow_mode == "volume" {
             // The shadow volume holds the density integral alone; through a mesh the depth
             // also needs the surfaces crossed (Fresnel) and the inside intervals.
             return Err(k.invalid(
                 &key("shadow"),
-                "the shadow volume does not trace the [[object]]'s mesh; use march or auto (which marches with a mesh)"
-                    .to_string(),
+                "the shadow volume does not trace the [[object]]'s mesh; use march or auto (which marches with a mesh)",
             ));
         }
-        if scene.object.is_some() && v.budget > super::resumable::MESH_MAX_BUDGET {
-            return Err(k.invalid(
-                &key("budget"),
-                format!(
-                    "{} with an [[object]] mesh: its BVH traversal's divergent loops can take a SIMD batch past \
-                     llvmpipe's loop limiter above {} (path.budget's limit); use at most that",
-                    v.budget,
-                    super::resumable::MESH_MAX_BUDGET
-                ),
-            ));
-        }
+        resumable::check_mesh_budget(k, &key("budget"), v.budget, scene.object.is_some())?;
         let v = v.fit_shadow(k, prefix, scene)?;
         for (name, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
@@ -405,11 +395,11 @@ pub fn march(
     ms: Option<&MsVolume>,
 ) -> Result<ViewResult, SolverError> {
     let (w, h) = (scene.render.width, scene.render.height);
-    let mut spec = gs.modelled.spec();
+    // The mesh's constants from what the scene modelled (render_alone has taken
+    // `refraction=false` into it).
+    let mut spec = gs.modelled.mesh_spec();
     spec.push((SPEC_OCTAVES, Spec::U32(v.octaves.n.clamp(1, MAX_OCTAVES))));
     spec.push((SPEC_STEP_FIT, Spec::Bool(step_fit(scene, v.step))));
-    spec.push((super::gpu_scene::SPEC_HAS_MESH, Spec::Bool(gs.modelled.mesh_triangles > 0)));
-    spec.push((super::gpu_scene::SPEC_REFRACTIVE, Spec::Bool(gs.modelled.refractive && v.refraction)));
     let pipeline = gpu.pipeline(&MARCH, &spec)?;
     let o = v.octaves;
     let pixels = w as u64 * h as u64;
@@ -529,7 +519,8 @@ pub fn render_alone(
     } else {
         GpuScene::upload(gpu, scene, req.force_full)?
     };
-    // Refraction turned off: the report says the boundary was taken as index-matched.
+    // Refraction turned off: the march's kernel is specialised without it (march reads the
+    // modelled set), and the report says the boundary was taken as index-matched.
     gs.modelled.refractive &= v.refraction;
     (req.progress)(Progress::work("view pass", 0, 1));
     let view = march(gpu, scene, &gs, v, None)?;
