@@ -16,6 +16,16 @@ float fresnel_dielectric(float cos_i, float eta, out float cos_t) {
     return 0.5 * (r_par * r_par + r_perp * r_perp);
 }
 
+// The smooth dielectric where a ray along unit d meets an object of index `ior` (in vacuum),
+// with unit normal nf facing the side the ray comes from, `entering` the object or leaving it:
+// eta = n_i / n_t, the incident and transmitted cosines, and the Fresnel reflectance (1 under
+// total internal reflection). Path's surface event and the view march's chain share it.
+float surface_fresnel(vec3 d, vec3 nf, bool entering, float ior, out float eta, out float cos_i, out float cos_t) {
+    eta = entering ? 1.0 / ior : ior;   // n_i / n_t
+    cos_i = clamp(-dot(d, nf), 0.0, 1.0);
+    return fresnel_dielectric(cos_i, eta, cos_t);
+}
+
 // Direction after refraction of unit d through a surface of unit normal nf facing the
 // incoming side (dot(d, nf) < 0), eta = n_i / n_t, cos_t from fresnel_dielectric: Snell's law
 // in vector form, t = eta d + (eta cos_i - cos_t) nf.

@@ -71,6 +71,10 @@ float triangle_t(Triangle tr, vec3 o, vec3 d) {
     return isnan(t) ? INF : t;
 }
 
+// How far a ray leaving a surface point p starts off it, toward the side it leaves on: relative
+// to the coordinates' magnitude (float rounding), so the surface just crossed is not met again.
+float surface_eps(vec3 p) { return 1e-5 * max(1.0, max3(abs(p))); }
+
 // Unit outward geometric normal of triangle `tri` (an index from mesh_hit_tri).
 vec3 triangle_normal(uint tri) { return normalize(cross(tris[tri].e1.xyz, tris[tri].e2.xyz)); }
 

@@ -231,11 +231,8 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
     vec3 nf = entering ? n : -n;   // facing the side the ray comes from
     bool crosses = true;
     if (REFRACTIVE) {
-        float ior = scene.object.x;
-        float eta = entering ? 1.0 / ior : ior;   // n_i / n_t
-        float cos_i = clamp(-dot(d, nf), 0.0, 1.0);
-        float cos_t;
-        float F = fresnel_dielectric(cos_i, eta, cos_t);
+        float eta, cos_i, cos_t;
+        float F = surface_fresnel(d, nf, entering, scene.object.x, eta, cos_i, cos_t);
         if (rnd(rng) < F) {
             d = normalize(reflect(d, nf));
             crosses = false;
@@ -247,8 +244,7 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
         pdf_dir = -1.0;
     }
     inside = crosses ? entering : !entering;
-    float eps = 1e-5 * max(1.0, max3(abs(p)));
-    o = p + (crosses ? -nf : nf) * eps;
+    o = p + (crosses ? -nf : nf) * surface_eps(p);
     // A path caught between surfaces (total internal reflection in a clear object) ends at the
     // collision cap, counted and reported as truncated, never loops for ever.
     collisions++;

@@ -416,10 +416,6 @@ vec3 seg_o = vec3(0.0), seg_d = vec3(0.0);
 float seg_a = 0.0, seg_len = 0.0, seg_tend = 0.0;
 uint seg_tri = 0u, seg_events = 0u, seg_phase = CHAIN_CAMERA;
 
-// The offset off a surface at p, relative to the coordinates' magnitude (float rounding), as
-// path's surface_event.
-float surface_eps(vec3 p) { return 1e-5 * max(1.0, max3(abs(p))); }
-
 // The current segment: from o along d to the surface (triangle tri) at t_end (INF: none).
 void chain_set(vec3 o, vec3 d, float t_end, uint tri, bool inside) {
     seg_o = o;
@@ -500,10 +496,8 @@ bool chain_event(inout vec3 T, inout vec3 L, vec3 env) {
         return true;
     }
     float ior = scene.object.x;
-    float eta = entering ? 1.0 / ior : ior;   // n_i / n_t
-    float cos_i = clamp(-dot(d, nf), 0.0, 1.0);
-    float cos_t;
-    float F = fresnel_dielectric(cos_i, eta, cos_t);
+    float eta, cos_i, cos_t;
+    float F = surface_fresnel(d, nf, entering, ior, eta, cos_i, cos_t);
     vec3 r = normalize(reflect(d, nf));
     vec3 o_r = q + nf * eps;
     vec3 o_t = q - nf * eps;
