@@ -1349,16 +1349,17 @@ fn object_scenes_from_the_command_line() {
         "{stdout}"
     );
     assert!(stdout.lines().any(|l| l.trim_start().starts_with("path") && l.contains("MiB")), "{stdout}");
-    assert!(stdout.lines().any(|l| l.trim_start().starts_with("lbl") && l.contains("refused")), "{stdout}");
+    assert!(stdout.lines().any(|l| l.trim_start().starts_with("wavefront") && l.contains("refused")), "{stdout}");
     let (stdout, _) = succeeded(&c.run(["scene", "info", wax.to_str().unwrap(), "--json"]));
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("not JSON: {e}\n{stdout}"));
     assert_eq!(v["object"]["triangles"], 5120, "{v}");
-    assert!(v["refused_by"]["lbl"].is_string() && v["device_bytes"]["path"].as_u64().is_some(), "{v}");
+    assert!(v["refused_by"]["wavefront"].is_string() && v["device_bytes"]["path"].as_u64().is_some(), "{v}");
+    assert!(v["refused_by"]["lbl"].is_null() && v["device_bytes"]["lbl"].as_u64().is_some(), "{v}");
     assert!(v["refused_by"]["single"].is_null() && v["device_bytes"]["single"].as_u64().is_some(), "{v}");
     let out = c.path("out/x.exr");
     c.fails(
-        ["render", wax.to_str().unwrap(), "--solver", "lbl", "--out", out.to_str().unwrap()],
-        &["lbl does not render [[object]] meshes", "--solver path or single"],
+        ["render", wax.to_str().unwrap(), "--solver", "wavefront", "--out", out.to_str().unwrap()],
+        &["wavefront does not render [[object]] meshes", "--solver path, single or lbl"],
     );
     // An open mesh: the file and the edge.
     std::fs::write(c.path("open.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\n").unwrap();

@@ -18,7 +18,7 @@ use scatterlab::solvers::probes::{BvhPush, FresnelPush, BVH, FRESNEL};
 use scatterlab::solvers::SolverError;
 
 use crate::common::{
-    assert_agree, assert_clean, gpu, mean_and_stderr, render, scene, try_render, worst_z, LBL, PATH, SINGLE,
+    assert_agree, assert_clean, gpu, mean_and_stderr, render, scene, try_render, worst_z, LBL, PATH, SINGLE, WAVEFRONT,
 };
 
 /// The path of a shipped mesh (scenes/meshes).
@@ -394,10 +394,10 @@ fn delta_lights_outside_a_refractive_object_and_other_solvers_are_refused() {
     let out = render(&gpu, &scene(&inside), PATH, &[]);
     assert!(out.image.data.iter().any(|v| *v > 0.0));
     // Solvers that do not trace meshes say so in one line.
-    let err = try_render(&gpu, &scene(&inside), LBL, &[], false).err().expect("lbl refuses");
+    let err = try_render(&gpu, &scene(&inside), WAVEFRONT, &[], false).err().expect("wavefront refuses");
     assert!(err.to_string().contains("[[object]]") && !err.to_string().contains('\n'), "{err}");
-    assert!(LBL.inapplicable(&scene(&inside)).is_some() && PATH.inapplicable(&scene(&inside)).is_none());
-    assert!(SINGLE.inapplicable(&scene(&inside)).is_none());
+    assert!(WAVEFRONT.inapplicable(&scene(&inside)).is_some() && PATH.inapplicable(&scene(&inside)).is_none());
+    assert!(SINGLE.inapplicable(&scene(&inside)).is_none() && LBL.inapplicable(&scene(&inside)).is_none());
     assert_clean(&gpu);
 }
 

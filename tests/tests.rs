@@ -11,6 +11,7 @@ mod equiangular_tests;
 mod export_tests;
 mod gpu_core;
 mod lbl;
+mod lbl_refraction_tests;
 mod light_tracing_tests;
 mod mesh_tests;
 mod mitsuba_crosscheck;

@@ -7,14 +7,31 @@
 // step's midpoint: the once-scattered source that the lattice diffuses. (What the beam scatters
 // straight toward the camera is single scattering, computed exactly by the view pass, so no
 // energy is counted twice.) A ray dies when its power falls below `threshold` of its start,
-// when it leaves the lattice, or after `max_steps`. Straight rays: the eikonal update of
-// eq. 4.1-4.2 (refraction) slots in where the position advances once meshes carry eta.
+// when it leaves the lattice, or after `max_steps`.
+//
+// With an [[object]] (HAS_MESH) the medium is inside its mesh only: a ray knows which side it is
+// on (dir_alive.w: 1 outside, 2 inside; set on the host where it starts), a step that crosses
+// the surface ends there (its slot deposits what the part inside scattered), and the surface
+// acts. Index-matched, the ray goes on. Refractive (REFRACTIVE), the thesis bends the ray
+// through the smoothed gradient of the voxelised index (eqs. 4.1-4.2), which for an index
+// constant inside a mesh is a blurred version of refraction at the surface: here the mesh
+// refracts it exactly (Snell, the same surface path and the view march use) and the Fresnel
+// equations split its power, which the eikonal update has no term for. Entering, the
+// transmitted share (1 - F) goes on refracted (power, not radiance: no eta^2); the reflected
+// share never enters the medium. Leaving, the internal reflection (share F, all of it under
+// total internal reflection) goes on inside and the refracted share leaves the object: for a
+// convex object it never comes back; in a non-convex one light that leaves and re-enters is
+// dropped (what the marching then misses is light the lattice would have received).
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
 #define MAJORANT_BINDING 2
 #include "../include/scene.glsl"
+#include "../include/budget.glsl"
+#define MESH_NODES_BINDING 6
+#define MESH_TRIS_BINDING 7
+#include "../include/mesh.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
@@ -48,28 +65,56 @@ void main() {
     float steps = ray.pos_steps.w;
     vec3 d = ray.dir_alive.xyz;
     bool alive = ray.dir_alive.w > 0.5;
+    bool inside = !HAS_MESH || ray.dir_alive.w > 1.5;   // in the object's medium (HAS_MESH)
     vec3 P = ray.power.rgb;
     uvec3 n = pc.dims.xyz;
     float lambda = pc.origin.w;
     for (uint j = 0u; j < pc.k; ++j) {
         uvec4 slot = uvec4(0xffffffffu, 0u, 0u, 0u);
         if (alive) {
-            vec3 mid = x + d * (0.5 * pc.step);
+            // A step that meets the mesh ends on it (the rest of the way is the next step's).
+            float len = pc.step;
+            uint tri = 0xffffffffu;
+            float t_hit;
+            bool crosses = HAS_MESH && mesh_hit_tri(x, d, 0.0, pc.step, t_hit, tri);
+            if (crosses) len = t_hit;
+            vec3 mid = x + d * (0.5 * len);
             ivec3 vox = ivec3(floor((mid - pc.origin.xyz) / lambda));
             if (all(greaterThanEqual(vox, ivec3(0))) && all(lessThan(vox, ivec3(n)))) {
-                vec3 st = scene.sigma_t.xyz * medium_density(mid);
-                vec3 seg_T = exp(-st * pc.step);
+                vec3 st = inside ? scene.sigma_t.xyz * medium_density(mid) : vec3(0.0);
+                vec3 seg_T = exp(-st * len);
                 vec3 dep = P * (vec3(1.0) - seg_T) * scene.albedo.xyz;
                 P *= seg_T;
                 if (max3(dep) > 0.0) slot = uvec4(uint(vox.x) + n.x * (uint(vox.y) + n.y * uint(vox.z)), floatBitsToUint(dep));
             } else if (steps > 0.0) {
                 alive = false;   // left the lattice (rays start on its boundary)
             }
-            x += d * pc.step;
+            x += d * len;
+            if (crosses) {
+                vec3 nrm = triangle_normal(tri);
+                bool entering = dot(d, nrm) < 0.0;
+                vec3 nf = entering ? nrm : -nrm;   // facing the side the ray comes from
+                if (REFRACTIVE) {
+                    float eta, cos_i, cos_t;
+                    float F = surface_fresnel(d, nf, entering, scene.object.x, eta, cos_i, cos_t);
+                    if (entering) {
+                        P *= 1.0 - F;
+                        d = refract_dir(d, nf, eta, cos_i, cos_t);
+                        inside = true;
+                    } else {
+                        P *= F;
+                        d = reflect(d, nf);
+                    }
+                } else {
+                    inside = entering;
+                }
+                // Off the surface, on the side the ray now goes.
+                x += (dot(d, nf) < 0.0 ? -nf : nf) * surface_eps(x);
+            }
             steps += 1.0;
             if (max3(P) < pc.threshold * ray.power.w || steps >= float(pc.max_steps)) alive = false;
         }
         rhb[r * pc.k + j] = slot;
     }
-    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? 1.0 : 0.0), vec4(P, ray.power.w));
+    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 : 1.0) : 0.0), vec4(P, ray.power.w));
 }

@@ -14,6 +14,7 @@ pub mod mesh;
 pub mod mitsuba;
 mod parse;
 mod vdb;
+pub mod voxelise;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

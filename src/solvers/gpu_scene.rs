@@ -323,7 +323,7 @@ impl GpuScene {
     pub fn upload(gpu: &Gpu, scene: &Scene, force_full: bool) -> Result<GpuScene, SolverError> {
         if let Some(o) = &scene.object {
             return Err(SolverError::Unsupported(format!(
-                "{}: only path and single render [[object]] meshes so far (the object is {}); use --solver path or single, or a v1 [medium]",
+                "{}: only path, single and lbl render [[object]] meshes so far (the object is {}); use --solver path, single or lbl, or a v1 [medium]",
                 scene.source.display(),
                 o.mesh.file.display()
             )));

@@ -159,10 +159,23 @@ impl Solver for Lbl {
                  on the seeded levels (docs/lbl.md); loses the round overlap and the energy book (0: cold start)",
             ),
         ];
+        k.push(Knob::fixed(
+            "refraction",
+            "true",
+            Range::Bool,
+            "with a refractive [[object]] (ior != 1): light rays and camera rays refract at its surface with the \
+             Fresnel split; false renders its boundary as index-matched (what refraction changes)",
+        ));
         k.extend(marching::knobs());
         k.extend(wave_field::knobs().into_iter().map(|k| k.prefixed("wavefront_").only_with("warm_start=wavefront")));
         k.extend(view::knobs().into_iter().map(|k| k.prefixed("view_")));
         k
+    }
+
+    /// lbl renders [[object]] meshes: the lattice over the mesh's voxelised occupancy, light
+    /// and camera rays refracted at the surface (glsl/marching/march.comp, glsl/view/march.comp).
+    fn renders_meshes(&self) -> bool {
+        true
     }
 
     fn kernels(&self) -> Vec<Kernel> {
@@ -293,7 +306,10 @@ impl Lbl {
         set: &LblSettings,
         progress: &dyn Fn(Progress),
     ) -> Result<(RenderOutput, Vec<f32>), SolverError> {
-        let gs = GpuScene::upload(gpu, scene, force_full)?;
+        let mut gs = GpuScene::upload_with(gpu, scene, force_full, super::gpu_scene::MAJORANT_CELL)?;
+        // Refraction turned off: the marching and view kernels are specialised without it (both
+        // read the modelled set), and the report says the boundary was taken as index-matched.
+        gs.modelled.refractive &= set.view.refraction;
         let lat = run_lattice(gpu, scene, &gs, set, progress)?;
         let g = &lat.stats.lattice;
         let ms = MsVolume {
@@ -350,6 +366,10 @@ impl Lbl {
         Ok((RenderOutput { image: view.image, variance: None, report }, lat.irradiance))
     }
 }
+
+/// Largest `lbl.k` (marching steps per round) with an [[object]]: every step traverses the
+/// BVH (glsl/marching/march.comp), up to a few hundred loop iterations near the surface.
+pub const MESH_MAX_MARCH_K: u32 = 64;
 
 /// An `lbl` sequence: every frame marches its light anew; after the first, the lattice starts
 /// from the previous frame's field (the wavefront paper's initial guess, section 1.1, with
@@ -548,6 +568,25 @@ impl LblSettings {
                 "the wavefront warm start is built for the d3q6 lattice; use lbl.lattice=d3q6",
             ));
         }
+        if out.warm_start.is_some() && scene.object.is_some() {
+            return Err(k.invalid(
+                "warm_start",
+                "the wavefront warm start does not trace the [[object]]'s mesh (its field would fill the medium's box); \
+                 use lbl.warm_start=none",
+            ));
+        }
+        out.view.refraction = k.get("refraction")?;
+        if scene.object.is_some() && out.march.k > MESH_MAX_MARCH_K {
+            // Each marching step traverses the BVH over its length, inside one invocation's
+            // k steps: bounded so the traversals stay far below lavapipe's loop limiter.
+            return Err(k.invalid(
+                "k",
+                format!(
+                    "with an [[object]] every marching step traverses the mesh's BVH, and a round of over \
+                     {MESH_MAX_MARCH_K} steps could reach the device's loop limit; use lbl.k <= {MESH_MAX_MARCH_K}"
+                ),
+            ));
+        }
         Ok(out)
     }
 
@@ -659,6 +698,11 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         directed: set.directed && m.g != 0.0,
         flux: set.flux != view::FluxUse::None && m.g != 0.0,
         extrapolate: set.extrapolate,
+        // A refractive object's surface reflects the lattice's outgoing links back in.
+        boundary_r: match &scene.object {
+            Some(o) if o.refractive() && set.view.refraction => lattice::diffuse_reflectance(o.ior),
+            _ => 0.0,
+        },
     }
 }
 

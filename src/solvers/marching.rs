@@ -14,9 +14,9 @@ use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole, Spec};
 use crate::physics::geometry::ray_box;
 use crate::physics::phase::orthonormal_basis;
 use crate::physics::rng::Pcg32;
-use crate::scene::{Light, Scene};
+use crate::scene::{voxelise, Light, Scene};
 
-use super::gpu_scene::{GpuScene, SCENE_SPEC};
+use super::gpu_scene::{GpuScene, MESH_SPEC, SCENE_SPEC};
 use super::lattice::{LatticeGeom, LATTICE_SPEC, SPEC_LINKS, SPEC_NCH};
 use super::{Knob, Knobs, Range, SolverError};
 
@@ -57,7 +57,7 @@ struct TransferPush {
 pub const RESAMPLE: Kernel =
     Kernel { shader: shader!("marching/resample"), push_bytes: std::mem::size_of::<GeomPush>(), spec: SCENE_SPEC };
 pub const MARCH: Kernel =
-    Kernel { shader: shader!("marching/march"), push_bytes: std::mem::size_of::<MarchPush>(), spec: SCENE_SPEC };
+    Kernel { shader: shader!("marching/march"), push_bytes: std::mem::size_of::<MarchPush>(), spec: MESH_SPEC };
 pub const TRANSFER_FLOAT: Kernel = Kernel {
     shader: shader!("marching/transfer_float"),
     push_bytes: std::mem::size_of::<TransferPush>(),
@@ -369,7 +369,7 @@ impl Marcher {
         // Transfer kernels include lattice.glsl for the channel count; they never read links.
         let links = super::lattice::Lattice::D3q6.links();
         let transfer_spec = [(SPEC_NCH, Spec::U32(nch)), (SPEC_LINKS, Spec::U32(links))];
-        let march = gpu.pipeline(&MARCH, &gs.modelled.spec())?;
+        let march = gpu.pipeline(&MARCH, &gs.modelled.mesh_spec())?;
         let transfer = if sums {
             Some(gpu.pipeline(if fixed { &TRANSFER_FIXED } else { &TRANSFER_FLOAT }, &transfer_spec)?)
         } else {
@@ -380,8 +380,27 @@ impl Marcher {
         } else {
             gpu.buffer("marching density (none kept)", 4)?
         };
+        if let (true, Some(o)) = (sums, &scene.object) {
+            // The lattice's extinction premultiplied by the mesh's occupancy (thesis 4.3): the
+            // resampled density is the medium's wherever its box reaches, inside the mesh or not.
+            let occ = voxelise::occupancy(o, geom.min(), geom.lambda, geom.dims, voxelise::SUPERSAMPLE);
+            let mut dens: Vec<f32> = gpu.read_buffer_as(&density)?;
+            for (d, o) in dens.iter_mut().zip(&occ) {
+                *d *= o;
+            }
+            gpu.write_buffer(&density, 0, bytemuck::cast_slice(&dens))?;
+        }
 
-        let (rays, ray_beam, beam_list) = beams(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
+        let (mut rays, ray_beam, beam_list) =
+            beams(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
+        if let Some(o) = &scene.object {
+            // Which side of the mesh each ray starts on (march.comp: dir_alive.w 2 inside).
+            for r in rays.iter_mut() {
+                if o.contains(Vec3::new(r.pos_steps[0], r.pos_steps[1], r.pos_steps[2])) {
+                    r.dir_alive[3] = 2.0;
+                }
+            }
+        }
         let ray_count = rays.len() as u32;
         if ray_count == 0 {
             return Err(SolverError::Unsupported("no light ray reaches the medium's box; check the lights".into()));
@@ -429,7 +448,7 @@ impl Marcher {
     pub fn march_pass(&self, gs: &GpuScene, rays: std::ops::Range<u32>) -> Pass {
         let g = &self.geom;
         let count = rays.end - rays.start;
-        gs.bind(Pass::new("marching.march", QueueRole::Trace, &self.march))
+        gs.bind_mesh(Pass::new("marching.march", QueueRole::Trace, &self.march))
             .read_write(3, &self.rays)
             .write(4, &self.history)
             .push(&MarchPush {

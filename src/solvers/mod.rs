@@ -78,12 +78,12 @@ pub enum SolverError {
 }
 
 /// Why `solver`, which does not trace meshes, cannot render `scene`: it has an [[object]]
-/// (scene format v2). Only `path` traces meshes so far (issue 16).
+/// (scene format v2). `path`, `single` and `lbl` render meshes so far (issue 16).
 pub fn meshes_unsupported(solver: &str, scene: &Scene) -> Option<String> {
     scene.object.as_ref().map(|o| {
         format!(
-            "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver path or single, or a v1 \
-                [medium]",
+            "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver path, single or lbl, or a \
+                v1 [medium]",
             o.mesh.file.display()
         )
     })
