@@ -395,9 +395,22 @@ fn memory_estimates_equal_what_renders_allocate() {
     // The cloud: a grid density (the view pass's shadow volume), anisotropic (lbl's deposit
     // fluxes and lattice flux), a sun and a sky.
     let cloud = crate::common::repo_scene("scenes/cloud.toml", &[("render.width", "16"), ("render.height", "16")]);
-    for (what, s) in
-        [("grey, environment", scene(CUBE)), ("chromatic, light inside", scene(&inside)), ("cloud: grid, g 0.6", cloud)]
-    {
+    // A glass object (scene format v2): the BVH, lbl's marching through it; the solvers
+    // without meshes refuse it and are skipped.
+    let glass = scene(&crate::refraction_tests::object_scene_seeded(
+        5,
+        &format!("mesh = \"{}\"\nior = 1.5", crate::refraction_tests::mesh("icosphere.obj")),
+        "sigma_t = 4.0\nalbedo = 0.9\ng = 0.3",
+        crate::refraction_tests::ENV,
+        8,
+        4,
+    ));
+    for (what, s) in [
+        ("grey, environment", scene(CUBE)),
+        ("chromatic, light inside", scene(&inside)),
+        ("cloud: grid, g 0.6", cloud),
+        ("glass object", glass),
+    ] {
         for solver in SOLVERS {
             let own: Vec<(String, String)> = knobs
                 .iter()
