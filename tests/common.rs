@@ -384,3 +384,12 @@ impl TailTally {
         assert!(4 * ie < 3 * ip, "iterations {ip} -> {ie}");
     }
 }
+
+/// relL2 of `out` against a `path` reference with the reference's own noise removed (its
+/// variance layer), and the image's energy ratio: how the accuracy tests judge a solver.
+pub fn judge(out: &scatterlab::output::Image, reference: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
+    let m = scatterlab::output::compare(out, &reference.image).unwrap();
+    let floor =
+        scatterlab::output::metrics::noise_floor(out, &reference.image, None, reference.variance.as_ref()).unwrap();
+    (floor.rel_l2_corrected.expect("path writes a variance layer"), m.energy_ratio)
+}

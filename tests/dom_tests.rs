@@ -3,9 +3,8 @@
 //! and g on a cube, on the anisotropic cloud where `lbl` loses energy, deterministic; the
 //! storage directions matter for anisotropic media and not for isotropic ones.
 
-use crate::common::{assert_clean, gpu, render, repo_scene, scene, SceneText, LBL, PATH, SINGLE};
-use scatterlab::output::metrics::noise_floor;
-use scatterlab::output::{compare, Image};
+use crate::common::{assert_clean, gpu, judge, render, repo_scene, scene, SceneText, LBL, PATH, SINGLE};
+use scatterlab::output::compare;
 use scatterlab::solvers::{self, RenderOutput};
 
 fn dom() -> &'static dyn solvers::Solver {
@@ -50,14 +49,6 @@ fn dom_converges_toward_path_on_the_sphere() {
     let b = render(&gpu, &s, dom(), &[SMALL.as_slice(), &[("dom.grid", "8")]].concat());
     assert!(a.image.data == b.image.data, "dom is not deterministic");
     assert_clean(&gpu);
-}
-
-/// Relative L2 error with the reference's own noise removed (its variance layer), and the
-/// image's energy ratio.
-fn judge(out: &Image, reference: &RenderOutput) -> (f64, f64) {
-    let m = compare(out, &reference.image).unwrap();
-    let floor = noise_floor(out, &reference.image, None, reference.variance.as_ref()).unwrap();
-    (floor.rel_l2_corrected.expect("path writes a variance layer"), m.energy_ratio)
 }
 
 /// The cube of `scenes/anisotropic-cube.toml` (directional light, three faces in view) across

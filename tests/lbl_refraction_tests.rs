@@ -9,7 +9,7 @@
 use scatterlab::scene::voxelise;
 use scatterlab::solvers::lattice::diffuse_fresnel;
 
-use crate::common::{assert_clean, gpu, render, scene, LBL, PATH};
+use crate::common::{assert_clean, gpu, judge, render, scene, LBL, PATH};
 use crate::refraction_tests::{mesh, object_scene_seeded, ENV};
 
 #[test]
@@ -60,15 +60,6 @@ fn diffuse_fresnel_reflectance_obeys_reciprocity() {
     }
     // Egan and Hilgeman's fit (the dipole model's) at 1.5, from inside: 0.596.
     assert!((diffuse_fresnel(1.5) - 0.596).abs() < 2e-3, "{}", diffuse_fresnel(1.5));
-}
-
-/// relL2 with the reference's noise removed (its variance layer) and the energy ratio of `a`
-/// against `reference`.
-fn judge(a: &scatterlab::output::Image, reference: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
-    let m = scatterlab::output::compare(a, &reference.image).unwrap();
-    let floor =
-        scatterlab::output::metrics::noise_floor(a, &reference.image, None, reference.variance.as_ref()).unwrap();
-    (floor.rel_l2_corrected.expect("path has a variance layer"), m.energy_ratio)
 }
 
 #[test]

@@ -8,7 +8,7 @@ use scatterlab::solvers::networks::{Directions, Network, Opacity, Particles, Win
 
 const _: () = assert!(400 > MAX_COLUMN, "the crowded test needs a column over the limit");
 
-use crate::common::{assert_clean, gpu, repo_scene};
+use crate::common::{assert_clean, gpu, judge, repo_scene};
 
 fn network(scene: &str, sets: &[(&str, &str)], n: u32, d: u32, m: Option<u32>) -> Network {
     network_by(scene, sets, n, d, m, WindowRule::Fit)
@@ -303,14 +303,6 @@ fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
     // Measured: 0.112 against 0.594 (5.3x); the margin leaves room for the particles' draw.
     assert!(e_cold > 2.5 * e_warm, "warm {e_warm} against cold {e_cold}");
     assert_clean(&gpu);
-}
-
-/// Relative L2 error with the reference's own noise removed, and the energy ratio.
-fn judge(out: &scatterlab::output::Image, reference: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
-    let m = scatterlab::output::compare(out, &reference.image).unwrap();
-    let floor =
-        scatterlab::output::metrics::noise_floor(out, &reference.image, None, reference.variance.as_ref()).unwrap();
-    (floor.rel_l2_corrected.expect("path writes a variance layer"), m.energy_ratio)
 }
 
 /// networks against path on the cube of `scenes/anisotropic-cube.toml` across the range a user

@@ -5,7 +5,7 @@
 //! the energy; against the same solver with refraction turned off; a furnace of an empty
 //! convex glass; energy never created in non-convex ones; split invariance.
 
-use crate::common::{assert_clean, gpu, render, scene, try_render, PATH, SINGLE};
+use crate::common::{assert_clean, gpu, judge, render, scene, try_render, PATH, SINGLE};
 use crate::refraction_tests::{mesh, object_scene_seeded, ENV};
 
 /// A one-object scene as refraction_tests', with this file's seed.
@@ -46,15 +46,6 @@ fn single_through_an_empty_glass_returns_the_environment() {
         }
     }
     assert_clean(&gpu);
-}
-
-/// relL2 with the reference's noise removed (its variance layer) and the energy ratio of `a`
-/// against `reference`.
-fn judge(a: &scatterlab::output::Image, reference: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
-    let m = scatterlab::output::compare(a, &reference.image).unwrap();
-    let floor =
-        scatterlab::output::metrics::noise_floor(a, &reference.image, None, reference.variance.as_ref()).unwrap();
-    (floor.rel_l2_corrected.expect("path has a variance layer"), m.energy_ratio)
 }
 
 #[test]
