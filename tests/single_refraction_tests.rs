@@ -74,13 +74,19 @@ fn single_with_refraction_agrees_with_path_single_scattering_across_the_range() 
         // case's steps are integrated exactly (the step fit), the others are thin per step.
         let sets = [("single.supersample", "2"), ("single.env_dirs", dirs), ("single.step", "0.05")];
         let on = render(&gpu, &s, SINGLE, &sets);
-        let off = render(&gpu, &s, SINGLE, &[sets[0], sets[1], sets[2], ("single.refraction", "false")]);
         let (rel_on, e_on) = judge(&on.image, &reference);
-        let (rel_off, e_off) = judge(&off.image, &reference);
-        eprintln!("{name}: refraction relL2 {rel_on:.4} energy {e_on:.4}; off relL2 {rel_off:.4} energy {e_off:.4}");
+        eprintln!("{name}: refraction relL2 {rel_on:.4} energy {e_on:.4}");
         assert!((e_on - 1.0).abs() < 0.05, "{name}: energy ratio {e_on}");
         assert!(rel_on < 0.1, "{name}: relL2 {rel_on}");
-        assert!(rel_on < rel_off, "{name}: refraction {rel_on} vs off {rel_off}");
+        // Against refraction turned off on the cases with 16 directions: the two with 64 cost
+        // four times as much each (CI time); off was worse there too (relL2 0.074 and 0.065
+        // against 0.047 and 0.031 at 16 x 16, docs/measurements.md).
+        if dirs == "16" {
+            let off = render(&gpu, &s, SINGLE, &[sets[0], sets[1], sets[2], ("single.refraction", "false")]);
+            let (rel_off, e_off) = judge(&off.image, &reference);
+            eprintln!("{name}: off relL2 {rel_off:.4} energy {e_off:.4}");
+            assert!(rel_on < rel_off, "{name}: refraction {rel_on} vs off {rel_off}");
+        }
     }
     assert_clean(&gpu);
 }
