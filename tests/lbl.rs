@@ -782,6 +782,30 @@ fn surface_drift_brings_lit_cubes_closer_to_path() {
     assert_clean(&gpu);
 }
 
+/// The default near ball is at most 1.5 mean free paths at the light: on a coarse lattice in a
+/// dense medium three voxels held most of the light's first scattering, and the lumped image
+/// lost a quarter of its energy (a sphere of sigma_t 8, albedo 0.95, grid 16, one voxel a mean
+/// free path: 0.738 of path's; 1.079 with the cap).
+#[test]
+fn near_ball_stays_within_a_mean_free_path_or_two_on_coarse_lattices() {
+    let gpu = gpu();
+    let text = "[render]\nwidth = 16\nheight = 16\nseed = 1\nspp = 2048\n\
+                [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 34.0\n\
+                [medium]\nbounds = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]\nsigma_t = 8.0\nalbedo = 0.95\ng = 0.0\n\
+                density = { kind = \"sphere\", center = [0, 0, 0], radius = 1.0 }\n\
+                [[light]]\nkind = \"point\"\nposition = [0.2, 0.1, 0.0]\nintensity = 1.0\n";
+    let s = scene(text);
+    let reference = render(&gpu, &s, PATH, &[]);
+    let capped = render(&gpu, &s, LBL, &[("lbl.grid", "16")]);
+    let three = render(&gpu, &s, LBL, &[("lbl.grid", "16"), ("lbl.near_light", "3")]);
+    let (rel_c, e_c) = crate::common::judge(&capped.image, &reference);
+    let (rel_3, e_3) = crate::common::judge(&three.image, &reference);
+    eprintln!("default (capped) relL2 {rel_c:.4} energy {e_c:.4}; 3 voxels relL2 {rel_3:.4} energy {e_3:.4}");
+    assert!((e_c - 1.0).abs() < 0.12 && rel_c < 0.25, "capped: energy {e_c}, relL2 {rel_c}");
+    assert!(rel_c < rel_3 && (e_c - 1.0).abs() < (e_3 - 1.0).abs(), "{rel_c} {e_c} against {rel_3} {e_3}");
+    assert_clean(&gpu);
+}
+
 /// lbl.near_light: about a point light inside the medium, the once-scattered light of a ball of
 /// 3 voxels is lumped into the light instead of injected (src/solvers/lbl.rs, NearLight). The
 /// lattice then never sees the concentrated deposits whose six axial beams streamed along the
