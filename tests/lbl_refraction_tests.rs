@@ -6,8 +6,8 @@
 //! sphere across optical thickness, albedo and g, with the energy, and against lbl with
 //! refraction turned off.
 
+use scatterlab::physics::dielectric::diffuse_fresnel;
 use scatterlab::scene::voxelise;
-use scatterlab::solvers::lattice::diffuse_fresnel;
 
 use crate::common::{assert_clean, gpu, judge, render, scene, LBL, PATH};
 use crate::refraction_tests::{mesh, object_scene_seeded, ENV};
@@ -62,6 +62,25 @@ fn diffuse_fresnel_reflectance_obeys_reciprocity() {
     assert!((diffuse_fresnel(1.5) - 0.596).abs() < 2e-3, "{}", diffuse_fresnel(1.5));
 }
 
+/// `path` and lbl (grid `grid`, camera steps of 0.05) with and without refraction on the scene
+/// `text`: lbl's render with it, and [relL2, energy ratio] of each against path (printed).
+fn with_and_without_refraction(
+    gpu: &scatterlab::gpu::Gpu,
+    text: &str,
+    grid: &str,
+    name: &str,
+) -> (scatterlab::solvers::RenderOutput, [f64; 2], [f64; 2]) {
+    let s = scene(text);
+    let reference = render(gpu, &s, PATH, &[]);
+    let sets = [("lbl.grid", grid), ("lbl.view_step", "0.05")];
+    let on = render(gpu, &s, LBL, &sets);
+    let off = render(gpu, &s, LBL, &[sets[0], sets[1], ("lbl.refraction", "false")]);
+    let (rel_on, e_on) = judge(&on.image, &reference);
+    let (rel_off, e_off) = judge(&off.image, &reference);
+    eprintln!("{name}: refraction relL2 {rel_on:.4} energy {e_on:.4}; off relL2 {rel_off:.4} energy {e_off:.4}");
+    (on, [rel_on, e_on], [rel_off, e_off])
+}
+
 #[test]
 fn lbl_with_refraction_agrees_with_path_across_the_range() {
     // A glass sphere (ior 1.5) with media from thin to optical radius 20, albedo 0 to 0.99,
@@ -93,14 +112,7 @@ fn lbl_with_refraction_agrees_with_path_across_the_range() {
     for (medium, name, max_rel, beats_off) in cases {
         let text =
             object_scene_seeded(7, &format!("mesh = \"{}\"\nior = 1.5", mesh("icosphere.obj")), medium, ENV, 20, 256);
-        let s = scene(&text);
-        let reference = render(&gpu, &s, PATH, &[]);
-        let sets = [("lbl.grid", "20"), ("lbl.view_step", "0.05")];
-        let on = render(&gpu, &s, LBL, &sets);
-        let off = render(&gpu, &s, LBL, &[sets[0], sets[1], ("lbl.refraction", "false")]);
-        let (rel_on, e_on) = judge(&on.image, &reference);
-        let (rel_off, e_off) = judge(&off.image, &reference);
-        eprintln!("{name}: refraction relL2 {rel_on:.4} energy {e_on:.4}; off relL2 {rel_off:.4} energy {e_off:.4}");
+        let (on, [rel_on, e_on], [rel_off, _]) = with_and_without_refraction(&gpu, &text, "20", name);
         assert!(on.image.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{name}: a pixel is not finite");
         assert!((e_on - 1.0).abs() < if beats_off { 0.05 } else { 0.08 }, "{name}: energy ratio {e_on}");
         assert!(rel_on < max_rel, "{name}: relL2 {rel_on}");
@@ -144,14 +156,7 @@ fn lbl_with_a_light_inside_a_glass_agrees_with_path() {
         16,
         1024,
     );
-    let s = scene(&text);
-    let reference = render(&gpu, &s, PATH, &[]);
-    let sets = [("lbl.grid", "16"), ("lbl.view_step", "0.05")];
-    let on = render(&gpu, &s, LBL, &sets);
-    let off = render(&gpu, &s, LBL, &[sets[0], sets[1], ("lbl.refraction", "false")]);
-    let (rel_on, e_on) = judge(&on.image, &reference);
-    let (rel_off, e_off) = judge(&off.image, &reference);
-    eprintln!("light inside: refraction relL2 {rel_on:.4} energy {e_on:.4}; off relL2 {rel_off:.4} energy {e_off:.4}");
+    let (_, [rel_on, e_on], [rel_off, _]) = with_and_without_refraction(&gpu, &text, "16", "light inside");
     assert!((e_on - 1.0).abs() < 0.1, "energy ratio {e_on}");
     assert!(rel_on < 0.3 && rel_on < rel_off, "refraction {rel_on} vs off {rel_off}");
     assert_clean(&gpu);

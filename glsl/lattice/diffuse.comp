@@ -164,7 +164,7 @@ void main() {
     // toward an unoccupied one (or out of the lattice) gives the share pc.boundary_r of what it
     // carries to the opposite link, which carries it back in: the diffuse (cosine-weighted
     // hemispherical) Fresnel reflectance from inside, computed on the host
-    // (src/solvers/lattice.rs, diffuse_reflectance), the boundary condition of diffusion
+    // (src/physics/dielectric.rs, diffuse_fresnel), the boundary condition of diffusion
     // theory's partial currents, J_out = (1 - R) J_+. The thesis' lattice has none (its eikonal
     // rays refract, its lattice leaks as if index-matched).
     // (Tried and not kept: scaling the transmitted share by 1 / |m|_1 for the staircase's
@@ -239,17 +239,14 @@ void main() {
                 if (inside) leaked += drift;
             }
             if (refl_mask != 0u) {
-                // Links come in opposite pairs (1, 2), (3, 4), ...: i - 1 and its xor with 1.
-                float back[18];
-                for (uint i = 0u; i < LINKS; ++i) back[i] = 0.0;
-                for (uint i = 0u; i < LINKS; ++i) {
-                    if ((refl_mask & (1u << i)) != 0u) {
-                        float rr = pc.boundary_r * outs[i];
-                        outs[i] -= rr;
-                        back[i ^ 1u] += rr;
-                    }
+                // Links come in opposite pairs (1, 2), (3, 4), ...: outs[i] and outs[i + 1] for
+                // even i. Each gives its reflected share to the other.
+                for (uint i = 0u; i < LINKS; i += 2u) {
+                    float a = (refl_mask & (1u << i)) != 0u ? pc.boundary_r * outs[i] : 0.0;
+                    float b = (refl_mask & (2u << i)) != 0u ? pc.boundary_r * outs[i + 1u] : 0.0;
+                    outs[i] = outs[i] - a + b;
+                    outs[i + 1u] = outs[i + 1u] - b + a;
                 }
-                for (uint i = 0u; i < LINKS; ++i) outs[i] += back[i];
             }
             for (uint i = 1u; i <= LINKS; ++i) {
                 float o = outs[i - 1u];

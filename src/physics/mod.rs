@@ -7,6 +7,7 @@
 
 pub mod angular;
 pub mod chandrasekhar;
+pub mod dielectric;
 pub mod geometry;
 pub mod ordinates;
 pub mod phase;

@@ -60,36 +60,6 @@ struct DiffusePush {
     boundary_r: f32,
 }
 
-/// Diffuse Fresnel reflectance from inside a smooth dielectric boundary of relative index
-/// `ior` (inside over outside): [`diffuse_fresnel`] at eta = ior. 0 at ior 1; 0.596 at ior 1.5
-/// (Egan and Hilgeman's fit, which the dipole model uses, gives 0.596 there too).
-pub fn diffuse_reflectance(ior: f32) -> f32 {
-    diffuse_fresnel(ior as f64) as f32
-}
-
-/// The cosine-weighted hemispherical mean 2 int_0^1 F(mu) mu dmu of the unpolarised Fresnel
-/// reflectance (Born & Wolf 1.5.3) for light arriving on the side of index n_i, eta = n_i / n_t
-/// (1 beyond the critical angle): the share of a diffuse (Lambertian) flux the boundary
-/// reflects. Midpoint rule on 4096 cosines, in f64.
-pub fn diffuse_fresnel(eta: f64) -> f64 {
-    let n = 4096;
-    let mut sum = 0.0;
-    for k in 0..n {
-        let mu = (k as f64 + 0.5) / n as f64;
-        let sin2_t = eta * eta * (1.0 - mu * mu);
-        let f = if sin2_t >= 1.0 {
-            1.0
-        } else {
-            let ct = (1.0 - sin2_t).sqrt();
-            let rs = (eta * mu - ct) / (eta * mu + ct);
-            let rp = (mu - eta * ct) / (mu + eta * ct);
-            0.5 * (rs * rs + rp * rp)
-        };
-        sum += f * mu;
-    }
-    2.0 * sum / n as f64
-}
-
 /// Mean drift toward a face of light in a D3Q6 link parallel to it, per voxel of path:
 /// E[max(0, -w_z)] over the cone of directions nearest +x (|w_x| >= |w_y|, |w_z|), for a
 /// photon at a uniform depth in the voxel. A link stands for that cone, but moves only along
@@ -371,7 +341,7 @@ pub struct LatticeParams {
     /// (`lbl.near_light`). None: every deposit is injected.
     pub near: Option<([f32; 3], f32)>,
     /// Reflectance of a refractive object's surface for the links leaving its occupied voxels
-    /// ([`diffuse_reflectance`] of its index; 0: none).
+    /// ([`crate::physics::dielectric::diffuse_fresnel`] at its index, from inside; 0: none).
     pub boundary_r: f32,
 }
 

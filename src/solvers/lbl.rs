@@ -723,7 +723,9 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         extrapolate: set.extrapolate,
         // A refractive object's surface reflects the lattice's outgoing links back in.
         boundary_r: match &scene.object {
-            Some(o) if o.refractive() && set.view.refraction => lattice::diffuse_reflectance(o.ior),
+            Some(o) if o.refractive() && set.view.refraction => {
+                crate::physics::dielectric::diffuse_fresnel(o.ior as f64) as f32
+            }
             _ => 0.0,
         },
     }
