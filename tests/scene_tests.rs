@@ -648,7 +648,7 @@ fn scene_never_panics_on_odd_input() {
 
 // ---------------------------------------------------------------------------- shipped scenes
 
-const SHIPPED: [&str; 7] = [
+const SHIPPED: [&str; 10] = [
     "homogeneous-sphere.toml",
     "anisotropic-cube.toml",
     "cloud.toml",
@@ -656,6 +656,9 @@ const SHIPPED: [&str; 7] = [
     "lightning-at-dusk.toml",
     "thick-slab.toml",
     "default.toml",
+    "wax-blob.toml",
+    "smoke-torus.toml",
+    "jade-pair.toml",
 ];
 
 fn load_shipped(name: &str) -> Scene {

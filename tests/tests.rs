@@ -16,6 +16,7 @@ mod light_tracing_tests;
 mod mesh_tests;
 mod mitsuba_crosscheck;
 mod networks_tests;
+mod object_set_tests;
 mod octaves_tests;
 mod output_tests;
 mod path_extremes_tests;

@@ -520,7 +520,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
                 "anisotropic": f.anisotropic, "chromatic": f.chromatic, "light_inside": f.light_inside,
                 "homogeneous": f.grid_dims.is_none(), "density": density_label(&scene.medium.density), "has_environment": f.has_environment, "grid_dims": f.grid_dims,
                 "object": scene.object.as_ref().map(|o| json!({
-                    "mesh": o.mesh.file.display().to_string(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
+                    "mesh": o.describe(), "parts": o.parts.iter().map(|p| json!({"mesh": p.file.display().to_string(), "triangles": p.triangles})).collect::<Vec<_>>(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
                     "bvh_nodes": o.bvh.nodes.len(), "bvh_depth": o.bvh.depth, "bvh_bytes": o.bvh.bytes(),
                 })),
                 "refused_by": refused.iter().map(|(k, why)| (k.to_string(), json!(why))).collect::<serde_json::Map<_, _>>(),
@@ -544,7 +544,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     if let Some(o) = &scene.object {
         outln!(
             "object       {} ({} triangles), ior {}{}: the medium fills the mesh; BVH {} nodes, depth {}, {:.1} KiB",
-            o.mesh.file.display(),
+            o.describe(),
             o.mesh.triangles.len(),
             o.ior,
             if o.refractive() { " (a smooth dielectric boundary)" } else { " (index-matched)" },

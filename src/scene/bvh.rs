@@ -437,3 +437,63 @@ impl Builder<'_> {
 fn bin_of(c: f32, cmin: f32, scale: f32) -> usize {
     (((c - cmin) * scale) as usize).min(BINS - 1)
 }
+
+/// Where two meshes of a list meet: mesh `b` (the later) intersects mesh `a`, or lies inside it
+/// (`nested`), or holds it inside (`nested`, with `a` and `b` as listed).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Overlap {
+    pub a: usize,
+    pub b: usize,
+    /// No surface crossing was found: one mesh lies wholly inside the other.
+    pub nested: bool,
+    /// A point where they meet (a crossing, or a vertex of the inner mesh).
+    pub at: Vec3,
+}
+
+/// The first pair of closed meshes in `meshes` (in list order of the later one) that are not
+/// disjoint: their surfaces cross, or one lies inside the other. Surfaces cross exactly where
+/// an edge of one meets a triangle of the other (for triangles that are not coplanar), so every
+/// edge of each mesh of a pair is tested as a segment against the other's BVH; without a
+/// crossing, each mesh is wholly inside or outside the other, which one vertex decides.
+pub fn first_overlap(meshes: &[TriangleMesh]) -> Option<Overlap> {
+    let bvhs: Vec<Bvh> = meshes.iter().map(Bvh::build).collect();
+    let bounds: Vec<(Vec3, Vec3)> = meshes.iter().map(TriangleMesh::bounds).collect();
+    for b in 1..meshes.len() {
+        for a in 0..b {
+            let ((alo, ahi), (blo, bhi)) = (bounds[a], bounds[b]);
+            if alo.cmpgt(bhi).any() || blo.cmpgt(ahi).any() {
+                continue;
+            }
+            let crossing = edge_crossing(&meshes[b], &bvhs[a]).or_else(|| edge_crossing(&meshes[a], &bvhs[b]));
+            if let Some(at) = crossing {
+                return Some(Overlap { a, b, nested: false, at });
+            }
+            for (inner, outer) in [(b, a), (a, b)] {
+                let Some(&[v, ..]) = meshes[inner].triangles.first() else { continue };
+                let p = meshes[inner].positions[v as usize];
+                if super::bvh_contains(&bvhs[outer], meshes[outer].triangles.len(), p) {
+                    return Some(Overlap { a, b, nested: true, at: p });
+                }
+            }
+        }
+    }
+    None
+}
+
+/// A point where an edge of `mesh` crosses the surface under `bvh`, if any.
+fn edge_crossing(mesh: &TriangleMesh, bvh: &Bvh) -> Option<Vec3> {
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (p, q) = (mesh.positions[t[k] as usize], mesh.positions[t[(k + 1) % 3] as usize]);
+            let len = p.distance(q);
+            if len.is_nan() || len <= 0.0 {
+                continue;
+            }
+            let d = (q - p) / len;
+            if let Some(hit) = bvh.intersect(p, d, 0.0, len) {
+                return Some(p + d * hit.t);
+            }
+        }
+    }
+    None
+}

@@ -330,6 +330,20 @@ fn bad_face_index(bytes: &[u8]) -> Option<MeshError> {
 }
 
 impl TriangleMesh {
+    /// The meshes as one: positions and triangles concatenated in order (indices offset, no
+    /// welding across meshes), named after the first. One mesh comes back unchanged. Closed
+    /// meshes give a closed union; disjoint ones bound the union of their insides.
+    pub fn union(meshes: Vec<TriangleMesh>) -> TriangleMesh {
+        let mut it = meshes.into_iter();
+        let mut out = it.next().expect("at least one mesh");
+        for m in it {
+            let offset = u32::try_from(out.positions.len()).expect("a mesh holds at most 2^32 vertices");
+            out.positions.extend_from_slice(&m.positions);
+            out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| i + offset)));
+        }
+        out
+    }
+
     /// Axis-aligned bounds `(min, max)` of the triangles' vertices, in scene units; a mesh
     /// without triangles has the empty box `(+inf, -inf)`.
     pub fn bounds(&self) -> (Vec3, Vec3) {

@@ -168,7 +168,7 @@ pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, Ou
         written.push(vol_path.clone());
     }
     if let Some(object) = &scene.object {
-        if let Err(e) = write_atomically(&obj_path, |tmp| write_obj_file(tmp, &object.mesh)) {
+        if let Err(e) = write_atomically(&obj_path, |tmp| write_obj_file(tmp, &object.mesh, &object.describe())) {
             cleanup(&written);
             return Err(e);
         }
@@ -224,9 +224,9 @@ pub fn obj_path_for(xml_path: &Path) -> PathBuf {
 
 /// The transformed mesh as OBJ: positions and faces only. Without normals Mitsuba's `obj`
 /// shape uses each face's geometric normal (`face_normals` is set as well), as `path` does.
-fn write_obj_file(path: &Path, mesh: &TriangleMesh) -> Result<(), OutputError> {
+fn write_obj_file(path: &Path, mesh: &TriangleMesh, source: &str) -> Result<(), OutputError> {
     let mut text = String::with_capacity(mesh.positions.len() * 40 + mesh.triangles.len() * 24);
-    let _ = writeln!(text, "# {} exported by scatterlab in scene coordinates", mesh.file.display());
+    let _ = writeln!(text, "# {source} exported by scatterlab in scene coordinates");
     for p in &mesh.positions {
         let _ = writeln!(text, "v {} {} {}", p.x, p.y, p.z);
     }

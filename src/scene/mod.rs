@@ -36,8 +36,9 @@ pub struct Scene {
     /// Format v1's `[medium]`, or the medium inside the `[[object]]`'s mesh (format v2), whose
     /// bounds are then the mesh's unless the file gives them.
     pub medium: Medium,
-    /// The `[[object]]` (format v2): a closed mesh bounding `medium`, with a refractive index.
-    /// `None` for a v1 scene, whose medium's boundary is its box (and sphere) with index 1.
+    /// The `[[object]]` entries (format v2): closed meshes bounding `medium`, with a refractive
+    /// index, joined into one [`Object`] (they share the medium and the index). `None` for a
+    /// v1 scene, whose medium's boundary is its box (and sphere) with index 1.
     pub object: Option<Object>,
     /// At least one.
     pub lights: Vec<Light>,
@@ -46,20 +47,40 @@ pub struct Scene {
 /// Largest accepted `object.ior`.
 pub const MAX_IOR: f32 = 10.0;
 
-/// `[[object]]` (format v2): a watertight triangle mesh with the scene's medium inside (the
-/// density is the medium's inside the mesh, 0 outside) and a smooth dielectric boundary.
+/// The scene's `[[object]]` entries (format v2): watertight triangle meshes with the scene's
+/// medium inside (the density is the medium's inside a mesh, 0 outside) and a smooth
+/// dielectric boundary. Several entries are disjoint (checked on load: no two meshes
+/// intersect or nest) and share one medium and index, so their union is one closed mesh whose
+/// inside is the union of theirs: every solver sees one mesh, whatever the number of entries.
 #[derive(Clone)]
 pub struct Object {
-    /// Transformed to scene units; closed, outward-wound (checked on load).
+    /// The union of the parts' meshes, transformed to scene units, in entry order (part k's
+    /// triangles follow part k - 1's); each part closed and outward-wound (checked on load).
     pub mesh: Arc<mesh::TriangleMesh>,
     /// Over `mesh`'s triangles, built on load: `path` traverses it on the GPU.
     pub bvh: Arc<bvh::Bvh>,
-    pub transform: mesh::MeshTransform,
+    /// One per `[[object]]` entry, in file order; at least one.
+    pub parts: Vec<ObjectPart>,
     /// Refractive index inside relative to the vacuum outside (eta); 1 = index-matched.
     pub ior: f32,
 }
 
+/// One `[[object]]` entry of an [`Object`]: where its mesh came from and where it was placed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObjectPart {
+    /// The OBJ file, as resolved against the scene file's folder.
+    pub file: PathBuf,
+    pub transform: mesh::MeshTransform,
+    /// How many of the union's triangles are this part's.
+    pub triangles: usize,
+}
+
 impl Object {
+    /// The meshes' files for messages: `meshes/a.obj`, or `meshes/a.obj + meshes/b.obj`.
+    pub fn describe(&self) -> String {
+        self.parts.iter().map(|p| p.file.display().to_string()).collect::<Vec<_>>().join(" + ")
+    }
+
     /// Whether the boundary refracts and reflects (ior != 1): paths then meet a smooth
     /// dielectric there; at ior 1 light crosses it unchanged, as a v1 medium's box.
     pub fn refractive(&self) -> bool {
@@ -69,29 +90,35 @@ impl Object {
     /// Whether `p` lies inside the mesh: the parity of a ray's crossings (the direction is
     /// fixed and irrational-looking so it does not run along an edge of a shipped mesh).
     pub fn contains(&self, p: Vec3) -> bool {
-        let d = Vec3::new(0.5773, 0.5774, 0.5773503).normalize();
-        let mut t = 0.0f32;
-        let mut inside = false;
-        // A closed mesh is crossed finitely often; the cap only guards against a degenerate loop.
-        for _ in 0..self.mesh.triangles.len() + 1 {
-            match self.bvh.intersect(p, d, t, f32::INFINITY) {
-                Some(hit) => {
-                    inside = !inside;
-                    t = hit.t;
-                }
-                None => break,
-            }
-        }
-        inside
+        bvh_contains(&self.bvh, self.mesh.triangles.len(), p)
     }
+}
+
+/// Whether `p` lies inside the closed mesh of `triangles` triangles under `bvh`: the parity of
+/// a ray's crossings (the direction is fixed and irrational-looking so it does not run along an
+/// edge of a shipped mesh).
+pub(crate) fn bvh_contains(bvh: &bvh::Bvh, triangles: usize, p: Vec3) -> bool {
+    let d = Vec3::new(0.5773, 0.5774, 0.5773503).normalize();
+    let mut t = 0.0f32;
+    let mut inside = false;
+    // A closed mesh is crossed finitely often; the cap only guards against a degenerate loop.
+    for _ in 0..triangles + 1 {
+        match bvh.intersect(p, d, t, f32::INFINITY) {
+            Some(hit) => {
+                inside = !inside;
+                t = hit.t;
+            }
+            None => break,
+        }
+    }
+    inside
 }
 
 impl std::fmt::Debug for Object {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Object")
-            .field("mesh", &self.mesh.file)
+            .field("parts", &self.parts)
             .field("triangles", &self.mesh.triangles.len())
-            .field("transform", &self.transform)
             .field("ior", &self.ior)
             .finish()
     }
@@ -100,8 +127,7 @@ impl std::fmt::Debug for Object {
 impl PartialEq for Object {
     fn eq(&self, other: &Self) -> bool {
         self.ior == other.ior
-            && self.transform == other.transform
-            && self.mesh.file == other.mesh.file
+            && self.parts == other.parts
             && self.mesh.positions == other.mesh.positions
             && self.mesh.triangles == other.mesh.triangles
     }

@@ -9,14 +9,14 @@ use glam::Vec3;
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
 
-use super::bvh::Bvh;
+use super::bvh::{first_overlap, Bvh};
 use super::error::one_line;
 use super::grid::{load_grid, GridRequest};
-use super::mesh::{load_obj, MeshTransform};
+use super::mesh::{load_obj, MeshTransform, TriangleMesh};
 use super::vdb::{load_vdb, VdbRequest};
 use super::{
-    Camera, CameraKind, Density, Light, LoadOptions, Medium, Object, RenderSettings, Scene, SceneError, MAX_IMAGE_SIZE,
-    MAX_IOR,
+    Camera, CameraKind, Density, Light, LoadOptions, Medium, Object, ObjectPart, RenderSettings, Scene, SceneError,
+    MAX_IMAGE_SIZE, MAX_IOR,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -267,51 +267,155 @@ impl Ctx<'_> {
                         supported yet); put the box's medium in an object with a box mesh, or drop [medium]",
                 ))
             }
-            (None, 1) => {
-                let value = raw.object.into_iter().next().expect("one object");
-                let o: RawObject = value.try_into().map_err(|e| self.serde_error("object[0]", &e))?;
-                let (object, bounds_min, bounds_max) = self.object(&o, base_dir)?;
+            (None, _) => {
+                let mut raws = Vec::with_capacity(raw.object.len());
+                for (i, value) in raw.object.into_iter().enumerate() {
+                    let o: RawObject = value.try_into().map_err(|e| self.serde_error(&format!("object[{i}]"), &e))?;
+                    raws.push(o);
+                }
+                let (object, bounds_min, bounds_max) = self.objects(&raws, base_dir)?;
                 self.camera_sees_medium(&camera, &render, bounds_min, bounds_max)?;
                 if object.contains(camera.origin) {
                     return Err(self.invalid(
                         "camera.origin",
                         format!(
-                            "the camera {} is inside the object's mesh; cameras inside an object are not supported yet, \
+                            "the camera {} is inside an object's mesh; cameras inside an object are not supported yet, \
                                 move it outside",
                             fmt3(camera.origin)
                         ),
                     ));
                 }
-                let medium = self.medium("object[0].medium", &o.medium, bounds_min, bounds_max, base_dir, opts)?;
+                // One medium and one index for every entry (the union is one object): each entry
+                // writes its own, which must be the first's.
+                let medium =
+                    self.medium("object[0].medium", &raws[0].medium, bounds_min, bounds_max, base_dir, opts)?;
+                for (i, o) in raws.iter().enumerate().skip(1) {
+                    if o.ior != raws[0].ior {
+                        return Err(self.invalid(
+                            &format!("object[{i}].ior"),
+                            format!(
+                                "ior = {} differs from object[0]'s {}: the objects of a scene share one index and one \
+                                    medium in this version (objects of different materials are planned); give every \
+                                    object the same ior and medium, or render them in separate scenes",
+                                num32(o.ior),
+                                num32(raws[0].ior)
+                            ),
+                        ));
+                    }
+                    let at = format!("object[{i}].medium");
+                    let m = self.medium(&at, &o.medium, bounds_min, bounds_max, base_dir, opts)?;
+                    if m != medium {
+                        return Err(self.invalid(
+                            &at,
+                            "differs from object[0].medium: the objects of a scene share one medium and one index in \
+                                this version (objects of different materials are planned); give every object the same \
+                                medium table, or render them in separate scenes",
+                        ));
+                    }
+                }
                 (medium, Some(object))
-            }
-            (None, n) => {
-                return Err(self.invalid(
-                    "object",
-                    format!(
-                        "{n} [[object]] entries; this version renders one object per scene (several are planned: \
-                            docs/scene-format.md); render them one at a time"
-                    ),
-                ))
             }
         };
         Ok(Scene { source: self.file.to_path_buf(), render, camera, medium, object, lights })
     }
 
-    /// An `[[object]]`'s mesh, transform and index, and the bounds its medium spans: the
-    /// given `medium.bounds`, else the transformed mesh's bounds.
-    fn object(&self, o: &RawObject, base_dir: &Path) -> Result<(Object, Vec3, Vec3), SceneError> {
-        let translate = self.vec3("object[0].translate", o.translate)?;
-        let rotate_deg = self.vec3("object[0].rotate", o.rotate)?;
+    /// The `[[object]]` entries' meshes, transforms and index joined into one [`Object`], and
+    /// the bounds the shared medium spans: the given `medium.bounds` (the same in every entry
+    /// that gives them, containing every mesh), else the union of the transformed meshes'
+    /// bounds. The meshes must be disjoint: no two intersect, none lies inside another.
+    fn objects(&self, raws: &[RawObject], base_dir: &Path) -> Result<(Object, Vec3, Vec3), SceneError> {
+        let mut parts = Vec::with_capacity(raws.len());
+        let mut meshes = Vec::with_capacity(raws.len());
+        for (i, o) in raws.iter().enumerate() {
+            let (mesh, part) = self.part(i, o, base_dir)?;
+            meshes.push(mesh);
+            parts.push(part);
+        }
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for m in &meshes {
+            let (a, b) = m.bounds();
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        let mut given: Option<(usize, Vec3, Vec3)> = None;
+        for (i, o) in raws.iter().enumerate() {
+            let Some(b) = &o.medium.bounds else { continue };
+            let key = format!("object[{i}].medium.bounds");
+            let (blo, bhi) = self.bounds(&key, b)?;
+            if let Some((k, glo, ghi)) = given {
+                if (blo, bhi) != (glo, ghi) {
+                    return Err(self.invalid(
+                        &key,
+                        format!(
+                            "{}..{} differ from object[{k}]'s {}..{}: the objects share one medium, whose grid spans \
+                                one box; give the same bounds or leave them out",
+                            fmt3(blo),
+                            fmt3(bhi),
+                            fmt3(glo),
+                            fmt3(ghi)
+                        ),
+                    ));
+                }
+                continue;
+            }
+            if !(blo.cmple(lo).all() && bhi.cmpge(hi).all()) {
+                let what =
+                    if raws.len() == 1 { "the transformed mesh's bounds" } else { "the transformed meshes' bounds" };
+                return Err(self.invalid(
+                    &key,
+                    format!(
+                        "{}..{} must contain {what} {}..{} (the medium fills the mesh); widen them, or leave bounds \
+                            out to use the mesh's",
+                        fmt3(blo),
+                        fmt3(bhi),
+                        fmt3(lo),
+                        fmt3(hi)
+                    ),
+                ));
+            }
+            given = Some((i, blo, bhi));
+        }
+        let (bounds_min, bounds_max) = match given {
+            Some((_, a, b)) => (a, b),
+            None => {
+                // A hair beyond the meshes, so the box never clips a triangle by float rounding.
+                let pad = (hi - lo).length() * 1e-5 + 1e-6;
+                (lo - pad, hi + pad)
+            }
+        };
+        if let Some(o) = first_overlap(&meshes) {
+            let how = if o.nested { "and object[{a}]'s mesh {} nest" } else { "intersects object[{a}]'s mesh {}" };
+            let how = how.replace("{a}", &o.a.to_string()).replacen("{}", &parts[o.a].file.display().to_string(), 1);
+            return Err(self.invalid(
+                &format!("object[{}].mesh", o.b),
+                format!(
+                    "{} {how} near {}: objects must be disjoint (overlapping or nested media are not supported \
+                        yet); move or scale them apart",
+                    parts[o.b].file.display(),
+                    fmt3(o.at)
+                ),
+            ));
+        }
+        let mesh = TriangleMesh::union(meshes);
+        let bvh = Bvh::build(&mesh);
+        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), parts, ior: raws[0].ior };
+        Ok((object, bounds_min, bounds_max))
+    }
+
+    /// Entry `i`'s mesh, placed by its transform, with its index checked.
+    fn part(&self, i: usize, o: &RawObject, base_dir: &Path) -> Result<(TriangleMesh, ObjectPart), SceneError> {
+        let key = |name: &str| format!("object[{i}].{name}");
+        let translate = self.vec3(&key("translate"), o.translate)?;
+        let rotate_deg = self.vec3(&key("rotate"), o.rotate)?;
         if !(o.scale.is_finite() && o.scale > 0.0) {
             return Err(self.invalid(
-                "object[0].scale",
+                &key("scale"),
                 format!("scale = {} must be a finite number > 0 (a uniform scale)", num32(o.scale)),
             ));
         }
         if !(o.ior.is_finite() && o.ior > 0.0 && o.ior <= MAX_IOR) {
             return Err(self.invalid(
-                "object[0].ior",
+                &key("ior"),
                 format!(
                     "ior = {} must lie in (0, {MAX_IOR}] (the refractive index inside, relative to the vacuum \
                         outside; 1 = index-matched, glass 1.5, water 1.33)",
@@ -328,37 +432,10 @@ impl Ctx<'_> {
             } else {
                 ""
             };
-            self.invalid("object[0].mesh", format!("`{}`: {e}{hint}", written.display()))
+            self.invalid(&key("mesh"), format!("`{}`: {e}{hint}", written.display()))
         })?;
-        let (bounds_min, bounds_max) = match &o.medium.bounds {
-            Some(b) => {
-                let (lo, hi) = self.bounds("object[0].medium.bounds", b)?;
-                let (mlo, mhi) = mesh.bounds();
-                if !(lo.cmple(mlo).all() && hi.cmpge(mhi).all()) {
-                    return Err(self.invalid(
-                        "object[0].medium.bounds",
-                        format!(
-                            "{}..{} must contain the transformed mesh's bounds {}..{} (the medium fills the mesh); \
-                                widen them, or leave bounds out to use the mesh's",
-                            fmt3(lo),
-                            fmt3(hi),
-                            fmt3(mlo),
-                            fmt3(mhi)
-                        ),
-                    ));
-                }
-                (lo, hi)
-            }
-            None => {
-                // A hair beyond the mesh, so the box never clips a triangle by float rounding.
-                let (lo, hi) = mesh.bounds();
-                let pad = (hi - lo).length() * 1e-5 + 1e-6;
-                (lo - pad, hi + pad)
-            }
-        };
-        let bvh = Bvh::build(&mesh);
-        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), transform, ior: o.ior };
-        Ok((object, bounds_min, bounds_max))
+        let part = ObjectPart { file: resolved, transform, triangles: mesh.triangles.len() };
+        Ok((mesh, part))
     }
 
     /// A medium (`[medium]` or an object's `medium`) over the given bounds; `at` names it.

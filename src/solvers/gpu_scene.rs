@@ -325,7 +325,7 @@ impl GpuScene {
             return Err(SolverError::Unsupported(format!(
                 "{}: only path, single and lbl render [[object]] meshes so far (the object is {}); use --solver path, single or lbl, or a v1 [medium]",
                 scene.source.display(),
-                o.mesh.file.display()
+                o.describe()
             )));
         }
         Self::upload_with(gpu, scene, force_full, MAJORANT_CELL)

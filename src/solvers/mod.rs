@@ -84,7 +84,7 @@ pub fn meshes_unsupported(solver: &str, scene: &Scene) -> Option<String> {
         format!(
             "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver path, single or lbl, or a \
                 v1 [medium]",
-            o.mesh.file.display()
+            o.describe()
         )
     })
 }

@@ -273,6 +273,19 @@ pub fn refractive_lights(scene: &Scene) -> Result<(), SolverError> {
             Light::Directional { .. } => true,
             Light::Environment { .. } => false,
         };
+        // A point light inside one of several meshes is outside the others, whose media it
+        // reaches only through two refracting surfaces.
+        if !outside && object.parts.len() > 1 && !matches!(light, Light::Environment { .. }) {
+            return Err(SolverError::Unsupported(format!(
+                "path: light {i} ({}) lies inside one of the scene's {} objects, whose boundaries refract (ior {}); the \
+                    others see it only through refraction, which path cannot carry for a point light (that needs \
+                    manifold next-event estimation, not built yet): light them with an environment, or set \
+                    ior = 1 on every object",
+                light.kind_name(),
+                object.parts.len(),
+                object.ior
+            )));
+        }
         if outside {
             return Err(SolverError::Unsupported(format!(
                 "path: light {i} ({}) lies outside the object, whose boundary refracts (ior {}); path cannot carry a \
