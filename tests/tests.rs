@@ -15,6 +15,7 @@ mod lbl_refraction_tests;
 mod light_tracing_tests;
 mod mesh_tests;
 mod mitsuba_crosscheck;
+mod mnee_tests;
 mod networks_tests;
 mod object_set_tests;
 mod octaves_tests;

@@ -134,4 +134,108 @@ bool mesh_hit(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out vec
     return hit;
 }
 
+// ---- Manifold next-event estimation through one flat facet (path, REFRACTIVE) ------------
+// A point or directional light outside a refractive object reaches a point x inside only along
+// refracted paths: light -> facet point ps -> x with Snell's law at ps. On a mesh of flat
+// facets each facet's plane holds at most one such point (src/physics/dielectric.rs
+// `refraction_point`), so the search (Hanika et al. 2015's manifold walk, specialised to flat
+// facets) solves on the plane of the facet the straight ray leaves through, moves to the facet
+// that holds the solution, and stops when the solution lies on the facet it was solved for.
+
+// Whether p (on the plane of triangle tri) lies in it, up to a relative tolerance at the edges.
+bool point_in_triangle(uint tri, vec3 p) {
+    vec3 e1 = tris[tri].e1.xyz, e2 = tris[tri].e2.xyz, w = p - tris[tri].v0.xyz;
+    float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
+    float w1 = dot(w, e1), w2 = dot(w, e2);
+    float den = d11 * d22 - d12 * d12;
+    if (!(den > 0.0)) return false;
+    float u = (d22 * w1 - d12 * w2) / den;
+    float v = (d11 * w2 - d12 * w1) / den;
+    const float tol = 1e-5;
+    return u >= -tol && v >= -tol && u + v <= 1.0 + tol;
+}
+
+// The point of the plane (point q, unit normal n toward the light) where light from `c`
+// refracts toward x inside (index ior): the root of
+// f(s) = (1 - s) D / |((1 - s) D, h)| - ior s D / |(s D, dx)| on [0, 1] by bisection (f falls
+// from > 0 to < 0), s the fraction of the way from x's foot to the light's. dielectric.rs
+// `refraction_point` is the CPU reference.
+bool refraction_point(vec3 c, vec3 x, vec3 q, vec3 n, float ior, out vec3 ps) {
+    float h = dot(c - q, n);
+    float dx = dot(q - x, n);
+    ps = vec3(0.0);
+    if (!(h > 0.0 && dx > 0.0)) return false;
+    vec3 lf = c - h * n, xf = x + dx * n;
+    float D = distance(lf, xf);
+    float lo = 0.0, hi = 1.0;
+    for (uint k = 0u; k < 32u; k++) {
+        iters++;
+        float s = 0.5 * (lo + hi);
+        float a = (1.0 - s) * D, b = s * D;
+        float f = a / sqrt(a * a + h * h) - ior * b / sqrt(b * b + dx * dx);
+        if (f > 0.0) lo = s; else hi = s;
+    }
+    ps = mix(xf, lf, 0.5 * (lo + hi));
+    return true;
+}
+
+const uint MNEE_STEPS = 8u;
+
+// The facet `tri` and point ps through which point light c reaches x (inside the mesh, index
+// ior) by one refraction, with nothing of the mesh between ps and the light; false where the
+// search finds none (x in the facets' shadow, or a refraction point the search cannot settle).
+bool mnee_point(vec3 x, vec3 c, float ior, out vec3 ps, out uint tri) {
+    vec3 target = c;
+    ps = vec3(0.0);
+    tri = 0u;
+    for (uint k = 0u; k < MNEE_STEPS; k++) {
+        iters++;
+        vec3 dir = normalize(target - x);
+        float t;
+        if (!mesh_hit_tri(x, dir, 0.0, INF, t, tri)) return false;
+        vec3 n = triangle_normal(tri);
+        if (dot(dir, n) <= 0.0) return false;
+        if (!refraction_point(c, x, tris[tri].v0.xyz, n, ior, ps)) return false;
+        if (point_in_triangle(tri, ps)) {
+            float l_o = distance(c, ps);
+            float tb;
+            uint tb_tri;
+            vec3 o = ps + n * surface_eps(ps);
+            return !mesh_hit_tri(o, (c - ps) / l_o, 0.0, l_o, tb, tb_tri);
+        }
+        target = ps;
+    }
+    return false;
+}
+
+// The facet `tri` and point ps through which a directional light travelling along ld reaches x
+// by one refraction: the facet whose refracted direction, followed back from x, leaves
+// through the facet itself; nothing of the mesh beyond ps toward the light.
+bool mnee_directional(vec3 x, vec3 ld, float ior, out vec3 ps, out uint tri) {
+    vec3 dir = -ld;
+    ps = vec3(0.0);
+    tri = 0u;
+    uint prev = 0xffffffffu;
+    for (uint k = 0u; k < MNEE_STEPS; k++) {
+        iters++;
+        float t;
+        if (!mesh_hit_tri(x, dir, 0.0, INF, t, tri)) return false;
+        vec3 n = triangle_normal(tri);
+        if (dot(dir, n) <= 0.0) return false;
+        if (tri == prev) {
+            ps = x + dir * t;
+            float tb;
+            uint tb_tri;
+            return !mesh_hit_tri(ps + n * surface_eps(ps), -ld, 0.0, INF, tb, tb_tri);
+        }
+        float cos_o = -dot(ld, n);
+        if (!(cos_o > 0.0)) return false;
+        float cos_t;
+        fresnel_dielectric(cos_o, 1.0 / ior, cos_t);
+        dir = -refract_dir(ld, n, 1.0 / ior, cos_o, cos_t);
+        prev = tri;
+    }
+    return false;
+}
+
 #endif

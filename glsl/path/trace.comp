@@ -79,7 +79,16 @@ layout(push_constant) uniform Push {
     uint rr_depth;        // Russian roulette from this many scattering events on
     float rr_threshold;   // ... for throughput below this (survival max(beta) / threshold)
     uint equiangular;     // bit i: point light i also sampled by equiangular sampling + MIS
+    uint mnee;            // bit i: light i is outside the refractive mesh: reached by manifold NEE
 } pc;
+
+// Whether light i (point or directional, outside the refractive mesh) reaches scattering points
+// inside through its surface only: manifold next-event estimation through one flat facet
+// (mesh.glsl mnee_point / mnee_directional). The host sets it only for one convex mesh, where
+// the straight path from a point inside to a light outside crosses the surface once.
+bool mnee_light(uint i) { return REFRACTIVE && i < 32u && ((pc.mnee >> i) & 1u) != 0u; }
+
+
 
 // Whether camera paths estimate light i (a light-traced light is left wholly to path/light,
 // a partition of the image's paths by light, so the two kernels' sums add without MIS).
@@ -251,6 +260,56 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
     if (collisions > collision_cap) { truncated = true; beta = vec3(0.0); }
 }
 
+// Manifold next-event estimation from the scattering point p (the free flight's ray d) toward
+// light li through the refraction point ev_v on facet ev_surf_tri (found when ev_sub was 0;
+// both kept in the state while the transmittance pauses): the transmittance inside up to the
+// facet by ratio tracking times the irradiance the light delivers there through the facet.
+// Point light (src/physics/dielectric.rs refracted_point_irradiance):
+//   E = I (1 - F) / [(l_o + l_i / eta) (l_o cos_i / cos_o + (l_i / eta) cos_o / cos_i)],
+// directional: E (1 - F) cos_o / cos_i, with l_o, cos_o outside (vacuum) and l_i, cos_i
+// inside; physical irradiance, the camera path's throughput carries its own 1 / eta^2. The
+// light's beam reflected inside the object before it scatters (Fresnel F at a second facet)
+// is not a refraction through one facet and is not included. Returns false when it paused.
+bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, inout uvec2 rng) {
+    float ior = scene.object.x;
+    bool point = uint(li.pos_kind.w) == LIGHT_POINT;
+    if (ev_sub == 0u) {
+        vec3 ps;
+        uint tri;
+        bool found = point ? mnee_point(p, li.pos_kind.xyz, ior, ps, tri)
+                           : mnee_directional(p, li.pos_kind.xyz, ior, ps, tri);
+        if (!found) return true;
+        ev_v = ps;
+        ev_surf_tri = tri;
+        ev_sub = 1u;
+    }
+    vec3 ps = ev_v;
+    vec3 n = triangle_normal(ev_surf_tri);
+    vec3 to = ps - p;
+    float l_i = length(to);
+    if (!(l_i > 0.0)) return true;
+    vec3 wi = to / l_i;
+    float cos_i = dot(wi, n);
+    float cos_o, l_o = 0.0;
+    if (point) {
+        vec3 out_dir = li.pos_kind.xyz - ps;
+        l_o = length(out_dir);
+        cos_o = dot(out_dir, n) / l_o;
+    } else {
+        cos_o = -dot(li.pos_kind.xyz, n);
+    }
+    if (!(cos_i > 0.0 && cos_o > 0.0)) return true;
+    float cos_t;
+    float t = 1.0 - fresnel_dielectric(cos_o, 1.0 / ior, cos_t);
+    float li_n = l_i / ior;
+    float E = point ? t / ((l_o + li_n) * (l_o * cos_i / cos_o + li_n * cos_o / cos_i)) : t * cos_o / cos_i;
+    // Up to just short of the facet: a crossing before it (the mesh between p and ps) blocks.
+    track_start(p, wi, l_i * (1.0 - 1e-4), true);
+    if (!transmittance_run(rng)) return false;
+    L += beta * trk.T * phase_eval(g, dot(d, wi)) * li.value.rgb * E;
+    return true;
+}
+
 // Outcomes of advance().
 const int EVENT_NEXT = 0;     // the path goes on
 const int EVENT_ENDED = 1;    // the path has ended
@@ -339,7 +398,10 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         }
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
-        if (kind == LIGHT_POINT) {
+        if (mnee_light(i) && kind != LIGHT_ENVIRONMENT) {
+            if (kind == LIGHT_POINT && !camera_side(i)) continue;
+            if (!mnee_estimate(li, p, d, g, beta, L, rng)) return EVENT_PAUSED;
+        } else if (kind == LIGHT_POINT) {
             if (!camera_side(i)) continue;
             vec3 to = li.pos_kind.xyz - p;
             float dist2 = dot(to, to);

@@ -31,3 +31,71 @@ pub fn diffuse_fresnel(eta: f64) -> f64 {
         .sum();
     2.0 * sum / n as f64
 }
+
+/// Where light from a point `light` outside a plane (point `q` on it, unit normal `n` toward
+/// the light's side) refracts on its way to a point `x` on the other side, inside a medium of
+/// index `ior` (vacuum outside): the point of the plane where Snell's law
+/// sin(theta_o) = ior sin(theta_i) holds along light -> p -> x. None when the light and `x` are
+/// not on opposite sides. The manifold next-event estimation of glsl/path/trace.comp solves
+/// the same equation, per flat facet (`refraction_point` in glsl/include/mesh.glsl).
+///
+/// The point lies on the segment between the two feet in the plane, at the fraction s of it
+/// where f(s) = (1 - s) D / |((1 - s) D, h)| - ior s D / |(s D, d)| vanishes (h, d the light's
+/// and x's distances to the plane, D the feet's distance): f falls from > 0 to < 0 over
+/// [0, 1], so bisection finds the one root.
+pub fn refraction_point(
+    light: glam::DVec3,
+    x: glam::DVec3,
+    q: glam::DVec3,
+    n: glam::DVec3,
+    ior: f64,
+) -> Option<glam::DVec3> {
+    let h = (light - q).dot(n);
+    let d = (q - x).dot(n);
+    if !(h > 0.0 && d > 0.0) {
+        return None;
+    }
+    let (lf, xf) = (light - h * n, x + d * n);
+    let dd = lf.distance(xf);
+    let f = |s: f64| (1.0 - s) * dd / ((1.0 - s) * dd).hypot(h) - ior * s * dd / (s * dd).hypot(d);
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if f(mid) > 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Some(xf + (lf - xf) * (0.5 * (lo + hi)))
+}
+
+/// Irradiance (W/m^2 on a surface facing the ray) at a point inside a medium of index `ior`
+/// from a point light of intensity `intensity` (W/sr) in the vacuum outside, through a flat
+/// smooth boundary: the light travels `l_o` to the boundary, arriving at cosine `cos_o` to the
+/// normal, and refracts to travel `l_i` inside at cosine `cos_i`.
+///
+/// E = I (1 - F) / [(l_o + l_i / ior) (l_o cos_i / cos_o + (l_i / ior) cos_o / cos_i)].
+///
+/// Derivation (flux conservation in a thin tube of rays): the light's solid angle
+/// sin(theta_o) dtheta_o dphi lands inside on a patch of width R dphi across the plane of
+/// incidence (R = l_o sin(theta_o) + l_i sin(theta_i), the lateral distance) and
+/// cos(theta_i) dR along it, with dtheta_i / dtheta_o = cos(theta_o) / (ior cos(theta_i)) from
+/// Snell's law; sin(theta_o) / R = 1 / (l_o + l_i / ior) and cos(theta_i) dR / dtheta_o is the
+/// second factor. At ior 1 it is I / (l_o + l_i)^2; at normal incidence
+/// I (1 - F) / (l_o + l_i / ior)^2, the apparent depth. The radiance this irradiance scatters
+/// inside is physical radiance; path's camera paths carry the 1 / ior^2 of their own entry.
+pub fn refracted_point_irradiance(intensity: f64, l_o: f64, cos_o: f64, l_i: f64, cos_i: f64, ior: f64) -> f64 {
+    let t = 1.0 - fresnel_dielectric(cos_o, 1.0 / ior);
+    let li_n = l_i / ior;
+    intensity * t / ((l_o + li_n) * (l_o * cos_i / cos_o + li_n * cos_o / cos_i))
+}
+
+/// Irradiance on a surface facing the ray inside a medium of index `ior` from a directional
+/// light of irradiance `irradiance` (W/m^2, on a surface facing it) in the vacuum outside,
+/// refracted through a flat boundary it meets at cosine `cos_o`, going on at cosine `cos_i`:
+/// E (1 - F) cos_o / cos_i (a beam's cross-section grows from cos_o to cos_i per unit of
+/// boundary area).
+pub fn refracted_directional_irradiance(irradiance: f64, cos_o: f64, cos_i: f64, ior: f64) -> f64 {
+    irradiance * (1.0 - fresnel_dielectric(cos_o, 1.0 / ior)) * cos_o / cos_i
+}

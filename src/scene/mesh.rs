@@ -382,6 +382,51 @@ impl TriangleMesh {
 
     /// Check the mesh is watertight: every undirected edge is shared by exactly two triangles,
     /// which run along it in opposite directions (so the orientation is consistent across it).
+    /// Whether the mesh (closed and consistently wound, as loaded) bounds one convex solid:
+    /// connected, and across every edge the neighbouring triangle's far vertex lies behind (or,
+    /// within float rounding of the mesh's size, on) the triangle's plane. A closed connected
+    /// surface that is locally convex at every edge is the boundary of a convex body
+    /// (Hadamard's theorem for surfaces), so O(edges) checks decide it.
+    pub fn is_convex(&self) -> bool {
+        let n = self.triangles.len();
+        if n == 0 {
+            return false;
+        }
+        let key = |a: u32, b: u32| (u64::from(a) << 32) | u64::from(b);
+        let mut across: HashMap<u64, usize> = HashMap::with_capacity(n * 3);
+        for (f, t) in self.triangles.iter().enumerate() {
+            for k in 0..3 {
+                across.insert(key(t[k], t[(k + 1) % 3]), f);
+            }
+        }
+        let (lo, hi) = self.bounds();
+        let tol = 1e-6 * f64::from((hi - lo).length());
+        let mut parent: Vec<usize> = (0..n).collect();
+        fn root(parent: &mut [usize], mut i: usize) -> usize {
+            while parent[i] != i {
+                parent[i] = parent[parent[i]];
+                i = parent[i];
+            }
+            i
+        }
+        for (f, t) in self.triangles.iter().enumerate() {
+            let [a, b, c] = self.corners(t);
+            let normal = (b - a).cross(c - a).normalize_or_zero();
+            for k in 0..3 {
+                let Some(&g) = across.get(&key(t[(k + 1) % 3], t[k])) else { return false };
+                let u = self.triangles[g];
+                let far = u.iter().find(|v| !t.contains(v)).copied().unwrap_or(u[0]);
+                if (self.positions[far as usize].as_dvec3() - a).dot(normal) > tol {
+                    return false;
+                }
+                let (rf, rg) = (root(&mut parent, f), root(&mut parent, g));
+                parent[rf] = rg;
+            }
+        }
+        let r = root(&mut parent, 0);
+        (1..n).all(|f| root(&mut parent, f) == r)
+    }
+
     /// Reports the first offending edge in face order, with its vertices numbered from 1.
     /// Looks at indices only, so it never reads `positions`.
     pub fn check_closed(&self) -> Result<(), MeshError> {

@@ -63,6 +63,10 @@ pub struct Object {
     pub parts: Vec<ObjectPart>,
     /// Refractive index inside relative to the vacuum outside (eta); 1 = index-matched.
     pub ior: f32,
+    /// One entry whose mesh bounds a convex solid ([`mesh::TriangleMesh::is_convex`]): a
+    /// straight path from inside to any point outside crosses the surface once, which `path`'s
+    /// manifold next-event estimation through one facet needs for a light outside.
+    pub convex: bool,
 }
 
 /// One `[[object]]` entry of an [`Object`]: where its mesh came from and where it was placed.

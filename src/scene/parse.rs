@@ -398,7 +398,8 @@ impl Ctx<'_> {
         }
         let mesh = TriangleMesh::union(meshes);
         let bvh = Bvh::build(&mesh);
-        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), parts, ior: raws[0].ior };
+        let convex = parts.len() == 1 && mesh.is_convex();
+        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), parts, ior: raws[0].ior, convex };
         Ok((object, bounds_min, bounds_max))
     }
 

@@ -76,6 +76,9 @@ pub struct PathPush {
     pub head: PathPushHead,
     /// Bit i: point light i also sampled by equiangular sampling, combined by MIS.
     pub equiangular: u32,
+    /// Bit i: light i (point or directional) lies outside the refractive object and reaches
+    /// its inside by manifold next-event estimation through one facet ([`refractive_lights`]).
+    pub mnee: u32,
 }
 
 /// Push constants of glsl/path/light.comp.
@@ -260,13 +263,20 @@ pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
     mask
 }
 
-/// Refuse a point or directional light outside a refractive [[object]]: its light reaches the
-/// medium only through the smooth dielectric boundary, along refracted paths that a straight
-/// shadow ray cannot find and a scattered path reaches with probability 0 (a delta light
-/// behind a delta interface needs manifold next-event estimation; Hanika et al. 2015). The
-/// image would silently lack it.
-pub fn refractive_lights(scene: &Scene) -> Result<(), SolverError> {
-    let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(()) };
+/// The lights outside a refractive [[object]] (point lights outside its mesh, every directional
+/// light), as a bit mask: their light reaches the medium only through the smooth dielectric
+/// boundary, along refracted paths that a straight shadow ray cannot follow and a scattered
+/// path reaches with probability 0 (a delta light behind a delta interface). Camera paths reach
+/// them by manifold next-event estimation (Hanika et al. 2015) through one flat facet: exact for
+/// one convex mesh, where the straight path from inside to the light crosses the surface once
+/// and the light's refraction point on each facet's plane is unique (glsl/path/trace.comp,
+/// `mnee_estimate`; the light's beam reflected inside before it scatters is left out). Refused,
+/// naming the reason, where that does not hold: a mesh that is not convex (light also enters
+/// through other sheets of the surface), several objects (light passes through one to reach
+/// another), light 32 or later (the mask's width).
+pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
+    let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(0) };
+    let mut mask = 0u32;
     for (i, light) in scene.lights.iter().enumerate() {
         let outside = match *light {
             Light::Point { position, .. } => !object.contains(position),
@@ -278,26 +288,44 @@ pub fn refractive_lights(scene: &Scene) -> Result<(), SolverError> {
         if !outside && object.parts.len() > 1 && !matches!(light, Light::Environment { .. }) {
             return Err(SolverError::Unsupported(format!(
                 "path: light {i} ({}) lies inside one of the scene's {} objects, whose boundaries refract (ior {}); the \
-                    others see it only through refraction, which path cannot carry for a point light (that needs \
-                    manifold next-event estimation, not built yet): light them with an environment, or set \
-                    ior = 1 on every object",
+                    others see it only through two refractions, which path cannot carry for a point light: light them \
+                    with an environment, or set ior = 1 on every object",
                 light.kind_name(),
                 object.parts.len(),
                 object.ior
             )));
         }
-        if outside {
+        if !outside {
+            continue;
+        }
+        let why = if object.parts.len() > 1 {
+            Some(format!(
+                "the scene has {} objects, and light reaching one through another (two more refractions) is beyond \
+                    manifold next-event estimation through one facet",
+                object.parts.len()
+            ))
+        } else if !object.convex {
+            Some(format!(
+                "the object's mesh ({}) is not convex, so light also enters through other sheets of its surface, beyond \
+                    manifold next-event estimation through one facet",
+                object.describe()
+            ))
+        } else if i >= 32 {
+            Some("only lights 0..31 can be reached through the boundary (a 32-bit mask)".to_string())
+        } else {
+            None
+        };
+        if let Some(why) = why {
             return Err(SolverError::Unsupported(format!(
-                "path: light {i} ({}) lies outside the object, whose boundary refracts (ior {}); path cannot carry a \
-                    point or directional light through a smooth dielectric (that needs manifold next-event \
-                    estimation, not built yet): light the object with an environment or a point light inside it, \
-                    or set object.ior = 1",
+                "path: light {i} ({}) lies outside the object, whose boundary refracts (ior {}); {why}: light the \
+                    object with an environment or a point light inside it, or set object.ior = 1",
                 light.kind_name(),
                 object.ior
             )));
         }
+        mask |= 1 << i;
     }
-    Ok(())
+    Ok(mask)
 }
 
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
@@ -377,6 +405,9 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
 pub struct PathStats {
     /// Lights rendered by light paths (indices into the scene's lights).
     pub light_traced: Vec<usize>,
+    /// Lights outside a refractive object, reached by manifold next-event estimation through
+    /// one facet of its mesh (indices into the scene's lights).
+    pub manifold_nee: Vec<usize>,
     /// Camera paths, when any light was left to them.
     pub camera: Option<CameraStats>,
     /// Light paths, when any light was traced from the light side.
@@ -561,7 +592,9 @@ impl Solver for Path {
                 )));
             }
         }
-        refractive_lights(scene)?;
+        let mnee = refractive_lights(scene)?;
+        // Equiangular sampling connects straight to the light: none through the boundary.
+        let equiangular = equiangular & !mnee;
         let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
         let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
         // Camera paths are needed for every light not traced from the light side.
@@ -599,7 +632,7 @@ impl Solver for Path {
             // once. Each is the same computation as on one role: the same image, bit for bit.
             let (cam, lt) = std::thread::scope(|s| {
                 let light = s.spawn(|| light_paths(&common, scene, &traced, batches, QueueRole::Diffuse, &|_| {}));
-                let cam = camera_paths(&common, batch, equiangular, QueueRole::Trace, &|done| {
+                let cam = camera_paths(&common, batch, [equiangular, mnee], QueueRole::Trace, &|done| {
                     (req.progress)(Progress::work("samples per pixel (camera paths)", done, total))
                 });
                 (cam, light.join())
@@ -608,7 +641,7 @@ impl Solver for Path {
             (Some(cam?), Some(lt?))
         } else {
             let camera = if needs_camera {
-                Some(camera_paths(&common, batch, equiangular, QueueRole::Trace, &|done| {
+                Some(camera_paths(&common, batch, [equiangular, mnee], QueueRole::Trace, &|done| {
                     (req.progress)(Progress::work("samples per pixel", done, total))
                 })?)
             } else {
@@ -651,6 +684,7 @@ impl Solver for Path {
             + light.as_ref().map_or(0, |l| l.1.tracking_steps) as f64;
         let mut stats = Stats::new(PathStats {
             light_traced: traced,
+            manifold_nee: (0..32).filter(|i| mnee & (1 << i) != 0).collect(),
             camera: camera.as_ref().map(|c| c.1.clone()),
             light_paths: light.as_ref().map(|l| l.1.clone()),
             samples_per_second: per_second(samples),
@@ -776,7 +810,7 @@ struct Part {
 fn camera_paths(
     c: &Common,
     batch: u32,
-    equiangular: u32,
+    [equiangular, mnee]: [u32; 2],
     role: QueueRole,
     progress: &dyn Fn(u64),
 ) -> Result<(Part, CameraStats), SolverError> {
@@ -792,7 +826,7 @@ fn camera_paths(
     while sample_end < c.spp {
         sample_end = sample_end.saturating_add(batch).min(c.spp);
         let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut rounds, |slot| {
-            let push = PathPush { head: c.head(sample_end, slot), equiangular };
+            let push = PathPush { head: c.head(sample_end, slot), equiangular, mnee };
             gs.bind_mesh(Pass::new("path.trace", role, &pipeline))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
