@@ -603,3 +603,32 @@ fn mesh_errors_are_one_line_and_name_the_problem() {
     // None of them names a file: the caller prefixes the scene file and key.
     assert!(!msg.contains("icosphere"));
 }
+
+#[test]
+fn mesh_convexity_is_decided_per_edge_and_by_connection() {
+    // path's manifold next-event estimation needs a convex mesh (a straight path from inside
+    // crosses the surface once): the icosphere and the cube are, the torus (a hole) and the
+    // blob (dents) are not, and two cubes in one file are not either (locally convex at every
+    // edge, but not one solid).
+    assert!(load("icosphere.obj").is_convex());
+    assert!(!load("torus.obj").is_convex());
+    assert!(!load("blob.obj").is_convex());
+    let dir = tempfile::tempdir().unwrap();
+    let cube = load_text(dir.path(), &cube_text(&CUBE_FACES)).unwrap();
+    assert!(cube.is_convex());
+    // The same cube 3 units along x, in the same file.
+    let shifted: String = CUBE_VERTICES
+        .lines()
+        .map(|l| {
+            let f: Vec<f64> = l[2..].split(' ').map(|x| x.parse().unwrap()).collect();
+            format!("v {} {} {}\n", f[0] + 3.0, f[1], f[2])
+        })
+        .collect();
+    let mut two = cube_text(&CUBE_FACES) + &shifted;
+    for f in CUBE_FACES {
+        two += &format!("f {} {} {} {}\n", f[0] + 8, f[1] + 8, f[2] + 8, f[3] + 8);
+    }
+    let two = load_text(dir.path(), &two).unwrap();
+    assert_eq!(two.triangles.len(), 24);
+    assert!(!two.is_convex(), "two separate cubes taken for one convex solid");
+}
