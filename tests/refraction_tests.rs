@@ -373,7 +373,7 @@ fn delta_lights_outside_a_refractive_object_and_other_solvers_are_refused() {
     let gpu = gpu();
     let point = "kind = \"point\"\nposition = [2.0, 2.0, 2.0]\nintensity = 5.0";
     // Outside a mesh that is not convex (light also enters through other sheets of the surface,
-    // beyond manifold NEE through one facet): refused, saying why. Outside the convex
+    // beyond manifold NEE of one refraction): refused, saying why. Outside the convex
     // icosphere it renders (tests/mnee_tests.rs).
     for file in ["blob.obj", "torus.obj"] {
         let text =

@@ -134,15 +134,19 @@ bool mesh_hit(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out vec
     return hit;
 }
 
-// ---- Manifold next-event estimation through one flat facet (path, REFRACTIVE) ------------
+// ---- Manifold next-event estimation through flat facets (path, REFRACTIVE) -------------
 // A point or directional light outside a refractive object reaches a point x inside only along
 // refracted paths: light -> facet point ps -> x with Snell's law at ps. On a mesh of flat
 // facets each facet's plane holds at most one such point (src/physics/dielectric.rs
-// `refraction_point`), so the search (Hanika et al. 2015's manifold walk, specialised to flat
-// facets) solves on the plane of the facet the straight ray leaves through, moves to the facet
-// that holds the solution, and stops when the solution lies on the facet it was solved for.
+// `refraction_point`), and the light reaches x through every facet whose point lies on the
+// facet: on a tessellated sphere up to four or more at once, since each facet is a small prism
+// whose beams overlap (measured on the icosphere: a third of the lit points take light through
+// two facets or more), so one solution found by a local search (Hanika et al. 2015's manifold
+// walk) is not enough; every facet is tried. The mesh is convex (the host checks), so the
+// segment from x to ps and the way from ps to the light cross nothing else.
 
-// Whether p (on the plane of triangle tri) lies in it, up to a relative tolerance at the edges.
+// Whether p (on the plane of triangle tri) lies in it: barycentric coordinates, edges shared
+// by two facets counted by both (a set of measure zero).
 bool point_in_triangle(uint tri, vec3 p) {
     vec3 e1 = tris[tri].e1.xyz, e2 = tris[tri].e2.xyz, w = p - tris[tri].v0.xyz;
     float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
@@ -151,91 +155,76 @@ bool point_in_triangle(uint tri, vec3 p) {
     if (!(den > 0.0)) return false;
     float u = (d22 * w1 - d12 * w2) / den;
     float v = (d11 * w2 - d12 * w1) / den;
-    const float tol = 1e-5;
-    return u >= -tol && v >= -tol && u + v <= 1.0 + tol;
+    return u >= 0.0 && v >= 0.0 && u + v <= 1.0;
 }
 
-// The point of the plane (point q, unit normal n toward the light) where light from `c`
-// refracts toward x inside (index ior): the root of
-// f(s) = (1 - s) D / |((1 - s) D, h)| - ior s D / |(s D, dx)| on [0, 1] by bisection (f falls
-// from > 0 to < 0), s the fraction of the way from x's foot to the light's. dielectric.rs
-// `refraction_point` is the CPU reference.
-bool refraction_point(vec3 c, vec3 x, vec3 q, vec3 n, float ior, out vec3 ps) {
-    float h = dot(c - q, n);
-    float dx = dot(q - x, n);
+// Facet j's refraction point ps toward x (inside) for the light (`point`: a point light at
+// `light`; else a directional light travelling along `light`) in the vacuum outside an object
+// of index ior, and the irradiance E it delivers at x per unit of the light's intensity (W/sr)
+// or irradiance (W/m^2), on a surface facing the ray (dielectric.rs
+// refracted_point_irradiance, refracted_directional_irradiance; cos_o outside, cos_i inside):
+//   point: E = (1 - F) / [(l_o + l_i / ior) (l_o cos_i / cos_o + (l_i / ior) cos_o / cos_i)],
+//   directional: E = (1 - F) cos_o / cos_i.
+// dielectric.rs `facet_irradiance` is the CPU reference, summed over the facets.
+bool facet_refraction(uint j, vec3 x, vec3 light, bool point, float ior, out vec3 ps, out float E) {
     ps = vec3(0.0);
-    if (!(h > 0.0 && dx > 0.0)) return false;
-    vec3 lf = c - h * n, xf = x + dx * n;
-    float D = distance(lf, xf);
-    float lo = 0.0, hi = 1.0;
-    for (uint k = 0u; k < 32u; k++) {
-        iters++;
-        float s = 0.5 * (lo + hi);
-        float a = (1.0 - s) * D, b = s * D;
-        float f = a / sqrt(a * a + h * h) - ior * b / sqrt(b * b + dx * dx);
-        if (f > 0.0) lo = s; else hi = s;
-    }
-    ps = mix(xf, lf, 0.5 * (lo + hi));
-    return true;
-}
-
-const uint MNEE_STEPS = 8u;
-
-// The facet `tri` and point ps through which point light c reaches x (inside the mesh, index
-// ior) by one refraction, with nothing of the mesh between ps and the light; false where the
-// search finds none (x in the facets' shadow, or a refraction point the search cannot settle).
-bool mnee_point(vec3 x, vec3 c, float ior, out vec3 ps, out uint tri) {
-    vec3 target = c;
-    ps = vec3(0.0);
-    tri = 0u;
-    for (uint k = 0u; k < MNEE_STEPS; k++) {
-        iters++;
-        vec3 dir = normalize(target - x);
-        float t;
-        if (!mesh_hit_tri(x, dir, 0.0, INF, t, tri)) return false;
-        vec3 n = triangle_normal(tri);
-        if (dot(dir, n) <= 0.0) return false;
-        if (!refraction_point(c, x, tris[tri].v0.xyz, n, ior, ps)) return false;
-        if (point_in_triangle(tri, ps)) {
-            float l_o = distance(c, ps);
-            float tb;
-            uint tb_tri;
-            vec3 o = ps + n * surface_eps(ps);
-            return !mesh_hit_tri(o, (c - ps) / l_o, 0.0, l_o, tb, tb_tri);
+    E = 0.0;
+    vec3 v0 = tris[j].v0.xyz, e1 = tris[j].e1.xyz, e2 = tris[j].e2.xyz;
+    vec3 n = normalize(cross(e1, e2));
+    float dx = dot(v0 - x, n);
+    if (!(dx > 0.0)) return false;
+    float cos_o;
+    if (point) {
+        float h = dot(light - v0, n);
+        if (!(h > 0.0)) return false;
+        vec3 lf = light - h * n, xf = x + dx * n;
+        // The point lies on the segment between the feet: skip facets whose bounding circle
+        // the segment misses (most of them).
+        vec3 m = v0 + (e1 + e2) * (1.0 / 3.0);
+        float r2 = max(max(dot(v0 - m, v0 - m), dot(v0 + e1 - m, v0 + e1 - m)), dot(v0 + e2 - m, v0 + e2 - m));
+        vec3 seg = lf - xf;
+        float len2 = dot(seg, seg);
+        float s = len2 > 0.0 ? clamp(dot(m - xf, seg) / len2, 0.0, 1.0) : 0.0;
+        vec3 closest = xf + seg * s - m;
+        if (dot(closest, closest) > r2 * 1.0001) return false;
+        // Bisection on f(s) = (1 - s) D / |((1 - s) D, h)| - ior s D / |(s D, dx)|, which falls
+        // from > 0 to < 0 over [0, 1].
+        float D = sqrt(len2);
+        float lo = 0.0, hi = 1.0;
+        for (uint k = 0u; k < 32u; k++) {
+            iters++;
+            float t = 0.5 * (lo + hi);
+            float a = (1.0 - t) * D, b = t * D;
+            float f = a / sqrt(a * a + h * h) - ior * b / sqrt(b * b + dx * dx);
+            if (f > 0.0) lo = t; else hi = t;
         }
-        target = ps;
-    }
-    return false;
-}
-
-// The facet `tri` and point ps through which a directional light travelling along ld reaches x
-// by one refraction: the facet whose refracted direction, followed back from x, leaves
-// through the facet itself; nothing of the mesh beyond ps toward the light.
-bool mnee_directional(vec3 x, vec3 ld, float ior, out vec3 ps, out uint tri) {
-    vec3 dir = -ld;
-    ps = vec3(0.0);
-    tri = 0u;
-    uint prev = 0xffffffffu;
-    for (uint k = 0u; k < MNEE_STEPS; k++) {
-        iters++;
-        float t;
-        if (!mesh_hit_tri(x, dir, 0.0, INF, t, tri)) return false;
-        vec3 n = triangle_normal(tri);
-        if (dot(dir, n) <= 0.0) return false;
-        if (tri == prev) {
-            ps = x + dir * t;
-            float tb;
-            uint tb_tri;
-            return !mesh_hit_tri(ps + n * surface_eps(ps), -ld, 0.0, INF, tb, tb_tri);
-        }
-        float cos_o = -dot(ld, n);
-        if (!(cos_o > 0.0)) return false;
+        ps = xf + seg * (0.5 * (lo + hi));
+        vec3 out_dir = light - ps;
+        float l_o = length(out_dir);
+        cos_o = dot(out_dir, n) / l_o;
+        if (!point_in_triangle(j, ps)) return false;
+        vec3 to = ps - x;
+        float l_i = length(to);
+        float cos_i = dot(to, n) / l_i;
+        if (!(cos_o > 0.0 && cos_i > 0.0)) return false;
         float cos_t;
-        fresnel_dielectric(cos_o, 1.0 / ior, cos_t);
-        dir = -refract_dir(ld, n, 1.0 / ior, cos_o, cos_t);
-        prev = tri;
+        float tr = 1.0 - fresnel_dielectric(cos_o, 1.0 / ior, cos_t);
+        float li_n = l_i / ior;
+        E = tr / ((l_o + li_n) * (l_o * cos_i / cos_o + li_n * cos_o / cos_i));
+        return true;
     }
-    return false;
+    cos_o = -dot(light, n);
+    if (!(cos_o > 0.0)) return false;
+    float cos_t;
+    float tr = 1.0 - fresnel_dielectric(cos_o, 1.0 / ior, cos_t);
+    vec3 wt = refract_dir(light, n, 1.0 / ior, cos_o, cos_t);
+    // Back from x against the refracted direction to the facet's plane.
+    float cos_i = dot(wt, -n);
+    if (!(cos_i > 0.0)) return false;
+    ps = x - wt * (dx / cos_i);
+    if (!point_in_triangle(j, ps)) return false;
+    E = tr * cos_o / cos_i;
+    return true;
 }
 
 #endif

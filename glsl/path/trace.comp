@@ -66,6 +66,26 @@ const uint FLAG_TRACKING = 4u;
 const uint FLAG_EQ_ON = 8u;
 const uint FLAG_INSIDE = 128u;   // bit 7: the ray starts inside the [[object]]'s mesh
 layout(std430, binding = 5) buffer State { PathState state[]; };
+// The facet lists of manifold next-event estimation (src/solvers/mnee.rs): a grid over the
+// medium's bounds per light outside the refractive mesh; each cell lists, in facet order, the
+// facets whose refracted beam meets it.
+layout(std430, binding = 8) readonly buffer MneeCells { uint mnee_cells[]; };
+
+// The range [begin, end) of mnee_cells holding the facets light i may reach x through.
+void mnee_range(uint i, vec3 x, out uint begin, out uint end) {
+    uint table = mnee_cells[8u + i];
+    begin = 0u;
+    end = 0u;
+    if (table == 0u) return;
+    vec3 lo = vec3(uintBitsToFloat(mnee_cells[0]), uintBitsToFloat(mnee_cells[1]), uintBitsToFloat(mnee_cells[2]));
+    vec3 hi = vec3(uintBitsToFloat(mnee_cells[3]), uintBitsToFloat(mnee_cells[4]), uintBitsToFloat(mnee_cells[5]));
+    uint n = mnee_cells[6];
+    ivec3 c = clamp(ivec3(floor((x - lo) / (hi - lo) * float(n))), ivec3(0), ivec3(int(n) - 1));
+    uint cell = uint(c.x) + n * (uint(c.y) + n * uint(c.z));
+    uint list = table + n * n * n + 1u;
+    begin = list + mnee_cells[table + cell];
+    end = list + mnee_cells[table + cell + 1u];
+}
 
 layout(push_constant) uniform Push {
     uint sample_end;      // finish samples [.., sample_end) of every pixel
@@ -84,7 +104,7 @@ layout(push_constant) uniform Push {
 
 // Whether light i (point or directional, outside the refractive mesh) reaches scattering points
 // inside through its surface only: manifold next-event estimation through one flat facet
-// (mesh.glsl mnee_point / mnee_directional). The host sets it only for one convex mesh, where
+// (mesh.glsl facet_refraction, every facet). The host sets it only for one convex mesh, where
 // the straight path from a point inside to a light outside crosses the surface once.
 bool mnee_light(uint i) { return REFRACTIVE && i < 32u && ((pc.mnee >> i) & 1u) != 0u; }
 
@@ -261,52 +281,60 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
 }
 
 // Manifold next-event estimation from the scattering point p (the free flight's ray d) toward
-// light li through the refraction point ev_v on facet ev_surf_tri (found when ev_sub was 0;
-// both kept in the state while the transmittance pauses): the transmittance inside up to the
-// facet by ratio tracking times the irradiance the light delivers there through the facet.
-// Point light (src/physics/dielectric.rs refracted_point_irradiance):
-//   E = I (1 - F) / [(l_o + l_i / eta) (l_o cos_i / cos_o + (l_i / eta) cos_o / cos_i)],
-// directional: E (1 - F) cos_o / cos_i, with l_o, cos_o outside (vacuum) and l_i, cos_i
-// inside; physical irradiance, the camera path's throughput carries its own 1 / eta^2. The
-// light's beam reflected inside the object before it scatters (Fresnel F at a second facet)
-// is not a refraction through one facet and is not included. Returns false when it paused.
+// light li through the object's surface: every facet that refracts the light toward p
+// (mesh.glsl facet_refraction; a convex mesh, so nothing else lies on either leg) adds the
+// transmittance inside up to its refraction point, by ratio tracking, times the irradiance
+// the light delivers through it:
+//   point: E = I (1 - F) / [(l_o + l_i / eta) (l_o cos_i / cos_o + (l_i / eta) cos_o / cos_i)],
+//   directional: E (1 - F) cos_o / cos_i,
+// with l_o, cos_o outside (vacuum) and l_i, cos_i inside (src/physics/dielectric.rs).
+// Physical irradiance: the camera path's throughput carries its own 1 / eta^2. The light's
+// beam reflected inside the object before it scatters (a second facet) is not included.
+// Only the facets of p's cell in the light's facet grid are tried (mnee_range). Resumable:
+// ev_sub 2 scans the cell's list from position ev_surf_tri on, 1 tracks the transmittance
+// toward the refraction point ev_v on the facet at ev_surf_tri. Returns false when it paused.
 bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, inout uvec2 rng) {
     float ior = scene.object.x;
     bool point = uint(li.pos_kind.w) == LIGHT_POINT;
+    uint begin, end;
+    mnee_range(ev_light, p, begin, end);
     if (ev_sub == 0u) {
+        ev_surf_tri = begin;
+        ev_sub = 2u;
+    }
+    while (true) {
+        if (ev_sub == 2u) {
+            bool found = false;
+            for (; ev_surf_tri < end; ev_surf_tri++) {
+                if (iters >= iter_limit) return false;
+                iters++;
+                vec3 ps;
+                float E;
+                if (facet_refraction(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, ior, ps, E)) {
+                    ev_v = ps;
+                    found = true;
+                    break;
+                }
+            }
+            if (!found) return true;
+            ev_sub = 1u;
+        }
+        // The same facet again gives the same point and irradiance (kept: the point, in ev_v).
         vec3 ps;
-        uint tri;
-        bool found = point ? mnee_point(p, li.pos_kind.xyz, ior, ps, tri)
-                           : mnee_directional(p, li.pos_kind.xyz, ior, ps, tri);
-        if (!found) return true;
-        ev_v = ps;
-        ev_surf_tri = tri;
-        ev_sub = 1u;
+        float E;
+        facet_refraction(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, ior, ps, E);
+        vec3 to = ev_v - p;
+        float l_i = length(to);
+        if (l_i > 0.0 && E > 0.0) {
+            vec3 wi = to / l_i;
+            // Up to just short of the facet.
+            track_start(p, wi, l_i * (1.0 - 1e-4), true);
+            if (!transmittance_run(rng)) return false;
+            L += beta * trk.T * phase_eval(g, dot(d, wi)) * li.value.rgb * E;
+        }
+        ev_surf_tri++;
+        ev_sub = 2u;
     }
-    vec3 ps = ev_v;
-    vec3 n = triangle_normal(ev_surf_tri);
-    vec3 to = ps - p;
-    float l_i = length(to);
-    if (!(l_i > 0.0)) return true;
-    vec3 wi = to / l_i;
-    float cos_i = dot(wi, n);
-    float cos_o, l_o = 0.0;
-    if (point) {
-        vec3 out_dir = li.pos_kind.xyz - ps;
-        l_o = length(out_dir);
-        cos_o = dot(out_dir, n) / l_o;
-    } else {
-        cos_o = -dot(li.pos_kind.xyz, n);
-    }
-    if (!(cos_i > 0.0 && cos_o > 0.0)) return true;
-    float cos_t;
-    float t = 1.0 - fresnel_dielectric(cos_o, 1.0 / ior, cos_t);
-    float li_n = l_i / ior;
-    float E = point ? t / ((l_o + li_n) * (l_o * cos_i / cos_o + li_n * cos_o / cos_i)) : t * cos_o / cos_i;
-    // Up to just short of the facet: a crossing before it (the mesh between p and ps) blocks.
-    track_start(p, wi, l_i * (1.0 - 1e-4), true);
-    if (!transmittance_run(rng)) return false;
-    L += beta * trk.T * phase_eval(g, dot(d, wi)) * li.value.rgb * E;
     return true;
 }
 

@@ -99,3 +99,85 @@ pub fn refracted_point_irradiance(intensity: f64, l_o: f64, cos_o: f64, l_i: f64
 pub fn refracted_directional_irradiance(irradiance: f64, cos_o: f64, cos_i: f64, ior: f64) -> f64 {
     irradiance * (1.0 - fresnel_dielectric(cos_o, 1.0 / ior)) * cos_o / cos_i
 }
+
+/// Every way a light outside a convex object of flat facets (index `ior`, vacuum outside)
+/// reaches the point `x` inside by one refraction: for each facet (`v0`, `e1 = v1 - v0`,
+/// `e2 = v2 - v0`, wound outward) whose plane's refraction point lies on the facet, that point
+/// and the irradiance it delivers at x ([`refracted_point_irradiance`] per unit intensity for
+/// a point light at `light`; [`refracted_directional_irradiance`] per unit irradiance for a
+/// directional light travelling along `light` when `point` is false). The CPU reference of
+/// glsl/include/mesh.glsl `facet_refraction` summed over the facets, as `path`'s manifold
+/// next-event estimation does.
+pub fn facet_irradiance(
+    facets: &[[glam::DVec3; 3]],
+    x: glam::DVec3,
+    light: glam::DVec3,
+    point: bool,
+    ior: f64,
+) -> Vec<(glam::DVec3, f64)> {
+    let mut out = Vec::new();
+    for &[v0, e1, e2] in facets {
+        let n = e1.cross(e2).normalize();
+        let ps = if point {
+            // The point lies on the segment between the feet of the light and x in the plane:
+            // skip facets whose bounding circle that segment misses (most of them).
+            let (h, dx) = ((light - v0).dot(n), (v0 - x).dot(n));
+            if !(h > 0.0 && dx > 0.0) {
+                continue;
+            }
+            let (lf, xf) = (light - h * n, x + dx * n);
+            let m = v0 + (e1 + e2) / 3.0;
+            let r2 = (v0 - m).length_squared().max((v0 + e1 - m).length_squared()).max((v0 + e2 - m).length_squared());
+            let seg = lf - xf;
+            let s = if seg.length_squared() > 0.0 {
+                ((m - xf).dot(seg) / seg.length_squared()).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            if (xf + seg * s - m).length_squared() > r2 * 1.0001 {
+                continue;
+            }
+            let Some(ps) = refraction_point(light, x, v0, n, ior) else { continue };
+            ps
+        } else {
+            let cos_o = -light.dot(n);
+            if !(cos_o > 0.0) {
+                continue;
+            }
+            let eta = 1.0 / ior;
+            let sin2_t = eta * eta * (1.0 - cos_o * cos_o);
+            let wt = (eta * light + (eta * cos_o - (1.0 - sin2_t).sqrt()) * n).normalize();
+            let cos_i = -wt.dot(n);
+            let dx = (v0 - x).dot(n);
+            if !(cos_i > 0.0 && dx > 0.0) {
+                continue;
+            }
+            x - wt * (dx / cos_i)
+        };
+        // On the facet (barycentric coordinates).
+        let w = ps - v0;
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let (w1, w2) = (w.dot(e1), w.dot(e2));
+        let den = d11 * d22 - d12 * d12;
+        let u = (d22 * w1 - d12 * w2) / den;
+        let v = (d11 * w2 - d12 * w1) / den;
+        if !(u >= 0.0 && v >= 0.0 && u + v <= 1.0) {
+            continue;
+        }
+        let to = ps - x;
+        let (l_i, cos_i) = (to.length(), to.normalize().dot(n));
+        let e = if point {
+            let out_dir = light - ps;
+            let l_o = out_dir.length();
+            let cos_o = out_dir.dot(n) / l_o;
+            if !(cos_o > 0.0 && cos_i > 0.0) {
+                continue;
+            }
+            refracted_point_irradiance(1.0, l_o, cos_o, l_i, cos_i, ior)
+        } else {
+            refracted_directional_irradiance(1.0, -light.dot(n), cos_i, ior)
+        };
+        out.push((ps, e));
+    }
+    out
+}

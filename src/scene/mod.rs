@@ -65,7 +65,7 @@ pub struct Object {
     pub ior: f32,
     /// One entry whose mesh bounds a convex solid ([`mesh::TriangleMesh::is_convex`]): a
     /// straight path from inside to any point outside crosses the surface once, which `path`'s
-    /// manifold next-event estimation through one facet needs for a light outside.
+    /// manifold next-event estimation (one refraction) needs for a light outside.
     pub convex: bool,
 }
 

@@ -27,6 +27,7 @@ pub mod gpu_scene;
 pub mod knobs;
 pub mod lattice;
 pub mod marching;
+pub mod mnee;
 pub mod networks;
 pub mod ordinates;
 pub mod probes;

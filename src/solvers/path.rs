@@ -77,7 +77,7 @@ pub struct PathPush {
     /// Bit i: point light i also sampled by equiangular sampling, combined by MIS.
     pub equiangular: u32,
     /// Bit i: light i (point or directional) lies outside the refractive object and reaches
-    /// its inside by manifold next-event estimation through one facet ([`refractive_lights`]).
+    /// its inside by manifold next-event estimation through its facets ([`refractive_lights`]).
     pub mnee: u32,
 }
 
@@ -267,13 +267,14 @@ pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
 /// light), as a bit mask: their light reaches the medium only through the smooth dielectric
 /// boundary, along refracted paths that a straight shadow ray cannot follow and a scattered
 /// path reaches with probability 0 (a delta light behind a delta interface). Camera paths reach
-/// them by manifold next-event estimation (Hanika et al. 2015) through one flat facet: exact for
-/// one convex mesh, where the straight path from inside to the light crosses the surface once
-/// and the light's refraction point on each facet's plane is unique (glsl/path/trace.comp,
-/// `mnee_estimate`; the light's beam reflected inside before it scatters is left out). Refused,
+/// them by manifold next-event estimation (Hanika et al. 2015) specialised to flat facets:
+/// every facet whose plane refracts the light toward the scattering point adds its share
+/// (glsl/path/trace.comp `mnee_estimate`, the facets listed per cell by src/solvers/mnee.rs).
+/// Exact for one convex mesh, where nothing else lies between the facet and the light or the
+/// point, except for the light's beam reflected inside before it scatters (left out). Refused,
 /// naming the reason, where that does not hold: a mesh that is not convex (light also enters
-/// through other sheets of the surface), several objects (light passes through one to reach
-/// another), light 32 or later (the mask's width).
+/// through other sheets of the surface, shadowed by them), several objects (light passes
+/// through one to reach another), light 32 or later (the mask's width).
 pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
     let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(0) };
     let mut mask = 0u32;
@@ -301,13 +302,13 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
         let why = if object.parts.len() > 1 {
             Some(format!(
                 "the scene has {} objects, and light reaching one through another (two more refractions) is beyond \
-                    manifold next-event estimation through one facet",
+                    path's manifold next-event estimation (one refraction)",
                 object.parts.len()
             ))
         } else if !object.convex {
             Some(format!(
-                "the object's mesh ({}) is not convex, so light also enters through other sheets of its surface, beyond \
-                    manifold next-event estimation through one facet",
+                "the object's mesh ({}) is not convex, so light also enters through other sheets of its surface or is \
+                    shadowed by them, beyond path's manifold next-event estimation (one refraction, convex meshes)",
                 object.describe()
             ))
         } else if i >= 32 {
@@ -326,6 +327,14 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
         mask |= 1 << i;
     }
     Ok(mask)
+}
+
+/// The facet lists of manifold NEE for the lights in `mnee` (a header alone when none).
+fn mnee_grid(scene: &Scene, mnee: u32, cells: u32) -> Vec<u32> {
+    match &scene.object {
+        Some(o) if mnee != 0 => super::mnee::facet_grid(scene, &o.bvh.triangles, mnee, cells),
+        _ => super::mnee::facet_grid(scene, &[], 0, cells),
+    }
 }
 
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
@@ -406,7 +415,7 @@ pub struct PathStats {
     /// Lights rendered by light paths (indices into the scene's lights).
     pub light_traced: Vec<usize>,
     /// Lights outside a refractive object, reached by manifold next-event estimation through
-    /// one facet of its mesh (indices into the scene's lights).
+    /// the facets of its mesh (indices into the scene's lights).
     pub manifold_nee: Vec<usize>,
     /// Camera paths, when any light was left to them.
     pub camera: Option<CameraStats>,
@@ -527,6 +536,14 @@ impl Solver for Path {
                 "Russian roulette only for throughput below this (survival max(beta) / rr_threshold)",
             ),
             Knob::fixed(
+                "mnee_cells",
+                "16",
+                Range::int(1, 64),
+                "cells per axis of the grid that lists, for a light outside a refractive object, the facets whose \
+                    refracted beam may reach each cell (manifold next-event estimation tries only those); 1 tries every \
+                    facet",
+            ),
+            Knob::fixed(
                 "light_tracing",
                 "auto",
                 Range::Choice(&["auto", "on", "off"]),
@@ -570,6 +587,7 @@ impl Solver for Path {
         let light_batches: u32 = k.get("light_batches")?;
         let majorant_cell: u32 = k.get("majorant_cell")?;
         let schedule: Schedule = k.get("schedule")?;
+        let mnee_cells: u32 = k.get("mnee_cells")?;
         k.finish()?;
         if scene.lights.len() >= MAX_LIGHTS {
             return Err(SolverError::Unsupported(format!(
@@ -595,6 +613,7 @@ impl Solver for Path {
         let mnee = refractive_lights(scene)?;
         // Equiangular sampling connects straight to the light: none through the boundary.
         let equiangular = equiangular & !mnee;
+        let mnee_grid = mnee_grid(scene, mnee, mnee_cells);
         let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
         let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
         // Camera paths are needed for every light not traced from the light side.
@@ -622,6 +641,7 @@ impl Solver for Path {
             light_mask,
             rr_depth,
             rr_threshold,
+            mnee_grid: &mnee_grid,
         };
         let needs_camera = camera_lights > 0 || traced.is_empty();
         let batches = light_batches.min(spp);
@@ -705,8 +725,9 @@ impl Solver for Path {
         let mode: String = knobs.get("light_tracing")?;
         let (traced, _) = light_traced(scene, &mode, knobs.get("collision_cap")?)?;
         let stats = resumable::STATS_WORDS * 4;
+        let grid = mnee_grid(scene, refractive_lights(scene).unwrap_or(0), knobs.get("mnee_cells")?).len() as u64 * 4;
         let camera = if traced.len() < scene.lights.len() || traced.is_empty() {
-            pixels * (32 + STATE_BYTES_PER_PIXEL) + stats
+            pixels * (32 + STATE_BYTES_PER_PIXEL) + stats + grid
         } else {
             0
         };
@@ -779,6 +800,8 @@ struct Common<'a> {
     light_mask: u32,
     rr_depth: u32,
     rr_threshold: f32,
+    /// The facet lists of manifold NEE (src/solvers/mnee.rs).
+    mnee_grid: &'a [u32],
 }
 
 impl Common<'_> {
@@ -817,6 +840,7 @@ fn camera_paths(
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
     let pipeline = gpu.pipeline(&TRACE, &gs.modelled.mesh_spec())?;
+    let grid = gpu.buffer_with("path manifold NEE facet grid", c.mnee_grid)?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
     let stats = gpu.buffer("path stats", resumable::STATS_WORDS * 4)?;
@@ -831,6 +855,7 @@ fn camera_paths(
                 .read_write(3, &accum)
                 .read_write(4, &stats)
                 .read_write(5, &state)
+                .read(8, &grid)
                 .push(&push)
                 .cover([w, h, 1])
         })?;
@@ -850,7 +875,8 @@ fn camera_paths(
             c.collision_cap
         ));
     }
-    let part = Part { image, variance, warnings, device_bytes: accum.size() + state.size() + stats.size() };
+    let part =
+        Part { image, variance, warnings, device_bytes: accum.size() + state.size() + stats.size() + grid.size() };
     Ok((
         part,
         CameraStats { truncated_paths: truncated, dispatches, max_loop_iterations: st[2], tracking_steps: st[1] },
