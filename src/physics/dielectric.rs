@@ -141,7 +141,7 @@ pub fn facet_irradiance(
             ps
         } else {
             let cos_o = -light.dot(n);
-            if !(cos_o > 0.0) {
+            if cos_o.is_nan() || cos_o <= 0.0 {
                 continue;
             }
             let eta = 1.0 / ior;
