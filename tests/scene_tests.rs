@@ -648,7 +648,7 @@ fn scene_never_panics_on_odd_input() {
 
 // ---------------------------------------------------------------------------- shipped scenes
 
-const SHIPPED: [&str; 10] = [
+const SHIPPED: [&str; 11] = [
     "homogeneous-sphere.toml",
     "anisotropic-cube.toml",
     "cloud.toml",
@@ -659,6 +659,7 @@ const SHIPPED: [&str; 10] = [
     "wax-blob.toml",
     "smoke-torus.toml",
     "jade-pair.toml",
+    "milk-orb.toml",
 ];
 
 fn load_shipped(name: &str) -> Scene {
