@@ -102,6 +102,33 @@ fn slab_scene(dir: &std::path::Path, medium: &str, light: &str, extent: f32, siz
     )
 }
 
+/// Every pixel of `out` (`size` square, red channel) against the mean of `radiance` at its
+/// 2 x 2 sub-pixel centres (continuous pixel coordinates, row 0 at the top), within 5 of its
+/// standard deviation plus `slack` of the expected value: the largest such ratio.
+fn assert_pixels_match(
+    out: &scatterlab::solvers::RenderOutput,
+    size: u32,
+    radiance: &dyn Fn(f64, f64) -> f64,
+    slack: f64,
+) -> f64 {
+    let var = out.variance.as_ref().expect("path's variance");
+    let mut worst: f64 = 0.0;
+    for py in 0..size {
+        for px in 0..size {
+            let mut expect = 0.0;
+            for (sx, sy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                expect += radiance(px as f64 + sx, py as f64 + sy) / 4.0;
+            }
+            let i = ((py * size + px) * 3) as usize;
+            let (v, sd) = (out.image.data[i] as f64, (var.data[i] as f64).sqrt());
+            let z = (v - expect).abs() / (sd + slack * expect + 1e-9);
+            worst = worst.max(z);
+            assert!(z < 5.0, "pixel ({px}, {py}): path {v} +- {sd} against {expect}");
+        }
+    }
+    worst
+}
+
 /// Henyey-Greenstein phase function (1/sr).
 fn hg(g: f64, cos: f64) -> f64 {
     (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * cos).powf(1.5))
@@ -169,7 +196,6 @@ fn point_light_through_a_glass_slab_matches_a_quadrature_along_each_ray() {
         256,
     );
     let out = render(&gpu, &scene(&text), PATH, &[("path.max_depth", "1")]);
-    let var = out.variance.as_ref().unwrap();
     let f_c = fresnel_dielectric(1.0, 1.0 / n);
     let radiance = |px: f64, py: f64| {
         // Pixel (px, py) continuous; row 0 at the top (+y), extent along x.
@@ -190,20 +216,7 @@ fn point_light_through_a_glass_slab_matches_a_quadrature_along_each_ray() {
         }
         sum * (1.0 - f_c) / (n * n)
     };
-    let mut worst: f64 = 0.0;
-    for py in 0..size {
-        for px in 0..size {
-            let mut expect = 0.0;
-            for (sx, sy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
-                expect += radiance(px as f64 + sx, py as f64 + sy) / 4.0;
-            }
-            let i = ((py * size + px) * 3) as usize;
-            let (v, s2) = (out.image.data[i] as f64, var.data[i] as f64);
-            let z = (v - expect).abs() / (s2.sqrt() + 5e-3 * expect);
-            worst = worst.max(z);
-            assert!(z < 5.0, "pixel ({px}, {py}): path {v} +- {} against {expect}", s2.sqrt());
-        }
-    }
+    let worst = assert_pixels_match(&out, size, &radiance, 5e-3);
     eprintln!("point-lit slab: worst pixel {worst:.2} (sigma + 0.5% of the quadrature)");
     assert_clean(&gpu);
 }
@@ -404,7 +417,6 @@ fn glass_sphere_single_scattering_matches_a_quadrature_through_every_facet() {
         light.z
     );
     let out = render(&gpu, &scene(&text), PATH, &[("path.max_depth", "1")]);
-    let var = out.variance.as_ref().unwrap();
     let radiance = |px: f64, py: f64| {
         let o = DVec3::new((px / size as f64 - 0.5) * extent, (0.5 - py / size as f64) * extent, 3.0);
         let d = DVec3::NEG_Z;
@@ -427,20 +439,7 @@ fn glass_sphere_single_scattering_matches_a_quadrature_through_every_facet() {
         }
         sum * (1.0 - fresnel_dielectric(cos_c, 1.0 / n)) / (n * n)
     };
-    let mut worst: f64 = 0.0;
-    for py in 0..size {
-        for px in 0..size {
-            let mut expect = 0.0;
-            for (sx, sy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
-                expect += radiance(px as f64 + sx, py as f64 + sy) / 4.0;
-            }
-            let i = ((py * size + px) * 3) as usize;
-            let (v, sd) = (out.image.data[i] as f64, (var.data[i] as f64).sqrt());
-            let z = (v - expect).abs() / (sd + 0.01 * expect + 1e-6);
-            worst = worst.max(z);
-            assert!(z < 5.0, "pixel ({px}, {py}): path {v} +- {sd} against {expect}");
-        }
-    }
+    let worst = assert_pixels_match(&out, size, &radiance, 0.01);
     eprintln!("glass sphere: worst pixel {worst:.2} (sigma + 1% of the quadrature)");
     assert_clean(&gpu);
 }

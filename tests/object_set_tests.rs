@@ -6,14 +6,11 @@
 //! refraction); two entries render bit for bit as the one mesh that joins them (path, single,
 //! lbl); the furnace with two glass objects; lbl against path on a pair.
 
-use std::path::Path;
-
 use glam::Vec3;
 use scatterlab::scene::mitsuba::{export_mitsuba, obj_path_for};
-use scatterlab::scene::{LoadOptions, Scene};
 
 use crate::common::{assert_clean, gpu, judge, mean_and_stderr, render, scene, try_render, worst_z, LBL, PATH, SINGLE};
-use crate::refraction_tests::{mesh, ENV};
+use crate::refraction_tests::{load_err, mesh, ENV};
 
 const SPHERE: &str = "icosphere.obj";
 const BLOB: &str = "blob.obj";
@@ -49,13 +46,6 @@ fn pair(medium: &str, ior: &str, light: &str, size: u32, spp: u32) -> String {
         size,
         spp,
     )
-}
-
-fn load_err(text: &str) -> String {
-    let e = Scene::from_str(text, "bad.toml", Path::new("."), &[], &LoadOptions::default()).expect_err("invalid");
-    let s = e.to_string();
-    assert!(!s.contains('\n'), "multi-line error: {s}");
-    s
 }
 
 #[test]

@@ -401,7 +401,8 @@ fn delta_lights_outside_a_refractive_object_and_other_solvers_are_refused() {
     assert_clean(&gpu);
 }
 
-fn load_err(text: &str) -> String {
+/// The one-line error loading `text` gives (a test scene that must be refused).
+pub(crate) fn load_err(text: &str) -> String {
     let e = Scene::from_str(text, "bad.toml", Path::new("."), &[], &LoadOptions::default()).expect_err("invalid");
     let s = e.to_string();
     assert!(!s.contains('\n'), "multi-line error: {s}");
