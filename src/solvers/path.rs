@@ -417,6 +417,9 @@ pub struct PathStats {
     /// Lights outside a refractive object, reached by manifold next-event estimation through
     /// the facets of its mesh (indices into the scene's lights).
     pub manifold_nee: Vec<usize>,
+    /// For each of those lights, how many facets a cell of its facet grid lists on average
+    /// (what a next-event estimate tries; the mesh's whole count with `path.mnee_cells=1`).
+    pub manifold_nee_facets_per_cell: Vec<f64>,
     /// Camera paths, when any light was left to them.
     pub camera: Option<CameraStats>,
     /// Light paths, when any light was traced from the light side.
@@ -537,7 +540,7 @@ impl Solver for Path {
             ),
             Knob::fixed(
                 "mnee_cells",
-                "16",
+                "32",
                 Range::int(1, 64),
                 "cells per axis of the grid that lists, for a light outside a refractive object, the facets whose \
                     refracted beam may reach each cell (manifold next-event estimation tries only those); 1 tries every \
@@ -705,6 +708,10 @@ impl Solver for Path {
         let mut stats = Stats::new(PathStats {
             light_traced: traced,
             manifold_nee: (0..32).filter(|i| mnee & (1 << i) != 0).collect(),
+            manifold_nee_facets_per_cell: (0..32)
+                .filter(|i| mnee & (1 << i) != 0)
+                .map(|i| super::mnee::mean_list_length(&mnee_grid, i))
+                .collect(),
             camera: camera.as_ref().map(|c| c.1.clone()),
             light_paths: light.as_ref().map(|l| l.1.clone()),
             samples_per_second: per_second(samples),
