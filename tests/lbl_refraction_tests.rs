@@ -188,7 +188,7 @@ fn lbl_with_a_point_light_outside_a_glass_agrees_with_path() {
     ];
     for (medium, name, (e_lo, e_hi), max_rel, beats_off) in cases {
         let text =
-            object_scene_seeded(7, &format!("mesh = \"{}\"\nior = 1.5", mesh("icosphere.obj")), medium, light, 16, 512);
+            object_scene_seeded(7, &format!("mesh = \"{}\"\nior = 1.5", mesh("icosphere.obj")), medium, light, 16, 256);
         let (on, [rel_on, e_on], [rel_off, _]) = with_and_without_refraction(&gpu, &text, "16", name);
         assert!(on.image.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{name}: a pixel is not finite");
         assert!((e_lo..e_hi).contains(&e_on), "{name}: energy ratio {e_on}");
