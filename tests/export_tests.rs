@@ -406,7 +406,16 @@ fn every_shipped_scene_round_trips() {
         let rel = format!("scenes/{}", p.file_name().unwrap().to_string_lossy());
         let scene = load(&rel, &[]);
         let (_dir, _xml, _files) = export_and_check(&scene);
-        assert!(export_warnings(&scene).is_empty(), "{rel}: the shipped scenes export exactly");
+        // milk-orb's lamp lies outside its glass, which Mitsuba cannot reach (the one warning).
+        let warnings = export_warnings(&scene);
+        if rel.ends_with("milk-orb.toml") {
+            assert!(
+                warnings.len() == 1 && warnings[0].contains("light 0") && warnings[0].contains("volpath"),
+                "{warnings:?}"
+            );
+        } else {
+            assert!(warnings.is_empty(), "{rel}: the shipped scenes export exactly");
+        }
     }
 }
 

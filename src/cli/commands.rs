@@ -213,7 +213,13 @@ fn export(a: ExportArgs) -> Result<()> {
         eprintln!("warning: {w}");
     }
     for f in &files {
-        let what = if f == &a.out { "Mitsuba 3 scene" } else { "sigma_t grid, Mitsuba .vol" };
+        let what = if f == &a.out {
+            "Mitsuba 3 scene"
+        } else if f.extension().is_some_and(|e| e == "obj") {
+            "the objects' mesh in scene coordinates, Wavefront OBJ"
+        } else {
+            "sigma_t grid, Mitsuba .vol"
+        };
         eprintln!("wrote {} ({what})", f.display());
     }
     eprintln!("render it with: mitsuba -m scalar_rgb {}", a.out.display());

@@ -135,6 +135,24 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
             ));
         }
     }
+    if let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) {
+        for (i, light) in scene.lights.iter().enumerate() {
+            let outside = match *light {
+                Light::Point { position, .. } => !object.contains(position),
+                Light::Directional { .. } => true,
+                Light::Environment { .. } => false,
+            };
+            if outside {
+                w.push(format!(
+                    "light {i} ({}) lies outside the refractive object: Mitsuba 3's volpath reaches a delta light behind \
+                        a smooth dielectric with probability 0, so its image lacks that light's contribution inside the \
+                        object, where scatterlab's path follows it through the refracting facets (manifold next-event \
+                        estimation); compare the two without it",
+                    light.kind_name()
+                ));
+            }
+        }
+    }
     if scene.render.seed > u64::from(u32::MAX) {
         w.push(format!(
             "render.seed = {} does not fit Mitsuba's 32-bit seed; exported as {}",
