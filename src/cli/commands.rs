@@ -527,7 +527,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
                 "homogeneous": f.grid_dims.is_none(), "density": density_label(&scene.medium.density), "has_environment": f.has_environment, "grid_dims": f.grid_dims,
                 "object": scene.object.as_ref().map(|o| json!({
                     "mesh": o.describe(), "parts": o.parts.iter().map(|p| json!({"mesh": p.file.display().to_string(), "triangles": p.triangles})).collect::<Vec<_>>(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
-                    "bvh_nodes": o.bvh.nodes.len(), "bvh_depth": o.bvh.depth, "bvh_bytes": o.bvh.bytes(),
+                    "bvh_nodes": o.bvh.nodes.len(), "bvh_depth": o.bvh.depth, "bvh_bytes": o.bvh.bytes(), "convex": o.convex,
                 })),
                 "refused_by": refused.iter().map(|(k, why)| (k.to_string(), json!(why))).collect::<serde_json::Map<_, _>>(),
                 "device_bytes": mem,
@@ -549,9 +549,10 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     outln!("density      {}", density_label(&scene.medium.density));
     if let Some(o) = &scene.object {
         outln!(
-            "object       {} ({} triangles), ior {}{}: the medium fills the mesh; BVH {} nodes, depth {}, {:.1} KiB",
+            "object       {} ({} triangles{}), ior {}{}: the medium fills the mesh; BVH {} nodes, depth {}, {:.1} KiB",
             o.describe(),
             o.mesh.triangles.len(),
+            if o.convex { ", convex" } else { "" },
             o.ior,
             if o.refractive() { " (a smooth dielectric boundary)" } else { " (index-matched)" },
             o.bvh.nodes.len(),
