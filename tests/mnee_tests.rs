@@ -9,7 +9,7 @@
 
 use glam::{DVec3, Vec3};
 use scatterlab::physics::dielectric::{
-    facet_irradiance, fresnel_dielectric, refracted_directional_irradiance, refracted_point_irradiance,
+    facet_irradiance, fresnel_dielectric, refract, refracted_directional_irradiance, refracted_point_irradiance,
     refraction_point,
 };
 use scatterlab::scene::bvh::Bvh;
@@ -18,14 +18,6 @@ use scatterlab::scene::mesh::{load_obj, MeshTransform};
 use crate::common::{assert_clean, gpu, render, scene};
 use crate::common::{mean_and_stderr, PATH};
 use crate::refraction_tests::{mesh, write_box};
-
-/// Snell's law in vector form for unit `d` arriving on a plane of unit normal `n` facing it,
-/// eta = n_i / n_t (None under total internal reflection).
-fn refract(d: DVec3, n: DVec3, eta: f64) -> Option<DVec3> {
-    let cos_i = -d.dot(n);
-    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
-    (sin2_t < 1.0).then(|| (eta * d + (eta * cos_i - (1.0 - sin2_t).sqrt()) * n).normalize())
-}
 
 /// Where the ray o + t d meets the plane through q with normal n.
 fn hit_plane(o: DVec3, d: DVec3, q: DVec3, n: DVec3) -> DVec3 {

@@ -103,12 +103,10 @@ layout(push_constant) uniform Push {
 } pc;
 
 // Whether light i (point or directional, outside the refractive mesh) reaches scattering points
-// inside through its surface only: manifold next-event estimation through one flat facet
-// (mesh.glsl facet_refraction, every facet). The host sets it only for one convex mesh, where
-// the straight path from a point inside to a light outside crosses the surface once.
+// inside through its surface only: manifold next-event estimation through every facet that
+// refracts it (mnee_estimate). The host sets it only for one convex mesh, where nothing else
+// lies between a facet and the light or the scattering point.
 bool mnee_light(uint i) { return REFRACTIVE && i < 32u && ((pc.mnee >> i) & 1u) != 0u; }
-
-
 
 // Whether camera paths estimate light i (a light-traced light is left wholly to path/light,
 // a partition of the image's paths by light, so the two kernels' sums add without MIS).
@@ -302,14 +300,19 @@ bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, i
         ev_surf_tri = begin;
         ev_sub = 2u;
     }
+    vec3 ps;
+    float E;
+    if (ev_sub == 1u) {
+        // Resuming a paused transmittance: the same facet gives the same point and irradiance
+        // (the point is also kept, in ev_v).
+        facet_refraction(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, ior, ps, E);
+    }
     while (true) {
         if (ev_sub == 2u) {
             bool found = false;
             for (; ev_surf_tri < end; ev_surf_tri++) {
                 if (iters >= iter_limit) return false;
                 iters++;
-                vec3 ps;
-                float E;
                 if (facet_refraction(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, ior, ps, E)) {
                     ev_v = ps;
                     found = true;
@@ -319,10 +322,6 @@ bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, i
             if (!found) return true;
             ev_sub = 1u;
         }
-        // The same facet again gives the same point and irradiance (kept: the point, in ev_v).
-        vec3 ps;
-        float E;
-        facet_refraction(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, ior, ps, E);
         vec3 to = ev_v - p;
         float l_i = length(to);
         if (l_i > 0.0 && E > 0.0) {

@@ -32,6 +32,15 @@ pub fn diffuse_fresnel(eta: f64) -> f64 {
     2.0 * sum / n as f64
 }
 
+/// Snell's law in vector form (glsl/include/dielectric.glsl `refract_dir`): the direction of
+/// unit `d` after it crosses a surface of unit normal `n` facing the side it comes from,
+/// eta = n_i / n_t; None under total internal reflection.
+pub fn refract(d: glam::DVec3, n: glam::DVec3, eta: f64) -> Option<glam::DVec3> {
+    let cos_i = -d.dot(n);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
+    (sin2_t < 1.0).then(|| (eta * d + (eta * cos_i - (1.0 - sin2_t).sqrt()) * n).normalize())
+}
+
 /// Where light from a point `light` outside a plane (point `q` on it, unit normal `n` toward
 /// the light's side) refracts on its way to a point `x` on the other side, inside a medium of
 /// index `ior` (vacuum outside): the point of the plane where Snell's law
@@ -144,9 +153,7 @@ pub fn facet_irradiance(
             if cos_o.is_nan() || cos_o <= 0.0 {
                 continue;
             }
-            let eta = 1.0 / ior;
-            let sin2_t = eta * eta * (1.0 - cos_o * cos_o);
-            let wt = (eta * light + (eta * cos_o - (1.0 - sin2_t).sqrt()) * n).normalize();
+            let Some(wt) = refract(light, n, 1.0 / ior) else { continue };
             let cos_i = -wt.dot(n);
             let dx = (v0 - x).dot(n);
             if !(cos_i > 0.0 && dx > 0.0) {

@@ -456,6 +456,9 @@ pub struct Overlap {
 /// edge of each mesh of a pair is tested as a segment against the other's BVH; without a
 /// crossing, each mesh is wholly inside or outside the other, which one vertex decides.
 pub fn first_overlap(meshes: &[TriangleMesh]) -> Option<Overlap> {
+    if meshes.len() < 2 {
+        return None; // one mesh: no BVH to build for a pair that does not exist
+    }
     let bvhs: Vec<Bvh> = meshes.iter().map(Bvh::build).collect();
     let bounds: Vec<(Vec3, Vec3)> = meshes.iter().map(TriangleMesh::bounds).collect();
     for b in 1..meshes.len() {

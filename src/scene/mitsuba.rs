@@ -137,12 +137,7 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
     }
     if let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) {
         for (i, light) in scene.lights.iter().enumerate() {
-            let outside = match *light {
-                Light::Point { position, .. } => !object.contains(position),
-                Light::Directional { .. } => true,
-                Light::Environment { .. } => false,
-            };
-            if outside {
+            if object.light_outside(light) {
                 w.push(format!(
                     "light {i} ({}) lies outside the refractive object: Mitsuba 3's volpath reaches a delta light behind \
                         a smooth dielectric with probability 0, so its image lacks that light's contribution inside the \

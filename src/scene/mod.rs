@@ -91,6 +91,17 @@ impl Object {
         self.ior != 1.0
     }
 
+    /// Whether `light` lies outside the mesh: a point light outside it, any directional light
+    /// (never an environment, which surrounds everything). Behind a refractive boundary such a
+    /// delta light reaches the medium only by refraction.
+    pub fn light_outside(&self, light: &Light) -> bool {
+        match *light {
+            Light::Point { position, .. } => !self.contains(position),
+            Light::Directional { .. } => true,
+            Light::Environment { .. } => false,
+        }
+    }
+
     /// Whether `p` lies inside the mesh: the parity of a ray's crossings (the direction is
     /// fixed and irrational-looking so it does not run along an edge of a shipped mesh).
     pub fn contains(&self, p: Vec3) -> bool {

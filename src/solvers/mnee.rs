@@ -21,6 +21,7 @@
 
 use glam::DVec3;
 
+use crate::physics::dielectric::refract;
 use crate::scene::bvh::GpuTriangle;
 use crate::scene::{Light, Scene};
 
@@ -35,14 +36,6 @@ const HEADER: usize = 40;
 
 fn v(a: [f32; 4]) -> DVec3 {
     DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64)
-}
-
-/// Snell's law in vector form (dielectric.glsl `refract_dir`): unit `d` arriving on a surface
-/// of unit normal `n` facing it, eta = n_i / n_t; None under total internal reflection.
-fn refract(d: DVec3, n: DVec3, eta: f64) -> Option<DVec3> {
-    let cos_i = -d.dot(n);
-    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
-    (sin2_t < 1.0).then(|| (eta * d + (eta * cos_i - (1.0 - sin2_t).sqrt()) * n).normalize())
 }
 
 /// The facet tables for the lights in `mask` (bit i: light i), over the medium's bounds.
@@ -66,14 +59,11 @@ pub fn facet_grid(scene: &Scene, tris: &[GpuTriangle], mask: u32, cells: u32) ->
         if mask & (1 << i) == 0 {
             continue;
         }
-        let (point, pad) = match *light {
-            Light::Point { position, .. } => (Some(position.as_dvec3()), POINT_PAD),
-            Light::Directional { .. } => (None, 1e-3),
+        // A point light's position, or a directional light's travel direction.
+        let (point, travel, pad) = match *light {
+            Light::Point { position, .. } => (Some(position.as_dvec3()), DVec3::ZERO, POINT_PAD),
+            Light::Directional { direction, .. } => (None, direction.as_dvec3().normalize(), 1e-3),
             Light::Environment { .. } => continue,
-        };
-        let travel = match *light {
-            Light::Directional { direction, .. } => direction.as_dvec3().normalize(),
-            _ => DVec3::ZERO,
         };
         let mut lists: Vec<Vec<u32>> = vec![Vec::new(); n * n * n];
         let mut stamp = vec![u32::MAX; n * n * n];

@@ -279,11 +279,7 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
     let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(0) };
     let mut mask = 0u32;
     for (i, light) in scene.lights.iter().enumerate() {
-        let outside = match *light {
-            Light::Point { position, .. } => !object.contains(position),
-            Light::Directional { .. } => true,
-            Light::Environment { .. } => false,
-        };
+        let outside = object.light_outside(light);
         // A point light inside one of several meshes is outside the others, whose media it
         // reaches only through two refracting surfaces.
         if !outside && object.parts.len() > 1 && !matches!(light, Light::Environment { .. }) {
@@ -705,13 +701,14 @@ impl Solver for Path {
         let samples = (pixels * spp as u64) as f64;
         let steps = camera.as_ref().map_or(0, |c| c.1.tracking_steps) as f64
             + light.as_ref().map_or(0, |l| l.1.tracking_steps) as f64;
+        let mnee_lights: Vec<usize> = (0..32).filter(|i| mnee & (1 << i) != 0).collect();
         let mut stats = Stats::new(PathStats {
             light_traced: traced,
-            manifold_nee: (0..32).filter(|i| mnee & (1 << i) != 0).collect(),
-            manifold_nee_facets_per_cell: (0..32)
-                .filter(|i| mnee & (1 << i) != 0)
-                .map(|i| super::mnee::mean_list_length(&mnee_grid, i))
+            manifold_nee_facets_per_cell: mnee_lights
+                .iter()
+                .map(|&i| super::mnee::mean_list_length(&mnee_grid, i))
                 .collect(),
+            manifold_nee: mnee_lights,
             camera: camera.as_ref().map(|c| c.1.clone()),
             light_paths: light.as_ref().map(|l| l.1.clone()),
             samples_per_second: per_second(samples),
