@@ -237,6 +237,17 @@ fn empty_glass_objects_return_the_environment_exactly() {
     assert_clean(&gpu);
 }
 
+/// A furnace image (radiance 1 everywhere, within path's noise): the mean within 4 standard
+/// errors of 1, every value within 5.5 of its own.
+pub(crate) fn assert_furnace(out: &scatterlab::solvers::RenderOutput, what: &str) {
+    let var = out.variance.as_ref().expect("path's variance");
+    let (m, se) = mean_and_stderr(&out.image, var);
+    eprintln!("{what}: furnace mean {m:.5} +- {se:.5}");
+    assert!((m - 1.0).abs() < 4.0 * se + 1e-5, "{what}: mean {m} +- {se}");
+    let (z, i) = worst_z(&out.image, var, |_| 1.0, 1e-4);
+    assert!(z < 5.5, "{what}: value {i} is {} ({z:.1} sigma from 1)", out.image.data[i]);
+}
+
 #[test]
 fn lossless_media_in_dielectric_and_index_matched_meshes_hold_the_furnace() {
     // A lossless medium (albedo 1) inside a closed mesh under radiance 1: the image is 1 within
@@ -259,12 +270,7 @@ fn lossless_media_in_dielectric_and_index_matched_meshes_hold_the_furnace() {
             256,
         );
         let out = render(&gpu, &scene(&text), PATH, &[]);
-        let var = out.variance.as_ref().unwrap();
-        let (m, se) = mean_and_stderr(&out.image, var);
-        eprintln!("{file} ior {ior}: mean {m:.5} +- {se:.5}");
-        assert!((m - 1.0).abs() < 4.0 * se + 1e-5, "{file} ior {ior}: mean {m} +- {se}");
-        let (z, i) = worst_z(&out.image, var, |_| 1.0, 1e-4);
-        assert!(z < 5.5, "{file} ior {ior}: value {i} is {} ({z:.1} sigma from 1)", out.image.data[i]);
+        assert_furnace(&out, &format!("{file} ior {ior}"));
         let stats = out.report.detail::<PathStats>().expect("path stats");
         assert_eq!(stats.camera.as_ref().unwrap().truncated_paths, 0, "{file}: truncated paths");
     }
