@@ -8,6 +8,7 @@
 
 use glam::Vec3;
 use scatterlab::scene::mitsuba::{export_mitsuba, obj_path_for};
+use scatterlab::scene::MAX_MATERIALS;
 
 use crate::common::{assert_clean, gpu, judge, render, scene, try_render, LBL, PATH, SINGLE};
 use crate::refraction_tests::{assert_furnace, load_err, mesh, ENV};
@@ -100,11 +101,34 @@ fn several_objects_errors_are_one_line_and_name_the_entry() {
     );
     let e = load_err(&big);
     assert!(e.contains("object[1].mesh") && e.contains("nest"), "{e}");
-    // Different materials.
-    let e = load_err(&with(entry(BLOB, 0.45, [0.6, 0.0, 0.0], "1.33"), medium));
-    assert!(e.contains("object[1].ior") && e.contains("1.33") && e.contains("share"), "{e}");
-    let e = load_err(&with(entry(BLOB, 0.45, [0.6, 0.0, 0.0], "1.5"), "sigma_t = 3.0\nalbedo = 0.8"));
-    assert!(e.contains("object[1].medium") && e.contains("differs from object[0].medium"), "{e}");
+    // Materials may differ; the density is one for the scene.
+    let sphere_density =
+        "sigma_t = 2.0\nalbedo = 0.8\ndensity = { kind = \"sphere\", center = [0.6, 0.0, 0.0], radius = 0.3 }";
+    let e = load_err(&with(entry(BLOB, 0.45, [0.6, 0.0, 0.0], "1.5"), sphere_density));
+    assert!(e.contains("object[1].medium.density") && e.contains("share one density"), "{e}");
+    // At most MAX_MATERIALS distinct materials: the 17th is refused, naming it; repeats share.
+    let many: Vec<(String, String)> = (0..=MAX_MATERIALS)
+        .map(|i| {
+            (
+                entry(SPHERE, 0.04, [-1.5 + 0.1 * i as f32, 0.0, 0.0], "1.5"),
+                format!("sigma_t = {}.0\nalbedo = 0.5", i + 1),
+            )
+        })
+        .collect();
+    let refs: Vec<(String, &str)> = many.iter().map(|(k, m)| (k.clone(), m.as_str())).collect();
+    let e = load_err(&objects_scene(&refs, ENV, 8, 1));
+    assert!(e.contains(&format!("object[{MAX_MATERIALS}].medium")) && e.contains("at most 16"), "{e}");
+    let repeated: Vec<(String, &str)> = many
+        .iter()
+        .enumerate()
+        .map(|(i, (k, _))| {
+            (k.clone(), if i % 2 == 0 { "sigma_t = 1.0\nalbedo = 0.5" } else { "sigma_t = 2.0\nalbedo = 0.5" })
+        })
+        .collect();
+    let s = scene(&objects_scene(&repeated, ENV, 8, 1));
+    let o = s.object.as_ref().unwrap();
+    assert_eq!(o.materials.len(), 2);
+    assert!(o.parts.iter().enumerate().all(|(i, p)| p.material == i % 2));
     // Bounds: every entry that gives them gives the same box, and it holds every mesh.
     let blob = entry(BLOB, 0.45, [0.6, 0.0, 0.0], "1.5");
     let box_a = format!("{medium}\nbounds = [[-1.5, -1.0, -1.0], [1.5, 1.0, 1.0]]");

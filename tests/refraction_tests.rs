@@ -281,6 +281,11 @@ fn lossless_media_in_dielectric_and_index_matched_meshes_hold_the_furnace() {
 
 /// An axis-aligned box as a closed OBJ (12 triangles, wound counter-clockwise seen from outside).
 pub(crate) fn write_box(dir: &Path, lo: Vec3, hi: Vec3) -> PathBuf {
+    write_box_named(dir, "box.obj", lo, hi)
+}
+
+/// [`write_box`] to the file `name` in `dir`.
+pub(crate) fn write_box_named(dir: &Path, name: &str, lo: Vec3, hi: Vec3) -> PathBuf {
     let mut text = String::new();
     for i in 0..8 {
         let x = if i & 1 == 0 { lo.x } else { hi.x };
@@ -305,7 +310,7 @@ pub(crate) fn write_box(dir: &Path, lo: Vec3, hi: Vec3) -> PathBuf {
     ] {
         text += &format!("f {} {} {}\n", a + 1, b + 1, c + 1);
     }
-    let path = dir.join("box.obj");
+    let path = dir.join(name);
     std::fs::write(&path, text).unwrap();
     path
 }
@@ -315,7 +320,7 @@ pub(crate) fn write_box(dir: &Path, lo: Vec3, hi: Vec3) -> PathBuf {
 /// leaves, reflected or transmitted, to the environment. With R = ((n - 1) / (n + 1))^2 and
 /// T = e^-tau, summing the internal reflections:
 /// R_total = R + (1 - R)^2 R T^2 / (1 - R^2 T^2), T_total = (1 - R)^2 T / (1 - R^2 T^2).
-fn slab_closed_form(n: f64, tau: f64) -> f64 {
+pub(crate) fn slab_closed_form(n: f64, tau: f64) -> f64 {
     let r = ((n - 1.0) / (n + 1.0)).powi(2);
     let t = (-tau).exp();
     let den = 1.0 - r * r * t * t;

@@ -13,6 +13,7 @@ mod gpu_core;
 mod lbl;
 mod lbl_refraction_tests;
 mod light_tracing_tests;
+mod material_tests;
 mod mesh_tests;
 mod mitsuba_crosscheck;
 mod mnee_tests;

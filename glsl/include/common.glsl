@@ -7,6 +7,10 @@
 #ifndef SCATTERLAB_COMMON
 #define SCATTERLAB_COMMON
 
+// Most distinct materials of a scene's objects (src/scene/mod.rs MAX_MATERIALS): the length
+// of scene.glsl's material table.
+#define MAX_MATERIALS 16
+
 const float PI = 3.14159265358979323846;
 const float INV_4PI = 0.07957747154594767;
 const float INF = 1.0 / 0.0;

@@ -78,6 +78,10 @@ float surface_eps(vec3 p) { return 1e-5 * max(1.0, max3(abs(p))); }
 // Unit outward geometric normal of triangle `tri` (an index from mesh_hit_tri).
 vec3 triangle_normal(uint tri) { return normalize(cross(tris[tri].e1.xyz, tris[tri].e2.xyz)); }
 
+// The material (index into scene.materials) of the object triangle `tri` bounds: each
+// triangle carries its object's in v0.w as uint bits (src/scene/bvh.rs build_tagged).
+uint triangle_material(uint tri) { return min(floatBitsToUint(tris[tri].v0.w), uint(MAX_MATERIALS - 1)); }
+
 // Closest crossing of the ray o + t d with t in (t_min, t_max), from either side: the
 // traversal of bvh.rs `Bvh::intersect` (explicit stack, nearer child first, the farther one
 // deferred with its entry distance and skipped once a closer hit is known). Returns false on

@@ -13,6 +13,13 @@
 #define DENSITY_SPHERE 1u
 #define DENSITY_GRID 2u
 
+// One object's material: the medium's coefficients inside it and its refractive index.
+struct ObjectMaterial {
+    vec4 sigma_t;    // rgb extinction scale, 1/unit; w = max over channels
+    vec4 albedo;     // rgb sigma_s / sigma_t; w = g
+    vec4 ior;        // x: refractive index inside, relative to the vacuum outside
+};
+
 struct Light {
     vec4 pos_kind;   // point: position; directional: travel direction (unit); w = kind
     vec4 value;      // rgb: intensity W/sr | irradiance W/m^2 | radiance W/(m^2 sr)
@@ -31,9 +38,15 @@ layout(std430, binding = SCENE_BINDING) readonly buffer SceneBlock {
     vec4 cam_right;      // unit
     vec4 cam_up;         // unit
     uvec4 image;         // width, height, light count, 0
-    vec4 object;         // the [[object]] (format v2): x = ior inside (1 without one)
+    vec4 object;         // the [[object]] (format v2): x = ior inside object[0] (1 without one)
+    ObjectMaterial materials[MAX_MATERIALS];   // the objects' materials; [0] is the medium's in every scene
     Light lights[];
 } scene;
+
+// The material of the medium a tracked ray is in (an index into scene.materials; mesh.glsl's
+// triangles name theirs): segments_next's majorant scales by its extinction. 0, the medium's,
+// unless a kernel that follows paths across several objects sets it (path/trace).
+uint medium_mat = 0u;
 
 // Specialisation: the kernels compile only the density kind and physics a scene needs.
 layout(constant_id = 0) const uint DENSITY_KIND = 0u;
@@ -191,7 +204,7 @@ Segments segments_begin(vec3 o, vec3 d, float t0, float t1) {
 bool segments_next(inout Segments s, out float seg_t0, out float seg_t1, out float sigma_maj) {
     if (s.done) return false;
     if (DENSITY_KIND != DENSITY_GRID) {
-        seg_t0 = s.t_min; seg_t1 = s.t_max; sigma_maj = scene.sigma_t.w;
+        seg_t0 = s.t_min; seg_t1 = s.t_max; sigma_maj = scene.materials[medium_mat].sigma_t.w;
         s.done = true;
         return true;
     }
@@ -199,7 +212,7 @@ bool segments_next(inout Segments s, out float seg_t0, out float seg_t1, out flo
     float t_end = min(s.t_max, s.next_t[axis]);
     uvec3 md = scene.maj_dims.xyz;
     uint idx = uint(s.cell.x) + md.x * (uint(s.cell.y) + md.y * uint(s.cell.z));
-    seg_t0 = s.t_min; seg_t1 = t_end; sigma_maj = maj[idx] * scene.sigma_t.w;
+    seg_t0 = s.t_min; seg_t1 = t_end; sigma_maj = maj[idx] * scene.materials[medium_mat].sigma_t.w;
     s.t_min = t_end;
     if (s.next_t[axis] >= s.t_max) {
         s.done = true;

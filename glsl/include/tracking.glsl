@@ -28,6 +28,16 @@ bool truncated;
 // kernel's budget.
 uint iter_limit;
 
+// The material of the medium the path is in (scene.materials; with several [[object]]
+// materials, the object it is inside): every tracked ray starts in it (medium_mat, which a
+// transmittance through index-matched objects moves along as it enters each). The kernel sets
+// it; 0, the medium's, by default.
+uint path_mat = 0u;
+
+// The current medium's extinction (rgb; w = max), albedo (rgb; w = g).
+vec4 mat_sigma_t() { return scene.materials[medium_mat].sigma_t; }
+vec4 mat_albedo() { return scene.materials[medium_mat].albedo; }
+
 // The tracking loop in progress along the ray s.org + t s.dir.
 struct Tracker {
     Segments s;    // the majorant segments still ahead
@@ -77,24 +87,31 @@ vec4 trk_saved_mesh = vec4(0.0);
 // The next crossing of the mesh along p + t w with t in (t_min, t_max) whose facing is
 // `entering` (dot(w, n) < 0) or leaving: crossings of the other facing are stepped over, so
 // a ray through an edge shared by two triangles is not counted twice.
-bool mesh_crossing(vec3 p, vec3 w, float t_min, float t_max, bool entering, out float t) {
-    vec3 n;
+bool mesh_crossing_tri(vec3 p, vec3 w, float t_min, float t_max, bool entering, out float t, out uint tri) {
     t = t_min;
+    tri = 0u;
     // A closed mesh alternates entries and exits; a few extra steps cover edge double hits.
     for (uint k = 0u; k < 8u; k++) {
         iters++;
-        if (!mesh_hit(p, w, t, t_max, t, n)) return false;
-        if ((dot(w, n) < 0.0) == entering) return true;
+        if (!mesh_hit_tri(p, w, t, t_max, t, tri)) return false;
+        if ((dot(w, triangle_normal(tri)) < 0.0) == entering) return true;
     }
     return false;
 }
 
+bool mesh_crossing(vec3 p, vec3 w, float t_min, float t_max, bool entering, out float t) {
+    uint tri;
+    return mesh_crossing_tri(p, w, t_min, t_max, entering, t, tri);
+}
+
 // The next inside interval of the ray after t_end (an exit), within the box and t_far: false
-// when there is none.
+// when there is none. Sets medium_mat to the material of the object it enters.
 bool next_inside_interval(vec3 p, vec3 w, float t_end, float t_far, out vec2 iv) {
     float t_in, t_out;
+    uint tri;
     iv = vec2(INF, -INF);
-    if (!(t_end < t_far) || !mesh_crossing(p, w, t_end, t_far, true, t_in)) return false;
+    if (!(t_end < t_far) || !mesh_crossing_tri(p, w, t_end, t_far, true, t_in, tri)) return false;
+    medium_mat = triangle_material(tri);
     if (!mesh_crossing(p, w, t_in, INF, false, t_out)) t_out = INF;
     vec2 box = medium_interval(p, w);
     iv = vec2(max(t_in, box.x), min(min(t_out, t_far), box.y));
@@ -131,6 +148,7 @@ void track_start(vec3 p, vec3 w, float t_far, bool clip) {
 // track_start over an interval [iv.x, iv.y] of the ray the caller has already found (the
 // medium's, from t >= 0): saves the caller's second ray-medium intersection.
 void track_start_on(vec3 p, vec3 w, vec2 iv) {
+    medium_mat = path_mat;
 #ifdef MESH_NODES_BINDING
     trk_chain = false;
     trk_blocked = false;
@@ -167,17 +185,21 @@ void track_start_on(vec3 p, vec3 w, vec2 iv) {
         trk.s.cell = ivec3(floatBitsToInt(b.w), int(bits & CELL_MASK), int((bits >> 14u) & CELL_MASK));
         trk.T = c.xyz;
 #ifdef MESH_NODES_BINDING
-        // A chained interval: its end (the DDA's steps follow from the direction alone).
-        if (HAS_MESH && trk_saved_mesh.w != 0.0) trk.s.t_max = trk_saved_mesh.x;
+        // A chained interval: its end (the DDA's steps follow from the direction alone) and
+        // the material of the object it crosses.
+        if (HAS_MESH && trk_saved_mesh.w != 0.0) {
+            trk.s.t_max = trk_saved_mesh.x;
+            medium_mat = uint(trk_saved_mesh.w) - 1u;
+        }
 #endif
     }
 }
 
 #ifdef MESH_NODES_BINDING
 // What track_start needs beyond track_save's words to resume a paused tracker in a chained
-// interval: its end, and a flag (zeros when none paused).
+// interval: its end, and 1 + the material of its object (zeros when none paused).
 vec4 track_save_mesh() {
-    return trk_paused && HAS_MESH ? vec4(trk.s.t_max, 0.0, 0.0, 1.0) : vec4(0.0);
+    return trk_paused && HAS_MESH ? vec4(trk.s.t_max, 0.0, 0.0, float(medium_mat + 1u)) : vec4(0.0);
 }
 
 #endif
@@ -263,17 +285,19 @@ bool transmittance_run(inout uvec2 rng) {
 #endif
     if (DENSITY_KIND != DENSITY_GRID) {
         float d = trk.s.done ? 0.0 : max(trk.s.t_max - trk.s.t_min, 0.0);
+        vec3 tau = mat_sigma_t().xyz * d;
 #ifdef MESH_NODES_BINDING
-        // Every inside interval up to t_far: their lengths add.
+        // Every inside interval up to t_far: their optical depths add, each in its object's
+        // material.
         vec2 iv;
         float t_end = trk.s.t_max;
         while (trk_chain && next_inside_interval(trk.s.org, trk.s.dir, t_end, trk_far, iv)) {
             iters++;
-            d += iv.y - iv.x;
+            tau += mat_sigma_t().xyz * (iv.y - iv.x);
             t_end = iv.y;
         }
 #endif
-        trk.T = exp(-scene.sigma_t.xyz * d);
+        trk.T = exp(-tau);
         trk.s.done = true;
         return true;
     }
@@ -282,7 +306,7 @@ bool transmittance_run(inout uvec2 rng) {
         if (r < 0) return false;
         if (r == 0) return true;
         collisions++;
-        vec3 st = scene.sigma_t.xyz * density_at(trk.s.org + trk.s.dir * trk.t);
+        vec3 st = mat_sigma_t().xyz * density_at(trk.s.org + trk.s.dir * trk.t);
         trk.T *= max(vec3(0.0), trk.smaj - st) / trk.smaj;
         float m = max3(trk.T);
         if (m < 0.1) {
@@ -318,8 +342,8 @@ int scatter_run(inout vec3 beta, inout uvec2 rng, out float t_hit) {
         float smaj = trk.smaj;
         collisions++;
         if (collisions > collision_cap) { truncated = true; beta = vec3(0.0); return FLIGHT_ESCAPED; }
-        vec3 st = scene.sigma_t.xyz * density_at(trk.s.org + trk.s.dir * t);
-        vec3 ss = st * scene.albedo.xyz;
+        vec3 st = mat_sigma_t().xyz * density_at(trk.s.org + trk.s.dir * t);
+        vec3 ss = st * mat_albedo().xyz;
         vec3 sn = max(vec3(0.0), smaj - st);
         if (!CHROMATIC) {
             // Grey: scatter with probability sigma_s / (sigma_s + sigma_n); absorption is

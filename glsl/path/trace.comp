@@ -59,7 +59,8 @@ struct PathState {
     vec4 trk_mesh;     // x, w: a paused tracker's chained interval (tracking.glsl, track_save_mesh); y, z: ev_t_surf, ev_surf_tri
 };
 // The flags word: bit 0 a path is in flight, 1 it was truncated, 2 a tracking loop paused,
-// 3 ev_eq_on, 4-6 ev_step, 7 inside the mesh, 8-9 ev_sub, 12-31 ev_light (the host refuses 2^20 lights or more).
+// 3 ev_eq_on, 4-6 ev_step, 7 inside the mesh, 8-9 ev_sub, 12-15 path_mat (the material of the
+// object the path is in), 16-31 ev_light (the host refuses 2^16 lights or more).
 const uint FLAG_IN_FLIGHT = 1u;
 const uint FLAG_TRUNCATED = 2u;
 const uint FLAG_TRACKING = 4u;
@@ -157,7 +158,7 @@ float eq_pdf(Equiangular e, float t) {
 float eq_weight(Equiangular e, vec3 o, vec3 d, float t_in, float t) {
     float pe = eq_pdf(e, t);
     if (pe <= 0.0) return 0.0;
-    float s = scene.sigma_t.w * density_at(o + d * t);
+    float s = scene.materials[path_mat].sigma_t.w * density_at(o + d * t);
     float pd = s * exp(-s * max(0.0, t - t_in));
     if (!(pd > 0.0)) return 1.0;
     return mis_power(pe, pd);
@@ -189,7 +190,7 @@ bool eq_light(uint i) { return i < 32u && ((pc.equiangular >> i) & 1u) != 0u; }
 // paused (resumes at ev_light, ev_sub).
 bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inout vec3 L, inout uvec2 rng) {
     uint light_count = scene.image.z;
-    float g = scene.albedo.w;
+    float g = scene.materials[path_mat].albedo.w;
     for (; ev_light < light_count; ev_light++, ev_sub = 0u) {
         uint i = ev_light;
         if (ev_sub == 0u) {
@@ -207,7 +208,7 @@ bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
         float t = clamp(e.delta + e.D * tan(mix(e.th_a, e.th_b, u)), t_in, t_out);
         float pdf = eq_pdf(e, t);
         vec3 x = o + d * t;
-        vec3 ss = scene.sigma_t.xyz * density_at(x) * scene.albedo.xyz;
+        vec3 ss = scene.materials[path_mat].sigma_t.xyz * density_at(x) * scene.materials[path_mat].albedo.xyz;
         if (!(pdf > 0.0) || max3(ss) <= 0.0) continue;
         vec3 to = c - x;
         float dist2 = dot(to, to);
@@ -249,7 +250,9 @@ float eta_scale = 1.0;
 // by (n_i / n_t)^2: camera paths carry importance, and radiance leaving a denser medium is
 // compressed by that factor (Veach 1997, sec. 5.2; pbrt-v4 DielectricBxDF, Mitsuba 3
 // dielectric in radiance mode). The new origin is moved off the surface to the side the ray
-// leaves on, by a distance relative to the coordinates' magnitude (float rounding).
+// leaves on, by a distance relative to the coordinates' magnitude (float rounding). The index
+// is the object's whose triangle was hit (its material); a path that crosses into an object
+// takes on its material (path_mat).
 void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_dir, inout uvec2 rng) {
     // The surface the event's start found (ev_t_surf, ev_surf_tri): no second traversal.
     vec3 n = triangle_normal(ev_surf_tri);
@@ -257,9 +260,10 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
     bool entering = dot(d, n) < 0.0;
     vec3 nf = entering ? n : -n;   // facing the side the ray comes from
     bool crosses = true;
+    uint mat = triangle_material(ev_surf_tri);
     if (REFRACTIVE) {
         float eta, cos_i, cos_t;
-        float F = surface_fresnel(d, nf, entering, scene.object.x, eta, cos_i, cos_t);
+        float F = surface_fresnel(d, nf, entering, scene.materials[mat].ior.x, eta, cos_i, cos_t);
         if (rnd(rng) < F) {
             d = normalize(reflect(d, nf));
             crosses = false;
@@ -271,6 +275,7 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
         pdf_dir = -1.0;
     }
     inside = crosses ? entering : !entering;
+    if (inside) path_mat = mat;
     o = p + (crosses ? -nf : nf) * surface_eps(p);
     // A path caught between surfaces (total internal reflection in a clear object) ends at the
     // collision cap, counted and reported as truncated, never loops for ever.
@@ -292,7 +297,7 @@ void surface_event(inout vec3 o, inout vec3 d, inout vec3 beta, inout float pdf_
 // ev_sub 2 scans the cell's list from position ev_surf_tri on, 1 tracks the transmittance
 // toward the refraction point ev_v on the facet at ev_surf_tri. Returns false when it paused.
 bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, inout uvec2 rng) {
-    float ior = scene.object.x;
+    float ior = scene.materials[path_mat].ior.x;
     bool point = uint(li.pos_kind.w) == LIGHT_POINT;
     uint begin, end;
     mnee_range(ev_light, p, begin, end);
@@ -347,7 +352,7 @@ const int EVENT_PAUSED = 2;   // the budget is spent; the event resumes in the n
 // where the event can no longer pause.
 int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uint depth, inout float pdf_dir, inout uvec2 rng) {
     uint light_count = scene.image.z;
-    float g = scene.albedo.w;
+    float g = scene.materials[path_mat].albedo.w;
     // The ray's segment in the medium, as the free flight sees it; kept for the MIS weights.
     vec2 seg = medium_interval(o, d);
     seg.x = max(seg.x, 0.0);
@@ -519,7 +524,8 @@ void main() {
     ev_surf_tri = floatBitsToUint(st.trk_mesh.z);
     ev_step = (flags >> 4u) & 7u;
     ev_sub = (flags >> 8u) & 3u;
-    ev_light = flags >> 12u;
+    path_mat = (flags >> 12u) & 15u;
+    ev_light = flags >> 16u;
     ev_s = uintBitsToFloat(st.k_flight.z);
     ev_v = st.ev_v.xyz;
     eta_scale = HAS_MESH ? st.ev_v.w : 1.0;
@@ -573,6 +579,7 @@ void main() {
             truncated = false;
             in_flight = true;
             inside = false;   // the camera is outside the mesh (the scene loader checks its origin)
+            path_mat = 0u;
             eta_scale = 1.0;
             ev_step = EV_START;
         }
@@ -596,7 +603,7 @@ void main() {
     if (in_flight) segs += collisions - segs0;
     flags = (in_flight ? FLAG_IN_FLIGHT : 0u) | (truncated ? FLAG_TRUNCATED : 0u) | (trk_paused ? FLAG_TRACKING : 0u)
           | (ev_eq_on ? FLAG_EQ_ON : 0u) | (inside ? FLAG_INSIDE : 0u) | (ev_step << 4u) | (ev_sub << 8u)
-          | (ev_light << 12u);
+          | (path_mat << 12u) | (ev_light << 16u);
     vec4 ta, tb, tc;
     track_save(ta, tb, tc);
     vec4 tm = track_save_mesh();

@@ -526,7 +526,8 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
                 "anisotropic": f.anisotropic, "chromatic": f.chromatic, "light_inside": f.light_inside,
                 "homogeneous": f.grid_dims.is_none(), "density": density_label(&scene.medium.density), "has_environment": f.has_environment, "grid_dims": f.grid_dims,
                 "object": scene.object.as_ref().map(|o| json!({
-                    "mesh": o.describe(), "parts": o.parts.iter().map(|p| json!({"mesh": p.file.display().to_string(), "triangles": p.triangles})).collect::<Vec<_>>(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
+                    "mesh": o.describe(), "parts": o.parts.iter().map(|p| json!({"mesh": p.file.display().to_string(), "triangles": p.triangles, "material": p.material})).collect::<Vec<_>>(),
+                    "materials": o.materials.iter().map(|x| json!({"sigma_t": x.sigma_t.to_array(), "albedo": x.albedo.to_array(), "g": x.g, "ior": x.ior})).collect::<Vec<_>>(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
                     "bvh_nodes": o.bvh.nodes.len(), "bvh_depth": o.bvh.depth, "bvh_bytes": o.bvh.bytes(), "convex": o.convex,
                 })),
                 "refused_by": refused.iter().map(|(k, why)| (k.to_string(), json!(why))).collect::<serde_json::Map<_, _>>(),
@@ -559,6 +560,25 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
             o.bvh.depth,
             o.bvh.bytes() as f64 / 1024.0
         );
+        if o.several_materials() {
+            for (k, x) in o.materials.iter().enumerate() {
+                let parts: Vec<String> = o
+                    .parts
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, p)| p.material == k)
+                    .map(|(i, _)| format!("object[{i}]"))
+                    .collect();
+                outln!(
+                    "material {k}   {}: sigma_t {}, albedo {}, g {}, ior {}",
+                    parts.join(", "),
+                    fmt_rgb(x.sigma_t),
+                    fmt_rgb(x.albedo),
+                    x.g,
+                    x.ior
+                );
+            }
+        }
     }
     outln!("light inside {}", yn(f.light_inside));
     outln!("environment  {}", yn(f.has_environment));
@@ -569,8 +589,8 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     for (name, b) in memory {
         outln!("  {:<10} {:>10.2} MiB", name, b as f64 / (1u64 << 20) as f64);
     }
-    for (name, _) in &refused {
-        outln!("  {:<10} refused: it does not render [[object]] meshes yet", name);
+    for (name, why) in &refused {
+        outln!("  {:<10} refused: {}", name, why);
     }
     Ok(())
 }
@@ -664,4 +684,13 @@ fn report(
     outln!("{md}");
     eprintln!("wrote {} and {}", out.join("report.json").display(), out.join("report.md").display());
     Ok(())
+}
+
+/// An RGB triple as a scene file writes it: one number when grey.
+fn fmt_rgb(v: glam::Vec3) -> String {
+    if crate::scene::is_grey(v) {
+        format!("{}", v.x)
+    } else {
+        format!("[{}, {}, {}]", v.x, v.y, v.z)
+    }
 }

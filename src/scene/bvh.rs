@@ -53,7 +53,8 @@ pub struct BvhNode {
 }
 
 /// One triangle as the GPU tests it: a corner and the two edges from it (Moller-Trumbore
-/// needs exactly these). `w` is 0. Scene units.
+/// needs exactly these). `v0[3]` holds the triangle's tag as `f32` bits (its material: 0 for one
+/// material, [`Bvh::build_tagged`]); the other `w`s are 0. Scene units.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuTriangle {
@@ -146,6 +147,12 @@ impl Bvh {
     /// kept as a leaf where the SAH says splitting does not pay). A mesh of `n` triangles gives
     /// at most `2n - 1` nodes.
     pub fn build(mesh: &TriangleMesh) -> Bvh {
+        Bvh::build_tagged(mesh, &[])
+    }
+
+    /// [`Bvh::build`] with a tag per triangle of `mesh` (its order; missing tags are 0) in each
+    /// [`GpuTriangle`]'s `v0[3]` as `f32` bits: the index of its object's material.
+    pub fn build_tagged(mesh: &TriangleMesh, tags: &[u32]) -> Bvh {
         let n = mesh.triangles.len();
         assert!(u32::try_from(n).is_ok(), "a BVH holds at most 2^32 - 1 triangles");
         if n == 0 {
@@ -170,8 +177,9 @@ impl Bvh {
             .iter()
             .map(|&i| {
                 let [a, b, c] = corners(&mesh.triangles[i as usize]);
+                let tag = tags.get(i as usize).copied().unwrap_or(0);
                 GpuTriangle {
-                    v0: a.extend(0.0).to_array(),
+                    v0: a.extend(f32::from_bits(tag)).to_array(),
                     e1: (b - a).extend(0.0).to_array(),
                     e2: (c - a).extend(0.0).to_array(),
                 }

@@ -8,9 +8,13 @@ impl Scene {
     /// What this scene requires of a solver.
     pub fn features(&self) -> Features {
         let m = &self.medium;
+        // Every object's material counts (several entries may differ); object[0]'s is the medium's.
+        let materials = self.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
         Features {
-            anisotropic: m.g != 0.0,
-            chromatic: !is_grey(m.sigma_t) || !is_grey(m.albedo),
+            anisotropic: m.g != 0.0 || materials.iter().any(|x| x.g != 0.0),
+            chromatic: !is_grey(m.sigma_t)
+                || !is_grey(m.albedo)
+                || materials.iter().any(|x| !is_grey(x.sigma_t) || !is_grey(x.albedo)),
             light_inside: self.lights.iter().any(|light| match *light {
                 Light::Point { position, .. } => self.inside_medium(position),
                 _ => false,
@@ -38,6 +42,13 @@ impl Scene {
             Some(object) if !object.contains(p) => 0.0,
             _ => self.medium.density_at(p),
         }
+    }
+
+    /// The largest extinction scale (1/unit, max over channels) of the medium and of every
+    /// object's material.
+    pub fn max_sigma_t(&self) -> f32 {
+        let materials = self.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
+        materials.iter().map(|x| x.sigma_t.max_element()).fold(self.medium.sigma_t.max_element(), f32::max)
     }
 
     /// An upper bound of [`Scene::density_at`] (exact for every density kind: 1, or the

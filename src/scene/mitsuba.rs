@@ -91,7 +91,7 @@ use std::path::{Path, PathBuf};
 use glam::Vec3;
 
 use super::mesh::TriangleMesh;
-use super::{is_grey, Camera, CameraKind, Density, Light, Medium, Scene};
+use super::{is_grey, Camera, CameraKind, Density, Light, Medium, Object, Scene};
 use crate::output::{write_atomically, OutputError};
 
 /// Voxels along the longest side of the bounds when a clipped sphere is rasterised.
@@ -103,8 +103,17 @@ const SPHERE_SUBSAMPLES: u32 = 4;
 /// The `.vol` file written beside `xml_path` for a heterogeneous medium:
 /// `dir/NAME.xml` -> `dir/NAME.sigma_t.vol`.
 pub fn vol_path_for(xml_path: &Path) -> PathBuf {
+    vol_path_for_material(xml_path, 0)
+}
+
+/// The extinction grid of material `k`'s medium (`OUT.sigma_t.vol` for 0, `OUT.sigma_t1.vol`, ...).
+pub fn vol_path_for_material(xml_path: &Path, k: usize) -> PathBuf {
     let stem = xml_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".to_owned());
-    xml_path.with_file_name(format!("{stem}.sigma_t.vol"))
+    if k == 0 {
+        xml_path.with_file_name(format!("{stem}.sigma_t.vol"))
+    } else {
+        xml_path.with_file_name(format!("{stem}.sigma_t{k}.vol"))
+    }
 }
 
 /// Grid resolution used for a clipped sphere over `medium`'s bounds: [`SPHERE_GRID_RES`]
@@ -163,12 +172,16 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
 /// nothing is left behind.
 pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, OutputError> {
     let plan = plan_medium(scene);
-    let vol_path = vol_path_for(xml_path);
-    let vol_name = vol_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let obj_path = obj_path_for(xml_path);
-    let obj_name = obj_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let name_of = |p: &PathBuf| p.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    // One OBJ per material of the objects (the parts that share it), material 0's first.
+    let materials = scene.object.as_ref().map_or(1, |o| o.materials.len());
+    let obj_paths: Vec<PathBuf> = (0..materials).map(|k| obj_path_for_material(xml_path, k)).collect();
+    let obj_names: Vec<String> = obj_paths.iter().map(name_of).collect();
+    // A grid's extinction, one volume per material (each bakes its own sigma_t where chromatic).
+    let vol_paths: Vec<PathBuf> = (0..materials).map(|k| vol_path_for_material(xml_path, k)).collect();
+    let vol_names: Vec<String> = vol_paths.iter().map(name_of).collect();
     let xml_name = xml_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let xml = scene_xml(scene, &plan, &xml_name, &vol_name, &obj_name);
+    let xml = scene_xml(scene, &plan, &xml_name, &vol_names, &obj_names);
 
     let mut written = Vec::new();
     let cleanup = |written: &[PathBuf]| {
@@ -177,15 +190,26 @@ pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, Ou
         }
     };
     if let Plan::Grid(grid) = &plan {
-        write_atomically(&vol_path, |tmp| write_vol_file(tmp, grid, &scene.medium))?;
-        written.push(vol_path.clone());
+        for (k, vol_path) in vol_paths.iter().enumerate() {
+            let mut medium = scene.medium.clone();
+            if let Some(x) = scene.object.as_ref().map(|o| o.materials[k]) {
+                medium.sigma_t = x.sigma_t;
+            }
+            if let Err(e) = write_atomically(vol_path, |tmp| write_vol_file(tmp, grid, &medium)) {
+                cleanup(&written);
+                return Err(e);
+            }
+            written.push(vol_path.clone());
+        }
     }
     if let Some(object) = &scene.object {
-        if let Err(e) = write_atomically(&obj_path, |tmp| write_obj_file(tmp, &object.mesh, &object.describe())) {
-            cleanup(&written);
-            return Err(e);
+        for (k, obj_path) in obj_paths.iter().enumerate() {
+            if let Err(e) = write_atomically(obj_path, |tmp| write_obj_file(tmp, object, k)) {
+                cleanup(&written);
+                return Err(e);
+            }
+            written.push(obj_path.clone());
         }
-        written.push(obj_path.clone());
     }
     let result = write_atomically(xml_path, |tmp| {
         std::fs::write(tmp, xml.as_bytes()).map_err(|source| OutputError::Io {
@@ -229,22 +253,44 @@ struct GridPlan<'a> {
 
 /// The mesh written beside `xml_path` for a scene with an [[object]]: `OUT.mesh.obj`, in
 /// scene coordinates (the object's transform applied), so its shape's `to_world` is the identity.
+/// With objects of several materials this holds material 0's ([`obj_path_for_material`]).
 pub fn obj_path_for(xml_path: &Path) -> PathBuf {
+    obj_path_for_material(xml_path, 0)
+}
+
+/// The mesh of the objects of material `k` (`OUT.mesh.obj` for 0, `OUT.mesh1.obj`, ... after):
+/// each material is a shape of its own with its own interior medium and index.
+pub fn obj_path_for_material(xml_path: &Path, k: usize) -> PathBuf {
     let mut name = xml_path.file_stem().map(|s| s.to_os_string()).unwrap_or_default();
-    name.push(".mesh.obj");
+    if k == 0 {
+        name.push(".mesh.obj");
+    } else {
+        name.push(format!(".mesh{k}.obj"));
+    }
     xml_path.with_file_name(name)
 }
 
-/// The transformed mesh as OBJ: positions and faces only. Without normals Mitsuba's `obj`
-/// shape uses each face's geometric normal (`face_normals` is set as well), as `path` does.
-fn write_obj_file(path: &Path, mesh: &TriangleMesh, source: &str) -> Result<(), OutputError> {
+/// The transformed meshes of the parts of material `k` as OBJ: positions and faces only.
+/// Without normals Mitsuba's `obj` shape uses each face's geometric normal (`face_normals` is
+/// set as well), as `path` does. Every position of the union is written (unused ones are
+/// harmless), the faces of those parts only.
+fn write_obj_file(path: &Path, object: &Object, k: usize) -> Result<(), OutputError> {
+    let mesh: &TriangleMesh = &object.mesh;
     let mut text = String::with_capacity(mesh.positions.len() * 40 + mesh.triangles.len() * 24);
-    let _ = writeln!(text, "# {source} exported by scatterlab in scene coordinates");
+    let files: Vec<String> =
+        object.parts.iter().filter(|p| p.material == k).map(|p| p.file.display().to_string()).collect();
+    let _ = writeln!(text, "# {} exported by scatterlab in scene coordinates", files.join(" + "));
     for p in &mesh.positions {
         let _ = writeln!(text, "v {} {} {}", p.x, p.y, p.z);
     }
-    for t in &mesh.triangles {
-        let _ = writeln!(text, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+    let mut first = 0;
+    for part in &object.parts {
+        if part.material == k {
+            for t in &mesh.triangles[first..first + part.triangles] {
+                let _ = writeln!(text, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+            }
+        }
+        first += part.triangles;
     }
     std::fs::write(path, text.as_bytes()).map_err(|source| OutputError::Io {
         path: path.to_owned(),
@@ -395,7 +441,22 @@ fn in_medium_shape(scene: &Scene, plan: &Plan, m: &Medium, p: Vec3) -> bool {
     }
 }
 
-fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str, obj_name: &str) -> String {
+/// The id of material `k`'s medium: `medium` for the first (and a v1 scene's), `medium1`, ...
+fn medium_id(k: usize) -> String {
+    if k == 0 {
+        "medium".to_string()
+    } else {
+        format!("medium{k}")
+    }
+}
+
+/// The medium `id` a point inside the medium at `p` is in: its object's material's, or the one
+/// medium of a v1 scene.
+fn medium_at(scene: &Scene, p: Vec3) -> String {
+    medium_id(scene.object.as_ref().and_then(|o| o.material_at(p)).unwrap_or(0))
+}
+
+fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_names: &[String], obj_names: &[String]) -> String {
     let m = &scene.medium;
     let mut x = String::new();
     let mut line = |indent: usize, s: &str| {
@@ -417,81 +478,98 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str, obj_nam
     line(2, r#"<integer name="max_depth" value="-1"/>"#);
     line(1, "</integrator>");
 
-    // The medium, declared once and referenced by the shape (and the camera or lights in it).
-    let phase = |line: &mut dyn FnMut(usize, &str)| {
-        line(2, r#"<phase type="hg">"#);
-        line(3, &format!(r#"<float name="g" value="{}"/>"#, num(m.g)));
-        line(2, "</phase>");
-    };
-    match plan {
-        Plan::Box | Plan::Sphere { .. } => {
-            line(1, r#"<medium type="homogeneous" id="medium">"#);
-            line(2, &spectrum("sigma_t", m.sigma_t));
-            line(2, &spectrum("albedo", m.albedo));
-            phase(&mut line);
-            line(1, "</medium>");
+    // The media, each declared once and referenced by its shape (and the camera or lights in
+    // it): the scene's one medium, or one per material of its objects (the density shared, the
+    // coefficients each material's).
+    let media: Vec<Medium> = match &scene.object {
+        Some(o) => {
+            o.materials.iter().map(|x| Medium { sigma_t: x.sigma_t, albedo: x.albedo, g: x.g, ..m.clone() }).collect()
         }
-        Plan::Grid(_) => {
-            let extent = m.bounds_max - m.bounds_min;
-            line(1, r#"<medium type="heterogeneous" id="medium">"#);
-            line(2, r#"<volume type="gridvolume" name="sigma_t">"#);
-            line(3, &format!(r#"<string name="filename" value="{}"/>"#, attr(vol_name)));
-            line(3, r#"<string name="filter_type" value="trilinear"/>"#);
-            line(3, r#"<string name="wrap_mode" value="clamp"/>"#);
-            line(3, r#"<transform name="to_world">"#);
-            line(4, &format!(r#"<scale x="{}" y="{}" z="{}"/>"#, num(extent.x), num(extent.y), num(extent.z)));
-            line(
-                4,
-                &format!(
-                    r#"<translate x="{}" y="{}" z="{}"/>"#,
-                    num(m.bounds_min.x),
-                    num(m.bounds_min.y),
-                    num(m.bounds_min.z)
-                ),
-            );
-            line(3, "</transform>");
-            line(2, "</volume>");
-            let scale = if is_grey(m.sigma_t) { m.sigma_t.x } else { 1.0 };
-            line(2, &format!(r#"<float name="scale" value="{}"/>"#, num(scale)));
-            line(2, &spectrum("albedo", m.albedo));
-            phase(&mut line);
-            line(1, "</medium>");
+        None => vec![m.clone()],
+    };
+    for (k, m) in media.iter().enumerate() {
+        let id = medium_id(k);
+        let phase = |line: &mut dyn FnMut(usize, &str)| {
+            line(2, r#"<phase type="hg">"#);
+            line(3, &format!(r#"<float name="g" value="{}"/>"#, num(m.g)));
+            line(2, "</phase>");
+        };
+        match plan {
+            Plan::Box | Plan::Sphere { .. } => {
+                line(1, &format!(r#"<medium type="homogeneous" id="{id}">"#));
+                line(2, &spectrum("sigma_t", m.sigma_t));
+                line(2, &spectrum("albedo", m.albedo));
+                phase(&mut line);
+                line(1, "</medium>");
+            }
+            Plan::Grid(_) => {
+                let extent = m.bounds_max - m.bounds_min;
+                line(1, &format!(r#"<medium type="heterogeneous" id="{id}">"#));
+                line(2, r#"<volume type="gridvolume" name="sigma_t">"#);
+                line(3, &format!(r#"<string name="filename" value="{}"/>"#, attr(&vol_names[k])));
+                line(3, r#"<string name="filter_type" value="trilinear"/>"#);
+                line(3, r#"<string name="wrap_mode" value="clamp"/>"#);
+                line(3, r#"<transform name="to_world">"#);
+                line(4, &format!(r#"<scale x="{}" y="{}" z="{}"/>"#, num(extent.x), num(extent.y), num(extent.z)));
+                line(
+                    4,
+                    &format!(
+                        r#"<translate x="{}" y="{}" z="{}"/>"#,
+                        num(m.bounds_min.x),
+                        num(m.bounds_min.y),
+                        num(m.bounds_min.z)
+                    ),
+                );
+                line(3, "</transform>");
+                line(2, "</volume>");
+                let scale = if is_grey(m.sigma_t) { m.sigma_t.x } else { 1.0 };
+                line(2, &format!(r#"<float name="scale" value="{}"/>"#, num(scale)));
+                line(2, &spectrum("albedo", m.albedo));
+                phase(&mut line);
+                line(1, "</medium>");
+            }
         }
     }
 
-    match plan {
-        _ if scene.object.is_some() => {
+    if let Some(object) = &scene.object {
+        // One shape per material: the parts that share it, their boundary and their medium.
+        for (k, material) in object.materials.iter().enumerate() {
             line(1, r#"<shape type="obj">"#);
-            line(2, &format!(r#"<string name="filename" value="{}"/>"#, attr(obj_name)));
+            line(2, &format!(r#"<string name="filename" value="{}"/>"#, attr(&obj_names[k])));
             line(2, r#"<boolean name="face_normals" value="true"/>"#);
+            if material.ior != 1.0 {
+                // A smooth dielectric boundary: Fresnel reflection and refraction (src/bsdfs/dielectric.cpp).
+                line(2, r#"<bsdf type="dielectric">"#);
+                line(3, &format!(r#"<float name="int_ior" value="{}"/>"#, num(material.ior)));
+                line(3, r#"<float name="ext_ior" value="1"/>"#);
+                line(2, "</bsdf>");
+            } else {
+                line(2, r#"<bsdf type="null"/>"#);
+            }
+            line(2, &format!(r#"<ref name="interior" id="{}"/>"#, medium_id(k)));
+            line(1, "</shape>");
         }
-        Plan::Sphere { center, radius } => {
-            line(1, r#"<shape type="sphere">"#);
-            line(2, &format!(r#"<point name="center" value="{}"/>"#, vec3(*center)));
-            line(2, &format!(r#"<float name="radius" value="{}"/>"#, num(*radius)));
+    } else {
+        match plan {
+            Plan::Sphere { center, radius } => {
+                line(1, r#"<shape type="sphere">"#);
+                line(2, &format!(r#"<point name="center" value="{}"/>"#, vec3(*center)));
+                line(2, &format!(r#"<float name="radius" value="{}"/>"#, num(*radius)));
+            }
+            Plan::Box | Plan::Grid(_) => {
+                let half = 0.5 * (m.bounds_max - m.bounds_min);
+                let centre = 0.5 * (m.bounds_max + m.bounds_min);
+                line(1, r#"<shape type="cube">"#);
+                line(2, r#"<transform name="to_world">"#);
+                line(3, &format!(r#"<scale x="{}" y="{}" z="{}"/>"#, num(half.x), num(half.y), num(half.z)));
+                line(3, &format!(r#"<translate x="{}" y="{}" z="{}"/>"#, num(centre.x), num(centre.y), num(centre.z)));
+                line(2, "</transform>");
+            }
         }
-        Plan::Box | Plan::Grid(_) => {
-            let half = 0.5 * (m.bounds_max - m.bounds_min);
-            let centre = 0.5 * (m.bounds_max + m.bounds_min);
-            line(1, r#"<shape type="cube">"#);
-            line(2, r#"<transform name="to_world">"#);
-            line(3, &format!(r#"<scale x="{}" y="{}" z="{}"/>"#, num(half.x), num(half.y), num(half.z)));
-            line(3, &format!(r#"<translate x="{}" y="{}" z="{}"/>"#, num(centre.x), num(centre.y), num(centre.z)));
-            line(2, "</transform>");
-        }
+        line(2, r#"<bsdf type="null"/>"#);
+        line(2, r#"<ref name="interior" id="medium"/>"#);
+        line(1, "</shape>");
     }
-    match scene.object.as_ref().filter(|o| o.refractive()) {
-        // A smooth dielectric boundary: Fresnel reflection and refraction (src/bsdfs/dielectric.cpp).
-        Some(object) => {
-            line(2, r#"<bsdf type="dielectric">"#);
-            line(3, &format!(r#"<float name="int_ior" value="{}"/>"#, num(object.ior)));
-            line(3, r#"<float name="ext_ior" value="1"/>"#);
-            line(2, "</bsdf>");
-        }
-        None => line(2, r#"<bsdf type="null"/>"#),
-    }
-    line(2, r#"<ref name="interior" id="medium"/>"#);
-    line(1, "</shape>");
 
     sensor_xml(scene, &scene.camera, in_medium_shape(scene, plan, m, scene.camera.origin), &mut line);
 
@@ -502,7 +580,7 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_name: &str, obj_nam
                 line(2, &format!(r#"<point name="position" value="{}"/>"#, vec3(position)));
                 line(2, &rgb("intensity", intensity));
                 if in_medium_shape(scene, plan, m, position) {
-                    line(2, r#"<ref name="medium" id="medium"/>"#);
+                    line(2, &format!(r#"<ref name="medium" id="{}"/>"#, medium_at(scene, position)));
                 }
             }
             Light::Directional { direction, irradiance } => {

@@ -61,8 +61,14 @@ pub struct Object {
     pub bvh: Arc<bvh::Bvh>,
     /// One per `[[object]]` entry, in file order; at least one.
     pub parts: Vec<ObjectPart>,
-    /// Refractive index inside relative to the vacuum outside (eta); 1 = index-matched.
+    /// Refractive index inside object[0] relative to the vacuum outside (eta); 1 =
+    /// index-matched. Every part's when `materials` holds one; else see `materials`.
     pub ior: f32,
+    /// The distinct materials of the entries, object[0]'s first (at most [`MAX_MATERIALS`]);
+    /// one when every entry has the same medium coefficients and index. Each part names its
+    /// own ([`ObjectPart::material`]); the scene's `medium` holds object[0]'s coefficients and
+    /// the density every entry shares.
+    pub materials: Vec<Material>,
     /// One entry whose mesh bounds a convex solid ([`mesh::TriangleMesh::is_convex`]): a
     /// straight path from inside to any point outside crosses the surface once, which `path`'s
     /// manifold next-event estimation (one refraction) needs for a light outside.
@@ -77,6 +83,34 @@ pub struct ObjectPart {
     pub transform: mesh::MeshTransform,
     /// How many of the union's triangles are this part's.
     pub triangles: usize,
+    /// Index of its material in [`Object::materials`].
+    pub material: usize,
+}
+
+/// Most distinct materials the `[[object]]` entries of one scene may have (the scene block
+/// holds a fixed table of them: glsl/include/scene.glsl).
+pub const MAX_MATERIALS: usize = 16;
+
+/// What fills one `[[object]]` and bounds it: the medium's coefficients and the refractive
+/// index. The density (constant, sphere or grid) is the scene's, shared by every entry, and
+/// multiplies `sigma_t` as in a v1 medium.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Material {
+    /// Extinction scale, 1/unit, RGB.
+    pub sigma_t: Vec3,
+    /// Single-scattering albedo sigma_s / sigma_t per channel.
+    pub albedo: Vec3,
+    /// Henyey-Greenstein mean cosine.
+    pub g: f32,
+    /// Refractive index inside relative to the vacuum outside (eta); 1 = index-matched.
+    pub ior: f32,
+}
+
+impl Material {
+    /// The coefficients of `m` with index `ior`.
+    pub fn of(m: &Medium, ior: f32) -> Material {
+        Material { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, ior }
+    }
 }
 
 impl Object {
@@ -88,7 +122,18 @@ impl Object {
     /// Whether the boundary refracts and reflects (ior != 1): paths then meet a smooth
     /// dielectric there; at ior 1 light crosses it unchanged, as a v1 medium's box.
     pub fn refractive(&self) -> bool {
-        self.ior != 1.0
+        self.materials.iter().any(|m| m.ior != 1.0)
+    }
+
+    /// Whether the entries differ in material (coefficients or index): a solver that holds one
+    /// medium cannot render the scene.
+    pub fn several_materials(&self) -> bool {
+        self.materials.len() > 1
+    }
+
+    /// The material of `part`.
+    pub fn material_of(&self, part: usize) -> &Material {
+        &self.materials[self.parts[part].material]
     }
 
     /// Whether `light` lies outside the mesh: a point light outside it, any directional light
@@ -100,6 +145,18 @@ impl Object {
             Light::Directional { .. } => true,
             Light::Environment { .. } => false,
         }
+    }
+
+    /// The material of the object `p` lies inside ([`Object::materials`]), or None outside every
+    /// mesh. Objects are disjoint and none nests, so the nearest surface from a point inside
+    /// one is its own; each triangle carries its object's material.
+    pub fn material_at(&self, p: Vec3) -> Option<usize> {
+        if !self.contains(p) {
+            return None;
+        }
+        let d = Vec3::new(0.5773, 0.5774, 0.5773503).normalize();
+        let hit = self.bvh.intersect(p, d, 0.0, f32::INFINITY)?;
+        Some(self.bvh.triangles[hit.triangle as usize].v0[3].to_bits() as usize)
     }
 
     /// Whether `p` lies inside the mesh: the parity of a ray's crossings (the direction is
@@ -135,6 +192,7 @@ impl std::fmt::Debug for Object {
             .field("parts", &self.parts)
             .field("triangles", &self.mesh.triangles.len())
             .field("ior", &self.ior)
+            .field("materials", &self.materials)
             .finish()
     }
 }
@@ -142,6 +200,7 @@ impl std::fmt::Debug for Object {
 impl PartialEq for Object {
     fn eq(&self, other: &Self) -> bool {
         self.ior == other.ior
+            && self.materials == other.materials
             && self.parts == other.parts
             && self.mesh.positions == other.mesh.positions
             && self.mesh.triangles == other.mesh.triangles

@@ -15,8 +15,8 @@ use super::grid::{load_grid, GridRequest};
 use super::mesh::{load_obj, MeshTransform, TriangleMesh};
 use super::vdb::{load_vdb, VdbRequest};
 use super::{
-    Camera, CameraKind, Density, Light, LoadOptions, Medium, Object, ObjectPart, RenderSettings, Scene, SceneError,
-    MAX_IMAGE_SIZE, MAX_IOR,
+    Camera, CameraKind, Density, Light, LoadOptions, Material, Medium, Object, ObjectPart, RenderSettings, Scene,
+    SceneError, MAX_IMAGE_SIZE, MAX_IOR, MAX_MATERIALS,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -273,7 +273,8 @@ impl Ctx<'_> {
                     let o: RawObject = value.try_into().map_err(|e| self.serde_error(&format!("object[{i}]"), &e))?;
                     raws.push(o);
                 }
-                let (object, bounds_min, bounds_max) = self.objects(&raws, base_dir)?;
+                let (object, medium) = self.objects(&raws, base_dir, opts)?;
+                let (bounds_min, bounds_max) = (medium.bounds_min, medium.bounds_max);
                 self.camera_sees_medium(&camera, &render, bounds_min, bounds_max)?;
                 if object.contains(camera.origin) {
                     return Err(self.invalid(
@@ -285,45 +286,18 @@ impl Ctx<'_> {
                         ),
                     ));
                 }
-                // One medium and one index for every entry (the union is one object): each entry
-                // writes its own, which must be the first's.
-                let medium =
-                    self.medium("object[0].medium", &raws[0].medium, bounds_min, bounds_max, base_dir, opts)?;
-                for (i, o) in raws.iter().enumerate().skip(1) {
-                    if o.ior != raws[0].ior {
-                        return Err(self.invalid(
-                            &format!("object[{i}].ior"),
-                            format!(
-                                "ior = {} differs from object[0]'s {}: the objects of a scene share one index and one \
-                                    medium in this version (objects of different materials are planned); give every \
-                                    object the same ior and medium, or render them in separate scenes",
-                                num32(o.ior),
-                                num32(raws[0].ior)
-                            ),
-                        ));
-                    }
-                    let at = format!("object[{i}].medium");
-                    let m = self.medium(&at, &o.medium, bounds_min, bounds_max, base_dir, opts)?;
-                    if m != medium {
-                        return Err(self.invalid(
-                            &at,
-                            "differs from object[0].medium: the objects of a scene share one medium and one index in \
-                                this version (objects of different materials are planned); give every object the same \
-                                medium table, or render them in separate scenes",
-                        ));
-                    }
-                }
                 (medium, Some(object))
             }
         };
         Ok(Scene { source: self.file.to_path_buf(), render, camera, medium, object, lights })
     }
 
-    /// The `[[object]]` entries' meshes, transforms and index joined into one [`Object`], and
-    /// the bounds the shared medium spans: the given `medium.bounds` (the same in every entry
-    /// that gives them, containing every mesh), else the union of the transformed meshes'
-    /// bounds. The meshes must be disjoint: no two intersect, none lies inside another.
-    fn objects(&self, raws: &[RawObject], base_dir: &Path) -> Result<(Object, Vec3, Vec3), SceneError> {
+    /// The `[[object]]` entries' meshes, transforms and materials joined into one [`Object`],
+    /// and the medium: object[0]'s coefficients and the density every entry shares, over the
+    /// given `medium.bounds` (the same in every entry that gives them, containing every mesh),
+    /// else the union of the transformed meshes' bounds. The meshes must be disjoint: no two
+    /// intersect, none lies inside another.
+    fn objects(&self, raws: &[RawObject], base_dir: &Path, opts: &LoadOptions) -> Result<(Object, Medium), SceneError> {
         let mut parts = Vec::with_capacity(raws.len());
         let mut meshes = Vec::with_capacity(raws.len());
         for (i, o) in raws.iter().enumerate() {
@@ -396,11 +370,50 @@ impl Ctx<'_> {
                 ),
             ));
         }
+        // Each entry's medium: the density (kind, grid, bounds) is one for the scene; the
+        // coefficients and the index make the entry's material, shared by equal entries.
+        let medium = self.medium("object[0].medium", &raws[0].medium, bounds_min, bounds_max, base_dir, opts)?;
+        let mut materials = vec![Material::of(&medium, raws[0].ior)];
+        parts[0].material = 0;
+        for (i, o) in raws.iter().enumerate().skip(1) {
+            let at = format!("object[{i}].medium");
+            let m = self.medium(&at, &o.medium, bounds_min, bounds_max, base_dir, opts)?;
+            let material = Material::of(&m, o.ior);
+            let shared = Medium { sigma_t: medium.sigma_t, albedo: medium.albedo, g: medium.g, ..m };
+            if shared != medium {
+                return Err(self.invalid(
+                    &format!("{at}.density"),
+                    "differs from object[0]'s: the objects of a scene share one density (kind, grid and bounds) \
+                        in this version, while sigma_t, albedo, g and ior may differ per object; give every object \
+                        the same density table, or render them in separate scenes",
+                ));
+            }
+            parts[i].material = match materials.iter().position(|x| *x == material) {
+                Some(k) => k,
+                None if materials.len() < MAX_MATERIALS => {
+                    materials.push(material);
+                    materials.len() - 1
+                }
+                None => {
+                    return Err(self.invalid(
+                        &at,
+                        format!(
+                        "is the {}th distinct material (sigma_t, albedo, g and ior) among the objects; a scene holds \
+                                at most {MAX_MATERIALS}: give some objects the same material",
+                        MAX_MATERIALS + 1
+                    ),
+                    ))
+                }
+            };
+        }
         let mesh = TriangleMesh::union(meshes);
-        let bvh = Bvh::build(&mesh);
+        // Each triangle carries its part's material, which a path inside the part meets there.
+        let tags: Vec<u32> =
+            parts.iter().flat_map(|p| std::iter::repeat(p.material as u32).take(p.triangles)).collect();
+        let bvh = Bvh::build_tagged(&mesh, &tags);
         let convex = parts.len() == 1 && mesh.is_convex();
-        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), parts, ior: raws[0].ior, convex };
-        Ok((object, bounds_min, bounds_max))
+        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), parts, ior: raws[0].ior, materials, convex };
+        Ok((object, medium))
     }
 
     /// Entry `i`'s mesh, placed by its transform, with its index checked.
@@ -435,7 +448,7 @@ impl Ctx<'_> {
             };
             self.invalid(&key("mesh"), format!("`{}`: {e}{hint}", written.display()))
         })?;
-        let part = ObjectPart { file: resolved, transform, triangles: mesh.triangles.len() };
+        let part = ObjectPart { file: resolved, transform, triangles: mesh.triangles.len(), material: 0 };
         Ok((mesh, part))
     }
 

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::gpu::{Buffer, Gpu, Image3d, Pass, Spec, SpecKind, VolumeFormat};
 use crate::scene::bvh::{BvhNode, GpuTriangle};
-use crate::scene::{CameraKind, Density, Light, Scene};
+use crate::scene::{CameraKind, Density, Light, Material, Scene, MAX_MATERIALS};
 
 use super::SolverError;
 
@@ -27,8 +27,23 @@ pub struct SceneHeader {
     pub cam_right: [f32; 4],
     pub cam_up: [f32; 4],
     pub image: [u32; 4],
-    /// The [[object]] (format v2): x = ior inside (1 without one).
+    /// The [[object]] (format v2): x = ior inside object[0] (1 without one).
     pub object: [f32; 4],
+    /// The objects' materials ([`crate::scene::Object::materials`]; a triangle's `v0[3]`
+    /// names its own): the medium's as material 0 in every scene, zeros past the last.
+    pub materials: [GpuMaterial; MAX_MATERIALS],
+}
+
+/// One entry of `SceneHeader::materials` (scene.glsl `ObjectMaterial`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuMaterial {
+    /// rgb extinction scale, 1/unit; w = max over channels.
+    pub sigma_t: [f32; 4],
+    /// rgb albedo; w = g.
+    pub albedo: [f32; 4],
+    /// x = ior inside relative to the vacuum outside.
+    pub ior: [f32; 4],
 }
 
 #[repr(C)]
@@ -248,8 +263,28 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
         cam_up: v4(up, 0.0),
         image: [scene.render.width, scene.render.height, lights.len() as u32, 0],
         object: [scene.object.as_ref().map_or(1.0, |o| o.ior), 0.0, 0.0, 0.0],
+        materials: gpu_materials(scene),
     };
     (header, lights)
+}
+
+/// The scene block's material table: the objects' materials, or the v1 medium's alone.
+fn gpu_materials(scene: &Scene) -> [GpuMaterial; MAX_MATERIALS] {
+    let one = |x: &Material| GpuMaterial {
+        sigma_t: v4(x.sigma_t, x.sigma_t.max_element()),
+        albedo: v4(x.albedo, x.g),
+        ior: [x.ior, 0.0, 0.0, 0.0],
+    };
+    let mut table = [GpuMaterial::zeroed(); MAX_MATERIALS];
+    match &scene.object {
+        Some(o) => {
+            for (slot, x) in table.iter_mut().zip(&o.materials) {
+                *slot = one(x);
+            }
+        }
+        None => table[0] = one(&Material::of(&scene.medium, 1.0)),
+    }
+    table
 }
 
 /// Decide what to model from the scene's features (or everything, with `force_full`).

@@ -306,6 +306,10 @@ impl Lbl {
         set: &LblSettings,
         progress: &dyn Fn(Progress),
     ) -> Result<(RenderOutput, Vec<f32>), SolverError> {
+        // The library's guard (the command line refuses earlier): the lattice holds one medium.
+        if let Some(why) = super::materials_unsupported(self.name(), scene) {
+            return Err(SolverError::Unsupported(why));
+        }
         let mut gs = GpuScene::upload_with(gpu, scene, force_full, super::gpu_scene::MAJORANT_CELL)?;
         // Refraction turned off: the marching and view kernels are specialised without it (both
         // read the modelled set), and the report says the boundary was taken as index-matched.

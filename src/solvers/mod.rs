@@ -90,6 +90,26 @@ pub fn meshes_unsupported(solver: &str, scene: &Scene) -> Option<String> {
     })
 }
 
+/// Why `solver`, which holds one medium, cannot render `scene`: its [[object]] entries differ
+/// in material (sigma_t, albedo, g or ior). None for one material or no object.
+pub fn materials_unsupported(solver: &str, scene: &Scene) -> Option<String> {
+    scene.object.as_ref().filter(|o| o.several_materials()).map(|o| {
+        let differ: Vec<String> = o
+            .parts
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.material != 0)
+            .map(|(i, _)| format!("object[{i}]"))
+            .collect();
+        format!(
+            "{solver} holds one medium, and the scene's objects have {} materials ({} differ from object[0] in sigma_t, \
+                albedo, g or ior); use --solver path, or give every object the same material",
+            o.materials.len(),
+            differ.join(", ")
+        )
+    })
+}
+
 /// A solver: a way of computing radiance toward the camera, with its own knobs and its own
 /// idea of quality. Implementations are unit structs registered in [`SOLVERS`].
 pub trait Solver: Sync {
@@ -129,12 +149,20 @@ pub trait Solver: Sync {
     fn renders_meshes(&self) -> bool {
         false
     }
-    /// Why it refuses `scene`: an [[object]] it cannot trace (checked before any device work).
+    /// Whether it renders [[object]] entries of different materials (each object its own
+    /// medium and index; only `path` so far).
+    fn renders_materials(&self) -> bool {
+        false
+    }
+    /// Why it refuses `scene`: an [[object]] it cannot trace, or objects of several materials
+    /// where it holds one medium (checked before any device work).
     fn mesh_refusal(&self, scene: &Scene) -> Option<String> {
-        if self.renders_meshes() {
-            None
-        } else {
+        if !self.renders_meshes() {
             meshes_unsupported(self.name(), scene)
+        } else if !self.renders_materials() {
+            materials_unsupported(self.name(), scene)
+        } else {
+            None
         }
     }
     /// The seed paper's headline workload for `scatterlab report` (at CI size with `quick`),

@@ -116,8 +116,8 @@ pub const MAX_LIGHT_TRACED: usize = 32;
 /// of its current event, and a tracking loop paused mid-flight).
 pub const STATE_BYTES_PER_PIXEL: u64 = 160;
 pub use super::resumable::MESH_MAX_BUDGET;
-/// The kernels keep the index of the light an event is at in 20 bits.
-pub const MAX_LIGHTS: usize = 1 << 20;
+/// The kernels keep the index of the light an event is at in 16 bits.
+pub const MAX_LIGHTS: usize = 1 << 16;
 /// A paused tracking loop keeps its majorant cell along y and z in 14 bits each
 /// (glsl/include/tracking.glsl); no device's 3D images reach that many voxels (4 per cell).
 pub const MAX_MAJORANT_CELLS: u32 = 1 << 14;
@@ -206,7 +206,7 @@ pub const RESOLVED_STEPS: f64 = 8.0;
 /// themselves stay correct at any thickness (tracking.glsl accumulates sub-step flights).
 pub fn position_resolution_note(scene: &Scene) -> Option<String> {
     let m = &scene.medium;
-    let majorant = m.sigma_t.max_element() as f64 * scene.max_density() as f64;
+    let majorant = scene.max_sigma_t() as f64 * scene.max_density() as f64;
     if !(majorant > 0.0) {
         return None;
     }
@@ -741,6 +741,12 @@ impl Solver for Path {
 
     /// path traces [[object]] meshes (glsl/include/mesh.glsl).
     fn renders_meshes(&self) -> bool {
+        true
+    }
+
+    /// path follows each path into the object it crosses, whose triangles name its material
+    /// (glsl/path/trace.comp path_mat).
+    fn renders_materials(&self) -> bool {
         true
     }
 

@@ -514,6 +514,10 @@ pub fn render_alone(
     v: &ViewSettings,
 ) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
+    // The library's guard (the command line refuses earlier): the view march holds one medium.
+    if let Some(why) = super::materials_unsupported(solver.name(), scene) {
+        return Err(SolverError::Unsupported(why));
+    }
     let mut gs = if solver.renders_meshes() {
         GpuScene::upload_with(gpu, scene, req.force_full, super::gpu_scene::MAJORANT_CELL)?
     } else {
