@@ -15,7 +15,7 @@ use roxmltree::{Document, Node};
 use scatterlab::scene::mesh::{load_obj, MeshTransform};
 use scatterlab::scene::mitsuba::export_mitsuba;
 use scatterlab::scene::mitsuba::{
-    export_warnings, obj_path_for, sphere_fits, sphere_grid_dims, vol_path_for, SPHERE_GRID_RES,
+    export_warnings, obj_path_for, obj_path_for_material, sphere_fits, sphere_grid_dims, vol_path_for, SPHERE_GRID_RES,
 };
 use scatterlab::scene::{CameraKind, Density, Light, LoadOptions, Scene};
 
@@ -234,6 +234,12 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
     assert_eq!(value(film, "string", "component_format"), "float32");
     assert_eq!(attr(only(film, "rfilter"), "type"), "box");
 
+    // Objects of several materials: a medium and a shape per material.
+    if let Some(o) = scene.object.as_ref().filter(|o| o.several_materials()) {
+        check_materials_xml(o, root, dir, files);
+        return;
+    }
+
     // Medium.
     let medium = only(root, "medium");
     assert_eq!(attr(medium, "id"), "medium");
@@ -391,6 +397,39 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
 }
 
 // ----------------------------------------------------------------------------- tests
+
+/// A scene whose objects have several materials (constant density): medium k holds material
+/// k's coefficients, shape k its parts' faces (OUT.mesh.obj, OUT.mesh1.obj, ...), its index
+/// and medium k inside.
+fn check_materials_xml(o: &scatterlab::scene::Object, root: Node, dir: &Path, files: &[PathBuf]) {
+    let media = elements(root, "medium");
+    let shapes = elements(root, "shape");
+    assert_eq!((media.len(), shapes.len()), (o.materials.len(), o.materials.len()));
+    let mut expected = vec![files[0].clone()];
+    for (k, (x, (medium, shape))) in o.materials.iter().zip(media.iter().zip(&shapes)).enumerate() {
+        let id = if k == 0 { "medium".to_string() } else { format!("medium{k}") };
+        assert_eq!(attr(*medium, "id"), id);
+        assert_eq!(attr(*medium, "type"), "homogeneous");
+        assert_eq!(spectrum(*medium, "sigma_t"), x.sigma_t);
+        assert_eq!(spectrum(*medium, "albedo"), x.albedo);
+        assert_eq!(value(only(*medium, "phase"), "float", "g").parse::<f32>().unwrap(), x.g);
+        assert_eq!(attr(named(*shape, "interior"), "id"), id);
+        let bsdf = only(*shape, "bsdf");
+        if x.ior != 1.0 {
+            assert_eq!(attr(bsdf, "type"), "dielectric");
+            assert_eq!(value(bsdf, "float", "int_ior").parse::<f32>().unwrap(), x.ior);
+        } else {
+            assert_eq!(attr(bsdf, "type"), "null");
+        }
+        let obj = obj_path_for_material(&files[0], k);
+        assert_eq!(dir.join(value(*shape, "string", "filename")), obj);
+        let back = load_obj(&obj, &MeshTransform::identity()).expect("the exported mesh loads");
+        let faces: usize = o.parts.iter().filter(|p| p.material == k).map(|p| p.triangles).sum();
+        assert_eq!(back.triangles.len(), faces, "material {k}'s parts");
+        expected.push(obj);
+    }
+    assert_eq!(files, &expected[..]);
+}
 
 #[test]
 fn every_shipped_scene_round_trips() {

@@ -648,7 +648,7 @@ fn scene_never_panics_on_odd_input() {
 
 // ---------------------------------------------------------------------------- shipped scenes
 
-const SHIPPED: [&str; 11] = [
+const SHIPPED: [&str; 12] = [
     "homogeneous-sphere.toml",
     "anisotropic-cube.toml",
     "cloud.toml",
@@ -660,6 +660,7 @@ const SHIPPED: [&str; 11] = [
     "smoke-torus.toml",
     "jade-pair.toml",
     "milk-orb.toml",
+    "jade-and-wax.toml",
 ];
 
 fn load_shipped(name: &str) -> Scene {
@@ -785,6 +786,11 @@ fn scene_shipped_scenes_are_what_they_say() {
     }
     let default = load_shipped("default.toml");
     assert_eq!((default.render.width, default.render.height), (128, 128));
+    // Two materials: jade (ior 1.6) and wax (ior 1.45, g 0.7), one per object.
+    let jw = load_shipped("jade-and-wax.toml");
+    let o = jw.object.as_ref().unwrap();
+    assert_eq!(o.materials.len(), 2);
+    assert_eq!((o.material_of(0).ior, o.material_of(1).ior, o.material_of(1).g), (1.6, 1.45, 0.7));
 }
 
 #[test]

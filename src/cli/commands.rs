@@ -545,7 +545,11 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
         scene.render.spp,
         scene.render.seed
     );
-    outln!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
+    if scene.object.as_ref().is_some_and(|o| o.several_materials()) {
+        outln!("anisotropic  {} (g per material, below)", yn(f.anisotropic));
+    } else {
+        outln!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
+    }
     outln!("chromatic    {}", yn(f.chromatic));
     outln!("density      {}", density_label(&scene.medium.density));
     if let Some(o) = &scene.object {
@@ -554,7 +558,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
             o.describe(),
             o.mesh.triangles.len(),
             if o.convex { ", convex" } else { "" },
-            o.ior,
+            if o.several_materials() { "per material".to_string() } else { o.ior.to_string() },
             if o.refractive() { " (a smooth dielectric boundary)" } else { " (index-matched)" },
             o.bvh.nodes.len(),
             o.bvh.depth,

@@ -94,16 +94,11 @@ pub fn meshes_unsupported(solver: &str, scene: &Scene) -> Option<String> {
 /// in material (sigma_t, albedo, g or ior). None for one material or no object.
 pub fn materials_unsupported(solver: &str, scene: &Scene) -> Option<String> {
     scene.object.as_ref().filter(|o| o.several_materials()).map(|o| {
-        let differ: Vec<String> = o
-            .parts
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.material != 0)
-            .map(|(i, _)| format!("object[{i}]"))
-            .collect();
+        let differ: Vec<String> =
+            o.parts.iter().enumerate().filter(|(_, p)| p.material != 0).map(|(i, _)| format!("object[{i}]")).collect();
         format!(
-            "{solver} holds one medium, and the scene's objects have {} materials ({} differ from object[0] in sigma_t, \
-                albedo, g or ior); use --solver path, or give every object the same material",
+            "{solver} holds one medium, and the scene's objects have {} materials (sigma_t, albedo, g or ior differ \
+                from object[0]'s in {}); use --solver path, or give every object the same material",
             o.materials.len(),
             differ.join(", ")
         )
