@@ -57,7 +57,8 @@ struct MarchState {
     vec4 seg_o;    // its origin; w: where the medium starts along it (a)
     vec4 seg_d;    // its unit direction; w: the medium's length along it (len)
     vec4 seg_x;    // x: t of the surface that ends it; y: that triangle, z: surface events,
-                   // w: phase (uint bits: CHAIN_CAMERA, CHAIN_INSIDE, CHAIN_OUTSIDE)
+                   // w: phase (uint bits: CHAIN_CAMERA, CHAIN_INSIDE, CHAIN_OUTSIDE) and, from
+                   // bit 4, the material of the object the chain is in (seg_mat)
 };
 layout(std430, binding = 5) buffer State { MarchState state[]; };
 // The multiply scattered energy per voxel ([c * V + v]) of a solver's volume (`lbl`'s lattice,
@@ -161,15 +162,21 @@ float phase_eval(float g, float c) { return ANISOTROPIC ? hg_eval(g, c) : INV_4P
 
 // Optical depth (per channel) from p along w over [0, t_far], by the same piecewise-constant
 // rule; exact for constant and sphere media where the chord is integrated analytically.
-vec3 box_depth(vec3 p, vec3 w, float t_far) {
+// The material of the object the camera ray's chain is in (scene.materials; 0 outside, and in
+// a scene of one material). Declared here for optical_depth; kept with the chain's state.
+uint seg_mat = 0u;
+
+vec3 box_depth_of(vec3 sigma_t, vec3 p, vec3 w, float t_far) {
     if (DENSITY_KIND != DENSITY_GRID) {
         vec2 iv = medium_interval(p, w);
         float a = max(iv.x, 0.0);
         float b = min(iv.y, t_far);
-        return a < b ? scene.sigma_t.xyz * (b - a) : vec3(0.0);
+        return a < b ? sigma_t * (b - a) : vec3(0.0);
     }
-    return scene.sigma_t.xyz * density_depth(p, w, t_far, pc.shadow_step);
+    return sigma_t * density_depth(p, w, t_far, pc.shadow_step);
 }
+
+vec3 box_depth(vec3 p, vec3 w, float t_far) { return box_depth_of(scene.sigma_t.xyz, p, w, t_far); }
 
 // Surface crossings a shadow ray follows through the mesh before it is taken as blocked.
 const uint MAX_CROSSINGS = 16u;
@@ -186,9 +193,11 @@ const float OPAQUE_DEPTH = 80.0;
 // 5.2), so light reaching p from outside gains ior^2, which the camera's exit divides out
 // again. The Fresnel and index factors are returned as part of the depth (-ln of their
 // product), so the thick-step fit (step_transmittance) weighs them as it weighs the depth.
+// With objects of several materials, each inside interval takes the extinction of the object
+// it crosses and each surface its object's index: the triangle that ends an inside interval is
+// its object's (objects are disjoint and do not nest).
 vec3 optical_depth(vec3 p, vec3 w, float t_far) {
     if (!HAS_MESH) return box_depth(p, w, t_far);
-    float ior = scene.object.x;
     vec3 tau = vec3(0.0);
     float factor = 1.0;
     bool inside = true;
@@ -199,9 +208,13 @@ vec3 optical_depth(vec3 p, vec3 w, float t_far) {
         uint tri;
         bool hit = mesh_hit_tri(p, w, t, t_far, th, tri);
         float te = hit ? th : t_far;
-        if (inside) tau += box_depth(p + w * t, w, te - t);
+        // The interval's object: p's (the chain's, seg_mat) up to the first surface, else the
+        // one whose surface ends it.
+        uint mat = e == 0u || !hit ? seg_mat : triangle_material(tri);
+        if (inside) tau += box_depth_of(scene.materials[mat].sigma_t.xyz, p + w * t, w, te - t);
         if (!hit) return tau - vec3(log(max(factor, 1e-30)));
         if (REFRACTIVE) {
+            float ior = scene.materials[triangle_material(tri)].ior.x;
             float cos_t;
             float F = fresnel_dielectric(abs(dot(w, triangle_normal(tri))), inside ? ior : 1.0 / ior, cos_t);
             if (F >= 1.0) return vec3(OPAQUE_DEPTH);
@@ -267,7 +280,7 @@ float env_norm_g(vec3 d, float g) {
     return s * (4.0 * PI / float(pc.env_dirs));
 }
 
-float env_norm(vec3 d) { return env_norm_g(d, scene.albedo.w); }
+float env_norm(vec3 d) { return env_norm_g(d, scene.materials[seg_mat].albedo.w); }
 
 // Octaves: the phase-weighted transmittance toward a light at cosine `c` through optical
 // depth `tau`, sum_{i < N} b^i p(c; g c^i) exp(-a^i tau) / n_i, where n_i is octave i's
@@ -357,7 +370,7 @@ vec3 depth_from(uint unit, bool point, vec3 lpos, vec3 q, vec3 wi) {
 // In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T, for the step
 // [t0, t1] of the camera ray o + d t that p samples, whose extinction is b = sigma_t dt.
 vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, float norm, float onorm[8]) {
-    float g = scene.albedo.w;
+    float g = scene.materials[seg_mat].albedo.w;
     uint unit = j;
     for (uint i = 0u; i < scene.image.z; ++i) {
         iters++;
@@ -480,7 +493,8 @@ bool chain_event(inout vec3 T, inout vec3 L, vec3 env) {
         // now, and is taken to have left unrefracted, with the exit's (n_i / n_t)^2 and no
         // Fresnel loss. Dropping it instead lost up to 70% of a few rim pixels of the empty
         // icosphere.
-        L += T * (inside && REFRACTIVE ? scene.object.x * scene.object.x : 1.0) * env;
+        float n_in = scene.materials[seg_mat].ior.x;
+        L += T * (inside && REFRACTIVE ? n_in * n_in : 1.0) * env;
         return false;
     }
     seg_events++;
@@ -491,11 +505,13 @@ bool chain_event(inout vec3 T, inout vec3 L, vec3 env) {
     float eps = surface_eps(q);
     bool entering = dot(d, n) < 0.0;
     vec3 nf = entering ? n : -n;   // facing the side the ray comes from
+    // A chain that crosses into an object takes on its material (the triangle's).
+    if (entering) seg_mat = triangle_material(seg_tri);
     if (!REFRACTIVE) {
         chain_segment(q - nf * eps, d, entering);
         return true;
     }
-    float ior = scene.object.x;
+    float ior = scene.materials[triangle_material(seg_tri)].ior.x;
     float eta, cos_i, cos_t;
     float F = surface_fresnel(d, nf, entering, ior, eta, cos_i, cos_t);
     vec3 r = normalize(reflect(d, nf));
@@ -570,7 +586,10 @@ void main() {
     }
     // Light units per step; none when nothing scatters (a pure absorber or an empty object needs
     // no shadow rays).
-    uint units = max3(scene.albedo.xyz) > 0.0 && max3(scene.sigma_t.xyz) > 0.0 && pc.ms_only == 0u ? unit_count() : 0u;
+    bool scatters = false;
+    for (uint m = 0u; m < uint(MAX_MATERIALS); ++m)
+        scatters = scatters || (max3(scene.materials[m].albedo.xyz) > 0.0 && scene.materials[m].sigma_t.w > 0.0);
+    uint units = scatters && pc.ms_only == 0u ? unit_count() : 0u;
     if (pc.ms_only != 0u) env = vec3(0.0);
 
     if (HAS_MESH) {
@@ -581,7 +600,8 @@ void main() {
         seg_tend = st.seg_x.x;
         seg_tri = floatBitsToUint(st.seg_x.y);
         seg_events = floatBitsToUint(st.seg_x.z);
-        seg_phase = floatBitsToUint(st.seg_x.w);
+        seg_phase = floatBitsToUint(st.seg_x.w) & 15u;
+        seg_mat = floatBitsToUint(st.seg_x.w) >> 4u;
     }
 
     while (iters < pc.budget && k < total) {
@@ -599,6 +619,7 @@ void main() {
             if (seg_phase == CHAIN_CAMERA) {
                 camera_ray(vec2(px) + sub, o, d);
                 seg_events = 0u;
+                seg_mat = 0u;
                 chain_segment(o, d, false);
                 continue;
             }
@@ -647,7 +668,7 @@ void main() {
             }
             float t0 = a + float(i) * dt;
             // The step's extinction, which only the thick-step fit weighs.
-            vec3 b = STEP_FIT ? scene.sigma_t.xyz * density_at(p) * dt : vec3(0.0);
+            vec3 b = STEP_FIT ? scene.materials[seg_mat].sigma_t.xyz * density_at(p) * dt : vec3(0.0);
             if (pc.shadow_dims.x == 0u) {
                 // Marched shadows: one unit per loop iteration, so a dispatch can stop after any.
                 S += unit_inscatter(o, d, p, t0, t0 + dt, b, j, norm, onorm);
@@ -662,9 +683,9 @@ void main() {
         }
         // Close the step: integral over it of T(s) sigma_s ds with sigma_t held constant is
         // albedo (1 - e^{-sigma_t dt}), so a thick step never scatters more than it extinguishes.
-        vec3 st_ = scene.sigma_t.xyz * density_at(p);
+        vec3 st_ = scene.materials[seg_mat].sigma_t.xyz * density_at(p);
         vec3 seg_T = exp(-st_ * dt);
-        L += T * scene.albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p, d));
+        L += T * scene.materials[seg_mat].albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p, d));
         T *= seg_T;
         S = vec3(0.0);
         j = 0u;
@@ -672,7 +693,7 @@ void main() {
     }
     state[pixel] = MarchState(vec4(T, uintBitsToFloat(k)), vec4(L, uintBitsToFloat(i)), vec4(S, uintBitsToFloat(j)), vec4(sum, norm),
                               vec4(seg_o, seg_a), vec4(seg_d, seg_len),
-                              vec4(seg_tend, uintBitsToFloat(seg_tri), uintBitsToFloat(seg_events), uintBitsToFloat(seg_phase)));
+                              vec4(seg_tend, uintBitsToFloat(seg_tri), uintBitsToFloat(seg_events), uintBitsToFloat(seg_phase | (seg_mat << 4u))));
     if (k >= total) {
         vec3 Lp = sum / float(total);
         // Never let a NaN/Inf leave the pass; count it so the host reports it.

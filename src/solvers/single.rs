@@ -70,6 +70,13 @@ impl Solver for Single {
         true
     }
 
+    /// The view march follows the camera ray's chain into each object with its material, and
+    /// a shadow ray through each object it crosses with that object's (glsl/view/march.comp
+    /// seg_mat, optical_depth).
+    fn renders_materials(&self) -> bool {
+        true
+    }
+
     fn stability(&self) -> Vec<Variant> {
         vec![Variant::new("", &[("single.env_dirs", "16")])]
     }

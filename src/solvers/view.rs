@@ -143,7 +143,7 @@ pub const STEP_FIT_TAU: f32 = 0.2;
 
 /// Whether a step of `step` scene units can be thicker than [`STEP_FIT_TAU`] in this medium.
 pub fn step_fit(scene: &Scene, step: f32) -> bool {
-    scene.medium.sigma_t.max_element() * scene.max_density() * step > STEP_FIT_TAU
+    scene.max_sigma_t() * scene.max_density() * step > STEP_FIT_TAU
 }
 /// Most octaves the kernel sums.
 pub const MAX_OCTAVES: u32 = 8;
@@ -514,8 +514,8 @@ pub fn render_alone(
     v: &ViewSettings,
 ) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
-    // The library's guard (the command line refuses earlier): the view march holds one medium.
-    if let Some(why) = super::materials_unsupported(solver.name(), scene) {
+    // The library's guard (the command line refuses earlier): a solver that holds one medium.
+    if let Some(why) = super::materials_unsupported(solver.name(), scene).filter(|_| !solver.renders_materials()) {
         return Err(SolverError::Unsupported(why));
     }
     let mut gs = if solver.renders_meshes() {
