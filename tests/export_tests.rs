@@ -298,13 +298,13 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
     match &m.density {
         Density::Constant => {
             assert_eq!(attr(medium, "type"), "homogeneous");
-            assert_eq!(spectrum(medium, "sigma_t"), m.sigma_t);
+            assert_homogeneous_sigma_t(medium, m.sigma_t);
             check_bounds_cube();
             assert_eq!(files.len(), 1, "a homogeneous medium writes the XML only");
         }
         Density::Sphere { center, radius } if sphere_fits_bounds => {
             assert_eq!(attr(medium, "type"), "homogeneous");
-            assert_eq!(spectrum(medium, "sigma_t"), m.sigma_t);
+            assert_homogeneous_sigma_t(medium, m.sigma_t);
             assert_eq!(attr(shape, "type"), "sphere");
             assert_eq!(parse_vec(value(shape, "point", "center")), *center);
             assert_eq!(value(shape, "float", "radius").parse::<f32>().unwrap(), *radius);
@@ -398,6 +398,20 @@ fn check_xml(scene: &Scene, doc: &Document, dir: &Path, files: &[PathBuf]) {
 
 // ----------------------------------------------------------------------------- tests
 
+/// A homogeneous medium's extinction: a grey one as a float; a chromatic one as an <rgb> of at
+/// most 1 (Mitsuba refuses an <rgb> above 1, reading it as a reflectance) times `scale`.
+fn assert_homogeneous_sigma_t(medium: Node, sigma_t: Vec3) {
+    if grey(sigma_t) {
+        assert_eq!(named(medium, "sigma_t").tag_name().name(), "float");
+        assert_eq!(spectrum(medium, "sigma_t"), sigma_t);
+        return;
+    }
+    let colour = spectrum(medium, "sigma_t");
+    assert!(colour.max_element() <= 1.0, "an <rgb> of at most 1: {colour}");
+    let scale = value(medium, "float", "scale").parse::<f32>().unwrap();
+    assert!((colour * scale - sigma_t).abs().max_element() <= 1e-6 * sigma_t.max_element(), "{colour} x {scale}");
+}
+
 /// A scene whose objects have several materials (constant density): medium k holds material
 /// k's coefficients, shape k its parts' faces (OUT.mesh.obj, OUT.mesh1.obj, ...), its index
 /// and medium k inside.
@@ -410,7 +424,7 @@ fn check_materials_xml(o: &scatterlab::scene::Object, root: Node, dir: &Path, fi
         let id = if k == 0 { "medium".to_string() } else { format!("medium{k}") };
         assert_eq!(attr(*medium, "id"), id);
         assert_eq!(attr(*medium, "type"), "homogeneous");
-        assert_eq!(spectrum(*medium, "sigma_t"), x.sigma_t);
+        assert_homogeneous_sigma_t(*medium, x.sigma_t);
         assert_eq!(spectrum(*medium, "albedo"), x.albedo);
         assert_eq!(value(only(*medium, "phase"), "float", "g").parse::<f32>().unwrap(), x.g);
         assert_eq!(attr(named(*shape, "interior"), "id"), id);
@@ -497,7 +511,9 @@ fn chromatic_constant_medium_is_rgb() {
     );
     let (_dir, xml, _files) = export_and_check(&scene);
     let text = fs::read_to_string(xml).unwrap();
-    assert!(text.contains(r#"<rgb name="sigma_t" value="1, 3, 9"/>"#), "{text}");
+    // Mitsuba refuses an <rgb> above 1 here (a reflectance): the colour over its peak, times scale.
+    assert!(text.contains(r#"<rgb name="sigma_t" value="0.11111111, 0.33333334, 1"/>"#), "{text}");
+    assert!(text.contains(r#"<float name="scale" value="9"/>"#), "{text}");
 }
 
 #[test]

@@ -17,8 +17,8 @@ fn scene_kernels_share_a_layout() {
         assert_eq!(r.bindings[&2].0, BindingKind::StorageBuffer, "{}: binding 2 is the majorant grid", src.name);
     }
     // The scene block header is 13 vec4s in scene.glsl (the 13th: the [[object]]'s ior), then
-    // the material table: MAX_MATERIALS entries of 3 vec4s.
-    assert_eq!(std::mem::size_of::<SceneHeader>(), (13 + 3 * scatterlab::scene::MAX_MATERIALS) * 16);
+    // the material table (MAX_MATERIALS entries of 3 vec4s) and the density fields' (of 5).
+    assert_eq!(std::mem::size_of::<SceneHeader>(), (13 + 8 * scatterlab::scene::MAX_MATERIALS) * 16);
 }
 
 #[test]

@@ -101,11 +101,15 @@ fn several_objects_errors_are_one_line_and_name_the_entry() {
     );
     let e = load_err(&big);
     assert!(e.contains("object[1].mesh") && e.contains("nest"), "{e}");
-    // Materials may differ; the density is one for the scene.
+    // Materials may differ, density included: an entry of another density table has a field
+    // of its own over its own mesh's bounds.
     let sphere_density =
         "sigma_t = 2.0\nalbedo = 0.8\ndensity = { kind = \"sphere\", center = [0.6, 0.0, 0.0], radius = 0.3 }";
-    let e = load_err(&with(entry(BLOB, 0.45, [0.6, 0.0, 0.0], "1.5"), sphere_density));
-    assert!(e.contains("object[1].medium.density") && e.contains("share one density"), "{e}");
+    let s = scene(&with(entry(BLOB, 0.45, [0.6, 0.0, 0.0], "1.5"), sphere_density));
+    let o = s.object.as_ref().unwrap();
+    assert_eq!((o.materials.len(), o.fields.len()), (2, 2));
+    assert!(o.fields[1].bounds_min.x > 0.0 && o.fields[0].bounds_max.x < 0.0, "each field spans its own mesh");
+    assert!(matches!(o.fields[1].density, scatterlab::scene::Density::Sphere { .. }));
     // At most MAX_MATERIALS distinct materials: the 17th is refused, naming it; repeats share.
     let many: Vec<(String, String)> = (0..=MAX_MATERIALS)
         .map(|i| {

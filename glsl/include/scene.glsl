@@ -20,6 +20,17 @@ struct ObjectMaterial {
     vec4 ior;        // x: refractive index inside, relative to the vacuum outside
 };
 
+// One density field (src/solvers/gpu_scene.rs GpuField): a density kind over a box; a grid's
+// voxels lie in the density atlas from z slice bounds_max.w on, its majorant cells in maj[]
+// from grid_dims.w on. Field 0 is the medium's in every scene (the header's box and density).
+struct DensityField {
+    vec4 bounds_min;   // xyz: the box; w: the density kind (uint bits)
+    vec4 bounds_max;   // xyz: the box; w: the first z slice in the atlas (uint bits)
+    vec4 sphere;       // sphere density: centre xyz, radius w
+    uvec4 grid_dims;   // grid voxels xyz; w: the first majorant cell
+    uvec4 maj_dims;    // majorant cells xyz; w: voxels per cell edge
+};
+
 struct Light {
     vec4 pos_kind;   // point: position; directional: travel direction (unit); w = kind
     vec4 value;      // rgb: intensity W/sr | irradiance W/m^2 | radiance W/(m^2 sr)
@@ -38,20 +49,35 @@ layout(std430, binding = SCENE_BINDING) readonly buffer SceneBlock {
     vec4 cam_right;      // unit
     vec4 cam_up;         // unit
     uvec4 image;         // width, height, light count, 0
-    vec4 object;         // the [[object]] (format v2): x = ior inside object[0] (1 without one)
+    vec4 object;         // the [[object]] (format v2): x = ior inside object[0] (1 without one);
+                         // y = the number of density fields (0 or 1: the header's box and density)
     ObjectMaterial materials[MAX_MATERIALS];   // the objects' materials; [0] is the medium's in every scene
+    DensityField fields[MAX_MATERIALS];        // the materials' density fields (ior.y); [0] the medium's
     Light lights[];
 } scene;
 
-// The material of the medium a tracked ray is in (an index into scene.materials; mesh.glsl's
-// triangles name theirs): segments_next's majorant scales by its extinction. 0, the medium's,
-// unless a kernel that follows paths across several objects sets it (path/trace).
-uint medium_mat = 0u;
 
 // Specialisation: the kernels compile only the density kind and physics a scene needs.
 layout(constant_id = 0) const uint DENSITY_KIND = 0u;
 layout(constant_id = 1) const bool CHROMATIC = true;
 layout(constant_id = 2) const bool ANISOTROPIC = true;
+// The objects have several density fields (scene.fields): density, support and majorant are
+// looked up per field. False for every scene of one field, whose kernels read the header's.
+layout(constant_id = 12) const bool FIELDS = false;
+
+// The material of the medium a tracked ray is in (an index into scene.materials; mesh.glsl's
+// triangles name theirs): its density field is the one medium_interval, density_at and the
+// majorant segments read, and segments_next's majorant scales by its extinction. 0, the
+// medium's, unless a kernel that follows paths across several objects sets it (path/trace,
+// view/march).
+uint medium_mat = 0u;
+
+// The density field of medium_mat, and its kind.
+uint medium_field() { return min(floatBitsToUint(scene.materials[medium_mat].ior.y), uint(MAX_MATERIALS - 1)); }
+uint field_kind(DensityField f) { return floatBitsToUint(f.bounds_min.w); }
+// Whether field fi is the header's box and density: always in a scene of one field (FIELDS
+// false, which compiles the header's code alone, bit for bit as before fields existed).
+bool header_field(uint fi) { return !FIELDS || (fi == 0u && scene.object.y <= 1.0); }
 
 layout(r32f, binding = DENSITY_BINDING) uniform readonly image3D density_grid;
 layout(std430, binding = MAJORANT_BINDING) readonly buffer MajorantGrid { float maj[]; };
@@ -83,7 +109,8 @@ void camera_ray(vec2 px, out vec3 o, out vec3 d) {
 bool pixel_misses_medium(uvec2 px) {
     vec3 c = 0.5 * (scene.bounds_min.xyz + scene.bounds_max.xyz);
     float r = 0.5 * length(scene.bounds_max.xyz - scene.bounds_min.xyz);
-    if (DENSITY_KIND == DENSITY_SPHERE && scene.sphere.w < r) { c = scene.sphere.xyz; r = scene.sphere.w; }
+    // (Objects of several density fields leave the header's sphere 0: the box bounds them.)
+    if (DENSITY_KIND == DENSITY_SPHERE && scene.sphere.w > 0.0 && scene.sphere.w < r) { c = scene.sphere.xyz; r = scene.sphere.w; }
     r = r * 1.001 + 1e-6;   // float rounding of the rays: keep the test conservative
     vec2 p = vec2(px);
     vec3 o, d, oc, dc;
@@ -106,11 +133,30 @@ bool pixel_misses_medium(uvec2 px) {
     return dist > r + 1.001 * length(oc - o) + 1e-6;
 }
 
-// Interval of the ray inside the medium's support (box, and the sphere for sphere density).
-vec2 medium_interval(vec3 o, vec3 d) {
+// Interval of the ray inside the whole medium's support: the header's box (every density
+// field's, for objects of several fields), and its sphere for a sphere density.
+vec2 scene_interval(vec3 o, vec3 d) {
     vec2 t = ray_box(o, d, scene.bounds_min.xyz, scene.bounds_max.xyz);
-    if (DENSITY_KIND == DENSITY_SPHERE) {
+    if (DENSITY_KIND == DENSITY_SPHERE && scene.sphere.w > 0.0) {
         vec2 s = ray_sphere(o, d, scene.sphere.xyz, scene.sphere.w);
+        t = vec2(max(t.x, s.x), min(t.y, s.y));
+    }
+    return t;
+}
+
+// Interval of the ray inside the medium's support (box, and the sphere for sphere density):
+// medium_mat's density field.
+vec2 medium_interval(vec3 o, vec3 d) {
+    if (!FIELDS) return scene_interval(o, d);
+    uint fi = medium_field();
+    // Field 0 is the header's box and density: the same code as before fields existed, so
+    // scenes of one field render bit for bit as they did (the compiler contracts the other
+    // form's arithmetic differently: 1-2 ulp).
+    if (header_field(fi)) return scene_interval(o, d);
+    DensityField f = scene.fields[fi];
+    vec2 t = ray_box(o, d, f.bounds_min.xyz, f.bounds_max.xyz);
+    if (DENSITY_KIND != DENSITY_CONSTANT && field_kind(f) == DENSITY_SPHERE) {
+        vec2 s = ray_sphere(o, d, f.sphere.xyz, f.sphere.w);
         t = vec2(max(t.x, s.x), min(t.y, s.y));
     }
     return t;
@@ -131,17 +177,13 @@ vec3 box_voxel_coord(vec3 p, ivec3 n) {
     return (p - scene.bounds_min.xyz) / (scene.bounds_max.xyz - scene.bounds_min.xyz) * vec3(n) - 0.5;
 }
 
-// Density in [0, 1+] at world position p (docs/design.md: voxel-centred, trilinear, clamped).
-float density_at(vec3 p) {
-    if (DENSITY_KIND == DENSITY_CONSTANT) return 1.0;
-    if (DENSITY_KIND == DENSITY_SPHERE) {
-        vec3 q = p - scene.sphere.xyz;
-        return dot(q, q) <= scene.sphere.w * scene.sphere.w ? 1.0 : 0.0;
-    }
-    ivec3 n = ivec3(scene.grid_dims.xyz);
+// The trilinear lookup of voxel coordinate g on the grid of n voxels from z slice z0 on.
+float grid_lookup(vec3 g, ivec3 n, int z0) {
     ivec3 i0, i1;
     vec3 f;
-    grid_corners(box_voxel_coord(p, n), n, i0, i1, f);
+    grid_corners(g, n, i0, i1, f);
+    i0.z += z0;
+    i1.z += z0;
     float c000 = imageLoad(density_grid, ivec3(i0.x, i0.y, i0.z)).r;
     float c100 = imageLoad(density_grid, ivec3(i1.x, i0.y, i0.z)).r;
     float c010 = imageLoad(density_grid, ivec3(i0.x, i1.y, i0.z)).r;
@@ -154,10 +196,47 @@ float density_at(vec3 p) {
                mix(mix(c001, c101, f.x), mix(c011, c111, f.x), f.y), f.z);
 }
 
+// The header's density (a scene of one field), in the arithmetic it always had.
+float header_density(vec3 p) {
+    if (DENSITY_KIND == DENSITY_CONSTANT) return 1.0;
+    if (DENSITY_KIND == DENSITY_SPHERE) {
+        vec3 q = p - scene.sphere.xyz;
+        return dot(q, q) <= scene.sphere.w * scene.sphere.w ? 1.0 : 0.0;
+    }
+    ivec3 n = ivec3(scene.grid_dims.xyz);
+    return grid_lookup(box_voxel_coord(p, n), n, 0);
+}
+
+// Density in [0, 1+] at world position p (docs/design.md: voxel-centred, trilinear, clamped):
+// medium_mat's density field (a grid's voxels from its first slice in the atlas on). A scene of
+// one field reads the header's, bit for bit as before fields existed (the field form's
+// arithmetic compiles 1-2 ulp differently).
+float density_at(vec3 p) {
+    if (DENSITY_KIND == DENSITY_CONSTANT) return 1.0;
+    if (!FIELDS) return header_density(p);
+    uint fi = medium_field();
+    if (header_field(fi)) return header_density(p);
+    DensityField fd = scene.fields[fi];
+    uint kind = field_kind(fd);
+    if (kind == DENSITY_CONSTANT) return 1.0;
+    if (kind == DENSITY_SPHERE) {
+        vec3 q = p - fd.sphere.xyz;
+        return dot(q, q) <= fd.sphere.w * fd.sphere.w ? 1.0 : 0.0;
+    }
+    ivec3 n = ivec3(fd.grid_dims.xyz);
+    vec3 g = (p - fd.bounds_min.xyz) / (fd.bounds_max.xyz - fd.bounds_min.xyz) * vec3(n) - 0.5;
+    return grid_lookup(g, n, int(floatBitsToUint(fd.bounds_max.w)));
+}
+
 // Density with the medium's box applied: 0 outside the bounds (vacuum), for callers that
 // sample anywhere (lattice resampling, photon marching) rather than inside a ray's interval.
 float medium_density(vec3 p) {
-    if (any(lessThan(p, scene.bounds_min.xyz)) || any(greaterThan(p, scene.bounds_max.xyz))) return 0.0;
+    if (!FIELDS) {
+        if (any(lessThan(p, scene.bounds_min.xyz)) || any(greaterThan(p, scene.bounds_max.xyz))) return 0.0;
+        return density_at(p);
+    }
+    DensityField f = scene.fields[medium_field()];
+    if (any(lessThan(p, f.bounds_min.xyz)) || any(greaterThan(p, f.bounds_max.xyz))) return 0.0;
     return density_at(p);
 }
 
@@ -181,12 +260,14 @@ Segments segments_begin(vec3 o, vec3 d, float t0, float t1) {
     s.org = o; s.dir = d; s.t_min = t0; s.t_max = t1; s.done = !(t0 < t1);
     s.next_t = vec3(INF); s.delta_t = vec3(0.0); s.step = ivec3(0); s.cell = ivec3(0);
     if (DENSITY_KIND != DENSITY_GRID || s.done) return s;
-    vec3 ext = scene.bounds_max.xyz - scene.bounds_min.xyz;
-    vec3 m = vec3(scene.maj_dims.xyz);
-    vec3 go = (o + d * t0 - scene.bounds_min.xyz) / ext * m;
+    DensityField f = scene.fields[medium_field()];
+    if (field_kind(f) != DENSITY_GRID) return s;
+    vec3 ext = f.bounds_max.xyz - f.bounds_min.xyz;
+    vec3 m = vec3(f.maj_dims.xyz);
+    vec3 go = (o + d * t0 - f.bounds_min.xyz) / ext * m;
     vec3 gd = d / ext * m;
     for (int a = 0; a < 3; ++a) {
-        s.cell[a] = clamp(int(floor(go[a])), 0, int(scene.maj_dims[a]) - 1);
+        s.cell[a] = clamp(int(floor(go[a])), 0, int(f.maj_dims[a]) - 1);
         if (gd[a] > 0.0) {
             s.next_t[a] = t0 + (float(s.cell[a] + 1) - go[a]) / gd[a];
             s.delta_t[a] = 1.0 / gd[a];
@@ -203,15 +284,16 @@ Segments segments_begin(vec3 o, vec3 d, float t0, float t1) {
 // Next segment: returns false when the ray has left the medium.
 bool segments_next(inout Segments s, out float seg_t0, out float seg_t1, out float sigma_maj) {
     if (s.done) return false;
-    if (DENSITY_KIND != DENSITY_GRID) {
+    DensityField f = scene.fields[medium_field()];
+    if (DENSITY_KIND != DENSITY_GRID || field_kind(f) != DENSITY_GRID) {
         seg_t0 = s.t_min; seg_t1 = s.t_max; sigma_maj = scene.materials[medium_mat].sigma_t.w;
         s.done = true;
         return true;
     }
     int axis = (s.next_t.x < s.next_t.y) ? ((s.next_t.x < s.next_t.z) ? 0 : 2) : ((s.next_t.y < s.next_t.z) ? 1 : 2);
     float t_end = min(s.t_max, s.next_t[axis]);
-    uvec3 md = scene.maj_dims.xyz;
-    uint idx = uint(s.cell.x) + md.x * (uint(s.cell.y) + md.y * uint(s.cell.z));
+    uvec3 md = f.maj_dims.xyz;
+    uint idx = f.grid_dims.w + uint(s.cell.x) + md.x * (uint(s.cell.y) + md.y * uint(s.cell.z));
     seg_t0 = s.t_min; seg_t1 = t_end; sigma_maj = maj[idx] * scene.materials[medium_mat].sigma_t.w;
     s.t_min = t_end;
     if (s.next_t[axis] >= s.t_max) {

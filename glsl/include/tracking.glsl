@@ -120,6 +120,7 @@ bool next_inside_interval(vec3 p, vec3 w, float t_end, float t_far, out vec2 iv)
 #endif
 
 void track_start(vec3 p, vec3 w, float t_far, bool clip) {
+    medium_mat = path_mat;   // the ray starts in the path's medium (its density field's box)
     vec2 iv = medium_interval(p, w);
     iv.x = max(iv.x, 0.0);
 #ifdef MESH_NODES_BINDING

@@ -158,6 +158,7 @@ float eq_pdf(Equiangular e, float t) {
 float eq_weight(Equiangular e, vec3 o, vec3 d, float t_in, float t) {
     float pe = eq_pdf(e, t);
     if (pe <= 0.0) return 0.0;
+    medium_mat = path_mat;
     float s = scene.materials[path_mat].sigma_t.w * density_at(o + d * t);
     float pd = s * exp(-s * max(0.0, t - t_in));
     if (!(pd > 0.0)) return 1.0;
@@ -208,6 +209,7 @@ bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
         float t = clamp(e.delta + e.D * tan(mix(e.th_a, e.th_b, u)), t_in, t_out);
         float pdf = eq_pdf(e, t);
         vec3 x = o + d * t;
+        medium_mat = path_mat;   // a transmittance of the previous light may have moved it
         vec3 ss = scene.materials[path_mat].sigma_t.xyz * density_at(x) * scene.materials[path_mat].albedo.xyz;
         if (!(pdf > 0.0) || max3(ss) <= 0.0) continue;
         vec3 to = c - x;
@@ -354,6 +356,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     uint light_count = scene.image.z;
     float g = scene.materials[path_mat].albedo.w;
     // The ray's segment in the medium, as the free flight sees it; kept for the MIS weights.
+    medium_mat = path_mat;
     vec2 seg = medium_interval(o, d);
     seg.x = max(seg.x, 0.0);
     // With a mesh: the medium is inside it, so the segment ends at the next surface, and a ray
@@ -562,7 +565,7 @@ void main() {
                 rng = rng_init(pc.seed_lo, pc.seed_hi, pixel, k);
                 vec2 jitter = rnd2(rng);   // box filter: uniform over the pixel's area
                 camera_ray(vec2(px) + jitter, o, d);
-                vec2 iv = medium_interval(o, d);
+                vec2 iv = scene_interval(o, d);
                 if (max(iv.x, 0.0) < iv.y) { hits = true; break; }
                 iters++;
                 add_samples(pixel, env_seen, 1.0);

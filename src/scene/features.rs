@@ -2,7 +2,7 @@
 
 use glam::Vec3;
 
-use super::{Density, Features, Light, Medium, Scene};
+use super::{Density, DensityField, Features, Light, Medium, Scene};
 
 impl Scene {
     /// What this scene requires of a solver.
@@ -19,12 +19,13 @@ impl Scene {
                 Light::Point { position, .. } => self.inside_medium(position),
                 _ => false,
             }),
-            homogeneous: matches!(m.density, Density::Constant),
+            homogeneous: self.fields().iter().all(|f| matches!(f.density, Density::Constant)),
             has_environment: self.lights.iter().any(|l| matches!(l, Light::Environment { .. })),
-            grid_dims: match &m.density {
+            // The first grid's (objects may have several fields).
+            grid_dims: self.fields().iter().find_map(|f| match &f.density {
                 Density::Grid(grid) => Some(grid.dims),
                 _ => None,
-            },
+            }),
         }
     }
 
@@ -39,8 +40,24 @@ impl Scene {
     /// extinction.
     pub fn density_at(&self, p: Vec3) -> f32 {
         match &self.object {
-            Some(object) if !object.contains(p) => 0.0,
-            _ => self.medium.density_at(p),
+            Some(object) => match object.material_at(p) {
+                None => 0.0,
+                Some(k) => object.fields[object.materials[k].field].density_at(p),
+            },
+            None => self.medium.density_at(p),
+        }
+    }
+
+    /// The density fields: the objects' ([`super::Object::fields`]), or the v1 medium's density
+    /// over its box.
+    pub fn fields(&self) -> Vec<DensityField> {
+        match &self.object {
+            Some(o) => o.fields.clone(),
+            None => vec![DensityField {
+                density: self.medium.density.clone(),
+                bounds_min: self.medium.bounds_min,
+                bounds_max: self.medium.bounds_max,
+            }],
         }
     }
 
@@ -54,9 +71,13 @@ impl Scene {
     /// An upper bound of [`Scene::density_at`] (exact for every density kind: 1, or the
     /// largest voxel). Multiply by `sigma_t` for the majorant.
     pub fn max_density(&self) -> f32 {
-        match &self.medium.density {
+        let max = |d: &Density| match d {
             Density::Constant | Density::Sphere { .. } => 1.0,
             Density::Grid(grid) => grid.max_value(),
+        };
+        match &self.object {
+            Some(o) => o.fields.iter().map(|f| max(&f.density)).fold(0.0, f32::max),
+            None => max(&self.medium.density),
         }
     }
 }

@@ -171,7 +171,13 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
 /// sphere, `vol_path_for(xml_path)`). Returns the files written, the XML first. On error
 /// nothing is left behind.
 pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, OutputError> {
-    let plan = plan_medium(scene);
+    // The media: the scene's one, or one per material of its objects (each its coefficients
+    // over its density field), each with its plan.
+    let media: Vec<Medium> = match &scene.object {
+        Some(o) => (0..o.materials.len()).map(|k| o.material_medium(k)).collect(),
+        None => vec![scene.medium.clone()],
+    };
+    let plans: Vec<Plan> = media.iter().map(|m| plan_medium(m, scene.object.is_some())).collect();
     let name_of = |p: &PathBuf| p.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     // One OBJ per material of the objects (the parts that share it), material 0's first.
     let materials = scene.object.as_ref().map_or(1, |o| o.materials.len());
@@ -181,7 +187,7 @@ pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, Ou
     let vol_paths: Vec<PathBuf> = (0..materials).map(|k| vol_path_for_material(xml_path, k)).collect();
     let vol_names: Vec<String> = vol_paths.iter().map(name_of).collect();
     let xml_name = xml_path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let xml = scene_xml(scene, &plan, &xml_name, &vol_names, &obj_names);
+    let xml = scene_xml(scene, &media, &plans, &xml_name, &vol_names, &obj_names);
 
     let mut written = Vec::new();
     let cleanup = |written: &[PathBuf]| {
@@ -189,13 +195,9 @@ pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, Ou
             let _ = std::fs::remove_file(p);
         }
     };
-    if let Plan::Grid(grid) = &plan {
-        for (k, vol_path) in vol_paths.iter().enumerate() {
-            let mut medium = scene.medium.clone();
-            if let Some(x) = scene.object.as_ref().map(|o| o.materials[k]) {
-                medium.sigma_t = x.sigma_t;
-            }
-            if let Err(e) = write_atomically(vol_path, |tmp| write_vol_file(tmp, grid, &medium)) {
+    for ((plan, medium), vol_path) in plans.iter().zip(&media).zip(&vol_paths) {
+        if let Plan::Grid(grid) = plan {
+            if let Err(e) = write_atomically(vol_path, |tmp| write_vol_file(tmp, grid, medium)) {
                 cleanup(&written);
                 return Err(e);
             }
@@ -299,12 +301,12 @@ fn write_obj_file(path: &Path, object: &Object, k: usize) -> Result<(), OutputEr
     })
 }
 
-fn plan_medium(scene: &Scene) -> Plan<'_> {
-    let m = &scene.medium;
+/// How medium `m` is written (`in_object`: the mesh is its shape).
+fn plan_medium(m: &Medium, in_object: bool) -> Plan<'_> {
     match &m.density {
         // In an object the mesh is the shape: a homogeneous medium needs no other.
         Density::Constant => Plan::Box,
-        Density::Sphere { center, radius } if scene.object.is_none() && sphere_fits(m, *center, *radius) => {
+        Density::Sphere { center, radius } if !in_object && sphere_fits(m, *center, *radius) => {
             Plan::Sphere { center: *center, radius: *radius }
         }
         Density::Sphere { center, radius } => {
@@ -456,8 +458,16 @@ fn medium_at(scene: &Scene, p: Vec3) -> String {
     medium_id(scene.object.as_ref().and_then(|o| o.material_at(p)).unwrap_or(0))
 }
 
-fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_names: &[String], obj_names: &[String]) -> String {
+fn scene_xml(
+    scene: &Scene,
+    media: &[Medium],
+    plans: &[Plan],
+    xml_name: &str,
+    vol_names: &[String],
+    obj_names: &[String],
+) -> String {
     let m = &scene.medium;
+    let plan = &plans[0];
     let mut x = String::new();
     let mut line = |indent: usize, s: &str| {
         let _ = writeln!(x, "{:indent$}{s}", "", indent = 4 * indent);
@@ -481,13 +491,7 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_names: &[String], o
     // The media, each declared once and referenced by its shape (and the camera or lights in
     // it): the scene's one medium, or one per material of its objects (the density shared, the
     // coefficients each material's).
-    let media: Vec<Medium> = match &scene.object {
-        Some(o) => {
-            o.materials.iter().map(|x| Medium { sigma_t: x.sigma_t, albedo: x.albedo, g: x.g, ..m.clone() }).collect()
-        }
-        None => vec![m.clone()],
-    };
-    for (k, m) in media.iter().enumerate() {
+    for (k, (m, plan)) in media.iter().zip(plans).enumerate() {
         let id = medium_id(k);
         let phase = |line: &mut dyn FnMut(usize, &str)| {
             line(2, r#"<phase type="hg">"#);
@@ -497,7 +501,16 @@ fn scene_xml(scene: &Scene, plan: &Plan, xml_name: &str, vol_names: &[String], o
         match plan {
             Plan::Box | Plan::Sphere { .. } => {
                 line(1, &format!(r#"<medium type="homogeneous" id="{id}">"#));
-                line(2, &spectrum("sigma_t", m.sigma_t));
+                // Mitsuba reads an <rgb> as a reflectance, refused above 1 ("Invalid RGB
+                // reflectance value", Mitsuba 3.9.1): a chromatic extinction is written as its
+                // colour over its largest channel, times `scale`.
+                let peak = m.sigma_t.max_element();
+                if is_grey(m.sigma_t) || peak <= 0.0 {
+                    line(2, &spectrum("sigma_t", m.sigma_t));
+                } else {
+                    line(2, &rgb("sigma_t", m.sigma_t / peak));
+                    line(2, &format!(r#"<float name="scale" value="{}"/>"#, num(peak)));
+                }
                 line(2, &spectrum("albedo", m.albedo));
                 phase(&mut line);
                 line(1, "</medium>");

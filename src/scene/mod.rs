@@ -69,6 +69,12 @@ pub struct Object {
     /// own ([`ObjectPart::material`]); the scene's `medium` holds object[0]'s coefficients and
     /// the density every entry shares.
     pub materials: Vec<Material>,
+    /// The density fields of the entries (at most one per material): entries that write the
+    /// same density table share one field over their given bounds or their meshes' union box;
+    /// field 0 is object[0]'s. With one field it is the scene's `medium.density` over
+    /// `medium.bounds`; with several, `medium.bounds` is their union and each material's
+    /// density is its field's.
+    pub fields: Vec<DensityField>,
     /// One entry whose mesh bounds a convex solid ([`mesh::TriangleMesh::is_convex`]): a
     /// straight path from inside to any point outside crosses the surface once, which `path`'s
     /// manifold next-event estimation (one refraction) needs for a light outside.
@@ -104,12 +110,41 @@ pub struct Material {
     pub g: f32,
     /// Refractive index inside relative to the vacuum outside (eta); 1 = index-matched.
     pub ior: f32,
+    /// Its density field ([`Object::fields`]).
+    pub field: usize,
 }
 
 impl Material {
-    /// The coefficients of `m` with index `ior`.
-    pub fn of(m: &Medium, ior: f32) -> Material {
-        Material { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, ior }
+    /// The coefficients of `m` with index `ior` and density field `field`.
+    pub fn of(m: &Medium, ior: f32, field: usize) -> Material {
+        Material { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, ior, field }
+    }
+}
+
+/// One density field of the objects: a v1 density kind over a box (a grid spans it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DensityField {
+    pub density: Density,
+    pub bounds_min: Vec3,
+    pub bounds_max: Vec3,
+}
+
+impl DensityField {
+    /// Density multiplier at `p` (CPU reference), as [`Medium::density_at`] over this box.
+    pub fn density_at(&self, p: Vec3) -> f32 {
+        self.medium_with(Vec3::ZERO, Vec3::ZERO, 0.0).density_at(p)
+    }
+
+    /// A medium of this density and box with the given coefficients.
+    pub fn medium_with(&self, sigma_t: Vec3, albedo: Vec3, g: f32) -> Medium {
+        Medium {
+            bounds_min: self.bounds_min,
+            bounds_max: self.bounds_max,
+            sigma_t,
+            albedo,
+            g,
+            density: self.density.clone(),
+        }
     }
 }
 
@@ -125,10 +160,17 @@ impl Object {
         self.materials.iter().any(|m| m.ior != 1.0)
     }
 
-    /// Whether the entries differ in material (coefficients or index): a solver that holds one
-    /// medium cannot render the scene.
+    /// Whether the entries differ in material (coefficients, index or density): a solver that
+    /// holds one medium cannot render the scene.
     pub fn several_materials(&self) -> bool {
         self.materials.len() > 1
+    }
+
+    /// The medium inside the objects of material `k`: its coefficients over its field's
+    /// density and box.
+    pub fn material_medium(&self, k: usize) -> Medium {
+        let x = &self.materials[k];
+        self.fields[x.field].medium_with(x.sigma_t, x.albedo, x.g)
     }
 
     /// The material of `part`.
@@ -201,6 +243,7 @@ impl PartialEq for Object {
     fn eq(&self, other: &Self) -> bool {
         self.ior == other.ior
             && self.materials == other.materials
+            && self.fields == other.fields
             && self.parts == other.parts
             && self.mesh.positions == other.mesh.positions
             && self.mesh.triangles == other.mesh.triangles

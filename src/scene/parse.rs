@@ -15,8 +15,8 @@ use super::grid::{load_grid, GridRequest};
 use super::mesh::{load_obj, MeshTransform, TriangleMesh};
 use super::vdb::{load_vdb, VdbRequest};
 use super::{
-    Camera, CameraKind, Density, Light, LoadOptions, Material, Medium, Object, ObjectPart, RenderSettings, Scene,
-    SceneError, MAX_IMAGE_SIZE, MAX_IOR, MAX_MATERIALS,
+    Camera, CameraKind, Density, DensityField, Light, LoadOptions, Material, Medium, Object, ObjectPart,
+    RenderSettings, Scene, SceneError, MAX_IMAGE_SIZE, MAX_IOR, MAX_MATERIALS,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -102,7 +102,7 @@ fn default_density() -> RawDensity {
 }
 
 /// `medium.density = { kind = ..., ... }`.
-#[derive(Deserialize)]
+#[derive(Deserialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
 enum RawDensity {
     Constant {},
@@ -293,10 +293,13 @@ impl Ctx<'_> {
     }
 
     /// The `[[object]]` entries' meshes, transforms and materials joined into one [`Object`],
-    /// and the medium: object[0]'s coefficients and the density every entry shares, over the
-    /// given `medium.bounds` (the same in every entry that gives them, containing every mesh),
-    /// else the union of the transformed meshes' bounds. The meshes must be disjoint: no two
-    /// intersect, none lies inside another.
+    /// and the scene's medium (object[0]'s coefficients). Entries that write the same density
+    /// table share one density field over their given `medium.bounds` (the same in every one of
+    /// them that gives them, containing their meshes), else the union of their transformed
+    /// meshes' bounds; entries of different density tables have fields of their own. The
+    /// medium's density and bounds are the field's when there is one, else the fields' union
+    /// box (each material names its field). The meshes must be disjoint: no two intersect,
+    /// none lies inside another.
     fn objects(&self, raws: &[RawObject], base_dir: &Path, opts: &LoadOptions) -> Result<(Object, Medium), SceneError> {
         let mut parts = Vec::with_capacity(raws.len());
         let mut meshes = Vec::with_capacity(raws.len());
@@ -305,58 +308,6 @@ impl Ctx<'_> {
             meshes.push(mesh);
             parts.push(part);
         }
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for m in &meshes {
-            let (a, b) = m.bounds();
-            lo = lo.min(a);
-            hi = hi.max(b);
-        }
-        let mut given: Option<(usize, Vec3, Vec3)> = None;
-        for (i, o) in raws.iter().enumerate() {
-            let Some(b) = &o.medium.bounds else { continue };
-            let key = format!("object[{i}].medium.bounds");
-            let (blo, bhi) = self.bounds(&key, b)?;
-            if let Some((k, glo, ghi)) = given {
-                if (blo, bhi) != (glo, ghi) {
-                    return Err(self.invalid(
-                        &key,
-                        format!(
-                            "{}..{} differ from object[{k}]'s {}..{}: the objects share one medium, whose grid spans \
-                                one box; give the same bounds or leave them out",
-                            fmt3(blo),
-                            fmt3(bhi),
-                            fmt3(glo),
-                            fmt3(ghi)
-                        ),
-                    ));
-                }
-                continue;
-            }
-            if !(blo.cmple(lo).all() && bhi.cmpge(hi).all()) {
-                let what =
-                    if raws.len() == 1 { "the transformed mesh's bounds" } else { "the transformed meshes' bounds" };
-                return Err(self.invalid(
-                    &key,
-                    format!(
-                        "{}..{} must contain {what} {}..{} (the medium fills the mesh); widen them, or leave bounds \
-                            out to use the mesh's",
-                        fmt3(blo),
-                        fmt3(bhi),
-                        fmt3(lo),
-                        fmt3(hi)
-                    ),
-                ));
-            }
-            given = Some((i, blo, bhi));
-        }
-        let (bounds_min, bounds_max) = match given {
-            Some((_, a, b)) => (a, b),
-            None => {
-                // A hair beyond the meshes, so the box never clips a triangle by float rounding.
-                let pad = (hi - lo).length() * 1e-5 + 1e-6;
-                (lo - pad, hi + pad)
-            }
-        };
         if let Some(o) = first_overlap(&meshes) {
             let how = if o.nested { "and object[{a}]'s mesh {} nest" } else { "intersects object[{a}]'s mesh {}" };
             let how = how.replace("{a}", &o.a.to_string()).replacen("{}", &parts[o.a].file.display().to_string(), 1);
@@ -370,24 +321,86 @@ impl Ctx<'_> {
                 ),
             ));
         }
-        // Each entry's medium: the density (kind, grid, bounds) is one for the scene; the
-        // coefficients and the index make the entry's material, shared by equal entries.
-        let medium = self.medium("object[0].medium", &raws[0].medium, bounds_min, bounds_max, base_dir, opts)?;
-        let mut materials = vec![Material::of(&medium, raws[0].ior)];
-        parts[0].material = 0;
-        for (i, o) in raws.iter().enumerate().skip(1) {
-            let at = format!("object[{i}].medium");
-            let m = self.medium(&at, &o.medium, bounds_min, bounds_max, base_dir, opts)?;
-            let material = Material::of(&m, o.ior);
-            let shared = Medium { sigma_t: medium.sigma_t, albedo: medium.albedo, g: medium.g, ..m };
-            if shared != medium {
-                return Err(self.invalid(
-                    &format!("{at}.density"),
-                    "differs from object[0]'s: the objects of a scene share one density (kind, grid and bounds) \
-                        in this version, while sigma_t, albedo, g and ior may differ per object; give every object \
-                        the same density table, or render them in separate scenes",
-                ));
+        // The density fields: entries grouped by their density table, in order of first use.
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        for (i, o) in raws.iter().enumerate() {
+            match groups.iter_mut().find(|g| raws[g[0]].medium.density == o.medium.density) {
+                Some(g) => g.push(i),
+                None => groups.push(vec![i]),
             }
+        }
+        let mut fields: Vec<DensityField> = Vec::with_capacity(groups.len());
+        let mut field_of = vec![0usize; raws.len()];
+        let mut media: Vec<Option<Medium>> = vec![None; raws.len()];
+        for (f, group) in groups.iter().enumerate() {
+            let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+            for &i in group {
+                let (a, b) = meshes[i].bounds();
+                lo = lo.min(a);
+                hi = hi.max(b);
+            }
+            let mut given: Option<(usize, Vec3, Vec3)> = None;
+            for &i in group {
+                let Some(b) = &raws[i].medium.bounds else { continue };
+                let key = format!("object[{i}].medium.bounds");
+                let (blo, bhi) = self.bounds(&key, b)?;
+                if let Some((k, glo, ghi)) = given {
+                    if (blo, bhi) != (glo, ghi) {
+                        return Err(self.invalid(
+                            &key,
+                            format!(
+                                "{}..{} differ from object[{k}]'s {}..{}: objects of one density table share one \
+                                    density, whose grid spans one box; give the same bounds or leave them out",
+                                fmt3(blo),
+                                fmt3(bhi),
+                                fmt3(glo),
+                                fmt3(ghi)
+                            ),
+                        ));
+                    }
+                    continue;
+                }
+                if !(blo.cmple(lo).all() && bhi.cmpge(hi).all()) {
+                    let what = if group.len() == 1 {
+                        "the transformed mesh's bounds"
+                    } else {
+                        "the transformed meshes' bounds"
+                    };
+                    return Err(self.invalid(
+                        &key,
+                        format!(
+                            "{}..{} must contain {what} {}..{} (the medium fills the mesh); widen them, or leave \
+                                bounds out to use the mesh's",
+                            fmt3(blo),
+                            fmt3(bhi),
+                            fmt3(lo),
+                            fmt3(hi)
+                        ),
+                    ));
+                }
+                given = Some((i, blo, bhi));
+            }
+            let (bounds_min, bounds_max) = match given {
+                Some((_, a, b)) => (a, b),
+                None => {
+                    // A hair beyond the meshes, so the box never clips a triangle by float rounding.
+                    let pad = (hi - lo).length() * 1e-5 + 1e-6;
+                    (lo - pad, hi + pad)
+                }
+            };
+            for &i in group {
+                let at = format!("object[{i}].medium");
+                media[i] = Some(self.medium(&at, &raws[i].medium, bounds_min, bounds_max, base_dir, opts)?);
+                field_of[i] = f;
+            }
+            let m = media[group[0]].as_ref().expect("parsed above");
+            fields.push(DensityField { density: m.density.clone(), bounds_min, bounds_max });
+        }
+        // The materials: coefficients, index and field, shared by equal entries.
+        let mut materials: Vec<Material> = Vec::new();
+        for (i, o) in raws.iter().enumerate() {
+            let m = media[i].as_ref().expect("every entry is in a group");
+            let material = Material::of(m, o.ior, field_of[i]);
             parts[i].material = match materials.iter().position(|x| *x == material) {
                 Some(k) => k,
                 None if materials.len() < MAX_MATERIALS => {
@@ -396,15 +409,24 @@ impl Ctx<'_> {
                 }
                 None => {
                     return Err(self.invalid(
-                        &at,
+                        &format!("object[{i}].medium"),
                         format!(
-                        "is the {}th distinct material (sigma_t, albedo, g and ior) among the objects; a scene holds \
-                                at most {MAX_MATERIALS}: give some objects the same material",
-                        MAX_MATERIALS + 1
-                    ),
+                            "is the {}th distinct material (sigma_t, albedo, g, density and ior) among the objects; a \
+                                scene holds at most {MAX_MATERIALS}: give some objects the same material",
+                            MAX_MATERIALS + 1
+                        ),
                     ))
                 }
             };
+        }
+        let mut medium = media[0].take().expect("object[0]'s medium");
+        if fields.len() > 1 {
+            // Several fields: the medium's box holds them all (cameras, culling); each
+            // material's density is its field's ([`Object::fields`]).
+            for f in &fields {
+                medium.bounds_min = medium.bounds_min.min(f.bounds_min);
+                medium.bounds_max = medium.bounds_max.max(f.bounds_max);
+            }
         }
         let mesh = TriangleMesh::union(meshes);
         // Each triangle carries its part's material, which a path inside the part meets there.
@@ -412,7 +434,8 @@ impl Ctx<'_> {
             parts.iter().flat_map(|p| std::iter::repeat(p.material as u32).take(p.triangles)).collect();
         let bvh = Bvh::build_tagged(&mesh, &tags);
         let convex = parts.len() == 1 && mesh.is_convex();
-        let object = Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), parts, ior: raws[0].ior, materials, convex };
+        let object =
+            Object { mesh: Arc::new(mesh), bvh: Arc::new(bvh), parts, ior: raws[0].ior, materials, fields, convex };
         Ok((object, medium))
     }
 

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::gpu::{Buffer, Gpu, Image3d, Pass, Spec, SpecKind, VolumeFormat};
 use crate::scene::bvh::{BvhNode, GpuTriangle};
-use crate::scene::{CameraKind, Density, Light, Material, Scene, MAX_MATERIALS};
+use crate::scene::{CameraKind, Density, DensityField, Light, Material, Scene, MAX_MATERIALS};
 
 use super::SolverError;
 
@@ -27,11 +27,32 @@ pub struct SceneHeader {
     pub cam_right: [f32; 4],
     pub cam_up: [f32; 4],
     pub image: [u32; 4],
-    /// The [[object]] (format v2): x = ior inside object[0] (1 without one).
+    /// The [[object]] (format v2): x = ior inside object[0] (1 without one); y = the number of
+    /// density fields (1: the header's box and density are field 0's).
     pub object: [f32; 4],
     /// The objects' materials ([`crate::scene::Object::materials`]; a triangle's `v0[3]`
     /// names its own): the medium's as material 0 in every scene, zeros past the last.
     pub materials: [GpuMaterial; MAX_MATERIALS],
+    /// The density fields the materials name (`GpuMaterial::ior[1]`): the medium's as field 0
+    /// in every scene, zeros past the last.
+    pub fields: [GpuField; MAX_MATERIALS],
+}
+
+/// One entry of `SceneHeader::fields` (scene.glsl `DensityField`): a density kind over a box,
+/// a grid's place in the density atlas and the majorant buffer.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuField {
+    /// xyz: the box; w: the density kind (0 constant, 1 sphere, 2 grid) as u32 bits.
+    pub bounds_min: [f32; 4],
+    /// xyz: the box; w: the grid's first z slice in the density atlas, as u32 bits.
+    pub bounds_max: [f32; 4],
+    /// Sphere density: centre xyz, radius w.
+    pub sphere: [f32; 4],
+    /// Grid voxels xyz; w: the grid's first cell in the majorant buffer.
+    pub grid_dims: [u32; 4],
+    /// Majorant cells xyz; w: voxels per cell edge.
+    pub maj_dims: [u32; 4],
 }
 
 /// One entry of `SceneHeader::materials` (scene.glsl `ObjectMaterial`).
@@ -42,7 +63,7 @@ pub struct GpuMaterial {
     pub sigma_t: [f32; 4],
     /// rgb albedo; w = g.
     pub albedo: [f32; 4],
-    /// x = ior inside relative to the vacuum outside.
+    /// x = ior inside relative to the vacuum outside; y = its density field (u32 bits).
     pub ior: [f32; 4],
 }
 
@@ -62,14 +83,20 @@ pub const LIGHT_ENVIRONMENT: f32 = 2.0;
 pub const SPEC_DENSITY_KIND: u32 = 0;
 pub const SPEC_CHROMATIC: u32 = 1;
 pub const SPEC_ANISOTROPIC: u32 = 2;
+/// scene.glsl's: the objects have several density fields.
+pub const SPEC_FIELDS: u32 = 12;
 
 /// glsl/include/mesh.glsl's: the scene has an [[object]] mesh; its boundary refracts.
 pub const SPEC_HAS_MESH: u32 = 10;
 pub const SPEC_REFRACTIVE: u32 = 11;
 
 /// The specialisation constants of [`Modelled::spec`], as a kernel declares them.
-pub const SCENE_SPEC: &[(u32, SpecKind)] =
-    &[(SPEC_DENSITY_KIND, SpecKind::U32), (SPEC_CHROMATIC, SpecKind::Bool), (SPEC_ANISOTROPIC, SpecKind::Bool)];
+pub const SCENE_SPEC: &[(u32, SpecKind)] = &[
+    (SPEC_DENSITY_KIND, SpecKind::U32),
+    (SPEC_CHROMATIC, SpecKind::Bool),
+    (SPEC_ANISOTROPIC, SpecKind::Bool),
+    (SPEC_FIELDS, SpecKind::Bool),
+];
 
 /// [`SCENE_SPEC`] and mesh.glsl's, for kernels that trace the [[object]]'s mesh
 /// ([`Modelled::mesh_spec`]).
@@ -77,6 +104,7 @@ pub const MESH_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_DENSITY_KIND, SpecKind::U32),
     (SPEC_CHROMATIC, SpecKind::Bool),
     (SPEC_ANISOTROPIC, SpecKind::Bool),
+    (SPEC_FIELDS, SpecKind::Bool),
     (SPEC_HAS_MESH, SpecKind::Bool),
     (SPEC_REFRACTIVE, SpecKind::Bool),
 ];
@@ -96,6 +124,8 @@ pub struct Modelled {
     pub mesh_triangles: usize,
     /// The mesh's boundary refracts (ior != 1): Fresnel and Snell at its surface.
     pub refractive: bool,
+    /// Density fields (several: the objects' densities differ, each looked up per field).
+    pub fields: usize,
 }
 
 impl Modelled {
@@ -138,6 +168,7 @@ impl Modelled {
             (SPEC_DENSITY_KIND, Spec::U32(kind)),
             (SPEC_CHROMATIC, Spec::Bool(self.chromatic)),
             (SPEC_ANISOTROPIC, Spec::Bool(self.anisotropic)),
+            (SPEC_FIELDS, Spec::Bool(self.fields > 1)),
         ]
     }
 
@@ -249,7 +280,7 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
             }
         })
         .collect();
-    let header = SceneHeader {
+    let mut header = SceneHeader {
         bounds_min: v4(m.bounds_min, 0.0),
         bounds_max: v4(m.bounds_max, 0.0),
         sigma_t: v4(m.sigma_t, m.sigma_t.max_element()),
@@ -262,9 +293,14 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
         cam_right: v4(right, 0.0),
         cam_up: v4(up, 0.0),
         image: [scene.render.width, scene.render.height, lights.len() as u32, 0],
-        object: [scene.object.as_ref().map_or(1.0, |o| o.ior), 0.0, 0.0, 0.0],
+        object: [scene.object.as_ref().map_or(1.0, |o| o.ior), scene_fields(scene).len() as f32, 0.0, 0.0],
         materials: gpu_materials(scene),
+        fields: density_atlas(scene, cell, false).fields,
     };
+    if scene_fields(scene).len() > 1 {
+        // Several fields: no one sphere bounds the media (pixel_misses_medium uses the box).
+        header.sphere = [0.0; 4];
+    }
     (header, lights)
 }
 
@@ -273,7 +309,7 @@ fn gpu_materials(scene: &Scene) -> [GpuMaterial; MAX_MATERIALS] {
     let one = |x: &Material| GpuMaterial {
         sigma_t: v4(x.sigma_t, x.sigma_t.max_element()),
         albedo: v4(x.albedo, x.g),
-        ior: [x.ior, 0.0, 0.0, 0.0],
+        ior: [x.ior, f32::from_bits(x.field as u32), 0.0, 0.0],
     };
     let mut table = [GpuMaterial::zeroed(); MAX_MATERIALS];
     match &scene.object {
@@ -282,18 +318,115 @@ fn gpu_materials(scene: &Scene) -> [GpuMaterial; MAX_MATERIALS] {
                 *slot = one(x);
             }
         }
-        None => table[0] = one(&Material::of(&scene.medium, 1.0)),
+        None => table[0] = one(&Material::of(&scene.medium, 1.0, 0)),
     }
     table
+}
+
+/// The scene's density fields: the objects' ([`crate::scene::Object::fields`]), or the v1
+/// medium's density over its box.
+pub fn scene_fields(scene: &Scene) -> Vec<DensityField> {
+    scene.fields()
+}
+
+/// The density fields on the device: every grid in one 3D image (the atlas: grids stacked
+/// along z, each padded to the widest in x and y; one grid is the image itself) and its
+/// majorant cells in one buffer, with each field's place.
+pub struct DensityAtlas {
+    pub dims: [u32; 3],
+    /// Empty when no field is a grid.
+    pub data: Vec<f32>,
+    pub majorant: Vec<f32>,
+    pub fields: [GpuField; MAX_MATERIALS],
+}
+
+/// Build the [`DensityAtlas`] with majorant cells of `cell` voxels on an edge. A grid shared by
+/// several fields is stored once. Without `with_data`, only the places (`fields`, `dims`): the
+/// voxels and majorant cells are not copied.
+pub fn density_atlas(scene: &Scene, cell: u32, with_data: bool) -> DensityAtlas {
+    let fields = scene_fields(scene);
+    let grids: Vec<&crate::scene::Grid> = fields
+        .iter()
+        .filter_map(|f| match &f.density {
+            Density::Grid(g) => Some(g),
+            _ => None,
+        })
+        .collect();
+    let (wx, wy) = grids.iter().fold((0, 0), |(x, y), g| (x.max(g.dims[0]), y.max(g.dims[1])));
+    let mut placed: Vec<(&crate::scene::Grid, u32, u32)> = Vec::new();
+    let (mut depth, mut data, mut majorant) = (0u32, Vec::new(), Vec::new());
+    let mut majorant_len = 0u32;
+    let mut table = [GpuField::zeroed(); MAX_MATERIALS];
+    for (slot, f) in table.iter_mut().zip(&fields) {
+        let mut e = GpuField {
+            bounds_min: v4(f.bounds_min, f32::from_bits(0)),
+            bounds_max: v4(f.bounds_max, f32::from_bits(0)),
+            sphere: [0.0; 4],
+            grid_dims: [1, 1, 1, 0],
+            maj_dims: [1, 1, 1, 1],
+        };
+        match &f.density {
+            Density::Constant => {}
+            Density::Sphere { center, radius } => {
+                e.bounds_min[3] = f32::from_bits(1);
+                e.sphere = v4(*center, *radius);
+            }
+            Density::Grid(g) => {
+                let md = majorant_dims(g.dims, cell);
+                let (z, maj) = match placed.iter().find(|(p, _, _)| **p == *g) {
+                    Some(&(_, z, maj)) => (z, maj),
+                    None => {
+                        let at = (depth, majorant_len);
+                        let [nx, ny, nz] = g.dims;
+                        majorant_len += md[0] * md[1] * md[2];
+                        if !with_data {
+                        } else if grids.len() == 1 || (nx == wx && ny == wy) {
+                            data.extend_from_slice(&g.data);
+                        } else {
+                            // Padded rows and slices: voxel (x, y, z) at (x, y, depth + z).
+                            let mut padded = vec![0f32; (wx * wy * nz) as usize];
+                            for k in 0..nz {
+                                for j in 0..ny {
+                                    let src = ((k * ny + j) * nx) as usize;
+                                    let dst = ((k * wy + j) * wx) as usize;
+                                    padded[dst..dst + nx as usize].copy_from_slice(&g.data[src..src + nx as usize]);
+                                }
+                            }
+                            data.extend_from_slice(&padded);
+                        }
+                        if with_data {
+                            majorant.extend(majorant_grid(g.dims, &g.data, md));
+                        }
+                        depth += nz;
+                        placed.push((g, at.0, at.1));
+                        at
+                    }
+                };
+                e.bounds_min[3] = f32::from_bits(2);
+                e.bounds_max[3] = f32::from_bits(z);
+                e.grid_dims = [g.dims[0], g.dims[1], g.dims[2], maj];
+                e.maj_dims = [md[0], md[1], md[2], cell];
+            }
+        }
+        *slot = e;
+    }
+    let dims = if grids.len() == 1 { grids[0].dims } else { [wx.max(1), wy.max(1), depth.max(1)] };
+    DensityAtlas { dims, data, majorant, fields: table }
 }
 
 /// Decide what to model from the scene's features (or everything, with `force_full`).
 pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
     let f = scene.features();
-    let density = match scene.medium.density {
-        Density::Constant => "constant",
-        Density::Sphere { .. } => "sphere",
-        Density::Grid(_) => "grid",
+    // The most general kind among the density fields (the kernels branch per field below it).
+    let kind = |d: &Density| match d {
+        Density::Constant => 0,
+        Density::Sphere { .. } => 1,
+        Density::Grid(_) => 2,
+    };
+    let density = match scene_fields(scene).iter().map(|f| kind(&f.density)).max().unwrap_or(0) {
+        0 => "constant",
+        1 => "sphere",
+        _ => "grid",
     };
     Modelled {
         density,
@@ -302,6 +435,7 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
         forced_full: force_full,
         mesh_triangles: scene.object.as_ref().map_or(0, |o| o.mesh.triangles.len()),
         refractive: scene.object.as_ref().is_some_and(|o| o.refractive()),
+        fields: scene_fields(scene).len(),
     }
 }
 
@@ -328,14 +462,14 @@ pub fn scene_bytes_with(scene: &Scene, cell: u32) -> u64 {
     let placeholders = (std::mem::size_of::<BvhNode>() + std::mem::size_of::<GpuTriangle>()) as u64;
     let mesh = scene.object.as_ref().map_or(placeholders, |o| o.bvh.bytes());
     let block = block + mesh;
-    match &scene.medium.density {
-        Density::Grid(g) => {
-            let md = majorant_dims(g.dims, cell);
-            block
-                + g.dims.iter().map(|d| *d as u64).product::<u64>() * 4
-                + md.iter().map(|d| *d as u64).product::<u64>() * 4
-        }
-        _ => block + 4 + 4,
+    let atlas = density_atlas(scene, cell, false);
+    let grids: u64 = atlas.fields.iter().filter(|f| f.bounds_min[3].to_bits() == 2).count() as u64;
+    if grids == 0 {
+        block + 4 + 4
+    } else {
+        let cells: u64 =
+            atlas.fields.iter().map(|f| f.maj_dims[..3].iter().map(|d| *d as u64).product::<u64>()).max().unwrap_or(0);
+        block + atlas.dims.iter().map(|d| *d as u64).product::<u64>() * 4 + cells * grids * 4
     }
 }
 
@@ -374,21 +508,19 @@ impl GpuScene {
         bytes.extend_from_slice(bytemuck::cast_slice(&lights));
         let block = gpu.buffer("scene block", bytes.len() as u64)?;
         gpu.write_buffer(&block, 0, &bytes)?;
-        let (density, majorant) = match &scene.medium.density {
-            Density::Grid(g) => {
-                let md = majorant_dims(g.dims, cell);
-                let maj = majorant_grid(g.dims, &g.data, md);
-                (
-                    gpu.image3d_with("density grid", g.dims, VolumeFormat::R32F, &g.data)?,
-                    gpu.buffer_with("majorant grid", &maj)?,
-                )
-            }
+        let atlas = density_atlas(scene, cell, true);
+        let (density, majorant) = if !atlas.data.is_empty() {
+            (
+                gpu.image3d_with("density grid", atlas.dims, VolumeFormat::R32F, &atlas.data)?,
+                gpu.buffer_with("majorant grid", &atlas.majorant)?,
+            )
+        } else {
             // Kernels specialised for analytic densities never read these; they are bound
             // because the shared layout declares them.
-            _ => (
+            (
                 gpu.image3d_with("density (unused)", [1, 1, 1], VolumeFormat::R32F, &[0.0])?,
                 gpu.buffer_with("majorant (unused)", &[0f32])?,
-            ),
+            )
         };
         let (mesh_nodes, mesh_tris) = match &scene.object {
             Some(o) => {
