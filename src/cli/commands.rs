@@ -527,7 +527,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
                 "homogeneous": f.grid_dims.is_none(), "density": density_label(&scene.medium.density), "has_environment": f.has_environment, "grid_dims": f.grid_dims,
                 "object": scene.object.as_ref().map(|o| json!({
                     "mesh": o.describe(), "parts": o.parts.iter().map(|p| json!({"mesh": p.file.display().to_string(), "triangles": p.triangles, "material": p.material})).collect::<Vec<_>>(),
-                    "materials": o.materials.iter().map(|x| json!({"sigma_t": x.sigma_t.to_array(), "albedo": x.albedo.to_array(), "g": x.g, "ior": x.ior})).collect::<Vec<_>>(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
+                    "materials": o.materials.iter().map(|x| json!({"sigma_t": x.sigma_t.to_array(), "albedo": x.albedo.to_array(), "g": x.g, "ior": x.ior, "density": density_label(&o.fields[x.field].density)})).collect::<Vec<_>>(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
                     "bvh_nodes": o.bvh.nodes.len(), "bvh_depth": o.bvh.depth, "bvh_bytes": o.bvh.bytes(), "convex": o.convex,
                 })),
                 "refused_by": refused.iter().map(|(k, why)| (k.to_string(), json!(why))).collect::<serde_json::Map<_, _>>(),
@@ -551,7 +551,10 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
         outln!("anisotropic  {} (g = {})", yn(f.anisotropic), scene.medium.g);
     }
     outln!("chromatic    {}", yn(f.chromatic));
-    outln!("density      {}", density_label(&scene.medium.density));
+    match scene.object.as_ref().filter(|o| o.fields.len() > 1) {
+        Some(o) => outln!("density      {} fields, one per material below", o.fields.len()),
+        None => outln!("density      {}", density_label(&scene.medium.density)),
+    }
     if let Some(o) = &scene.object {
         outln!(
             "object       {} ({} triangles{}), ior {}{}: the medium fills the mesh; BVH {} nodes, depth {}, {:.1} KiB",
@@ -573,8 +576,13 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
                     .filter(|(_, p)| p.material == k)
                     .map(|(i, _)| format!("object[{i}]"))
                     .collect();
+                let field = if o.fields.len() > 1 {
+                    format!("; density {}", density_label(&o.fields[x.field].density))
+                } else {
+                    String::new()
+                };
                 outln!(
-                    "material {k}   {}: sigma_t {}, albedo {}, g {}, ior {}",
+                    "material {k}   {}: sigma_t {}, albedo {}, g {}, ior {}{field}",
                     parts.join(", "),
                     fmt_rgb(x.sigma_t),
                     fmt_rgb(x.albedo),
