@@ -5,6 +5,8 @@
 //! meet issue 5's target: with the point light inside the cloud, the per-pixel error at equal
 //! spp within 2x of the error with the light outside.
 
+use std::path::Path;
+
 use crate::common::PATH;
 use scatterlab::output::Image;
 use scatterlab::solvers::path::PathStats;
@@ -335,5 +337,46 @@ fn camera_and_light_paths_run_on_two_roles_with_the_same_image() {
     };
     assert_eq!(roles(&c), ["Diffuse", "Trace"]);
     assert_eq!(roles(&q), ["Trace"]);
+    assert_clean(&gpu);
+}
+
+#[test]
+fn light_tracing_through_index_matched_objects_of_different_materials_agrees_with_camera_paths() {
+    // A point light inside a ball (grey, isotropic) beside a blob of a chromatic, forward-
+    // scattering medium (another material and density field), both index-matched: light paths
+    // leave the ball, fly through the vacuum into the blob (taking on its material), and their
+    // camera connections cross both objects. Against camera paths (NEE through both).
+    let gpu = gpu();
+    let mesh =
+        |name: &str| Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/meshes").join(name).display().to_string();
+    let text = format!(
+        "[render]\nwidth = 24\nheight = 24\nseed = 7\nspp = 64\n\
+         [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 36.0\n\
+         [[object]]\nmesh = \"{}\"\nscale = 0.5\ntranslate = [-0.55, 0.0, 0.0]\n\
+         [object.medium]\nsigma_t = 3.0\nalbedo = 0.8\n\
+         [[object]]\nmesh = \"{}\"\nscale = 0.45\ntranslate = [0.6, 0.0, 0.0]\n\
+         [object.medium]\nsigma_t = [2.0, 4.0, 6.0]\nalbedo = [0.95, 0.8, 0.6]\ng = 0.5\n\
+         density = {{ kind = \"sphere\", center = [0.6, 0.0, 0.0], radius = 0.4 }}\n\
+         [[light]]\nkind = \"point\"\nposition = [-0.55, 0.05, 0.0]\nintensity = 2.0\n",
+        mesh("icosphere.obj"),
+        mesh("blob.obj")
+    );
+    let s = scene(&text);
+    let o = s.object.as_ref().unwrap();
+    assert_eq!((o.materials.len(), o.fields.len()), (2, 2));
+    let lt = render_lt(&gpu, &text, "on", "256", &[]);
+    assert_eq!(lt.report.detail::<PathStats>().unwrap().light_traced, vec![0]);
+    let cam = render_lt(&gpu, &text, "off", "1024", &[]);
+    assert_lt_agrees("two index-matched objects", &lt, &cam);
+    // The blob's share: light that crossed the vacuum (the right half of the image).
+    let right: f64 = (0..24 * 24).filter(|p| p % 24 >= 14).map(|p| lt.image.data[3 * p] as f64).sum();
+    assert!(right > 0.0, "no light reached the second object");
+    // A light outside every object cannot start a light path; a refractive boundary refuses.
+    let outside = text.replace("position = [-0.55, 0.05, 0.0]", "position = [0.0, 1.5, 0.0]");
+    let e = try_render(&gpu, &scene(&outside), PATH, &[("path.light_tracing", "on")], false).err().unwrap();
+    assert!(e.to_string().contains("light 0 lies outside every [[object]]"), "{e}");
+    let glass = text.replace("scale = 0.5\n", "scale = 0.5\nior = 1.5\n");
+    let e = try_render(&gpu, &scene(&glass), PATH, &[("path.light_tracing", "on")], false).err().unwrap();
+    assert!(e.to_string().contains("refract"), "{e}");
     assert_clean(&gpu);
 }

@@ -15,10 +15,30 @@ fn mitsuba_python() -> Option<String> {
 
 #[test]
 fn path_matches_mitsuba_on_a_glass_sphere_with_a_medium_inside() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    crosscheck(
+        "glass.toml",
+        &format!(
+            "[render]\nwidth = 32\nheight = 32\nseed = 1\nspp = 64\n\
+         [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 34.0\n\
+         [[object]]\nmesh = \"{}\"\nior = 1.5\nscale = 0.8\n\
+         [object.medium]\nsigma_t = 3.0\nalbedo = [0.95, 0.9, 0.8]\ng = 0.3\n\
+         [[light]]\nkind = \"environment\"\nradiance = 0.3\n",
+            root.join("scenes/meshes/icosphere.obj").display()
+        ),
+        1024,
+        2048,
+    );
+}
+
+/// Write `text` to a scene file named `name` and check path against Mitsuba on it
+/// ([`check_against_mitsuba`]), or say that it is skipped where no Mitsuba is given.
+fn crosscheck(name: &str, text: &str, spp: u32, mitsuba_spp: u32) {
     let Some(python) = mitsuba_python() else {
         eprintln!(
             "SKIPPED: no Mitsuba 3 (set SCATTERLAB_MITSUBA_PYTHON to a Python with `pip install mitsuba numpy`); \
-             path's dielectric is tested against closed forms and furnaces in refraction_tests"
+             path's dielectric and materials are tested against closed forms and furnaces in refraction_tests and \
+             material_tests"
         );
         return;
     };
@@ -26,20 +46,9 @@ fn path_matches_mitsuba_on_a_glass_sphere_with_a_medium_inside() {
     let bin = root.join("target/checked/scatterlab");
     assert!(bin.exists(), "build the checked binary first (tools/scatterlab builds it)");
     let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("glass.toml");
-    std::fs::write(
-        &scene,
-        format!(
-            "[render]\nwidth = 32\nheight = 32\nseed = 1\nspp = 64\n\
-             [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 34.0\n\
-             [[object]]\nmesh = \"{}\"\nior = 1.5\nscale = 0.8\n\
-             [object.medium]\nsigma_t = 3.0\nalbedo = [0.95, 0.9, 0.8]\ng = 0.3\n\
-             [[light]]\nkind = \"environment\"\nradiance = 0.3\n",
-            root.join("scenes/meshes/icosphere.obj").display()
-        ),
-    )
-    .unwrap();
-    check_against_mitsuba(&python, &bin, &scene, 1024, 2048);
+    let scene = dir.path().join(name);
+    std::fs::write(&scene, text).unwrap();
+    check_against_mitsuba(&python, &bin, &scene, spp, mitsuba_spp);
 }
 
 /// Run tools/mitsuba-crosscheck on `scene` (path at `spp`, Mitsuba at `mitsuba_spp`) and assert
@@ -73,31 +82,23 @@ fn path_matches_mitsuba_on_two_objects_of_different_materials() {
     // A glass ball (ior 1.5, a grey medium, g 0.3) beside a blob of index 1.33 with a
     // chromatic, backward-scattering medium: the export writes a medium and a dielectric shape
     // per material; light passes from one object into the other.
-    let Some(python) = mitsuba_python() else {
-        eprintln!("SKIPPED: no Mitsuba 3 (set SCATTERLAB_MITSUBA_PYTHON to a Python with `pip install mitsuba numpy`)");
-        return;
-    };
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let bin = root.join("target/checked/scatterlab");
-    assert!(bin.exists(), "build the checked binary first (tools/scatterlab builds it)");
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("pair.toml");
-    std::fs::write(
-        &scene,
-        format!(
+    crosscheck(
+        "pair.toml",
+        &format!(
             "[render]\nwidth = 32\nheight = 32\nseed = 1\nspp = 64\n\
-             [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 40.0\n\
-             [[object]]\nmesh = \"{}\"\nior = 1.5\nscale = 0.5\ntranslate = [-0.6, 0.0, 0.0]\n\
-             [object.medium]\nsigma_t = 4.0\nalbedo = 0.9\ng = 0.3\n\
-             [[object]]\nmesh = \"{}\"\nior = 1.33\nscale = 0.45\ntranslate = [0.6, 0.0, 0.0]\n\
-             [object.medium]\nsigma_t = [2.0, 4.0, 8.0]\nalbedo = [0.95, 0.8, 0.6]\ng = -0.3\n\
-             [[light]]\nkind = \"environment\"\nradiance = 0.3\n",
+         [camera]\norigin = [0.0, 0.4, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 40.0\n\
+         [[object]]\nmesh = \"{}\"\nior = 1.5\nscale = 0.5\ntranslate = [-0.6, 0.0, 0.0]\n\
+         [object.medium]\nsigma_t = 4.0\nalbedo = 0.9\ng = 0.3\n\
+         [[object]]\nmesh = \"{}\"\nior = 1.33\nscale = 0.45\ntranslate = [0.6, 0.0, 0.0]\n\
+         [object.medium]\nsigma_t = [2.0, 4.0, 8.0]\nalbedo = [0.95, 0.8, 0.6]\ng = -0.3\n\
+         [[light]]\nkind = \"environment\"\nradiance = 0.3\n",
             root.join("scenes/meshes/icosphere.obj").display(),
             root.join("scenes/meshes/blob.obj").display()
         ),
-    )
-    .unwrap();
-    check_against_mitsuba(&python, &bin, &scene, 1024, 2048);
+        1024,
+        2048,
+    );
 }
 
 #[test]
@@ -105,30 +106,22 @@ fn path_matches_mitsuba_on_objects_of_different_density_fields() {
     // The cloud's grid inside an index-matched torus beside a glass ball of a constant chromatic
     // medium: two density fields (the grid over the torus's own box), one heterogeneous and one
     // homogeneous medium in the export.
-    let Some(python) = mitsuba_python() else {
-        eprintln!("SKIPPED: no Mitsuba 3 (set SCATTERLAB_MITSUBA_PYTHON to a Python with `pip install mitsuba numpy`)");
-        return;
-    };
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let bin = root.join("target/checked/scatterlab");
-    assert!(bin.exists(), "build the checked binary first (tools/scatterlab builds it)");
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("fields.toml");
-    std::fs::write(
-        &scene,
-        format!(
+    crosscheck(
+        "fields.toml",
+        &format!(
             "[render]\nwidth = 32\nheight = 32\nseed = 1\nspp = 64\n\
-             [camera]\norigin = [0.0, 1.2, 4.2]\ntarget = [0.0, -0.05, 0.0]\nfov = 40.0\n\
-             [[object]]\nmesh = \"{}\"\nscale = 0.75\nrotate = [70.0, 0.0, 15.0]\ntranslate = [-0.55, 0.0, 0.0]\n\
-             [object.medium]\nsigma_t = 12.0\nalbedo = 0.95\ng = 0.5\ndensity = {{ kind = \"grid\", file = \"{}\" }}\n\
-             [[object]]\nmesh = \"{}\"\nscale = 0.42\ntranslate = [0.75, -0.05, 0.1]\nior = 1.5\n\
-             [object.medium]\nsigma_t = [4.0, 6.0, 9.0]\nalbedo = [0.9, 0.8, 0.95]\ng = -0.2\n\
-             [[light]]\nkind = \"environment\"\nradiance = [0.9, 0.95, 1.0]\n",
+         [camera]\norigin = [0.0, 1.2, 4.2]\ntarget = [0.0, -0.05, 0.0]\nfov = 40.0\n\
+         [[object]]\nmesh = \"{}\"\nscale = 0.75\nrotate = [70.0, 0.0, 15.0]\ntranslate = [-0.55, 0.0, 0.0]\n\
+         [object.medium]\nsigma_t = 12.0\nalbedo = 0.95\ng = 0.5\ndensity = {{ kind = \"grid\", file = \"{}\" }}\n\
+         [[object]]\nmesh = \"{}\"\nscale = 0.42\ntranslate = [0.75, -0.05, 0.1]\nior = 1.5\n\
+         [object.medium]\nsigma_t = [4.0, 6.0, 9.0]\nalbedo = [0.9, 0.8, 0.95]\ng = -0.2\n\
+         [[light]]\nkind = \"environment\"\nradiance = [0.9, 0.95, 1.0]\n",
             root.join("scenes/meshes/torus.obj").display(),
             root.join("scenes/cloud64.vol").display(),
             root.join("scenes/meshes/icosphere.obj").display()
         ),
-    )
-    .unwrap();
-    check_against_mitsuba(&python, &bin, &scene, 1024, 2048);
+        1024,
+        2048,
+    );
 }

@@ -25,15 +25,24 @@
 // a free flight or camera connection in progress, is saved when the loop budget is spent
 // (tracking.glsl) and the host re-dispatches until every slot has traced
 // its paths [0, sample_end).
+// With an index-matched [[object]] (HAS_MESH, not REFRACTIVE: the host refuses light paths
+// through a refractive boundary, where no straight connection reaches the camera), a path
+// starts in the object holding its light, takes on the material of each object it flies into,
+// crosses surfaces unchanged, and its camera connection takes the optical depth of every
+// object it crosses (tracking.glsl's chained intervals).
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
 #define MAJORANT_BINDING 2
+// Binding 6 is the light statistics (below): the mesh's BVH follows at 7 and 8.
+#define MESH_NODES_BINDING 7
+#define MESH_TRIS_BINDING 8
 #include "../include/scene.glsl"
 #include "../include/rng.glsl"
 #include "../include/phase.glsl"
 #include "../include/budget.glsl"
+#include "../include/mesh.glsl"
 #include "../include/tracking.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
@@ -52,11 +61,13 @@ struct LightState {
     vec4 trk_a;        // the paused tracking loop (tracking.glsl, track_save)
     vec4 trk_b;
     vec4 trk_c;
+    vec4 trk_mesh;     // a paused tracker's chained interval (tracking.glsl, track_save_mesh)
 };
 const uint FLAG_IN_FLIGHT = 1u;
 const uint FLAG_TRUNCATED = 2u;
 const uint FLAG_TRACKING = 4u;   // a tracking loop paused (resume it)
 const uint FLAG_SPLAT = 8u;      // the event's free flight is done: o is the scattering point, splat from there
+// Bits 8-11 of the flags: path_mat, the material of the object the path is in (with a mesh).
 layout(std430, binding = 5) buffer State { LightState state[]; };
 // [0] splats clamped to the fixed-point range, [1] 64-bit sums that overflowed, [2] splats.
 layout(std430, binding = 6) buffer LightStats { uint lstats[]; };
@@ -139,7 +150,7 @@ bool splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
     if (!transmittance_run(rng)) return false;
     vec3 T = trk.T;
     if (max3(T) <= 0.0) return true;
-    vec3 c = beta * T * (phase_eval(scene.albedo.w, dot(d_in, w_cam)) * W) * pc.inv_quantum;
+    vec3 c = beta * T * (phase_eval(scene.materials[path_mat].albedo.w, dot(d_in, w_cam)) * W) * pc.inv_quantum;
     if (any(isnan(c)) || any(isinf(c))) { truncated = true; return true; }
     uint base = 6u * (px.y * res.x + px.x);
     splat_count++;
@@ -169,7 +180,22 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, vec3 emitted, inout uin
         track_start(o, d, INF, false);
         int r = scatter_run(beta, rng, t_hit);
         if (r == FLIGHT_PAUSED) return EVENT_PAUSED;
-        if (r == FLIGHT_ESCAPED) return EVENT_ENDED;
+        if (r == FLIGHT_ESCAPED) {
+            // With a mesh the flight ended at the surface (or the box): the path flies on
+            // through the vacuum into the next object its ray enters (a torus's other side, or
+            // another object), whose material it takes on; else it has left.
+            if (!HAS_MESH || max3(beta) <= 0.0 || truncated) return EVENT_ENDED;
+            float t_in;
+            uint tri;
+            if (!mesh_crossing_tri(o, d, trk.s.t_max, INF, true, t_in, tri)) return EVENT_ENDED;
+            vec3 q = o + d * t_in;
+            o = q - triangle_normal(tri) * surface_eps(q);
+            path_mat = triangle_material(tri);
+            // Counted as a collision, so a ray caught between surfaces ends at the cap.
+            collisions++;
+            if (collisions > collision_cap) { truncated = true; return EVENT_ENDED; }
+            return EVENT_NEXT;
+        }
         depth++;
         if (depth > pc.max_depth) return EVENT_ENDED;
         o = o + d * t_hit;
@@ -177,7 +203,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, vec3 emitted, inout uin
     }
     if (!splat(o, d, beta * emitted, rng)) return EVENT_PAUSED;
     ev_splat = false;
-    d = phase_sample(scene.albedo.w, d, rnd2(rng));
+    d = phase_sample(scene.materials[path_mat].albedo.w, d, rnd2(rng));
     // Russian roulette as in path/trace; beta is relative to the emitted weight, so it starts at 1.
     if (depth >= pc.rr_depth) {
         float q = min(1.0, max3(beta) / pc.rr_threshold);
@@ -216,6 +242,8 @@ void main() {
     trk_saved[0] = st.trk_a;
     trk_saved[1] = st.trk_b;
     trk_saved[2] = st.trk_c;
+    trk_saved_mesh = st.trk_mesh;
+    path_mat = (st.k_flags.y >> 8u) & 15u;
     collisions = st.k_flags.z;
     uint trunc_count = 0u;
     uint segs0 = collisions;
@@ -249,6 +277,14 @@ void main() {
             truncated = false;
             in_flight = true;
             ev_splat = false;
+            // The material of the object holding the light (the nearest surface from inside an
+            // object is its own: objects are disjoint and do not nest).
+            path_mat = 0u;
+            if (HAS_MESH && light != 0xffffffffu) {
+                float th;
+                uint tri;
+                if (mesh_hit_tri(o, normalize(vec3(0.5773, 0.5774, 0.5773503)), 0.0, INF, th, tri)) path_mat = triangle_material(tri);
+            }
         }
         iters++;
         // A paused event (a free flight or a camera connection) is resumed whatever beta is.
@@ -268,11 +304,12 @@ void main() {
     }
     if (in_flight) segs += collisions - segs0;
     uint flags = (in_flight ? FLAG_IN_FLIGHT : 0u) | (truncated ? FLAG_TRUNCATED : 0u)
-               | (trk_paused ? FLAG_TRACKING : 0u) | (ev_splat ? FLAG_SPLAT : 0u);
+               | (trk_paused ? FLAG_TRACKING : 0u) | (ev_splat ? FLAG_SPLAT : 0u) | (path_mat << 8u);
     vec4 ta, tb, tc;
     track_save(ta, tb, tc);
     state[slot_index] = LightState(vec4(o, uintBitsToFloat(light)), vec4(d, uintBitsToFloat(depth)),
-                                   vec4(beta, uintBitsToFloat(rng.x)), uvec4(k, flags, collisions, rng.y), ta, tb, tc);
+                                   vec4(beta, uintBitsToFloat(rng.x)), uvec4(k, flags, collisions, rng.y), ta, tb, tc,
+                                   track_save_mesh());
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);

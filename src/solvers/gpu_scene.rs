@@ -509,6 +509,18 @@ impl GpuScene {
         let block = gpu.buffer("scene block", bytes.len() as u64)?;
         gpu.write_buffer(&block, 0, &bytes)?;
         let atlas = density_atlas(scene, cell, true);
+        let maxd = gpu.info().max_image_dimension_3d;
+        if scene_fields(scene).len() > 1 && atlas.dims.iter().any(|d| *d > maxd) {
+            return Err(SolverError::Unsupported(format!(
+                "{}: the objects' density grids stack to {} x {} x {} voxels on the device, beyond its \
+                    maxImageDimension3D {maxd}; give objects the same grid (one density table), or use fewer or \
+                    smaller grids",
+                scene.source.display(),
+                atlas.dims[0],
+                atlas.dims[1],
+                atlas.dims[2]
+            )));
+        }
         let (density, majorant) = if !atlas.data.is_empty() {
             (
                 gpu.image3d_with("density grid", atlas.dims, VolumeFormat::R32F, &atlas.data)?,

@@ -36,7 +36,7 @@ use crate::gpu::{Gpu, Kernel, Pass, QueueRole};
 use crate::output::Image;
 use crate::scene::{CameraKind, Light, Scene};
 
-use super::gpu_scene::{self, GpuScene, MESH_SPEC, SCENE_SPEC};
+use super::gpu_scene::{self, GpuScene, MESH_SPEC};
 use super::Progress;
 use super::{
     resumable, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
@@ -95,14 +95,17 @@ pub struct LightPush {
 pub const TRACE: Kernel =
     Kernel { shader: shader!("path/trace"), push_bytes: std::mem::size_of::<PathPush>(), spec: MESH_SPEC };
 pub const LIGHT: Kernel =
-    Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: SCENE_SPEC };
+    Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: MESH_SPEC };
+/// The light kernel's bindings of the [[object]]'s BVH nodes and triangles (6 holds its stats).
+const LIGHT_MESH_NODES_BINDING: u32 = 7;
+const LIGHT_MESH_TRIS_BINDING: u32 = 8;
 
 /// Per path slot of the light kernel: the 64-bit fixed-point splat sums (3 channels x 2
 /// words) of its pixel and the resumable state (`LightState`).
 pub const LIGHT_BYTES_PER_PIXEL: u64 = 24 + LIGHT_STATE_BYTES;
 /// Per path slot: the resumable light-path state (`LightState` in glsl/path/light.comp: the
-/// path, and a tracking loop paused mid-flight).
-pub const LIGHT_STATE_BYTES: u64 = 112;
+/// path, and a tracking loop paused mid-flight, in a chained interval through a mesh too).
+pub const LIGHT_STATE_BYTES: u64 = 128;
 /// Splats of a typical size are this many fixed-point quanta (2^24): ~7 significant digits.
 const QUANTA_PER_TYPICAL_SPLAT: f64 = 16_777_216.0;
 /// Mean optical depth around a light below which `auto` leaves it to camera paths.
@@ -352,18 +355,34 @@ pub fn light_traced(scene: &Scene, mode: &str, collision_cap: u32) -> Result<(Ve
     }
     let mut notes = Vec::new();
     let mut traced = Vec::new();
-    if scene.object.is_some() {
-        // Light paths (glsl/path/light.comp) do not trace meshes yet: camera paths render
-        // every light of a scene with an [[object]].
-        if mode == "on" {
-            return Err(SolverError::Setting {
-                key: "path.light_tracing".into(),
-                reason: "light paths do not trace [[object]] meshes yet; use auto or off (camera paths render \
-                    every light)"
-                    .into(),
-            });
+    if let Some(o) = &scene.object {
+        // Light paths (glsl/path/light.comp) cross index-matched surfaces; through a refractive
+        // one no straight connection reaches the camera, so camera paths render every light.
+        if o.refractive() {
+            if mode == "on" {
+                return Err(SolverError::Setting {
+                    key: "path.light_tracing".into(),
+                    reason: "light paths do not cross a refractive [[object]] boundary (ior != 1: no straight \
+                        connection to the camera); use auto or off (camera paths render every light)"
+                        .into(),
+                });
+            }
+            return Ok((traced, notes));
         }
-        return Ok((traced, notes));
+        // A light path starts inside the object that holds its light.
+        if mode == "on" {
+            if let Some(i) =
+                scene.lights.iter().position(|l| matches!(l, Light::Point { position, .. } if !o.contains(*position)))
+            {
+                return Err(SolverError::Setting {
+                    key: "path.light_tracing".into(),
+                    reason: format!(
+                        "light {i} lies outside every [[object]]: light paths start inside the object that holds \
+                            their light; use auto (the lights inside) or off"
+                    ),
+                });
+            }
+        }
     }
     for (i, l) in scene.lights.iter().enumerate() {
         // A light with no power has nothing to trace; leave it to the (cheap) camera side.
@@ -936,7 +955,7 @@ fn light_paths(
         })
         .sum();
     let inv_quantum = QUANTA_PER_TYPICAL_SPLAT / typical_splat(scene, power_sum);
-    let pipeline = gpu.pipeline(&LIGHT, &gs.modelled.spec())?;
+    let pipeline = gpu.pipeline(&LIGHT, &gs.modelled.mesh_spec())?;
     let splats = gpu.buffer("light splats", pixels * 24)?;
     let state = gpu.buffer("light path state", pixels * LIGHT_STATE_BYTES)?;
     let stats = gpu.buffer("light path stats", resumable::STATS_WORDS * 4)?;
@@ -965,6 +984,8 @@ fn light_paths(
                 power_sum: power_sum as f32,
             };
             gs.bind(Pass::new("path.light", role, &pipeline))
+                .read(LIGHT_MESH_NODES_BINDING, &gs.mesh_nodes)
+                .read(LIGHT_MESH_TRIS_BINDING, &gs.mesh_tris)
                 .read_write(3, &splats)
                 .read_write(4, &stats)
                 .read_write(5, &state)
