@@ -565,7 +565,7 @@ impl Solver for Path {
                 "light_tracing",
                 "auto",
                 Range::Choice(&["auto", "on", "off"]),
-                "point lights rendered by light paths: auto (inside the medium, where it pays), on (all), off (none)",
+                "point lights rendered by light paths: auto (inside the medium, where it pays), on (all), off (none); with [[object]] meshes, index-matched ones only, the lights inside an object",
             ),
             Knob::fixed(
                 "light_batches",
