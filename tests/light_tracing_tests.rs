@@ -373,10 +373,10 @@ fn light_tracing_through_index_matched_objects_of_different_materials_agrees_wit
     assert!(right > 0.0, "no light reached the second object");
     // A light outside every object cannot start a light path; a refractive boundary refuses.
     let outside = text.replace("position = [-0.55, 0.05, 0.0]", "position = [0.0, 1.5, 0.0]");
-    let e = try_render(&gpu, &scene(&outside), PATH, &[("path.light_tracing", "on")], false).err().unwrap();
+    let e = try_render(&gpu, &scene(&outside), PATH, &[("path.light_tracing", "on")], false).err().expect("refused");
     assert!(e.to_string().contains("light 0 lies outside every [[object]]"), "{e}");
     let glass = text.replace("scale = 0.5\n", "scale = 0.5\nior = 1.5\n");
-    let e = try_render(&gpu, &scene(&glass), PATH, &[("path.light_tracing", "on")], false).err().unwrap();
+    let e = try_render(&gpu, &scene(&glass), PATH, &[("path.light_tracing", "on")], false).err().expect("refused");
     assert!(e.to_string().contains("refract"), "{e}");
     assert_clean(&gpu);
 }

@@ -260,16 +260,11 @@ fn solvers_that_hold_one_medium_refuse_several_materials_and_export_writes_each(
     let a = Mat { sigma_t: [1.0, 2.0, 4.0], albedo: [0.8, 0.8, 0.8], g: -0.3 };
     let b = Mat { sigma_t: [3.0, 3.0, 3.0], albedo: [0.9, 0.6, 0.3], g: 0.6 };
     let s = scene(&side_lit_pair(dir.path(), &a, &b, "", 4));
-    for solver in [LBL] {
-        let why = solver.mesh_refusal(&s).expect("refused before any device work");
-        assert!(
-            why.contains("holds one medium") && why.contains("object[1]") && why.contains("--solver path"),
-            "{why}"
-        );
-        // The library's guard too, for callers that go straight to render.
-        let e = try_render(&gpu, &s, solver, &[], false).err().expect("refused");
-        assert!(matches!(e, SolverError::Unsupported(_)) && e.to_string().contains("holds one medium"), "{e}");
-    }
+    let why = LBL.mesh_refusal(&s).expect("refused before any device work");
+    assert!(why.contains("holds one medium") && why.contains("object[1]") && why.contains("--solver path"), "{why}");
+    // The library's guard too, for callers that go straight to render.
+    let e = try_render(&gpu, &s, LBL, &[], false).err().expect("refused");
+    assert!(matches!(e, SolverError::Unsupported(_)) && e.to_string().contains("holds one medium"), "{e}");
     assert!(PATH.mesh_refusal(&s).is_none() && SINGLE.mesh_refusal(&s).is_none());
 
     // Export: a medium and a shape per material, each OBJ with its own parts' faces; a grid
