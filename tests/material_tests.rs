@@ -47,6 +47,15 @@ impl Mat {
     }
 }
 
+/// The side-lit pair's materials: A of chromatic extinction and backward-scattering, B of
+/// chromatic albedo and forward-scattering.
+fn pair_materials() -> (Mat, Mat) {
+    (
+        Mat { sigma_t: [1.0, 2.0, 4.0], albedo: [0.8, 0.8, 0.8], g: -0.3 },
+        Mat { sigma_t: [3.0, 3.0, 3.0], albedo: [0.9, 0.6, 0.3], g: 0.6 },
+    )
+}
+
 // The side-lit pair: box A at x in [-1, -0.1], box B at x in [0.1, 1], both y in [-1, 1],
 // z in [-0.5, 0.5]; a directional light travelling +x (through A, then B); an orthographic
 // camera looking down -z over x, y in [-1.2, 1.2] at 24 x 24 (pixel edges on the boxes' faces).
@@ -112,8 +121,7 @@ fn each_object_scatters_with_its_own_material_in_the_closed_form() {
     // against each object's own majorant).
     let gpu = gpu();
     let dir = tempfile::tempdir().unwrap();
-    let a = Mat { sigma_t: [1.0, 2.0, 4.0], albedo: [0.8, 0.8, 0.8], g: -0.3 };
-    let b = Mat { sigma_t: [3.0, 3.0, 3.0], albedo: [0.9, 0.6, 0.3], g: 0.6 };
+    let (a, b) = pair_materials();
     let ones = vec![1.0f32; 8 * 8 * 4];
     std::fs::write(dir.path().join("ones.vol"), write_vol([8, 8, 4], &ones, Vec3::splat(-1.0), Vec3::splat(1.0)))
         .unwrap();
@@ -257,8 +265,7 @@ fn lossless_objects_of_different_index_and_phase_hold_the_furnace() {
 fn solvers_that_hold_one_medium_refuse_several_materials_and_export_writes_each() {
     let gpu = gpu();
     let dir = tempfile::tempdir().unwrap();
-    let a = Mat { sigma_t: [1.0, 2.0, 4.0], albedo: [0.8, 0.8, 0.8], g: -0.3 };
-    let b = Mat { sigma_t: [3.0, 3.0, 3.0], albedo: [0.9, 0.6, 0.3], g: 0.6 };
+    let (a, b) = pair_materials();
     let s = scene(&side_lit_pair(dir.path(), &a, &b, "", 4));
     let why = LBL.mesh_refusal(&s).expect("refused before any device work");
     assert!(why.contains("holds one medium") && why.contains("object[1]") && why.contains("--solver path"), "{why}");
@@ -323,8 +330,7 @@ fn each_object_has_its_own_density_field() {
     // the wrong box (the scene's, or A's grid's place in the atlas) would be far off.
     let gpu = gpu();
     let dir = tempfile::tempdir().unwrap();
-    let a = Mat { sigma_t: [1.0, 2.0, 4.0], albedo: [0.8, 0.8, 0.8], g: -0.3 };
-    let b = Mat { sigma_t: [3.0, 3.0, 3.0], albedo: [0.9, 0.6, 0.3], g: 0.6 };
+    let (a, b) = pair_materials();
     let a2 = Mat { sigma_t: [2.0, 4.0, 8.0], ..Mat { sigma_t: [0.0; 3], albedo: a.albedo, g: a.g } };
     let write = |name: &str, dims: [u32; 3], data: &[f32]| {
         let path = dir.path().join(name);
