@@ -280,6 +280,8 @@ pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
 /// through one to reach another), light 32 or later (the mask's width).
 pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
     let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(0) };
+    // The objects' indices for messages ("1.5", or "1.5, 1.33" for objects of several materials).
+    let iors = object.materials.iter().map(|m| m.ior.to_string()).collect::<Vec<_>>().join(", ");
     let mut mask = 0u32;
     for (i, light) in scene.lights.iter().enumerate() {
         let outside = object.light_outside(light);
@@ -292,7 +294,7 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
                     with an environment, or set ior = 1 on every object",
                 light.kind_name(),
                 object.parts.len(),
-                object.ior
+                iors
             )));
         }
         if !outside {
@@ -317,10 +319,12 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
         };
         if let Some(why) = why {
             return Err(SolverError::Unsupported(format!(
-                "path: light {i} ({}) lies outside the object, whose boundary refracts (ior {}); {why}: light the \
-                    object with an environment or a point light inside it, or set object.ior = 1",
+                "path: light {i} ({}) lies outside {}, whose {} (ior {}); {why}: light the object with an \
+                    environment or a point light inside it, or set object.ior = 1",
                 light.kind_name(),
-                object.ior
+                if object.parts.len() == 1 { "the object" } else { "the objects" },
+                if object.parts.len() == 1 { "boundary refracts" } else { "boundaries refract" },
+                iors
             )));
         }
         mask |= 1 << i;
