@@ -49,13 +49,11 @@ layout(std430, binding = SCENE_BINDING) readonly buffer SceneBlock {
     vec4 cam_right;      // unit
     vec4 cam_up;         // unit
     uvec4 image;         // width, height, light count, 0
-    vec4 object;         // the [[object]] (format v2): x = ior inside object[0] (1 without one);
-                         // y = the number of density fields (0 or 1: the header's box and density)
+    vec4 object;         // the [[object]] (format v2): x = ior inside object[0] (1 without one)
     ObjectMaterial materials[MAX_MATERIALS];   // the objects' materials; [0] is the medium's in every scene
     DensityField fields[MAX_MATERIALS];        // the materials' density fields (ior.y); [0] the medium's
     Light lights[];
 } scene;
-
 
 // Specialisation: the kernels compile only the density kind and physics a scene needs.
 layout(constant_id = 0) const uint DENSITY_KIND = 0u;
@@ -75,9 +73,6 @@ uint medium_mat = 0u;
 // The density field of medium_mat, and its kind.
 uint medium_field() { return min(floatBitsToUint(scene.materials[medium_mat].ior.y), uint(MAX_MATERIALS - 1)); }
 uint field_kind(DensityField f) { return floatBitsToUint(f.bounds_min.w); }
-// Whether field fi is the header's box and density: always in a scene of one field (FIELDS
-// false, which compiles the header's code alone, bit for bit as before fields existed).
-bool header_field(uint fi) { return !FIELDS || (fi == 0u && scene.object.y <= 1.0); }
 
 layout(r32f, binding = DENSITY_BINDING) uniform readonly image3D density_grid;
 layout(std430, binding = MAJORANT_BINDING) readonly buffer MajorantGrid { float maj[]; };
@@ -147,13 +142,11 @@ vec2 scene_interval(vec3 o, vec3 d) {
 // Interval of the ray inside the medium's support (box, and the sphere for sphere density):
 // medium_mat's density field.
 vec2 medium_interval(vec3 o, vec3 d) {
-    if (!FIELDS) return scene_interval(o, d);
-    uint fi = medium_field();
-    // Field 0 is the header's box and density: the same code as before fields existed, so
-    // scenes of one field render bit for bit as they did (the compiler contracts the other
+    // A scene of one field: the header's box and density, the same code as before fields
+    // existed, so such scenes render bit for bit as they did (the compiler contracts the field
     // form's arithmetic differently: 1-2 ulp).
-    if (header_field(fi)) return scene_interval(o, d);
-    DensityField f = scene.fields[fi];
+    if (!FIELDS) return scene_interval(o, d);
+    DensityField f = scene.fields[medium_field()];
     vec2 t = ray_box(o, d, f.bounds_min.xyz, f.bounds_max.xyz);
     if (DENSITY_KIND != DENSITY_CONSTANT && field_kind(f) == DENSITY_SPHERE) {
         vec2 s = ray_sphere(o, d, f.sphere.xyz, f.sphere.w);
@@ -214,9 +207,7 @@ float header_density(vec3 p) {
 float density_at(vec3 p) {
     if (DENSITY_KIND == DENSITY_CONSTANT) return 1.0;
     if (!FIELDS) return header_density(p);
-    uint fi = medium_field();
-    if (header_field(fi)) return header_density(p);
-    DensityField fd = scene.fields[fi];
+    DensityField fd = scene.fields[medium_field()];
     uint kind = field_kind(fd);
     if (kind == DENSITY_CONSTANT) return 1.0;
     if (kind == DENSITY_SPHERE) {

@@ -160,12 +160,13 @@ vec3 ms_inscatter(vec3 p, vec3 d) {
 
 float phase_eval(float g, float c) { return ANISOTROPIC ? hg_eval(g, c) : INV_4PI; }
 
-// Optical depth (per channel) from p along w over [0, t_far], by the same piecewise-constant
-// rule; exact for constant and sphere media where the chord is integrated analytically.
 // The material of the object the camera ray's chain is in (scene.materials; 0 outside, and in
 // a scene of one material). Declared here for optical_depth; kept with the chain's state.
 uint seg_mat = 0u;
 
+// Optical depth (per channel) from p along w over [0, t_far] at extinction scale sigma_t, by
+// the same piecewise-constant rule; exact for constant and sphere media where the chord is
+// integrated analytically.
 vec3 box_depth_of(vec3 sigma_t, vec3 p, vec3 w, float t_far) {
     if (DENSITY_KIND != DENSITY_GRID) {
         vec2 iv = medium_interval(p, w);

@@ -2,7 +2,7 @@
 
 use glam::Vec3;
 
-use super::{Density, DensityField, Features, Light, Medium, Scene};
+use super::{Density, Features, FieldRef, Light, Medium, Scene};
 
 impl Scene {
     /// What this scene requires of a solver.
@@ -48,16 +48,12 @@ impl Scene {
         }
     }
 
-    /// The density fields: the objects' ([`super::Object::fields`]), or the v1 medium's density
-    /// over its box.
-    pub fn fields(&self) -> Vec<DensityField> {
+    /// The density fields, borrowed: the objects' ([`super::Object::fields`]), or the v1
+    /// medium's density over its box.
+    pub fn fields(&self) -> Vec<FieldRef<'_>> {
         match &self.object {
-            Some(o) => o.fields.clone(),
-            None => vec![DensityField {
-                density: self.medium.density.clone(),
-                bounds_min: self.medium.bounds_min,
-                bounds_max: self.medium.bounds_max,
-            }],
+            Some(o) => o.fields.iter().map(|f| f.as_ref()).collect(),
+            None => vec![self.medium.field()],
         }
     }
 
@@ -119,12 +115,24 @@ impl Medium {
         p.cmpgt(self.bounds_min).all() && p.cmplt(self.bounds_max).all()
     }
 
+    /// Its density over its bounds, borrowed.
+    pub fn field(&self) -> FieldRef<'_> {
+        FieldRef { density: &self.density, bounds_min: self.bounds_min, bounds_max: self.bounds_max }
+    }
+
     /// Density multiplier at `p`; see [`Scene::density_at`].
     pub fn density_at(&self, p: Vec3) -> f32 {
-        if !self.contains(p) {
+        self.field().density_at(p)
+    }
+}
+
+impl FieldRef<'_> {
+    /// Density multiplier at `p` (CPU reference): 0 outside the box (faces included inside).
+    pub fn density_at(&self, p: Vec3) -> f32 {
+        if !(p.cmpge(self.bounds_min).all() && p.cmple(self.bounds_max).all()) {
             return 0.0;
         }
-        match &self.density {
+        match self.density {
             Density::Constant => 1.0,
             Density::Sphere { center, radius } => {
                 if p.distance_squared(*center) <= radius * radius {

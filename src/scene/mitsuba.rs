@@ -109,10 +109,16 @@ pub fn vol_path_for(xml_path: &Path) -> PathBuf {
 /// The extinction grid of material `k`'s medium (`OUT.sigma_t.vol` for 0, `OUT.sigma_t1.vol`, ...).
 pub fn vol_path_for_material(xml_path: &Path, k: usize) -> PathBuf {
     let stem = xml_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".to_owned());
+    xml_path.with_file_name(format!("{stem}.sigma_t{}.vol", material_suffix(k)))
+}
+
+/// What names material `k`'s files and medium: nothing for the first (and a v1 scene's), so
+/// they are named as before materials existed; `k` after.
+fn material_suffix(k: usize) -> String {
     if k == 0 {
-        xml_path.with_file_name(format!("{stem}.sigma_t.vol"))
+        String::new()
     } else {
-        xml_path.with_file_name(format!("{stem}.sigma_t{k}.vol"))
+        k.to_string()
     }
 }
 
@@ -264,11 +270,7 @@ pub fn obj_path_for(xml_path: &Path) -> PathBuf {
 /// each material is a shape of its own with its own interior medium and index.
 pub fn obj_path_for_material(xml_path: &Path, k: usize) -> PathBuf {
     let mut name = xml_path.file_stem().map(|s| s.to_os_string()).unwrap_or_default();
-    if k == 0 {
-        name.push(".mesh.obj");
-    } else {
-        name.push(format!(".mesh{k}.obj"));
-    }
+    name.push(format!(".mesh{}.obj", material_suffix(k)));
     xml_path.with_file_name(name)
 }
 
@@ -445,11 +447,7 @@ fn in_medium_shape(scene: &Scene, plan: &Plan, m: &Medium, p: Vec3) -> bool {
 
 /// The id of material `k`'s medium: `medium` for the first (and a v1 scene's), `medium1`, ...
 fn medium_id(k: usize) -> String {
-    if k == 0 {
-        "medium".to_string()
-    } else {
-        format!("medium{k}")
-    }
+    format!("medium{}", material_suffix(k))
 }
 
 /// The medium `id` a point inside the medium at `p` is in: its object's material's, or the one

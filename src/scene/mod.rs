@@ -65,9 +65,9 @@ pub struct Object {
     /// index-matched. Every part's when `materials` holds one; else see `materials`.
     pub ior: f32,
     /// The distinct materials of the entries, object[0]'s first (at most [`MAX_MATERIALS`]);
-    /// one when every entry has the same medium coefficients and index. Each part names its
-    /// own ([`ObjectPart::material`]); the scene's `medium` holds object[0]'s coefficients and
-    /// the density every entry shares.
+    /// one when every entry has the same medium coefficients, index and density table. Each
+    /// part names its own ([`ObjectPart::material`]); the scene's `medium` holds object[0]'s
+    /// coefficients.
     pub materials: Vec<Material>,
     /// The density fields of the entries (at most one per material): entries that write the
     /// same density table share one field over their given bounds or their meshes' union box;
@@ -97,8 +97,8 @@ pub struct ObjectPart {
 /// holds a fixed table of them: glsl/include/scene.glsl).
 pub const MAX_MATERIALS: usize = 16;
 
-/// What fills one `[[object]]` and bounds it: the medium's coefficients and the refractive
-/// index. The density (constant, sphere or grid) is the scene's, shared by every entry, and
+/// What fills one `[[object]]` and bounds it: the medium's coefficients, the refractive index
+/// and the density field (constant, sphere or grid over a box, [`Object::fields`]), which
 /// multiplies `sigma_t` as in a v1 medium.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Material {
@@ -129,10 +129,24 @@ pub struct DensityField {
     pub bounds_max: Vec3,
 }
 
+/// A density over a box, borrowed: an object's [`DensityField`] or a v1 medium's density and
+/// bounds ([`Scene::fields`]).
+#[derive(Debug, Clone, Copy)]
+pub struct FieldRef<'a> {
+    pub density: &'a Density,
+    pub bounds_min: Vec3,
+    pub bounds_max: Vec3,
+}
+
 impl DensityField {
+    /// This field, borrowed.
+    pub fn as_ref(&self) -> FieldRef<'_> {
+        FieldRef { density: &self.density, bounds_min: self.bounds_min, bounds_max: self.bounds_max }
+    }
+
     /// Density multiplier at `p` (CPU reference), as [`Medium::density_at`] over this box.
     pub fn density_at(&self, p: Vec3) -> f32 {
-        self.medium_with(Vec3::ZERO, Vec3::ZERO, 0.0).density_at(p)
+        self.as_ref().density_at(p)
     }
 
     /// A medium of this density and box with the given coefficients.

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::gpu::{Buffer, Gpu, Image3d, Pass, Spec, SpecKind, VolumeFormat};
 use crate::scene::bvh::{BvhNode, GpuTriangle};
-use crate::scene::{CameraKind, Density, DensityField, Light, Material, Scene, MAX_MATERIALS};
+use crate::scene::{CameraKind, Density, Light, Material, Scene, MAX_MATERIALS};
 
 use super::SolverError;
 
@@ -27,8 +27,7 @@ pub struct SceneHeader {
     pub cam_right: [f32; 4],
     pub cam_up: [f32; 4],
     pub image: [u32; 4],
-    /// The [[object]] (format v2): x = ior inside object[0] (1 without one); y = the number of
-    /// density fields (1: the header's box and density are field 0's).
+    /// The [[object]] (format v2): x = ior inside object[0] (1 without one).
     pub object: [f32; 4],
     /// The objects' materials ([`crate::scene::Object::materials`]; a triangle's `v0[3]`
     /// names its own): the medium's as material 0 in every scene, zeros past the last.
@@ -280,6 +279,7 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
             }
         })
         .collect();
+    let atlas = density_atlas(scene, cell, false);
     let mut header = SceneHeader {
         bounds_min: v4(m.bounds_min, 0.0),
         bounds_max: v4(m.bounds_max, 0.0),
@@ -293,11 +293,11 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
         cam_right: v4(right, 0.0),
         cam_up: v4(up, 0.0),
         image: [scene.render.width, scene.render.height, lights.len() as u32, 0],
-        object: [scene.object.as_ref().map_or(1.0, |o| o.ior), scene_fields(scene).len() as f32, 0.0, 0.0],
+        object: [scene.object.as_ref().map_or(1.0, |o| o.ior), 0.0, 0.0, 0.0],
         materials: gpu_materials(scene),
-        fields: density_atlas(scene, cell, false).fields,
+        fields: atlas.fields,
     };
-    if scene_fields(scene).len() > 1 {
+    if atlas.field_count > 1 {
         // Several fields: no one sphere bounds the media (pixel_misses_medium uses the box).
         header.sphere = [0.0; 4];
     }
@@ -323,31 +323,30 @@ fn gpu_materials(scene: &Scene) -> [GpuMaterial; MAX_MATERIALS] {
     table
 }
 
-/// The scene's density fields: the objects' ([`crate::scene::Object::fields`]), or the v1
-/// medium's density over its box.
-pub fn scene_fields(scene: &Scene) -> Vec<DensityField> {
-    scene.fields()
-}
-
 /// The density fields on the device: every grid in one 3D image (the atlas: grids stacked
 /// along z, each padded to the widest in x and y; one grid is the image itself) and its
 /// majorant cells in one buffer, with each field's place.
 pub struct DensityAtlas {
     pub dims: [u32; 3],
-    /// Empty when no field is a grid.
+    /// Empty when no field is a grid, or built without data.
     pub data: Vec<f32>,
     pub majorant: Vec<f32>,
+    /// Majorant cells of every grid (the length of `majorant` when built with data); 0 when
+    /// no field is a grid.
+    pub majorant_cells: u32,
     pub fields: [GpuField; MAX_MATERIALS],
+    /// How many of `fields` are the scene's.
+    pub field_count: usize,
 }
 
 /// Build the [`DensityAtlas`] with majorant cells of `cell` voxels on an edge. A grid shared by
 /// several fields is stored once. Without `with_data`, only the places (`fields`, `dims`): the
 /// voxels and majorant cells are not copied.
 pub fn density_atlas(scene: &Scene, cell: u32, with_data: bool) -> DensityAtlas {
-    let fields = scene_fields(scene);
+    let fields = scene.fields();
     let grids: Vec<&crate::scene::Grid> = fields
         .iter()
-        .filter_map(|f| match &f.density {
+        .filter_map(|f| match f.density {
             Density::Grid(g) => Some(g),
             _ => None,
         })
@@ -355,7 +354,7 @@ pub fn density_atlas(scene: &Scene, cell: u32, with_data: bool) -> DensityAtlas 
     let (wx, wy) = grids.iter().fold((0, 0), |(x, y), g| (x.max(g.dims[0]), y.max(g.dims[1])));
     let mut placed: Vec<(&crate::scene::Grid, u32, u32)> = Vec::new();
     let (mut depth, mut data, mut majorant) = (0u32, Vec::new(), Vec::new());
-    let mut majorant_len = 0u32;
+    let mut majorant_cells = 0u32;
     let mut table = [GpuField::zeroed(); MAX_MATERIALS];
     for (slot, f) in table.iter_mut().zip(&fields) {
         let mut e = GpuField {
@@ -365,7 +364,7 @@ pub fn density_atlas(scene: &Scene, cell: u32, with_data: bool) -> DensityAtlas 
             grid_dims: [1, 1, 1, 0],
             maj_dims: [1, 1, 1, 1],
         };
-        match &f.density {
+        match f.density {
             Density::Constant => {}
             Density::Sphere { center, radius } => {
                 e.bounds_min[3] = f32::from_bits(1);
@@ -376,28 +375,27 @@ pub fn density_atlas(scene: &Scene, cell: u32, with_data: bool) -> DensityAtlas 
                 let (z, maj) = match placed.iter().find(|(p, _, _)| **p == *g) {
                     Some(&(_, z, maj)) => (z, maj),
                     None => {
-                        let at = (depth, majorant_len);
+                        let at = (depth, majorant_cells);
                         let [nx, ny, nz] = g.dims;
-                        majorant_len += md[0] * md[1] * md[2];
-                        if !with_data {
-                        } else if grids.len() == 1 || (nx == wx && ny == wy) {
-                            data.extend_from_slice(&g.data);
-                        } else {
-                            // Padded rows and slices: voxel (x, y, z) at (x, y, depth + z).
-                            let mut padded = vec![0f32; (wx * wy * nz) as usize];
-                            for k in 0..nz {
-                                for j in 0..ny {
-                                    let src = ((k * ny + j) * nx) as usize;
-                                    let dst = ((k * wy + j) * wx) as usize;
-                                    padded[dst..dst + nx as usize].copy_from_slice(&g.data[src..src + nx as usize]);
-                                }
-                            }
-                            data.extend_from_slice(&padded);
-                        }
+                        majorant_cells += md[0] * md[1] * md[2];
+                        depth += nz;
                         if with_data {
+                            if nx == wx && ny == wy {
+                                data.extend_from_slice(&g.data);
+                            } else {
+                                // Padded rows and slices: voxel (x, y, z) at (x, y, first + z).
+                                let mut padded = vec![0f32; (wx * wy * nz) as usize];
+                                for k in 0..nz {
+                                    for j in 0..ny {
+                                        let src = ((k * ny + j) * nx) as usize;
+                                        let dst = ((k * wy + j) * wx) as usize;
+                                        padded[dst..dst + nx as usize].copy_from_slice(&g.data[src..src + nx as usize]);
+                                    }
+                                }
+                                data.extend_from_slice(&padded);
+                            }
                             majorant.extend(majorant_grid(g.dims, &g.data, md));
                         }
-                        depth += nz;
                         placed.push((g, at.0, at.1));
                         at
                     }
@@ -411,7 +409,7 @@ pub fn density_atlas(scene: &Scene, cell: u32, with_data: bool) -> DensityAtlas 
         *slot = e;
     }
     let dims = if grids.len() == 1 { grids[0].dims } else { [wx.max(1), wy.max(1), depth.max(1)] };
-    DensityAtlas { dims, data, majorant, fields: table }
+    DensityAtlas { dims, data, majorant, majorant_cells, fields: table, field_count: fields.len() }
 }
 
 /// Decide what to model from the scene's features (or everything, with `force_full`).
@@ -423,7 +421,8 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
         Density::Sphere { .. } => 1,
         Density::Grid(_) => 2,
     };
-    let density = match scene_fields(scene).iter().map(|f| kind(&f.density)).max().unwrap_or(0) {
+    let fields = scene.fields();
+    let density = match fields.iter().map(|f| kind(f.density)).max().unwrap_or(0) {
         0 => "constant",
         1 => "sphere",
         _ => "grid",
@@ -435,7 +434,7 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
         forced_full: force_full,
         mesh_triangles: scene.object.as_ref().map_or(0, |o| o.mesh.triangles.len()),
         refractive: scene.object.as_ref().is_some_and(|o| o.refractive()),
-        fields: scene_fields(scene).len(),
+        fields: fields.len(),
     }
 }
 
@@ -463,13 +462,10 @@ pub fn scene_bytes_with(scene: &Scene, cell: u32) -> u64 {
     let mesh = scene.object.as_ref().map_or(placeholders, |o| o.bvh.bytes());
     let block = block + mesh;
     let atlas = density_atlas(scene, cell, false);
-    let grids: u64 = atlas.fields.iter().filter(|f| f.bounds_min[3].to_bits() == 2).count() as u64;
-    if grids == 0 {
+    if atlas.majorant_cells == 0 {
         block + 4 + 4
     } else {
-        let cells: u64 =
-            atlas.fields.iter().map(|f| f.maj_dims[..3].iter().map(|d| *d as u64).product::<u64>()).max().unwrap_or(0);
-        block + atlas.dims.iter().map(|d| *d as u64).product::<u64>() * 4 + cells * grids * 4
+        block + atlas.dims.iter().map(|d| *d as u64).product::<u64>() * 4 + atlas.majorant_cells as u64 * 4
     }
 }
 
@@ -510,7 +506,7 @@ impl GpuScene {
         gpu.write_buffer(&block, 0, &bytes)?;
         let atlas = density_atlas(scene, cell, true);
         let maxd = gpu.info().max_image_dimension_3d;
-        if scene_fields(scene).len() > 1 && atlas.dims.iter().any(|d| *d > maxd) {
+        if atlas.field_count > 1 && atlas.dims.iter().any(|d| *d > maxd) {
             return Err(SolverError::Unsupported(format!(
                 "{}: the objects' density grids stack to {} x {} x {} voxels on the device, beyond its \
                     maxImageDimension3D {maxd}; give objects the same grid (one density table), or use fewer or \
