@@ -16,6 +16,28 @@ layout(constant_id = 3) const uint NCH = 3u;
 // Links per voxel besides the rest: 6 (D3Q6) or 18 (D3Q18).
 layout(constant_id = 7) const uint LINKS = 6u;
 
+// One material as the lattice kernels read it (src/solvers/lattice.rs, LatticeMaterial).
+struct LatticeMaterial {
+    vec4 sigma_t;   // rgb extinction scale, 1/unit
+    vec4 albedo;    // rgb sigma_s / sigma_t; w = g
+    vec4 extra;     // x = reflectance of its object's surface for the links leaving it (0: index-matched)
+};
+
+#ifdef LATTICE_MATERIALS_BINDING
+// Several materials (lbl over [[object]]s of different media, src/solvers/lbl.rs): each voxel
+// names the material it holds most of (src/scene/voxelise.rs, material_occupancy), and that
+// material's coefficients replace the push constants' single medium. False for one medium,
+// whose kernels never read the table. (Declared only by the kernels that read the table.)
+layout(constant_id = 13) const bool MATS = false;
+
+// The material table (16 entries, as scene.glsl's MAX_MATERIALS), then the material of every
+// voxel. A 16-byte stand-in without MATS.
+layout(std430, binding = LATTICE_MATERIALS_BINDING) readonly buffer LatticeMaterials {
+    LatticeMaterial lmat[16];
+    uint vmat[];
+};
+#endif
+
 const ivec3 LATTICE_DIR[19] = ivec3[19](ivec3(0),
     ivec3(1, 0, 0), ivec3(-1, 0, 0), ivec3(0, 1, 0), ivec3(0, -1, 0), ivec3(0, 0, 1), ivec3(0, 0, -1),
     ivec3(1, 1, 0), ivec3(-1, -1, 0), ivec3(1, -1, 0), ivec3(-1, 1, 0),

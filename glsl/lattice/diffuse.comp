@@ -19,6 +19,7 @@
 //                                  expansion scatters toward the camera)
 //   absorbed += (kappa_t - kappa_s) S;  leaked += out_i where v + e_i leaves the lattice.
 #extension GL_GOOGLE_include_directive : require
+#define LATTICE_MATERIALS_BINDING 6
 #include "../include/lattice.glsl"
 
 layout(constant_id = 4) const uint B = 4u;   // block edge in voxels
@@ -90,7 +91,16 @@ void main() {
 
     float kt[3], ks[3];
     float dens = inside ? density[v] : 0.0;
-    for (uint c = 0u; c < NCH; ++c) lattice_kappa(pc.sigma_t[c] * dens, pc.albedo[c], pc.albedo.w, pc.sigma_t.w, kt[c], ks[c]);
+    // The voxel's medium: the push constants' one, or (MATS) the material the voxel names.
+    vec4 m_sigma_t = pc.sigma_t, m_albedo = pc.albedo;
+    float m_boundary_r = pc.boundary_r;
+    if (MATS && inside) {
+        LatticeMaterial lm = lmat[min(vmat[v], 15u)];
+        m_sigma_t = vec4(lm.sigma_t.xyz, pc.sigma_t.w);
+        m_albedo = lm.albedo;
+        m_boundary_r = lm.extra.x;
+    }
+    for (uint c = 0u; c < NCH; ++c) lattice_kappa(m_sigma_t[c] * dens, m_albedo[c], m_albedo.w, pc.sigma_t.w, kt[c], ks[c]);
 
     // Share of scattered (and rest) energy per link and channel. D3Q6 sends 1/6 to each link;
     // at the medium's boundary (a neighbour outside the lattice or of zero density) that lets
@@ -112,8 +122,8 @@ void main() {
         }
         float w_out = 0.0, w_in = 1.0 / 6.0;
         if (LINKS == 6u && pc.escape != 0u && vac > 0u && inside && dens > 0.0) {
-            float ss = pc.sigma_t[c] * dens * pc.albedo[c] * (1.0 - pc.albedo.w);
-            float sa = pc.sigma_t[c] * dens * (1.0 - pc.albedo[c]);
+            float ss = m_sigma_t[c] * dens * m_albedo[c] * (1.0 - m_albedo.w);
+            float sa = m_sigma_t[c] * dens * (1.0 - m_albedo[c]);
             float tau = (ss + sa) * pc.sigma_t.w;
             w_out = min(max(escape_probability(tau), 1.0 / 6.0), 1.0 / float(vac));
             w_in = vac < 6u ? (1.0 - float(vac) * w_out) / float(6u - vac) : 0.0;
@@ -171,7 +181,7 @@ void main() {
     // exposed area, m the surface normal from the density's gradient; it overshot everywhere,
     // docs/lbl.md.)
     uint refl_mask = 0u;
-    if (pc.boundary_r > 0.0 && inside && dens > 0.0) {
+    if (m_boundary_r > 0.0 && inside && dens > 0.0) {
         for (uint i = 1u; i <= LINKS; ++i) {
             ivec3 q = p + LATTICE_DIR[i];
             if (!lattice_inside(q, n) || density[lattice_index(q, n)] <= 0.0) refl_mask |= 1u << (i - 1u);
@@ -242,8 +252,8 @@ void main() {
                 // Links come in opposite pairs (1, 2), (3, 4), ...: outs[i] and outs[i + 1] for
                 // even i. Each gives its reflected share to the other.
                 for (uint i = 0u; i < LINKS; i += 2u) {
-                    float a = (refl_mask & (1u << i)) != 0u ? pc.boundary_r * outs[i] : 0.0;
-                    float b = (refl_mask & (2u << i)) != 0u ? pc.boundary_r * outs[i + 1u] : 0.0;
+                    float a = (refl_mask & (1u << i)) != 0u ? m_boundary_r * outs[i] : 0.0;
+                    float b = (refl_mask & (2u << i)) != 0u ? m_boundary_r * outs[i + 1u] : 0.0;
                     outs[i] = outs[i] - a + b;
                     outs[i + 1u] = outs[i + 1u] - b + a;
                 }

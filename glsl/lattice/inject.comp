@@ -29,6 +29,7 @@
 // concentrated deposits emitted on six axial links stream along the axes and draw a "+"
 // through the light.
 #extension GL_GOOGLE_include_directive : require
+#define LATTICE_MATERIALS_BINDING 4
 #include "../include/lattice.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
@@ -77,7 +78,9 @@ void main() {
             e = take(c * V + v, false);
             float rest = e;
             if (pc.directed != 0u) {
-                vec3 m = pc.g * vec3(take(NCH * V + (3u * c) * V + v, true),
+                // The voxel's g: the medium's, or (MATS) its material's.
+                float g = MATS ? lmat[min(vmat[v], 15u)].albedo.w : pc.g;
+                vec3 m = g * vec3(take(NCH * V + (3u * c) * V + v, true),
                                      take(NCH * V + (3u * c + 1u) * V + v, true),
                                      take(NCH * V + (3u * c + 2u) * V + v, true));
                 float l1 = abs(m.x) + abs(m.y) + abs(m.z);

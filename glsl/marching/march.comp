@@ -22,6 +22,11 @@
 // total internal reflection) goes on inside and the refracted share leaves the object: for a
 // convex object it never comes back; in a non-convex one light that leaves and re-enters is
 // dropped (what the marching then misses is light the lattice would have received).
+//
+// Objects of several materials (scene.materials): a ray inside one carries its material in
+// dir_alive.w = 2 + material (the host sets it where the ray starts; an entering crossing takes
+// the triangle's), and its extinction, albedo, density field and index are that material's. A
+// scene of one material reads materials[0], the medium's, as before.
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
@@ -66,6 +71,7 @@ void main() {
     vec3 d = ray.dir_alive.xyz;
     bool alive = ray.dir_alive.w > 0.5;
     bool inside = !HAS_MESH || ray.dir_alive.w > 1.5;   // in the object's medium (HAS_MESH)
+    uint mat = HAS_MESH && inside ? uint(ray.dir_alive.w - 1.5) : 0u;   // its material
     vec3 P = ray.power.rgb;
     uvec3 n = pc.dims.xyz;
     float lambda = pc.origin.w;
@@ -81,9 +87,10 @@ void main() {
             vec3 mid = x + d * (0.5 * len);
             ivec3 vox = ivec3(floor((mid - pc.origin.xyz) / lambda));
             if (all(greaterThanEqual(vox, ivec3(0))) && all(lessThan(vox, ivec3(n)))) {
-                vec3 st = inside ? scene.sigma_t.xyz * medium_density(mid) : vec3(0.0);
+                medium_mat = mat;
+                vec3 st = inside ? scene.materials[mat].sigma_t.xyz * medium_density(mid) : vec3(0.0);
                 vec3 seg_T = exp(-st * len);
-                vec3 dep = P * (vec3(1.0) - seg_T) * scene.albedo.xyz;
+                vec3 dep = P * (vec3(1.0) - seg_T) * scene.materials[mat].albedo.xyz;
                 P *= seg_T;
                 if (max3(dep) > 0.0) slot = uvec4(uint(vox.x) + n.x * (uint(vox.y) + n.y * uint(vox.z)), floatBitsToUint(dep));
             } else if (steps > 0.0) {
@@ -94,9 +101,10 @@ void main() {
                 vec3 nrm = triangle_normal(tri);
                 bool entering = dot(d, nrm) < 0.0;
                 vec3 nf = entering ? nrm : -nrm;   // facing the side the ray comes from
+                if (entering) mat = triangle_material(tri);
                 if (REFRACTIVE) {
                     float eta, cos_i, cos_t;
-                    float F = surface_fresnel(d, nf, entering, scene.object.x, eta, cos_i, cos_t);
+                    float F = surface_fresnel(d, nf, entering, scene.materials[mat].ior.x, eta, cos_i, cos_t);
                     if (entering) {
                         P *= 1.0 - F;
                         d = refract_dir(d, nf, eta, cos_i, cos_t);
@@ -116,5 +124,5 @@ void main() {
         }
         rhb[r * pc.k + j] = slot;
     }
-    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 : 1.0) : 0.0), vec4(P, ray.power.w));
+    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 + float(mat) : 1.0) : 0.0), vec4(P, ray.power.w));
 }

@@ -120,7 +120,8 @@ float ms_trilinear(uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) { return TRIL
 // layers ms_window.x .. + ms_window.y and counts the samples whose layer is in [ms_window.z,
 // ms_window.w) (the held layers reach one beyond, for the trilinear corners), so each sample is
 // counted in exactly one run; the whole grid is one window.
-vec3 ms_inscatter(vec3 p, vec3 d) {
+// g: the Henyey-Greenstein asymmetry of the medium at p (its material's).
+vec3 ms_inscatter(vec3 p, vec3 d, float g_p) {
     if (pc.ms_dims.x == 0u) return vec3(0.0);
     ivec3 n = ivec3(pc.ms_dims.xyz);
     vec3 g = (p - pc.ms_origin.xyz) / pc.ms_origin.w;
@@ -147,10 +148,10 @@ vec3 ms_inscatter(vec3 p, vec3 d) {
                 if (fl > 0.0 && e[c] > 0.0) {
                     vec3 fh = flux / fl;
                     float k = min(1.0, fl * (abs(fh.x) + abs(fh.y) + abs(fh.z)) / e[c]);
-                    e[c] *= 4.0 * PI * hg_eval(scene.albedo.w * k, dot(fh, -d));
+                    e[c] *= 4.0 * PI * hg_eval(g_p * k, dot(fh, -d));
                 }
             } else {
-                e[c] = max(0.0, e[c] + 3.0 * scene.albedo.w * dot(flux, -d));
+                e[c] = max(0.0, e[c] + 3.0 * g_p * dot(flux, -d));
             }
         }
     }
@@ -695,7 +696,7 @@ void main() {
         medium_mat = seg_mat;   // shadow rays' optical depths move it through other objects
         vec3 st_ = scene.materials[seg_mat].sigma_t.xyz * density_at(p);
         vec3 seg_T = exp(-st_ * dt);
-        L += T * scene.materials[seg_mat].albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p, d));
+        L += T * scene.materials[seg_mat].albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p, d, scene.materials[seg_mat].albedo.w));
         T *= seg_T;
         S = vec3(0.0);
         j = 0u;

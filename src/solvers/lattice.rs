@@ -21,6 +21,56 @@ const SPEC_BLOCK: u32 = 4;
 const SPEC_WG: u32 = 5;
 const SPEC_FIXED: u32 = 6;
 pub const SPEC_LINKS: u32 = 7;
+/// glsl/include/lattice.glsl's MATS: the voxels name their materials (several media).
+const SPEC_MATS: u32 = 13;
+
+/// Entries of the lattice's material table (glsl/include/lattice.glsl, scene.glsl's
+/// MAX_MATERIALS).
+pub const LATTICE_MATERIALS: usize = 16;
+
+/// One material as the lattice kernels read it (glsl/include/lattice.glsl, LatticeMaterial).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct LatticeMaterial {
+    /// rgb extinction scale, 1/unit.
+    pub sigma_t: [f32; 4],
+    /// rgb sigma_s / sigma_t; w = g.
+    pub albedo: [f32; 4],
+    /// x = the reflectance of its object's surface for links leaving it (0: index-matched).
+    pub extra: [f32; 4],
+}
+
+/// The lattice's materials on the device: the table, then the material of every voxel (one
+/// u32 each), shared by the diffusion and injection kernels. Without several materials a
+/// stand-in of the table's size is bound (the kernels, specialised without MATS, never read it).
+pub struct LatticeMaterials {
+    pub buffer: Buffer,
+    /// The voxels name their materials (the kernels' MATS).
+    pub several: bool,
+}
+
+impl LatticeMaterials {
+    /// `table`: the materials and each voxel's; None for one medium.
+    pub fn new(gpu: &Gpu, table: Option<(&[LatticeMaterial], &[u32])>) -> Result<LatticeMaterials, SolverError> {
+        let mut bytes = vec![0u8; LATTICE_MATERIALS * std::mem::size_of::<LatticeMaterial>()];
+        if let Some((mats, voxels)) = table {
+            for (k, m) in mats.iter().take(LATTICE_MATERIALS).enumerate() {
+                let at = k * std::mem::size_of::<LatticeMaterial>();
+                bytes[at..at + std::mem::size_of::<LatticeMaterial>()].copy_from_slice(bytemuck::bytes_of(m));
+            }
+            bytes.extend_from_slice(bytemuck::cast_slice(voxels));
+        } else {
+            bytes.extend_from_slice(&[0u8; 4]);
+        }
+        debug_assert_eq!(bytes.len() as u64, Self::bytes(table.map_or(0, |t| t.1.len() as u64), table.is_some()));
+        Ok(LatticeMaterials { buffer: gpu.buffer_with("lattice materials", &bytes)?, several: table.is_some() })
+    }
+
+    /// Device bytes for `voxels` voxels, with several materials or the stand-in.
+    pub fn bytes(voxels: u64, several: bool) -> u64 {
+        (LATTICE_MATERIALS * std::mem::size_of::<LatticeMaterial>()) as u64 + if several { 4 * voxels } else { 4 }
+    }
+}
 
 /// The specialisation constants of lattice.glsl (channels, links), as kernels declare them.
 pub const LATTICE_SPEC: &[(u32, SpecKind)] = &[(SPEC_NCH, SpecKind::U32), (SPEC_LINKS, SpecKind::U32)];
@@ -84,12 +134,18 @@ pub const DIFFUSE: Kernel = Kernel {
         (SPEC_BLOCK, SpecKind::U32),
         (SPEC_WG, SpecKind::U32),
         (SPEC_LINKS, SpecKind::U32),
+        (SPEC_MATS, SpecKind::Bool),
     ],
 };
 pub const INJECT: Kernel = Kernel {
     shader: shader!("lattice/inject"),
     push_bytes: std::mem::size_of::<InjectPush>(),
-    spec: &[(SPEC_NCH, SpecKind::U32), (SPEC_FIXED, SpecKind::Bool), (SPEC_LINKS, SpecKind::U32)],
+    spec: &[
+        (SPEC_NCH, SpecKind::U32),
+        (SPEC_FIXED, SpecKind::Bool),
+        (SPEC_LINKS, SpecKind::U32),
+        (SPEC_MATS, SpecKind::Bool),
+    ],
 };
 
 /// The lattice's links besides the rest (glsl/include/lattice.glsl).
@@ -378,6 +434,8 @@ impl LatticeParams {
 pub struct Diffuser {
     pipeline: Pipeline,
     density: Buffer,
+    /// [`LatticeMaterials`]'s buffer (counted by its owner, not in [`Diffuser::device_bytes`]).
+    materials: Buffer,
     states: [Buffer; 2],
     irr: Buffer,
     tally: Buffer,
@@ -396,8 +454,15 @@ pub struct Diffuser {
 }
 
 impl Diffuser {
-    /// A zero lattice over `density` (one value per voxel, multiplying the extinction).
-    pub fn new(gpu: &Gpu, density: Buffer, p: &LatticeParams) -> Result<Diffuser, SolverError> {
+    /// A zero lattice over `density` (one value per voxel, multiplying the extinction), of
+    /// one medium (`p`'s coefficients), or, where `materials` has several, of the material each
+    /// voxel names.
+    pub fn new(
+        gpu: &Gpu,
+        density: Buffer,
+        p: &LatticeParams,
+        materials: &LatticeMaterials,
+    ) -> Result<Diffuser, SolverError> {
         let v: u64 = p.dims.iter().map(|d| *d as u64).product();
         check_block(gpu.info(), p.lattice, p.nch, p.block).map_err(SolverError::Unsupported)?;
         let spec = [
@@ -405,7 +470,9 @@ impl Diffuser {
             (SPEC_BLOCK, Spec::U32(p.block)),
             (SPEC_WG, Spec::U32(p.block)),
             (SPEC_LINKS, Spec::U32(p.lattice.links())),
+            (SPEC_MATS, Spec::Bool(materials.several)),
         ];
+        let materials = materials.buffer.clone();
         let pipeline = gpu.pipeline(&DIFFUSE, &spec)?;
         let state_bytes = p.lattice.state_bytes(p.nch, v);
         let groups = p.groups();
@@ -415,6 +482,7 @@ impl Diffuser {
         Ok(Diffuser {
             pipeline,
             density,
+            materials,
             states: [gpu.buffer("lattice state A", state_bytes)?, gpu.buffer("lattice state B", state_bytes)?],
             irr: gpu.buffer("lattice irradiance", p.irradiance_floats() * 4)?,
             tally: gpu.buffer("lattice diffuse tally", n_wg * p.nch as u64 * 16)?,
@@ -486,6 +554,7 @@ impl Diffuser {
                     .read_write(3, &self.irr)
                     .read_write(4, &self.tally)
                     .write(5, &self.snap)
+                    .read(6, &self.materials)
                     .push(&push)
                     .groups(self.groups),
             );
@@ -699,6 +768,8 @@ impl Diffuser {
 /// its axial links (their first moment), clears the sums, and tallies what it injected.
 pub struct Injector {
     pipeline: Pipeline,
+    /// [`LatticeMaterials`]'s buffer (the voxels' g).
+    materials: Buffer,
     tally: Buffer,
     near_tally: Buffer,
     nch: u32,
@@ -707,10 +778,23 @@ pub struct Injector {
 }
 
 impl Injector {
-    pub fn new(gpu: &Gpu, p: &LatticeParams, fixed: bool, scale: f32) -> Result<Injector, SolverError> {
-        let spec =
-            [(SPEC_NCH, Spec::U32(p.nch)), (SPEC_FIXED, Spec::Bool(fixed)), (SPEC_LINKS, Spec::U32(p.lattice.links()))];
+    /// `materials`: as [`Diffuser::new`]'s (each voxel's g for the directed injection).
+    pub fn new(
+        gpu: &Gpu,
+        p: &LatticeParams,
+        fixed: bool,
+        scale: f32,
+        materials: &LatticeMaterials,
+    ) -> Result<Injector, SolverError> {
+        let spec = [
+            (SPEC_NCH, Spec::U32(p.nch)),
+            (SPEC_FIXED, Spec::Bool(fixed)),
+            (SPEC_LINKS, Spec::U32(p.lattice.links())),
+            (SPEC_MATS, Spec::Bool(materials.several)),
+        ];
+        let materials = materials.buffer.clone();
         Ok(Injector {
+            materials,
             pipeline: gpu.pipeline(&INJECT, &spec)?,
             tally: gpu.buffer("lattice inject tally", p.injector_bytes() / 2)?,
             near_tally: gpu.buffer("lattice near-light tally", p.injector_bytes() / 2)?,
@@ -733,6 +817,7 @@ impl Injector {
             .read_write(1, lattice.state())
             .read_write(2, &self.tally)
             .read_write(3, &self.near_tally)
+            .read(4, &self.materials)
             .push(&self.push)
             .cover([self.push.dims[3], 1, 1])
     }
@@ -799,7 +884,7 @@ pub fn diffuse_impulse(
     let v: u64 = dims.iter().map(|d| *d as u64).product();
     let density = gpu.buffer_with("impulse density", &vec![1f32; v as usize])?;
     let p = LatticeParams { nch: 1, ..*p };
-    let mut d = Diffuser::new(gpu, density, &p)?;
+    let mut d = Diffuser::new(gpu, density, &p, &LatticeMaterials::new(gpu, None)?)?;
     let src = (source[0] + dims[0] * (source[1] + dims[1] * source[2])) as u64;
     gpu.write_buffer(d.state(), src * 4, bytemuck::bytes_of(&1f32))?;
     let mut left = iterations;

@@ -178,6 +178,14 @@ impl Solver for Lbl {
         true
     }
 
+    /// Objects of several materials: each lattice voxel takes the material it holds most of,
+    /// whose extinction, albedo, g and boundary reflectance the lattice kernels read
+    /// (glsl/include/lattice.glsl MATS); the marching and the view march follow each ray into
+    /// each object with its material.
+    fn renders_materials(&self) -> bool {
+        true
+    }
+
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = marching::kernels();
         k.extend([lattice::DIFFUSE, lattice::INJECT, view::MARCH, view::SHADOW]);
@@ -226,6 +234,7 @@ impl Solver for Lbl {
             + m.device_bytes(&geom, rays, p.nch, p.directed, true)
             + p.diffuser_bytes()
             + p.injector_bytes()
+            + lattice::LatticeMaterials::bytes(geom.voxels(), lattice_materials(scene, &set).is_some())
             + warm
             + view::device_bytes(scene, &set.view))
     }
@@ -306,10 +315,6 @@ impl Lbl {
         set: &LblSettings,
         progress: &dyn Fn(Progress),
     ) -> Result<(RenderOutput, Vec<f32>), SolverError> {
-        // The library's guard (the command line refuses earlier): the lattice holds one medium.
-        if let Some(why) = super::materials_unsupported(self.name(), scene) {
-            return Err(SolverError::Unsupported(why));
-        }
         let mut gs = GpuScene::upload_with(gpu, scene, force_full, super::gpu_scene::MAJORANT_CELL)?;
         // Refraction turned off: the marching and view kernels are specialised without it (both
         // read the modelled set), and the report says the boundary was taken as index-matched.
@@ -544,6 +549,21 @@ impl LblSettings {
         };
         let lattice = out.lattice;
         let mut out = LblSettings { cascade: k.get("cascade")?, ..out };
+        let several = scene.object.as_ref().is_some_and(|o| o.several_materials());
+        if several && out.cascade > 0 {
+            return Err(k.invalid(
+                "cascade",
+                "the cascadic start's coarse lattices hold one medium, and the scene's objects have several \
+                 materials; use lbl.cascade=0",
+            ));
+        }
+        if several && out.warm_start.is_some() {
+            return Err(k.invalid(
+                "warm_start",
+                "the wavefront guess holds one medium, and the scene's objects have several materials; use \
+                 lbl.warm_start=none",
+            ));
+        }
         if out.cascade > 0 && (lattice != Lattice::D3q6 || out.warm_start.is_some()) {
             return Err(k.invalid(
                 "cascade",
@@ -625,7 +645,12 @@ fn near_light_default(scene: &Scene, geom: &LatticeGeom) -> f32 {
     let Some(crate::scene::Light::Point { position, .. }) = scene.lights.first() else {
         return NEAR_LIGHT_VOXELS;
     };
-    let tau_voxel = scene.medium.sigma_t.max_element() * scene.density_at(*position) * geom.lambda;
+    // The extinction of the medium the light is in: its object's material's.
+    let sigma_t = match &scene.object {
+        Some(o) => o.material_at(*position).map_or(0.0, |m| o.materials[m].sigma_t.max_element()),
+        None => scene.medium.sigma_t.max_element(),
+    };
+    let tau_voxel = sigma_t * scene.density_at(*position) * geom.lambda;
     if tau_voxel > 0.0 {
         NEAR_LIGHT_VOXELS.min(NEAR_LIGHT_MFP / tau_voxel)
     } else {
@@ -722,8 +747,8 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
             }
             _ => None,
         },
-        directed: set.directed && m.g != 0.0,
-        flux: set.flux != view::FluxUse::None && m.g != 0.0,
+        directed: set.directed && anisotropic(scene),
+        flux: set.flux != view::FluxUse::None && anisotropic(scene),
         extrapolate: set.extrapolate,
         // A refractive object's surface reflects the lattice's outgoing links back in.
         boundary_r: match &scene.object {
@@ -733,6 +758,41 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
             _ => 0.0,
         },
     }
+}
+
+/// Whether any medium of the scene scatters anisotropically (g != 0): the lattice then injects
+/// and keeps the first moment.
+fn anisotropic(scene: &Scene) -> bool {
+    match scene.object.as_ref().filter(|o| o.several_materials()) {
+        Some(o) => o.materials.iter().any(|m| m.g != 0.0),
+        None => scene.medium.g != 0.0,
+    }
+}
+
+/// The lattice's material table for objects of several materials (glsl/include/lattice.glsl):
+/// each material's coefficients, and the diffuse Fresnel reflectance of its surface from
+/// inside where it refracts (and `lbl.view_refraction` is on). None for one medium.
+fn lattice_materials(scene: &Scene, set: &LblSettings) -> Option<Vec<lattice::LatticeMaterial>> {
+    let o = scene.object.as_ref().filter(|o| o.several_materials())?;
+    Some(
+        o.materials
+            .iter()
+            .map(|m| lattice::LatticeMaterial {
+                sigma_t: [m.sigma_t.x, m.sigma_t.y, m.sigma_t.z, 0.0],
+                albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
+                extra: [
+                    if m.ior != 1.0 && set.view.refraction {
+                        crate::physics::dielectric::diffuse_fresnel(m.ior as f64) as f32
+                    } else {
+                        0.0
+                    },
+                    0.0,
+                    0.0,
+                    0.0,
+                ],
+            })
+            .collect(),
+    )
 }
 
 /// Run marching, transfer and diffusion to convergence.
@@ -777,8 +837,13 @@ pub fn run_lattice(
     let fixed = set.deterministic || !info.float_atomics;
     let params = lattice_params(scene, set, &geom, nch);
     let marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed, params.directed, true)?;
-    let mut lattice = Diffuser::new(gpu, marcher.density.clone(), &params)?;
-    let injector = Injector::new(gpu, &params, fixed, marcher.scale)?;
+    // Objects of several materials: each voxel names its material (the marcher's voxelisation).
+    let materials = match (lattice_materials(scene, set), &marcher.voxel_materials) {
+        (Some(table), Some(voxels)) => lattice::LatticeMaterials::new(gpu, Some((&table, voxels)))?,
+        _ => lattice::LatticeMaterials::new(gpu, None)?,
+    };
+    let mut lattice = Diffuser::new(gpu, marcher.density.clone(), &params, &materials)?;
+    let injector = Injector::new(gpu, &params, fixed, marcher.scale, &materials)?;
     let rounds = marcher.rounds;
 
     let steps = plan(rounds, set.schedule);
@@ -882,7 +947,8 @@ pub fn run_lattice(
     }
     let irr = lattice.irradiance().clone();
     let irradiance = lattice::read_f32(gpu, &irr)?;
-    let device_bytes = marcher.device_bytes() + injector.device_bytes() + lattice.device_bytes();
+    let device_bytes =
+        marcher.device_bytes() + injector.device_bytes() + lattice.device_bytes() + materials.buffer.size();
     let near_light = match (params.near, scene.lights.first()) {
         (Some((_, radius)), Some(crate::scene::Light::Point { intensity, .. })) => {
             let mut e = injector.near_energy(gpu)?;
@@ -1036,7 +1102,7 @@ fn cascade(
         let dep = restrict(&deposits, fine.dims, nch, f, false);
         let params = LatticeParams { dims, lambda, ..*fine };
         let dens_buf = gpu.buffer_with("cascade density", &dens)?;
-        let mut d = Diffuser::new(gpu, dens_buf, &params)?;
+        let mut d = Diffuser::new(gpu, dens_buf, &params, &lattice::LatticeMaterials::new(gpu, None)?)?;
         match &guess {
             Some((g, from, from_lambda)) => {
                 d.plain();

@@ -9,6 +9,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole, Spec};
 use crate::physics::geometry::ray_box;
@@ -321,6 +322,9 @@ pub struct Marcher {
     /// without grid sums (dom resamples slab by slab, [`resample`]).
     pub density: Buffer,
     pub rays: Buffer,
+    /// With objects of several materials, the material of every lattice voxel (the one it
+    /// holds most of; [`Marcher::density`] is that material's density times its occupancy).
+    pub voxel_materials: Option<Vec<u32>>,
     /// The rays as they start ([`Marcher::reset`]).
     start: Vec<RayInit>,
     pub history: Buffer,
@@ -380,7 +384,40 @@ impl Marcher {
         } else {
             gpu.buffer("marching density (none kept)", 4)?
         };
-        if let (true, Some(o)) = (sums, &scene.object) {
+        let mut voxel_materials = None;
+        if let (true, Some(o)) = (sums, scene.object.as_ref().filter(|o| o.several_materials())) {
+            // Several materials: each voxel takes the material it holds most of (objects are
+            // disjoint, so only voxels where two objects touch hold two), and its density is
+            // that material's field at the voxel's centre times the material's occupancy. A
+            // surface voxel's centre can lie outside its object (and its field's box, which
+            // may be the object's own bounds): the field is read at the nearest point of its
+            // box, as one medium's box spanning every object gives it there.
+            let occ = voxelise::material_occupancy(o, geom.min(), geom.lambda, geom.dims, voxelise::SUPERSAMPLE);
+            let [nx, ny, _] = geom.dims.map(|d| d as usize);
+            let (origin, lambda) = (geom.min(), geom.lambda);
+            let (dens, mats): (Vec<f32>, Vec<u32>) = (0..geom.voxels() as usize)
+                .into_par_iter()
+                .map(|i| {
+                    let (m, share) = occ.iter().enumerate().map(|(m, o)| (m, o[i])).fold((0, 0.0f32), |best, x| {
+                        if x.1 > best.1 {
+                            x
+                        } else {
+                            best
+                        }
+                    });
+                    if share <= 0.0 {
+                        return (0.0, 0);
+                    }
+                    let c = origin
+                        + Vec3::new((i % nx) as f32 + 0.5, ((i / nx) % ny) as f32 + 0.5, (i / (nx * ny)) as f32 + 0.5)
+                            * lambda;
+                    let f = &o.fields[o.materials[m].field];
+                    (share * f.density_at(c.clamp(f.bounds_min, f.bounds_max)), m as u32)
+                })
+                .unzip();
+            gpu.write_buffer(&density, 0, bytemuck::cast_slice(&dens))?;
+            voxel_materials = Some(mats);
+        } else if let (true, Some(o)) = (sums, &scene.object) {
             // The lattice's extinction premultiplied by the mesh's occupancy (thesis 4.3): the
             // resampled density is the medium's wherever its box reaches, inside the mesh or not.
             let occ = voxelise::occupancy(o, geom.min(), geom.lambda, geom.dims, voxelise::SUPERSAMPLE);
@@ -394,10 +431,12 @@ impl Marcher {
         let (mut rays, ray_beam, beam_list) =
             beams(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
         if let Some(o) = &scene.object {
-            // Which side of the mesh each ray starts on (march.comp: dir_alive.w 2 inside).
+            // Which side of the mesh each ray starts on (march.comp: dir_alive.w 2 + the
+            // material inside).
             for r in rays.iter_mut() {
-                if o.contains(Vec3::new(r.pos_steps[0], r.pos_steps[1], r.pos_steps[2])) {
-                    r.dir_alive[3] = 2.0;
+                let p = Vec3::new(r.pos_steps[0], r.pos_steps[1], r.pos_steps[2]);
+                if o.contains(p) {
+                    r.dir_alive[3] = 2.0 + o.material_at(p).unwrap_or(0) as f32;
                 }
             }
         }
@@ -420,6 +459,7 @@ impl Marcher {
         Ok(Marcher {
             geom,
             density,
+            voxel_materials,
             rays: ray_buf,
             start: rays,
             history,
