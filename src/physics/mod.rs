@@ -14,4 +14,5 @@ pub mod phase;
 pub mod quadrature;
 pub mod reference;
 pub mod rng;
+pub mod sh;
 pub mod stats;

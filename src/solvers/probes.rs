@@ -70,7 +70,21 @@ pub const BVH: Kernel = Kernel {
     spec: &[(SPEC_HAS_MESH, SpecKind::Bool), (SPEC_REFRACTIVE, SpecKind::Bool)],
 };
 
+/// Push constants of glsl/probe/sh.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ShPush {
+    /// Directions to evaluate.
+    pub count: u32,
+    /// Spherical-harmonics order (bands 0 .. order - 1).
+    pub order: u32,
+}
+
+/// glsl/probe/sh.comp: the real spherical harmonics of glsl/include/sh.glsl, against
+/// src/physics/sh.rs in tests/sh_tests.rs.
+pub const SH: Kernel = Kernel { shader: shader!("probe/sh"), push_bytes: std::mem::size_of::<ShPush>(), spec: &[] };
+
 /// Every probe kernel.
 pub fn kernels() -> Vec<Kernel> {
-    vec![PHASE, BANDWIDTH, FRESNEL, BVH]
+    vec![PHASE, BANDWIDTH, FRESNEL, BVH, SH]
 }
