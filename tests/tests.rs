@@ -28,6 +28,7 @@ mod refraction_tests;
 mod registry_tests;
 mod report_tests;
 mod scene_tests;
+mod sh_single_tests;
 mod sh_tests;
 mod single_refraction_tests;
 mod slab_reference;

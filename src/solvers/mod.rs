@@ -32,6 +32,7 @@ pub mod networks;
 pub mod ordinates;
 pub mod probes;
 pub mod resumable;
+pub mod sh_single;
 pub mod view;
 pub mod wave_field;
 
@@ -313,7 +314,7 @@ pub fn names() -> Vec<&'static str> {
 /// Every kernel of every registered solver and of the test probes, each shader once.
 pub fn kernels() -> Vec<Kernel> {
     let mut out: Vec<Kernel> = Vec::new();
-    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(probes::kernels()) {
+    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(probes::kernels()).chain(sh_single::kernels()) {
         if !out.iter().any(|o| o.shader.name == k.shader.name) {
             out.push(k);
         }

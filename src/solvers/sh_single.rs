@@ -1,0 +1,342 @@
+//! `sh-single` (issue 17; thesis chapter 3): single scattering from per-sample, spherical-
+//! harmonics-compressed attenuation at Poisson-disk samples of an object's interior.
+//!
+//! **Status: the preprocessing on the host; the solver is not registered yet.** Built so far:
+//! the sample set (thesis 3.2, simplified below) and each sample's parameters (3.3): the
+//! attenuation psi_i(w) = exp(-tau(b_i, w)) to the boundary projected on real spherical
+//! harmonics of order L per channel (eq. 3.4, src/physics/sh.rs), the Gaussian width from the
+//! sample's radius (3.3.2) and sigma_s at the sample. Not built: the projection marched on the
+//! device, the render pass (3.4), knobs, ladder, `stability`.
+//!
+//! **Sampling, simplified.** The thesis samples layers (offset surfaces of the mesh) with a
+//! density from the divergence of the light-transport field, then draws a Poisson-disk set whose
+//! radius varies between r/2 and 2r with that density (3.2.2-3.2.4). Here the density heuristic
+//! is the depth below the surface in mean free paths: a sample's radius is r0 (0.5 + 1.5
+//! min(1, depth / (3 mean free paths))), so within a mean free path of the surface, where
+//! single scattering is seen and varies fastest, samples are up to 4x closer than deep inside
+//! (the thesis's r/2 .. 2r). The set is drawn by dart throwing (candidates uniform in the
+//! mesh's box, kept inside the mesh, accepted where no kept sample lies closer than the mean of
+//! the two radii; a hash grid finds the neighbours), deterministic for a seed. r0 is chosen so
+//! that the expected count of such a packing is the requested count, and corrected (at most
+//! twice) by the cube root of the count's ratio until within 10% of it.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use super::gpu_scene::{GpuScene, MESH_SPEC};
+use super::SolverError;
+use crate::gpu::{Gpu, Kernel, Pass, QueueRole};
+use crate::physics::quadrature::Quadrature;
+use crate::physics::rng::Pcg32;
+use crate::physics::sh;
+use crate::scene::{Density, Object};
+
+/// One sample of the interior: its centre b_i and its Poisson-disk radius (scene units).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    pub position: Vec3,
+    pub radius: f32,
+}
+
+/// 26 directions (the cube's faces, edges and corners) for the depth below the surface.
+fn depth_directions() -> Vec<Vec3> {
+    let mut out = Vec::new();
+    for x in -1..=1 {
+        for y in -1..=1 {
+            for z in -1..=1 {
+                if (x, y, z) != (0, 0, 0) {
+                    out.push(Vec3::new(x as f32, y as f32, z as f32).normalize());
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Distance from `p` (inside) to the object's surface, the nearest of 26 directions: at most
+/// 1 / cos(the largest angle to the nearest direction) ~ 1.2 times the true distance.
+pub fn depth_below_surface(object: &Object, p: Vec3) -> f32 {
+    depth_directions()
+        .iter()
+        .filter_map(|d| object.bvh.intersect(p, *d, 0.0, f32::INFINITY).map(|h| h.t))
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// The largest extinction (any channel, density 1) of the object's materials, 1/unit.
+fn max_sigma_t(object: &Object) -> f32 {
+    object.materials.iter().map(|m| m.sigma_t.max_element()).fold(0.0, f32::max)
+}
+
+/// Radius scale at depth `depth` below the surface (module docs): 0.5 at the surface, 2 from
+/// 3 mean free paths on.
+fn radius_scale(depth: f32, mfp: f32) -> f32 {
+    0.5 + 1.5 * (depth / (3.0 * mfp)).clamp(0.0, 1.0)
+}
+
+/// Random sequential addition of hard spheres of diameter d fills about 30% of space when
+/// darts run out well before the jamming limit (38%): what sizes r0 for a requested count.
+const PACKING: f64 = 0.3;
+
+/// Darts per requested sample before the set is taken as full.
+const DARTS_PER_SAMPLE: u32 = 40;
+
+/// A Poisson-disk set of about `count` samples inside `object` (module docs), deterministic for
+/// `seed`.
+pub fn poisson_samples(object: &Object, count: u32, seed: u64) -> Vec<Sample> {
+    let (lo, hi) = object.mesh.bounds();
+    let extent = hi - lo;
+    let st = max_sigma_t(object);
+    let mfp = if st > 0.0 { 1.0 / st } else { extent.max_element() };
+    let mut rng = Pcg32::new(seed, 17);
+    let dart = |rng: &mut Pcg32| lo + Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * extent;
+    // r0 from the expected packing: count = PACKING sum over the volume of 1 / ((4/3) pi (r/2)^3)
+    // with r = r0 s(x), estimated from darts inside the mesh.
+    let probes = 4096;
+    let box_volume = (extent.x * extent.y * extent.z) as f64;
+    let mut inv_cube = 0.0f64;
+    for _ in 0..probes {
+        let p = dart(&mut rng);
+        if object.contains(p) {
+            inv_cube += 1.0 / (radius_scale(depth_below_surface(object, p), mfp) as f64).powi(3);
+        }
+    }
+    let integral = inv_cube * box_volume / probes as f64;
+    let mut r0 = (2.0 * (PACKING * integral / (count.max(1) as f64 * 4.0 / 3.0 * std::f64::consts::PI)).cbrt()) as f32;
+    // The packing fraction varies with the shape (thin parts and corners fill less): up to
+    // three draws, r0 rescaled by the cube root of the count's ratio, until within 10%.
+    let mut out = Vec::new();
+    for _ in 0..3 {
+        out = dart_throw(object, count, seed, r0, mfp);
+        let ratio = out.len() as f64 / count.max(1) as f64;
+        if (ratio - 1.0).abs() < 0.1 {
+            break;
+        }
+        r0 *= ratio.cbrt() as f32;
+    }
+    out
+}
+
+/// One dart-throwing draw of radius scale `r0` (module docs).
+fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, mfp: f32) -> Vec<Sample> {
+    let (lo, hi) = object.mesh.bounds();
+    let extent = hi - lo;
+    let mut rng = Pcg32::new(seed, 18);
+    let dart = |rng: &mut Pcg32| lo + Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * extent;
+    // Hash grid of cell r0 / 2 (the smallest radius): a sample's conflicts lie within
+    // (r + 2 r0) / 2 <= 2 r0, four cells.
+    let cell = 0.5 * r0;
+    let dims = (extent / cell).ceil().as_uvec3().max(glam::UVec3::ONE);
+    let key = |p: Vec3| ((p - lo) / cell).floor().as_ivec3().clamp(glam::IVec3::ZERO, dims.as_ivec3() - 1);
+    let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
+    let mut out: Vec<Sample> = Vec::new();
+    for _ in 0..count.max(1) * DARTS_PER_SAMPLE {
+        let p = dart(&mut rng);
+        if !object.contains(p) {
+            continue;
+        }
+        let r = r0 * radius_scale(depth_below_surface(object, p), mfp);
+        let c = key(p);
+        let reach = ((r + 2.0 * r0) * 0.5 / cell).ceil() as i32;
+        let mut free = true;
+        'search: for dz in -reach..=reach {
+            for dy in -reach..=reach {
+                for dx in -reach..=reach {
+                    if let Some(list) = grid.get(&(c + glam::IVec3::new(dx, dy, dz))) {
+                        for &j in list {
+                            let s = out[j as usize];
+                            if s.position.distance(p) < 0.5 * (r + s.radius) {
+                                free = false;
+                                break 'search;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        if free {
+            grid.entry(c).or_default().push(out.len() as u32);
+            out.push(Sample { position: p, radius: r });
+        }
+    }
+    out
+}
+
+/// Optical depth per channel from `p` (inside the object) along unit `w` to infinity: each
+/// interval inside an object at its material's extinction times the density integral (exact
+/// for constant density, the midpoint rule in steps of `step` otherwise), crossing every
+/// surface straight (the attenuation psi of eq. 3.2 has no refraction).
+pub fn optical_depth(object: &Object, p: Vec3, w: Vec3, step: f32) -> [f64; 3] {
+    let mut tau = [0.0f64; 3];
+    let Some(mut mat) = object.material_at(p) else { return tau };
+    let mut inside = true;
+    // The segment starts at the last crossing `t`; the next crossing is searched for past it
+    // by a rounding margin (`t_search`), so as not to find the same triangle again.
+    let (mut t, mut t_search) = (0.0f32, 0.0f32);
+    // A closed mesh is crossed finitely often; the cap guards against a degenerate loop.
+    for _ in 0..object.mesh.triangles.len() + 2 {
+        let hit = object.bvh.intersect(p, w, t_search, f32::INFINITY);
+        let t_end = hit.as_ref().map_or(f32::INFINITY, |h| h.t);
+        if inside && t_end.is_finite() {
+            let m = &object.materials[mat];
+            let field = &object.fields[m.field];
+            let integral = match field.density {
+                Density::Constant => (t_end - t) as f64,
+                _ => {
+                    let n = ((t_end - t) / step).ceil().max(1.0) as usize;
+                    let dt = (t_end - t) / n as f32;
+                    (0..n).map(|i| field.density_at(p + w * (t + (i as f32 + 0.5) * dt)) as f64 * dt as f64).sum()
+                }
+            };
+            for c in 0..3 {
+                tau[c] += m.sigma_t[c] as f64 * integral;
+            }
+        }
+        let Some(h) = hit else { break };
+        let entering = h.normal.dot(w) < 0.0;
+        inside = entering;
+        if entering {
+            mat = object.bvh.triangles[h.triangle as usize].v0[3].to_bits() as usize;
+        }
+        t = h.t;
+        t_search = h.t + 1e-5 * h.t.abs().max(1.0);
+    }
+    tau
+}
+
+/// A sample's parameters (thesis 3.3): psi's coefficients per channel ([c][k], order^2 each),
+/// the Gaussian's a_i (gamma(x) = exp(-a_i |x - b_i|^2), full width at half maximum
+/// `width_scale` times the Poisson radius, 3.3.2) and sigma_s at the sample, 1/unit.
+#[derive(Clone, Debug)]
+pub struct SampleParams {
+    pub sh: [Vec<f32>; 3],
+    pub a: f32,
+    pub sigma_s: [f32; 3],
+}
+
+/// [`SampleParams`] of each sample: psi projected with `q` (many directions; the thesis uses
+/// 128-256, 3.3.1), optical depths by [`optical_depth`] with `step` on the host.
+pub fn sample_params(
+    object: &Object,
+    samples: &[Sample],
+    order: usize,
+    q: &Quadrature,
+    width_scale: f32,
+    step: f32,
+) -> Vec<SampleParams> {
+    use rayon::prelude::*;
+    let taus: Vec<Vec<[f64; 3]>> = samples
+        .par_iter()
+        .map(|s| {
+            q.directions
+                .iter()
+                .map(|d| optical_depth(object, s.position, Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32), step))
+                .collect()
+        })
+        .collect();
+    project_params(object, samples, order, q, width_scale, |i, k| taus[i][k])
+}
+
+/// Push constants of glsl/sh_single/depth.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct DepthPush {
+    pub samples: u32,
+    pub dirs: u32,
+    pub step: f32,
+    pub pad: u32,
+}
+
+/// glsl/sh_single/depth.comp: the optical depth per (sample, direction) on the device.
+pub const DEPTH: Kernel =
+    Kernel { shader: shader!("sh_single/depth"), push_bytes: std::mem::size_of::<DepthPush>(), spec: MESH_SPEC };
+
+/// The kernels of sh-single built so far (the registry's reflection checks hold them too).
+pub fn kernels() -> Vec<Kernel> {
+    vec![DEPTH]
+}
+
+/// [`sample_params`] with the optical depths marched on the device (glsl/sh_single/depth.comp,
+/// one invocation per sample and direction; `gs` the scene uploaded with its mesh), the
+/// projection on the host.
+#[allow(clippy::too_many_arguments)]
+pub fn device_params(
+    gpu: &Gpu,
+    gs: &GpuScene,
+    object: &Object,
+    samples: &[Sample],
+    order: usize,
+    q: &Quadrature,
+    width_scale: f32,
+    step: f32,
+) -> Result<Vec<SampleParams>, SolverError> {
+    let pipeline = gpu.pipeline(&DEPTH, &gs.modelled.mesh_spec())?;
+    let points: Vec<[f32; 4]> = samples
+        .iter()
+        .map(|s| {
+            let m = object.material_at(s.position).unwrap_or(0) as u32;
+            [s.position.x, s.position.y, s.position.z, f32::from_bits(m)]
+        })
+        .collect();
+    let dirs: Vec<[f32; 4]> = q.directions.iter().map(|d| [d[0] as f32, d[1] as f32, d[2] as f32, 0.0]).collect();
+    let pairs = samples.len() as u64 * dirs.len() as u64;
+    let point_buf = gpu.buffer_with("sh-single samples", &points)?;
+    let dir_buf = gpu.buffer_with("sh-single directions", &dirs)?;
+    let depth_buf = gpu.buffer("sh-single depths", pairs.max(1) * 16)?;
+    let pass = gs
+        .bind_mesh(Pass::new("sh_single.depth", QueueRole::Trace, &pipeline))
+        .read(3, &point_buf)
+        .read(4, &dir_buf)
+        .write(5, &depth_buf)
+        .push(&DepthPush { samples: samples.len() as u32, dirs: dirs.len() as u32, step, pad: 0 })
+        .cover([pairs as u32, 1, 1]);
+    let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
+    gpu.wait(point)?;
+    let depths: Vec<[f32; 4]> = gpu.read_buffer_as(&depth_buf)?;
+    let n = dirs.len();
+    Ok(project_params(object, samples, order, q, width_scale, |i, k| {
+        let t = depths[i * n + k];
+        [t[0] as f64, t[1] as f64, t[2] as f64]
+    }))
+}
+
+/// The parameters from the optical depth `tau(i, k)` of sample i toward direction k of `q`.
+fn project_params(
+    object: &Object,
+    samples: &[Sample],
+    order: usize,
+    q: &Quadrature,
+    width_scale: f32,
+    tau: impl Fn(usize, usize) -> [f64; 3] + Sync,
+) -> Vec<SampleParams> {
+    use rayon::prelude::*;
+    // The basis at every direction, once.
+    let basis: Vec<Vec<f64>> = q.directions.iter().map(|d| sh::basis(order, *d)).collect();
+    samples
+        .par_iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let sh: [Vec<f32>; 3] = std::array::from_fn(|c| {
+                let mut coeffs = vec![0.0f64; sh::coefficients(order)];
+                for (k, (y, w)) in basis.iter().zip(&q.weights).enumerate() {
+                    let v = (-tau(i, k)[c]).exp() * w;
+                    for (o, yk) in coeffs.iter_mut().zip(y) {
+                        *o += v * yk;
+                    }
+                }
+                coeffs.iter().map(|x| *x as f32).collect()
+            });
+            // FWHM of exp(-a r^2) is 2 sqrt(ln 2 / a): a = 4 ln 2 / fwhm^2.
+            let fwhm = width_scale * s.radius;
+            let a = 4.0 * std::f32::consts::LN_2 / (fwhm * fwhm);
+            let sigma_s = match object.material_at(s.position) {
+                Some(m) => {
+                    let mat = &object.materials[m];
+                    let dens = object.fields[mat.field].density_at(s.position);
+                    std::array::from_fn(|c| mat.sigma_t[c] * mat.albedo[c] * dens)
+                }
+                None => [0.0; 3],
+            };
+            SampleParams { sh, a, sigma_s }
+        })
+        .collect()
+}

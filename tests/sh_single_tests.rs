@@ -1,0 +1,218 @@
+//! sh-single's preprocessing (issue 17, thesis 3.2-3.3; src/solvers/sh_single.rs): the
+//! Poisson-disk sample set (deterministic, inside the mesh, no two samples closer than their
+//! radii allow, about the requested count, denser near the surface) and each sample's
+//! parameters (the attenuation's spherical-harmonics coefficients against the projection of the
+//! analytic attenuation in a box, chromatic extinction, the Gaussian's width, sigma_s).
+
+use std::path::Path;
+
+use glam::Vec3;
+use scatterlab::physics::quadrature::Quadrature;
+use scatterlab::physics::sh;
+use scatterlab::solvers::gpu_scene::{GpuScene, MAJORANT_CELL};
+use scatterlab::solvers::sh_single::{
+    depth_below_surface, device_params, optical_depth, poisson_samples, sample_params,
+};
+
+use crate::common::{assert_clean, gpu, scene};
+use crate::refraction_tests::{mesh, write_box_named};
+
+fn sphere_object(sigma_t: &str) -> scatterlab::scene::Scene {
+    scene(&format!(
+        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = {sigma_t}\nalbedo = 0.9\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n",
+        mesh("icosphere.obj")
+    ))
+}
+
+fn box_object(dir: &Path, lo: Vec3, hi: Vec3, medium: &str) -> scatterlab::scene::Scene {
+    let f = write_box_named(dir, "box.obj", lo, hi);
+    scene(&format!(
+        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\n{medium}\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n",
+        f.display()
+    ))
+}
+
+#[test]
+fn poisson_samples_are_deterministic_inside_spaced_and_denser_near_the_surface() {
+    let s = sphere_object("8.0");
+    let o = s.object.as_ref().unwrap();
+    for count in [500u32, 2000] {
+        let a = poisson_samples(o, count, 7);
+        assert_eq!(a, poisson_samples(o, count, 7), "deterministic for a seed");
+        assert_ne!(a, poisson_samples(o, count, 8), "another seed, another set");
+        let n = a.len() as f64;
+        eprintln!("requested {count}: {n} samples");
+        assert!((n / count as f64 - 1.0).abs() < 0.15, "requested {count}, drew {n}");
+        for (i, x) in a.iter().enumerate() {
+            assert!(o.contains(x.position), "sample {i} outside the mesh");
+            for y in &a[i + 1..] {
+                let d = x.position.distance(y.position);
+                assert!(
+                    d >= 0.5 * (x.radius + y.radius) * (1.0 - 1e-6),
+                    "samples {d} apart, radii {} {}",
+                    x.radius,
+                    y.radius
+                );
+            }
+        }
+        // Within one mean free path (1/8) of the surface the radius is half or less of the
+        // deep samples' (r0/2 .. r0 against 2 r0), and the samples' number density is higher.
+        let mfp = 1.0 / 8.0;
+        let depths: Vec<f32> = a.iter().map(|x| depth_below_surface(o, x.position)).collect();
+        let mean = |f: &dyn Fn(f32) -> bool| {
+            let v: Vec<f32> = a.iter().zip(&depths).filter(|(_, d)| f(**d)).map(|(x, _)| x.radius).collect();
+            (v.iter().sum::<f32>() / v.len() as f32, v.len())
+        };
+        let (near, n_near) = mean(&|d| d < mfp);
+        let (deep, n_deep) = mean(&|d| d > 3.5 * mfp);
+        eprintln!("radius near the surface {near:.4} ({n_near}), deep {deep:.4} ({n_deep})");
+        assert!(n_near > 0 && n_deep > 0 && near < 0.5 * deep, "near {near}, deep {deep}");
+        // Number density: samples per volume in the outer shell (radius 0.8 sphere: depth <
+        // mfp is the shell r > 0.8 - 1/8) against the core (r < 0.8 - 3.5/8).
+        let shell = (0.8f64.powi(3) - 0.675f64.powi(3)) * 4.0 / 3.0 * std::f64::consts::PI;
+        let core = 0.4625f64.powi(3) * 4.0 / 3.0 * std::f64::consts::PI;
+        let (rho_near, rho_deep) = (n_near as f64 / shell, n_deep as f64 / core);
+        eprintln!("samples per unit volume: near {rho_near:.0}, deep {rho_deep:.0}");
+        assert!(rho_near > 3.0 * rho_deep, "near {rho_near}, deep {rho_deep}");
+    }
+}
+
+#[test]
+fn sample_parameters_project_the_boxs_exact_attenuation() {
+    // In a box the distance to the surface along w is the slab method's: the coefficients of
+    // the parameters equal the projection of exp(-sigma_t d(w)) with the same quadrature, per
+    // channel (chromatic extinction), at any order.
+    let dir = tempfile::tempdir().unwrap();
+    let (lo, hi) = (Vec3::new(-1.0, -0.5, -0.3), Vec3::new(0.7, 0.9, 0.4));
+    let s = box_object(dir.path(), lo, hi, "sigma_t = [1.0, 4.0, 12.0]\nalbedo = [0.9, 0.5, 0.2]");
+    let o = s.object.as_ref().unwrap();
+    let samples = poisson_samples(o, 40, 3);
+    let q = Quadrature::product(16, 32);
+    for order in [1usize, 5, 8] {
+        let params = sample_params(o, &samples, order, &q, 1.0, 0.01);
+        for (x, p) in samples.iter().zip(&params) {
+            let b = x.position;
+            let exit = |w: [f64; 3]| {
+                (0..3)
+                    .map(|k| {
+                        let v = w[k];
+                        let (l, h) = (lo[k] as f64, hi[k] as f64);
+                        if v > 0.0 {
+                            (h - b[k] as f64) / v
+                        } else if v < 0.0 {
+                            (l - b[k] as f64) / v
+                        } else {
+                            f64::INFINITY
+                        }
+                    })
+                    .fold(f64::INFINITY, f64::min)
+            };
+            for (c, sigma) in [1.0f64, 4.0, 12.0].iter().enumerate() {
+                let want = sh::project(order, &q, |w| (-sigma * exit(w)).exp());
+                for (k, (g, w)) in p.sh[c].iter().zip(&want).enumerate() {
+                    assert!((*g as f64 - w).abs() < 2e-5, "order {order}, channel {c}, coefficient {k}: {g} vs {w}");
+                }
+            }
+            // sigma_s = sigma_t albedo (density 1); the Gaussian's half maximum at half the
+            // width (width_scale 1: the full width at half maximum is the Poisson radius).
+            let want = [0.9f32, 2.0, 2.4];
+            for c in 0..3 {
+                assert!((p.sigma_s[c] - want[c]).abs() < 1e-5, "{:?}", p.sigma_s);
+            }
+            assert!(((-p.a * (0.5 * x.radius).powi(2)).exp() - 0.5).abs() < 1e-5);
+        }
+    }
+}
+
+#[test]
+fn optical_depth_integrates_a_grid_and_crosses_objects() {
+    // A density ramp along x (a 2 x 1 x 1 grid from 0 to 1 over the box: trilinear between the
+    // voxel centres, clamped beyond) crossed along +x from the centre: the midpoint rule of a
+    // piecewise-linear density is exact per piece.
+    let dir = tempfile::tempdir().unwrap();
+    let vol = dir.path().join("ramp.vol");
+    std::fs::write(&vol, scatterlab::scene::write_vol([2, 1, 1], &[0.0, 1.0], Vec3::splat(-1.0), Vec3::splat(1.0)))
+        .unwrap();
+    let medium = format!("sigma_t = 2.0\nalbedo = 0.5\ndensity = {{ kind = \"grid\", file = \"{}\" }}", vol.display());
+    let s = box_object(dir.path(), Vec3::splat(-1.0), Vec3::splat(1.0), &medium);
+    let o = s.object.as_ref().unwrap();
+    // From x = 0 to 1: density 0.5 + (x - 0) ... the ramp rises from 0 at x = -0.5 to 1 at 0.5,
+    // then stays 1: integral over [0, 0.5] of (x + 0.5) plus 0.5 = 0.375 + 0.5.
+    let tau = optical_depth(o, Vec3::ZERO, Vec3::X, 0.001);
+    assert!((tau[0] - 2.0 * 0.875).abs() < 1e-4, "{tau:?}");
+    // Along -x: over [-1, -0.5] density 0, over [-0.5, 0] x + 0.5: 0.125.
+    let tau = optical_depth(o, Vec3::ZERO, -Vec3::X, 0.001);
+    assert!((tau[0] - 2.0 * 0.125).abs() < 1e-4, "{tau:?}");
+
+    // Two boxes of different extinction: from inside A along +x the path crosses the rest of A,
+    // the gap, then all of B (each at its own material's sigma_t).
+    let a = write_box_named(dir.path(), "a.obj", Vec3::new(-1.0, -1.0, -1.0), Vec3::new(-0.2, 1.0, 1.0));
+    let b = write_box_named(dir.path(), "b.obj", Vec3::new(0.3, -1.0, -1.0), Vec3::new(1.0, 1.0, 1.0));
+    let two = scene(&format!(
+        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = [1.0, 2.0, 3.0]\nalbedo = 0.5\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = 10.0\nalbedo = 0.5\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n",
+        a.display(),
+        b.display()
+    ));
+    let o = two.object.as_ref().unwrap();
+    let tau = optical_depth(o, Vec3::new(-0.6, 0.0, 0.0), Vec3::X, 0.01);
+    for (c, sigma_a) in [1.0f64, 2.0, 3.0].iter().enumerate() {
+        let want = sigma_a * 0.4 + 10.0 * 0.7;
+        assert!((tau[c] - want).abs() < 1e-4, "channel {c}: {} against {want}", tau[c]);
+    }
+}
+
+#[test]
+fn device_depths_match_the_host() {
+    // glsl/sh_single/depth.comp marches the same walk as optical_depth: the coefficients agree
+    // on a faceted sphere, a grid ramp in a box, and two boxes of different materials.
+    let gpu = gpu();
+    let dir = tempfile::tempdir().unwrap();
+    let vol = dir.path().join("ramp.vol");
+    std::fs::write(&vol, scatterlab::scene::write_vol([2, 1, 1], &[0.0, 1.0], Vec3::splat(-1.0), Vec3::splat(1.0)))
+        .unwrap();
+    let ramp = format!(
+        "sigma_t = [2.0, 3.0, 5.0]\nalbedo = 0.5\ndensity = {{ kind = \"grid\", file = \"{}\" }}",
+        vol.display()
+    );
+    let a = write_box_named(dir.path(), "a.obj", Vec3::new(-1.0, -1.0, -1.0), Vec3::new(-0.2, 1.0, 1.0));
+    let b = write_box_named(dir.path(), "b.obj", Vec3::new(0.3, -1.0, -1.0), Vec3::new(1.0, 1.0, 1.0));
+    let pair = format!(
+        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = [1.0, 2.0, 3.0]\nalbedo = 0.5\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = 10.0\nalbedo = 0.5\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n",
+        a.display(),
+        b.display()
+    );
+    let q = Quadrature::product(8, 16);
+    for (what, s) in [
+        ("sphere", sphere_object("[3.0, 6.0, 9.0]")),
+        ("ramp", box_object(dir.path(), Vec3::splat(-1.0), Vec3::splat(1.0), &ramp)),
+        ("two boxes", scene(&pair)),
+    ] {
+        let o = s.object.as_ref().unwrap();
+        let samples = poisson_samples(o, 120, 5);
+        let gs = GpuScene::upload_with(&gpu, &s, false, MAJORANT_CELL).unwrap();
+        let host = sample_params(o, &samples, 5, &q, 1.0, 0.01);
+        let dev = device_params(&gpu, &gs, o, &samples, 5, &q, 1.0, 0.01).unwrap();
+        let mut worst = 0.0f32;
+        for (h, d) in host.iter().zip(&dev) {
+            for c in 0..3 {
+                for (x, y) in h.sh[c].iter().zip(&d.sh[c]) {
+                    worst = worst.max((x - y).abs());
+                }
+            }
+            assert_eq!((h.a, h.sigma_s), (d.a, d.sigma_s));
+        }
+        eprintln!("{what}: {} samples, worst coefficient difference {worst:.2e}", samples.len());
+        assert!(worst < 1e-4, "{what}: device and host coefficients differ by {worst}");
+    }
+    assert_clean(&gpu);
+}
