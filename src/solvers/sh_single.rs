@@ -252,7 +252,7 @@ pub const DEPTH: Kernel =
 
 /// The kernels of sh-single built so far (the registry's reflection checks hold them too).
 pub fn kernels() -> Vec<Kernel> {
-    vec![DEPTH]
+    vec![DEPTH, RENDER]
 }
 
 /// [`sample_params`] with the optical depths marched on the device (glsl/sh_single/depth.comp,
@@ -339,4 +339,216 @@ fn project_params(
             SampleParams { sh, a, sigma_s }
         })
         .collect()
+}
+
+/// Push constants of glsl/sh_single/render.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct RenderPush {
+    pub first: u32,
+    pub count: u32,
+    pub order: u32,
+    pub lights: u32,
+    pub env: [f32; 4],
+    pub r_diffuse: f32,
+    pub step: f32,
+    pub pad: [u32; 2],
+}
+
+/// glsl/sh_single/render.comp: the render pass (thesis 3.4).
+pub const RENDER: Kernel =
+    Kernel { shader: shader!("sh_single/render"), push_bytes: std::mem::size_of::<RenderPush>(), spec: MESH_SPEC };
+
+/// Samples per render dispatch: each invocation's loop over them stays far below llvmpipe's
+/// loop limiter.
+const CHUNK: u32 = 2048;
+
+/// sh-single's settings (the future solver's knobs `order`, `samples`, `width_scale`, `seed`).
+#[derive(Clone, Copy, Debug)]
+pub struct ShSettings {
+    /// Spherical-harmonics order L (bands 0 .. L - 1), 1 ..= 8.
+    pub order: usize,
+    /// Requested Poisson-disk samples.
+    pub samples: u32,
+    /// Gaussian full width at half maximum in Poisson radii.
+    pub width_scale: f32,
+    pub seed: u64,
+}
+
+/// What a render measured: samples drawn, bytes of the sample set on the device, the
+/// preprocessing and render times.
+#[derive(Clone, Debug)]
+pub struct ShStats {
+    pub samples: usize,
+    pub sample_bytes: u64,
+    pub preprocess_s: f64,
+    pub render_s: f64,
+}
+
+/// The Fresnel transmittance of every refracting surface the straight ray from `p` (inside the
+/// object) along `w` crosses (`single`'s shadow rays, thesis 3.1.1).
+fn fresnel_transmittance(object: &Object, p: Vec3, w: Vec3) -> f64 {
+    let Some(mut mat) = object.material_at(p) else { return 1.0 };
+    let mut t_search = 0.0f32;
+    let mut trans = 1.0f64;
+    for _ in 0..object.mesh.triangles.len() + 2 {
+        let Some(h) = object.bvh.intersect(p, w, t_search, f32::INFINITY) else { break };
+        let entering = h.normal.dot(w) < 0.0;
+        if entering {
+            mat = object.bvh.triangles[h.triangle as usize].v0[3].to_bits() as usize;
+        }
+        let ior = object.materials[mat].ior as f64;
+        if ior != 1.0 {
+            // The light travels the other way: where this ray leaves an object the light
+            // enters it (eta = 1 / ior, never total internal reflection), and the reverse.
+            let eta = if entering { ior } else { 1.0 / ior };
+            let cos_i = (h.normal.dot(w).abs() as f64).min(1.0);
+            trans *= 1.0 - crate::physics::dielectric::fresnel_dielectric(cos_i, eta);
+        }
+        t_search = h.t + 1e-5 * h.t.abs().max(1.0);
+    }
+    trans
+}
+
+/// Per-sample weights nu_i = 1 / sum_j gamma_j(b_i): the Gaussians of eq. 3.3 should sum to 1
+/// inside the object (a partition of unity, which the thesis notes Gaussians cannot be), and
+/// overlapping at a width of a Poisson radius or more they sum to about 2 at the centres, which
+/// left a first render 1.7-1.9x too bright. Weighting each by the inverse of the sum at its own
+/// centre makes sum_i nu_i gamma_i = 1 there (Shepard's normalisation at the nodes), which the
+/// closed-form line integral keeps.
+pub fn partition_weights(samples: &[Sample], params: &[SampleParams]) -> Vec<f32> {
+    // Neighbours by a sweep along x: gamma_j < 1e-6 beyond sqrt(14 / a_j).
+    let mut order: Vec<usize> = (0..samples.len()).collect();
+    order.sort_by(|&i, &j| samples[i].position.x.total_cmp(&samples[j].position.x));
+    let a_min = params.iter().map(|p| p.a).fold(f32::INFINITY, f32::min);
+    let reach = (14.0 / a_min).sqrt();
+    let mut sums = vec![0.0f64; samples.len()];
+    for (k, &i) in order.iter().enumerate() {
+        let b = samples[i].position;
+        let mut total = 0.0f64;
+        for &j in order[k..].iter().take_while(|&&j| samples[j].position.x - b.x <= reach) {
+            total += (-(params[j].a * samples[j].position.distance_squared(b))).exp() as f64;
+        }
+        for &j in order[..k].iter().rev().take_while(|&&j| b.x - samples[j].position.x <= reach) {
+            total += (-(params[j].a * samples[j].position.distance_squared(b))).exp() as f64;
+        }
+        sums[i] = total;
+    }
+    sums.iter().map(|t| (1.0 / t.max(1.0)) as f32).collect()
+}
+
+/// Render `scene` (one [[object]]; its point, directional and constant environment lights) by
+/// sh-single: samples, their parameters (optical depths on the device), the light terms on the
+/// host, the render pass in chunks of samples.
+pub fn render(
+    gpu: &Gpu,
+    scene: &crate::scene::Scene,
+    set: &ShSettings,
+) -> Result<(crate::output::Image, ShStats), SolverError> {
+    let object = scene.object.as_ref().ok_or_else(|| {
+        SolverError::Unsupported(
+            "sh-single renders [[object]] meshes (thesis ch. 3: translucent objects); the scene has none".into(),
+        )
+    })?;
+    let clock = std::time::Instant::now();
+    let samples = poisson_samples(object, set.samples, set.seed);
+    let gs = GpuScene::upload_with(gpu, scene, false, super::gpu_scene::MAJORANT_CELL)?;
+    let q = Quadrature::product(12, 24);
+    let step = (object.mesh.bounds().1 - object.mesh.bounds().0).length() / 256.0;
+    let params = device_params(gpu, &gs, object, &samples, set.order, &q, set.width_scale, step)?;
+    // Light terms: each point or directional light's irradiance at the sample, attenuated by
+    // the sample's reconstructed psi toward it and the Fresnel transmittance on the way.
+    let mut env = Vec3::ZERO;
+    let mut lights: Vec<(Vec3, Vec3, bool)> = Vec::new(); // (position or travel direction, value, point)
+    for l in &scene.lights {
+        match l {
+            crate::scene::Light::Point { position, intensity } => lights.push((*position, *intensity, true)),
+            crate::scene::Light::Directional { direction, irradiance } => lights.push((*direction, *irradiance, false)),
+            crate::scene::Light::Environment { radiance } => env += *radiance,
+        }
+    }
+    let nu = partition_weights(&samples, &params);
+    let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(2 * samples.len());
+    let mut coeffs: Vec<f32> = Vec::with_capacity(samples.len() * 3 * sh::coefficients(set.order));
+    let mut lterms: Vec<[f32; 4]> = Vec::with_capacity(2 * samples.len() * lights.len().max(1));
+    for ((s, p), nu) in samples.iter().zip(&params).zip(&nu) {
+        let g = object.material_at(s.position).map_or(0.0, |m| object.materials[m].g);
+        sample_words.push([s.position.x, s.position.y, s.position.z, p.a]);
+        sample_words.push([p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g]);
+        for c in 0..3 {
+            coeffs.extend_from_slice(&p.sh[c]);
+        }
+        for (pos, value, point) in &lights {
+            let (w, e) = if *point {
+                let to = *pos - s.position;
+                let r2 = to.length_squared().max(1e-12);
+                (to / r2.sqrt(), *value / r2)
+            } else {
+                (-*pos, *value)
+            };
+            let wd = [w.x as f64, w.y as f64, w.z as f64];
+            let ft = fresnel_transmittance(object, s.position, w);
+            let att: [f32; 3] = std::array::from_fn(|c| {
+                let c64: Vec<f64> = p.sh[c].iter().map(|x| *x as f64).collect();
+                (sh::eval(&c64, wd).max(0.0) * ft) as f32 * e[c]
+            });
+            lterms.push([att[0], att[1], att[2], 0.0]);
+            lterms.push([w.x, w.y, w.z, 0.0]);
+        }
+    }
+    if lterms.is_empty() {
+        lterms.push([0.0; 4]);
+    }
+    let sample_buf = gpu.buffer_with("sh-single samples", &sample_words)?;
+    let coeff_buf = gpu.buffer_with("sh-single coefficients", &coeffs)?;
+    let light_buf = gpu.buffer_with("sh-single light terms", &lterms)?;
+    let sample_bytes = sample_buf.size() + coeff_buf.size() + light_buf.size();
+    let preprocess_s = clock.elapsed().as_secs_f64();
+    let clock = std::time::Instant::now();
+    let (w, h) = (scene.render.width, scene.render.height);
+    let image_buf = gpu.buffer("sh-single radiance", w as u64 * h as u64 * 16)?;
+    let pipeline = gpu.pipeline(&RENDER, &gs.modelled.mesh_spec())?;
+    // The hemispherical reflectance from outside of the first object's index (the environment's
+    // mean loss entering; 0 for ior 1).
+    let ior = object.materials[0].ior as f64;
+    let r_diffuse = if ior != 1.0 { crate::physics::dielectric::diffuse_fresnel(1.0 / ior) as f32 } else { 0.0 };
+    let n = samples.len() as u32;
+    let mut passes = Vec::new();
+    let mut first = 0u32;
+    loop {
+        let count = (n - first).min(CHUNK);
+        passes.push(
+            gs.bind_mesh(Pass::new("sh_single.render", QueueRole::Trace, &pipeline))
+                .read(3, &sample_buf)
+                .read(4, &coeff_buf)
+                .read(5, &light_buf)
+                .read_write(8, &image_buf)
+                .push(&RenderPush {
+                    first,
+                    count,
+                    order: set.order as u32,
+                    lights: lights.len() as u32,
+                    env: [env.x, env.y, env.z, if first == 0 { 1.0 } else { 0.0 }],
+                    r_diffuse,
+                    step,
+                    pad: [0; 2],
+                })
+                .cover([w, h, 1]),
+        );
+        first += count;
+        if first >= n {
+            break;
+        }
+    }
+    let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+    gpu.wait(point)?;
+    let px: Vec<[f32; 4]> = gpu.read_buffer_as(&image_buf)?;
+    let mut image = crate::output::Image::new(w, h);
+    for (i, p) in px.iter().enumerate() {
+        for c in 0..3 {
+            image.data[3 * i + c] = if p[c].is_finite() { p[c] } else { 0.0 };
+        }
+    }
+    let render_s = clock.elapsed().as_secs_f64();
+    Ok((image, ShStats { samples: samples.len(), sample_bytes, preprocess_s, render_s }))
 }
