@@ -228,7 +228,8 @@ fn sphere_scene(medium: &str, ior: f64, light: &str, size: u32) -> scatterlab::s
 #[test]
 fn sh_single_approaches_single_as_order_and_samples_grow() {
     // The render pass (glsl/sh_single/render.comp) against `single`, its ground truth, on an
-    // index-matched sphere, homogeneous and heterogeneous (a density grid rising along x and y):
+    // index-matched sphere, homogeneous and heterogeneous (a density grid rising along x and y),
+    // and a glass one (refraction, Fresnel, the camera chain's internal reflections):
     // relL2 falls at every step of the ladder (order 2 / 250 samples, 4 / 1000, 6 / 4000).
     // Albedo 0 under a sun alone renders black.
     use scatterlab::solvers::sh_single::{render, ShSettings};
@@ -239,14 +240,20 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
     std::fs::write(&vol, scatterlab::scene::write_vol([2, 2, 2], &rise, Vec3::splat(-0.8), Vec3::splat(0.8))).unwrap();
     let grid = format!("density = {{ kind = \"grid\", file = \"{}\" }}", vol.display());
     let sun = "[[light]]\nkind = \"directional\"\ndirection = [0.6, -0.3, -0.74]\nirradiance = [1.0, 0.8, 0.6]";
-    for (what, medium) in [
-        ("homogeneous: sigma_t 4, albedo 0.6, g 0.4", "sigma_t = 4.0\nalbedo = 0.6\ng = 0.4".to_string()),
+    for (what, medium, ior) in [
+        ("homogeneous: sigma_t 4, albedo 0.6, g 0.4", "sigma_t = 4.0\nalbedo = 0.6\ng = 0.4".to_string(), 1.0),
         (
             "grid: sigma_t [3, 6, 9], albedo 0.8, g -0.3",
             format!("sigma_t = [3.0, 6.0, 9.0]\nalbedo = 0.8\ng = -0.3\n{grid}"),
+            1.0,
+        ),
+        (
+            "glass: ior 1.4, sigma_t [2, 4, 8], albedo 0.5, g -0.3",
+            "sigma_t = [2.0, 4.0, 8.0]\nalbedo = 0.5\ng = -0.3".to_string(),
+            1.4,
         ),
     ] {
-        let s = sphere_scene(&medium, 1.0, sun, 32);
+        let s = sphere_scene(&medium, ior, sun, 32);
         let reference = crate::common::render(&gpu, &s, crate::common::SINGLE, &[]);
         let mut last = f64::INFINITY;
         for (order, samples) in [(2usize, 250u32), (4, 1000), (6, 4000)] {

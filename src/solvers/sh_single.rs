@@ -350,7 +350,7 @@ pub struct RenderPush {
     pub order: u32,
     pub lights: u32,
     pub env: [f32; 4],
-    pub r_diffuse: f32,
+    pub env_factor: f32,
     pub step: f32,
     pub pad: [u32; 2],
 }
@@ -385,29 +385,54 @@ pub struct ShStats {
     pub render_s: f64,
 }
 
-/// The Fresnel transmittance of every refracting surface the straight ray from `p` (inside the
-/// object) along `w` crosses (`single`'s shadow rays, thesis 3.1.1).
-fn fresnel_transmittance(object: &Object, p: Vec3, w: Vec3) -> f64 {
-    let Some(mut mat) = object.material_at(p) else { return 1.0 };
+/// The boundary factor of the straight ray from `p` (inside the object) along `w`, as `single`'s
+/// shadow rays take it (glsl/view/march.comp, optical_depth; thesis 3.1.1): at each refracting
+/// surface crossed, the Fresnel transmittance 1 - F at the ray's own angle (eta = ior where it
+/// leaves an object, 1 / ior where it enters one; total internal reflection: 0) times the
+/// radiance's change of index, ior^2 where the light enters an object (the ray leaves it) and
+/// 1 / ior^2 where it leaves one; the camera's entry divides the ior^2 out again.
+fn boundary_factor(object: &Object, p: Vec3, w: Vec3) -> f64 {
+    let mut inside = true;
     let mut t_search = 0.0f32;
-    let mut trans = 1.0f64;
+    let mut factor = 1.0f64;
     for _ in 0..object.mesh.triangles.len() + 2 {
         let Some(h) = object.bvh.intersect(p, w, t_search, f32::INFINITY) else { break };
-        let entering = h.normal.dot(w) < 0.0;
-        if entering {
-            mat = object.bvh.triangles[h.triangle as usize].v0[3].to_bits() as usize;
-        }
+        let mat = object.bvh.triangles[h.triangle as usize].v0[3].to_bits() as usize;
         let ior = object.materials[mat].ior as f64;
         if ior != 1.0 {
-            // The light travels the other way: where this ray leaves an object the light
-            // enters it (eta = 1 / ior, never total internal reflection), and the reverse.
-            let eta = if entering { ior } else { 1.0 / ior };
-            let cos_i = (h.normal.dot(w).abs() as f64).min(1.0);
-            trans *= 1.0 - crate::physics::dielectric::fresnel_dielectric(cos_i, eta);
+            let cos = (h.normal.dot(w).abs() as f64).min(1.0);
+            let f = crate::physics::dielectric::fresnel_dielectric(cos, if inside { ior } else { 1.0 / ior });
+            if f >= 1.0 {
+                return 0.0;
+            }
+            factor *= (1.0 - f) * if inside { ior * ior } else { 1.0 / (ior * ior) };
         }
+        inside = !inside;
         t_search = h.t + 1e-5 * h.t.abs().max(1.0);
     }
-    trans
+    factor
+}
+
+/// The mean of [`boundary_factor`] over the directions leaving a flat surface of index `ior`
+/// from inside (uniform in the cosine): what the environment's in-scattering loses or gains at
+/// the boundary, taken for every sample alike (1 for ior 1).
+fn environment_factor(ior: f64) -> f64 {
+    if ior == 1.0 {
+        return 1.0;
+    }
+    let n = 4096;
+    (0..n)
+        .map(|k| {
+            let mu = (k as f64 + 0.5) / n as f64;
+            let f = crate::physics::dielectric::fresnel_dielectric(mu, ior);
+            if f >= 1.0 {
+                0.0
+            } else {
+                (1.0 - f) * ior * ior
+            }
+        })
+        .sum::<f64>()
+        / n as f64
 }
 
 /// Per-sample weights nu_i = 1 / sum_j gamma_j(b_i): the Gaussians of eq. 3.3 should sum to 1
@@ -487,7 +512,7 @@ pub fn render(
                 (-*pos, *value)
             };
             let wd = [w.x as f64, w.y as f64, w.z as f64];
-            let ft = fresnel_transmittance(object, s.position, w);
+            let ft = boundary_factor(object, s.position, w);
             let att: [f32; 3] = std::array::from_fn(|c| {
                 let c64: Vec<f64> = p.sh[c].iter().map(|x| *x as f64).collect();
                 (sh::eval(&c64, wd).max(0.0) * ft) as f32 * e[c]
@@ -508,10 +533,8 @@ pub fn render(
     let (w, h) = (scene.render.width, scene.render.height);
     let image_buf = gpu.buffer("sh-single radiance", w as u64 * h as u64 * 16)?;
     let pipeline = gpu.pipeline(&RENDER, &gs.modelled.mesh_spec())?;
-    // The hemispherical reflectance from outside of the first object's index (the environment's
-    // mean loss entering; 0 for ior 1).
-    let ior = object.materials[0].ior as f64;
-    let r_diffuse = if ior != 1.0 { crate::physics::dielectric::diffuse_fresnel(1.0 / ior) as f32 } else { 0.0 };
+    // The environment's mean boundary factor at the first object's index.
+    let env_factor = environment_factor(object.materials[0].ior as f64) as f32;
     let n = samples.len() as u32;
     let mut passes = Vec::new();
     let mut first = 0u32;
@@ -529,7 +552,7 @@ pub fn render(
                     order: set.order as u32,
                     lights: lights.len() as u32,
                     env: [env.x, env.y, env.z, if first == 0 { 1.0 } else { 0.0 }],
-                    r_diffuse,
+                    env_factor,
                     step,
                     pad: [0; 2],
                 })
