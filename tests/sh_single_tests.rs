@@ -36,6 +36,21 @@ fn box_object(dir: &Path, lo: Vec3, hi: Vec3, medium: &str) -> scatterlab::scene
     ))
 }
 
+/// Box A (x in [-1, -0.2], sigma_t [1, 2, 3]) and box B (x in [0.3, 1], sigma_t 10), both y and
+/// z in [-1, 1]: two materials.
+fn two_boxes(dir: &Path) -> scatterlab::scene::Scene {
+    let a = write_box_named(dir, "a.obj", Vec3::new(-1.0, -1.0, -1.0), Vec3::new(-0.2, 1.0, 1.0));
+    let b = write_box_named(dir, "b.obj", Vec3::new(0.3, -1.0, -1.0), Vec3::new(1.0, 1.0, 1.0));
+    scene(&format!(
+        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = [1.0, 2.0, 3.0]\nalbedo = 0.5\n\
+         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = 10.0\nalbedo = 0.5\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n",
+        a.display(),
+        b.display()
+    ))
+}
+
 #[test]
 fn poisson_samples_are_deterministic_inside_spaced_and_denser_near_the_surface() {
     let s = sphere_object("8.0");
@@ -150,16 +165,7 @@ fn optical_depth_integrates_a_grid_and_crosses_objects() {
 
     // Two boxes of different extinction: from inside A along +x the path crosses the rest of A,
     // the gap, then all of B (each at its own material's sigma_t).
-    let a = write_box_named(dir.path(), "a.obj", Vec3::new(-1.0, -1.0, -1.0), Vec3::new(-0.2, 1.0, 1.0));
-    let b = write_box_named(dir.path(), "b.obj", Vec3::new(0.3, -1.0, -1.0), Vec3::new(1.0, 1.0, 1.0));
-    let two = scene(&format!(
-        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
-         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = [1.0, 2.0, 3.0]\nalbedo = 0.5\n\
-         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = 10.0\nalbedo = 0.5\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n",
-        a.display(),
-        b.display()
-    ));
+    let two = two_boxes(dir.path());
     let o = two.object.as_ref().unwrap();
     let tau = optical_depth(o, Vec3::new(-0.6, 0.0, 0.0), Vec3::X, 0.01);
     for (c, sigma_a) in [1.0f64, 2.0, 3.0].iter().enumerate() {
@@ -181,21 +187,12 @@ fn device_depths_match_the_host() {
         "sigma_t = [2.0, 3.0, 5.0]\nalbedo = 0.5\ndensity = {{ kind = \"grid\", file = \"{}\" }}",
         vol.display()
     );
-    let a = write_box_named(dir.path(), "a.obj", Vec3::new(-1.0, -1.0, -1.0), Vec3::new(-0.2, 1.0, 1.0));
-    let b = write_box_named(dir.path(), "b.obj", Vec3::new(0.3, -1.0, -1.0), Vec3::new(1.0, 1.0, 1.0));
-    let pair = format!(
-        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
-         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = [1.0, 2.0, 3.0]\nalbedo = 0.5\n\
-         [[object]]\nmesh = \"{}\"\n[object.medium]\nsigma_t = 10.0\nalbedo = 0.5\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n",
-        a.display(),
-        b.display()
-    );
+
     let q = Quadrature::product(8, 16);
     for (what, s) in [
         ("sphere", sphere_object("[3.0, 6.0, 9.0]")),
         ("ramp", box_object(dir.path(), Vec3::splat(-1.0), Vec3::splat(1.0), &ramp)),
-        ("two boxes", scene(&pair)),
+        ("two boxes", two_boxes(dir.path())),
     ] {
         let o = s.object.as_ref().unwrap();
         let samples = poisson_samples(o, 120, 5);
