@@ -150,6 +150,12 @@ impl Bvh {
         Bvh::build_tagged(mesh, &[])
     }
 
+    /// The tag [`Bvh::build_tagged`] gave triangle `triangle` (an index into [`Bvh::triangles`],
+    /// as [`Hit::triangle`]): its object's material.
+    pub fn tag(&self, triangle: u32) -> u32 {
+        self.triangles[triangle as usize].v0[3].to_bits()
+    }
+
     /// [`Bvh::build`] with a tag per triangle of `mesh` (its order; missing tags are 0) in each
     /// [`GpuTriangle`]'s `v0[3]` as `f32` bits: the index of its object's material.
     pub fn build_tagged(mesh: &TriangleMesh, tags: &[u32]) -> Bvh {

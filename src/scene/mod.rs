@@ -212,7 +212,7 @@ impl Object {
         }
         let d = Vec3::new(0.5773, 0.5774, 0.5773503).normalize();
         let hit = self.bvh.intersect(p, d, 0.0, f32::INFINITY)?;
-        Some(self.bvh.triangles[hit.triangle as usize].v0[3].to_bits() as usize)
+        Some(self.bvh.tag(hit.triangle) as usize)
     }
 
     /// Whether `p` lies inside the mesh: the parity of a ray's crossings (the direction is

@@ -100,7 +100,7 @@ fn inside_intervals(object: &Object, o: Vec3, d: Vec3, t_max: f32) -> Vec<(f32, 
         let Some(hit) = object.bvh.intersect(o, d, t, t_max) else { break };
         let entering = hit.normal.dot(d) < 0.0;
         match (entering, open) {
-            (true, None) => open = Some((hit.t, object.bvh.triangles[hit.triangle as usize].v0[3].to_bits())),
+            (true, None) => open = Some((hit.t, object.bvh.tag(hit.triangle))),
             (false, Some((t0, m))) => {
                 out.push((t0, hit.t, m));
                 open = None;

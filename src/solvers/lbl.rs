@@ -747,8 +747,9 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
             }
             _ => None,
         },
-        directed: set.directed && anisotropic(scene),
-        flux: set.flux != view::FluxUse::None && anisotropic(scene),
+        // Any medium's g (every object's material counts): the first moment is kept.
+        directed: set.directed && scene.features().anisotropic,
+        flux: set.flux != view::FluxUse::None && scene.features().anisotropic,
         extrapolate: set.extrapolate,
         // A refractive object's surface reflects the lattice's outgoing links back in.
         boundary_r: match &scene.object {
@@ -757,15 +758,6 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
             }
             _ => 0.0,
         },
-    }
-}
-
-/// Whether any medium of the scene scatters anisotropically (g != 0): the lattice then injects
-/// and keeps the first moment.
-fn anisotropic(scene: &Scene) -> bool {
-    match scene.object.as_ref().filter(|o| o.several_materials()) {
-        Some(o) => o.materials.iter().any(|m| m.g != 0.0),
-        None => scene.medium.g != 0.0,
     }
 }
 

@@ -316,6 +316,35 @@ pub fn resample(
     Ok(density)
 }
 
+/// The lattice's density and material per voxel for objects of several materials: each voxel
+/// takes the material it holds most of (objects are disjoint, so only voxels where two objects
+/// touch hold two), and its density is that material's field at the voxel's centre times the
+/// material's occupancy. A surface voxel's centre can lie outside its object (and its field's
+/// box, which may be the object's own bounds): the field is read at the nearest point of its
+/// box, as one medium's box spanning every object gives it there.
+fn material_voxels(o: &crate::scene::Object, geom: &LatticeGeom) -> (Vec<f32>, Vec<u32>) {
+    let occ = voxelise::material_occupancy(o, geom.min(), geom.lambda, geom.dims, voxelise::SUPERSAMPLE);
+    let [nx, ny, _] = geom.dims.map(|d| d as usize);
+    let (origin, lambda) = (geom.min(), geom.lambda);
+    (0..geom.voxels() as usize)
+        .into_par_iter()
+        .map(|i| {
+            let (m, share) =
+                occ.iter()
+                    .enumerate()
+                    .map(|(m, o)| (m, o[i]))
+                    .fold((0, 0.0f32), |best, x| if x.1 > best.1 { x } else { best });
+            if share <= 0.0 {
+                return (0.0, 0);
+            }
+            let c = origin
+                + Vec3::new((i % nx) as f32 + 0.5, ((i / nx) % ny) as f32 + 0.5, (i / (nx * ny)) as f32 + 0.5) * lambda;
+            let f = &o.fields[o.materials[m].field];
+            (share * f.density_at(c.clamp(f.bounds_min, f.bounds_max)), m as u32)
+        })
+        .unzip()
+}
+
 pub struct Marcher {
     pub geom: LatticeGeom,
     /// The medium's density at every voxel centre (0 outside the medium); a 4-byte stand-in
@@ -379,54 +408,27 @@ impl Marcher {
         } else {
             None
         };
-        let density = if sums {
-            resample(gpu, gs, &geom, &resampler(gpu, gs)?, 0, geom.dims[2])?
-        } else {
-            gpu.buffer("marching density (none kept)", 4)?
-        };
         let mut voxel_materials = None;
-        if let (true, Some(o)) = (sums, scene.object.as_ref().filter(|o| o.several_materials())) {
-            // Several materials: each voxel takes the material it holds most of (objects are
-            // disjoint, so only voxels where two objects touch hold two), and its density is
-            // that material's field at the voxel's centre times the material's occupancy. A
-            // surface voxel's centre can lie outside its object (and its field's box, which
-            // may be the object's own bounds): the field is read at the nearest point of its
-            // box, as one medium's box spanning every object gives it there.
-            let occ = voxelise::material_occupancy(o, geom.min(), geom.lambda, geom.dims, voxelise::SUPERSAMPLE);
-            let [nx, ny, _] = geom.dims.map(|d| d as usize);
-            let (origin, lambda) = (geom.min(), geom.lambda);
-            let (dens, mats): (Vec<f32>, Vec<u32>) = (0..geom.voxels() as usize)
-                .into_par_iter()
-                .map(|i| {
-                    let (m, share) = occ.iter().enumerate().map(|(m, o)| (m, o[i])).fold((0, 0.0f32), |best, x| {
-                        if x.1 > best.1 {
-                            x
-                        } else {
-                            best
-                        }
-                    });
-                    if share <= 0.0 {
-                        return (0.0, 0);
-                    }
-                    let c = origin
-                        + Vec3::new((i % nx) as f32 + 0.5, ((i / nx) % ny) as f32 + 0.5, (i / (nx * ny)) as f32 + 0.5)
-                            * lambda;
-                    let f = &o.fields[o.materials[m].field];
-                    (share * f.density_at(c.clamp(f.bounds_min, f.bounds_max)), m as u32)
-                })
-                .unzip();
-            gpu.write_buffer(&density, 0, bytemuck::cast_slice(&dens))?;
+        let density = if !sums {
+            gpu.buffer("marching density (none kept)", 4)?
+        } else if let Some(o) = scene.object.as_ref().filter(|o| o.several_materials()) {
+            let (dens, mats) = material_voxels(o, &geom);
             voxel_materials = Some(mats);
-        } else if let (true, Some(o)) = (sums, &scene.object) {
-            // The lattice's extinction premultiplied by the mesh's occupancy (thesis 4.3): the
-            // resampled density is the medium's wherever its box reaches, inside the mesh or not.
-            let occ = voxelise::occupancy(o, geom.min(), geom.lambda, geom.dims, voxelise::SUPERSAMPLE);
-            let mut dens: Vec<f32> = gpu.read_buffer_as(&density)?;
-            for (d, o) in dens.iter_mut().zip(&occ) {
-                *d *= o;
+            gpu.buffer_with("marching density", &dens)?
+        } else {
+            let density = resample(gpu, gs, &geom, &resampler(gpu, gs)?, 0, geom.dims[2])?;
+            if let Some(o) = &scene.object {
+                // The lattice's extinction premultiplied by the mesh's occupancy (thesis 4.3): the
+                // resampled density is the medium's wherever its box reaches, inside the mesh or not.
+                let occ = voxelise::occupancy(o, geom.min(), geom.lambda, geom.dims, voxelise::SUPERSAMPLE);
+                let mut dens: Vec<f32> = gpu.read_buffer_as(&density)?;
+                for (d, o) in dens.iter_mut().zip(&occ) {
+                    *d *= o;
+                }
+                gpu.write_buffer(&density, 0, bytemuck::cast_slice(&dens))?;
             }
-            gpu.write_buffer(&density, 0, bytemuck::cast_slice(&dens))?;
-        }
+            density
+        };
 
         let (mut rays, ray_beam, beam_list) =
             beams(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
@@ -434,9 +436,8 @@ impl Marcher {
             // Which side of the mesh each ray starts on (march.comp: dir_alive.w 2 + the
             // material inside).
             for r in rays.iter_mut() {
-                let p = Vec3::new(r.pos_steps[0], r.pos_steps[1], r.pos_steps[2]);
-                if o.contains(p) {
-                    r.dir_alive[3] = 2.0 + o.material_at(p).unwrap_or(0) as f32;
+                if let Some(m) = o.material_at(Vec3::new(r.pos_steps[0], r.pos_steps[1], r.pos_steps[2])) {
+                    r.dir_alive[3] = 2.0 + m as f32;
                 }
             }
         }

@@ -31,35 +31,48 @@ use crate::physics::rng::Pcg32;
 use crate::physics::sh;
 use crate::scene::{Density, Object};
 
-/// One sample of the interior: its centre b_i and its Poisson-disk radius (scene units).
+/// One sample of the interior: its centre b_i, its Poisson-disk radius (scene units) and the
+/// material it lies in (an index into [`Object::materials`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sample {
     pub position: Vec3,
     pub radius: f32,
+    pub material: usize,
 }
 
-/// 26 directions (the cube's faces, edges and corners) for the depth below the surface.
-fn depth_directions() -> Vec<Vec3> {
-    let mut out = Vec::new();
-    for x in -1..=1 {
-        for y in -1..=1 {
-            for z in -1..=1 {
-                if (x, y, z) != (0, 0, 0) {
-                    out.push(Vec3::new(x as f32, y as f32, z as f32).normalize());
-                }
+/// Distance from `p` (inside) to the object's surface, the nearest of 26 directions (the cube's
+/// faces, edges and corners): at most 1 / cos(the largest angle to the nearest direction) ~ 1.2
+/// times the true distance. Called for every dart: the directions are formed in place.
+pub fn depth_below_surface(object: &Object, p: Vec3) -> f32 {
+    let mut nearest = f32::INFINITY;
+    for k in 0..27 {
+        let d = Vec3::new((k % 3) as f32 - 1.0, ((k / 3) % 3) as f32 - 1.0, (k / 9) as f32 - 1.0);
+        if k != 13 {
+            if let Some(h) = object.bvh.intersect(p, d.normalize(), 0.0, nearest) {
+                nearest = h.t;
             }
         }
     }
-    out
+    nearest
 }
 
-/// Distance from `p` (inside) to the object's surface, the nearest of 26 directions: at most
-/// 1 / cos(the largest angle to the nearest direction) ~ 1.2 times the true distance.
-pub fn depth_below_surface(object: &Object, p: Vec3) -> f32 {
-    depth_directions()
-        .iter()
-        .filter_map(|d| object.bvh.intersect(p, *d, 0.0, f32::INFINITY).map(|h| h.t))
-        .fold(f32::INFINITY, f32::min)
+/// The successive surface crossings of the ray from `p` along `w`, each searched for past the
+/// last by a rounding margin (so as not to find the same triangle again); a closed mesh is
+/// crossed finitely often, and the count is capped against a degenerate loop.
+fn crossings(object: &Object, p: Vec3, w: Vec3) -> impl Iterator<Item = crate::scene::bvh::Hit> + '_ {
+    let mut t_search = 0.0f32;
+    let mut left = object.mesh.triangles.len() + 2;
+    std::iter::from_fn(move || {
+        left = left.checked_sub(1)?;
+        let h = object.bvh.intersect(p, w, t_search, f32::INFINITY)?;
+        t_search = h.t + 1e-5 * h.t.abs().max(1.0);
+        Some(h)
+    })
+}
+
+/// A uniform point of the box from `lo` spanning `extent`.
+fn dart(rng: &mut Pcg32, lo: Vec3, extent: Vec3) -> Vec3 {
+    lo + Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * extent
 }
 
 /// The largest extinction (any channel, density 1) of the object's materials, 1/unit.
@@ -88,14 +101,13 @@ pub fn poisson_samples(object: &Object, count: u32, seed: u64) -> Vec<Sample> {
     let st = max_sigma_t(object);
     let mfp = if st > 0.0 { 1.0 / st } else { extent.max_element() };
     let mut rng = Pcg32::new(seed, 17);
-    let dart = |rng: &mut Pcg32| lo + Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * extent;
     // r0 from the expected packing: count = PACKING sum over the volume of 1 / ((4/3) pi (r/2)^3)
     // with r = r0 s(x), estimated from darts inside the mesh.
     let probes = 4096;
     let box_volume = (extent.x * extent.y * extent.z) as f64;
     let mut inv_cube = 0.0f64;
     for _ in 0..probes {
-        let p = dart(&mut rng);
+        let p = dart(&mut rng, lo, extent);
         if object.contains(p) {
             inv_cube += 1.0 / (radius_scale(depth_below_surface(object, p), mfp) as f64).powi(3);
         }
@@ -121,7 +133,6 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, mfp: f32) -> Vec<
     let (lo, hi) = object.mesh.bounds();
     let extent = hi - lo;
     let mut rng = Pcg32::new(seed, 18);
-    let dart = |rng: &mut Pcg32| lo + Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * extent;
     // Hash grid of cell r0 / 2 (the smallest radius): a sample's conflicts lie within
     // (r + 2 r0) / 2 <= 2 r0, four cells.
     let cell = 0.5 * r0;
@@ -130,7 +141,7 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, mfp: f32) -> Vec<
     let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
     let mut out: Vec<Sample> = Vec::new();
     for _ in 0..count.max(1) * DARTS_PER_SAMPLE {
-        let p = dart(&mut rng);
+        let p = dart(&mut rng, lo, extent);
         if !object.contains(p) {
             continue;
         }
@@ -155,7 +166,8 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, mfp: f32) -> Vec<
         }
         if free {
             grid.entry(c).or_default().push(out.len() as u32);
-            out.push(Sample { position: p, radius: r });
+            let material = object.material_at(p).unwrap_or(0);
+            out.push(Sample { position: p, radius: r, material });
         }
     }
     out
@@ -168,22 +180,17 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, mfp: f32) -> Vec<
 pub fn optical_depth(object: &Object, p: Vec3, w: Vec3, step: f32) -> [f64; 3] {
     let mut tau = [0.0f64; 3];
     let Some(mut mat) = object.material_at(p) else { return tau };
-    let mut inside = true;
-    // The segment starts at the last crossing `t`; the next crossing is searched for past it
-    // by a rounding margin (`t_search`), so as not to find the same triangle again.
-    let (mut t, mut t_search) = (0.0f32, 0.0f32);
-    // A closed mesh is crossed finitely often; the cap guards against a degenerate loop.
-    for _ in 0..object.mesh.triangles.len() + 2 {
-        let hit = object.bvh.intersect(p, w, t_search, f32::INFINITY);
-        let t_end = hit.as_ref().map_or(f32::INFINITY, |h| h.t);
-        if inside && t_end.is_finite() {
+    // The segment inside an object runs from the last crossing `t` to the next.
+    let (mut inside, mut t) = (true, 0.0f32);
+    for h in crossings(object, p, w) {
+        if inside {
             let m = &object.materials[mat];
             let field = &object.fields[m.field];
             let integral = match field.density {
-                Density::Constant => (t_end - t) as f64,
+                Density::Constant => (h.t - t) as f64,
                 _ => {
-                    let n = ((t_end - t) / step).ceil().max(1.0) as usize;
-                    let dt = (t_end - t) / n as f32;
+                    let n = ((h.t - t) / step).ceil().max(1.0) as usize;
+                    let dt = (h.t - t) / n as f32;
                     (0..n).map(|i| field.density_at(p + w * (t + (i as f32 + 0.5) * dt)) as f64 * dt as f64).sum()
                 }
             };
@@ -191,14 +198,11 @@ pub fn optical_depth(object: &Object, p: Vec3, w: Vec3, step: f32) -> [f64; 3] {
                 tau[c] += m.sigma_t[c] as f64 * integral;
             }
         }
-        let Some(h) = hit else { break };
-        let entering = h.normal.dot(w) < 0.0;
-        inside = entering;
-        if entering {
-            mat = object.bvh.triangles[h.triangle as usize].v0[3].to_bits() as usize;
+        inside = h.normal.dot(w) < 0.0;
+        if inside {
+            mat = object.bvh.tag(h.triangle) as usize;
         }
         t = h.t;
-        t_search = h.t + 1e-5 * h.t.abs().max(1.0);
     }
     tau
 }
@@ -270,13 +274,8 @@ pub fn device_params(
     step: f32,
 ) -> Result<Vec<SampleParams>, SolverError> {
     let pipeline = gpu.pipeline(&DEPTH, &gs.modelled.mesh_spec())?;
-    let points: Vec<[f32; 4]> = samples
-        .iter()
-        .map(|s| {
-            let m = object.material_at(s.position).unwrap_or(0) as u32;
-            [s.position.x, s.position.y, s.position.z, f32::from_bits(m)]
-        })
-        .collect();
+    let points: Vec<[f32; 4]> =
+        samples.iter().map(|s| [s.position.x, s.position.y, s.position.z, f32::from_bits(s.material as u32)]).collect();
     let dirs: Vec<[f32; 4]> = q.directions.iter().map(|d| [d[0] as f32, d[1] as f32, d[2] as f32, 0.0]).collect();
     let pairs = samples.len() as u64 * dirs.len() as u64;
     let point_buf = gpu.buffer_with("sh-single samples", &points)?;
@@ -328,14 +327,9 @@ fn project_params(
             // FWHM of exp(-a r^2) is 2 sqrt(ln 2 / a): a = 4 ln 2 / fwhm^2.
             let fwhm = width_scale * s.radius;
             let a = 4.0 * std::f32::consts::LN_2 / (fwhm * fwhm);
-            let sigma_s = match object.material_at(s.position) {
-                Some(m) => {
-                    let mat = &object.materials[m];
-                    let dens = object.fields[mat.field].density_at(s.position);
-                    std::array::from_fn(|c| mat.sigma_t[c] * mat.albedo[c] * dens)
-                }
-                None => [0.0; 3],
-            };
+            let mat = &object.materials[s.material];
+            let dens = object.fields[mat.field].density_at(s.position);
+            let sigma_s = std::array::from_fn(|c| mat.sigma_t[c] * mat.albedo[c] * dens);
             SampleParams { sh, a, sigma_s }
         })
         .collect()
@@ -393,12 +387,9 @@ pub struct ShStats {
 /// 1 / ior^2 where it leaves one; the camera's entry divides the ior^2 out again.
 fn boundary_factor(object: &Object, p: Vec3, w: Vec3) -> f64 {
     let mut inside = true;
-    let mut t_search = 0.0f32;
     let mut factor = 1.0f64;
-    for _ in 0..object.mesh.triangles.len() + 2 {
-        let Some(h) = object.bvh.intersect(p, w, t_search, f32::INFINITY) else { break };
-        let mat = object.bvh.triangles[h.triangle as usize].v0[3].to_bits() as usize;
-        let ior = object.materials[mat].ior as f64;
+    for h in crossings(object, p, w) {
+        let ior = object.materials[object.bvh.tag(h.triangle) as usize].ior as f64;
         if ior != 1.0 {
             let cos = (h.normal.dot(w).abs() as f64).min(1.0);
             let f = crate::physics::dielectric::fresnel_dielectric(cos, if inside { ior } else { 1.0 / ior });
@@ -408,7 +399,6 @@ fn boundary_factor(object: &Object, p: Vec3, w: Vec3) -> f64 {
             factor *= (1.0 - f) * if inside { ior * ior } else { 1.0 / (ior * ior) };
         }
         inside = !inside;
-        t_search = h.t + 1e-5 * h.t.abs().max(1.0);
     }
     factor
 }
@@ -497,7 +487,7 @@ pub fn render(
     let mut coeffs: Vec<f32> = Vec::with_capacity(samples.len() * 3 * sh::coefficients(set.order));
     let mut lterms: Vec<[f32; 4]> = Vec::with_capacity(2 * samples.len() * lights.len().max(1));
     for ((s, p), nu) in samples.iter().zip(&params).zip(&nu) {
-        let g = object.material_at(s.position).map_or(0.0, |m| object.materials[m].g);
+        let g = object.materials[s.material].g;
         sample_words.push([s.position.x, s.position.y, s.position.z, p.a]);
         sample_words.push([p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g]);
         for c in 0..3 {
@@ -511,11 +501,11 @@ pub fn render(
             } else {
                 (-*pos, *value)
             };
-            let wd = [w.x as f64, w.y as f64, w.z as f64];
+            let y = sh::basis(set.order, [w.x as f64, w.y as f64, w.z as f64]);
             let ft = boundary_factor(object, s.position, w);
             let att: [f32; 3] = std::array::from_fn(|c| {
-                let c64: Vec<f64> = p.sh[c].iter().map(|x| *x as f64).collect();
-                (sh::eval(&c64, wd).max(0.0) * ft) as f32 * e[c]
+                let psi: f64 = p.sh[c].iter().zip(&y).map(|(k, yk)| *k as f64 * yk).sum();
+                (psi.max(0.0) * ft) as f32 * e[c]
             });
             lterms.push([att[0], att[1], att[2], 0.0]);
             lterms.push([w.x, w.y, w.z, 0.0]);
