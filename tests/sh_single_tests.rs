@@ -135,8 +135,8 @@ fn sample_parameters_project_the_boxs_exact_attenuation() {
             // sigma_s = sigma_t albedo (density 1); the Gaussian's half maximum at half the
             // width (width_scale 1: the full width at half maximum is the Poisson radius).
             let want = [0.9f32, 2.0, 2.4];
-            for c in 0..3 {
-                assert!((p.sigma_s[c] - want[c]).abs() < 1e-5, "{:?}", p.sigma_s);
+            for (got, want) in p.sigma_s.iter().zip(want) {
+                assert!((got - want).abs() < 1e-5, "{:?}", p.sigma_s);
             }
             assert!(((-p.a * (0.5 * x.radius).powi(2)).exp() - 0.5).abs() < 1e-5);
         }

@@ -194,8 +194,8 @@ pub fn optical_depth(object: &Object, p: Vec3, w: Vec3, step: f32) -> [f64; 3] {
                     (0..n).map(|i| field.density_at(p + w * (t + (i as f32 + 0.5) * dt)) as f64 * dt as f64).sum()
                 }
             };
-            for c in 0..3 {
-                tau[c] += m.sigma_t[c] as f64 * integral;
+            for (t, sigma) in tau.iter_mut().zip(m.sigma_t.to_array()) {
+                *t += sigma as f64 * integral;
             }
         }
         inside = h.normal.dot(w) < 0.0;
@@ -557,9 +557,9 @@ pub fn render(
     gpu.wait(point)?;
     let px: Vec<[f32; 4]> = gpu.read_buffer_as(&image_buf)?;
     let mut image = crate::output::Image::new(w, h);
-    for (i, p) in px.iter().enumerate() {
-        for c in 0..3 {
-            image.data[3 * i + c] = if p[c].is_finite() { p[c] } else { 0.0 };
+    for (rgb, p) in image.data.chunks_exact_mut(3).zip(&px) {
+        for (o, v) in rgb.iter_mut().zip(p) {
+            *o = if v.is_finite() { *v } else { 0.0 };
         }
     }
     let render_s = clock.elapsed().as_secs_f64();
