@@ -198,7 +198,7 @@ fn device_depths_match_the_host() {
         let samples = poisson_samples(o, 120, 5);
         let gs = GpuScene::upload_with(&gpu, &s, false, MAJORANT_CELL).unwrap();
         let host = sample_params(o, &samples, 5, &q, 1.0, 0.01);
-        let dev = device_params(&gpu, &gs, o, &samples, 5, &q, 1.0, 0.01).unwrap();
+        let (dev, _) = device_params(&gpu, &gs, o, &samples, 5, &q, 1.0, 0.01).unwrap();
         let mut worst = 0.0f32;
         for (h, d) in host.iter().zip(&dev) {
             for c in 0..3 {
@@ -255,7 +255,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
         let mut last = f64::INFINITY;
         for (order, samples) in [(2usize, 250u32), (4, 1000), (6, 4000)] {
             let set = ShSettings { order, samples, width_scale: 1.5, seed: 1 };
-            let (img, st) = render(&gpu, &s, &set).unwrap();
+            let (img, st, _, _) = render(&gpu, &s, &set, false, &|_| {}).unwrap();
             assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{what}: finite, non-negative");
             let m = scatterlab::output::compare(&img, &reference.image).unwrap();
             eprintln!(
@@ -267,7 +267,9 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
         }
     }
     let black = sphere_scene("sigma_t = 4.0\nalbedo = 0.0", 1.0, sun, 16);
-    let (img, _) = render(&gpu, &black, &ShSettings { order: 3, samples: 200, width_scale: 1.5, seed: 1 }).unwrap();
+    let (img, _, _, _) =
+        render(&gpu, &black, &ShSettings { order: 3, samples: 200, width_scale: 1.5, seed: 1 }, false, &|_| {})
+            .unwrap();
     assert!(img.data.iter().all(|v| *v == 0.0), "albedo 0 under a sun: black");
     assert_clean(&gpu);
 }

@@ -29,16 +29,16 @@ layout(std430, binding = 4) readonly buffer Dirs { vec4 dirs[]; };
 layout(std430, binding = 5) writeonly buffer Depths { vec4 depths[]; };
 
 layout(push_constant) uniform Push {
-    uint samples;
+    uint samples;   // samples in this chunk
     uint dirs;
     float step;     // density marching step, scene units
-    uint pad;
+    uint first;     // this chunk's first sample
 } pc;
 
 void main() {
     uint id = gl_GlobalInvocationID.x;
     if (id >= pc.samples * pc.dirs) return;
-    uint i = id / pc.dirs, k = id % pc.dirs;
+    uint i = pc.first + id / pc.dirs, k = id % pc.dirs;
     vec3 p = samples[i].xyz;
     vec3 w = dirs[k].xyz;
     uint mat = floatBitsToUint(samples[i].w);

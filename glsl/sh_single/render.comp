@@ -18,8 +18,8 @@
 // writes the surface's own terms: the environment reflected at the entry (F L_env) and seen
 // through each exit ((1 - F_exit) e^-tau L_env, the chords' optical depths marched). The camera
 // ray's chain reflects inside (F at each exit, all of it under total internal reflection), as
-// `single`'s view march does, up to MAX_BOUNCES. Left out: light reaching a sample along a
-// refracted path (as `single`).
+// `single`'s view march does, and crosses index-matched surfaces straight, up to MAX_EVENTS.
+// Left out: light reaching a sample along a refracted path (as `single`).
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
@@ -45,6 +45,9 @@ layout(std430, binding = 4) readonly buffer Coeffs { float coeffs[]; };
 layout(std430, binding = 5) readonly buffer LightTerms { vec4 lterms[]; };
 // Radiance per pixel (rgb), accumulated over the chunks.
 layout(std430, binding = 8) buffer Radiance { vec4 radiance[]; };
+// [0]: the most loop back-edges any invocation counted (`iters`): past LOOP_GUARD llvmpipe's
+// limiter may have cut a loop short, and the host renders again in smaller chunks.
+layout(std430, binding = 9) buffer Stats { uint stats[]; };
 
 layout(push_constant) uniform Push {
     uint first;      // first sample of this chunk
@@ -71,18 +74,28 @@ vec3 chord_tau(vec3 x, vec3 d, float t1, uint mat) {
     if (DENSITY_KIND == DENSITY_CONSTANT) return scene.materials[mat].sigma_t.xyz * t1;
     uint steps = max(1u, uint(ceil(t1 / pc.step)));
     float dt = t1 / float(steps), s = 0.0;
+    iters += steps;
     for (uint k = 0u; k < steps; ++k) s += density_at(x + d * ((float(k) + 0.5) * dt)) * dt;
     return scene.materials[mat].sigma_t.xyz * s;
 }
 
+// Loop back-edges sh_basis takes at `order` (its zero fill, then the bands), counted
+// generously toward llvmpipe's limiter.
+uint sh_basis_iters(uint order) { return SH_MAX_COEFFS + order + order * order * order; }
+
 // What the samples of this chunk scatter toward the camera along the inside segment from x
 // along d over [0, t1]: sum_i nu_i sigma_s psi_i(-d) (lights + environment) int gamma_i.
+// The three channels share one pass over the coefficients (Y_lm(-d) = (-1)^l Y_lm(d)), so a
+// sample costs order^2 + lights back-edges of llvmpipe's shared loop counter (budget.glsl),
+// which the host keeps under the limiter by the chunk size.
 vec3 segment_light(vec3 x, vec3 d, float t1) {
     uint n_coeff = pc.order * pc.order;
     float y[SH_MAX_COEFFS];
     sh_basis(d, pc.order, y);
+    iters += sh_basis_iters(pc.order);
     vec3 L = vec3(0.0);
     for (uint s = 0u; s < pc.count; ++s) {
+        iters++;
         uint i = pc.first + s;
         vec4 ba = samples[2u * i];
         vec3 rel = ba.xyz - x;
@@ -97,33 +110,37 @@ vec3 segment_light(vec3 x, vec3 d, float t1) {
         float g = sg.w;
         vec3 lit = vec3(0.0);
         for (uint j = 0u; j < pc.lights; ++j) {
+            iters++;
             vec4 e = lterms[2u * (i * pc.lights + j)];
             vec3 w = lterms[2u * (i * pc.lights + j) + 1u].xyz;
             lit += hg_eval(g, dot(w, d)) * e.rgb;
         }
-        vec3 contrib;
-        for (uint c = 0u; c < 3u; ++c) {
-            float view = 0.0, envs = 0.0, gl = 1.0;
-            uint base = (i * 3u + c) * n_coeff;
-            for (uint l = 0u; l < pc.order; ++l) {
-                float sign = (l & 1u) == 0u ? 1.0 : -1.0;
-                for (uint k = l * l; k < (l + 1u) * (l + 1u); ++k) {
-                    float cy = coeffs[base + k] * y[k];
-                    view += sign * cy;
-                    envs += gl * cy;
-                }
+        // psi_i(-d) (view) and the environment's Funk-Hecke sum (envs), per channel.
+        vec3 view = vec3(0.0), envs = vec3(0.0);
+        float gl = 1.0, sign = 1.0;
+        uint l = 0u, next = 1u;
+        uint base = i * 3u * n_coeff;
+        for (uint k = 0u; k < n_coeff; ++k) {
+            iters++;
+            if (k == next) {
+                ++l;
+                next = (l + 1u) * (l + 1u);
                 gl *= g;
+                sign = -sign;
             }
-            contrib[c] = max(view, 0.0) * (lit[c] + pc.env[c] * pc.env_factor * max(envs, 0.0));
+            vec3 c = vec3(coeffs[base + k], coeffs[base + n_coeff + k], coeffs[base + 2u * n_coeff + k]) * y[k];
+            view += sign * c;
+            envs += gl * c;
         }
+        vec3 contrib = max(view, vec3(0.0)) * (lit + pc.env.rgb * pc.env_factor * max(envs, vec3(0.0)));
         L += sg.rgb * contrib * G;
     }
     return L;
 }
 
-// Surface events of the camera ray's chain inside the object before it is cut (its weight
-// below 1e-4 ends it sooner), as the view march's.
-const uint MAX_BOUNCES = 16u;
+// Surface events of the camera ray's chain before it is cut (a refracting object's internal
+// reflections end sooner, when their weight falls below 1e-4, as the view march's).
+const uint MAX_EVENTS = 32u;
 
 void main() {
     uvec2 px = gl_GlobalInvocationID.xy;
@@ -131,48 +148,56 @@ void main() {
     if (px.x >= res.x || px.y >= res.y) return;
     uint pixel = px.y * res.x + px.x;
     bool first_chunk = pc.env.w > 0.5;
-    vec3 o, d;
-    camera_ray(vec2(px) + 0.5, o, d);
-    float t_hit;
-    uint tri;
-    if (!mesh_hit_tri(o, d, 0.0, INF, t_hit, tri)) {
-        if (first_chunk) radiance[pixel] = vec4(pc.env.rgb, 1.0);
-        return;
-    }
-    vec3 n = triangle_normal(tri);
-    vec3 nf = dot(d, n) < 0.0 ? n : -n;
-    uint mat = triangle_material(tri);
-    float ior = scene.materials[mat].ior.x;
-    bool refracts = REFRACTIVE && ior != 1.0;
-    float F = 0.0, eta = 1.0, cos_i = 1.0, cos_t = 1.0;
-    vec3 din = d;
-    if (refracts) {
-        F = surface_fresnel(d, nf, true, ior, eta, cos_i, cos_t);
-        din = refract_dir(d, nf, eta, cos_i, cos_t);
-    }
-    vec3 L = first_chunk ? pc.env.rgb * F : vec3(0.0);
-    // The camera path's weight inside: (1 - F) / ior^2 at the entry, then each internal
-    // reflection's F and each chord's transmittance.
-    float n2 = refracts ? ior * ior : 1.0;
-    vec3 w_cam = vec3((1.0 - F) / n2);
-    vec3 x = o + d * t_hit - nf * surface_eps(o + d * t_hit);
-    for (uint bounce = 0u; bounce < MAX_BOUNCES; ++bounce) {
-        float t1;
-        uint tri1;
-        if (!mesh_hit_tri(x, din, 0.0, INF, t1, tri1)) break;   // a leak through a crack: nothing more
-        L += w_cam * segment_light(x, din, t1);
-        vec3 T = exp(-chord_tau(x, din, t1, mat));
-        vec3 n1 = triangle_normal(tri1);
-        vec3 nf1 = dot(din, n1) < 0.0 ? n1 : -n1;
-        float F2 = refracts ? surface_fresnel(din, nf1, false, ior, eta, cos_i, cos_t) : 0.0;
-        // Leaving: the environment seen through (radiance back to the vacuum's: times ior^2).
-        if (first_chunk) L += w_cam * T * (1.0 - F2) * n2 * pc.env.rgb;
-        w_cam *= T * F2;
-        if (!refracts || max3(w_cam) * n2 < 1e-4) break;
-        vec3 p1 = x + din * t1;
-        din = reflect(din, nf1);
-        x = p1 + nf1 * surface_eps(p1);
+    vec3 x, d;
+    camera_ray(vec2(px) + 0.5, x, d);
+    // The camera path's weight: (1 - F) / ior^2 at a refracting entry, each internal
+    // reflection's F, each inside chord's transmittance. Index-matched surfaces (ior 1, and a
+    // v1 medium's box) are crossed straight: the ray goes on to any object behind. A crossing
+    // that leaves an object closes the inside segment before it, so a camera inside the medium
+    // is handled too.
+    vec3 w = vec3(1.0);
+    vec3 L = vec3(0.0);
+    for (uint e = 0u; e < MAX_EVENTS; ++e) {
+        iters++;
+        float t;
+        uint tri;
+        if (!mesh_hit_tri(x, d, 0.0, INF, t, tri)) {
+            if (first_chunk) L += w * pc.env.rgb;   // escapes: the environment behind
+            break;
+        }
+        vec3 n = triangle_normal(tri);
+        bool entering = dot(d, n) < 0.0;
+        vec3 nf = entering ? n : -n;
+        uint mat = triangle_material(tri);
+        if (!entering) {
+            L += w * segment_light(x, d, t);
+            w *= exp(-chord_tau(x, d, t, mat));
+        }
+        vec3 p = x + d * t;
+        float ior = scene.materials[mat].ior.x;
+        if (!(REFRACTIVE && ior != 1.0)) {
+            x = p - nf * surface_eps(p);   // straight through
+            continue;
+        }
+        float n2 = ior * ior, eta = 1.0, cos_i = 1.0, cos_t = 1.0;
+        float F = surface_fresnel(d, nf, entering, ior, eta, cos_i, cos_t);
+        if (entering) {
+            // The environment reflected at the entry; radiance refracted in, times 1 / ior^2.
+            if (first_chunk) L += w * F * pc.env.rgb;
+            w *= (1.0 - F) / n2;
+            d = refract_dir(d, nf, eta, cos_i, cos_t);
+            x = p - nf * surface_eps(p);
+        } else {
+            // Leaving: the environment seen through (radiance back to the vacuum's: times
+            // ior^2); the reflected share goes on inside.
+            if (first_chunk) L += w * (1.0 - F) * n2 * pc.env.rgb;
+            w *= F;
+            if (max3(w) * n2 < 1e-4) break;
+            d = reflect(d, nf);
+            x = p + nf * surface_eps(p);
+        }
     }
     if (first_chunk) radiance[pixel] = vec4(L, 1.0);
     else radiance[pixel] += vec4(L, 0.0);
+    atomicMax(stats[0], iters);
 }

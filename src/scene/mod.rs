@@ -163,6 +163,51 @@ impl DensityField {
 }
 
 impl Object {
+    /// A v1 `[medium]`'s box as an index-matched object (12 triangles, outward, its one
+    /// material the medium's over its own density and bounds): for solvers whose method is
+    /// built on an object's interior (`sh-single` samples it), so that a v1 scene means to
+    /// them exactly what it means to the others (light crosses the box unchanged).
+    pub fn box_of(medium: &Medium) -> Object {
+        let (lo, hi) = (medium.bounds_min, medium.bounds_max);
+        let positions: Vec<Vec3> = (0..8)
+            .map(|i| {
+                Vec3::new(
+                    if i & 1 == 0 { lo.x } else { hi.x },
+                    if i & 2 == 0 { lo.y } else { hi.y },
+                    if i & 4 == 0 { lo.z } else { hi.z },
+                )
+            })
+            .collect();
+        // Vertex i has x from bit 0, y from bit 1, z from bit 2; counter-clockwise from outside.
+        let triangles = vec![
+            [0, 3, 1],
+            [0, 2, 3], // -z
+            [4, 5, 7],
+            [4, 7, 6], // +z
+            [0, 1, 5],
+            [0, 5, 4], // -y
+            [2, 6, 7],
+            [2, 7, 3], // +y
+            [0, 4, 6],
+            [0, 6, 2], // -x
+            [1, 3, 7],
+            [1, 7, 5], // +x
+        ];
+        let file = PathBuf::from("[medium] box");
+        let mesh = mesh::TriangleMesh { positions, triangles, file: file.clone() };
+        let bvh = bvh::Bvh::build(&mesh);
+        let field = DensityField { density: medium.density.clone(), bounds_min: lo, bounds_max: hi };
+        Object {
+            mesh: Arc::new(mesh),
+            bvh: Arc::new(bvh),
+            parts: vec![ObjectPart { file, transform: mesh::MeshTransform::identity(), triangles: 12, material: 0 }],
+            ior: 1.0,
+            materials: vec![Material::of(medium, 1.0, 0)],
+            fields: vec![field],
+            convex: true,
+        }
+    }
+
     /// The meshes' files for messages: `meshes/a.obj`, or `meshes/a.obj + meshes/b.obj`.
     pub fn describe(&self) -> String {
         self.parts.iter().map(|p| p.file.display().to_string()).collect::<Vec<_>>().join(" + ")

@@ -66,6 +66,7 @@ pub static SOLVERS: &[&dyn Solver] = &[
     &octaves::OctavesSolver,
     &dom::Dom,
     &networks::Networks,
+    &sh_single::ShSingle,
 ];
 
 #[derive(Debug, Error)]
@@ -314,7 +315,7 @@ pub fn names() -> Vec<&'static str> {
 /// Every kernel of every registered solver and of the test probes, each shader once.
 pub fn kernels() -> Vec<Kernel> {
     let mut out: Vec<Kernel> = Vec::new();
-    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(probes::kernels()).chain(sh_single::kernels()) {
+    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(probes::kernels()) {
         if !out.iter().any(|o| o.shader.name == k.shader.name) {
             out.push(k);
         }
