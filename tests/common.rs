@@ -13,6 +13,7 @@ pub const SINGLE: &dyn Solver = &scatterlab::solvers::single::Single;
 pub const LBL: &dyn Solver = &scatterlab::solvers::lbl::Lbl;
 pub const WAVEFRONT: &dyn Solver = &scatterlab::solvers::wavefront::Wavefront;
 pub const NETWORKS: &dyn Solver = &scatterlab::solvers::networks::Networks;
+pub const SH_SINGLE: &dyn Solver = &scatterlab::solvers::sh_single::ShSingle;
 
 /// The device every GPU test uses, validation layer on. A missing device or layer fails the
 /// test: a test never passes for want of a device.

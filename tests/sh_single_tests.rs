@@ -273,3 +273,88 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
     assert!(img.data.iter().all(|v| *v == 0.0), "albedo 0 under a sun: black");
     assert_clean(&gpu);
 }
+
+/// A unit cube (v1 `[medium]`, which sh-single samples as an index-matched box) of optical
+/// thickness `tau` seen face on by an orthographic camera narrower than the cube: every camera
+/// ray crosses one unit of medium.
+fn thin_cube(tau: f32, albedo: &str, g: f32, light: &str) -> scatterlab::scene::Scene {
+    scene(&format!(
+        "[render]\nwidth = 16\nheight = 16\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 0.6\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = {tau}\nalbedo = {albedo}\ng = {g}\n\
+         density = {{ kind = \"constant\" }}\n{light}"
+    ))
+}
+
+#[test]
+fn sh_single_meets_the_optically_thin_limit() {
+    // As tau -> 0 attenuation vanishes (psi = 1 at every sample and direction) and single
+    // scattering toward the camera is sigma_s E p(theta) times the chord (1 here): what is left
+    // to test is the Gaussians' partition of the volume (eq. 3.3) and the closed-form line
+    // integrals. Suns in the xy plane, the camera along -z: theta = 90 degrees, p = (1 - g^2) /
+    // (4 pi (1 + g^2)^1.5). Exact to O(tau) = 1e-3.
+    let gpu = gpu();
+    for (g, albedo, rgb) in
+        [(-0.6f32, "1.0", [1.0f32; 3]), (0.0, "[1.0, 0.5, 0.2]", [1.0, 0.5, 0.2]), (0.8, "0.7", [0.7; 3])]
+    {
+        let tau = 1e-3f32;
+        let s = thin_cube(
+            tau,
+            albedo,
+            g,
+            "[[light]]\nkind = \"directional\"\ndirection = [-1.0, 0.0, 0.0]\nirradiance = 1000.0",
+        );
+        let out = crate::common::render(&gpu, &s, crate::common::SH_SINGLE, &[("sh-single.samples", "2000")]);
+        let p = (1.0 - g * g) / (4.0 * std::f32::consts::PI * (1.0 + g * g).powf(1.5));
+        let mut exact = out.image.clone();
+        for (px, v) in exact.data.iter_mut().enumerate() {
+            *v = rgb[px % 3] * tau * 1000.0 * p;
+        }
+        let m = scatterlab::output::compare(&out.image, &exact).unwrap();
+        eprintln!("g {g}, albedo {albedo}: relL2 {:.4}, energy {:.4}", m.rel_l2, m.energy_ratio);
+        assert!((m.energy_ratio - 1.0).abs() < 0.01, "g {g}: energy {}", m.energy_ratio);
+        assert!(m.rel_l2 < 0.05, "g {g}: relL2 {}", m.rel_l2);
+    }
+    assert_clean(&gpu);
+}
+
+#[test]
+fn the_gaussian_mean_of_the_inverse_square_is_exact() {
+    // E[1 / |x - l|^2] over an isotropic Gaussian (what a sample beside a point light takes
+    // for the light's irradiance) against a direct quadrature in spherical coordinates about
+    // the light: int exp(-|x - c|^2 / (2 s^2)) / r^2 dV / (2 pi s^2)^1.5, the angular part in
+    // closed form.
+    use scatterlab::solvers::sh_single::{dawson, gaussian_mean_inverse_square};
+    assert_eq!(dawson(0.0), 0.0);
+    // Dawson's maximum, F(0.9241) = 0.5410 (Abramowitz & Stegun table 7.5).
+    assert!((dawson(0.924_138_6) - 0.541_044_2).abs() < 1e-5);
+    assert!((dawson(10.0) - 0.050_253_6).abs() < 1e-6, "{}", dawson(10.0));
+    for s in [0.05f64, 1.0] {
+        for d in [0.0f64, 0.3, 1.0, 2.5, 7.0] {
+            let d = d * s;
+            let n = 200_000;
+            let r_max = d + 12.0 * s;
+            let h = r_max / n as f64;
+            let norm = (2.0 * std::f64::consts::PI * s * s).powf(1.5);
+            // The Gaussian over the sphere of radius r about the light, times r^2 dr / r^2:
+            // exp(-(r^2 + d^2) / 2s^2) 2 pi int_-1^1 exp(k mu) dmu, k = r d / s^2,
+            // = 2 pi / k (exp(-(r - d)^2 / 2s^2) - exp(-(r + d)^2 / 2s^2)).
+            let q: f64 = (0..n)
+                .map(|i| {
+                    let r = (i as f64 + 0.5) * h;
+                    let shell = if d == 0.0 {
+                        4.0 * std::f64::consts::PI * (-(r * r) / (2.0 * s * s)).exp()
+                    } else {
+                        let k = r * d / (s * s);
+                        2.0 * std::f64::consts::PI / k
+                            * ((-(r - d).powi(2) / (2.0 * s * s)).exp() - (-(r + d).powi(2) / (2.0 * s * s)).exp())
+                    };
+                    shell * h
+                })
+                .sum::<f64>()
+                / norm;
+            let f = gaussian_mean_inverse_square(d, s);
+            assert!((f / q - 1.0).abs() < 1e-4, "s {s}, d {d}: {f} against {q}");
+        }
+    }
+}
