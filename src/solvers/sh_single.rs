@@ -138,42 +138,50 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, mfp: f32) -> Vec<
     let (lo, hi) = object.mesh.bounds();
     let extent = hi - lo;
     let mut rng = Pcg32::new(seed, 18);
-    // Hash grid of cell r0 / 2 (the smallest radius): a sample's conflicts lie within
-    // (r + 2 r0) / 2 <= 2 r0, four cells.
-    let cell = 0.5 * r0;
+    // A dense grid of cell 2 r0 (the largest radius): two samples conflict within the mean of
+    // their radii, at most 2 r0, so a candidate's conflicts lie in its own cell and the 26
+    // around it.
+    let cell = 2.0 * r0;
     let dims = (extent / cell).ceil().as_uvec3().max(glam::UVec3::ONE);
     let key = |p: Vec3| ((p - lo) / cell).floor().as_ivec3().clamp(glam::IVec3::ZERO, dims.as_ivec3() - 1);
-    let mut grid: std::collections::HashMap<glam::IVec3, Vec<u32>> = std::collections::HashMap::new();
+    let index = |c: glam::IVec3| (c.z as usize * dims.y as usize + c.y as usize) * dims.x as usize + c.x as usize;
+    let mut grid: Vec<Vec<u32>> = vec![Vec::new(); dims.x as usize * dims.y as usize * dims.z as usize];
     let mut out: Vec<Sample> = Vec::new();
-    for _ in 0..count.max(1) * DARTS_PER_SAMPLE {
-        let p = dart(&mut rng, lo, extent);
-        if !object.contains(p) {
-            continue;
-        }
-        let r = r0 * radius_scale(depth_below_surface(object, p), mfp);
+    // Whether a sample of radius r at p would lie closer to a kept one than their mean radius.
+    let conflicts = |grid: &Vec<Vec<u32>>, out: &Vec<Sample>, p: Vec3, r: f32| {
         let c = key(p);
-        let reach = ((r + 2.0 * r0) * 0.5 / cell).ceil() as i32;
-        let mut free = true;
-        'search: for dz in -reach..=reach {
-            for dy in -reach..=reach {
-                for dx in -reach..=reach {
-                    if let Some(list) = grid.get(&(c + glam::IVec3::new(dx, dy, dz))) {
-                        for &j in list {
-                            let s = out[j as usize];
-                            if s.position.distance(p) < 0.5 * (r + s.radius) {
-                                free = false;
-                                break 'search;
-                            }
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let n = c + glam::IVec3::new(dx, dy, dz);
+                    if n.cmplt(glam::IVec3::ZERO).any() || n.cmpge(dims.as_ivec3()).any() {
+                        continue;
+                    }
+                    for &j in &grid[index(n)] {
+                        let s = &out[j as usize];
+                        if s.position.distance_squared(p) < (0.5 * (r + s.radius)).powi(2) {
+                            return true;
                         }
                     }
                 }
             }
         }
-        if free {
-            grid.entry(c).or_default().push(out.len() as u32);
-            let material = object.material_at(p).unwrap_or(0);
-            out.push(Sample { position: p, radius: r, material });
+        false
+    };
+    for _ in 0..count.max(1) * DARTS_PER_SAMPLE {
+        let p = dart(&mut rng, lo, extent);
+        // Cheap rejections first: a conflict even at the smallest radius r0 / 2 (most darts
+        // once the set fills), then outside the mesh; only then the 26 rays of the depth.
+        if conflicts(&grid, &out, p, 0.5 * r0) || !object.contains(p) {
+            continue;
         }
+        let r = r0 * radius_scale(depth_below_surface(object, p), mfp);
+        if conflicts(&grid, &out, p, r) {
+            continue;
+        }
+        grid[index(key(p))].push(out.len() as u32);
+        let material = object.material_at(p).unwrap_or(0);
+        out.push(Sample { position: p, radius: r, material });
     }
     out
 }
@@ -428,6 +436,11 @@ pub struct ShStats {
     /// llvmpipe's loop guard) and the render dispatches run in all.
     pub chunk: u32,
     pub dispatches: u64,
+    /// The preprocessing's parts: Poisson-disk sampling (host), optical depths (device) and
+    /// their projection (host), the partition weights (host); the light terms are the rest.
+    pub sampling_s: f64,
+    pub depths_s: f64,
+    pub weights_s: f64,
 }
 
 /// The directions psi is projected with: a 12 x 24 product rule (Gauss-Legendre in the cosine,
@@ -726,14 +739,17 @@ pub fn render(
     let clock = std::time::Instant::now();
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 0, 3));
     let samples = poisson_samples(object, set.samples, set.seed);
+    let sampling_s = clock.elapsed().as_secs_f64();
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 1, 3));
     let gs = GpuScene::upload_with(gpu, &os, force_full, gpu_scene::MAJORANT_CELL)?;
     let q = projection_quadrature();
     let step = density_step(object);
     let (params, depth_bytes) = device_params(gpu, &gs, object, &samples, set.order, &q, set.width_scale, step)?;
+    let depths_s = clock.elapsed().as_secs_f64() - sampling_s;
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 2, 3));
     let (lights, env) = split_lights(&os);
     let nu = partition_weights(object, &samples, &params);
+    let weights_s = clock.elapsed().as_secs_f64() - sampling_s - depths_s;
     // Per sample: its two words, its coefficients, and per light the irradiance at the sample
     // attenuated by psi toward the light (exactly, by the host's walk, toward a point light
     // inside the object, where psi's walk to infinity would overshoot it) and `single`'s
@@ -889,6 +905,9 @@ pub fn render(
         nonfinite_pixels: nonfinite,
         chunk,
         dispatches,
+        sampling_s,
+        depths_s,
+        weights_s,
     };
     Ok((image, stats, bytes, gs.modelled.clone()))
 }
@@ -990,13 +1009,16 @@ impl Solver for ShSingle {
         let Some(s) = report.detail::<ShStats>() else { return Vec::new() };
         vec![format!(
             "sh-single: {} samples ({} requested), order {} ({} coefficients per channel), sample set {:.1} MB; \
-             preprocessing {:.2} s, render {:.2} s",
+             preprocessing {:.2} s (sampling {:.2}, optical depths {:.2}, weights {:.2}), render {:.2} s",
             s.samples,
             s.requested,
             s.order,
             sh::coefficients(s.order),
             s.sample_bytes as f64 / 1e6,
             s.preprocess_s,
+            s.sampling_s,
+            s.depths_s,
+            s.weights_s,
             s.render_s
         )]
     }
