@@ -312,8 +312,10 @@ fn sh_single_meets_the_optically_thin_limit() {
         }
         let m = scatterlab::output::compare(&out.image, &exact).unwrap();
         eprintln!("g {g}, albedo {albedo}: relL2 {:.4}, energy {:.4}", m.rel_l2, m.energy_ratio);
-        assert!((m.energy_ratio - 1.0).abs() < 0.01, "g {g}: energy {}", m.energy_ratio);
-        assert!(m.rel_l2 < 0.05, "g {g}: relL2 {}", m.rel_l2);
+        // Measured 0.999 / 0.0010 (before the coverage normalisation along the ray 0.998 /
+        // 0.028; before the partition's volume weights 0.94 / 0.06).
+        assert!((m.energy_ratio - 1.0).abs() < 0.005, "g {g}: energy {}", m.energy_ratio);
+        assert!(m.rel_l2 < 0.01, "g {g}: relL2 {}", m.rel_l2);
     }
     assert_clean(&gpu);
 }

@@ -36,14 +36,17 @@
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
-// Sample i: [2 i] centre xyz, w = a; [2 i + 1] sigma_s rgb, w = g.
+// Sample i: [3 i] centre xyz, w = a; [3 i + 1] nu_i sigma_s rgb, w = g; [3 i + 2] x = nu_i
+// (the partition weight).
 layout(std430, binding = 3) readonly buffer Samples { vec4 samples[]; };
 // Sample i's attenuation coefficients: [(i * 3 + c) * order^2 + k].
 layout(std430, binding = 4) readonly buffer Coeffs { float coeffs[]; };
-// Sample i, light j: [2 (i * lights + j)] attenuated irradiance rgb; [... + 1] unit direction
-// toward the light.
+// Sample i, light j, from LIGHT_WORDS (i * lights + j): the irradiance attenuated toward the
+// light (psi) rgb; the unit direction toward the light; per channel the gradient of the optical
+// depth toward the light with respect to the sample's position, w = that depth
+// (src/solvers/sh_single.rs, tau_gradient).
 layout(std430, binding = 5) readonly buffer LightTerms { vec4 lterms[]; };
-// Radiance per pixel (rgb), accumulated over the chunks.
+// Per pixel, four words (main, at the end), accumulated over the chunks.
 layout(std430, binding = 8) buffer Radiance { vec4 radiance[]; };
 // [0]: the most loop back-edges any invocation counted (`iters`): past LOOP_GUARD llvmpipe's
 // limiter may have cut a loop short, and the host renders again in smaller chunks.
@@ -61,79 +64,171 @@ layout(push_constant) uniform Push {
     uint pad1;
 } pc;
 
-// erf, Abramowitz & Stegun 7.1.26 (|error| < 1.5e-7).
-float erf_as(float x) {
-    float t = 1.0 / (1.0 + 0.3275911 * abs(x));
-    float y = 1.0 - (((((1.061405429 * t - 1.453152027) * t) + 1.421413741) * t - 0.284496736) * t + 0.254829592) * t * exp(-x * x);
-    return x >= 0.0 ? y : -y;
-}
-
-// Optical depth of the chord from x along d over [0, t1] in material mat.
-vec3 chord_tau(vec3 x, vec3 d, float t1, uint mat) {
-    medium_mat = mat;
-    if (DENSITY_KIND == DENSITY_CONSTANT) return scene.materials[mat].sigma_t.xyz * t1;
-    uint steps = max(1u, uint(ceil(t1 / pc.step)));
-    float dt = t1 / float(steps), s = 0.0;
-    iters += steps;
-    for (uint k = 0u; k < steps; ++k) s += density_at(x + d * ((float(k) + 0.5) * dt)) * dt;
-    return scene.materials[mat].sigma_t.xyz * s;
-}
-
 // Loop back-edges sh_basis takes at `order` (its zero fill, then the bands), counted
 // generously toward llvmpipe's limiter.
 uint sh_basis_iters(uint order) { return SH_MAX_COEFFS + order + order * order * order; }
 
+// exp(c) erfc(x) for x >= 0 without forming exp(c) or erfc(x) alone: Abramowitz & Stegun
+// 7.1.26, erfc(x) = t P(t) exp(-x^2), |error| < 1.5e-7.
+float erfc_exp(float c, float x) {
+    float t = 1.0 / (1.0 + 0.3275911 * x);
+    return (((((1.061405429 * t - 1.453152027) * t) + 1.421413741) * t - 0.284496736) * t + 0.254829592) * t * exp(c - x * x);
+}
+
+// exp(c) int_{v0}^{v1} exp(-a v^2) dv = exp(c) sqrt(pi / a) / 2 (erf(sqrt a v1) - erf(sqrt a v0)),
+// written with erfc on the side where both limits lie (no cancellation between two values near
+// 1, no overflow where exp(c) alone would be large and the tail small).
+float gauss_interval(float c, float a, float v0, float v1) {
+    float sa = sqrt(a);
+    float x0 = sa * v0, x1 = sa * v1;
+    float d;
+    if (x0 >= 0.0) d = erfc_exp(c, x0) - erfc_exp(c, x1);
+    else if (x1 <= 0.0) d = erfc_exp(c, -x1) - erfc_exp(c, -x0);
+    else d = 2.0 * exp(c) - erfc_exp(c, -x0) - erfc_exp(c, x1);
+    return 0.5 * sqrt(PI / a) * max(d, 0.0);
+}
+
+const uint LIGHT_WORDS = 5u;
+
+// Points of a segment's optical-depth table (grid densities): the camera's optical depth is
+// interpolated linearly between them.
+const uint CHORD_POINTS = 32u;
+
 // What the samples of this chunk scatter toward the camera along the inside segment from x
-// along d over [0, t1]: sum_i nu_i sigma_s psi_i(-d) (lights + environment) int gamma_i.
-// The three channels share one pass over the coefficients (Y_lm(-d) = (-1)^l Y_lm(d)), so a
-// sample costs order^2 + lights back-edges of llvmpipe's shared loop counter (budget.glsl),
-// which the host keeps under the limiter by the chunk size.
-vec3 segment_light(vec3 x, vec3 d, float t1) {
+// along d over [0, t1] in material mat, attenuated on the way to x exactly (the camera side):
+//   sum_i nu_i sigma_s(b_i) [ lights + environment ]_i int_0^t1 gamma_i(t) exp(-tau_cam(t)) dt.
+// tau_cam is the segment's own optical depth from x: sigma_t t for a constant density (exact),
+// else linear about the sample's closest point t_c with the local slope from a table of
+// CHORD_POINTS + 1 depths. With tau_cam(t) = tau_c + s (t - t_c) the integral is closed form:
+//   exp(-a h^2 - tau_c + s^2 / 4a) int exp(-a (t - t_c + s / 2a)^2) dt.
+// The thesis (3.4) weights each Gaussian by its centre's attenuation toward the camera; with the
+// steep first mean free path under the surface that undercounts it (a medium of optical
+// thickness 32 rendered 0.69x `single`). `tau_total` returns the segment's optical depth.
+// The environment's in-scattering uses the sample's psi by Funk-Hecke: HG's band-l coefficient
+// is g^l, so sum g^l psi_lm Y_lm(d); its loop runs only where the scene has an environment.
+// A sample costs 1 + lights (+ order^2 with an environment) back-edges of llvmpipe's shared
+// loop counter (budget.glsl), which the host keeps under the limiter by the chunk size.
+vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out vec3 cover, out vec3 exact) {
+    medium_mat = mat;
+    vec3 st = scene.materials[mat].sigma_t.xyz;
+    bool constant = DENSITY_KIND == DENSITY_CONSTANT;
+    vec3 table[CHORD_POINTS + 1u];
+    float dt = t1 / float(CHORD_POINTS);
+    if (constant) {
+        tau_total = st * t1;
+        // int_0^t1 exp(-sigma t) dt, its thin limit where sigma t1 is tiny.
+        for (uint c = 0u; c < 3u; ++c) {
+            float k = st[c] * t1;
+            exact[c] = k < 1e-4 ? t1 * (1.0 - 0.5 * k) : (1.0 - exp(-k)) / st[c];
+        }
+    } else {
+        table[0] = vec3(0.0);
+        uint sub = max(1u, uint(ceil(dt / pc.step)));
+        float h = dt / float(sub);
+        for (uint k = 0u; k < CHORD_POINTS; ++k) {
+            float s = 0.0;
+            for (uint j = 0u; j < sub; ++j) {
+                iters++;
+                s += density_at(x + d * ((float(k * sub + j) + 0.5) * h)) * h;
+            }
+            table[k + 1u] = table[k] + st * s;
+        }
+        tau_total = table[CHORD_POINTS];
+        // int exp(-tau) over each piece, tau linear on it.
+        exact = vec3(0.0);
+        for (uint k = 0u; k < CHORD_POINTS; ++k) {
+            iters++;
+            vec3 t0 = table[k], dtau = table[k + 1u] - table[k];
+            for (uint c = 0u; c < 3u; ++c)
+                exact[c] += dtau[c] < 1e-4 ? dt * exp(-t0[c]) * (1.0 - 0.5 * dtau[c]) : dt * (exp(-t0[c]) - exp(-t0[c] - dtau[c])) / dtau[c];
+        }
+    }
+    bool env = max3(pc.env.rgb) > 0.0;
     uint n_coeff = pc.order * pc.order;
     float y[SH_MAX_COEFFS];
-    sh_basis(d, pc.order, y);
-    iters += sh_basis_iters(pc.order);
+    if (env) {
+        sh_basis(d, pc.order, y);
+        iters += sh_basis_iters(pc.order);
+    }
     vec3 L = vec3(0.0);
+    cover = vec3(0.0);
     for (uint s = 0u; s < pc.count; ++s) {
         iters++;
         uint i = pc.first + s;
-        vec4 ba = samples[2u * i];
+        vec4 ba = samples[3u * i];
         vec3 rel = ba.xyz - x;
         float tc = dot(rel, d);
         float h2 = max(0.0, dot(rel, rel) - tc * tc);
         float a = ba.w;
         if (a * h2 > 14.0) continue;   // exp(-14) < 1e-6: the thesis's cut (3.4.2)
-        float sa = sqrt(a);
-        float G = exp(-a * h2) * 0.5 * sqrt(PI / a) * (erf_as(sa * (t1 - tc)) + erf_as(sa * tc));
-        if (G <= 0.0) continue;
-        vec4 sg = samples[2u * i + 1u];
+        if (tc < -sqrt(14.0 / a) || tc > t1 + sqrt(14.0 / a)) continue;
+        // The camera's optical depth about t_c: value and slope.
+        vec3 tau_c, slope;
+        if (constant) {
+            tau_c = st * tc;
+            slope = st;
+        } else {
+            float f = clamp(tc / dt, 0.0, float(CHORD_POINTS) - 1e-3);
+            uint k = uint(f);
+            slope = (table[k + 1u] - table[k]) / dt;
+            tau_c = table[k] + slope * (tc - float(k) * dt);
+        }
+        // The Gaussian's integral with the camera's attenuation alone (the environment's
+        // in-scattering takes psi at the centre), and per light with the light's optical depth
+        // linear across it too: tau_l(b_i) + grad . (r_perp + d (t - t_c)), r_perp the ray's
+        // closest point less b_i. The linear depth is kept from going negative within three
+        // standard deviations of t_c (grad is a first-order model of a surface that curves).
+        vec3 rperp = x + d * tc - ba.xyz;
+        float sd = sqrt(0.5 / a);
+        float back = min(tc, 3.0 * sd), ahead = min(t1 - tc, 3.0 * sd);
+        vec3 G;
+        for (uint c = 0u; c < 3u; ++c) {
+            float sh = slope[c] / (2.0 * a);
+            G[c] = gauss_interval(-a * h2 - tau_c[c] + slope[c] * sh * 0.5, a, -tc + sh, t1 - tc + sh);
+        }
+        vec4 sg = samples[3u * i + 1u];
+        float nu = samples[3u * i + 2u].x;
         float g = sg.w;
         vec3 lit = vec3(0.0);
         for (uint j = 0u; j < pc.lights; ++j) {
             iters++;
-            vec4 e = lterms[2u * (i * pc.lights + j)];
-            vec3 w = lterms[2u * (i * pc.lights + j) + 1u].xyz;
-            lit += hg_eval(g, dot(w, d)) * e.rgb;
-        }
-        // psi_i(-d) (view) and the environment's Funk-Hecke sum (envs), per channel.
-        vec3 view = vec3(0.0), envs = vec3(0.0);
-        float gl = 1.0, sign = 1.0;
-        uint l = 0u, next = 1u;
-        uint base = i * 3u * n_coeff;
-        for (uint k = 0u; k < n_coeff; ++k) {
-            iters++;
-            if (k == next) {
-                ++l;
-                next = (l + 1u) * (l + 1u);
-                gl *= g;
-                sign = -sign;
+            uint base = LIGHT_WORDS * (i * pc.lights + j);
+            vec3 e = lterms[base].rgb;
+            vec3 w = lterms[base + 1u].xyz;
+            float p = hg_eval(g, dot(w, d));
+            for (uint c = 0u; c < 3u; ++c) {
+                iters++;
+                vec4 gr = lterms[base + 2u + c];
+                float tau_near = max(gr.w + dot(gr.xyz, rperp), 0.0);
+                float k = gr.w - tau_near;                 // -grad . r_perp, at most tau_l(b_i)
+                float sl = dot(gr.xyz, d);
+                if (sl > 0.0 && back > 0.0) sl = min(sl, tau_near / back);
+                if (sl < 0.0 && ahead > 0.0) sl = max(sl, -tau_near / ahead);
+                float S = slope[c] + sl;
+                float shift = S / (2.0 * a);
+                lit[c] += p * e[c] * gauss_interval(-a * h2 - tau_c[c] + k + S * shift * 0.5, a, -tc + shift, t1 - tc + shift);
             }
-            vec3 c = vec3(coeffs[base + k], coeffs[base + n_coeff + k], coeffs[base + 2u * n_coeff + k]) * y[k];
-            view += sign * c;
-            envs += gl * c;
         }
-        vec3 contrib = max(view, vec3(0.0)) * (lit + pc.env.rgb * pc.env_factor * max(envs, vec3(0.0)));
-        L += sg.rgb * contrib * G;
+        if (max3(G) <= 0.0 && max3(lit) <= 0.0) continue;
+        vec3 envl = vec3(0.0);
+        if (env) {
+            vec3 envs = vec3(0.0);
+            float gl = 1.0;
+            uint l = 0u, next = 1u;
+            uint base = i * 3u * n_coeff;
+            for (uint k = 0u; k < n_coeff; ++k) {
+                iters++;
+                if (k == next) {
+                    ++l;
+                    next = (l + 1u) * (l + 1u);
+                    gl *= g;
+                }
+                envs += gl * vec3(coeffs[base + k], coeffs[base + n_coeff + k], coeffs[base + 2u * n_coeff + k]) * y[k];
+            }
+            envl = pc.env.rgb * pc.env_factor * max(envs, vec3(0.0));
+        }
+        L += sg.rgb * (lit + envl * G);
+        cover += nu * G;
     }
     return L;
 }
@@ -155,8 +250,11 @@ void main() {
     // v1 medium's box) are crossed straight: the ray goes on to any object behind. A crossing
     // that leaves an object closes the inside segment before it, so a camera inside the medium
     // is handled too.
+    // L: the surfaces' own terms (the environment reflected and seen through); scat, cover and
+    // exact: the samples' in-scattering, their coverage and the exact integral of the camera's
+    // attenuation, over every inside segment, each times the camera path's weight there.
     vec3 w = vec3(1.0);
-    vec3 L = vec3(0.0);
+    vec3 L = vec3(0.0), scat = vec3(0.0), cover = vec3(0.0), exact = vec3(0.0);
     for (uint e = 0u; e < MAX_EVENTS; ++e) {
         iters++;
         float t;
@@ -170,8 +268,11 @@ void main() {
         vec3 nf = entering ? n : -n;
         uint mat = triangle_material(tri);
         if (!entering) {
-            L += w * segment_light(x, d, t);
-            w *= exp(-chord_tau(x, d, t, mat));
+            vec3 tau, cv, ex;
+            scat += w * segment_light(x, d, t, mat, tau, cv, ex);
+            cover += w * cv;
+            exact += w * ex;
+            w *= exp(-tau);
         }
         vec3 p = x + d * t;
         float ior = scene.materials[mat].ior.x;
@@ -197,7 +298,17 @@ void main() {
             x = p + nf * surface_eps(p);
         }
     }
-    if (first_chunk) radiance[pixel] = vec4(L, 1.0);
-    else radiance[pixel] += vec4(L, 0.0);
+    // Per pixel: [4 p] the surfaces' terms, [4 p + 1] the in-scattering, [4 p + 2] the
+    // coverage, [4 p + 3] the exact integral; the host adds the in-scattering divided by the
+    // coverage relative to the exact integral (src/solvers/sh_single.rs, `resolve`).
+    if (first_chunk) {
+        radiance[4u * pixel] = vec4(L, 1.0);
+        radiance[4u * pixel + 1u] = vec4(scat, 0.0);
+        radiance[4u * pixel + 2u] = vec4(cover, 0.0);
+        radiance[4u * pixel + 3u] = vec4(exact, 0.0);
+    } else {
+        radiance[4u * pixel + 1u] += vec4(scat, 0.0);
+        radiance[4u * pixel + 2u] += vec4(cover, 0.0);
+    }
     atomicMax(stats[0], iters);
 }

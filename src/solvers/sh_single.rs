@@ -492,10 +492,10 @@ fn device_bytes(os: &Scene, n: usize, order: usize) -> u64 {
         + b(n * 16)
         + b(dirs * 16)
         + b(n.min(DEPTH_CHUNK) * dirs * 16)
-        + b(2 * n * 16)
+        + b(3 * n * 16)
         + b(n * 3 * sh::coefficients(order) * 4)
-        + b((2 * n * lights.len()).max(1) * 16)
-        + os.render.width as u64 * os.render.height as u64 * 16
+        + b((LIGHT_WORDS * n * lights.len()).max(1) * 16)
+        + os.render.width as u64 * os.render.height as u64 * 64
         + 16
 }
 
@@ -689,8 +689,80 @@ pub fn partition_weights(object: &Object, samples: &[Sample], params: &[SamplePa
         .collect()
 }
 
+/// Words per sample and light in the light-term buffer: the attenuated irradiance, the unit
+/// direction toward the light, and per channel the gradient of the optical depth toward it with
+/// that depth ([`tau_gradient`]).
+const LIGHT_WORDS: usize = 5;
+
+/// Grazing crossings: |cos| of the ray with a surface's normal is taken as at least this in the
+/// optical depth's gradient, which grows as 1 / cos.
+const MIN_GRADIENT_COS: f32 = 0.2;
+
+/// The gradient with respect to the start point `p` of the optical depth toward `w` over the
+/// first `t_max`, per channel. Moving p by delta moves each surface crossing k of the straight
+/// ray by -(n_k . delta) / (n_k . w) along it, which lengthens or shortens the inside interval
+/// the crossing ends or begins: grad tau = sum_k -s_k sigma_k n_k / (n_k . w), s_k = 1 where the
+/// ray leaves an object, -1 where it enters one, sigma_k the extinction just inside (the
+/// density's own gradient along the ray is left out: exact for constant densities). Along w it
+/// is -sigma(p), whatever the surface. The render uses it to let the light's attenuation vary
+/// across a sample's Gaussian, linearly: under a surface the attenuation falls by e^-1 per mean
+/// free path, much faster than the samples are spaced, and its value at the centre alone misses
+/// the light's steep first layer.
+pub fn tau_gradient(object: &Object, p: Vec3, w: Vec3, t_max: f32) -> [Vec3; 3] {
+    let mut grad = [Vec3::ZERO; 3];
+    let mut mat = match object.material_at(p) {
+        Some(m) => m,
+        None => return grad,
+    };
+    let mut inside = true;
+    for h in crossings(object, p, w).take_while(|h| h.t < t_max) {
+        let leaving = h.normal.dot(w) > 0.0;
+        // The medium on the inside of this crossing: the one the ray was in when it leaves,
+        // the triangle's own when it enters.
+        let m = if leaving && inside { mat } else { object.bvh.tag(h.triangle) as usize };
+        let material = &object.materials[m];
+        let x = p + w * (h.t + if leaving { -1e-4 } else { 1e-4 });
+        let density = object.fields[material.field].density_at(x);
+        let cos = h.normal.dot(w);
+        let cos = cos.signum() * cos.abs().max(MIN_GRADIENT_COS);
+        let sign = if leaving { 1.0 } else { -1.0 };
+        for (c, g) in grad.iter_mut().enumerate() {
+            *g -= sign * material.sigma_t[c] * density * h.normal / cos;
+        }
+        inside = !leaving;
+        if !leaving {
+            mat = m;
+        }
+    }
+    grad
+}
+
+/// Largest factor by which a ray's in-scattering is scaled to its coverage ([`resolve`]).
+const MAX_COVERAGE_SCALE: f32 = 4.0;
+
+/// A pixel's radiance from the render pass's four words (glsl/sh_single/render.comp): the
+/// surfaces' own terms plus the samples' in-scattering scaled by exact / coverage, per channel.
+///
+/// **Coverage.** The Gaussians' partition of unity (eq. 3.3) holds in the mean over the
+/// object ([`partition_weights`]), not along each ray: near the surface, where the samples
+/// stop, their sum dips, and it ripples between samples. Along a camera ray the in-scattering
+/// is int sum_i nu_i gamma_i(t) f_i(t) K(t) dt with K the camera's attenuation; the render also
+/// sums int sum_i nu_i gamma_i(t) K(t) dt (the coverage the ray saw, weighted as the light is)
+/// and the exact int K(t) dt, and the ratio of the two rescales the in-scattering: a Shepard
+/// normalisation along the ray, weighted by K (Shepard's w_i(x) = gamma_i / sum_j gamma_j,
+/// taken as its K-weighted mean over the ray). Where the first mean free path under the surface
+/// holds the light, the coverage there is what counts, and no per-sample weight can set it for
+/// every view. Capped at [`MAX_COVERAGE_SCALE`] where a ray grazes a part no Gaussian reaches.
+fn resolve(p: &[[f32; 4]]) -> [f32; 3] {
+    std::array::from_fn(|c| {
+        let (surface, scat, cover, exact) = (p[0][c], p[1][c], p[2][c], p[3][c]);
+        let scale = if cover > 0.0 { (exact / cover).min(MAX_COVERAGE_SCALE) } else { 0.0 };
+        surface + scat * scale
+    })
+}
+
 /// One sample's upload: its two words, its coefficients, its light terms.
-type SampleUpload = ([[f32; 4]; 2], Vec<f32>, Vec<[f32; 4]>);
+type SampleUpload = ([[f32; 4]; 3], Vec<f32>, Vec<[f32; 4]>);
 
 /// Dawson's integral F(x) = exp(-x^2) int_0^x exp(t^2) dt, x >= 0. Written with u = x - t as
 /// int_0^x exp(-u (2x - u)) du, whose integrand falls from 1 at least as fast as exp(-u x):
@@ -764,9 +836,10 @@ pub fn render(
             let words = [
                 [s.position.x, s.position.y, s.position.z, p.a],
                 [p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g],
+                [*nu, 0.0, 0.0, 0.0],
             ];
             let coeffs: Vec<f32> = p.sh.iter().flatten().copied().collect();
-            let mut lt = Vec::with_capacity(2 * lights.len());
+            let mut lt = Vec::with_capacity(LIGHT_WORDS * lights.len());
             for (pos, value, point) in &lights {
                 let (w, e, inside_to) = if *point {
                     let to = *pos - s.position;
@@ -780,30 +853,32 @@ pub fn render(
                 } else {
                     (-*pos, *value, None)
                 };
-                let att: [f32; 3] = match inside_to {
-                    Some(r) => {
-                        let tau = optical_depth_within(object, s.position, w, r, step);
-                        let ft = boundary_factor_within(object, s.position, w, r);
-                        std::array::from_fn(|c| ((-tau[c]).exp() * ft) as f32 * e[c])
-                    }
+                let t_max = inside_to.unwrap_or(f32::INFINITY);
+                let tau_l: [f64; 3] = match inside_to {
+                    Some(r) => optical_depth_within(object, s.position, w, r, step),
                     None => {
                         let y = sh::basis(set.order, [w.x as f64, w.y as f64, w.z as f64]);
-                        let ft = boundary_factor_within(object, s.position, w, f32::INFINITY);
                         std::array::from_fn(|c| {
                             let psi: f64 = p.sh[c].iter().zip(&y).map(|(k, yk)| *k as f64 * yk).sum();
-                            (psi.max(0.0) * ft) as f32 * e[c]
+                            -psi.max(1e-30).ln()
                         })
                     }
                 };
+                let ft = boundary_factor_within(object, s.position, w, t_max);
+                let grad = tau_gradient(object, s.position, w, t_max);
+                let att: [f32; 3] = std::array::from_fn(|c| ((-tau_l[c]).exp() * ft) as f32 * e[c]);
                 lt.push([att[0], att[1], att[2], 0.0]);
                 lt.push([w.x, w.y, w.z, 0.0]);
+                for c in 0..3 {
+                    lt.push([grad[c].x, grad[c].y, grad[c].z, tau_l[c].min(1e30) as f32]);
+                }
             }
             (words, coeffs, lt)
         })
         .collect();
-    let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(2 * samples.len());
+    let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(3 * samples.len());
     let mut coeffs: Vec<f32> = Vec::with_capacity(samples.len() * 3 * sh::coefficients(set.order));
-    let mut lterms: Vec<[f32; 4]> = Vec::with_capacity(2 * samples.len() * lights.len());
+    let mut lterms: Vec<[f32; 4]> = Vec::with_capacity(LIGHT_WORDS * samples.len() * lights.len());
     for (words, c, lt) in per_sample {
         sample_words.extend_from_slice(&words);
         coeffs.extend(c);
@@ -820,18 +895,19 @@ pub fn render(
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 3, 3));
     let clock = std::time::Instant::now();
     let (w, h) = (os.render.width, os.render.height);
-    let image_buf = gpu.buffer("sh-single radiance", w as u64 * h as u64 * 16)?;
+    let image_buf = gpu.buffer("sh-single radiance", w as u64 * h as u64 * 64)?;
     let pipeline = gpu.pipeline(&RENDER, &gs.modelled.mesh_spec())?;
     // The environment's mean boundary factor at the first object's index.
     let env_factor = environment_factor(object.materials[0].ior as f64) as f32;
     let n = samples.len() as u32;
     // llvmpipe's loop limiter (glsl/include/budget.glsl) counts every back-edge of an
-    // invocation: a sample the camera ray reaches costs order^2 + lights + 1 of them per inside
-    // segment. Chunks start where a ray reaching every sample of one segment stays within the
+    // invocation: a sample the camera ray reaches costs 4 + 4 lights of them per inside segment,
+    // and order^2 more with an environment (glsl/sh_single/render.comp, segment_light). Chunks start where a ray reaching every sample of one segment stays within the
     // guard; where the kernel reports more (many segments), the render is run again with half
     // the chunk.
     let stats_buf = gpu.buffer("sh-single stats", 16)?;
-    let per_sample = (sh::coefficients(set.order) + lights.len() + 1) as u32;
+    let per_sample =
+        (4 + 4 * lights.len() + if env.max_element() > 0.0 { sh::coefficients(set.order) } else { 0 }) as u32;
     let mut chunk = (LOOP_GUARD / 2 / per_sample).clamp(1, CHUNK);
     let mut dispatches = 0u64;
     progress(Progress::work("render pass", 0, 1));
@@ -885,12 +961,13 @@ pub fn render(
     let px: Vec<[f32; 4]> = gpu.read_buffer_as(&image_buf)?;
     let mut image = Image::new(w, h);
     let mut nonfinite = 0u32;
-    for (rgb, p) in image.data.chunks_exact_mut(3).zip(&px) {
-        if !p[..3].iter().all(|v| v.is_finite()) {
+    for (rgb, p) in image.data.chunks_exact_mut(3).zip(px.chunks_exact(4)) {
+        let v = resolve(p);
+        if !v.iter().all(|x| x.is_finite()) {
             nonfinite += 1;
         }
-        for (o, v) in rgb.iter_mut().zip(p) {
-            *o = if v.is_finite() { *v } else { 0.0 };
+        for (o, x) in rgb.iter_mut().zip(v) {
+            *o = if x.is_finite() { x } else { 0.0 };
         }
     }
     let render_s = clock.elapsed().as_secs_f64();
