@@ -36,8 +36,10 @@
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
-// Sample i: [3 i] centre xyz, w = a; [3 i + 1] nu_i sigma_s rgb, w = g; [3 i + 2] x = nu_i
-// (the partition weight).
+// Sample i, from SAMPLE_WORDS i: centre xyz, w = a; nu_i sigma_s rgb, w = g; x = nu_i (the
+// partition weight); per channel the environment's mean gradient of the optical depth, w = its
+// optical depth (src/solvers/sh_single.rs, environment_gradient).
+const uint SAMPLE_WORDS = 6u;
 layout(std430, binding = 3) readonly buffer Samples { vec4 samples[]; };
 // Sample i's attenuation coefficients: [(i * 3 + c) * order^2 + k].
 layout(std430, binding = 4) readonly buffer Coeffs { float coeffs[]; };
@@ -93,6 +95,24 @@ const uint LIGHT_WORDS = 5u;
 // Points of a segment's optical-depth table (grid densities): the camera's optical depth is
 // interpolated linearly between them.
 const uint CHORD_POINTS = 32u;
+
+// The Gaussian's integral along the segment with the camera's optical depth (tau_c, slope s
+// about t_c) and a light's optical depth linear across the Gaussian: tau_l(b_i) + grad .
+// (r_perp + d (t - t_c)), r_perp the ray's closest point less b_i; gr = (grad, tau_l(b_i)),
+// relative to the value at the centre that the light term already carries. The linear depth
+// is kept from going negative within three standard deviations of t_c (back, ahead: the
+// stretch of the segment there on either side): grad is a first-order model of a surface that
+// curves.
+float lit_gaussian(vec4 gr, vec3 rperp, vec3 d, float a, float h2, float tc, float t1, float tau_c, float s, float back, float ahead) {
+    float tau_near = max(gr.w + dot(gr.xyz, rperp), 0.0);
+    float k = gr.w - tau_near;                 // -grad . r_perp, at most tau_l(b_i)
+    float sl = dot(gr.xyz, d);
+    if (sl > 0.0 && back > 0.0) sl = min(sl, tau_near / back);
+    if (sl < 0.0 && ahead > 0.0) sl = max(sl, -tau_near / ahead);
+    float S = s + sl;
+    float shift = S / (2.0 * a);
+    return gauss_interval(-a * h2 - tau_c + k + S * shift * 0.5, a, -tc + shift, t1 - tc + shift);
+}
 
 // What the samples of this chunk scatter toward the camera along the inside segment from x
 // along d over [0, t1] in material mat, attenuated on the way to x exactly (the camera side):
@@ -155,7 +175,7 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
     for (uint s = 0u; s < pc.count; ++s) {
         iters++;
         uint i = pc.first + s;
-        vec4 ba = samples[3u * i];
+        vec4 ba = samples[SAMPLE_WORDS * i];
         vec3 rel = ba.xyz - x;
         float tc = dot(rel, d);
         float h2 = max(0.0, dot(rel, rel) - tc * tc);
@@ -173,21 +193,17 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
             slope = (table[k + 1u] - table[k]) / dt;
             tau_c = table[k] + slope * (tc - float(k) * dt);
         }
-        // The Gaussian's integral with the camera's attenuation alone (the environment's
-        // in-scattering takes psi at the centre), and per light with the light's optical depth
-        // linear across it too: tau_l(b_i) + grad . (r_perp + d (t - t_c)), r_perp the ray's
-        // closest point less b_i. The linear depth is kept from going negative within three
-        // standard deviations of t_c (grad is a first-order model of a surface that curves).
         vec3 rperp = x + d * tc - ba.xyz;
         float sd = sqrt(0.5 / a);
         float back = min(tc, 3.0 * sd), ahead = min(t1 - tc, 3.0 * sd);
+        // With the camera's attenuation alone: the coverage.
         vec3 G;
         for (uint c = 0u; c < 3u; ++c) {
             float sh = slope[c] / (2.0 * a);
             G[c] = gauss_interval(-a * h2 - tau_c[c] + slope[c] * sh * 0.5, a, -tc + sh, t1 - tc + sh);
         }
-        vec4 sg = samples[3u * i + 1u];
-        float nu = samples[3u * i + 2u].x;
+        vec4 sg = samples[SAMPLE_WORDS * i + 1u];
+        float nu = samples[SAMPLE_WORDS * i + 2u].x;
         float g = sg.w;
         vec3 lit = vec3(0.0);
         for (uint j = 0u; j < pc.lights; ++j) {
@@ -198,19 +214,10 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
             float p = hg_eval(g, dot(w, d));
             for (uint c = 0u; c < 3u; ++c) {
                 iters++;
-                vec4 gr = lterms[base + 2u + c];
-                float tau_near = max(gr.w + dot(gr.xyz, rperp), 0.0);
-                float k = gr.w - tau_near;                 // -grad . r_perp, at most tau_l(b_i)
-                float sl = dot(gr.xyz, d);
-                if (sl > 0.0 && back > 0.0) sl = min(sl, tau_near / back);
-                if (sl < 0.0 && ahead > 0.0) sl = max(sl, -tau_near / ahead);
-                float S = slope[c] + sl;
-                float shift = S / (2.0 * a);
-                lit[c] += p * e[c] * gauss_interval(-a * h2 - tau_c[c] + k + S * shift * 0.5, a, -tc + shift, t1 - tc + shift);
+                lit[c] += p * e[c] * lit_gaussian(lterms[base + 2u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
             }
         }
-        if (max3(G) <= 0.0 && max3(lit) <= 0.0) continue;
-        vec3 envl = vec3(0.0);
+        if (max3(G) <= 0.0) continue;
         if (env) {
             vec3 envs = vec3(0.0);
             float gl = 1.0;
@@ -225,9 +232,16 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
                 }
                 envs += gl * vec3(coeffs[base + k], coeffs[base + n_coeff + k], coeffs[base + 2u * n_coeff + k]) * y[k];
             }
-            envl = pc.env.rgb * pc.env_factor * max(envs, vec3(0.0));
+            // The environment's attenuation varies across the Gaussian as the lights' does:
+            // with the psi-weighted mean gradient over directions (sh_single.rs,
+            // environment_gradient).
+            envs = max(envs, vec3(0.0));
+            for (uint c = 0u; c < 3u; ++c) {
+                iters++;
+                lit[c] += pc.env[c] * pc.env_factor * envs[c] * lit_gaussian(samples[SAMPLE_WORDS * i + 3u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
+            }
         }
-        L += sg.rgb * (lit + envl * G);
+        L += sg.rgb * lit;
         cover += nu * G;
     }
     return L;

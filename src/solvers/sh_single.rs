@@ -492,7 +492,7 @@ fn device_bytes(os: &Scene, n: usize, order: usize) -> u64 {
         + b(n * 16)
         + b(dirs * 16)
         + b(n.min(DEPTH_CHUNK) * dirs * 16)
-        + b(3 * n * 16)
+        + b(SAMPLE_WORDS * n * 16)
         + b(n * 3 * sh::coefficients(order) * 4)
         + b((LIGHT_WORDS * n * lights.len()).max(1) * 16)
         + os.render.width as u64 * os.render.height as u64 * 64
@@ -737,6 +737,36 @@ pub fn tau_gradient(object: &Object, p: Vec3, w: Vec3, t_max: f32) -> [Vec3; 3] 
     grad
 }
 
+/// Words per sample in the sample buffer (glsl/sh_single/render.comp): centre and width,
+/// nu sigma_s and g, nu, and per channel the environment's gradient ([`environment_gradient`]).
+const SAMPLE_WORDS: usize = 6;
+
+/// The environment's attenuation at a sample, psi averaged over directions, as one optical depth
+/// with a gradient, per channel ([gradient, depth]): the gradient is the psi-weighted mean of
+/// [`tau_gradient`] over `dirs` (direction, quadrature weight, its basis), the depth -ln of the
+/// mean of psi. Under a surface the environment's light falls off as steeply as a light's; the
+/// render varies it across the Gaussian with this gradient, as it does a light's.
+fn environment_gradient(object: &Object, p: Vec3, sh: &[Vec<f32>; 3], dirs: &[(Vec3, f64, Vec<f64>)]) -> [[f32; 4]; 3] {
+    let mut num = [glam::DVec3::ZERO; 3];
+    let mut den = [0.0f64; 3];
+    for (w, q, y) in dirs {
+        let grad = tau_gradient(object, p, *w, f32::INFINITY);
+        for c in 0..3 {
+            let psi: f64 = sh[c].iter().zip(y).map(|(k, yk)| *k as f64 * yk).sum::<f64>().max(0.0);
+            num[c] += grad[c].as_dvec3() * (q * psi);
+            den[c] += q * psi;
+        }
+    }
+    std::array::from_fn(|c| {
+        if den[c] <= 0.0 {
+            return [0.0; 4];
+        }
+        let g = num[c] / den[c];
+        let tau = -(den[c] / (4.0 * std::f64::consts::PI)).max(1e-30).ln();
+        [g.x as f32, g.y as f32, g.z as f32, tau.max(0.0) as f32]
+    })
+}
+
 /// Largest factor by which a ray's in-scattering is scaled to its coverage ([`resolve`]).
 const MAX_COVERAGE_SCALE: f32 = 4.0;
 
@@ -762,7 +792,7 @@ fn resolve(p: &[[f32; 4]]) -> [f32; 3] {
 }
 
 /// One sample's upload: its two words, its coefficients, its light terms.
-type SampleUpload = ([[f32; 4]; 3], Vec<f32>, Vec<[f32; 4]>);
+type SampleUpload = ([[f32; 4]; SAMPLE_WORDS], Vec<f32>, Vec<[f32; 4]>);
 
 /// Dawson's integral F(x) = exp(-x^2) int_0^x exp(t^2) dt, x >= 0. Written with u = x - t as
 /// int_0^x exp(-u (2x - u)) du, whose integrand falls from 1 at least as fast as exp(-u x):
@@ -827,17 +857,29 @@ pub fn render(
     // inside the object, where psi's walk to infinity would overshoot it) and `single`'s
     // boundary factor, and the unit direction toward the light.
     use rayon::prelude::*;
+    // The environment's gradient is averaged over a coarse product rule (4 x 8 directions,
+    // their basis once).
+    let env_dirs: Vec<(Vec3, f64, Vec<f64>)> = {
+        let q = Quadrature::product(4, 8);
+        q.directions
+            .iter()
+            .zip(&q.weights)
+            .map(|(d, w)| (Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32), *w, sh::basis(set.order, *d)))
+            .collect()
+    };
     let per_sample: Vec<SampleUpload> = samples
         .par_iter()
         .zip(&params)
         .zip(&nu)
         .map(|((s, p), nu)| {
             let g = object.materials[s.material].g;
-            let words = [
-                [s.position.x, s.position.y, s.position.z, p.a],
-                [p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g],
-                [*nu, 0.0, 0.0, 0.0],
-            ];
+            let mut words = [[0.0f32; 4]; SAMPLE_WORDS];
+            words[0] = [s.position.x, s.position.y, s.position.z, p.a];
+            words[1] = [p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g];
+            words[2] = [*nu, 0.0, 0.0, 0.0];
+            if env.max_element() > 0.0 {
+                words[3..6].copy_from_slice(&environment_gradient(object, s.position, &p.sh, &env_dirs));
+            }
             let coeffs: Vec<f32> = p.sh.iter().flatten().copied().collect();
             let mut lt = Vec::with_capacity(LIGHT_WORDS * lights.len());
             for (pos, value, point) in &lights {
@@ -876,7 +918,7 @@ pub fn render(
             (words, coeffs, lt)
         })
         .collect();
-    let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(3 * samples.len());
+    let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(SAMPLE_WORDS * samples.len());
     let mut coeffs: Vec<f32> = Vec::with_capacity(samples.len() * 3 * sh::coefficients(set.order));
     let mut lterms: Vec<[f32; 4]> = Vec::with_capacity(LIGHT_WORDS * samples.len() * lights.len());
     for (words, c, lt) in per_sample {
