@@ -18,6 +18,7 @@
 #define MESH_NODES_BINDING 6
 #define MESH_TRIS_BINDING 7
 #include "../include/mesh.glsl"
+#include "../include/dielectric.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
@@ -44,6 +45,11 @@ void main() {
     uint mat = floatBitsToUint(samples[i].w);
     bool inside = true;
     vec3 tau = vec3(0.0);
+    // The boundary factor of the straight ray (as `single`'s shadow rays take it, thesis
+    // 3.1.1): at each refracting surface crossed, 1 - F at the ray's own angle (0 under total
+    // internal reflection) times the radiance's change of index, ior^2 where it leaves an
+    // object (light entering it) and 1 / ior^2 where it enters one.
+    float ft = 1.0;
     float t = 0.0, t_search = 0.0;
     // A few crossings per ray in any scene we ship; the cap guards a degenerate loop.
     for (uint e = 0u; e < 64u; ++e) {
@@ -64,11 +70,18 @@ void main() {
             tau += scene.materials[mat].sigma_t.xyz * integral;
         }
         if (!hit) break;
-        bool entering = dot(triangle_normal(tri), w) < 0.0;
+        vec3 n = triangle_normal(tri);
+        bool entering = dot(n, w) < 0.0;
+        float ior = scene.materials[triangle_material(tri)].ior.x;
+        if (REFRACTIVE && ior != 1.0 && ft > 0.0) {
+            float cos_t;
+            float F = fresnel_dielectric(abs(dot(n, w)), entering ? 1.0 / ior : ior, cos_t);
+            ft = F >= 1.0 ? 0.0 : ft * (1.0 - F) * (entering ? 1.0 / (ior * ior) : ior * ior);
+        }
         inside = entering;
         if (entering) mat = triangle_material(tri);
         t = t_hit;
         t_search = t_hit + 1e-5 * max(abs(t_hit), 1.0);
     }
-    depths[id] = vec4(tau, 0.0);
+    depths[id] = vec4(tau, ft);
 }

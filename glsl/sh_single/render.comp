@@ -12,8 +12,8 @@
 // factor of the surfaces crossed (Fresnel 1 - F and the ior^2 of the radiance entering;
 // src/solvers/sh_single.rs, on the host), p the Henyey-Greenstein phase, and the constant
 // environment's in-scattering by Funk-Hecke: HG's band-l coefficient is g^l, so the
-// convolution of psi with p is sum g^l psi_lm Y_lm (times the boundary factor's mean over the
-// directions leaving the surface, env_factor).
+// convolution of psi with p is sum g^l psi_lm Y_lm (with a refractive object, of psi times the
+// boundary factor of each direction: a second coefficient set per sample).
 // Samples come in chunks (one dispatch each, adding into the image); the first chunk also
 // writes the surface's own terms: the environment reflected at the entry (F L_env) and seen
 // through each exit ((1 - F_exit) e^-tau L_env, the chords' optical depths marched). The camera
@@ -41,7 +41,8 @@ layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 // optical depth (src/solvers/sh_single.rs, environment_gradient).
 const uint SAMPLE_WORDS = 6u;
 layout(std430, binding = 3) readonly buffer Samples { vec4 samples[]; };
-// Sample i's attenuation coefficients: [(i * 3 + c) * order^2 + k].
+// Sample i's attenuation coefficients: [(i * 3 + c) * order^2 + k]; with env_coeffs each sample has
+// six sets, psi's three then the environment's three: [(i * 6 + c) * order^2 + k], [(i * 6 + 3 + c) ...].
 layout(std430, binding = 4) readonly buffer Coeffs { float coeffs[]; };
 // Sample i, light j, from LIGHT_WORDS (i * lights + j): the irradiance attenuated toward the
 // light (psi) rgb; the unit direction toward the light; per channel the gradient of the optical
@@ -60,7 +61,7 @@ layout(push_constant) uniform Push {
     uint order;      // spherical-harmonics order
     uint lights;     // point and directional lights (the light terms per sample)
     vec4 env;        // constant environment radiance rgb; w = 1 for the first chunk
-    float env_factor; // the environment's mean boundary factor (1 for ior 1; sh_single.rs)
+    uint env_coeffs;  // 1: each sample has a second set for the environment (psi times the boundary factor)
     float step;      // chord marching step for grid densities, scene units
     uint pad0;
     uint pad1;
@@ -222,7 +223,7 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
             vec3 envs = vec3(0.0);
             float gl = 1.0;
             uint l = 0u, next = 1u;
-            uint base = i * 3u * n_coeff;
+            uint base = i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff + (pc.env_coeffs == 1u ? 3u * n_coeff : 0u);
             for (uint k = 0u; k < n_coeff; ++k) {
                 iters++;
                 if (k == next) {
@@ -238,7 +239,7 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
             envs = max(envs, vec3(0.0));
             for (uint c = 0u; c < 3u; ++c) {
                 iters++;
-                lit[c] += pc.env[c] * pc.env_factor * envs[c] * lit_gaussian(samples[SAMPLE_WORDS * i + 3u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
+                lit[c] += pc.env[c] * envs[c] * lit_gaussian(samples[SAMPLE_WORDS * i + 3u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
             }
         }
         L += sg.rgb * lit;

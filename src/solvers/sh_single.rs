@@ -240,6 +240,11 @@ pub fn optical_depth_within(object: &Object, p: Vec3, w: Vec3, t_max: f32, step:
 #[derive(Clone, Debug)]
 pub struct SampleParams {
     pub sh: [Vec<f32>; 3],
+    /// With a refractive object: psi times the boundary factor of the straight ray (Fresnel
+    /// and the radiance's change of index at each surface crossed), projected the same way:
+    /// what the environment's in-scattering uses (a light's boundary factor is exact, per
+    /// light, on the host).
+    pub sh_env: Option<[Vec<f32>; 3]>,
     pub a: f32,
     pub sigma_s: [f32; 3],
 }
@@ -264,7 +269,21 @@ pub fn sample_params(
                 .collect()
         })
         .collect();
-    project_params(object, samples, order, q, width_scale, |i, k| taus[i][k])
+    let refractive = object.refractive();
+    project_params(object, samples, order, q, width_scale, refractive, |i, k| {
+        let d = q.directions[k];
+        let ft = if refractive {
+            boundary_factor_within(
+                object,
+                samples[i].position,
+                Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32),
+                f32::INFINITY,
+            )
+        } else {
+            1.0
+        };
+        (taus[i][k], ft)
+    })
 }
 
 /// Push constants of glsl/sh_single/depth.comp.
@@ -329,46 +348,52 @@ pub fn device_params(
         let chunk: Vec<[f32; 4]> = gpu.read_buffer_as(&depth_buf)?;
         depths.extend_from_slice(&chunk[..count * n]);
     }
-    let params = project_params(object, samples, order, q, width_scale, |i, k| {
+    let params = project_params(object, samples, order, q, width_scale, object.refractive(), |i, k| {
         let t = depths[i * n + k];
-        [t[0] as f64, t[1] as f64, t[2] as f64]
+        ([t[0] as f64, t[1] as f64, t[2] as f64], t[3] as f64)
     });
     Ok((params, bytes))
 }
 
-/// The parameters from the optical depth `tau(i, k)` of sample i toward direction k of `q`.
+/// The parameters from the optical depth and boundary factor `tau(i, k)` of sample i toward
+/// direction k of `q` (the boundary factor projected only with a refractive object).
 fn project_params(
     object: &Object,
     samples: &[Sample],
     order: usize,
     q: &Quadrature,
     width_scale: f32,
-    tau: impl Fn(usize, usize) -> [f64; 3] + Sync,
+    refractive: bool,
+    tau: impl Fn(usize, usize) -> ([f64; 3], f64) + Sync,
 ) -> Vec<SampleParams> {
     use rayon::prelude::*;
     // The basis at every direction, once.
     let basis: Vec<Vec<f64>> = q.directions.iter().map(|d| sh::basis(order, *d)).collect();
+    let project = |f: &dyn Fn(usize) -> f64| -> Vec<f32> {
+        let mut coeffs = vec![0.0f64; sh::coefficients(order)];
+        for (k, (y, w)) in basis.iter().zip(&q.weights).enumerate() {
+            let v = f(k) * w;
+            for (o, yk) in coeffs.iter_mut().zip(y) {
+                *o += v * yk;
+            }
+        }
+        coeffs.iter().map(|x| *x as f32).collect()
+    };
     samples
         .par_iter()
         .enumerate()
         .map(|(i, s)| {
-            let sh: [Vec<f32>; 3] = std::array::from_fn(|c| {
-                let mut coeffs = vec![0.0f64; sh::coefficients(order)];
-                for (k, (y, w)) in basis.iter().zip(&q.weights).enumerate() {
-                    let v = (-tau(i, k)[c]).exp() * w;
-                    for (o, yk) in coeffs.iter_mut().zip(y) {
-                        *o += v * yk;
-                    }
-                }
-                coeffs.iter().map(|x| *x as f32).collect()
-            });
+            let values: Vec<([f64; 3], f64)> = (0..q.directions.len()).map(|k| tau(i, k)).collect();
+            let sh: [Vec<f32>; 3] = std::array::from_fn(|c| project(&|k| (-values[k].0[c]).exp()));
+            let sh_env =
+                refractive.then(|| std::array::from_fn(|c| project(&|k| (-values[k].0[c]).exp() * values[k].1)));
             // FWHM of exp(-a r^2) is 2 sqrt(ln 2 / a): a = 4 ln 2 / fwhm^2.
             let fwhm = width_scale * s.radius;
             let a = 4.0 * std::f32::consts::LN_2 / (fwhm * fwhm);
             let mat = &object.materials[s.material];
             let dens = object.fields[mat.field].density_at(s.position);
             let sigma_s = std::array::from_fn(|c| mat.sigma_t[c] * mat.albedo[c] * dens);
-            SampleParams { sh, a, sigma_s }
+            SampleParams { sh, sh_env, a, sigma_s }
         })
         .collect()
 }
@@ -382,7 +407,9 @@ pub struct RenderPush {
     pub order: u32,
     pub lights: u32,
     pub env: [f32; 4],
-    pub env_factor: f32,
+    /// 1 where each sample holds a second coefficient set for the environment (psi times the
+    /// boundary factor: a refractive object under an environment).
+    pub env_coeffs: u32,
     pub step: f32,
     pub pad: [u32; 2],
 }
@@ -485,7 +512,8 @@ fn split_lights(scene: &Scene) -> (Vec<(Vec3, Vec3, bool)>, Vec3) {
 /// Device bytes of a render of `os` (the object scene) with `n` samples drawn: the scene with
 /// its mesh, the depth pass's buffers, the sample set, the image. What [`render`] allocates.
 fn device_bytes(os: &Scene, n: usize, order: usize) -> u64 {
-    let (lights, _) = split_lights(os);
+    let (lights, env) = split_lights(os);
+    let env_set = os.object.as_ref().is_some_and(|o| o.refractive()) && env.max_element() > 0.0;
     let dirs = projection_quadrature().directions.len();
     let b = |bytes: usize| (bytes as u64).max(4);
     gpu_scene::scene_bytes(os)
@@ -493,7 +521,7 @@ fn device_bytes(os: &Scene, n: usize, order: usize) -> u64 {
         + b(dirs * 16)
         + b(n.min(DEPTH_CHUNK) * dirs * 16)
         + b(SAMPLE_WORDS * n * 16)
-        + b(n * 3 * sh::coefficients(order) * 4)
+        + b(n * 3 * sh::coefficients(order) * 4 * if env_set { 2 } else { 1 })
         + b((LIGHT_WORDS * n * lights.len()).max(1) * 16)
         + os.render.width as u64 * os.render.height as u64 * 64
         + 16
@@ -522,28 +550,6 @@ fn boundary_factor_within(object: &Object, p: Vec3, w: Vec3, t_max: f32) -> f64 
         inside = !inside;
     }
     factor
-}
-
-/// The mean of [`boundary_factor_within`] over the directions leaving a flat surface of index `ior`
-/// from inside (uniform in the cosine): what the environment's in-scattering loses or gains at
-/// the boundary, taken for every sample alike (1 for ior 1).
-fn environment_factor(ior: f64) -> f64 {
-    if ior == 1.0 {
-        return 1.0;
-    }
-    let n = 4096;
-    (0..n)
-        .map(|k| {
-            let mu = (k as f64 + 0.5) / n as f64;
-            let f = crate::physics::dielectric::fresnel_dielectric(mu, ior);
-            if f >= 1.0 {
-                0.0
-            } else {
-                (1.0 - f) * ior * ior
-            }
-        })
-        .sum::<f64>()
-        / n as f64
 }
 
 /// Points per sample of the partition's volume quadrature ([`partition_weights`]), and the
@@ -857,6 +863,9 @@ pub fn render(
     // inside the object, where psi's walk to infinity would overshoot it) and `single`'s
     // boundary factor, and the unit direction toward the light.
     use rayon::prelude::*;
+    // A refractive object under an environment: each sample's second coefficient set (psi times
+    // the boundary factor) is what the environment sees.
+    let env_set = object.refractive() && env.max_element() > 0.0;
     // The environment's gradient is averaged over a coarse product rule (4 x 8 directions,
     // their basis once).
     let env_dirs: Vec<(Vec3, f64, Vec<f64>)> = {
@@ -878,9 +887,13 @@ pub fn render(
             words[1] = [p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g];
             words[2] = [*nu, 0.0, 0.0, 0.0];
             if env.max_element() > 0.0 {
-                words[3..6].copy_from_slice(&environment_gradient(object, s.position, &p.sh, &env_dirs));
+                let sh = if env_set { p.sh_env.as_ref().unwrap_or(&p.sh) } else { &p.sh };
+                words[3..6].copy_from_slice(&environment_gradient(object, s.position, sh, &env_dirs));
             }
-            let coeffs: Vec<f32> = p.sh.iter().flatten().copied().collect();
+            let mut coeffs: Vec<f32> = p.sh.iter().flatten().copied().collect();
+            if env_set {
+                coeffs.extend(p.sh_env.iter().flatten().flatten().copied());
+            }
             let mut lt = Vec::with_capacity(LIGHT_WORDS * lights.len());
             for (pos, value, point) in &lights {
                 let (w, e, inside_to) = if *point {
@@ -939,8 +952,6 @@ pub fn render(
     let (w, h) = (os.render.width, os.render.height);
     let image_buf = gpu.buffer("sh-single radiance", w as u64 * h as u64 * 64)?;
     let pipeline = gpu.pipeline(&RENDER, &gs.modelled.mesh_spec())?;
-    // The environment's mean boundary factor at the first object's index.
-    let env_factor = environment_factor(object.materials[0].ior as f64) as f32;
     let n = samples.len() as u32;
     // llvmpipe's loop limiter (glsl/include/budget.glsl) counts every back-edge of an
     // invocation: a sample the camera ray reaches costs 4 + 4 lights of them per inside segment,
@@ -971,7 +982,7 @@ pub fn render(
                         order: set.order as u32,
                         lights: lights.len() as u32,
                         env: [env.x, env.y, env.z, if first == 0 { 1.0 } else { 0.0 }],
-                        env_factor,
+                        env_coeffs: env_set as u32,
                         step,
                         pad: [0; 2],
                     })
