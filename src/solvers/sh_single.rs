@@ -1,12 +1,17 @@
 //! `sh-single` (issue 17; thesis chapter 3): single scattering from per-sample, spherical-
 //! harmonics-compressed attenuation at Poisson-disk samples of an object's interior.
 //!
-//! **Status: the preprocessing on the host; the solver is not registered yet.** Built so far:
-//! the sample set (thesis 3.2, simplified below) and each sample's parameters (3.3): the
-//! attenuation psi_i(w) = exp(-tau(b_i, w)) to the boundary projected on real spherical
-//! harmonics of order L per channel (eq. 3.4, src/physics/sh.rs), the Gaussian width from the
-//! sample's radius (3.3.2) and sigma_s at the sample. Not built: the projection marched on the
-//! device, the render pass (3.4), knobs, ladder, `stability`.
+//! A preprocessing pass draws the samples (thesis 3.2, simplified below) and each sample's
+//! parameters (3.3): the attenuation psi_i(w) = exp(-tau(b_i, w)) to the boundary, marched on
+//! the device and projected on real spherical harmonics of order L per channel (eq. 3.4,
+//! src/physics/sh.rs), the Gaussian width from the sample's radius (3.3.2), sigma_s at the
+//! sample, and the partition weight ([`partition_weights`]). A render pass (3.4,
+//! glsl/sh_single/render.comp) integrates every Gaussian along each camera ray in closed form.
+//! Where it departs from the thesis, and the measurements that decided each departure, are in
+//! docs/sh-single.md: the loop-limiter budget of the render pass, partition weights that hold
+//! in the mean over the object, the coverage normalisation along each ray ([`resolve`]), and
+//! the camera's and lights' attenuation varying across each Gaussian ([`tau_gradient`]). A v1
+//! `[medium]` is sampled as its box ([`Object::box_of`]). `single` is its exact ground truth.
 //!
 //! **Sampling, simplified.** The thesis samples layers (offset surfaces of the mesh) with a
 //! density from the divergence of the light-transport field, then draws a Poisson-disk set whose
