@@ -254,7 +254,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
         let reference = crate::common::render(&gpu, &s, crate::common::SINGLE, &[]);
         let mut last = f64::INFINITY;
         for (order, samples) in [(2usize, 250u32), (4, 1000), (6, 4000)] {
-            let set = ShSettings { order, samples, width_scale: 1.5, seed: 1 };
+            let set = ShSettings { order, samples, width_scale: 1.5, seed: 1, directions: 288 };
             let (img, st, _, _) = render(&gpu, &s, &set, false, &|_| {}).unwrap();
             assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{what}: finite, non-negative");
             let m = scatterlab::output::compare(&img, &reference.image).unwrap();
@@ -267,9 +267,14 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
         }
     }
     let black = sphere_scene("sigma_t = 4.0\nalbedo = 0.0", 1.0, sun, 16);
-    let (img, _, _, _) =
-        render(&gpu, &black, &ShSettings { order: 3, samples: 200, width_scale: 1.5, seed: 1 }, false, &|_| {})
-            .unwrap();
+    let (img, _, _, _) = render(
+        &gpu,
+        &black,
+        &ShSettings { order: 3, samples: 200, width_scale: 1.5, seed: 1, directions: 288 },
+        false,
+        &|_| {},
+    )
+    .unwrap();
     assert!(img.data.iter().all(|v| *v == 0.0), "albedo 0 under a sun: black");
     assert_clean(&gpu);
 }

@@ -310,12 +310,17 @@ pub fn kernels() -> Vec<Kernel> {
     vec![DEPTH, RENDER]
 }
 
-/// Samples per depth dispatch: the depth buffer holds one chunk's (sample, direction) pairs,
-/// 18 MB at 288 directions, whatever the sample count.
-pub const DEPTH_CHUNK: usize = 4096;
+/// (sample, direction) pairs per depth dispatch: the depth buffer holds one chunk's, 18 MB
+/// whatever the sample count ([`depth_chunk`]).
+const DEPTH_PAIRS: usize = 4096 * 288;
+
+/// Samples per depth dispatch with `dirs` directions: at most 4096.
+pub fn depth_chunk(dirs: usize) -> usize {
+    (DEPTH_PAIRS / dirs.max(1)).clamp(1, 4096)
+}
 
 /// [`sample_params`] with the optical depths marched on the device (glsl/sh_single/depth.comp,
-/// one invocation per sample and direction, [`DEPTH_CHUNK`] samples per dispatch; `gs` the
+/// one invocation per sample and direction, [`depth_chunk`] samples per dispatch; `gs` the
 /// scene uploaded with its mesh), the projection on the host. Also returns the bytes of the
 /// buffers it allocated.
 #[allow(clippy::too_many_arguments)]
@@ -336,11 +341,12 @@ pub fn device_params(
     let n = dirs.len();
     let point_buf = gpu.buffer_with("sh-single samples", &points)?;
     let dir_buf = gpu.buffer_with("sh-single directions", &dirs)?;
-    let depth_buf = gpu.buffer("sh-single depths", (samples.len().min(DEPTH_CHUNK) * n * 16) as u64)?;
+    let chunk = depth_chunk(n);
+    let depth_buf = gpu.buffer("sh-single depths", (samples.len().min(chunk) * n * 16) as u64)?;
     let bytes = point_buf.size() + dir_buf.size() + depth_buf.size();
     let mut depths: Vec<[f32; 4]> = Vec::with_capacity(samples.len() * n);
-    for first in (0..samples.len()).step_by(DEPTH_CHUNK) {
-        let count = (samples.len() - first).min(DEPTH_CHUNK);
+    for first in (0..samples.len()).step_by(chunk) {
+        let count = (samples.len() - first).min(chunk);
         let pass = gs
             .bind_mesh(Pass::new("sh_single.depth", QueueRole::Trace, &pipeline))
             .read(3, &point_buf)
@@ -439,6 +445,8 @@ pub struct ShSettings {
     /// Gaussian full width at half maximum in Poisson radii.
     pub width_scale: f32,
     pub seed: u64,
+    /// Directions psi is projected with (about; [`projection_quadrature`]).
+    pub directions: u32,
 }
 
 impl ShSettings {
@@ -448,6 +456,7 @@ impl ShSettings {
             samples: k.get("samples")?,
             width_scale: k.get("width_scale")?,
             seed: k.get_or("seed", scene.render.seed)?,
+            directions: k.get("directions")?,
         })
     }
 }
@@ -460,6 +469,8 @@ pub struct ShStats {
     pub requested: u32,
     pub samples: usize,
     pub order: usize,
+    /// Directions psi was projected with.
+    pub directions: usize,
     pub sample_bytes: u64,
     pub preprocess_s: f64,
     pub render_s: f64,
@@ -475,11 +486,13 @@ pub struct ShStats {
     pub weights_s: f64,
 }
 
-/// The directions psi is projected with: a 12 x 24 product rule (Gauss-Legendre in the cosine,
-/// uniform in azimuth; 288 directions, the thesis projects with 128-256 Monte Carlo ones,
-/// 3.3.1). It integrates the product of two order-8 functions exactly.
-fn projection_quadrature() -> Quadrature {
-    Quadrature::product(12, 24)
+/// The directions psi is projected with: an n x 2n product rule (Gauss-Legendre in the cosine,
+/// uniform in azimuth) of about `directions` directions, n = round(sqrt(directions / 2)), at
+/// least 2 (the default 288 is 12 x 24, which integrates the product of two order-8 functions
+/// exactly; the thesis projects with 128 to 2048 Monte Carlo directions, 3.3.1 and table 3.1).
+fn projection_quadrature(directions: u32) -> Quadrature {
+    let n = ((directions as f64 / 2.0).sqrt().round() as usize).max(2);
+    Quadrature::product(n as u32, 2 * n as u32)
 }
 
 /// The step of the chords' and optical depths' midpoint rule through grid densities: 1/256
@@ -516,15 +529,16 @@ fn split_lights(scene: &Scene) -> (Vec<(Vec3, Vec3, bool)>, Vec3) {
 
 /// Device bytes of a render of `os` (the object scene) with `n` samples drawn: the scene with
 /// its mesh, the depth pass's buffers, the sample set, the image. What [`render`] allocates.
-fn device_bytes(os: &Scene, n: usize, order: usize) -> u64 {
+fn device_bytes(os: &Scene, n: usize, set: &ShSettings) -> u64 {
+    let order = set.order;
     let (lights, env) = split_lights(os);
     let env_set = os.object.as_ref().is_some_and(|o| o.refractive()) && env.max_element() > 0.0;
-    let dirs = projection_quadrature().directions.len();
+    let dirs = projection_quadrature(set.directions).directions.len();
     let b = |bytes: usize| (bytes as u64).max(4);
     gpu_scene::scene_bytes(os)
         + b(n * 16)
         + b(dirs * 16)
-        + b(n.min(DEPTH_CHUNK) * dirs * 16)
+        + b(n.min(depth_chunk(dirs)) * dirs * 16)
         + b(SAMPLE_WORDS * n * 16)
         + b(n * 3 * sh::coefficients(order) * 4 * if env_set { 2 } else { 1 })
         + b((LIGHT_WORDS * n * lights.len()).max(1) * 16)
@@ -855,7 +869,7 @@ pub fn render(
     let sampling_s = clock.elapsed().as_secs_f64();
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 1, 3));
     let gs = GpuScene::upload_with(gpu, &os, force_full, gpu_scene::MAJORANT_CELL)?;
-    let q = projection_quadrature();
+    let q = projection_quadrature(set.directions);
     let step = density_step(object);
     let (params, depth_bytes) = device_params(gpu, &gs, object, &samples, set.order, &q, set.width_scale, step)?;
     let depths_s = clock.elapsed().as_secs_f64() - sampling_s;
@@ -1034,6 +1048,7 @@ pub fn render(
         requested: set.samples,
         samples: samples.len(),
         order: set.order,
+        directions: q.directions.len(),
         sample_bytes,
         preprocess_s,
         render_s,
@@ -1081,6 +1096,13 @@ impl Solver for ShSingle {
                 "each sample's Gaussian full width at half maximum, in Poisson radii (thesis 3.3.2)",
             ),
             Knob::derived("seed", "render.seed", Range::int(0, u64::MAX), "seed of the Poisson-disk sampling"),
+            Knob::fixed(
+                "directions",
+                "288",
+                Range::int(8, 8192),
+                "directions each sample's optical depth is marched toward and projected from (an n x 2n product rule, \
+                 n = round(sqrt(directions / 2)); the thesis uses 128 to 2048)",
+            ),
         ]
     }
 
@@ -1108,7 +1130,7 @@ impl Solver for ShSingle {
         // The sample count is the sampler's (deterministic for the seed): drawn here as the
         // render draws it.
         let n = poisson_samples(os.object.as_ref().expect("object scene"), set.samples, set.seed).len();
-        Ok(device_bytes(&os, n, set.order))
+        Ok(device_bytes(&os, n, &set))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
@@ -1143,12 +1165,14 @@ impl Solver for ShSingle {
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<ShStats>() else { return Vec::new() };
         vec![format!(
-            "sh-single: {} samples ({} requested), order {} ({} coefficients per channel), sample set {:.1} MB; \
+            "sh-single: {} samples ({} requested), order {} ({} coefficients per channel), {} directions, sample set \
+             {:.1} MB; \
              preprocessing {:.2} s (sampling {:.2}, optical depths {:.2}, weights {:.2}), render {:.2} s",
             s.samples,
             s.requested,
             s.order,
             sh::coefficients(s.order),
+            s.directions,
             s.sample_bytes as f64 / 1e6,
             s.preprocess_s,
             s.sampling_s,
