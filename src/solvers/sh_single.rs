@@ -733,6 +733,16 @@ pub fn tau_gradient(object: &Object, p: Vec3, w: Vec3, t_max: f32) -> [Vec3; 3] 
             mat = m;
         }
     }
+    // A grid density: no gradient (the attenuation at the centre across the Gaussian, as the
+    // thesis). Its surface terms leave out the interior's own gradient, and a linear model
+    // across a Gaussian wider than the density's features moves light out of dense cores (the
+    // cloud's render brightened with either).
+    let graded = object
+        .material_at(p)
+        .is_some_and(|k| matches!(object.fields[object.materials[k].field].density, Density::Constant));
+    if !graded {
+        return [Vec3::ZERO; 3];
+    }
     grad
 }
 
