@@ -294,20 +294,7 @@ pub(crate) fn write_box_named(dir: &Path, name: &str, lo: Vec3, hi: Vec3) -> Pat
         text += &format!("v {x} {y} {z}\n");
     }
     // Vertex i has x from bit 0, y from bit 1, z from bit 2 (1-based in the faces).
-    for [a, b, c] in [
-        [0, 3, 1],
-        [0, 2, 3], // -z
-        [4, 5, 7],
-        [4, 7, 6], // +z
-        [0, 1, 5],
-        [0, 5, 4], // -y
-        [2, 6, 7],
-        [2, 7, 3], // +y
-        [0, 4, 6],
-        [0, 6, 2], // -x
-        [1, 3, 7],
-        [1, 7, 5], // +x
-    ] {
+    for [a, b, c] in scatterlab::scene::mesh::BOX_TRIANGLES {
         text += &format!("f {} {} {}\n", a + 1, b + 1, c + 1);
     }
     let path = dir.join(name);

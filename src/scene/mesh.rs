@@ -20,6 +20,23 @@ use std::path::{Path, PathBuf};
 
 use glam::{Affine3A, DVec3, Quat, Vec3};
 
+/// The 12 triangles of a box whose 8 corners are numbered with x from bit 0, y from bit 1 and
+/// z from bit 2 (0 = low, 1 = high), counter-clockwise seen from outside.
+pub const BOX_TRIANGLES: [[u32; 3]; 12] = [
+    [0, 3, 1],
+    [0, 2, 3], // -z
+    [4, 5, 7],
+    [4, 7, 6], // +z
+    [0, 1, 5],
+    [0, 5, 4], // -y
+    [2, 6, 7],
+    [2, 7, 3], // +y
+    [0, 4, 6],
+    [0, 6, 2], // -x
+    [1, 3, 7],
+    [1, 7, 5], // +x
+];
+
 /// A triangle mesh in scene units.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TriangleMesh {

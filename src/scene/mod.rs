@@ -178,21 +178,7 @@ impl Object {
                 )
             })
             .collect();
-        // Vertex i has x from bit 0, y from bit 1, z from bit 2; counter-clockwise from outside.
-        let triangles = vec![
-            [0, 3, 1],
-            [0, 2, 3], // -z
-            [4, 5, 7],
-            [4, 7, 6], // +z
-            [0, 1, 5],
-            [0, 5, 4], // -y
-            [2, 6, 7],
-            [2, 7, 3], // +y
-            [0, 4, 6],
-            [0, 6, 2], // -x
-            [1, 3, 7],
-            [1, 7, 5], // +x
-        ];
+        let triangles = mesh::BOX_TRIANGLES.to_vec();
         let file = PathBuf::from("[medium] box");
         let mesh = mesh::TriangleMesh { positions, triangles, file: file.clone() };
         let bvh = bvh::Bvh::build(&mesh);
