@@ -368,7 +368,7 @@ fn the_gaussian_mean_of_the_inverse_square_is_exact() {
 
 #[test]
 fn sh_single_agrees_with_single_across_thickness_albedo_and_g() {
-    // The registered solver (defaults but 2000 samples) against `single` on the icosphere
+    // The registered solver (defaults but 1500 samples) against `single` on the icosphere
     // (radius 0.8) under a sun and a sky, from thin to optical thickness 32 across, albedo 0 to
     // 0.99, g -0.9 to 0.9, index-matched and glass. relL2 and energy over the object's pixels
     // (the sky seen past it is exact in both). Albedo 0: black but for the surface terms, which
