@@ -115,6 +115,26 @@ float lit_gaussian(vec4 gr, vec3 rperp, vec3 d, float a, float h2, float tc, flo
     return gauss_interval(-a * h2 - tau_c + k + S * shift * 0.5, a, -tc + shift, t1 - tc + shift);
 }
 
+// Per channel, sum_lm f^l c_lm Y_lm(d) over the coefficients of one set (from `base`, three
+// channels of n_coeff each; y = Y(d)): with f = -1 the sample's psi(-d) (Y_lm(-d) = (-1)^l
+// Y_lm(d)), with f = g psi's convolution with Henyey-Greenstein (Funk-Hecke: its band-l
+// coefficient is g^l).
+vec3 sh_weighted(uint base, uint n_coeff, float y[SH_MAX_COEFFS], float f) {
+    vec3 sum = vec3(0.0);
+    float fl = 1.0;
+    uint l = 0u, next = 1u;
+    for (uint k = 0u; k < n_coeff; ++k) {
+        iters++;
+        if (k == next) {
+            ++l;
+            next = (l + 1u) * (l + 1u);
+            fl *= f;
+        }
+        sum += fl * vec3(coeffs[base + k], coeffs[base + n_coeff + k], coeffs[base + 2u * n_coeff + k]) * y[k];
+    }
+    return sum;
+}
+
 // What the samples of this chunk scatter toward the camera along the inside segment from x
 // along d over [0, t1] in material mat, attenuated on the way to x exactly (the camera side):
 //   sum_i nu_i sigma_s(b_i) [ lights + environment ]_i int_0^t1 gamma_i(t) exp(-tau_cam(t)) dt.
@@ -177,32 +197,18 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
         float a = ba.w;
         if (a * h2 > 14.0) continue;   // exp(-14) < 1e-6: the thesis's cut (3.4.2)
         if (tc < -sqrt(14.0 / a) || tc > t1 + sqrt(14.0 / a)) continue;
-        // The camera's optical depth about t_c: value and slope.
-        // For a grid density the camera's attenuation is the sample's own psi_i(-d) across the
-        // whole Gaussian, as the thesis (3.4): the Gaussian spreads the sample's sigma_s over
-        // its width, and an attenuation taken along the ray instead (the chord's at t_c, its
-        // slope, its exact piecewise depth) moved the light of a dense core to the thin medium
-        // in front of it (the cloud 1.20-1.33x `single`).
+        // The camera's optical depth about t_c: value and slope. For a grid density it is the
+        // sample's own psi_i(-d) across the whole Gaussian, as the thesis (3.4): the Gaussian
+        // spreads the sample's sigma_s over its width, and an attenuation taken along the ray
+        // instead (the chord's at t_c, its slope, its exact piecewise depth) moved the light of
+        // a dense core to the thin medium in front of it (the cloud 1.20-1.33x `single`).
         vec3 tau_c, slope;
         if (constant) {
             tau_c = st * tc;
             slope = st;
         } else {
-            // psi_i(-d): the sample's own attenuation toward the camera (Y_lm(-d) = (-1)^l
-            // Y_lm(d)), constant across the Gaussian.
-            vec3 view = vec3(0.0);
-            float sign = 1.0;
-            uint l = 0u, next = 1u;
-            uint base = i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff;
-            for (uint k = 0u; k < n_coeff; ++k) {
-                iters++;
-                if (k == next) {
-                    ++l;
-                    next = (l + 1u) * (l + 1u);
-                    sign = -sign;
-                }
-                view += sign * vec3(coeffs[base + k], coeffs[base + n_coeff + k], coeffs[base + 2u * n_coeff + k]) * y[k];
-            }
+            // psi_i(-d): the sample's own attenuation toward the camera.
+            vec3 view = sh_weighted(i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff, n_coeff, y, -1.0);
             tau_c = -log(max(view, vec3(1e-30)));
             slope = vec3(0.0);
         }
@@ -215,6 +221,7 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
             float sh = slope[c] / (2.0 * a);
             G[c] = gauss_interval(-a * h2 - tau_c[c] + slope[c] * sh * 0.5, a, -tc + sh, t1 - tc + sh);
         }
+        if (max3(G) <= 0.0) continue;
         vec4 sg = samples[SAMPLE_WORDS * i + 1u];
         float nu = samples[SAMPLE_WORDS * i + 2u].x;
         float g = sg.w;
@@ -230,21 +237,9 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
                 lit[c] += p * e[c] * lit_gaussian(lterms[base + 2u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
             }
         }
-        if (max3(G) <= 0.0) continue;
         if (env) {
-            vec3 envs = vec3(0.0);
-            float gl = 1.0;
-            uint l = 0u, next = 1u;
             uint base = i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff + (pc.env_coeffs == 1u ? 3u * n_coeff : 0u);
-            for (uint k = 0u; k < n_coeff; ++k) {
-                iters++;
-                if (k == next) {
-                    ++l;
-                    next = (l + 1u) * (l + 1u);
-                    gl *= g;
-                }
-                envs += gl * vec3(coeffs[base + k], coeffs[base + n_coeff + k], coeffs[base + 2u * n_coeff + k]) * y[k];
-            }
+            vec3 envs = sh_weighted(base, n_coeff, y, g);
             // The environment's attenuation varies across the Gaussian as the lights' does:
             // with the psi-weighted mean gradient over directions (sh_single.rs,
             // environment_gradient).

@@ -270,7 +270,7 @@ pub fn sample_params(
         .map(|s| {
             q.directions
                 .iter()
-                .map(|d| optical_depth(object, s.position, Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32), step))
+                .map(|d| optical_depth(object, s.position, glam::DVec3::from_array(*d).as_vec3(), step))
                 .collect()
         })
         .collect();
@@ -278,12 +278,7 @@ pub fn sample_params(
     project_params(object, samples, order, q, width_scale, refractive, |i, k| {
         let d = q.directions[k];
         let ft = if refractive {
-            boundary_factor_within(
-                object,
-                samples[i].position,
-                Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32),
-                f32::INFINITY,
-            )
+            boundary_factor_within(object, samples[i].position, glam::DVec3::from_array(d).as_vec3(), f32::INFINITY)
         } else {
             1.0
         };
@@ -527,12 +522,18 @@ fn split_lights(scene: &Scene) -> (Vec<(Vec3, Vec3, bool)>, Vec3) {
     (lights, env)
 }
 
+/// Whether each sample holds a second coefficient set for the environment (psi times the
+/// boundary factor): a refractive object under an environment.
+fn env_coefficients(os: &Scene) -> bool {
+    os.object.as_ref().is_some_and(|o| o.refractive()) && split_lights(os).1.max_element() > 0.0
+}
+
 /// Device bytes of a render of `os` (the object scene) with `n` samples drawn: the scene with
 /// its mesh, the depth pass's buffers, the sample set, the image. What [`render`] allocates.
 fn device_bytes(os: &Scene, n: usize, set: &ShSettings) -> u64 {
     let order = set.order;
-    let (lights, env) = split_lights(os);
-    let env_set = os.object.as_ref().is_some_and(|o| o.refractive()) && env.max_element() > 0.0;
+    let (lights, _) = split_lights(os);
+    let env_set = env_coefficients(os);
     let dirs = projection_quadrature(set.directions).directions.len();
     let b = |bytes: usize| (bytes as u64).max(4);
     gpu_scene::scene_bytes(os)
@@ -707,12 +708,17 @@ const MIN_GRADIENT_COS: f32 = 0.2;
 /// across a sample's Gaussian, linearly: under a surface the attenuation falls by e^-1 per mean
 /// free path, much faster than the samples are spaced, and its value at the centre alone misses
 /// the light's steep first layer.
-pub fn tau_gradient(object: &Object, p: Vec3, w: Vec3, t_max: f32) -> [Vec3; 3] {
+///
+/// `mat` is the material `p` lies in. A grid density gets no gradient (the attenuation at the
+/// centre across the Gaussian, as the thesis): the surface terms leave out the interior's own
+/// gradient, and a linear model across a Gaussian wider than the density's features moves
+/// light out of dense cores (the cloud's render brightened with either).
+pub fn tau_gradient(object: &Object, p: Vec3, mat: usize, w: Vec3, t_max: f32) -> [Vec3; 3] {
     let mut grad = [Vec3::ZERO; 3];
-    let mut mat = match object.material_at(p) {
-        Some(m) => m,
-        None => return grad,
-    };
+    if !matches!(object.fields[object.materials[mat].field].density, Density::Constant) {
+        return grad;
+    }
+    let mut mat = mat;
     let mut inside = true;
     for h in crossings(object, p, w).take_while(|h| h.t < t_max) {
         let leaving = h.normal.dot(w) > 0.0;
@@ -733,17 +739,12 @@ pub fn tau_gradient(object: &Object, p: Vec3, w: Vec3, t_max: f32) -> [Vec3; 3] 
             mat = m;
         }
     }
-    // A grid density: no gradient (the attenuation at the centre across the Gaussian, as the
-    // thesis). Its surface terms leave out the interior's own gradient, and a linear model
-    // across a Gaussian wider than the density's features moves light out of dense cores (the
-    // cloud's render brightened with either).
-    let graded = object
-        .material_at(p)
-        .is_some_and(|k| matches!(object.fields[object.materials[k].field].density, Density::Constant));
-    if !graded {
-        return [Vec3::ZERO; 3];
-    }
     grad
+}
+
+/// psi reconstructed from one channel's coefficients at a direction whose basis is `y`.
+fn reconstruct(coeffs: &[f32], y: &[f64]) -> f64 {
+    coeffs.iter().zip(y).map(|(k, yk)| *k as f64 * yk).sum()
 }
 
 /// Words per sample in the sample buffer (glsl/sh_single/render.comp): centre and width,
@@ -755,13 +756,18 @@ const SAMPLE_WORDS: usize = 6;
 /// [`tau_gradient`] over `dirs` (direction, quadrature weight, its basis), the depth -ln of the
 /// mean of psi. Under a surface the environment's light falls off as steeply as a light's; the
 /// render varies it across the Gaussian with this gradient, as it does a light's.
-fn environment_gradient(object: &Object, p: Vec3, sh: &[Vec<f32>; 3], dirs: &[(Vec3, f64, Vec<f64>)]) -> [[f32; 4]; 3] {
+fn environment_gradient(
+    object: &Object,
+    s: &Sample,
+    sh: &[Vec<f32>; 3],
+    dirs: &[(Vec3, f64, Vec<f64>)],
+) -> [[f32; 4]; 3] {
     let mut num = [glam::DVec3::ZERO; 3];
     let mut den = [0.0f64; 3];
     for (w, q, y) in dirs {
-        let grad = tau_gradient(object, p, *w, f32::INFINITY);
+        let grad = tau_gradient(object, s.position, s.material, *w, f32::INFINITY);
         for c in 0..3 {
-            let psi: f64 = sh[c].iter().zip(y).map(|(k, yk)| *k as f64 * yk).sum::<f64>().max(0.0);
+            let psi = reconstruct(&sh[c], y).max(0.0);
             num[c] += grad[c].as_dvec3() * (q * psi);
             den[c] += q * psi;
         }
@@ -859,6 +865,8 @@ pub fn render(
     let depths_s = clock.elapsed().as_secs_f64() - sampling_s;
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 2, 3));
     let (lights, env) = split_lights(&os);
+    // Which point lights lie inside the objects (their light terms walk to the light), once.
+    let inside: Vec<bool> = lights.iter().map(|(pos, _, point)| *point && object.contains(*pos)).collect();
     let nu = partition_weights(object, &samples, &params);
     let weights_s = clock.elapsed().as_secs_f64() - sampling_s - depths_s;
     // Per sample: its two words, its coefficients, and per light the irradiance at the sample
@@ -866,9 +874,7 @@ pub fn render(
     // inside the object, where psi's walk to infinity would overshoot it) and `single`'s
     // boundary factor, and the unit direction toward the light.
     use rayon::prelude::*;
-    // A refractive object under an environment: each sample's second coefficient set (psi times
-    // the boundary factor) is what the environment sees.
-    let env_set = object.refractive() && env.max_element() > 0.0;
+    let env_set = env_coefficients(&os);
     // The environment's gradient is averaged over a coarse product rule (4 x 8 directions,
     // their basis once).
     let env_dirs: Vec<(Vec3, f64, Vec<f64>)> = {
@@ -876,7 +882,7 @@ pub fn render(
         q.directions
             .iter()
             .zip(&q.weights)
-            .map(|(d, w)| (Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32), *w, sh::basis(set.order, *d)))
+            .map(|(d, w)| (glam::DVec3::from_array(*d).as_vec3(), *w, sh::basis(set.order, *d)))
             .collect()
     };
     let per_sample: Vec<SampleUpload> = samples
@@ -891,14 +897,14 @@ pub fn render(
             words[2] = [*nu, 0.0, 0.0, 0.0];
             if env.max_element() > 0.0 {
                 let sh = if env_set { p.sh_env.as_ref().unwrap_or(&p.sh) } else { &p.sh };
-                words[3..6].copy_from_slice(&environment_gradient(object, s.position, sh, &env_dirs));
+                words[3..6].copy_from_slice(&environment_gradient(object, s, sh, &env_dirs));
             }
             let mut coeffs: Vec<f32> = p.sh.iter().flatten().copied().collect();
             if env_set {
                 coeffs.extend(p.sh_env.iter().flatten().flatten().copied());
             }
             let mut lt = Vec::with_capacity(LIGHT_WORDS * lights.len());
-            for (pos, value, point) in &lights {
+            for ((pos, value, point), inside) in lights.iter().zip(&inside) {
                 let (w, e, inside_to) = if *point {
                     let to = *pos - s.position;
                     // The irradiance I / r^2 averaged over the sample's Gaussian, not taken at
@@ -907,7 +913,7 @@ pub fn render(
                     let r2 = to.length_squared();
                     let w = if r2 > 0.0 { to / r2.sqrt() } else { Vec3::Z };
                     let mean = gaussian_mean_inverse_square(r2.sqrt() as f64, (0.5 / p.a as f64).sqrt());
-                    (w, *value * mean as f32, object.contains(*pos).then_some(r2.sqrt()))
+                    (w, *value * mean as f32, inside.then_some(r2.sqrt()))
                 } else {
                     (-*pos, *value, None)
                 };
@@ -916,14 +922,11 @@ pub fn render(
                     Some(r) => optical_depth_within(object, s.position, w, r, step),
                     None => {
                         let y = sh::basis(set.order, [w.x as f64, w.y as f64, w.z as f64]);
-                        std::array::from_fn(|c| {
-                            let psi: f64 = p.sh[c].iter().zip(&y).map(|(k, yk)| *k as f64 * yk).sum();
-                            -psi.max(1e-30).ln()
-                        })
+                        std::array::from_fn(|c| -reconstruct(&p.sh[c], &y).max(1e-30).ln())
                     }
                 };
                 let ft = boundary_factor_within(object, s.position, w, t_max);
-                let grad = tau_gradient(object, s.position, w, t_max);
+                let grad = tau_gradient(object, s.position, s.material, w, t_max);
                 let att: [f32; 3] = std::array::from_fn(|c| ((-tau_l[c]).exp() * ft) as f32 * e[c]);
                 lt.push([att[0], att[1], att[2], 0.0]);
                 lt.push([w.x, w.y, w.z, 0.0]);
@@ -957,13 +960,17 @@ pub fn render(
     let pipeline = gpu.pipeline(&RENDER, &gs.modelled.mesh_spec())?;
     let n = samples.len() as u32;
     // llvmpipe's loop limiter (glsl/include/budget.glsl) counts every back-edge of an
-    // invocation: a sample the camera ray reaches costs 4 + 4 lights of them per inside segment,
-    // and order^2 more with an environment (glsl/sh_single/render.comp, segment_light). Chunks start where a ray reaching every sample of one segment stays within the
-    // guard; where the kernel reports more (many segments), the render is run again with half
-    // the chunk.
+    // invocation: a sample the camera ray reaches costs 4 + 4 lights of them per inside segment
+    // (glsl/sh_single/render.comp, segment_light), order^2 + 3 more with an environment and
+    // order^2 more in a grid density (psi toward the camera). Chunks start where a ray reaching
+    // every sample of one segment stays within the guard; where the kernel reports more (many
+    // segments), the render is run again with half the chunk.
     let stats_buf = gpu.buffer("sh-single stats", 16)?;
-    let per_sample =
-        (4 + 4 * lights.len() + if env.max_element() > 0.0 { sh::coefficients(set.order) } else { 0 }) as u32;
+    let n_coeff = sh::coefficients(set.order);
+    let per_sample = (4
+        + 4 * lights.len()
+        + if env.max_element() > 0.0 { n_coeff + 3 } else { 0 }
+        + if gs.modelled.density == "constant" { 0 } else { n_coeff }) as u32;
     let mut chunk = (LOOP_GUARD / 2 / per_sample).clamp(1, CHUNK);
     let mut dispatches = 0u64;
     progress(Progress::work("render pass", 0, 1));
