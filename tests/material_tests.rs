@@ -521,6 +521,10 @@ fn lbl_gives_each_voxel_its_objects_material() {
     // wrong material anywhere would be percents.
     assert!(rel < 1e-3, "two materials of one medium: relL2 {rel} against the one-medium lattice");
 
+    // (Part 1 ran the forward population, the default for g >= 0; part 2's mixed scene has a
+    // g < 0 material, so `auto` takes the directed injection there: every render below uses
+    // it, so that each box alone is rendered as in the mixed scene.)
+    let sets = [("lbl.grid", "32"), ("lbl.inject", "directed")];
     let thin = Mat { sigma_t: [1.0, 1.5, 2.0], albedo: [0.5, 0.3, 0.0], g: -0.6 };
     let thick = Mat { sigma_t: [20.0, 20.0, 20.0], albedo: [0.99, 0.95, 0.9], g: 0.8 };
     let mixed = render(&gpu, &scene(&front_lit_pair(dir.path(), &thin, &thick, "", "", 1.33)), LBL, &sets);

@@ -23,6 +23,21 @@
 // convex object it never comes back; in a non-convex one light that leaves and re-enters is
 // dropped (what the marching then misses is light the lattice would have received).
 //
+// The forward population (pc.forward, lbl.inject=forward; docs/lbl.md). The lattice scatters
+// isotropically with the reduced coefficient sigma_s (1 - g) (similarity), so the forward peak
+// of the first scattering must be carried some other way. Split the once-scattered light as
+// HG(g) ~ (1 - g) isotropic + g straight on (the delta-isotropic approximation: the same energy
+// and mean cosine): the isotropic share is deposited here, and the share g joins the ray's
+// forward population Q, which moves on along the ray (the beam's own direction, where a real
+// forward-scattered photon goes on average) and collides at the reduced extinction
+// sigma_t' = sigma_t (1 - albedo g), depositing the scattered share sigma_s (1 - g) / sigma_t'
+// of what collides (the reduced medium's albedo) and absorbing the rest. Q refracts and
+// reflects with the ray and leaves the medium with it. Per step the slot also records Q's path
+// integral (W times voxels travelled, fwh[]), whose fluence and flux the view pass scatters
+// toward the camera with the once-scattered light's own lobe (glsl/view/march.comp). Carried by
+// the ray, Q goes deeper than a lattice's axial links can take it: the directed injection's
+// links put light injected along a diagonal onto links parallel to a lit face, where it stays.
+//
 // Objects of several materials (scene.materials): a ray inside one carries its material in
 // dir_alive.w = 2 + material (the host sets it where the ray starts; an entering crossing takes
 // the triangle's), and its extinction, albedo, density field and index are that material's. A
@@ -37,6 +52,7 @@
 #define MESH_NODES_BINDING 6
 #define MESH_TRIS_BINDING 7
 #include "../include/mesh.glsl"
+#include "../include/phase.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
@@ -44,10 +60,14 @@ struct Ray {
     vec4 pos_steps;   // position (scene units), steps taken (float)
     vec4 dir_alive;   // unit direction, 1 while alive
     vec4 power;       // rgb power (W), w = the ray's starting max-channel power
+    vec4 fwd;         // rgb power of the forward population (W; pc.forward), w unused
 };
 layout(std430, binding = 3) buffer Rays { Ray rays[]; };
 // k slots per ray: (voxel index or 0xffffffff, deposit rgb as float bits).
 layout(std430, binding = 4) writeonly buffer History { uvec4 rhb[]; };
+// With pc.forward, per slot: the forward population's path-integrated power over the step (W
+// times voxels travelled), rgb, beside the slot's voxel.
+layout(std430, binding = 5) writeonly buffer FwdHistory { vec4 fwh[]; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;          // lattice voxels xyz, w = rays this dispatch marches
@@ -57,10 +77,36 @@ layout(push_constant) uniform Push {
     uint k;              // Ray History Buffer slots per ray per round
     uint max_steps;
     uint first_ray;      // the first of them (dom marches one group of beams' rays at a time)
-    uint pad0;
+    uint forward;        // 1: carry the forward population (below)
     uint pad1;
     uint pad2;
 } pc;
+
+// The share of the forward population that a refractive surface reflects back in as it
+// leaves: Q stands for light scattered forward about the ray's direction d, spread as HG(g)
+// about it (the once-scattered lobe), not for the collimated ray itself, and of a spread beam
+// more meets the surface beyond the critical angle than of the ray. Fresnel's reflectance
+// from inside (index ior to 1) averaged over the outgoing hemisphere about n_out, weighted by
+// the lobe and the cosine (the flux through the surface); a 16 x 32 product rule in (mu, phi).
+float lobe_reflectance(vec3 d, vec3 n_out, float g, float ior) {
+    vec3 t = normalize(abs(n_out.x) < 0.9 ? cross(n_out, vec3(1.0, 0.0, 0.0)) : cross(n_out, vec3(0.0, 1.0, 0.0)));
+    vec3 b = cross(n_out, t);
+    float num = 0.0, den = 0.0;
+    for (uint i = 0u; i < 16u; ++i) {
+        float mu = (float(i) + 0.5) / 16.0;
+        float s = sqrt(1.0 - mu * mu);
+        float ct;
+        float F = fresnel_dielectric(mu, ior, ct);
+        for (uint j = 0u; j < 32u; ++j) {
+            float phi = (float(j) + 0.5) * (2.0 * PI / 32.0);
+            vec3 w = mu * n_out + s * (cos(phi) * t + sin(phi) * b);
+            float wt = hg_eval(g, dot(w, d)) * mu;
+            num += wt * F;
+            den += wt;
+        }
+    }
+    return den > 0.0 ? num / den : 1.0;
+}
 
 void main() {
     if (gl_GlobalInvocationID.x >= pc.dims.w) return;
@@ -73,10 +119,12 @@ void main() {
     bool inside = !HAS_MESH || ray.dir_alive.w > 1.5;   // in the object's medium (HAS_MESH)
     uint mat = HAS_MESH && inside ? uint(ray.dir_alive.w - 1.5) : 0u;   // its material
     vec3 P = ray.power.rgb;
+    vec3 Q = ray.fwd.rgb;
     uvec3 n = pc.dims.xyz;
     float lambda = pc.origin.w;
     for (uint j = 0u; j < pc.k; ++j) {
         uvec4 slot = uvec4(0xffffffffu, 0u, 0u, 0u);
+        vec3 q_len = vec3(0.0);
         if (alive) {
             // A step that meets the mesh ends on it (the rest of the way is the next step's).
             float len = pc.step;
@@ -90,9 +138,29 @@ void main() {
                 medium_mat = mat;
                 vec3 st = inside ? scene.materials[mat].sigma_t.xyz * medium_density(mid) : vec3(0.0);
                 vec3 seg_T = exp(-st * len);
-                vec3 dep = P * (vec3(1.0) - seg_T) * scene.materials[mat].albedo.xyz;
+                vec3 a = scene.materials[mat].albedo.xyz;
+                vec3 dep = P * (vec3(1.0) - seg_T) * a;
                 P *= seg_T;
-                if (max3(dep) > 0.0) slot = uvec4(uint(vox.x) + n.x * (uint(vox.y) + n.y * uint(vox.z)), floatBitsToUint(dep));
+                if (pc.forward != 0u) {
+                    // The forward population (header): of what the step scatters, the share g
+                    // joins Q, the rest is deposited; Q then travels on with the ray, collides
+                    // at the reduced extinction sigma_t' = sigma_t (1 - albedo g) and deposits
+                    // the scattered share of that, sigma_s (1 - g) / sigma_t'. A medium with
+                    // g <= 0 adds nothing to Q, and Q entering it collides at sigma_t.
+                    float g = max(scene.materials[mat].albedo.w, 0.0);
+                    vec3 red = max(vec3(1.0) - a * g, vec3(1e-6));
+                    vec3 stp = st * red;
+                    vec3 q0 = Q + g * dep;
+                    vec3 q_T = exp(-stp * len);
+                    // Q's path integral over the step, exact for its exponential decay.
+                    vec3 path = vec3(len);
+                    for (int c = 0; c < 3; ++c)
+                        if (stp[c] * len > 1e-4) path[c] = (1.0 - q_T[c]) / stp[c];
+                    q_len = q0 * path / lambda;
+                    dep = (1.0 - g) * dep + q0 * (vec3(1.0) - q_T) * a * (1.0 - g) / red;
+                    Q = q0 * q_T;
+                }
+                if (max3(dep) > 0.0 || max3(q_len) > 0.0) slot = uvec4(uint(vox.x) + n.x * (uint(vox.y) + n.y * uint(vox.z)), floatBitsToUint(dep));
             } else if (steps > 0.0) {
                 alive = false;   // left the lattice (rays start on its boundary)
             }
@@ -107,10 +175,14 @@ void main() {
                     float F = surface_fresnel(d, nf, entering, scene.materials[mat].ior.x, eta, cos_i, cos_t);
                     if (entering) {
                         P *= 1.0 - F;
+                        Q *= 1.0 - F;
                         d = refract_dir(d, nf, eta, cos_i, cos_t);
                         inside = true;
                     } else {
                         P *= F;
+                        // (nf faces the inside here: the ray leaves along -nf)
+                        if (pc.forward != 0u && max3(Q) > 0.0)
+                            Q *= lobe_reflectance(d, -nf, max(scene.materials[mat].albedo.w, 0.0), scene.materials[mat].ior.x);
                         d = reflect(d, nf);
                     }
                 } else {
@@ -120,9 +192,10 @@ void main() {
                 x += (dot(d, nf) < 0.0 ? -nf : nf) * surface_eps(x);
             }
             steps += 1.0;
-            if (max3(P) < pc.threshold * ray.power.w || steps >= float(pc.max_steps)) alive = false;
+            if (max3(P + Q) < pc.threshold * ray.power.w || steps >= float(pc.max_steps)) alive = false;
         }
         rhb[r * pc.k + j] = slot;
+        if (pc.forward != 0u) fwh[r * pc.k + j] = vec4(q_len, 0.0);
     }
-    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 + float(mat) : 1.0) : 0.0), vec4(P, ray.power.w));
+    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 + float(mat) : 1.0) : 0.0), vec4(P, ray.power.w), vec4(Q, 0.0));
 }

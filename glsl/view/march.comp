@@ -84,7 +84,7 @@ layout(push_constant) uniform Push {
     uint slot;           // which unfinished-counter this dispatch reports into
     uint ms_flux;        // 1: the volume carries the vector irradiance after the fluence (two-term); 2: a lattice's (HG lobe)
     uint ms_only;        // 1: this run adds the volume's light alone (no direct light, no background): a later slab
-    uint pad2;
+    uint ms_forward;     // F > 0: lbl's forward field follows at F C V (ms_inscatter); 0: none
     uvec4 ms_dims;       // volume voxels xyz (x = 0: no multiple-scattering volume), w = channels
     vec4 ms_origin;      // volume min corner, w = lambda (voxel edge)
     vec4 octave;         // octaves: attenuation a, contribution b, eccentricity c, w = 1: bounded
@@ -152,6 +152,36 @@ vec3 ms_inscatter(vec3 p, vec3 d, float g_p) {
                 }
             } else {
                 e[c] = max(0.0, e[c] + 3.0 * g_p * dot(flux, -d));
+            }
+        }
+        if (pc.ms_forward != 0u) {
+            // lbl's forward population (lbl.inject=forward, glsl/marching/march.comp): the part
+            // g of once-scattered light that the split HG(g) ~ (1 - g) isotropic + g forward
+            // sends on along its beam, its fluence at [F C V + c V] and flux (fluence times
+            // the beam's direction) at [(F + 1) C V + (3 c + a) V], F = pc.ms_forward. The
+            // isotropic share went into the lattice, whose field the lines above scatter. Of
+            // the once-scattered light itself the angular distribution is HG(g) about the
+            // beam, and scattering it by HG(g) gives HG(g^2) (Legendre coefficients multiply):
+            // the forward part scatters toward the camera what HG(g^2) gives less the
+            // isotropic share already counted, [4 pi HG(g^2, mu) - (1 - g)] / g per unit
+            // fluence, clamped at 0 (it is the full once-scattered lobe's remainder, and
+            // 1 + 3 g mu, the two-term expansion, as g -> 0). mu: the beam's direction against
+            // the way to the camera. Where several beams cross (an environment's raymaps), the
+            // field is taken as an HG lobe of mean cosine k = |E| / phi about their mean
+            // direction E^ (k = 1 for one beam), which HG(g^2) scattering makes HG(k g^2):
+            // isotropic where beams from every side cancel (k -> 0), where HG(g^2) about the
+            // mean direction drew each of the 14 raymaps' directions as a blotch.
+            float q = ms_trilinear(pc.ms_forward * C * V + c * V, n, i0, i1, f);
+            if (q > 0.0) {
+                uint fb = (pc.ms_forward + 1u) * C * V + 3u * c * V;
+                vec3 qf = vec3(ms_trilinear(fb, n, i0, i1, f), ms_trilinear(fb + V, n, i0, i1, f),
+                               ms_trilinear(fb + 2u * V, n, i0, i1, f));
+                float ql = length(qf);
+                float mu = ql > 0.0 ? dot(qf / ql, -d) : 0.0;
+                float k = min(1.0, ql / q);
+                float share = 1.0;   // an isotropic medium here: the isotropic share
+                if (g_p > 1e-3) share = max(0.0, (4.0 * PI * hg_eval(g_p * g_p * k, mu) - (1.0 - g_p)) / g_p);
+                e[c] += q * share;
             }
         }
     }

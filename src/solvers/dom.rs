@@ -247,6 +247,7 @@ fn ms_volume<'a>(energy: &'a Buffer, geom: &LatticeGeom, nch: u32, window: Optio
         lambda: geom.lambda,
         flux: FluxUse::None,
         window,
+        forward: false,
     }
 }
 

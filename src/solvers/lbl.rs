@@ -138,9 +138,11 @@ impl Solver for Lbl {
             Knob::fixed(
                 "inject",
                 "auto",
-                Range::Choice(&["auto", "directed", "isotropic"]),
-                "anisotropic media: inject once-scattered light with its first moment g along the beam (directed) or \
-                 emit it isotropically (the thesis); auto: directed unless a point light is inside the medium",
+                Range::Choice(&["auto", "forward", "directed", "isotropic"]),
+                "anisotropic media: carry the share g of once-scattered light on along its light ray until it collides \
+                 at the reduced extinction, emitting the rest isotropically (forward), inject it with its first moment \
+                 g on the lattice's axial links (directed), or emit it isotropically (the thesis); auto: forward where \
+                 no medium has g < 0 and no object refracts, else directed unless a point light is inside the medium",
             ),
             Knob::fixed(
                 "flux",
@@ -230,7 +232,15 @@ impl Solver for Lbl {
         let rays = marching::raymaps(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed).len() as u64;
         // A warm start's wave field lives only while the lattice is seeded; it counts at peak.
         let warm = set.warm_start.map_or(0, |w| w.device_bytes(scene, chromatic, &geom));
+        // The forward population: its history beside the rays', its sums, and the view's copy
+        // of the lattice's field with the forward field appended.
+        let forward = if set.forward && scene.features().anisotropic {
+            rays * m.k as u64 * 16 + 2 * 4 * p.nch as u64 * geom.voxels() * 4 + p.irradiance_floats() * 4
+        } else {
+            0
+        };
         Ok(gpu_scene::scene_bytes(scene)
+            + forward
             + m.device_bytes(&geom, rays, p.nch, p.directed, true)
             + p.diffuser_bytes()
             + p.injector_bytes()
@@ -329,6 +339,7 @@ impl Lbl {
             lambda: g.lambda,
             flux: if lat.stats.flux { set.flux } else { view::FluxUse::None },
             window: None,
+            forward: lat.forward_field,
         };
         let mut view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
         if let Some(n) = &lat.stats.near_light {
@@ -487,6 +498,8 @@ pub struct LblSettings {
     pub near_light: f32,
     /// Inject anisotropic media's once-scattered light with its first moment (`lbl.inject`).
     pub directed: bool,
+    /// Carry the forward-scattered light along the light rays (`lbl.inject=forward`).
+    pub forward: bool,
     /// Anisotropic media: how the view pass scatters the lattice's flux (`lbl.flux`; `None`:
     /// the lattice keeps no flux).
     pub flux: view::FluxUse,
@@ -502,11 +515,23 @@ impl LblSettings {
         let grid: u32 = k.get("grid")?;
         let geom = LatticeGeom::new(scene, grid);
         let block: u32 = k.get_or("block", 8)?;
-        // `auto` models the forward peak (lbl.inject, lbl.flux) unless a point light is inside
-        // the medium: there the radially injected first moment streams along the lattice's
-        // axes and the "+" around the light grows (point-light-in-cloud at 64^2: relL2 0.36
-        // isotropic, 0.56 directed with the two-term flux).
+        // `auto` (lbl.inject, lbl.flux) carries the forward peak on the forward population
+        // (lbl.inject=forward, docs/lbl.md) where no medium scatters backward (it models g > 0
+        // only) and no refractive object traps light: with or without a light inside, since
+        // the population follows the light's own rays and draws no "+" along the lattice's
+        // axes (point-light-in-cloud at 64^2: relL2 0.128 -> 0.105). Inside glass its light,
+        // collimated where the real forward lobe spreads past the critical angle, escapes too
+        // easily (a g 0.9 glass sphere under a sky 0.90 of path's energy; directed 1.02).
+        // Elsewhere the directed injection of the first moment, unless a point light is
+        // inside the medium: there the radially injected first moment streams along the
+        // lattice's axes and the "+" around the light grows (point-light-in-cloud at 64^2:
+        // relL2 0.36 isotropic, 0.56 directed with the two-term flux).
         let light_inside = !wave_field::traced_lights(scene).is_empty();
+        let no_backward =
+            scene.medium.g >= 0.0 && scene.object.as_ref().is_none_or(|o| o.materials.iter().all(|m| m.g >= 0.0));
+        let view = ViewSettings::parse(k, "view_", scene)?;
+        let trapping = view.refraction && scene.object.as_ref().is_some_and(|o| o.refractive());
+        let forward_auto = no_backward && !trapping;
         let out = LblSettings {
             grid,
             march: MarchSettings::parse(k, geom.lambda)?,
@@ -521,7 +546,7 @@ impl LblSettings {
             extrapolate: k.get("extrapolate")?,
             deterministic: k.get("deterministic")?,
             schedule: k.get("schedule")?,
-            view: ViewSettings::parse(k, "view_", scene)?,
+            view,
             warm_start: match k.get::<String>("warm_start")?.as_str() {
                 "wavefront" => Some(WaveSettings::parse(k, "wavefront_")?),
                 _ => None,
@@ -530,12 +555,16 @@ impl LblSettings {
             escape: k.get("escape")?,
             drift: k.get("drift")?,
             near_light: 0.0,
+            forward: match k.get::<String>("inject")?.as_str() {
+                "auto" => forward_auto,
+                mode => mode == "forward",
+            },
             directed: match k.get::<String>("inject")?.as_str() {
-                "auto" => !light_inside,
+                "auto" => !forward_auto && !light_inside,
                 mode => mode == "directed",
             },
             flux: match k.get::<String>("flux")?.as_str() {
-                "auto" if light_inside => view::FluxUse::None,
+                "auto" if light_inside && !forward_auto => view::FluxUse::None,
                 "auto" | "two_term" => view::FluxUse::TwoTerm,
                 "lobe" => view::FluxUse::Lobe,
                 _ => view::FluxUse::None,
@@ -712,6 +741,8 @@ pub struct LblStats {
     pub view_dispatches: u64,
     /// Once-scattered light injected with its first moment (anisotropic media, `lbl.inject`).
     pub directed: bool,
+    /// Forward-scattered light carried along the light rays (`lbl.inject=forward`).
+    pub forward: bool,
     /// The near ball lumped into a point light inside the medium (`lbl.near_light`).
     pub near_light: Option<NearLight>,
     /// The lattice's flux is integrated and scattered by the view pass (`lbl.flux`).
@@ -723,6 +754,9 @@ pub struct LblStats {
 pub struct LatticeResult {
     pub irradiance: Vec<f32>,
     pub irradiance_buffer: crate::gpu::Buffer,
+    /// The forward population's field follows the lattice's in `irradiance_buffer`
+    /// ([`view::MsVolume::forward`]).
+    pub forward_field: bool,
     pub stats: LblStats,
 }
 
@@ -828,7 +862,10 @@ pub fn run_lattice(
     // Float atomics are the fast path where the device has them; fixed point is deterministic.
     let fixed = set.deterministic || !info.float_atomics;
     let params = lattice_params(scene, set, &geom, nch);
-    let marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed, params.directed, true)?;
+    let mut marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed, params.directed, true)?;
+    if set.forward && scene.features().anisotropic {
+        marcher.enable_forward(gpu, nch)?;
+    }
     // Objects of several materials: each voxel names its material (the marcher's voxelisation).
     let materials = match (lattice_materials(scene, set), &marcher.voxel_materials) {
         (Some(table), Some(voxels)) => lattice::LatticeMaterials::new(gpu, Some((&table, voxels)))?,
@@ -937,10 +974,22 @@ pub fn run_lattice(
             b[2] = b[0];
         }
     }
-    let irr = lattice.irradiance().clone();
+    let mut irr = lattice.irradiance().clone();
     let irradiance = lattice::read_f32(gpu, &irr)?;
-    let device_bytes =
-        marcher.device_bytes() + injector.device_bytes() + lattice.device_bytes() + materials.buffer.size();
+    let mut forward_field = false;
+    if let Some(fwd) = marcher.forward_field(gpu, nch)? {
+        // The forward population's field follows the lattice's for the view pass
+        // (view::MsVolume::forward); the lattice's own stays in `irradiance`.
+        let mut both = irradiance.clone();
+        both.extend_from_slice(&fwd);
+        irr = gpu.buffer_with("lattice and forward field", &both)?;
+        forward_field = true;
+    }
+    let device_bytes = marcher.device_bytes()
+        + injector.device_bytes()
+        + lattice.device_bytes()
+        + materials.buffer.size()
+        + if forward_field { irr.size() } else { 0 };
     let near_light = match (params.near, scene.lights.first()) {
         (Some((_, radius)), Some(crate::scene::Light::Point { intensity, .. })) => {
             let mut e = injector.near_energy(gpu)?;
@@ -964,6 +1013,7 @@ pub fn run_lattice(
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
+        forward_field,
         stats: LblStats {
             lattice: geom,
             lattice_kind: set.lattice,
@@ -985,6 +1035,7 @@ pub fn run_lattice(
             cascade_iterations,
             view_dispatches: 0,
             directed: params.directed,
+            forward: forward_field,
             flux: params.flux,
             near_light,
         },

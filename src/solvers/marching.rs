@@ -39,7 +39,9 @@ struct MarchPush {
     max_steps: u32,
     /// The first ray this dispatch marches (dims.w: how many).
     first_ray: u32,
-    pad: [u32; 3],
+    /// 1: carry the forward population (march.comp).
+    forward: u32,
+    pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -52,7 +54,9 @@ struct TransferPush {
     k: u32,
     /// 1: also sum each deposit's flux (glsl/lattice/inject.comp).
     directed: u32,
-    pad: [u32; 3],
+    /// 1: also sum the forward population (march.comp).
+    forward: u32,
+    pad: [u32; 2],
 }
 
 pub const RESAMPLE: Kernel =
@@ -85,6 +89,8 @@ pub struct RayInit {
     pub pos_steps: [f32; 4],
     pub dir_alive: [f32; 4],
     pub power: [f32; 4],
+    /// The forward population's power per channel (march.comp), 0 at the start.
+    pub fwd: [f32; 4],
 }
 
 /// Marching's knobs (a solver lists them among its own).
@@ -207,6 +213,7 @@ pub fn beams(
                 pos_steps: [s.x, s.y, s.z, 0.0],
                 dir_alive: [d.x, d.y, d.z, 1.0],
                 power: [power.x, power.y, power.z, power.max_element()],
+                fwd: [0.0; 4],
             });
             ray_beam.push(beam);
         }
@@ -372,6 +379,12 @@ pub struct Marcher {
     /// Fixed-point quanta per W: a voxel's sum within a round never exceeds the total power.
     pub scale: f32,
     set: MarchSettings,
+    /// Carry anisotropic media's forward-scattered light along each ray (march.comp):
+    /// [`Marcher::enable_forward`].
+    forward: bool,
+    /// With `forward`: the forward population per history slot, and its sums per voxel.
+    fwd_history: Buffer,
+    fwd_sums: Buffer,
     max_steps: u32,
     march: Pipeline,
     /// The transfer kernel, where the marcher keeps grid sums.
@@ -473,6 +486,9 @@ impl Marcher {
             fixed,
             scale,
             set: *set,
+            forward: false,
+            fwd_history: gpu.buffer("marching forward history (none)", 16)?,
+            fwd_sums: gpu.buffer("marching forward sums (none)", 16)?,
             max_steps,
             march,
             transfer,
@@ -492,6 +508,7 @@ impl Marcher {
         gs.bind_mesh(Pass::new("marching.march", QueueRole::Trace, &self.march))
             .read_write(3, &self.rays)
             .write(4, &self.history)
+            .write(5, &self.fwd_history)
             .push(&MarchPush {
                 dims: [g.dims[0], g.dims[1], g.dims[2], count],
                 origin: g.origin4(),
@@ -500,7 +517,8 @@ impl Marcher {
                 k: self.set.k,
                 max_steps: self.max_steps,
                 first_ray: rays.start,
-                pad: [0; 3],
+                forward: self.forward as u32,
+                pad: [0; 2],
             })
             .cover([count, 1, 1])
     }
@@ -513,15 +531,43 @@ impl Marcher {
             .read(0, &self.history)
             .read_write(1, &self.sums)
             .read(2, &self.rays)
+            .read(3, &self.fwd_history)
+            .read_write(4, &self.fwd_sums)
             .push(&TransferPush {
                 entries,
                 voxels: self.geom.voxels() as u32,
                 scale: self.scale,
                 k: self.set.k,
                 directed: self.directed as u32,
-                pad: [0; 3],
+                forward: self.forward as u32,
+                pad: [0; 2],
             })
             .cover([entries, 1, 1])
+    }
+
+    /// Carry anisotropic media's forward-scattered light along each ray and sum its fluence and
+    /// flux per voxel (glsl/marching/march.comp); `nch` channels.
+    pub fn enable_forward(&mut self, gpu: &Gpu, nch: u32) -> Result<(), SolverError> {
+        let slots = self.ray_count as u64 * self.set.k as u64;
+        self.fwd_history = gpu.buffer("marching forward history", slots * 16)?;
+        self.fwd_sums = gpu.buffer("marching forward sums", nch as u64 * 4 * self.geom.voxels() * 4)?;
+        self.forward = true;
+        Ok(())
+    }
+
+    /// The forward population's time-integrated field in the lattice's irradiance layout
+    /// (fluence [c V + v] in W voxels, then the flux [nch V + (3 c + a) V + v]); `None`
+    /// without [`Marcher::enable_forward`].
+    pub fn forward_field(&self, gpu: &Gpu, nch: u32) -> Result<Option<Vec<f32>>, SolverError> {
+        if !self.forward {
+            return Ok(None);
+        }
+        let raw: Vec<u32> = gpu.read_buffer_as(&self.fwd_sums)?;
+        let inv = 4.0 / self.scale;
+        let n = nch as usize * self.geom.voxels() as usize;
+        Ok(Some(
+            raw.iter().enumerate().map(|(i, &q)| if i < n { q as f32 * inv } else { q as i32 as f32 * inv }).collect(),
+        ))
     }
 
     /// Ray History Buffer slots per ray and round (`k`): entry e belongs to ray e / k.
@@ -530,6 +576,10 @@ impl Marcher {
     }
 
     pub fn device_bytes(&self) -> u64 {
-        self.density.size() + self.rays.size() + self.history.size() + self.sums.size()
+        self.density.size()
+            + self.rays.size()
+            + self.history.size()
+            + self.sums.size()
+            + if self.forward { self.fwd_history.size() + self.fwd_sums.size() } else { 0 }
     }
 }

@@ -36,7 +36,8 @@ pub struct ViewPush {
     pub ms_flux: u32,
     /// 1: the volume's light alone (a later slab of an out-of-core volume, [`MsWindow`]).
     pub ms_only: u32,
-    pub pad: u32,
+    /// Where lbl's forward field starts (fields of C V floats; 0: none).
+    pub ms_forward: u32,
     /// Volume voxels xyz and channels (x = 0: no multiple-scattering volume).
     pub ms_dims: [u32; 4],
     /// Volume min corner and voxel edge lambda.
@@ -333,6 +334,9 @@ pub struct MsVolume<'a> {
     pub lambda: f32,
     /// What follows the fluence, and how the view pass scatters it.
     pub flux: FluxUse,
+    /// `lbl`'s forward population (`lbl.inject=forward`): its fluence and flux follow the
+    /// volume's own field in the same buffer (glsl/view/march.comp, `ms_forward`).
+    pub forward: bool,
     /// One slab of the volume (None: all of it).
     pub window: Option<MsWindow>,
 }
@@ -447,6 +451,18 @@ pub fn march(
         ),
         None => (unused.as_ref().expect("made when ms is none"), [0; 4], [0.0; 4], 0),
     };
+    // Where the forward field starts, in fields of C V floats: after the fluence, and the flux
+    // where one follows it.
+    let ms_forward = match ms {
+        Some(m) if m.forward => {
+            if m.flux == FluxUse::None {
+                1
+            } else {
+                4
+            }
+        }
+        _ => 0,
+    };
     let shadow_ref = shadow_buf.as_ref().or(unused.as_ref()).expect("made when there is no shadow volume");
     let seed = scene.render.seed;
     let mut rounds = resumable::ROUNDS_PER_SUBMIT; // one run: nothing to learn from
@@ -463,7 +479,7 @@ pub fn march(
             slot,
             ms_flux,
             ms_only: !direct as u32,
-            pad: 0,
+            ms_forward,
             ms_dims,
             ms_origin,
             octave: [o.a, o.b, o.c, if o.bounded { 1.0 } else { 0.0 }],

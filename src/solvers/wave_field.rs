@@ -393,6 +393,7 @@ impl WaveVolume {
             lambda: self.geom.lambda,
             flux: super::view::FluxUse::TwoTerm,
             window: None,
+            forward: false,
         }
     }
 }
