@@ -636,7 +636,7 @@ fn forward_peak_brings_lbl_closer_to_path_across_g_and_thickness() {
 
 /// The forward population (lbl.inject=forward, the default for g >= 0 outside glass) against
 /// the directed injection across the range: a unit cube lit from the front, the side and
-/// behind, sigma_t 5 and 20, g 0.6 and 0.9, against `path`. It must lower both the mean
+/// behind, sigma_t 20 (and 5 side-lit), g 0.6 and 0.9, against `path`. It must lower both the mean
 /// |ln energy ratio| and the mean relL2 (measured at 48 x 48, grid 32, over 27 cases with g
 /// 0.3 too and sigma_t 1: 0.168 -> 0.110 and 0.268 -> 0.196; docs/lbl.md), and bring the
 /// side-lit g 0.9 cube, the directed injection's worst (2.0x path's energy), within 25%.
@@ -647,8 +647,15 @@ fn forward_population_beats_the_directed_injection_across_the_range() {
     let (mut ln_f, mut ln_d, mut rel_f, mut rel_d, mut n) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0);
     for (name, dir) in [("front", "[-0.3, -0.5, -0.8]"), ("side", "[-0.95, -0.2, -0.1]"), ("back", "[0.3, -0.4, 0.85]")]
     {
-        for sigma_t in ["5.0", "20.0"] {
-            for g in ["0.6", "0.9"] {
+        // sigma_t 20 for each light and g, and the directed injection's worst case, side-lit
+        // g 0.9 at sigma_t 5 (7 cases: the suite's time).
+        let cases: &[(&str, &str)] = if name == "side" {
+            &[("20.0", "0.6"), ("20.0", "0.9"), ("5.0", "0.9")]
+        } else {
+            &[("20.0", "0.6"), ("20.0", "0.9")]
+        };
+        for &(sigma_t, g) in cases {
+            {
                 let s = forward_cube(sigma_t, g, dir);
                 let reference = render(&gpu, &s, PATH, &[]);
                 let fwd = render(&gpu, &s, LBL, &[small[0], small[1], ("lbl.inject", "forward")]);
