@@ -570,6 +570,7 @@ fn forward_peak_keeps_the_energy_book_and_determinism() {
     let st = backward.report.detail::<LblStats>().expect("lbl stats");
     assert!(st.directed && !st.forward && st.flux, "g < 0 gets the directed injection by default");
     let mut injected = Vec::new();
+    let mut forward_book = None;
     for mode in ["directed", "forward", "isotropic"] {
         let mut sets = small.to_vec();
         sets.extend([("lbl.inject", mode), ("lbl.deterministic", "true"), ("lbl.schedule", "sequential")]);
@@ -578,6 +579,11 @@ fn forward_peak_keeps_the_energy_book_and_determinism() {
         assert!(st.directed == (mode == "directed") && st.forward == (mode == "forward"), "{mode}");
         assert!(st.energy.imbalance() < 1e-4, "energy book, {mode}: {:?}", st.energy);
         injected.push(st.energy.injected[0]);
+        if mode == "forward" {
+            forward_book = st.forward_book;
+        } else {
+            assert!(st.forward_book.is_none(), "{mode}");
+        }
         sets.pop();
         sets.push(("lbl.schedule", "concurrent"));
         let b = render(&gpu, &s, LBL, &sets);
@@ -588,10 +594,20 @@ fn forward_peak_keeps_the_energy_book_and_determinism() {
             assert!(m.rel_l2 < 1e-3, "float atomics vs fixed point, {mode}: relL2 {}", m.rel_l2);
         }
     }
-    // directed and isotropic inject all the once-scattered light; forward between 0.4 and 1 of it.
+    // directed and isotropic inject all the once-scattered light; forward between 0.4 and 1 of
+    // it, and its own book closes: what the lattice got, what the population's collisions
+    // absorbed and what left with it add up to the once-scattered light.
     assert!((injected[0] / injected[2] - 1.0).abs() < 1e-5, "{injected:?}");
     let share = injected[1] / injected[2];
     assert!(share > 0.4 && share < 1.0, "forward population: the lattice got {share} of the once-scattered light");
+    let book = forward_book.expect("the forward population keeps its book");
+    let total = injected[1] + book.absorbed[0] + book.left[0];
+    eprintln!(
+        "forward population: lattice {:.5}, absorbed {:.5}, left {:.5}; once-scattered {:.5}",
+        injected[1], book.absorbed[0], book.left[0], injected[2]
+    );
+    assert!(book.absorbed[0] > 0.0 && book.left[0] > 0.0, "{book:?}");
+    assert!((total / injected[2] - 1.0).abs() < 1e-4, "forward book: {total} against {}", injected[2]);
     // Isotropic media keep the thesis' lattice: no flux buffers, nothing directed or carried.
     let iso = forward_cube("5.0", "0.0", "[0.3, -0.4, 0.85]");
     let i = render(&gpu, &iso, LBL, &small);

@@ -61,6 +61,8 @@ struct Ray {
     vec4 dir_alive;   // unit direction, 1 while alive
     vec4 power;       // rgb power (W), w = the ray's starting max-channel power
     vec4 fwd;         // rgb power of the forward population (W; pc.forward), w unused
+    vec4 fwd_absorbed;  // rgb: what Q's collisions absorbed so far (W; its energy book)
+    vec4 fwd_out;       // rgb: what of Q left through a refractive surface or reflected off it (W)
 };
 layout(std430, binding = 3) buffer Rays { Ray rays[]; };
 // k slots per ray: (voxel index or 0xffffffff, deposit rgb as float bits).
@@ -120,6 +122,7 @@ void main() {
     uint mat = HAS_MESH && inside ? uint(ray.dir_alive.w - 1.5) : 0u;   // its material
     vec3 P = ray.power.rgb;
     vec3 Q = ray.fwd.rgb;
+    vec3 q_absorbed = ray.fwd_absorbed.rgb, q_out = ray.fwd_out.rgb;
     uvec3 n = pc.dims.xyz;
     float lambda = pc.origin.w;
     for (uint j = 0u; j < pc.k; ++j) {
@@ -157,7 +160,10 @@ void main() {
                     for (int c = 0; c < 3; ++c)
                         if (stp[c] * len > 1e-4) path[c] = (1.0 - q_T[c]) / stp[c];
                     q_len = q0 * path / lambda;
-                    dep = (1.0 - g) * dep + q0 * (vec3(1.0) - q_T) * a * (1.0 - g) / red;
+                    vec3 q_col = q0 * (vec3(1.0) - q_T);
+                    vec3 q_dep = q_col * a * (1.0 - g) / red;
+                    q_absorbed += q_col - q_dep;
+                    dep = (1.0 - g) * dep + q_dep;
                     Q = q0 * q_T;
                 }
                 if (max3(dep) > 0.0 || max3(q_len) > 0.0) slot = uvec4(uint(vox.x) + n.x * (uint(vox.y) + n.y * uint(vox.z)), floatBitsToUint(dep));
@@ -175,14 +181,18 @@ void main() {
                     float F = surface_fresnel(d, nf, entering, scene.materials[mat].ior.x, eta, cos_i, cos_t);
                     if (entering) {
                         P *= 1.0 - F;
+                        q_out += Q * F;
                         Q *= 1.0 - F;
                         d = refract_dir(d, nf, eta, cos_i, cos_t);
                         inside = true;
                     } else {
                         P *= F;
                         // (nf faces the inside here: the ray leaves along -nf)
-                        if (pc.forward != 0u && max3(Q) > 0.0)
-                            Q *= lobe_reflectance(d, -nf, max(scene.materials[mat].albedo.w, 0.0), scene.materials[mat].ior.x);
+                        if (pc.forward != 0u && max3(Q) > 0.0) {
+                            float R = lobe_reflectance(d, -nf, max(scene.materials[mat].albedo.w, 0.0), scene.materials[mat].ior.x);
+                            q_out += Q * (1.0 - R);
+                            Q *= R;
+                        }
                         d = reflect(d, nf);
                     }
                 } else {
@@ -197,5 +207,5 @@ void main() {
         rhb[r * pc.k + j] = slot;
         if (pc.forward != 0u) fwh[r * pc.k + j] = vec4(q_len, 0.0);
     }
-    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 + float(mat) : 1.0) : 0.0), vec4(P, ray.power.w), vec4(Q, 0.0));
+    rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 + float(mat) : 1.0) : 0.0), vec4(P, ray.power.w), vec4(Q, 0.0), vec4(q_absorbed, 0.0), vec4(q_out, 0.0));
 }

@@ -11,7 +11,7 @@ layout(std430, binding = 0) readonly buffer History { uvec4 rhb[]; };
 // [c V + v] deposits; with pc.directed then [NCH V + (3 c + a) V + v] fluxes (lattice/inject).
 layout(std430, binding = 1) buffer Accum { uint acc[]; };
 // The rays' state (marching/march.comp): straight rays keep their direction.
-struct Ray { vec4 pos_steps; vec4 dir_alive; vec4 power; vec4 fwd; };
+struct Ray { vec4 pos_steps; vec4 dir_alive; vec4 power; vec4 fwd; vec4 fwd_absorbed; vec4 fwd_out; };
 layout(std430, binding = 2) readonly buffer Rays { Ray rays[]; };
 // With pc.forward: each slot's forward population, path-integrated (march.comp), and its sums
 // per voxel in fixed point of pc.scale / 4 quanta: [c V + v] the fluence, then

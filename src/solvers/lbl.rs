@@ -743,6 +743,9 @@ pub struct LblStats {
     pub directed: bool,
     /// Forward-scattered light carried along the light rays (`lbl.inject=forward`).
     pub forward: bool,
+    /// Its energy book: what the forward population's collisions absorbed and what left with
+    /// it; the lattice's `energy.injected` holds the rest of the once-scattered light.
+    pub forward_book: Option<marching::ForwardBook>,
     /// The near ball lumped into a point light inside the medium (`lbl.near_light`).
     pub near_light: Option<NearLight>,
     /// The lattice's flux is integrated and scattered by the view pass (`lbl.flux`).
@@ -976,6 +979,7 @@ pub fn run_lattice(
     }
     let mut irr = lattice.irradiance().clone();
     let irradiance = lattice::read_f32(gpu, &irr)?;
+    let forward_book = marcher.forward_book(gpu)?;
     let mut forward_field = false;
     if let Some(fwd) = marcher.forward_field(gpu, nch)? {
         // The forward population's field follows the lattice's for the view pass
@@ -1036,6 +1040,7 @@ pub fn run_lattice(
             view_dispatches: 0,
             directed: params.directed,
             forward: forward_field,
+            forward_book,
             flux: params.flux,
             near_light,
         },

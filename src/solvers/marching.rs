@@ -89,8 +89,19 @@ pub struct RayInit {
     pub pos_steps: [f32; 4],
     pub dir_alive: [f32; 4],
     pub power: [f32; 4],
-    /// The forward population's power per channel (march.comp), 0 at the start.
+    /// The forward population's power per channel (march.comp), 0 at the start, and its book:
+    /// what its collisions absorbed and what left it at refractive surfaces.
     pub fwd: [f32; 4],
+    pub fwd_absorbed: [f32; 4],
+    pub fwd_out: [f32; 4],
+}
+
+/// What became of the forward population's power (`lbl.inject=forward`), per channel (W): the
+/// lattice received the rest of it (its collisions' scattered share).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct ForwardBook {
+    pub absorbed: [f64; 3],
+    pub left: [f64; 3],
 }
 
 /// Marching's knobs (a solver lists them among its own).
@@ -214,6 +225,8 @@ pub fn beams(
                 dir_alive: [d.x, d.y, d.z, 1.0],
                 power: [power.x, power.y, power.z, power.max_element()],
                 fwd: [0.0; 4],
+                fwd_absorbed: [0.0; 4],
+                fwd_out: [0.0; 4],
             });
             ray_beam.push(beam);
         }
@@ -568,6 +581,24 @@ impl Marcher {
         Ok(Some(
             raw.iter().enumerate().map(|(i, &q)| if i < n { q as f32 * inv } else { q as i32 as f32 * inv }).collect(),
         ))
+    }
+
+    /// The forward population's energy book once every ray has finished, per channel (W):
+    /// absorbed by its collisions, and left (through refractive surfaces, out of the lattice
+    /// with its ray, or stranded where the ray died); `None` without it.
+    pub fn forward_book(&self, gpu: &Gpu) -> Result<Option<ForwardBook>, SolverError> {
+        if !self.forward {
+            return Ok(None);
+        }
+        let rays: Vec<RayInit> = gpu.read_buffer_as(&self.rays)?;
+        let mut book = ForwardBook::default();
+        for r in &rays {
+            for c in 0..3 {
+                book.absorbed[c] += r.fwd_absorbed[c] as f64;
+                book.left[c] += (r.fwd[c] + r.fwd_out[c]) as f64;
+            }
+        }
+        Ok(Some(book))
     }
 
     /// Ray History Buffer slots per ray and round (`k`): entry e belongs to ray e / k.
