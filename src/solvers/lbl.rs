@@ -234,7 +234,7 @@ impl Solver for Lbl {
         let warm = set.warm_start.map_or(0, |w| w.device_bytes(scene, chromatic, &geom));
         // The forward population: its history beside the rays', its sums, and the view's copy
         // of the lattice's field with the forward field appended.
-        let forward = if set.forward && scene.features().anisotropic {
+        let forward = if set.forward {
             rays * m.k as u64 * 16 + 2 * 4 * p.nch as u64 * geom.voxels() * 4 + p.irradiance_floats() * 4
         } else {
             0
@@ -339,7 +339,7 @@ impl Lbl {
             lambda: g.lambda,
             flux: if lat.stats.flux { set.flux } else { view::FluxUse::None },
             window: None,
-            forward: lat.forward_field,
+            forward: lat.stats.forward,
         };
         let mut view = view::march(gpu, scene, &gs, &set.view, Some(&ms))?;
         if let Some(n) = &lat.stats.near_light {
@@ -498,7 +498,8 @@ pub struct LblSettings {
     pub near_light: f32,
     /// Inject anisotropic media's once-scattered light with its first moment (`lbl.inject`).
     pub directed: bool,
-    /// Carry the forward-scattered light along the light rays (`lbl.inject=forward`).
+    /// Carry the forward-scattered light along the light rays (`lbl.inject=forward`, and
+    /// only for anisotropic media: nothing is scattered forward otherwise).
     pub forward: bool,
     /// Anisotropic media: how the view pass scatters the lattice's flux (`lbl.flux`; `None`:
     /// the lattice keeps no flux).
@@ -528,7 +529,7 @@ impl LblSettings {
         // relL2 0.36 isotropic, 0.56 directed with the two-term flux).
         let light_inside = !wave_field::traced_lights(scene).is_empty();
         let no_backward =
-            scene.medium.g >= 0.0 && scene.object.as_ref().is_none_or(|o| o.materials.iter().all(|m| m.g >= 0.0));
+            scene.medium.g >= 0.0 && scene.object.as_ref().map_or(true, |o| o.materials.iter().all(|m| m.g >= 0.0));
         let view = ViewSettings::parse(k, "view_", scene)?;
         let trapping = view.refraction && scene.object.as_ref().is_some_and(|o| o.refractive());
         let forward_auto = no_backward && !trapping;
@@ -555,10 +556,11 @@ impl LblSettings {
             escape: k.get("escape")?,
             drift: k.get("drift")?,
             near_light: 0.0,
-            forward: match k.get::<String>("inject")?.as_str() {
-                "auto" => forward_auto,
-                mode => mode == "forward",
-            },
+            forward: scene.features().anisotropic
+                && match k.get::<String>("inject")?.as_str() {
+                    "auto" => forward_auto,
+                    mode => mode == "forward",
+                },
             directed: match k.get::<String>("inject")?.as_str() {
                 "auto" => !forward_auto && !light_inside,
                 mode => mode == "directed",
@@ -756,10 +758,9 @@ pub struct LblStats {
 /// diffusion itself and for warm starts).
 pub struct LatticeResult {
     pub irradiance: Vec<f32>,
-    pub irradiance_buffer: crate::gpu::Buffer,
-    /// The forward population's field follows the lattice's in `irradiance_buffer`
+    /// With [`LblStats::forward`], the forward population's field follows the lattice's
     /// ([`view::MsVolume::forward`]).
-    pub forward_field: bool,
+    pub irradiance_buffer: crate::gpu::Buffer,
     pub stats: LblStats,
 }
 
@@ -866,7 +867,7 @@ pub fn run_lattice(
     let fixed = set.deterministic || !info.float_atomics;
     let params = lattice_params(scene, set, &geom, nch);
     let mut marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed, params.directed, true)?;
-    if set.forward && scene.features().anisotropic {
+    if set.forward {
         marcher.enable_forward(gpu, nch)?;
     }
     // Objects of several materials: each voxel names its material (the marcher's voxelisation).
@@ -1017,7 +1018,6 @@ pub fn run_lattice(
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
-        forward_field,
         stats: LblStats {
             lattice: geom,
             lattice_kind: set.lattice,
