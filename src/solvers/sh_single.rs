@@ -41,7 +41,7 @@ use crate::output::Image;
 use crate::physics::quadrature::Quadrature;
 use crate::physics::rng::Pcg32;
 use crate::physics::sh;
-use crate::scene::{Density, Light, Object, Scene};
+use crate::scene::{Density, Grid, Light, Object, Scene};
 
 /// One sample of the interior: its centre b_i, its Poisson-disk radius (scene units) and the
 /// material it lies in (an index into [`Object::materials`]).
@@ -115,6 +115,16 @@ pub enum Heuristic {
     Divergence,
 }
 
+impl Heuristic {
+    /// Its `sh_single.density` value.
+    pub fn name(self) -> &'static str {
+        match self {
+            Heuristic::Depth => "depth",
+            Heuristic::Divergence => "divergence",
+        }
+    }
+}
+
 /// The thesis's density heuristic (3.2.3), on a grid over the object's box: the first moment
 /// of the attenuation, T(x) = int exp(-tau(x, w)) w dw (eq. 3.5), at every grid point (tau of
 /// the most penetrating channel, [`DIVERGENCE_DIRECTIONS`] directions; 0 outside the object,
@@ -127,11 +137,13 @@ pub enum Heuristic {
 /// int psi dw / 4 pi falls below [`DARK`] (deep in a thick object) get no samples, as the
 /// thesis discards them.
 pub struct DivergenceField {
+    /// The grid's points are the [`Grid`]s' voxel centres: its box reaches half a spacing past
+    /// the outer points, so [`Grid::sample`]'s trilinear interpolation between centres is the
+    /// interpolation between the points.
     lo: Vec3,
-    h: f32,
-    n: [usize; 3],
-    rho: Vec<f32>,
-    light: Vec<f32>,
+    size: Vec3,
+    rho: Grid,
+    light: Grid,
 }
 
 /// Grid points along the object's box's longest side for [`DivergenceField`].
@@ -200,35 +212,23 @@ impl DivergenceField {
             k => (inside[0], inside[((k - 1) as f64 * 0.95) as usize]),
         };
         let span = (top - min).max(1e-12);
-        let rho = rho.iter().map(|r| ((r - min) / span).clamp(0.0, 1.0)).collect();
-        DivergenceField { lo, h, n, rho, light: tl.iter().map(|t| t.1).collect() }
-    }
-
-    /// Trilinear `field` at p (clamped into the grid).
-    fn sample(&self, field: &[f32], p: Vec3) -> f32 {
-        let g = ((p - self.lo) / self.h).max(Vec3::ZERO);
-        let i0 = [0, 1, 2].map(|a| (g[a].floor() as usize).min(self.n[a] - 2));
-        let f = [0, 1, 2].map(|a| (g[a] - i0[a] as f32).clamp(0.0, 1.0));
-        let v = |x: usize, y: usize, z: usize| field[(z * self.n[1] + y) * self.n[0] + x];
-        let mut out = 0.0;
-        for k in 0..8 {
-            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-            let w = (if dx == 1 { f[0] } else { 1.0 - f[0] })
-                * (if dy == 1 { f[1] } else { 1.0 - f[1] })
-                * (if dz == 1 { f[2] } else { 1.0 - f[2] });
-            out += w * v(i0[0] + dx, i0[1] + dy, i0[2] + dz);
+        let grid = |data: Vec<f32>| Grid { dims: n.map(|k| k as u32), data, file: Default::default() };
+        DivergenceField {
+            lo: lo - Vec3::splat(0.5 * h),
+            size: Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32) * h,
+            rho: grid(rho.iter().map(|r| ((r - min) / span).clamp(0.0, 1.0)).collect()),
+            light: grid(tl.iter().map(|t| t.1).collect()),
         }
-        out
     }
 
     /// The radius scale at p: 2 where rho is least, 1/2 where it is greatest.
     pub fn radius_scale(&self, p: Vec3) -> f32 {
-        2.0 - 1.5 * self.sample(&self.rho, p)
+        2.0 - 1.5 * self.rho.sample((p - self.lo) / self.size)
     }
 
     /// Whether p receives too little light for a sample (int psi dw / 4 pi < [`DARK`]).
     pub fn dark(&self, p: Vec3) -> bool {
-        self.sample(&self.light, p) < DARK
+        self.light.sample((p - self.lo) / self.size) < DARK
     }
 }
 
@@ -1224,10 +1224,7 @@ pub fn render(
         sampling_s,
         depths_s,
         weights_s,
-        density: match set.heuristic {
-            Heuristic::Depth => "depth",
-            Heuristic::Divergence => "divergence",
-        },
+        density: set.heuristic.name(),
     };
     Ok((image, stats, bytes, gs.modelled.clone()))
 }
