@@ -295,7 +295,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
         for (order, samples) in [(2usize, 250u32), (4, 1000), (6, 4000)] {
             // The density heuristic `auto` takes: the divergence for the grid, the depth else.
             let heuristic = if s.features().homogeneous { Heuristic::Depth } else { Heuristic::Divergence };
-            let set = ShSettings { order, samples, width_scale: 1.5, seed: 1, directions: 288, heuristic };
+            let set = ShSettings { order, samples, width_scale: 1.5, seed: 1, directions: 288, heuristic, index: true };
             let (img, st, _, _) = render(&gpu, &s, &set, false, &|_| {}).unwrap();
             assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{what}: finite, non-negative");
             let m = scatterlab::output::compare(&img, &reference.image).unwrap();
@@ -311,7 +311,15 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
     let (img, _, _, _) = render(
         &gpu,
         &black,
-        &ShSettings { order: 3, samples: 200, width_scale: 1.5, seed: 1, directions: 288, heuristic: Heuristic::Depth },
+        &ShSettings {
+            order: 3,
+            samples: 200,
+            width_scale: 1.5,
+            seed: 1,
+            directions: 288,
+            heuristic: Heuristic::Depth,
+            index: true,
+        },
         false,
         &|_| {},
     )
@@ -504,6 +512,62 @@ fn sh_single_converges_on_the_cloud_grid() {
             assert!((m.energy_ratio - 1.0).abs() < 0.08, "energy {}", m.energy_ratio);
             assert!(m.rel_l2 < 0.3, "relL2 {}", m.rel_l2);
         }
+    }
+    assert_clean(&gpu);
+}
+
+#[test]
+fn the_gaussian_index_renders_what_visiting_every_sample_renders() {
+    // sh_single.index (src/solvers/sh_single.rs, GaussianIndex; glsl/sh_single/render.comp): the
+    // render walks a grid of the truncated Gaussians along each camera segment and counts each
+    // sample once, in the cell holding its closest point on the segment. It must give the image
+    // of the loop over every sample: the same samples past the same cut, summed in another
+    // order. Several chunks (each with its own box), an environment and point and directional
+    // lights, a grid density, a refracting sphere (the camera chain's internal reflections:
+    // several segments per pixel), and an orthographic camera along an axis (direction
+    // components exactly zero, where the walk never steps on those axes).
+    let gpu = gpu();
+    let dir = tempfile::tempdir().unwrap();
+    let vol = dir.path().join("rise.vol");
+    let rise: Vec<f32> = (0..8).map(|i| 0.3 + 0.35 * ((i & 1) + ((i >> 1) & 1)) as f32).collect();
+    std::fs::write(&vol, scatterlab::scene::write_vol([2, 2, 2], &rise, Vec3::splat(-0.8), Vec3::splat(0.8))).unwrap();
+    let lights = "[[light]]\nkind = \"directional\"\ndirection = [0.6, -0.3, -0.74]\nirradiance = [1.0, 0.8, 0.6]\n\
+                  [[light]]\nkind = \"point\"\nposition = [1.5, 1.0, 1.2]\nintensity = 2.0\n\
+                  [[light]]\nkind = \"environment\"\nradiance = 0.2";
+    let cases = [
+        ("sphere, sun, point light and sky", sphere_scene("sigma_t = 4.0\nalbedo = 0.8\ng = 0.4", 1.0, lights, 24)),
+        (
+            "grid density",
+            sphere_scene(
+                &format!(
+                    "sigma_t = [3.0, 6.0, 9.0]\nalbedo = 0.8\ng = -0.3\ndensity = {{ kind = \"grid\", file = \"{}\" }}",
+                    vol.display()
+                ),
+                1.0,
+                lights,
+                24,
+            ),
+        ),
+        ("glass, ior 1.4", sphere_scene("sigma_t = [2.0, 4.0, 8.0]\nalbedo = 0.5\ng = 0.3", 1.4, lights, 24)),
+        ("orthographic along z, a v1 box", thin_cube(2.0, "0.9", 0.2, lights)),
+    ];
+    for (what, s) in &cases {
+        let sets = [("sh-single.samples", "3000"), ("sh-single.order", "3")];
+        let brute =
+            crate::common::render(&gpu, s, crate::common::SH_SINGLE, &[sets[0], sets[1], ("sh-single.index", "false")]);
+        let indexed = crate::common::render(&gpu, s, crate::common::SH_SINGLE, &sets);
+        let sb = brute.report.detail::<scatterlab::solvers::sh_single::ShStats>().expect("stats");
+        let si = indexed.report.detail::<scatterlab::solvers::sh_single::ShStats>().expect("stats");
+        assert!(si.dispatches >= 2, "{what}: several chunks ({} dispatches)", si.dispatches);
+        let m = scatterlab::output::compare(&indexed.image, &brute.image).unwrap();
+        let peak = brute.image.data.iter().fold(0.0f32, |a, v| a.max(*v));
+        let worst = indexed.image.data.iter().zip(&brute.image.data).fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
+        eprintln!(
+            "{what}: relL2 {:.2e}, worst pixel {:.2e} of peak {:.3e}; render {:.2} s indexed, {:.2} s every sample",
+            m.rel_l2, worst, peak, si.render_s, sb.render_s
+        );
+        assert!(peak > 0.0, "{what}: a lit image");
+        assert!(m.rel_l2 < 1e-5 && worst <= 1e-5 * peak, "{what}: relL2 {}, worst {worst} of {peak}", m.rel_l2);
     }
     assert_clean(&gpu);
 }

@@ -54,6 +54,11 @@ layout(std430, binding = 8) buffer Radiance { vec4 radiance[]; };
 // [0]: the most loop back-edges any invocation counted (`iters`): past LOOP_GUARD llvmpipe's
 // limiter may have cut a loop short, and the host renders again in smaller chunks.
 layout(std430, binding = 9) buffer Stats { uint stats[]; };
+// The spatial index of the Gaussians (src/solvers/sh_single.rs, GaussianIndex; with
+// pc.grid_dims.w = 1): cell c lists the samples whose truncated Gaussians overlap it, in
+// increasing order, at items[starts[c] .. starts[c + 1]].
+layout(std430, binding = 10) readonly buffer IndexCells { uint starts[]; };
+layout(std430, binding = 11) readonly buffer IndexItems { uint items[]; };
 
 layout(push_constant) uniform Push {
     uint first;      // first sample of this chunk
@@ -65,6 +70,10 @@ layout(push_constant) uniform Push {
     float step;      // chord marching step for grid densities, scene units
     uint pad0;
     uint pad1;
+    vec4 grid;       // the index's origin xyz and cell edge w (scene units)
+    uvec4 grid_dims; // its cells per axis, w = 1 where there is an index (else every sample is visited)
+    vec4 box_lo;     // the box of this chunk's truncated Gaussians
+    vec4 box_hi;
 } pc;
 
 // Loop back-edges sh_basis takes at `order` (its zero fill, then the bands), counted
@@ -135,6 +144,75 @@ vec3 sh_weighted(uint base, uint n_coeff, float y[SH_MAX_COEFFS], float f) {
     return sum;
 }
 
+// Sample i's part of segment_light (below): its Gaussian's integral along the segment from x
+// along d over [0, t1], weighted by its lights and environment, added to L and its coverage to
+// cover. `constant`, st, n_coeff and env as segment_light sets them; the basis of d in sh_y.
+float sh_y[SH_MAX_COEFFS];
+void add_sample(uint i, vec3 x, vec3 d, float t1, bool constant, vec3 st, uint n_coeff, bool env, inout vec3 L, inout vec3 cover) {
+    vec4 ba = samples[SAMPLE_WORDS * i];
+    vec3 rel = ba.xyz - x;
+    float tc = dot(rel, d);
+    float h2 = max(0.0, dot(rel, rel) - tc * tc);
+    float a = ba.w;
+    if (a * h2 > 14.0) return;   // exp(-14) < 1e-6: the thesis's cut (3.4.2)
+    if (tc < -sqrt(14.0 / a) || tc > t1 + sqrt(14.0 / a)) return;
+    // The camera's optical depth about t_c: value and slope. For a grid density it is the
+    // sample's own psi_i(-d) across the whole Gaussian, as the thesis (3.4): the Gaussian
+    // spreads the sample's sigma_s over its width, and an attenuation taken along the ray
+    // instead (the chord's at t_c, its slope, its exact piecewise depth) moved the light of
+    // a dense core to the thin medium in front of it (the cloud 1.20-1.33x `single`).
+    vec3 tau_c, slope;
+    if (constant) {
+        tau_c = st * tc;
+        slope = st;
+    } else {
+        // psi_i(-d): the sample's own attenuation toward the camera.
+        vec3 view = sh_weighted(i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff, n_coeff, sh_y, -1.0);
+        tau_c = -log(max(view, vec3(1e-30)));
+        slope = vec3(0.0);
+    }
+    vec3 rperp = x + d * tc - ba.xyz;
+    float sd = sqrt(0.5 / a);
+    float back = min(tc, 3.0 * sd), ahead = min(t1 - tc, 3.0 * sd);
+    // With the camera's attenuation alone: the coverage.
+    vec3 G;
+    for (uint c = 0u; c < 3u; ++c) {
+        float sh = slope[c] / (2.0 * a);
+        G[c] = gauss_interval(-a * h2 - tau_c[c] + slope[c] * sh * 0.5, a, -tc + sh, t1 - tc + sh);
+    }
+    if (max3(G) <= 0.0) return;
+    vec4 sg = samples[SAMPLE_WORDS * i + 1u];
+    float nu = samples[SAMPLE_WORDS * i + 2u].x;
+    float g = sg.w;
+    vec3 lit = vec3(0.0);
+    for (uint j = 0u; j < pc.lights; ++j) {
+        iters++;
+        uint base = LIGHT_WORDS * (i * pc.lights + j);
+        vec3 e = lterms[base].rgb;
+        vec3 w = lterms[base + 1u].xyz;
+        float p = hg_eval(g, dot(w, d));
+        for (uint c = 0u; c < 3u; ++c) {
+            iters++;
+            lit[c] += p * e[c] * lit_gaussian(lterms[base + 2u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
+        }
+    }
+    if (env) {
+        uint base = i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff + (pc.env_coeffs == 1u ? 3u * n_coeff : 0u);
+        vec3 envs = sh_weighted(base, n_coeff, sh_y, g);
+        // The environment's attenuation varies across the Gaussian as the lights' does:
+        // with the psi-weighted mean gradient over directions (sh_single.rs,
+        // environment_gradient).
+        envs = max(envs, vec3(0.0));
+        for (uint c = 0u; c < 3u; ++c) {
+            iters++;
+            lit[c] += pc.env[c] * envs[c] * lit_gaussian(samples[SAMPLE_WORDS * i + 3u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
+        }
+    }
+    L += sg.rgb * lit;
+    if (constant) cover += nu * G;
+    else cover += nu * gauss_interval(-a * h2, a, -tc, t1 - tc);
+}
+
 // What the samples of this chunk scatter toward the camera along the inside segment from x
 // along d over [0, t1] in material mat, attenuated on the way to x exactly (the camera side):
 //   sum_i nu_i sigma_s(b_i) [ lights + environment ]_i int_0^t1 gamma_i(t) exp(-tau_cam(t)) dt.
@@ -180,78 +258,73 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
     }
     bool env = max3(pc.env.rgb) > 0.0;
     uint n_coeff = pc.order * pc.order;
-    float y[SH_MAX_COEFFS];
     if (env || !constant) {
-        sh_basis(d, pc.order, y);
+        sh_basis(d, pc.order, sh_y);
         iters += sh_basis_iters(pc.order);
     }
     vec3 L = vec3(0.0);
     cover = vec3(0.0);
-    for (uint s = 0u; s < pc.count; ++s) {
-        iters++;
-        uint i = pc.first + s;
-        vec4 ba = samples[SAMPLE_WORDS * i];
-        vec3 rel = ba.xyz - x;
-        float tc = dot(rel, d);
-        float h2 = max(0.0, dot(rel, rel) - tc * tc);
-        float a = ba.w;
-        if (a * h2 > 14.0) continue;   // exp(-14) < 1e-6: the thesis's cut (3.4.2)
-        if (tc < -sqrt(14.0 / a) || tc > t1 + sqrt(14.0 / a)) continue;
-        // The camera's optical depth about t_c: value and slope. For a grid density it is the
-        // sample's own psi_i(-d) across the whole Gaussian, as the thesis (3.4): the Gaussian
-        // spreads the sample's sigma_s over its width, and an attenuation taken along the ray
-        // instead (the chord's at t_c, its slope, its exact piecewise depth) moved the light of
-        // a dense core to the thin medium in front of it (the cloud 1.20-1.33x `single`).
-        vec3 tau_c, slope;
-        if (constant) {
-            tau_c = st * tc;
-            slope = st;
-        } else {
-            // psi_i(-d): the sample's own attenuation toward the camera.
-            vec3 view = sh_weighted(i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff, n_coeff, y, -1.0);
-            tau_c = -log(max(view, vec3(1e-30)));
-            slope = vec3(0.0);
-        }
-        vec3 rperp = x + d * tc - ba.xyz;
-        float sd = sqrt(0.5 / a);
-        float back = min(tc, 3.0 * sd), ahead = min(t1 - tc, 3.0 * sd);
-        // With the camera's attenuation alone: the coverage.
-        vec3 G;
-        for (uint c = 0u; c < 3u; ++c) {
-            float sh = slope[c] / (2.0 * a);
-            G[c] = gauss_interval(-a * h2 - tau_c[c] + slope[c] * sh * 0.5, a, -tc + sh, t1 - tc + sh);
-        }
-        if (max3(G) <= 0.0) continue;
-        vec4 sg = samples[SAMPLE_WORDS * i + 1u];
-        float nu = samples[SAMPLE_WORDS * i + 2u].x;
-        float g = sg.w;
-        vec3 lit = vec3(0.0);
-        for (uint j = 0u; j < pc.lights; ++j) {
+    if (pc.grid_dims.w == 0u) {
+        for (uint s = 0u; s < pc.count; ++s) {
             iters++;
-            uint base = LIGHT_WORDS * (i * pc.lights + j);
-            vec3 e = lterms[base].rgb;
-            vec3 w = lterms[base + 1u].xyz;
-            float p = hg_eval(g, dot(w, d));
-            for (uint c = 0u; c < 3u; ++c) {
-                iters++;
-                lit[c] += p * e[c] * lit_gaussian(lterms[base + 2u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
-            }
+            add_sample(pc.first + s, x, d, t1, constant, st, n_coeff, env, L, cover);
         }
-        if (env) {
-            uint base = i * (pc.env_coeffs == 1u ? 6u : 3u) * n_coeff + (pc.env_coeffs == 1u ? 3u * n_coeff : 0u);
-            vec3 envs = sh_weighted(base, n_coeff, y, g);
-            // The environment's attenuation varies across the Gaussian as the lights' does:
-            // with the psi-weighted mean gradient over directions (sh_single.rs,
-            // environment_gradient).
-            envs = max(envs, vec3(0.0));
-            for (uint c = 0u; c < 3u; ++c) {
-                iters++;
-                lit[c] += pc.env[c] * envs[c] * lit_gaussian(samples[SAMPLE_WORDS * i + 3u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
-            }
+        return L;
+    }
+    // The index: the segment clipped to this chunk's box (a sample's ball lies inside it, and a
+    // segment outside every ball gets under exp(-14) from it), then a 3D DDA (Amanatides and
+    // Woo) over the grid's cells. A sample is counted in the cell whose stretch [t_in, t_out)
+    // of the segment holds clamp(t_c, 0, t1), its closest point on the segment: the stretches
+    // partition the segment, so each sample once; a sample whose closest point lies outside the
+    // box lies outside its own ball there, and is skipped as the cut above would.
+    // (a zero component: a huge slope instead, whose slab test still holds; its axis never steps)
+    vec3 inv = vec3(1.0) / mix(d, vec3(1e-30), equal(d, vec3(0.0)));
+    vec3 ta3 = (pc.box_lo.xyz - x) * inv, tb3 = (pc.box_hi.xyz - x) * inv;
+    vec3 tn = min(ta3, tb3), tf = max(ta3, tb3);
+    float t_lo = max(max(max(tn.x, tn.y), tn.z), 0.0);
+    float t_hi = min(min(min(tf.x, tf.y), tf.z), t1);
+    if (!(t_lo < t_hi)) return L;
+    ivec3 dims = ivec3(pc.grid_dims.xyz);
+    float cell = pc.grid.w;
+    vec3 p0 = (x + d * t_lo - pc.grid.xyz) / cell;
+    ivec3 c = clamp(ivec3(floor(p0)), ivec3(0), dims - 1);
+    ivec3 stp = ivec3(sign(d));
+    // Parameter t at which the ray crosses the next cell boundary on each axis, and per cell.
+    vec3 t_next, t_delta;
+    for (int a = 0; a < 3; ++a) {
+        if (stp[a] == 0) {
+            t_next[a] = INF;
+            t_delta[a] = INF;
+        } else {
+            float boundary = pc.grid[a] + cell * float(c[a] + (stp[a] > 0 ? 1 : 0));
+            t_next[a] = (boundary - x[a]) * inv[a];
+            t_delta[a] = cell * abs(inv[a]);
         }
-        L += sg.rgb * lit;
-        if (constant) cover += nu * G;
-        else cover += nu * gauss_interval(-a * h2, a, -tc, t1 - tc);
+    }
+    uint last = pc.first + pc.count;
+    float t_in = t_lo;
+    while (true) {
+        iters++;
+        float t_out = min(min(min(t_next.x, t_next.y), t_next.z), t_hi);
+        bool final_cell = t_out >= t_hi;
+        uint k = uint(c.x) + uint(dims.x) * (uint(c.y) + uint(dims.y) * uint(c.z));
+        for (uint e = starts[k]; e < starts[k + 1u]; ++e) {
+            iters++;
+            uint i = items[e];
+            if (i < pc.first) continue;
+            if (i >= last) break;
+            float tc = dot(samples[SAMPLE_WORDS * i].xyz - x, d);
+            float ts = clamp(tc, 0.0, t1);
+            if (ts < t_in || (final_cell ? ts > t_hi : ts >= t_out)) continue;
+            add_sample(i, x, d, t1, constant, st, n_coeff, env, L, cover);
+        }
+        if (final_cell) break;
+        // Step to the neighbour across the nearest boundary; leaving the grid ends the walk.
+        int a = t_next.x <= t_next.y ? (t_next.x <= t_next.z ? 0 : 2) : (t_next.y <= t_next.z ? 1 : 2);
+        c[a] += stp[a];
+        if (c[a] < 0 || c[a] >= dims[a]) break;
+        t_in = t_out;
+        t_next[a] += t_delta[a];
     }
     return L;
 }
