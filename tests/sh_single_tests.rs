@@ -261,6 +261,15 @@ fn sphere_scene(medium: &str, ior: f64, light: &str, size: u32) -> scatterlab::s
     ))
 }
 
+/// A 2 x 2 x 2 density grid over [-0.8, 0.8]^3 rising along x and y (0.3 to 1.0), written to
+/// `dir`: the `density = ...` line that uses it.
+fn rise_grid(dir: &Path) -> String {
+    let vol = dir.join("rise.vol");
+    let rise: Vec<f32> = (0..8).map(|i| 0.3 + 0.35 * ((i & 1) + ((i >> 1) & 1)) as f32).collect();
+    std::fs::write(&vol, scatterlab::scene::write_vol([2, 2, 2], &rise, Vec3::splat(-0.8), Vec3::splat(0.8))).unwrap();
+    format!("density = {{ kind = \"grid\", file = \"{}\" }}", vol.display())
+}
+
 #[test]
 fn sh_single_approaches_single_as_order_and_samples_grow() {
     // The render pass (glsl/sh_single/render.comp) against `single`, its ground truth, on an
@@ -271,10 +280,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
     use scatterlab::solvers::sh_single::{render, ShSettings};
     let gpu = gpu();
     let dir = tempfile::tempdir().unwrap();
-    let vol = dir.path().join("rise.vol");
-    let rise: Vec<f32> = (0..8).map(|i| 0.3 + 0.35 * ((i & 1) + ((i >> 1) & 1)) as f32).collect();
-    std::fs::write(&vol, scatterlab::scene::write_vol([2, 2, 2], &rise, Vec3::splat(-0.8), Vec3::splat(0.8))).unwrap();
-    let grid = format!("density = {{ kind = \"grid\", file = \"{}\" }}", vol.display());
+    let grid = rise_grid(dir.path());
     let sun = "[[light]]\nkind = \"directional\"\ndirection = [0.6, -0.3, -0.74]\nirradiance = [1.0, 0.8, 0.6]";
     for (what, medium, ior) in [
         ("homogeneous: sigma_t 4, albedo 0.6, g 0.4", "sigma_t = 4.0\nalbedo = 0.6\ng = 0.4".to_string(), 1.0),
@@ -528,9 +534,7 @@ fn the_gaussian_index_renders_what_visiting_every_sample_renders() {
     // components exactly zero, where the walk never steps on those axes).
     let gpu = gpu();
     let dir = tempfile::tempdir().unwrap();
-    let vol = dir.path().join("rise.vol");
-    let rise: Vec<f32> = (0..8).map(|i| 0.3 + 0.35 * ((i & 1) + ((i >> 1) & 1)) as f32).collect();
-    std::fs::write(&vol, scatterlab::scene::write_vol([2, 2, 2], &rise, Vec3::splat(-0.8), Vec3::splat(0.8))).unwrap();
+    let grid = rise_grid(dir.path());
     let lights = "[[light]]\nkind = \"directional\"\ndirection = [0.6, -0.3, -0.74]\nirradiance = [1.0, 0.8, 0.6]\n\
                   [[light]]\nkind = \"point\"\nposition = [1.5, 1.0, 1.2]\nintensity = 2.0\n\
                   [[light]]\nkind = \"environment\"\nradiance = 0.2";
@@ -538,15 +542,7 @@ fn the_gaussian_index_renders_what_visiting_every_sample_renders() {
         ("sphere, sun, point light and sky", sphere_scene("sigma_t = 4.0\nalbedo = 0.8\ng = 0.4", 1.0, lights, 24)),
         (
             "grid density",
-            sphere_scene(
-                &format!(
-                    "sigma_t = [3.0, 6.0, 9.0]\nalbedo = 0.8\ng = -0.3\ndensity = {{ kind = \"grid\", file = \"{}\" }}",
-                    vol.display()
-                ),
-                1.0,
-                lights,
-                24,
-            ),
+            sphere_scene(&format!("sigma_t = [3.0, 6.0, 9.0]\nalbedo = 0.8\ng = -0.3\n{grid}"), 1.0, lights, 24),
         ),
         ("glass, ior 1.4", sphere_scene("sigma_t = [2.0, 4.0, 8.0]\nalbedo = 0.5\ng = 0.3", 1.4, lights, 24)),
         ("orthographic along z, a v1 box", thin_cube(2.0, "0.9", 0.2, lights)),
