@@ -277,7 +277,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
     // and a glass one (refraction, Fresnel, the camera chain's internal reflections):
     // relL2 falls at every step of the ladder (order 2 / 250 samples, 4 / 1000, 6 / 4000).
     // Albedo 0 under a sun alone renders black.
-    use scatterlab::solvers::sh_single::{render, ShSettings};
+    use scatterlab::solvers::sh_single::{render, SampleIndex, ShSettings};
     let gpu = gpu();
     let dir = tempfile::tempdir().unwrap();
     let grid = rise_grid(dir.path());
@@ -301,7 +301,15 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
         for (order, samples) in [(2usize, 250u32), (4, 1000), (6, 4000)] {
             // The density heuristic `auto` takes: the divergence for the grid, the depth else.
             let heuristic = if s.features().homogeneous { Heuristic::Depth } else { Heuristic::Divergence };
-            let set = ShSettings { order, samples, width_scale: 1.5, seed: 1, directions: 288, heuristic, index: true };
+            let set = ShSettings {
+                order,
+                samples,
+                width_scale: 1.5,
+                seed: 1,
+                directions: 288,
+                heuristic,
+                index: SampleIndex::Boxes,
+            };
             let (img, st, _, _) = render(&gpu, &s, &set, false, &|_| {}).unwrap();
             assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{what}: finite, non-negative");
             let m = scatterlab::output::compare(&img, &reference.image).unwrap();
@@ -324,7 +332,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
             seed: 1,
             directions: 288,
             heuristic: Heuristic::Depth,
-            index: true,
+            index: SampleIndex::Boxes,
         },
         false,
         &|_| {},
@@ -523,15 +531,16 @@ fn sh_single_converges_on_the_cloud_grid() {
 }
 
 #[test]
-fn the_gaussian_index_renders_what_visiting_every_sample_renders() {
-    // sh_single.index (src/solvers/sh_single.rs, GaussianIndex; glsl/sh_single/render.comp): the
-    // render walks a grid of the truncated Gaussians along each camera segment and counts each
-    // sample once, in the cell holding its closest point on the segment. It must give the image
-    // of the loop over every sample: the same samples past the same cut, summed in another
-    // order. Several chunks (each with its own box), an environment and point and directional
-    // lights, a grid density, a refracting sphere (the camera chain's internal reflections:
-    // several segments per pixel), and an orthographic camera along an axis (direction
-    // components exactly zero, where the walk never steps on those axes).
+fn the_sample_indexes_render_what_visiting_every_sample_renders() {
+    // sh_single.index (src/solvers/sh_single.rs; glsl/sh_single/render.comp). `boxes` skips a
+    // chunk of (Morton-ordered) samples where the camera segment misses the chunk's box; `grid`
+    // walks a grid of the truncated Gaussians along the segment and counts each sample once, in
+    // the cell holding its closest point on the segment. Each must give the image of the loop
+    // over every sample (`none`): the same samples past the same cut, summed in another order.
+    // Several chunks (each with its own box), an environment and point and directional lights,
+    // a grid density, a refracting sphere (the camera chain's internal reflections: several
+    // segments per pixel), and an orthographic camera along an axis (direction components
+    // exactly zero, where the walk never steps on those axes).
     let gpu = gpu();
     let dir = tempfile::tempdir().unwrap();
     let grid = rise_grid(dir.path());
@@ -547,23 +556,37 @@ fn the_gaussian_index_renders_what_visiting_every_sample_renders() {
         ("glass, ior 1.4", sphere_scene("sigma_t = [2.0, 4.0, 8.0]\nalbedo = 0.5\ng = 0.3", 1.4, lights, 24)),
         ("orthographic along z, a v1 box", thin_cube(2.0, "0.9", 0.2, lights)),
     ];
+    let stats = |o: &scatterlab::solvers::RenderOutput| {
+        o.report.detail::<scatterlab::solvers::sh_single::ShStats>().expect("stats").clone()
+    };
     for (what, s) in &cases {
-        let sets = [("sh-single.samples", "3000"), ("sh-single.order", "3")];
-        let brute =
-            crate::common::render(&gpu, s, crate::common::SH_SINGLE, &[sets[0], sets[1], ("sh-single.index", "false")]);
-        let indexed = crate::common::render(&gpu, s, crate::common::SH_SINGLE, &sets);
-        let sb = brute.report.detail::<scatterlab::solvers::sh_single::ShStats>().expect("stats");
-        let si = indexed.report.detail::<scatterlab::solvers::sh_single::ShStats>().expect("stats");
-        assert!(si.dispatches >= 2, "{what}: several chunks ({} dispatches)", si.dispatches);
-        let m = scatterlab::output::compare(&indexed.image, &brute.image).unwrap();
+        let with = |index| {
+            let sets = [("sh-single.samples", "3000"), ("sh-single.order", "3"), ("sh-single.index", index)];
+            crate::common::render(&gpu, s, crate::common::SH_SINGLE, &sets)
+        };
+        let brute = with("none");
         let peak = brute.image.data.iter().fold(0.0f32, |a, v| a.max(*v));
-        let worst = indexed.image.data.iter().zip(&brute.image.data).fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
-        eprintln!(
-            "{what}: relL2 {:.2e}, worst pixel {:.2e} of peak {:.3e}; render {:.2} s indexed, {:.2} s every sample",
-            m.rel_l2, worst, peak, si.render_s, sb.render_s
-        );
         assert!(peak > 0.0, "{what}: a lit image");
-        assert!(m.rel_l2 < 1e-5 && worst <= 1e-5 * peak, "{what}: relL2 {}, worst {worst} of {peak}", m.rel_l2);
+        for index in ["boxes", "grid"] {
+            let indexed = with(index);
+            let si = stats(&indexed);
+            assert!(si.dispatches >= 2, "{what}, {index}: several chunks ({} dispatches)", si.dispatches);
+            let m = scatterlab::output::compare(&indexed.image, &brute.image).unwrap();
+            let worst = indexed.image.data.iter().zip(&brute.image.data).fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
+            eprintln!(
+                "{what}, {index}: relL2 {:.2e}, worst pixel {:.2e} of peak {:.3e}; render {:.2} s, every sample {:.2} s",
+                m.rel_l2,
+                worst,
+                peak,
+                si.render_s,
+                stats(&brute).render_s
+            );
+            assert!(
+                m.rel_l2 < 1e-5 && worst <= 1e-5 * peak,
+                "{what}, {index}: relL2 {}, worst {worst} of {peak}",
+                m.rel_l2
+            );
+        }
     }
     assert_clean(&gpu);
 }

@@ -72,7 +72,7 @@ layout(push_constant) uniform Push {
     uint pad1;
     vec4 grid;       // the index's origin xyz and cell edge w (scene units)
     uvec4 grid_dims; // its cells per axis, w = 1 where there is an index (else every sample is visited)
-    vec4 box_lo;     // the box of this chunk's truncated Gaussians
+    vec4 box_lo;     // the box of this chunk's truncated Gaussians; w = 1: skip the chunk where the segment misses it
     vec4 box_hi;
 } pc;
 
@@ -264,6 +264,14 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
     }
     vec3 L = vec3(0.0);
     cover = vec3(0.0);
+    // The segment against this chunk's box (pc.box_lo.w = 1: the samples are in Morton order, so
+    // a chunk is a compact region): a segment outside the box is outside every sample's ball.
+    vec3 inv = vec3(1.0) / mix(d, vec3(1e-30), equal(d, vec3(0.0)));
+    vec3 ta3 = (pc.box_lo.xyz - x) * inv, tb3 = (pc.box_hi.xyz - x) * inv;
+    vec3 tn = min(ta3, tb3), tf = max(ta3, tb3);
+    float t_lo = max(max(max(tn.x, tn.y), tn.z), 0.0);
+    float t_hi = min(min(min(tf.x, tf.y), tf.z), t1);
+    if (pc.box_lo.w > 0.5 && !(t_lo < t_hi)) return L;
     if (pc.grid_dims.w == 0u) {
         for (uint s = 0u; s < pc.count; ++s) {
             iters++;
@@ -277,12 +285,6 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
     // of the segment holds clamp(t_c, 0, t1), its closest point on the segment: the stretches
     // partition the segment, so each sample once; a sample whose closest point lies outside the
     // box lies outside its own ball there, and is skipped as the cut above would.
-    // (a zero component: a huge slope instead, whose slab test still holds; its axis never steps)
-    vec3 inv = vec3(1.0) / mix(d, vec3(1e-30), equal(d, vec3(0.0)));
-    vec3 ta3 = (pc.box_lo.xyz - x) * inv, tb3 = (pc.box_hi.xyz - x) * inv;
-    vec3 tn = min(ta3, tb3), tf = max(ta3, tb3);
-    float t_lo = max(max(max(tn.x, tn.y), tn.z), 0.0);
-    float t_hi = min(min(min(tf.x, tf.y), tf.z), t1);
     if (!(t_lo < t_hi)) return L;
     ivec3 dims = ivec3(pc.grid_dims.xyz);
     float cell = pc.grid.w;

@@ -721,6 +721,18 @@ const CHUNK: u32 = 2048;
 /// glsl/include/budget.glsl's LOOP_GUARD: past it llvmpipe's loop limiter may have fired.
 const LOOP_GUARD: u32 = 60000;
 
+/// How the render pass finds the samples whose Gaussians a camera segment passes through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleIndex {
+    /// Every sample of every chunk, for every pixel.
+    None,
+    /// Every sample of the chunks whose box ([`chunk_box`]) the segment crosses: the samples
+    /// are in Morton order, so a chunk is a compact region.
+    Boxes,
+    /// [`GaussianIndex`]'s cells along the segment, within the chunks' boxes.
+    Grid,
+}
+
 /// sh-single's settings (its knobs `order`, `samples`, `width_scale`, `seed`).
 #[derive(Clone, Copy, Debug)]
 pub struct ShSettings {
@@ -735,9 +747,8 @@ pub struct ShSettings {
     pub directions: u32,
     /// How the Poisson radius varies (`sh_single.density`).
     pub heuristic: Heuristic,
-    /// Walk a spatial index of the Gaussians along each camera ray ([`GaussianIndex`]) instead
-    /// of visiting every sample for every pixel (`sh_single.index`).
-    pub index: bool,
+    /// How the render finds the samples a camera segment passes (`sh_single.index`).
+    pub index: SampleIndex,
 }
 
 impl ShSettings {
@@ -748,7 +759,11 @@ impl ShSettings {
             width_scale: k.get("width_scale")?,
             seed: k.get_or("seed", scene.render.seed)?,
             directions: k.get("directions")?,
-            index: k.get("index")?,
+            index: match k.get::<String>("index")?.as_str() {
+                "grid" => SampleIndex::Grid,
+                "none" => SampleIndex::None,
+                _ => SampleIndex::Boxes,
+            },
             heuristic: match k.get::<String>("density")?.as_str() {
                 "divergence" => Heuristic::Divergence,
                 "depth" => Heuristic::Depth,
@@ -1269,7 +1284,8 @@ pub fn render(
     let light_buf = gpu.buffer_with("sh-single light terms", &lterms)?;
     let centres: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
     let reach: Vec<f32> = params.iter().map(|p| gaussian_reach(p.a)).collect();
-    let index = set.index.then(|| GaussianIndex::build(&centres, &reach));
+    let index = (set.index == SampleIndex::Grid).then(|| GaussianIndex::build(&centres, &reach));
+    let boxes = set.index != SampleIndex::None;
     let (starts_buf, items_buf) = match &index {
         Some(ix) => (
             gpu.buffer_with("sh-single index cells", &ix.starts)?,
@@ -1332,7 +1348,7 @@ pub fn render(
                         pad: [0; 2],
                         grid: index.as_ref().map_or([0.0; 4], |ix| [ix.origin.x, ix.origin.y, ix.origin.z, ix.cell]),
                         grid_dims: index.as_ref().map_or([0; 4], |ix| [ix.dims[0], ix.dims[1], ix.dims[2], 1]),
-                        box_lo: [bl.x, bl.y, bl.z, 0.0],
+                        box_lo: [bl.x, bl.y, bl.z, if boxes { 1.0 } else { 0.0 }],
                         box_hi: [bh.x, bh.y, bh.z, 0.0],
                     })
                     .cover([w, h, 1]),
@@ -1438,10 +1454,12 @@ impl Solver for ShSingle {
             ),
             Knob::fixed(
                 "index",
-                "true",
-                Range::Bool,
-                "walk a uniform grid of the Gaussians along each camera ray, visiting only those it passes through; \
-                 false: every sample for every pixel (O(pixels x samples), the same image)",
+                "boxes",
+                Range::Choice(&["boxes", "grid", "none"]),
+                "how the render finds the Gaussians a camera ray passes: boxes: every sample of each chunk whose box \
+                 the ray crosses (samples in Morton order, chunks compact); grid: a uniform grid's cells along the ray \
+                 (fewer samples visited, but its walk diverges across SIMD lanes: slower on lavapipe, docs/sh-single.md); \
+                 none: every sample for every pixel. The same image",
             ),
             Knob::fixed(
                 "directions",
