@@ -437,5 +437,11 @@ fn memory_estimates_equal_what_renders_allocate() {
             );
         }
     }
+    // sh-single's grid index (sh-single.index=grid): its buffers depend on where the samples lie.
+    let s = scene(CUBE);
+    let grid = vec![("sh-single.index".to_string(), "grid".to_string())];
+    let estimate = solvers::memory_estimate(crate::common::SH_SINGLE, &s, &Settings::new(&grid)).unwrap();
+    let out = crate::common::render(&gpu, &s, crate::common::SH_SINGLE, &[("sh-single.index", "grid")]);
+    assert_eq!(estimate, out.report.device_bytes, "sh-single with its grid index");
     assert_clean(&gpu);
 }

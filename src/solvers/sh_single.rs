@@ -690,13 +690,28 @@ impl GaussianIndex {
                 }
             }
         }
+        if items.is_empty() {
+            items.push(0); // a buffer cannot be empty; no cell's range reaches it
+        }
         GaussianIndex { origin: lo, cell, dims, starts, items }
     }
 
     /// Device bytes of its two buffers.
     pub fn bytes(&self) -> u64 {
-        4 * (self.starts.len() + self.items.len().max(1)) as u64
+        4 * (self.starts.len() + self.items.len()) as u64
     }
+}
+
+/// The reach ([`gaussian_reach`]) of each sample's Gaussian, whose width [`project_params`]
+/// sets from the sample's Poisson radius: FWHM = width_scale r, a = 4 ln 2 / FWHM^2.
+pub fn sample_reach(samples: &[Sample], width_scale: f32) -> Vec<f32> {
+    samples
+        .iter()
+        .map(|s| {
+            let fwhm = width_scale * s.radius;
+            gaussian_reach(4.0 * std::f32::consts::LN_2 / (fwhm * fwhm))
+        })
+        .collect()
 }
 
 /// The box holding the balls of samples `first .. first + count` (a render chunk's: rays that
@@ -859,8 +874,17 @@ fn env_coefficients(os: &Scene) -> bool {
 
 /// Device bytes of a render of `os` (the object scene) with `n` samples drawn: the scene with
 /// its mesh, the depth pass's buffers, the sample set, the image. What [`render`] allocates.
-fn device_bytes(os: &Scene, n: usize, set: &ShSettings) -> u64 {
+fn device_bytes(os: &Scene, samples: &[Sample], set: &ShSettings) -> u64 {
+    let n = samples.len();
     let order = set.order;
+    // The grid index's two buffers, or two 16-byte stand-ins.
+    let index = match set.index {
+        SampleIndex::Grid => {
+            let centres: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
+            GaussianIndex::build(&centres, &sample_reach(samples, set.width_scale)).bytes()
+        }
+        _ => 32,
+    };
     let (lights, _) = split_lights(os);
     let env_set = env_coefficients(os);
     let dirs = projection_quadrature(set.directions).directions.len();
@@ -874,6 +898,7 @@ fn device_bytes(os: &Scene, n: usize, set: &ShSettings) -> u64 {
         + b((LIGHT_WORDS * n * lights.len()).max(1) * 16)
         + os.render.width as u64 * os.render.height as u64 * 64
         + 16
+        + index
 }
 
 /// The boundary factor of the straight ray from `p` (inside the object) along `w`, as `single`'s
@@ -1283,7 +1308,7 @@ pub fn render(
     let coeff_buf = gpu.buffer_with("sh-single coefficients", &coeffs)?;
     let light_buf = gpu.buffer_with("sh-single light terms", &lterms)?;
     let centres: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
-    let reach: Vec<f32> = params.iter().map(|p| gaussian_reach(p.a)).collect();
+    let reach = sample_reach(&samples, set.width_scale);
     let index = (set.index == SampleIndex::Grid).then(|| GaussianIndex::build(&centres, &reach));
     let boxes = set.index != SampleIndex::None;
     let (starts_buf, items_buf) = match &index {
@@ -1494,9 +1519,10 @@ impl Solver for ShSingle {
         let os = object_scene(scene);
         // The sample count is the sampler's (deterministic for the seed): drawn here as the
         // render draws it.
-        let n =
-            poisson_samples_with(os.object.as_ref().expect("object scene"), set.samples, set.seed, set.heuristic).len();
-        Ok(device_bytes(&os, n, &set))
+        let object = os.object.as_ref().expect("object scene");
+        // (in the sampler's order: the grid index's size does not depend on it)
+        let samples = poisson_samples_with(object, set.samples, set.seed, set.heuristic);
+        Ok(device_bytes(&os, &samples, &set))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
