@@ -264,13 +264,12 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
     }
     vec3 L = vec3(0.0);
     cover = vec3(0.0);
-    // The segment against this chunk's box (pc.box_lo.w = 1: the samples are in Morton order, so
-    // a chunk is a compact region): a segment outside the box is outside every sample's ball.
-    vec3 inv = vec3(1.0) / mix(d, vec3(1e-30), equal(d, vec3(0.0)));
-    vec3 ta3 = (pc.box_lo.xyz - x) * inv, tb3 = (pc.box_hi.xyz - x) * inv;
-    vec3 tn = min(ta3, tb3), tf = max(ta3, tb3);
-    float t_lo = max(max(max(tn.x, tn.y), tn.z), 0.0);
-    float t_hi = min(min(min(tf.x, tf.y), tf.z), t1);
+    // The segment against this chunk's box (pc.box_lo.w = 1, always with the grid: the samples
+    // are in Morton order, so a chunk is a compact region): a segment outside the box is outside
+    // every sample's ball. (A zero direction component is replaced by a tiny one, whose slab
+    // stays finite where 0 x inf would give NaN.)
+    vec2 tb = ray_box(x, mix(d, vec3(1e-30), equal(d, vec3(0.0))), pc.box_lo.xyz, pc.box_hi.xyz);
+    float t_lo = max(tb.x, 0.0), t_hi = min(tb.y, t1);
     if (pc.box_lo.w > 0.5 && !(t_lo < t_hi)) return L;
     if (pc.grid_dims.w == 0u) {
         for (uint s = 0u; s < pc.count; ++s) {
@@ -285,7 +284,6 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
     // of the segment holds clamp(t_c, 0, t1), its closest point on the segment: the stretches
     // partition the segment, so each sample once; a sample whose closest point lies outside the
     // box lies outside its own ball there, and is skipped as the cut above would.
-    if (!(t_lo < t_hi)) return L;
     ivec3 dims = ivec3(pc.grid_dims.xyz);
     float cell = pc.grid.w;
     vec3 p0 = (x + d * t_lo - pc.grid.xyz) / cell;
@@ -299,8 +297,8 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
             t_delta[a] = INF;
         } else {
             float boundary = pc.grid[a] + cell * float(c[a] + (stp[a] > 0 ? 1 : 0));
-            t_next[a] = (boundary - x[a]) * inv[a];
-            t_delta[a] = cell * abs(inv[a]);
+            t_next[a] = (boundary - x[a]) / d[a];
+            t_delta[a] = cell / abs(d[a]);
         }
     }
     uint last = pc.first + pc.count;

@@ -549,9 +549,7 @@ fn project_params(
             let sh: [Vec<f32>; 3] = std::array::from_fn(|c| project(&|k| (-values[k].0[c]).exp()));
             let sh_env =
                 refractive.then(|| std::array::from_fn(|c| project(&|k| (-values[k].0[c]).exp() * values[k].1)));
-            // FWHM of exp(-a r^2) is 2 sqrt(ln 2 / a): a = 4 ln 2 / fwhm^2.
-            let fwhm = width_scale * s.radius;
-            let a = 4.0 * std::f32::consts::LN_2 / (fwhm * fwhm);
+            let a = gaussian_a(s, width_scale);
             let mat = &object.materials[s.material];
             let dens = object.fields[mat.field].density_at(s.position);
             let sigma_s = std::array::from_fn(|c| mat.sigma_t[c] * mat.albedo[c] * dens);
@@ -632,12 +630,7 @@ impl GaussianIndex {
     /// (the median diameter; at most [`INDEX_MAX_DIM`] per axis).
     pub fn build(centres: &[Vec3], reach: &[f32]) -> GaussianIndex {
         assert_eq!(centres.len(), reach.len());
-        let mut lo = Vec3::splat(f32::INFINITY);
-        let mut hi = Vec3::splat(f32::NEG_INFINITY);
-        for (c, r) in centres.iter().zip(reach) {
-            lo = lo.min(*c - Vec3::splat(*r));
-            hi = hi.max(*c + Vec3::splat(*r));
-        }
+        let (mut lo, mut hi) = chunk_box(centres, reach, 0, centres.len());
         if centres.is_empty() {
             lo = Vec3::ZERO;
             hi = Vec3::ONE;
@@ -654,24 +647,24 @@ impl GaussianIndex {
         let dims = [0, 1, 2].map(|a| ((extent[a] / cell).ceil() as u32).clamp(1, INDEX_MAX_DIM));
         let n_cells = dims.iter().map(|d| *d as usize).product::<usize>();
         let pad = 1e-3 * cell;
-        let range = |c: Vec3, r: f32| -> [[u32; 2]; 3] {
-            [0, 1, 2].map(|a| {
+        // Every cell the (padded) ball of centre c and radius r overlaps, by linear index.
+        let cells_of_ball = |c: Vec3, r: f32, visit: &mut dyn FnMut(usize)| {
+            let [rx, ry, rz] = [0, 1, 2].map(|a| {
                 let f = |v: f32| (((v - lo[a]) / cell).floor().max(0.0) as u32).min(dims[a] - 1);
                 [f(c[a] - r - pad), f(c[a] + r + pad)]
-            })
-        };
-        let cell_of = |x: u32, y: u32, z: u32| (x + dims[0] * (y + dims[1] * z)) as usize;
-        // Counting sort: counts per cell, their prefix sums, then the items in sample order.
-        let mut starts = vec![0u32; n_cells + 1];
-        for (c, r) in centres.iter().zip(reach) {
-            let [rx, ry, rz] = range(*c, *r);
+            });
             for z in rz[0]..=rz[1] {
                 for y in ry[0]..=ry[1] {
                     for x in rx[0]..=rx[1] {
-                        starts[cell_of(x, y, z) + 1] += 1;
+                        visit((x + dims[0] * (y + dims[1] * z)) as usize);
                     }
                 }
             }
+        };
+        // Counting sort: counts per cell, their prefix sums, then the items in sample order.
+        let mut starts = vec![0u32; n_cells + 1];
+        for (c, r) in centres.iter().zip(reach) {
+            cells_of_ball(*c, *r, &mut |k| starts[k + 1] += 1);
         }
         for k in 0..n_cells {
             starts[k + 1] += starts[k];
@@ -679,16 +672,10 @@ impl GaussianIndex {
         let mut fill = starts.clone();
         let mut items = vec![0u32; starts[n_cells] as usize];
         for (i, (c, r)) in centres.iter().zip(reach).enumerate() {
-            let [rx, ry, rz] = range(*c, *r);
-            for z in rz[0]..=rz[1] {
-                for y in ry[0]..=ry[1] {
-                    for x in rx[0]..=rx[1] {
-                        let k = cell_of(x, y, z);
-                        items[fill[k] as usize] = i as u32;
-                        fill[k] += 1;
-                    }
-                }
-            }
+            cells_of_ball(*c, *r, &mut |k| {
+                items[fill[k] as usize] = i as u32;
+                fill[k] += 1;
+            });
         }
         if items.is_empty() {
             items.push(0); // a buffer cannot be empty; no cell's range reaches it
@@ -702,16 +689,17 @@ impl GaussianIndex {
     }
 }
 
-/// The reach ([`gaussian_reach`]) of each sample's Gaussian, whose width [`project_params`]
-/// sets from the sample's Poisson radius: FWHM = width_scale r, a = 4 ln 2 / FWHM^2.
+/// The exponent a of a sample's Gaussian exp(-a r^2), whose full width at half maximum is
+/// `width_scale` times the sample's Poisson radius (thesis 3.3.2): the FWHM is
+/// 2 sqrt(ln 2 / a), so a = 4 ln 2 / FWHM^2.
+fn gaussian_a(s: &Sample, width_scale: f32) -> f32 {
+    let fwhm = width_scale * s.radius;
+    4.0 * std::f32::consts::LN_2 / (fwhm * fwhm)
+}
+
+/// The reach ([`gaussian_reach`]) of each sample's Gaussian.
 pub fn sample_reach(samples: &[Sample], width_scale: f32) -> Vec<f32> {
-    samples
-        .iter()
-        .map(|s| {
-            let fwhm = width_scale * s.radius;
-            gaussian_reach(4.0 * std::f32::consts::LN_2 / (fwhm * fwhm))
-        })
-        .collect()
+    samples.iter().map(|s| gaussian_reach(gaussian_a(s, width_scale))).collect()
 }
 
 /// The box holding the balls of samples `first .. first + count` (a render chunk's: rays that
