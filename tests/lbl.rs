@@ -183,7 +183,9 @@ fn diffuse_impulse_reflecting(
 #[test]
 fn lattice_matches_the_diffusion_green_function() {
     let gpu = gpu();
-    let n = 48u32;
+    // 40^3 with shells to r 10 (48^3 to r 12 before: 40% more time for the same check; the
+    // boundary is 2 absorption lengths beyond the last shell either way).
+    let n = 40u32;
     let c = n / 2;
     for lattice in [Lattice::D3q6, Lattice::D3q18] {
         // Lattice units (lambda = 1): kappa_t = 0.8; absorption chosen for L = 6 voxels.
@@ -226,7 +228,7 @@ fn lattice_matches_the_diffusion_green_function() {
         // relative order 1/r^2, largest along the axes) average out over a sphere, the diffusion
         // solution is what is left.
         let mut worst = 0.0f64;
-        for r in 3..=12u32 {
+        for r in 3..=10u32 {
             let (mut lat, mut ana, mut count) = (0.0f64, 0.0f64, 0u32);
             for z in 0..n {
                 for y in 0..n {

@@ -137,6 +137,11 @@ fn octaves_against_path_across_the_range() {
                 if st == 20.0 && al > 0.5 && g != 0.0 {
                     continue; // keep the suite's path references cheap at the thick end
                 }
+                if al == 0.0 && g != 0.0 {
+                    // Nothing scatters: g changes nothing (the three rows were identical, to
+                    // the digit, in every solver), so one of them is enough (CI time).
+                    continue;
+                }
                 let s = scene(&cube(st, al, g));
                 let reference = render(&gpu, &s, PATH, &[("render.spp", "256")]);
                 let oct = render(&gpu, &s, OCTAVES, &[]);

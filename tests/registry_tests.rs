@@ -388,6 +388,11 @@ fn memory_estimates_equal_what_renders_allocate() {
         ("dom.grid", "8"),
         ("dom.rays", "256"),
         ("dom.directions", "s4"),
+        // networks and sh-single were half the test's time at their defaults (1024 particles x
+        // 128 directions, 4000 samples): CI time, and non-default sizes for the estimate too.
+        ("networks.particles", "256"),
+        ("networks.directions", "32"),
+        ("sh-single.samples", "500"),
     ]
     .iter()
     .map(|(k, v)| (k.to_string(), v.to_string()))

@@ -57,13 +57,15 @@ fn single_with_refraction_agrees_with_path_single_scattering_across_the_range() 
     // refraction off (the boundary index-matched) is further off wherever the medium is not
     // thick. At |g| = 0.9 the environment quadrature needs 64 directions (at 16 the peaked phase
     // function made the g = -0.9 image lopsided: energy 0.95, relL2 0.10 at 24 x 24; 0.985 at
-    // 64 and 0.997 at 256 directions, measured at 48 x 48).
+    // 64 and 0.997 at 256 directions, measured at 48 x 48). The forward-peaked g = 0.9 case is
+    // as good at 32 (relL2 0.0309 and energy 1.007 at 32 and 64, 16 x 16) and takes half the
+    // time; the back-peaked one is not (0.0745 / 0.974 at 32 against 0.0470 / 0.989 at 64).
     let gpu = gpu();
     let cases = [
         ("sigma_t = 0.5\nalbedo = 0.9\ng = 0.0", "thin", "16"),
         ("sigma_t = 3.0\nalbedo = 0.3\ng = 0.5", "albedo 0.3", "16"),
         ("sigma_t = 4.0\nalbedo = 0.99\ng = -0.9", "g -0.9", "64"),
-        ("sigma_t = 4.0\nalbedo = 0.95\ng = 0.9", "g 0.9", "64"),
+        ("sigma_t = 4.0\nalbedo = 0.95\ng = 0.9", "g 0.9", "32"),
         ("sigma_t = 20.0\nalbedo = 0.99\ng = 0.0", "thick", "16"),
     ];
     for (medium, name, dirs) in cases {
