@@ -47,7 +47,14 @@ impl Solver for Lbl {
 
     fn knobs(&self) -> Vec<Knob> {
         let mut k = vec![
-            Knob::fixed("grid", "64", Range::int(2, 512), "lattice voxels along the medium's longest side"),
+            Knob::derived(
+                "grid",
+                "from the medium's reduced optical length T along its longest side (the densest part's sigma_t (1 - \
+                 albedo g) times the side): 64 where T >= 16, 32 where T < 10, 40-56 between (voxels of reduced optical \
+                 thickness at least 0.25, within 32..=64)",
+                Range::int(2, 512),
+                "lattice voxels along the medium's longest side",
+            ),
             Knob::fixed(
                 "lattice",
                 "d3q6",
@@ -513,7 +520,7 @@ pub struct LblSettings {
 
 impl LblSettings {
     pub fn parse(k: &Knobs, scene: &Scene) -> Result<LblSettings, SolverError> {
-        let grid: u32 = k.get("grid")?;
+        let grid: u32 = k.get_or("grid", default_grid(scene))?;
         let geom = LatticeGeom::new(scene, grid);
         let block: u32 = k.get_or("block", 8)?;
         // `auto` (lbl.inject, lbl.flux) carries the forward peak on the forward population
@@ -669,6 +676,45 @@ pub const NEAR_LIGHT_VOXELS: f32 = 3.0;
 /// at 3 voxels, 1.079 at 1.5 and 1.113 at 1 (1.154 without a ball); at grid 32 (3 voxels =
 /// 1.5 mean free paths) 1.005.
 pub const NEAR_LIGHT_MFP: f32 = 1.5;
+
+/// Reduced optical thickness a surface voxel of the default grid has at least (where the grid is
+/// not already at [`GRID_MAX`]). The lattice's boundary treatment (escape weights and drift in
+/// the surface voxel) was calibrated for surface voxels of reduced optical thickness 0.15-0.6;
+/// thinner ones turn thick media bright as the grid is refined (the issue's g 0.6 cube, sigma_t
+/// 20: 1.019 / 1.033 / 1.113 / 1.179 / 1.269 of path's energy at grids 16 / 32 / 48 / 64 / 96;
+/// docs/lbl.md, "the default grid").
+const GRID_MIN_VOXEL_TAU: f32 = 0.25;
+/// The default grid's bounds: 32 keeps thin and soft media resolved (the cloud's relL2 0.084 at
+/// 32 against 0.080 at 64), 64 is the thesis-scale default the benches were measured at.
+const GRID_MIN: u32 = 32;
+const GRID_MAX: u32 = 64;
+
+/// The largest reduced extinction sigma_t (1 - albedo g) (1/unit, max over channels, the
+/// lattice's transport coefficient: docs/lbl.md) of the medium and of every object's
+/// material, times the largest density.
+pub fn max_reduced_sigma_t(scene: &Scene) -> f32 {
+    let reduced = |st: glam::Vec3, albedo: glam::Vec3, g: f32| (st * (glam::Vec3::ONE - albedo * g)).max_element();
+    let medium = reduced(scene.medium.sigma_t, scene.medium.albedo, scene.medium.g);
+    let materials = scene.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
+    let largest = materials
+        .iter()
+        .map(|m| reduced(m.sigma_t, m.albedo, m.g))
+        .fold(if scene.object.is_some() { 0.0 } else { medium }, f32::max);
+    largest * scene.max_density()
+}
+
+/// The default `lbl.grid`: voxels of reduced optical thickness at least
+/// [`GRID_MIN_VOXEL_TAU`] at the medium's densest, in multiples of 8 (the block edge) within
+/// [`GRID_MIN`]..=[`GRID_MAX`].
+pub fn default_grid(scene: &Scene) -> u32 {
+    let side = (scene.medium.bounds_max - scene.medium.bounds_min).max_element();
+    let t = max_reduced_sigma_t(scene) * side;
+    if !t.is_finite() {
+        return GRID_MIN;
+    }
+    let fit = 8 * (t / (8.0 * GRID_MIN_VOXEL_TAU)).floor().min(GRID_MAX as f32) as u32;
+    fit.clamp(GRID_MIN, GRID_MAX)
+}
 
 /// The default `lbl.near_light`: [`NEAR_LIGHT_VOXELS`], or [`NEAR_LIGHT_MFP`] mean free paths
 /// at the scene's (first) point light where that is fewer voxels.
