@@ -96,6 +96,25 @@ fn poisson_samples_are_deterministic_inside_spaced_and_denser_near_the_surface()
     }
 }
 
+/// The darts are tested in parallel batches and accepted in order (src/solvers/sh_single.rs,
+/// `dart_throw`): the set must be the same on one thread as on many, under both heuristics.
+#[test]
+fn poisson_samples_do_not_depend_on_the_threads() {
+    let s = sphere_object("8.0");
+    let o = s.object.as_ref().unwrap();
+    let on = |threads: usize, heuristic: Heuristic| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| poisson_samples_with(o, 3000, 11, heuristic))
+    };
+    for heuristic in [Heuristic::Depth, Heuristic::Divergence] {
+        let one = on(1, heuristic);
+        assert!(one.len() > 2000, "{heuristic:?}: {} samples", one.len());
+        for threads in [2, 5] {
+            assert_eq!(one, on(threads, heuristic), "{heuristic:?}: {threads} threads against one");
+        }
+    }
+}
+
 /// The thesis's density heuristic (3.2.3, `sh-single.density=divergence`): |div T| of the
 /// attenuation's first moment T = int psi w dw. Deterministic, inside, spaced as the radii
 /// allow, about the requested count; denser near a sphere's surface than deep inside (where T

@@ -328,24 +328,50 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, scale: &Scale) ->
         }
         false
     };
-    for _ in 0..count.max(1) * DARTS_PER_SAMPLE {
-        let p = dart(&mut rng, lo, extent);
-        // Cheap rejections first: a conflict even at the smallest radius r0 / 2 (most darts
-        // once the set fills), then outside the mesh; only then the 26 rays of the depth.
-        if conflicts(&grid, &out, p, 0.5 * r0) || !object.contains(p) {
-            continue;
+    // The darts in batches: each batch's tests that do not depend on the darts before it in the
+    // batch run in parallel, then the batch is accepted in order, so the set is the one a dart
+    // at a time would draw, bit for bit (test `poisson_samples_do_not_depend_on_the_threads`).
+    // In parallel, against the set as the batch starts: the cheap rejection (a conflict even at
+    // the smallest radius r0 / 2, most darts once the set fills), the inside test and the radius
+    // scale (the 26 rays of the depth, or the divergence grid), which are functions of the
+    // point alone. The set only grows, so a conflict with it as the batch starts is a conflict
+    // with it as the dart's turn comes; the dart's turn repeats the conflict tests against the
+    // set as it is then.
+    use rayon::prelude::*;
+    let total = count.max(1) * DARTS_PER_SAMPLE;
+    let mut thrown = 0;
+    while thrown < total {
+        let batch = DART_BATCH.min(total - thrown);
+        thrown += batch;
+        let darts: Vec<Vec3> = (0..batch).map(|_| dart(&mut rng, lo, extent)).collect();
+        let scales: Vec<Option<f32>> = darts
+            .par_iter()
+            .map(|&p| {
+                if conflicts(&grid, &out, p, 0.5 * r0) || !object.contains(p) {
+                    return None;
+                }
+                scale.at(object, p)
+            })
+            .collect();
+        for (&p, s) in darts.iter().zip(scales) {
+            let Some(s) = s else { continue };
+            let r = r0 * s;
+            if conflicts(&grid, &out, p, 0.5 * r0) || conflicts(&grid, &out, p, r) {
+                continue;
+            }
+            grid[index(key(p))].push(out.len() as u32);
+            let material = object.material_at(p).unwrap_or(0);
+            out.push(Sample { position: p, radius: r, material });
         }
-        let Some(s) = scale.at(object, p) else { continue };
-        let r = r0 * s;
-        if conflicts(&grid, &out, p, r) {
-            continue;
-        }
-        grid[index(key(p))].push(out.len() as u32);
-        let material = object.material_at(p).unwrap_or(0);
-        out.push(Sample { position: p, radius: r, material });
     }
     out
 }
+
+/// Darts tested in parallel before they are accepted in order ([`dart_throw`]): large enough
+/// to keep every core busy, small against a set of thousands (each dart that passes the
+/// parallel tests but meets a sample accepted earlier in its batch cost its depth for
+/// nothing).
+const DART_BATCH: u32 = 4096;
 
 /// Optical depth per channel from `p` (inside the object) along unit `w` to infinity: each
 /// interval inside an object at its material's extinction times the density integral (exact
