@@ -249,6 +249,56 @@ fn mesh_transform_scales_rotates_and_translates() {
 
 // ---------------------------------------------------------------------------- BVH
 
+/// The distance from `p` to a triangle by another route than the BVH's (Ericson's Voronoi
+/// regions): the plane's foot where it falls inside (barycentric), else the nearest of the
+/// three edges as segments.
+fn triangle_distance(t: &GpuTriangle, p: Vec3) -> f32 {
+    let a = Vec3::from_slice(&t.v0[..3]);
+    let (b, c) = (a + Vec3::from_slice(&t.e1[..3]), a + Vec3::from_slice(&t.e2[..3]));
+    let n = (b - a).cross(c - a).normalize();
+    let foot = p - n * n.dot(p - a);
+    let inside = [(a, b), (b, c), (c, a)].iter().all(|&(u, v)| (v - u).cross(foot - u).dot(n) >= 0.0);
+    if inside {
+        return (p - foot).length();
+    }
+    let segment = |u: Vec3, v: Vec3| {
+        let s = ((p - u).dot(v - u) / (v - u).length_squared()).clamp(0.0, 1.0);
+        (p - (u + (v - u) * s)).length()
+    };
+    segment(a, b).min(segment(b, c)).min(segment(c, a))
+}
+
+/// sh-single's offset surfaces are level sets of the distance to the mesh: the BVH's nearest
+/// point agrees with every triangle's distance, inside and outside the surface, and lies on
+/// the surface at that distance.
+#[test]
+fn mesh_bvh_closest_point_agrees_with_brute_force() {
+    let mut rng = Rng(0x5eed_0017);
+    for name in ["icosphere.obj", "torus.obj", "blob.obj"] {
+        let mesh = load(name);
+        let bvh = Bvh::build(&mesh);
+        let tris: Vec<GpuTriangle> = mesh.triangles.iter().map(|&t| gpu_triangle(&mesh, t)).collect();
+        let (lo, hi) = mesh.bounds();
+        let (centre, extent) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+        for k in 0..3000 {
+            let p = rng.in_box(centre - 1.5 * extent, centre + 1.5 * extent);
+            let (q, d) = bvh.closest_point(p).expect("a mesh has triangles");
+            let want = tris.iter().map(|t| triangle_distance(t, p)).fold(f32::INFINITY, f32::min);
+            // f32 rounding of coordinates of order the mesh's size: an absolute part.
+            let tol = |x: f32| 1e-5 * x + 1e-6 * extent.max_element();
+            assert!((d - want).abs() <= tol(want), "{name}: point {k}: {d} against {want}");
+            assert!(((q - p).length() - d).abs() <= tol(d), "{name}: point {k}");
+            let on = tris.iter().map(|t| triangle_distance(t, q)).fold(f32::INFINITY, f32::min);
+            assert!(on <= 1e-5 * extent.max_element(), "{name}: point {k}: the nearest point is {on} off the surface");
+        }
+    }
+    // The icosphere's centre lies between the inscribed and the circumscribed sphere's radius
+    // from its faces.
+    let mesh = load("icosphere.obj");
+    let (_, d) = Bvh::build(&mesh).closest_point(Vec3::ZERO).unwrap();
+    assert!(d > 0.98 && d <= 1.0, "{d}");
+}
+
 #[test]
 fn mesh_bvh_agrees_with_brute_force() {
     let mut rng = Rng(0x5eed_0016);

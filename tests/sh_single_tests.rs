@@ -11,7 +11,8 @@ use scatterlab::physics::quadrature::Quadrature;
 use scatterlab::physics::sh;
 use scatterlab::solvers::gpu_scene::{GpuScene, MAJORANT_CELL};
 use scatterlab::solvers::sh_single::{
-    depth_below_surface, device_params, optical_depth, poisson_samples, poisson_samples_with, sample_params, Heuristic,
+    depth_below_surface, device_params, optical_depth, poisson_draw, poisson_samples, poisson_samples_with,
+    sample_params, Heuristic, Placement, LAYER_SPACING,
 };
 
 use crate::common::{assert_clean, gpu, scene};
@@ -93,6 +94,50 @@ fn poisson_samples_are_deterministic_inside_spaced_and_denser_near_the_surface()
         let (rho_near, rho_deep) = (n_near as f64 / shell, n_deep as f64 / core);
         eprintln!("samples per unit volume: near {rho_near:.0}, deep {rho_deep:.0}");
         assert!(rho_near > 3.0 * rho_deep, "near {rho_near}, deep {rho_deep}");
+    }
+}
+
+/// `sh-single.placement=layers` (thesis 3.2.1-3.2.2): every sample lies on an offset surface,
+/// at a depth below the mesh within a quarter spacing of k delta (k >= 1, delta =
+/// LAYER_SPACING r0), inside, Poisson-spaced, about the count requested, the same on any
+/// number of threads; the volume placement's depths fill the gaps between layers.
+#[test]
+fn layered_samples_lie_on_offset_surfaces() {
+    let s = sphere_object("8.0");
+    let o = s.object.as_ref().unwrap();
+    let depth_in_layers = |samples: &[scatterlab::solvers::sh_single::Sample], delta: f32| {
+        let on = samples
+            .iter()
+            .filter(|x| {
+                let d = o.bvh.closest_point(x.position).unwrap().1;
+                let k = (d / delta).round();
+                k >= 1.0 && (d - k * delta).abs() <= 0.25 * delta * (1.0 + 1e-3)
+            })
+            .count();
+        on as f64 / samples.len() as f64
+    };
+    for heuristic in [Heuristic::Depth, Heuristic::Divergence] {
+        let (a, r0) = poisson_draw(o, 2000, 5, heuristic, Placement::Layers);
+        let delta = LAYER_SPACING * r0;
+        let n = a.len() as f64;
+        eprintln!("{heuristic:?}: {n} samples, r0 {r0:.4}, layers {delta:.4} apart");
+        assert!((n / 2000.0 - 1.0).abs() < 0.15, "{heuristic:?}: drew {n}");
+        assert_eq!(depth_in_layers(&a, delta), 1.0, "{heuristic:?}: a sample off its layer");
+        for (i, x) in a.iter().enumerate() {
+            assert!(o.contains(x.position), "sample {i} outside");
+            for y in &a[i + 1..] {
+                assert!(x.position.distance(y.position) >= 0.5 * (x.radius + y.radius) * (1.0 - 1e-6));
+            }
+        }
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let b = pool.install(|| poisson_draw(o, 2000, 5, heuristic, Placement::Layers).0);
+        assert_eq!(a, b, "{heuristic:?}: threads");
+        // Uniform in the volume, only about half the depths fall within a quarter spacing of a
+        // layer (the bands cover half of each spacing).
+        let (v, r0v) = poisson_draw(o, 2000, 5, heuristic, Placement::Volume);
+        let share = depth_in_layers(&v, LAYER_SPACING * r0v);
+        eprintln!("{heuristic:?}: volume placement, {share:.3} of the depths within the layers' bands");
+        assert!(share < 0.75, "{heuristic:?}: {share}");
     }
 }
 
@@ -328,6 +373,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
                 directions: 288,
                 heuristic,
                 index: SampleIndex::Boxes,
+                placement: Placement::Volume,
             };
             let (img, st, _, _) = render(&gpu, &s, &set, false, &|_| {}).unwrap();
             assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{what}: finite, non-negative");
@@ -352,6 +398,7 @@ fn sh_single_approaches_single_as_order_and_samples_grow() {
             directions: 288,
             heuristic: Heuristic::Depth,
             index: SampleIndex::Boxes,
+            placement: Placement::Volume,
         },
         false,
         &|_| {},

@@ -264,11 +264,92 @@ impl Bvh {
             as u64
     }
 
+    /// The point of the surface nearest `p` and its distance (scene units); `None` for a tree
+    /// without triangles. Nearer child first by the squared distance to its box, a child
+    /// skipped once its box lies farther than the nearest point found (exact: every triangle
+    /// that could be nearer is tested). sh-single's offset surfaces (thesis 3.2.2) are the
+    /// level sets of this distance.
+    pub fn closest_point(&self, p: Vec3) -> Option<(Vec3, f32)> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let box_d2 = |n: &BvhNode| {
+            let q = p.clamp(Vec3::from(n.min), Vec3::from(n.max));
+            q.distance_squared(p)
+        };
+        let (mut best, mut best_d2) = (p, f32::INFINITY);
+        let mut stack = [(0u32, 0f32); MAX_DEPTH as usize + 1];
+        let mut sp = 1usize;
+        stack[0] = (0, box_d2(&self.nodes[0]));
+        while sp > 0 {
+            sp -= 1;
+            let (node, d2) = stack[sp];
+            if d2 >= best_d2 {
+                continue;
+            }
+            let n = self.nodes[node as usize];
+            if n.count > 0 {
+                for i in n.left_or_first..n.left_or_first + n.count {
+                    let q = closest_on_triangle(&self.triangles[i as usize], p);
+                    let d2 = q.distance_squared(p);
+                    if d2 < best_d2 {
+                        (best, best_d2) = (q, d2);
+                    }
+                }
+            } else {
+                let (l, r) = (n.left_or_first, n.left_or_first + 1);
+                let (dl, dr) = (box_d2(&self.nodes[l as usize]), box_d2(&self.nodes[r as usize]));
+                // The farther child below the nearer one, so the nearer is visited first.
+                let (near, d_near, far, d_far) = if dl <= dr { (l, dl, r, dr) } else { (r, dr, l, dl) };
+                stack[sp] = (far, d_far);
+                stack[sp + 1] = (near, d_near);
+                sp += 2;
+            }
+        }
+        best_d2.is_finite().then(|| (best, best_d2.sqrt()))
+    }
+
     fn hit(&self, triangle: u32, t: f32) -> Hit {
         let tri = &self.triangles[triangle as usize];
         let normal = Vec3::from_slice(&tri.e1).cross(Vec3::from_slice(&tri.e2)).normalize_or_zero();
         Hit { t, triangle, normal }
     }
+}
+
+/// The point of triangle `t` nearest `p`: Ericson, Real-Time Collision Detection (2005),
+/// 5.1.5, by the Voronoi regions of the corners, edges and face.
+fn closest_on_triangle(t: &GpuTriangle, p: Vec3) -> Vec3 {
+    let a = Vec3::from_slice(&t.v0[..3]);
+    let (ab, ac) = (Vec3::from_slice(&t.e1[..3]), Vec3::from_slice(&t.e2[..3]));
+    let ap = p - a;
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = ap - ab;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return a + ab;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = ap - ac;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return a + ac;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return a + ab + (ac - ab) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    a + ab * (vb * denom) + ac * (vc * denom)
 }
 
 /// `1 / d` with zero components replaced by a tiny value of the same sign, so that the slab

@@ -125,6 +125,19 @@ impl Heuristic {
     }
 }
 
+/// Where the darts may land (`sh-single.placement`): anywhere inside the object, or on the
+/// thesis's layers (3.2.1-3.2.2), offset surfaces at depths k delta below the mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Placement {
+    Volume,
+    Layers,
+}
+
+/// Spacing of the offset surfaces in base Poisson radii r0 (the thesis: "fractions of the
+/// predicted mean distance between sampling points", 3.2.2). A quarter: the samples nearest
+/// the surface (radius r0 / 2 under the depth heuristic) have two layers within their disk.
+pub const LAYER_SPACING: f32 = 0.25;
+
 /// The thesis's density heuristic (3.2.3), on a grid over the object's box: the first moment
 /// of the attenuation, T(x) = int exp(-tau(x, w)) w dw (eq. 3.5), at every grid point (tau of
 /// the most penetrating channel, [`DIVERGENCE_DIRECTIONS`] directions; 0 outside the object,
@@ -255,6 +268,29 @@ pub fn poisson_samples(object: &Object, count: u32, seed: u64) -> Vec<Sample> {
 
 /// [`poisson_samples`] under either density heuristic.
 pub fn poisson_samples_with(object: &Object, count: u32, seed: u64, heuristic: Heuristic) -> Vec<Sample> {
+    poisson_samples_placed(object, count, seed, heuristic, Placement::Volume)
+}
+
+/// [`poisson_samples_with`] with the darts anywhere inside or on the offset surfaces.
+pub fn poisson_samples_placed(
+    object: &Object,
+    count: u32,
+    seed: u64,
+    heuristic: Heuristic,
+    placement: Placement,
+) -> Vec<Sample> {
+    poisson_draw(object, count, seed, heuristic, placement).0
+}
+
+/// [`poisson_samples_placed`] and the base radius r0 its last draw used (unit: the mesh's); the
+/// offset surfaces of [`Placement::Layers`] lie [`LAYER_SPACING`] r0 apart.
+pub fn poisson_draw(
+    object: &Object,
+    count: u32,
+    seed: u64,
+    heuristic: Heuristic,
+    placement: Placement,
+) -> (Vec<Sample>, f32) {
     let (lo, hi) = object.mesh.bounds();
     let extent = hi - lo;
     let st = max_sigma_t(object);
@@ -282,19 +318,19 @@ pub fn poisson_samples_with(object: &Object, count: u32, seed: u64, heuristic: H
     // The packing fraction varies with the shape (thin parts and corners fill less): up to
     // three draws, r0 rescaled by the cube root of the count's ratio, until within 10%.
     let mut out = Vec::new();
-    for _ in 0..3 {
-        out = dart_throw(object, count, seed, r0, &scale);
+    for draw in 0..3 {
+        out = dart_throw(object, count, seed, r0, &scale, placement);
         let ratio = out.len() as f64 / count.max(1) as f64;
-        if (ratio - 1.0).abs() < 0.1 {
+        if (ratio - 1.0).abs() < 0.1 || draw == 2 {
             break;
         }
         r0 *= ratio.cbrt() as f32;
     }
-    out
+    (out, r0)
 }
 
 /// One dart-throwing draw of radius scale `r0` (module docs).
-fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, scale: &Scale) -> Vec<Sample> {
+fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, scale: &Scale, placement: Placement) -> Vec<Sample> {
     let (lo, hi) = object.mesh.bounds();
     let extent = hi - lo;
     let mut rng = Pcg32::new(seed, 18);
@@ -344,17 +380,20 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, scale: &Scale) ->
         let batch = DART_BATCH.min(total - thrown);
         thrown += batch;
         let darts: Vec<Vec3> = (0..batch).map(|_| dart(&mut rng, lo, extent)).collect();
-        let scales: Vec<Option<f32>> = darts
+        let placed: Vec<Option<(Vec3, f32)>> = darts
             .par_iter()
             .map(|&p| {
+                let p = match placement {
+                    Placement::Volume => p,
+                    Placement::Layers => onto_layer(object, p, LAYER_SPACING * r0)?,
+                };
                 if conflicts(&grid, &out, p, 0.5 * r0) || !object.contains(p) {
                     return None;
                 }
-                scale.at(object, p)
+                Some((p, scale.at(object, p)?))
             })
             .collect();
-        for (&p, s) in darts.iter().zip(scales) {
-            let Some(s) = s else { continue };
+        for (p, s) in placed.into_iter().flatten() {
             let r = r0 * s;
             if conflicts(&grid, &out, p, 0.5 * r0) || conflicts(&grid, &out, p, r) {
                 continue;
@@ -365,6 +404,28 @@ fn dart_throw(object: &Object, count: u32, seed: u64, r0: f32, scale: &Scale) ->
         }
     }
     out
+}
+
+/// The dart `p` moved onto the nearest offset surface (thesis 3.2.2): the level set of the
+/// distance to the mesh at depth k `delta`, k >= 1, reached along the line from `p`'s nearest
+/// surface point through `p` (the distance's gradient). A volume-uniform dart so lands on
+/// each layer with a density uniform in its area (the slab it comes from is delta thick). The
+/// thesis builds each layer by marching cubes on the distance field; this samples the same
+/// level sets without their meshes. `None` outside the mesh, or where the moved point's own
+/// distance is not its layer's (within delta / 4: past a concave edge, where the line meets
+/// another part of the surface first).
+fn onto_layer(object: &Object, p: Vec3, delta: f32) -> Option<Vec3> {
+    if !object.contains(p) {
+        return None;
+    }
+    let (c, d) = object.bvh.closest_point(p)?;
+    if d <= 0.0 {
+        return None;
+    }
+    let depth = (d / delta).round().max(1.0) * delta;
+    let q = c + (p - c) * (depth / d);
+    let (_, dq) = object.bvh.closest_point(q)?;
+    ((dq - depth).abs() <= 0.25 * delta).then_some(q)
 }
 
 /// Darts tested in parallel before they are accepted in order ([`dart_throw`]): large enough
@@ -778,6 +839,7 @@ pub struct ShSettings {
     pub heuristic: Heuristic,
     /// How the render finds the samples a camera segment passes (`sh_single.index`).
     pub index: SampleIndex,
+    pub placement: Placement,
 }
 
 impl ShSettings {
@@ -792,6 +854,10 @@ impl ShSettings {
                 "grid" => SampleIndex::Grid,
                 "none" => SampleIndex::None,
                 _ => SampleIndex::Boxes,
+            },
+            placement: match k.get::<String>("placement")?.as_str() {
+                "layers" => Placement::Layers,
+                _ => Placement::Volume,
             },
             heuristic: match k.get::<String>("density")?.as_str() {
                 "divergence" => Heuristic::Divergence,
@@ -1223,7 +1289,7 @@ pub fn render(
     let object = os.object.as_ref().expect("object_scene gives an object");
     let clock = std::time::Instant::now();
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 0, 3));
-    let mut samples = poisson_samples_with(object, set.samples, set.seed, set.heuristic);
+    let mut samples = poisson_samples_placed(object, set.samples, set.seed, set.heuristic, set.placement);
     let (lo, hi) = object.mesh.bounds();
     sort_spatially(&mut samples, lo, hi);
     let sampling_s = clock.elapsed().as_secs_f64();
@@ -1492,6 +1558,13 @@ impl Solver for ShSingle {
                  (divergence); auto: divergence where a density varies (grids), depth for constant densities",
             ),
             Knob::fixed(
+                "placement",
+                "volume",
+                Range::Choice(&["volume", "layers"]),
+                "where the Poisson darts land: anywhere inside the object (volume), or on the thesis's offset \
+                 surfaces (3.2.1-3.2.2), layers at depths of a quarter base radius below the mesh (layers)",
+            ),
+            Knob::fixed(
                 "index",
                 "boxes",
                 Range::Choice(&["boxes", "grid", "none"]),
@@ -1535,7 +1608,7 @@ impl Solver for ShSingle {
         // render draws it.
         let object = os.object.as_ref().expect("object scene");
         // (in the sampler's order: the grid index's size does not depend on it)
-        let samples = poisson_samples_with(object, set.samples, set.seed, set.heuristic);
+        let samples = poisson_samples_placed(object, set.samples, set.seed, set.heuristic, set.placement);
         Ok(device_bytes(&os, &samples, &set))
     }
 
