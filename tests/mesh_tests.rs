@@ -268,6 +268,15 @@ fn triangle_distance(t: &GpuTriangle, p: Vec3) -> f32 {
     segment(a, b).min(segment(b, c)).min(segment(c, a))
 }
 
+/// A shipped mesh's BVH, its triangles in the mesh's order as the GPU tests them, and the
+/// centre and half-extent of its bounds: what the brute-force comparisons start from.
+fn bvh_and_triangles(name: &str) -> (Bvh, Vec<GpuTriangle>, Vec3, Vec3) {
+    let mesh = load(name);
+    let tris = mesh.triangles.iter().map(|&t| gpu_triangle(&mesh, t)).collect();
+    let (lo, hi) = mesh.bounds();
+    (Bvh::build(&mesh), tris, (lo + hi) * 0.5, (hi - lo) * 0.5)
+}
+
 /// sh-single's offset surfaces are level sets of the distance to the mesh: the BVH's nearest
 /// point agrees with every triangle's distance, inside and outside the surface, and lies on
 /// the surface at that distance.
@@ -275,11 +284,7 @@ fn triangle_distance(t: &GpuTriangle, p: Vec3) -> f32 {
 fn mesh_bvh_closest_point_agrees_with_brute_force() {
     let mut rng = Rng(0x5eed_0017);
     for name in ["icosphere.obj", "torus.obj", "blob.obj"] {
-        let mesh = load(name);
-        let bvh = Bvh::build(&mesh);
-        let tris: Vec<GpuTriangle> = mesh.triangles.iter().map(|&t| gpu_triangle(&mesh, t)).collect();
-        let (lo, hi) = mesh.bounds();
-        let (centre, extent) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+        let (bvh, tris, centre, extent) = bvh_and_triangles(name);
         for k in 0..3000 {
             let p = rng.in_box(centre - 1.5 * extent, centre + 1.5 * extent);
             let (q, d) = bvh.closest_point(p).expect("a mesh has triangles");
@@ -303,11 +308,7 @@ fn mesh_bvh_closest_point_agrees_with_brute_force() {
 fn mesh_bvh_agrees_with_brute_force() {
     let mut rng = Rng(0x5eed_0016);
     for name in ["icosphere.obj", "torus.obj", "blob.obj"] {
-        let mesh = load(name);
-        let bvh = Bvh::build(&mesh);
-        let tris: Vec<GpuTriangle> = mesh.triangles.iter().map(|&t| gpu_triangle(&mesh, t)).collect();
-        let (lo, hi) = mesh.bounds();
-        let (centre, extent) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+        let (bvh, tris, centre, extent) = bvh_and_triangles(name);
         let (mut hits, mut ties) = (0, 0);
         for k in 0..20_000 {
             let (o, d) = match k % 4 {
