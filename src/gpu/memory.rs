@@ -148,7 +148,7 @@ impl Gpu {
         }
         let mut cache = self.staging_cache.lock().expect("staging cache lock");
         let slot = &mut cache[readback as usize];
-        if slot.as_ref().is_none_or(|s| s.buffer.size() < n) {
+        if slot.as_ref().map_or(true, |s| s.buffer.size() < n) {
             *slot = None;
             let size = n.next_power_of_two().clamp(1 << 20, STAGING_KEEP);
             let (buffer, ptr) = self.staging(name, size, location, false)?;

@@ -242,7 +242,7 @@ pub fn error_png(path: &Path, a: &Image, reference: &Image) -> Result<(), Output
     // The legend: a gap, then the ramp across the full width with a tick per decade.
     let (gap, bar) = error_map_legend_rows(a.height);
     let w = a.width as usize;
-    rgb8.extend(std::iter::repeat_n(255u8, 3 * w * gap as usize));
+    rgb8.extend(std::iter::repeat(255u8).take(3 * w * gap as usize));
     let decades = (hi - lo).round() as usize;
     let tick = |x: usize| (0..=decades).any(|k| (k * (w - 1) + decades / 2) / decades.max(1) == x);
     for row in 0..bar {

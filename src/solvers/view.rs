@@ -417,7 +417,7 @@ pub fn march(
     // The shadow volume, when the settings ask for one: every unit's depth at every voxel
     // centre (both ways for the bounded octaves), in one dispatch before the march.
     let window = ms.and_then(|m| m.window);
-    let direct = window.is_none_or(|w| w.direct);
+    let direct = window.map_or(true, |w| w.direct);
     let (shadow_buf, shadow_dims) = match shadow_grid(scene, v).filter(|_| direct) {
         Some(g) => {
             let units = light_units(scene, v.env_dirs);
