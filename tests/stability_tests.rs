@@ -44,10 +44,11 @@ fn stability_sweep_path_and_single_pass_everything() {
     assert_clean(&gpu);
 }
 
-/// `lbl` on the same sweep: always finite and non-negative, the lattice always converges, and
-/// its pure absorber is `single` exactly. (Its energy bound is reported, not asserted here;
-/// `scatterlab stability` judges it and passes since the escape weights and the surface drift
-/// of docs/lbl.md. Before them it exceeded the furnace bound by up to 14% at albedo >= 0.99.)
+/// `lbl` on the same sweep: always finite and non-negative, the lattice always converges, its
+/// pure absorber is `single` exactly, and every case passes the sweep's own judgement, the
+/// energy bound included (before the escape weights and the surface drift of docs/lbl.md it
+/// exceeded the furnace bound by up to 14% at albedo >= 0.99; with 4096 rays per light the
+/// forward population's g 0.99 case drew pixels 30% over it, unasserted here until 2026-11-27).
 #[test]
 fn stability_sweep_lbl_hard_requirements() {
     let gpu = gpu();
@@ -58,6 +59,7 @@ fn stability_sweep_lbl_hard_requirements() {
         if let (Some(e), true) = (o.exact_error, o.case == "albedo 0") {
             assert!(e < 1e-4, "{}: pure absorber error {e}", o.case);
         }
+        assert!(!o.counts_as_failure(), "{}: fails the sweep (over the bound by {})", o.case, o.max_over_bound);
     }
     let json = serde_json::to_value(&out).unwrap();
     assert!(json.as_array().unwrap().iter().all(|o| o["max_over_bound"].is_number()));
