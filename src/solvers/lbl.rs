@@ -712,10 +712,8 @@ pub fn max_reduced_sigma_t(scene: &Scene) -> f32 {
 /// [`GRID_MIN`]..=[`GRID_MAX`].
 pub fn default_grid(scene: &Scene) -> u32 {
     let side = (scene.medium.bounds_max - scene.medium.bounds_min).max_element();
+    // An optical length beyond f32 saturates at GRID_MAX (f32::min also drops a NaN).
     let t = max_reduced_sigma_t(scene) * side;
-    if !t.is_finite() {
-        return GRID_MIN;
-    }
     let fit = 8 * (t / (8.0 * GRID_MIN_VOXEL_TAU)).floor().min(GRID_MAX as f32) as u32;
     fit.clamp(GRID_MIN, GRID_MAX)
 }

@@ -268,22 +268,12 @@ pub fn poisson_samples(object: &Object, count: u32, seed: u64) -> Vec<Sample> {
 
 /// [`poisson_samples`] under either density heuristic.
 pub fn poisson_samples_with(object: &Object, count: u32, seed: u64, heuristic: Heuristic) -> Vec<Sample> {
-    poisson_samples_placed(object, count, seed, heuristic, Placement::Volume)
+    poisson_draw(object, count, seed, heuristic, Placement::Volume).0
 }
 
-/// [`poisson_samples_with`] with the darts anywhere inside or on the offset surfaces.
-pub fn poisson_samples_placed(
-    object: &Object,
-    count: u32,
-    seed: u64,
-    heuristic: Heuristic,
-    placement: Placement,
-) -> Vec<Sample> {
-    poisson_draw(object, count, seed, heuristic, placement).0
-}
-
-/// [`poisson_samples_placed`] and the base radius r0 its last draw used (unit: the mesh's); the
-/// offset surfaces of [`Placement::Layers`] lie [`LAYER_SPACING`] r0 apart.
+/// [`poisson_samples_with`] with the darts anywhere inside or on the offset surfaces, and the
+/// base radius r0 its last draw used (unit: the mesh's); the offset surfaces of
+/// [`Placement::Layers`] lie [`LAYER_SPACING`] r0 apart.
 pub fn poisson_draw(
     object: &Object,
     count: u32,
@@ -1289,7 +1279,7 @@ pub fn render(
     let object = os.object.as_ref().expect("object_scene gives an object");
     let clock = std::time::Instant::now();
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 0, 3));
-    let mut samples = poisson_samples_placed(object, set.samples, set.seed, set.heuristic, set.placement);
+    let mut samples = poisson_draw(object, set.samples, set.seed, set.heuristic, set.placement).0;
     let (lo, hi) = object.mesh.bounds();
     sort_spatially(&mut samples, lo, hi);
     let sampling_s = clock.elapsed().as_secs_f64();
@@ -1608,7 +1598,7 @@ impl Solver for ShSingle {
         // render draws it.
         let object = os.object.as_ref().expect("object scene");
         // (in the sampler's order: the grid index's size does not depend on it)
-        let samples = poisson_samples_placed(object, set.samples, set.seed, set.heuristic, set.placement);
+        let samples = poisson_draw(object, set.samples, set.seed, set.heuristic, set.placement).0;
         Ok(device_bytes(&os, &samples, &set))
     }
 
