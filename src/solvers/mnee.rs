@@ -1,133 +1,271 @@
-//! The facet lists of `path`'s manifold next-event estimation (glsl/path/trace.comp,
-//! `mnee_estimate`): for each light outside a refractive object, a grid over the object's
-//! bounds whose cells list the facets whose refracted beam meets the cell. A scattering point
-//! tries only its cell's facets instead of every facet of the mesh (on the icosphere of
-//! `scenes/milk-orb.toml`, 11 of 1280 on average over the cells at the default 32 per axis).
+//! The chain lists of `path`'s manifold next-event estimation (glsl/path/trace.comp,
+//! `mnee_estimate`): for each point or directional light outside every refractive object, a
+//! grid over the medium's bounds whose cells list the specular chains (the facets, in order from
+//! the light, at which the light's ray refracts or reflects) through which the light may reach
+//! a point of the cell. A scattering point tries only its cell's chains instead of every facet
+//! of the mesh (on the icosphere of `scenes/milk-orb.toml`, 11 single refractions of 1280 on
+//! average over the cells at the default 32 per axis).
 //!
-//! A facet's beam is the light it refracts into the object: from a directional light, the prism
-//! swept by the facet along the one refracted direction; from a point light, the rays from the
-//! light through the facet's points, refracted. The beam is bounded by marching its three corner
-//! rays through the bounds in steps of half a cell: the box of the corners at both ends of each
-//! step, widened by [`POINT_PAD`] cells for a point light (inside a facet the refracted rays
-//! of a point light are not exactly spanned by the corner rays; the pad covers their
-//! departure, which on a facet of the icosphere is below a thousandth of a cell), marks the
-//! cells it overlaps. Lists are in facet order, as the full scan is, so the sums are the same:
-//! tests/mnee_tests.rs renders both and compares them bit for bit.
+//! **Single refractions** (light -> facet -> the point): every facet that faces the light is a
+//! chain of one. Its beam is the light it refracts into the object: from a directional light,
+//! the prism swept by the facet along the one refracted direction; from a point light, the rays
+//! from the light through the facet's points, refracted. The beam is bounded by marching its
+//! three corner rays through the bounds in steps of half a cell: the box of the corners at both
+//! ends of each step, widened by [`POINT_PAD`] cells for a point light (inside a facet the
+//! refracted rays of a point light are not exactly spanned by the corner rays; the pad covers
+//! their departure, which on a facet of the icosphere is below a thousandth of a cell), marks
+//! the cells it overlaps. Conservative, so no single refraction is ever missed.
+//!
+//! **Longer chains** (up to `path.mnee_depth` facets): the light reflected inside an object
+//! before it reaches the point (Fresnel F, and 1 under total internal reflection), light that
+//! crosses one object or one sheet of a non-convex mesh on its way into another, and any mix.
+//! They are found by tracing the light's rays: `path.mnee_rays`^2 rays per facet that faces the
+//! light (spread evenly over the facet), each followed exactly through every refraction and
+//! reflection it meets (both branches) up to the depth; every sequence of facets that ends
+//! inside an object is a chain, and the cells along the last leg of each of its rays, widened
+//! by [`CHAIN_PAD`] cells, list it. Found by sampling, so a chain whose rays leave a facet
+//! through a sliver narrower than the rays' spacing (a 1/`mnee_rays` of its edges) can be
+//! missed: docs/scene-format.md gives the measured effect of the density.
+//!
+//! The GPU solves each listed chain for the point (a Newton iteration on the first facet's
+//! barycentric coordinates; at most one solution per chain of planes, Fermat's principle
+//! being convex there), checks that every vertex lies in its facet and that no surface blocks a
+//! leg in vacuum, and adds the irradiance the ray tube carries there.
+//!
+//! Lists are in chain order (a facet's single refraction, then the longer chains found from
+//! it, facet by facet), as the full scan is, so the sums are the same: tests/mnee_tests.rs
+//! renders both and compares them bit for bit.
 //!
 //! Buffer layout (u32 words): [0..3) bounds min, [3..6) bounds max (f32 bits), [6] cells per
-//! axis n (`path.mnee_cells`; 1 lists every lit facet in one cell, the full scan), [7] unused, [8..40) per light index the word where its table starts (0: no table);
-//! a table is n^3 + 1 prefix offsets (relative to the table's facet list, which follows) then
-//! the facet indices (BVH leaf order, `Bvh::triangles`).
+//! axis n (`path.mnee_cells`; 1 lists every chain in one cell, the full scan), [7] flags (bit
+//! 0: a leg in vacuum may be blocked, so the GPU tests it: several objects or a mesh that is not
+//! convex), [8..40) per light index the word where its table starts (0: no table). Then the
+//! chain records: word 0 the chain's length k | its reflection mask << 8 (bit v: the light
+//! reflects at vertex v, else it refracts), then its k facet indices (BVH leaf order,
+//! `Bvh::triangles`) from the light's side. Then each table: n^3 + 1 prefix offsets (relative to
+//! the table's list, which follows), then the list: the word offsets of chain records.
+
+use std::collections::HashMap;
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use crate::physics::dielectric::refract;
-use crate::scene::bvh::GpuTriangle;
+use crate::scene::bvh::{Bvh, GpuTriangle};
 use crate::scene::{Light, Scene};
 
 /// Cells per axis by default (`path.mnee_cells`): on `scenes/milk-orb.toml` at 48 x 48, 256
 /// spp, 8 / 16 / 32 / 64 cells list 55 / 22 / 11 / 6.9 facets per cell and render in 65 / 39 /
 /// 29 / 26 s (the same image, bit for bit).
 pub const CELLS: u32 = 32;
-/// The widening of a point light's beam boxes, in cells.
+/// Facets per chain at most, by default (`path.mnee_depth`).
+pub const DEPTH: u32 = 3;
+/// The most `path.mnee_depth` may be (the GPU's state holds a leg index below 12).
+pub const MAX_DEPTH: u32 = 8;
+/// Rays per facet edge by default (`path.mnee_rays`): rays^2 rays per facet.
+pub const RAYS: u32 = 12;
+/// The widening of a point light's single-refraction beam boxes, in cells.
 pub const POINT_PAD: f64 = 0.25;
-/// Words before the first table.
+/// The widening of a traced chain ray's boxes, in cells: the rays of one chain leave their
+/// first facet at most half a cell apart (more rays per edge on a facet many cells long; on the
+/// icosphere at 12 per edge, a sixth of a cell), so a cell that the chain's beam meets between
+/// two traced rays is still listed. A point light's rays part further along the way; the pad
+/// grows with that.
+pub const CHAIN_PAD: f64 = 0.3;
+/// Rays per facet edge at most (a facet many cells long).
+pub const MAX_RAYS: usize = 256;
+/// Words before the first chain record.
 const HEADER: usize = 40;
 
 fn v(a: [f32; 4]) -> DVec3 {
     DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64)
 }
 
-/// The facet tables for the lights in `mask` (bit i: light i), over the medium's bounds.
-pub fn facet_grid(scene: &Scene, tris: &[GpuTriangle], mask: u32, cells: u32) -> Vec<u32> {
+/// How the chains are found and listed (the `path.mnee_*` knobs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ChainOptions {
+    /// Cells per axis.
+    pub cells: u32,
+    /// Facets per chain at most (1: single refractions only).
+    pub depth: u32,
+    /// Rays per facet edge of the search for longer chains.
+    pub rays: u32,
+}
+
+impl Default for ChainOptions {
+    fn default() -> Self {
+        ChainOptions { cells: CELLS, depth: DEPTH, rays: RAYS }
+    }
+}
+
+/// The cell grid over the bounds, and the cells a box overlaps.
+struct Cells {
+    lo: DVec3,
+    hi: DVec3,
+    n: usize,
+    cell: DVec3,
+}
+
+impl Cells {
+    /// Calls `f` with every cell index the box [blo, bhi] overlaps (none when it misses the bounds).
+    fn each(&self, blo: DVec3, bhi: DVec3, mut f: impl FnMut(usize)) {
+        if blo.cmpgt(self.hi).any() || bhi.cmplt(self.lo).any() {
+            return;
+        }
+        let m = DVec3::splat(self.n as f64 - 1.0);
+        let c0 = ((blo - self.lo) / self.cell).floor().max(DVec3::ZERO).min(m);
+        let c1 = ((bhi - self.lo) / self.cell).floor().max(DVec3::ZERO).min(m);
+        for z in c0.z as usize..=c1.z as usize {
+            for y in c0.y as usize..=c1.y as usize {
+                for x in c0.x as usize..=c1.x as usize {
+                    f(x + self.n * (y + self.n * z));
+                }
+            }
+        }
+    }
+
+    /// The cells along the segment c + d s, s in [0, len] (a ray's leg), in steps of half a
+    /// cell, each step's box widened by `pad` cells.
+    fn along(&self, c: DVec3, d: DVec3, len: f64, pad: f64, f: &mut impl FnMut(usize)) {
+        let step = 0.5 * self.cell.min_element();
+        let mut s = 0.0;
+        loop {
+            let s1 = (s + step).min(len);
+            let (a, b) = (c + d * s, c + d * s1);
+            self.each(a.min(b) - self.cell * pad, a.max(b) + self.cell * pad, &mut *f);
+            if s1 >= len {
+                break;
+            }
+            s = s1;
+        }
+    }
+}
+
+/// One event of a traced ray at a facet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct Vertex {
+    facet: u32,
+    reflect: bool,
+}
+
+/// The search for longer chains from one facet: the rays' state and what they found.
+struct Search<'a> {
+    bvh: &'a Bvh,
+    iors: &'a [f64],
+    depth: usize,
+    /// The chains found, in order of discovery, each with the last legs of the rays that follow
+    /// it: start, unit direction, length, and the path length from the first facet to the start.
+    found: Vec<(Vec<Vertex>, Vec<(DVec3, DVec3, f64, f64)>)>,
+    index: HashMap<Vec<Vertex>, usize>,
+}
+
+impl Search<'_> {
+    fn normal(&self, f: u32) -> DVec3 {
+        let t = &self.bvh.triangles[f as usize];
+        v(t.e1).cross(v(t.e2)).normalize()
+    }
+
+    fn ior(&self, f: u32) -> f64 {
+        self.iors[(self.bvh.tag(f) as usize).min(self.iors.len() - 1)]
+    }
+
+    /// The next surface along p + t d (t > a small offset): facet, distance.
+    fn next(&self, p: DVec3, d: DVec3) -> Option<(u32, f64)> {
+        let eps = 1e-5 * p.abs().max_element().max(1.0);
+        let o = p + d * eps;
+        self.bvh.intersect(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY).map(|h| (h.triangle, h.t as f64 + eps))
+    }
+
+    /// Follows a ray that meets facet `f` at `p` travelling along `d` (inside an object or not,
+    /// before the event), with the vertices so far, through both events there.
+    fn follow(&mut self, chain: &mut Vec<Vertex>, f: u32, p: DVec3, d: DVec3, inside: bool, acc: f64) {
+        let n = self.normal(f);
+        let entering = d.dot(n) < 0.0;
+        let nf = if entering { n } else { -n };
+        let ior = self.ior(f);
+        let eta = if entering { 1.0 / ior } else { ior };
+        let refracted = refract(d, nf, eta);
+        let reflected = (d - 2.0 * d.dot(nf) * nf).normalize();
+        for (dir, reflect) in [(refracted, false), (Some(reflected), true)] {
+            let Some(dir) = dir else { continue };
+            // A refraction crosses to the other side; a reflection stays.
+            let now_inside = if reflect { inside } else { !inside };
+            chain.push(Vertex { facet: f, reflect });
+            let hit = self.next(p, dir);
+            if now_inside && chain.len() >= 2 {
+                // The leg up to the next surface is where this chain can light a point.
+                let len = hit.map_or(0.0, |h| h.1);
+                let k = match self.index.get(chain.as_slice()) {
+                    Some(&k) => k,
+                    None => {
+                        self.index.insert(chain.clone(), self.found.len());
+                        self.found.push((chain.clone(), Vec::new()));
+                        self.found.len() - 1
+                    }
+                };
+                self.found[k].1.push((p, dir, len, acc));
+            }
+            if chain.len() < self.depth {
+                if let Some((g, t)) = hit {
+                    self.follow(chain, g, p + dir * t, dir, now_inside, acc + t);
+                }
+            }
+            chain.pop();
+        }
+    }
+}
+
+/// The chain tables for the lights in `mask` (bit i: light i, outside every object), over the
+/// medium's bounds.
+pub fn facet_grid(scene: &Scene, bvh: Option<&Bvh>, mask: u32, opts: ChainOptions) -> Vec<u32> {
     let mut out = vec![0u32; HEADER];
     let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
     for (k, x) in lo.to_array().iter().chain(hi.to_array().iter()).enumerate() {
         out[k] = x.to_bits();
     }
-    out[6] = cells;
+    out[6] = opts.cells;
+    let (Some(bvh), Some(object)) = (bvh, scene.object.as_ref()) else { return out };
     if mask == 0 {
         return out;
     }
-    let ior = scene.object.as_ref().map_or(1.0, |o| o.ior as f64);
+    out[7] = u32::from(object.parts.len() > 1 || !object.convex);
+    let iors: Vec<f64> = object.materials.iter().map(|m| m.ior as f64).collect();
+    let tris: &[GpuTriangle] = &bvh.triangles;
     let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
-    let n = cells as usize;
-    let cell = (hi - lo) / n as f64;
-    let step = 0.5 * cell.min_element();
+    let n = opts.cells as usize;
+    let grid = Cells { lo, hi, n, cell: (hi - lo) / n as f64 };
+    let step = 0.5 * grid.cell.min_element();
     let reach = (hi - lo).length();
+    let mut tables: Vec<(usize, Vec<Vec<u32>>)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate().take(32) {
         if mask & (1 << i) == 0 {
             continue;
         }
         // A point light's position, or a directional light's travel direction.
-        let (point, travel, pad) = match *light {
-            Light::Point { position, .. } => (Some(position.as_dvec3()), DVec3::ZERO, POINT_PAD),
-            Light::Directional { direction, .. } => (None, direction.as_dvec3().normalize(), 1e-3),
+        let (point, travel) = match *light {
+            Light::Point { position, .. } => (Some(position.as_dvec3()), DVec3::ZERO),
+            Light::Directional { direction, .. } => (None, direction.as_dvec3().normalize()),
             Light::Environment { .. } => continue,
         };
+        // Each facet's chains (its single refraction first) with the cells that list them, found
+        // in parallel and laid out in facet order: the same buffer on any number of threads.
+        let per_facet: Vec<Vec<(Vec<u32>, Vec<u32>)>> = (0..tris.len())
+            .into_par_iter()
+            .map(|j| facet_chains(bvh, &iors, &grid, j, point, travel, opts, reach, step))
+            .collect();
         let mut lists: Vec<Vec<u32>> = vec![Vec::new(); n * n * n];
-        let mut stamp = vec![u32::MAX; n * n * n];
-        for (j, t) in tris.iter().enumerate() {
-            let a = v(t.v0);
-            let corners = [a, a + v(t.e1), a + v(t.e2)];
-            let normal = v(t.e1).cross(v(t.e2)).normalize_or_zero();
-            let lit = match point {
-                Some(p) => (p - a).dot(normal) > 0.0,
-                None => travel.dot(normal) < 0.0,
-            };
-            if !lit {
-                continue;
-            }
-            let dirs = corners.map(|c| {
-                let d = match point {
-                    Some(p) => (c - p).normalize(),
-                    None => travel,
-                };
-                refract(d, normal, 1.0 / ior)
-            });
-            let [Some(d0), Some(d1), Some(d2)] = dirs else {
-                // Total internal reflection at a corner (an object less dense than vacuum,
-                // ior < 1): the beam's edge runs along the plane; list the facet everywhere.
-                for (idx, l) in lists.iter_mut().enumerate() {
-                    if stamp[idx] != j as u32 {
-                        stamp[idx] = j as u32;
-                        l.push(j as u32);
-                    }
+        for chains in per_facet {
+            for (words, cells) in chains {
+                let record = out.len() as u32;
+                out.extend_from_slice(&words);
+                for c in cells {
+                    lists[c as usize].push(record);
                 }
-                continue;
-            };
-            let rays = [(corners[0], d0), (corners[1], d1), (corners[2], d2)];
-            let mut s = 0.0;
-            while s <= reach {
-                let (mut blo, mut bhi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-                for (c, d) in rays {
-                    for ds in [s, s + step] {
-                        blo = blo.min(c + d * ds);
-                        bhi = bhi.max(c + d * ds);
-                    }
-                }
-                let blo = blo - cell * pad;
-                let bhi = bhi + cell * pad;
-                if blo.cmpgt(hi).any() || bhi.cmplt(lo).any() {
-                    s += step;
-                    continue;
-                }
-                let c0 = ((blo - lo) / cell).floor().max(DVec3::ZERO).min(DVec3::splat(n as f64 - 1.0));
-                let c1 = ((bhi - lo) / cell).floor().max(DVec3::ZERO).min(DVec3::splat(n as f64 - 1.0));
-                for z in c0.z as usize..=c1.z as usize {
-                    for y in c0.y as usize..=c1.y as usize {
-                        for x in c0.x as usize..=c1.x as usize {
-                            let idx = x + n * (y + n * z);
-                            if stamp[idx] != j as u32 {
-                                stamp[idx] = j as u32;
-                                lists[idx].push(j as u32);
-                            }
-                        }
-                    }
-                }
-                s += step;
             }
         }
+        tables.push((i, lists));
+    }
+    for (i, lists) in tables {
         out[8 + i] = out.len() as u32;
         let mut offset = 0u32;
         for l in &lists {
@@ -142,7 +280,136 @@ pub fn facet_grid(scene: &Scene, tris: &[GpuTriangle], mask: u32, cells: u32) ->
     out
 }
 
-/// How many facets a cell lists on average, per light in the table (for the render's stats).
+/// The chains that start at facet `j` for a light at `point` (or travelling along `travel`):
+/// each chain's record words and the sorted cells that list it. None when the facet does not
+/// face the light.
+#[allow(clippy::too_many_arguments)]
+fn facet_chains(
+    bvh: &Bvh,
+    iors: &[f64],
+    grid: &Cells,
+    j: usize,
+    point: Option<DVec3>,
+    travel: DVec3,
+    opts: ChainOptions,
+    reach: f64,
+    step: f64,
+) -> Vec<(Vec<u32>, Vec<u32>)> {
+    let t = &bvh.triangles[j];
+    let a = v(t.v0);
+    let corners = [a, a + v(t.e1), a + v(t.e2)];
+    let normal = v(t.e1).cross(v(t.e2)).normalize_or_zero();
+    let lit = match point {
+        Some(p) => (p - a).dot(normal) > 0.0,
+        None => travel.dot(normal) < 0.0,
+    };
+    if !lit {
+        return Vec::new();
+    }
+    let finish = |mut cells: Vec<u32>| {
+        cells.sort_unstable();
+        cells.dedup();
+        cells
+    };
+    let mut out = Vec::new();
+    let ior = iors[(bvh.tag(j as u32) as usize).min(iors.len() - 1)];
+    // The single refraction through facet j.
+    let pad = if point.is_some() { POINT_PAD } else { 1e-3 };
+    let mut cells = Vec::new();
+    let dirs = corners.map(|c| {
+        let d = match point {
+            Some(p) => (c - p).normalize(),
+            None => travel,
+        };
+        refract(d, normal, 1.0 / ior)
+    });
+    if let [Some(d0), Some(d1), Some(d2)] = dirs {
+        let rays = [(corners[0], d0), (corners[1], d1), (corners[2], d2)];
+        let mut s = 0.0;
+        while s <= reach {
+            let (mut blo, mut bhi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+            for (c, d) in rays {
+                for ds in [s, s + step] {
+                    blo = blo.min(c + d * ds);
+                    bhi = bhi.max(c + d * ds);
+                }
+            }
+            grid.each(blo - grid.cell * pad, bhi + grid.cell * pad, |idx| cells.push(idx as u32));
+            s += step;
+        }
+    } else {
+        // Total internal reflection at a corner (an object less dense than vacuum, ior < 1):
+        // the beam's edge runs along the plane; list the facet everywhere.
+        cells.extend(0..(grid.n * grid.n * grid.n) as u32);
+    }
+    out.push((vec![1, j as u32], finish(cells)));
+    if opts.depth < 2 {
+        return out;
+    }
+    // Longer chains: rays over the facet, followed through both events at every surface.
+    let mut search = Search { bvh, iors, depth: opts.depth as usize, found: Vec::new(), index: HashMap::new() };
+    // At least `rays` per edge, and enough that neighbouring rays leave the facet less than
+    // half a cell apart (a box's facets are many cells long).
+    let edge = [v(t.e1).length(), v(t.e2).length(), (v(t.e2) - v(t.e1)).length()].into_iter().fold(0.0, f64::max);
+    let r = (opts.rays.max(1) as usize).max((2.0 * edge / grid.cell.min_element()).ceil() as usize).min(MAX_RAYS);
+    let spacing = edge / r as f64;
+    // How fast neighbouring rays part (radians): a point light's rays diverge by their spacing
+    // over their distance from it; refraction and reflection at flat facets change the angle by
+    // a bounded factor, allowed for twice over.
+    let spread = match point {
+        Some(l) => 2.0 * spacing / (a - l).length().max(1e-6),
+        None => 0.0,
+    };
+    let mut chain = Vec::with_capacity(opts.depth as usize);
+    for ua in 0..r {
+        for ub in 0..r - ua {
+            // The centroids of the r^2 sub-triangles of the facet.
+            let mut params = vec![((ua as f64 + 1.0 / 3.0) / r as f64, (ub as f64 + 1.0 / 3.0) / r as f64)];
+            if ua + ub + 1 < r {
+                params.push(((ua as f64 + 2.0 / 3.0) / r as f64, (ub as f64 + 2.0 / 3.0) / r as f64));
+            }
+            for (pa, pb) in params {
+                let p = a + v(t.e1) * pa + v(t.e2) * pb;
+                let d = match point {
+                    Some(l) => (p - l).normalize(),
+                    None => travel,
+                };
+                // The leg from the light must be clear (another object or sheet may shade the
+                // facet here).
+                let back = match point {
+                    Some(l) => (l - p).length(),
+                    None => f64::INFINITY,
+                };
+                if search.next(p, -d).is_some_and(|(_, t)| t < back) {
+                    continue;
+                }
+                search.follow(&mut chain, j as u32, p, d, false, 0.0);
+            }
+        }
+    }
+    // The last chain that listed each cell: a chain's rays overlap, and list a cell once.
+    let mut stamp = vec![u32::MAX; grid.n * grid.n * grid.n];
+    for (id, (vertices, legs)) in search.found.into_iter().enumerate() {
+        let mask_bits = vertices.iter().enumerate().fold(0u32, |m, (k, x)| m | (u32::from(x.reflect) << k));
+        let mut words = vec![vertices.len() as u32 | (mask_bits << 8)];
+        words.extend(vertices.iter().map(|x| x.facet));
+        let mut cells = Vec::new();
+        for (c, d, len, acc) in legs {
+            let len = if len > 0.0 { len } else { reach };
+            let pad = CHAIN_PAD + spread * (acc + len) / grid.cell.min_element();
+            grid.along(c, d, len, pad, &mut |idx| {
+                if stamp[idx] != id as u32 {
+                    stamp[idx] = id as u32;
+                    cells.push(idx as u32);
+                }
+            });
+        }
+        out.push((words, finish(cells)));
+    }
+    out
+}
+
+/// How many chains a cell lists on average, per light in the table (for the render's stats).
 pub fn mean_list_length(grid: &[u32], light: usize) -> f64 {
     let start = grid[8 + light] as usize;
     if start == 0 {
@@ -150,4 +417,20 @@ pub fn mean_list_length(grid: &[u32], light: usize) -> f64 {
     }
     let cells = (grid[6] as usize).pow(3);
     grid[start + cells] as f64 / cells as f64
+}
+
+/// How many chains of each length (index k - 1) the buffer's records hold, over every light.
+pub fn chain_counts(grid: &[u32]) -> Vec<u64> {
+    let first_table = (8..40).map(|k| grid[k] as usize).filter(|&s| s != 0).min().unwrap_or(grid.len());
+    let mut counts = Vec::new();
+    let mut w = HEADER;
+    while w < first_table {
+        let k = (grid[w] & 0xff) as usize;
+        if counts.len() < k {
+            counts.resize(k, 0);
+        }
+        counts[k - 1] += 1;
+        w += 1 + k;
+    }
+    counts
 }

@@ -266,18 +266,18 @@ pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
     mask
 }
 
-/// The lights outside a refractive [[object]] (point lights outside its mesh, every directional
-/// light), as a bit mask: their light reaches the medium only through the smooth dielectric
-/// boundary, along refracted paths that a straight shadow ray cannot follow and a scattered
-/// path reaches with probability 0 (a delta light behind a delta interface). Camera paths reach
-/// them by manifold next-event estimation (Hanika et al. 2015) specialised to flat facets:
-/// every facet whose plane refracts the light toward the scattering point adds its share
-/// (glsl/path/trace.comp `mnee_estimate`, the facets listed per cell by src/solvers/mnee.rs).
-/// Exact for one convex mesh, where nothing else lies between the facet and the light or the
-/// point, except for the light's beam reflected inside before it scatters (left out). Refused,
-/// naming the reason, where that does not hold: a mesh that is not convex (light also enters
-/// through other sheets of the surface, shadowed by them), several objects (light passes
-/// through one to reach another), light 32 or later (the mask's width).
+/// Which lights are delta lights (point, directional) outside every refractive object, as a
+/// bit mask: their light reaches the media only through smooth dielectric boundaries, along
+/// refracted and reflected paths that a straight shadow ray cannot follow and a scattered path
+/// reaches with probability 0 (a delta light behind a delta interface). Camera paths reach them
+/// by manifold next-event estimation (Hanika et al. 2015) specialised to flat facets: every
+/// specular chain (the facets the light refracts or reflects at, up to `path.mnee_depth`) that
+/// holds at the scattering point adds its share (glsl/path/trace.comp `mnee_estimate`, the
+/// chains listed per cell by src/solvers/mnee.rs). Any number of objects, convex or not.
+/// Refused, naming the reason: a delta light inside one of several objects (the others see it
+/// only through two refractions, and its own object's reflections are not chained), objects
+/// that refract beside index-matched ones (a leg in vacuum would cross an index-matched medium),
+/// light 32 or later (the mask's width).
 pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
     let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(0) };
     // The objects' indices for messages ("1.5", or "1.5, 1.33" for objects of several materials).
@@ -290,8 +290,9 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
         if !outside && object.parts.len() > 1 && !matches!(light, Light::Environment { .. }) {
             return Err(SolverError::Unsupported(format!(
                 "path: light {i} ({}) lies inside one of the scene's {} objects, whose boundaries refract (ior {}); the \
-                    others see it only through two refractions, which path cannot carry for a point light: light them \
-                    with an environment, or set ior = 1 on every object",
+                    others see it only through two refractions, which path's manifold next-event estimation does not \
+                    chain from a light inside an object: light them with an environment or a light outside every \
+                    object, or set ior = 1 on every object",
                 light.kind_name(),
                 object.parts.len(),
                 iors
@@ -300,18 +301,12 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
         if !outside {
             continue;
         }
-        let why = if object.parts.len() > 1 {
-            Some(format!(
-                "the scene has {} objects, and light reaching one through another (two more refractions) is beyond \
-                    path's manifold next-event estimation (one refraction)",
-                object.parts.len()
-            ))
-        } else if !object.convex {
-            Some(format!(
-                "the object's mesh ({}) is not convex, so light also enters through other sheets of its surface or is \
-                    shadowed by them, beyond path's manifold next-event estimation (one refraction, convex meshes)",
-                object.describe()
-            ))
+        let why = if object.materials.iter().any(|m| m.ior == 1.0) {
+            Some(
+                "some objects are index-matched (ior 1) beside refractive ones, and path's manifold next-event \
+                    estimation takes no medium on the legs between objects"
+                    .to_string(),
+            )
         } else if i >= 32 {
             Some("only lights 0..31 can be reached through the boundary (a 32-bit mask)".to_string())
         } else {
@@ -319,8 +314,8 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
         };
         if let Some(why) = why {
             return Err(SolverError::Unsupported(format!(
-                "path: light {i} ({}) lies outside {}, whose {} (ior {}); {why}: light the object with an \
-                    environment or a point light inside it, or set object.ior = 1",
+                "path: light {i} ({}) lies outside {}, whose {} (ior {}); {why}: light the objects with an \
+                    environment or a point light inside one object, or give every object an ior other than 1",
                 light.kind_name(),
                 if object.parts.len() == 1 { "the object" } else { "the objects" },
                 if object.parts.len() == 1 { "boundary refracts" } else { "boundaries refract" },
@@ -332,12 +327,24 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
     Ok(mask)
 }
 
-/// The facet lists of manifold NEE for the lights in `mnee` (a header alone when none).
-fn mnee_grid(scene: &Scene, mnee: u32, cells: u32) -> Vec<u32> {
-    match &scene.object {
-        Some(o) if mnee != 0 => super::mnee::facet_grid(scene, &o.bvh.triangles, mnee, cells),
-        _ => super::mnee::facet_grid(scene, &[], 0, cells),
-    }
+/// The chain lists of manifold NEE for the lights in `mnee` (a header alone when none).
+fn mnee_grid(scene: &Scene, mnee: u32, opts: super::mnee::ChainOptions) -> Vec<u32> {
+    let bvh = scene.object.as_ref().filter(|_| mnee != 0).map(|o| o.bvh.as_ref());
+    super::mnee::facet_grid(scene, bvh, mnee, opts)
+}
+
+/// The `path.mnee_*` knobs, `mnee_depth=auto` resolved for the scene.
+fn chain_options(k: &Knobs, scene: &Scene) -> Result<super::mnee::ChainOptions, SolverError> {
+    let raw: String = k.get("mnee_depth")?;
+    let depth = if raw == "auto" {
+        match &scene.object {
+            Some(o) if o.parts.len() == 1 && o.convex => 2,
+            _ => 3,
+        }
+    } else {
+        raw.parse::<u32>().map_err(|e| k.invalid("mnee_depth", e.to_string()))?
+    };
+    Ok(super::mnee::ChainOptions { cells: k.get("mnee_cells")?, depth, rays: k.get("mnee_rays")? })
 }
 
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
@@ -436,9 +443,11 @@ pub struct PathStats {
     /// Lights outside a refractive object, reached by manifold next-event estimation through
     /// the facets of its mesh (indices into the scene's lights).
     pub manifold_nee: Vec<usize>,
-    /// For each of those lights, how many facets a cell of its facet grid lists on average
-    /// (what a next-event estimate tries; the mesh's whole count with `path.mnee_cells=1`).
+    /// For each of those lights, how many chains a cell of its grid lists on average (what a
+    /// next-event estimate tries; every chain with `path.mnee_cells=1`).
     pub manifold_nee_facets_per_cell: Vec<f64>,
+    /// How many specular chains of 1, 2, ... facets the lights' grids hold in all.
+    pub manifold_nee_chains: Vec<u64>,
     /// Camera paths, when any light was left to them.
     pub camera: Option<CameraStats>,
     /// Light paths, when any light was traced from the light side.
@@ -561,9 +570,25 @@ impl Solver for Path {
                 "mnee_cells",
                 "32",
                 Range::int(1, 64),
-                "cells per axis of the grid that lists, for a light outside a refractive object, the facets whose \
-                    refracted beam may reach each cell (manifold next-event estimation tries only those); 1 tries every \
-                    facet",
+                "cells per axis of the grid that lists, for a light outside the refractive objects, the specular \
+                    chains (facets it refracts or reflects at) that may reach each cell (manifold next-event estimation \
+                    tries only those); 1 tries every chain",
+            ),
+            Knob::fixed(
+                "mnee_depth",
+                "auto",
+                Range::IntOr { min: 1, max: super::mnee::MAX_DEPTH as u64, word: "auto" },
+                "facets per specular chain at most, for a light outside the refractive objects: 1 single \
+                    refractions; 2 adds the light reflected once inside before it scatters; 3 light that crosses a \
+                    whole object or sheet on its way in (or reflects twice); auto: 2 for one convex object (on a glass \
+                    sphere 3 adds 0.05% of the image at 4x the time), 3 for several objects or one that is not convex",
+            ),
+            Knob::fixed(
+                "mnee_rays",
+                "12",
+                Range::int(1, 64),
+                "rays per facet edge (rays^2 per facet) traced from the light to find the chains longer than one \
+                    facet; a chain whose beam is narrower than their spacing can be missed",
             ),
             Knob::fixed(
                 "light_tracing",
@@ -609,7 +634,7 @@ impl Solver for Path {
         let light_batches: u32 = k.get("light_batches")?;
         let majorant_cell: u32 = k.get("majorant_cell")?;
         let schedule: Schedule = k.get("schedule")?;
-        let mnee_cells: u32 = k.get("mnee_cells")?;
+        let chain_opts = chain_options(&k, scene)?;
         k.finish()?;
         if scene.lights.len() >= MAX_LIGHTS {
             return Err(SolverError::Unsupported(format!(
@@ -635,7 +660,7 @@ impl Solver for Path {
         let mnee = refractive_lights(scene)?;
         // Equiangular sampling connects straight to the light: none through the boundary.
         let equiangular = equiangular & !mnee;
-        let mnee_grid = mnee_grid(scene, mnee, mnee_cells);
+        let mnee_grid = mnee_grid(scene, mnee, chain_opts);
         let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
         let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
         // Camera paths are needed for every light not traced from the light side.
@@ -732,6 +757,7 @@ impl Solver for Path {
                 .map(|&i| super::mnee::mean_list_length(&mnee_grid, i))
                 .collect(),
             manifold_nee: mnee_lights,
+            manifold_nee_chains: super::mnee::chain_counts(&mnee_grid),
             camera: camera.as_ref().map(|c| c.1.clone()),
             light_paths: light.as_ref().map(|l| l.1.clone()),
             samples_per_second: per_second(samples),
@@ -752,7 +778,8 @@ impl Solver for Path {
         let mode: String = knobs.get("light_tracing")?;
         let (traced, _) = light_traced(scene, &mode, knobs.get("collision_cap")?)?;
         let stats = resumable::STATS_WORDS * 4;
-        let grid = mnee_grid(scene, refractive_lights(scene).unwrap_or(0), knobs.get("mnee_cells")?).len() as u64 * 4;
+        let grid =
+            mnee_grid(scene, refractive_lights(scene).unwrap_or(0), chain_options(knobs, scene)?).len() as u64 * 4;
         let camera = if traced.len() < scene.lights.len() || traced.is_empty() {
             pixels * (32 + STATE_BYTES_PER_PIXEL) + stats + grid
         } else {
