@@ -683,3 +683,174 @@ fn light_through_one_glass_object_into_another_matches_the_closed_form() {
     assert!(dark < 1e-3 * m * single.image.data.len() as f64, "light through A's shadow: {dark}");
     assert_clean(&gpu);
 }
+
+#[test]
+fn light_inside_a_glass_slab_reflected_at_its_faces_matches_the_mirror_images() {
+    // A point light inside a thin glass slab: besides its straight light, each face reflects
+    // its beam back inside (Fresnel F at the inside angle, 1 beyond the critical angle, 42
+    // degrees in glass): a flat mirror keeps the spherical wave, so the reflected light at x is
+    // the light's mirror image's, F / r^2 over the unfolded path. Single scattering seen straight
+    // down against that quadrature (the camera ray's own reflections summed as in the slab closed
+    // form), with one reflection per chain (the default) and without (`path.mnee_reflections=0`,
+    // what path had before: the straight light alone).
+    let gpu = gpu();
+    let dir = tempfile::tempdir().unwrap();
+    let (n, h, sigma_t, albedo, g) = (1.5f64, 0.5f64, 2.0f64, 0.8f64, 0.3f64);
+    let obj = write_box(dir.path(), Vec3::new(-6.0, -6.0, -h as f32), Vec3::new(6.0, 6.0, 0.0));
+    let light = DVec3::new(1.2, 0.3, -0.25);
+    let (size, extent) = (6u32, 1.2f64);
+    let text = format!(
+        "[render]\nwidth = {size}\nheight = {size}\nseed = 5\nspp = 256\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nextent = {extent}\n\
+         [[object]]\nmesh = \"{}\"\nior = {n}\n[object.medium]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = {g}\n\
+         [[light]]\nkind = \"point\"\nposition = [{}, {}, {}]\nintensity = 1.0\n",
+        obj.display(),
+        light.x,
+        light.y,
+        light.z
+    );
+    let s = scene(&text);
+    let r_c = fresnel_dielectric(1.0, 1.0 / n);
+    // The light's images: itself, mirrored in the top face (z = 0) and in the bottom (z = -h).
+    let images = [light, DVec3::new(light.x, light.y, -light.z), DVec3::new(light.x, light.y, -2.0 * h - light.z)];
+    let radiance = |reflections: usize| {
+        move |px: f64, py: f64| {
+            let x0 = (px / size as f64 - 0.5) * extent;
+            let y0 = (0.5 - py / size as f64) * extent;
+            let steps = 2000;
+            let dt = h / steps as f64;
+            let mut sum = 0.0;
+            for k in 0..steps {
+                let t = (k as f64 + 0.5) * dt;
+                let x = DVec3::new(x0, y0, -t);
+                for m in 0..4 {
+                    let (d_m, out) =
+                        if m % 2 == 0 { (m as f64 * h + t, DVec3::Z) } else { ((m + 1) as f64 * h - t, -DVec3::Z) };
+                    for (b, image) in images.iter().enumerate().take(1 + reflections) {
+                        let to = *image - x;
+                        let r = to.length();
+                        let wi = to / r;
+                        let f = if b == 0 { 1.0 } else { fresnel_dielectric(wi.z.abs(), n) };
+                        sum += r_c.powi(m) * sigma_t * albedo * hg(g, -wi.dot(out)) * f * (-sigma_t * (r + d_m)).exp()
+                            / (r * r)
+                            * dt;
+                    }
+                }
+            }
+            sum * (1.0 - r_c) / (n * n)
+        }
+    };
+    for reflections in [1usize, 0] {
+        let r = reflections.to_string();
+        let out = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("path.mnee_reflections", &r)]);
+        let worst = assert_pixels_match(&out, size, &radiance(reflections * 2), 3e-3);
+        eprintln!("light inside a slab, {reflections} reflection(s): worst pixel {worst:.2}");
+    }
+    let mean = |b: usize| {
+        let f = radiance(b);
+        (0..size * size).map(|i| f((i % size) as f64 + 0.5, (i / size) as f64 + 0.5)).sum::<f64>()
+    };
+    let share = mean(2) / mean(0) - 1.0;
+    eprintln!("the reflected beams: {:.1}% of the image", 100.0 * share);
+    assert!(share > 0.05, "the test's slab reflects too little to tell: {share}");
+    assert_clean(&gpu);
+}
+
+#[test]
+fn light_inside_one_glass_slab_lights_another_through_two_refractions() {
+    // A point light inside an absorbing glass slab A lights a scattering glass slab B below it
+    // across a vacuum gap: out of A's bottom face and into B's top (two refractions), also after
+    // a reflection at A's top face (its mirror image) or at B's bottom face (the depth
+    // unfolded). The reference follows the axially symmetric ray tube: a ray leaving the light
+    // at angle theta inside glass lands at lateral distance rho(theta) at depth t in B, and
+    // carries E = I T sin(theta) / (rho rho'(theta) cos(theta)) (rho' by central difference),
+    // T the Fresnel and medium factors. The camera looks up at B from below; its ray's
+    // reflections at B's faces (and off A's bottom, across the gap) are summed as in the slab
+    // closed form. The straight shadow ray is blocked (it crosses two refractive faces).
+    let gpu = gpu();
+    let dir = tempfile::tempdir().unwrap();
+    let n = 1.5f64;
+    let (h_b, sigma_b, albedo, g) = (0.5f64, 2.0f64, 0.8f64, 0.3f64);
+    let (a_lo, a_hi, sigma_a) = (0.6f64, 1.6f64, 0.5f64);
+    let a = write_box_named(dir.path(), "a.obj", Vec3::new(-6.0, -6.0, a_lo as f32), Vec3::new(6.0, 6.0, a_hi as f32));
+    let b = write_box_named(dir.path(), "b.obj", Vec3::new(-6.0, -6.0, -h_b as f32), Vec3::new(6.0, 6.0, 0.0));
+    let light = DVec3::new(0.9, 0.2, 0.8);
+    let (size, extent) = (6u32, 1.2f64);
+    let text = format!(
+        "[render]\nwidth = {size}\nheight = {size}\nseed = 8\nspp = 256\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, -3.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nextent = {extent}\n\
+         [[object]]\nmesh = \"{}\"\nior = {n}\n[object.medium]\nsigma_t = {sigma_a}\nalbedo = 0.0\n\
+         [[object]]\nmesh = \"{}\"\nior = {n}\n[object.medium]\nsigma_t = {sigma_b}\nalbedo = {albedo}\ng = {g}\n\
+         [[light]]\nkind = \"point\"\nposition = [{}, {}, {}]\nintensity = 1.0\n",
+        a.display(),
+        b.display(),
+        light.x,
+        light.y,
+        light.z
+    );
+    let out = render(&gpu, &scene(&text), PATH, &[("path.max_depth", "1")]);
+    let r_c = fresnel_dielectric(1.0, 1.0 / n);
+    let gap = a_lo;
+    // The light's beams: (its height above A's bottom, unfolded; Fresnel reflection factor
+    // index: 0 none, 1 at A's top, 2 at B's bottom).
+    let beams = [(light.z - a_lo, 0usize), (2.0 * a_hi - light.z - a_lo, 1), (light.z - a_lo, 2)];
+    // The camera's top reflectance: inside B's top face, or through it off A's bottom.
+    let r_top = r_c + (1.0 - r_c).powi(2) * r_c;
+    // Where the camera ray at (x0, y0) sees the light, summed over depth and camera legs.
+    let radiance = |px: f64, py: f64| {
+        // The camera looks up (+z) with up = +y: x runs the other way in the image.
+        let x0 = -(px / size as f64 - 0.5) * extent;
+        let y0 = (0.5 - py / size as f64) * extent;
+        let lateral = DVec3::new(x0 - light.x, y0 - light.y, 0.0);
+        let rho_x = lateral.length();
+        let side = lateral / rho_x;
+        let steps = 1000;
+        let dt = h_b / steps as f64;
+        let mut sum = 0.0;
+        for k in 0..steps {
+            let t = (k as f64 + 0.5) * dt;
+            for &(above, kind) in &beams {
+                let depth = if kind == 2 { 2.0 * h_b - t } else { t };
+                let rho = |theta: f64| {
+                    let s0 = n * theta.sin();
+                    above * theta.tan() + gap * s0 / (1.0 - s0 * s0).sqrt() + depth * theta.tan()
+                };
+                // rho is increasing on [0, asin(1 / n)): bisection for rho = rho_x.
+                let (mut lo, mut hi) = (0.0f64, (1.0 / n).asin() * (1.0 - 1e-12));
+                for _ in 0..100 {
+                    let mid = 0.5 * (lo + hi);
+                    if rho(mid) < rho_x {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                let theta = 0.5 * (lo + hi);
+                let e = 1e-6 * theta;
+                let drho = (rho(theta + e) - rho(theta - e)) / (2.0 * e);
+                let (c1, c0) = (theta.cos(), (1.0 - (n * theta.sin()).powi(2)).sqrt());
+                let fresnel = (1.0 - fresnel_dielectric(c1, n)) * (1.0 - fresnel_dielectric(c0, 1.0 / n));
+                let reflect = if kind == 0 { 1.0 } else { fresnel_dielectric(c1, n) };
+                let media = (-sigma_a * above / c1).exp() * (-sigma_b * depth / c1).exp();
+                let irradiance = fresnel * reflect * media * theta.sin() / (rho_x * drho * c1);
+                // The light's direction of travel at the point: down, or up after B's bottom.
+                let travel = side * theta.sin() + DVec3::Z * if kind == 2 { c1 } else { -c1 };
+                for m in 0..4 {
+                    // Leg m of the camera ray in B (entering at the bottom, going up first).
+                    let s = h_b - t;
+                    let (d_m, out, f) = match m {
+                        0 => (s, -DVec3::Z, 1.0),
+                        1 => (h_b + t, DVec3::Z, r_top),
+                        2 => (2.0 * h_b + s, -DVec3::Z, r_top * r_c),
+                        _ => (3.0 * h_b + t, DVec3::Z, r_top * r_top * r_c),
+                    };
+                    sum += f * sigma_b * albedo * hg(g, travel.dot(out)) * irradiance * (-sigma_b * d_m).exp() * dt;
+                }
+            }
+        }
+        sum * (1.0 - r_c) / (n * n)
+    };
+    let worst = assert_pixels_match(&out, size, &radiance, 3e-3);
+    eprintln!("light inside A lighting B: worst pixel {worst:.2}");
+    assert_clean(&gpu);
+}

@@ -71,7 +71,9 @@ fn single_with_refraction_agrees_with_path_single_scattering_across_the_range() 
     for (medium, name, dirs) in cases {
         let text = object_scene(&format!("mesh = \"{}\"\nior = 1.5", mesh("icosphere.obj")), medium, ENV, 16, 256);
         let s = scene(&text);
-        let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1")]);
+        // Single scattering without the light's beams reflected at the surface before they
+        // scatter (single has none; tests/mnee_tests.rs measures them).
+        let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
         // Steps of 0.05 (72 across the sphere's box; the default is 128): CI time. The thick
         // case's steps are integrated exactly (the step fit), the others are thin per step.
         let sets = [("single.supersample", "2"), ("single.env_dirs", dirs), ("single.step", "0.05")];
@@ -111,7 +113,9 @@ fn single_with_a_light_inside_a_refractive_object_agrees_with_path() {
             1024,
         );
         let s = scene(&text);
-        let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1")]);
+        // Single scattering without the light's beams reflected at the surface before they
+        // scatter (single has none; tests/mnee_tests.rs measures them).
+        let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
         let on = render(&gpu, &s, SINGLE, SS);
         let off = render(&gpu, &s, SINGLE, &[SS[0], ("single.refraction", "false")]);
         let (rel_on, e_on) = judge(&on.image, &reference);
@@ -163,7 +167,9 @@ fn single_at_ior_1_matches_the_index_matched_path() {
         1024,
     );
     let s = scene(&text);
-    let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1")]);
+    // Single scattering without the light's beams reflected at the surface before they
+    // scatter (single has none; tests/mnee_tests.rs measures them).
+    let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
     let out = render(&gpu, &s, SINGLE, SS);
     let (rel, e) = judge(&out.image, &reference);
     eprintln!("index-matched torus: relL2 {rel:.4}, energy {e:.4}");

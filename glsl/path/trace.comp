@@ -103,11 +103,12 @@ layout(push_constant) uniform Push {
     uint mnee;            // bit i: light i is outside the refractive mesh: reached by manifold NEE
 } pc;
 
-// Whether light i (point or directional, outside the refractive mesh) reaches scattering points
-// inside through its surface only: manifold next-event estimation through every facet that
-// refracts it (mnee_estimate). The host sets it only for one convex mesh, where nothing else
-// lies between a facet and the light or the scattering point.
+// Whether light i (point or directional, outside every refractive object) reaches scattering
+// points inside through their surfaces only: manifold next-event estimation through every
+// specular chain that holds (mnee_estimate; the chains listed by src/solvers/mnee.rs).
 bool mnee_light(uint i) { return REFRACTIVE && i < 32u && ((pc.mnee >> i) & 1u) != 0u; }
+// Whether chain light i lies inside an object: its own medium also sees it straight.
+bool mnee_light_inside(uint i) { return i < 32u && (mnee_cells[40u + i] & 1u) != 0u; }
 
 // Whether camera paths estimate light i (a light-traced light is left wholly to path/light,
 // a partition of the image's paths by light, so the two kernels' sums add without MIS).
@@ -308,8 +309,8 @@ uint ch_inside = 0u;             // bit l: leg l lies inside an object (else in 
 // differential propagated exactly through flat interfaces), and the product of the Fresnel
 // factors (1 - F at a refraction, F at a reflection). False where a refraction meets total
 // internal reflection or a plane lies behind the ray.
-bool chain_trace(uint c, vec2 ab, vec3 light, bool point, out vec3 q, out vec3 w, out vec3 qa, out vec3 qb,
-                 out vec3 wa, out vec3 wb, out float fres) {
+bool chain_trace(uint c, vec2 ab, vec3 light, bool point, bool light_in, out vec3 q, out vec3 w, out vec3 qa,
+                 out vec3 qb, out vec3 wa, out vec3 wb, out float fres) {
     uint head = mnee_cells[c];
     uint k = min(head & 0xffu, CHAIN_MAX), rmask = head >> 8u;
     uint f0 = mnee_cells[c + 1u];
@@ -329,8 +330,10 @@ bool chain_trace(uint c, vec2 ab, vec3 light, bool point, out vec3 q, out vec3 w
         wb = vec3(0.0);
     }
     fres = 1.0;
-    bool in_obj = false;
-    ch_inside = 0u;
+    // A light inside an object: the first leg lies in the first facet's object.
+    bool in_obj = light_in;
+    ch_inside = light_in ? 1u : 0u;
+    ch_mat[0] = triangle_material(f0);
     for (uint v = 0u; v < k; v++) {
         iters++;   // every loop's back-edges count (budget.glsl)
         uint f = mnee_cells[c + 1u + v];
@@ -400,12 +403,36 @@ bool leg_clear(vec3 a, vec3 b) {
 // perpendicular to the last leg (least squares through the ray tube). One solution per chain
 // at most: on flat interfaces the optical path length is a convex function of the vertices
 // (Fermat), so its stationary point is unique.
-bool chain_at(uint c, vec3 x, vec3 light, bool point, bool check, out float E) {
+bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check, out float E) {
     E = 0.0;
     uint head = mnee_cells[c];
     uint k = head & 0xffu;
     if (k == 0u || k > CHAIN_MAX) return false;
-    if (k == 1u) {
+    if (k == 1u && light_in) {
+        // A point light reflected once inside its object: the straight line from its mirror
+        // image in the facet's plane (a flat mirror keeps the spherical wave: E = F / r^2).
+        if ((head >> 8u) == 0u || !point) return false;
+        uint f = mnee_cells[c + 1u];
+        uint mat = triangle_material(f);
+        if (mat != path_mat) return false;
+        vec3 n = triangle_normal(f);
+        vec3 v0 = tris[f].v0.xyz;
+        float hl = dot(light - v0, n), hx = dot(x - v0, n);
+        if (!(hl < 0.0 && hx < 0.0)) return false;
+        vec3 image = light - 2.0 * hl * n;
+        vec3 to = image - x;
+        float r2 = dot(to, to);
+        // Where x's line to the image crosses the plane.
+        vec3 q = x + to * (hx / (hx - (-hl)));
+        if (!point_in_triangle(f, q)) return false;
+        float cos_i = abs(dot(to, n)) / sqrt(r2);
+        float cos_t;
+        E = fresnel_dielectric(cos_i, scene.materials[mat].ior.x, cos_t) / r2;
+        ch_p[0] = q;
+        ch_inside = 3u;
+        ch_mat[0] = mat;
+        ch_mat[1] = mat;
+    } else if (k == 1u) {
         uint f = mnee_cells[c + 1u];
         uint mat = triangle_material(f);
         if (mat != path_mat) return false;
@@ -415,14 +442,74 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool check, out float E) {
         ch_inside = 2u;
         ch_mat[1] = mat;
     } else {
+        // The start: where the straight line from the light to x (a directional light's line
+        // through x) meets the first facet's plane, clamped onto the facet; its centroid where
+        // the line runs along the plane. (From the centroid of a facet many times larger than
+        // the light's distance, the first ray can meet total internal reflection.)
         vec2 ab = vec2(1.0 / 3.0);
+        {
+            uint f0 = mnee_cells[c + 1u];
+            vec3 v0 = tris[f0].v0.xyz, e1 = tris[f0].e1.xyz, e2 = tris[f0].e2.xyz;
+            vec3 n0 = cross(e1, e2);
+            vec3 o0 = point ? light : x;
+            vec3 d0 = point ? x - light : light;
+            float den = dot(d0, n0);
+            if (abs(den) > 1e-12 * length(d0) * length(n0)) {
+                vec3 w0 = o0 + d0 * (dot(v0 - o0, n0) / den) - v0;
+                float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
+                float det0 = d11 * d22 - d12 * d12;
+                if (det0 > 0.0) {
+                    vec2 b = vec2(d22 * dot(w0, e1) - d12 * dot(w0, e2), d11 * dot(w0, e2) - d12 * dot(w0, e1)) / det0;
+                    b = max(b, vec2(0.0));
+                    if (b.x + b.y > 1.0) b /= b.x + b.y;
+                    ab = b;
+                }
+            }
+        }
         vec3 q, w, qa, qb, wa, wb;
         float fres;
         bool done = false;
-        float tol = 2e-6 * max(1.0, max3(abs(x)));
-        for (uint it = 0u; it < 20u; it++) {
+        // Converged when x lies within float rounding of the ray: relative to the coordinates'
+        // magnitude and to the first facet's (its point is v0 + a e1 + b e2, rounded at that
+        // scale: on a facet 17 units long, 1e-5 and more).
+        float tol;
+        {
+            uint f0 = mnee_cells[c + 1u];
+            tol = 4e-6 * (1.0 + max3(abs(x)) + max3(abs(tris[f0].v0.xyz)) + length(tris[f0].e1.xyz) + length(tris[f0].e2.xyz));
+        }
+        // Where that start's ray meets total internal reflection (x seen beyond the critical
+        // angle of a light inside), the foot of a point light on the facet's plane: its ray
+        // crosses the first plane along the normal, and most chains through it.
+        if (!chain_trace(c, ab, light, point, light_in, q, w, qa, qb, wa, wb, fres) && point) {
             iters++;
-            if (!chain_trace(c, ab, light, point, q, w, qa, qb, wa, wb, fres)) return false;
+            uint f0 = mnee_cells[c + 1u];
+            vec3 v0 = tris[f0].v0.xyz, e1 = tris[f0].e1.xyz, e2 = tris[f0].e2.xyz;
+            vec3 n0 = normalize(cross(e1, e2));
+            vec3 w0 = light - n0 * dot(light - v0, n0) - v0;
+            float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
+            float det0 = d11 * d22 - d12 * d12;
+            vec2 b = vec2(d22 * dot(w0, e1) - d12 * dot(w0, e2), d11 * dot(w0, e2) - d12 * dot(w0, e1)) / det0;
+            b = max(b, vec2(0.0));
+            if (b.x + b.y > 1.0) b /= b.x + b.y;
+            ab = b;
+        }
+        // The last coordinates whose ray went through the whole chain: a step into total
+        // internal reflection is halved back toward them (near the critical angle the map from
+        // the coordinates to the last leg stretches without bound, and full steps overshoot).
+        vec2 ab_good = ab;
+        bool good = false;
+        uint back = 0u;
+        for (uint it = 0u; it < 40u; it++) {
+            iters++;
+            if (!chain_trace(c, ab, light, point, light_in, q, w, qa, qb, wa, wb, fres)) {
+                if (!good || back >= 12u) return false;
+                ab = 0.5 * (ab + ab_good);
+                back++;
+                continue;
+            }
+            good = true;
+            ab_good = ab;
+            back = 0u;
             vec3 r = x - q;
             float s = dot(r, w);
             vec3 perp = r - s * w;
@@ -476,8 +563,10 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool check, out float E) {
     }
     if (!(E > 0.0) || isinf(E)) return false;
     if (check) {
-        // Legs in vacuum: the light's (leg 0) and any between objects or sheets.
-        if (point) {
+        // Legs in vacuum: the light's (leg 0, from a light outside) and any between objects or
+        // sheets. Legs inside are tracked, and a surface across one blocks it (tracking.glsl).
+        if (light_in) {
+        } else if (point) {
             if (!leg_clear(light, ch_p[0])) return false;
         } else {
             float t;
@@ -508,6 +597,7 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool check, out float E) {
 bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, inout uvec2 rng) {
     bool point = uint(li.pos_kind.w) == LIGHT_POINT;
     bool check = (mnee_cells[7] & 1u) != 0u;
+    bool light_in = mnee_light_inside(ev_light);
     uint begin, end;
     mnee_range(ev_light, p, begin, end);
     if (ev_sub == 0u) {
@@ -521,7 +611,7 @@ bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, i
             for (; ev_surf_tri < end; ev_surf_tri++) {
                 if (iters >= iter_limit) return false;
                 iters += CHAIN_TRY_ITERS;
-                if (chain_at(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, check, E)) {
+                if (chain_at(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, light_in, check, E)) {
                     found = true;
                     break;
                 }
@@ -532,29 +622,35 @@ bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, i
         } else {
             // Resuming a paused leg: the same chain gives the same vertices and irradiance (its
             // vacuum legs were found clear before).
-            chain_at(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, false, E);
+            chain_at(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, light_in, false, E);
         }
         uint k = mnee_cells[mnee_cells[ev_surf_tri]] & 0xffu;
-        for (; ev_sub > 3u; ev_sub--) {
+        // Legs k down to 0 (leg 0 lies inside only from a light inside an object).
+        for (; ev_sub >= 3u; ev_sub--) {
             iters++;
             uint l = ev_sub - 3u;
-            if ((ch_inside & (1u << l)) == 0u) continue;
-            // Tracked from the leg's far end (x, or just inside vertex l) back to vertex l - 1.
-            vec3 a = ch_p[l - 1u];
-            vec3 b = l == k ? p : ch_p[l];
-            vec3 to = a - b;
-            float len = length(to);
-            if (!(len > 0.0)) continue;
-            vec3 wi = to / len;
-            float e = l == k ? 0.0 : surface_eps(b);
-            uint saved = path_mat;
-            path_mat = ch_mat[l];
-            track_start(b + wi * e, wi, len * (1.0 - 1e-4) - 2.0 * e, true);
-            bool ok = transmittance_run(rng);
-            path_mat = saved;
-            if (!ok) return false;
-            ev_v *= trk.T;
-            if (max3(ev_v) <= 0.0) break;
+            if ((ch_inside & (1u << l)) != 0u) {
+                // Tracked from the leg's far end (x, or just inside vertex l) back to vertex
+                // l - 1 (or the light).
+                vec3 a = l == 0u ? li.pos_kind.xyz : ch_p[l - 1u];
+                vec3 b = l == k ? p : ch_p[l];
+                vec3 to = a - b;
+                float len = length(to);
+                if (len > 0.0) {
+                    vec3 wi = to / len;
+                    float e = l == k ? 0.0 : surface_eps(b);
+                    float ea = l == 0u ? 0.0 : e;
+                    uint saved = path_mat;
+                    path_mat = ch_mat[l];
+                    track_start(b + wi * e, wi, len * (1.0 - 1e-4) - e - ea, true);
+                    bool ok = transmittance_run(rng);
+                    path_mat = saved;
+                    if (!ok) return false;
+                    ev_v *= trk.T;
+                    if (max3(ev_v) <= 0.0) break;
+                }
+            }
+            if (l == 0u) break;
         }
         if (max3(ev_v) > 0.0 && E > 0.0) {
             vec3 wi = normalize(ch_p[k - 1u] - p);
@@ -655,26 +751,35 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         }
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
-        if (mnee_light(i) && kind != LIGHT_ENVIRONMENT) {
+        // A light inside an object with a refractive boundary: the straight shadow ray (ev_sub
+        // 0-1), then its chains (mnee_estimate from ev_sub 0 again, on at 2 and up).
+        bool chains = mnee_light(i) && kind != LIGHT_ENVIRONMENT;
+        if (chains && !mnee_light_inside(i)) {
             if (kind == LIGHT_POINT && !camera_side(i)) continue;
             if (!mnee_estimate(li, p, d, g, beta, L, rng)) return EVENT_PAUSED;
         } else if (kind == LIGHT_POINT) {
             if (!camera_side(i)) continue;
-            vec3 to = li.pos_kind.xyz - p;
-            float dist2 = dot(to, to);
-            if (dist2 <= 0.0) continue;
-            float dist = sqrt(dist2);
-            vec3 wi = to / dist;
-            // The distance-sampling share of the MIS with equiangular sampling (w_d = 1 - w_eq
-            // for the same ray and t; 1 when equiangular sampling is off).
-            float w = 1.0;
-            if (ev_eq_on && eq_light(i)) w = 1.0 - eq_weight(eq_setup(o, d, seg.x, seg.y, li.pos_kind.xyz), o, d, seg.x, t_hit);
-            if (w <= 0.0) continue;
-            ev_sub = 1u;
-            track_start(p, wi, dist, true);
-            if (!transmittance_run(rng)) return EVENT_PAUSED;
-            vec3 T = trk.T;
-            L += beta * T * phase_eval(g, dot(d, wi)) * li.value.rgb / dist2 * w;
+            if (ev_sub <= 1u) {
+                vec3 to = li.pos_kind.xyz - p;
+                float dist2 = dot(to, to);
+                float dist = sqrt(dist2);
+                vec3 wi = to / dist;
+                // The distance-sampling share of the MIS with equiangular sampling (w_d = 1 - w_eq
+                // for the same ray and t; 1 when equiangular sampling is off).
+                float w = 1.0;
+                if (dist2 > 0.0 && ev_eq_on && eq_light(i))
+                    w = 1.0 - eq_weight(eq_setup(o, d, seg.x, seg.y, li.pos_kind.xyz), o, d, seg.x, t_hit);
+                if (dist2 > 0.0 && w > 0.0) {
+                    ev_sub = 1u;
+                    track_start(p, wi, dist, true);
+                    if (!transmittance_run(rng)) return EVENT_PAUSED;
+                    vec3 T = trk.T;
+                    L += beta * T * phase_eval(g, dot(d, wi)) * li.value.rgb / dist2 * w;
+                }
+                if (!chains) continue;
+                ev_sub = 0u;
+            }
+            if (!mnee_estimate(li, p, d, g, beta, L, rng)) return EVENT_PAUSED;
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
             ev_sub = 1u;

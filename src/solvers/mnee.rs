@@ -19,14 +19,14 @@
 //! **Longer chains** (up to `path.mnee_depth` facets): the light reflected inside an object
 //! before it reaches the point (Fresnel F, and 1 under total internal reflection), light that
 //! crosses one object or one sheet of a non-convex mesh on its way into another, and any mix.
-//! They are found by tracing the light's rays: `path.mnee_rays`^2 rays per facet that faces the
-//! light (spread evenly over the facet), each followed exactly through every refraction and
+//! They are found by tracing the light's rays: at least `path.mnee_rays`^2 per facet that faces
+//! the light (spread evenly over it; more on a facet many cells long, so that neighbouring rays
+//! leave it at most half a cell apart), each followed exactly through every refraction and
 //! reflection it meets (both branches) up to the depth; every sequence of facets that ends
 //! inside an object is a chain, and the cells along the last leg of each of its rays, widened
-//! by [`CHAIN_PAD`] cells, list it. Found by sampling, so a chain whose rays leave a facet
-//! through a sliver narrower than the rays' spacing (a 1/`mnee_rays` of its edges) can be
-//! missed: docs/scene-format.md gives the measured effect of the density.
-//!
+//! by [`CHAIN_PAD`] cells and by how far a point light's rays part on the way, list it. Found
+//! by sampling, so a chain whose beam leaves its first facet through a sliver narrower than
+//! the rays' spacing can be missed.
 //! The GPU solves each listed chain for the point (a Newton iteration on the first facet's
 //! barycentric coordinates; at most one solution per chain of planes, Fermat's principle
 //! being convex there), checks that every vertex lies in its facet and that no surface blocks a
@@ -39,7 +39,9 @@
 //! Buffer layout (u32 words): [0..3) bounds min, [3..6) bounds max (f32 bits), [6] cells per
 //! axis n (`path.mnee_cells`; 1 lists every chain in one cell, the full scan), [7] flags (bit
 //! 0: a leg in vacuum may be blocked, so the GPU tests it: several objects or a mesh that is not
-//! convex), [8..40) per light index the word where its table starts (0: no table). Then the
+//! convex), [8..40) per light index the word where its table starts (0: no table), [40..72) per light
+//! flags (bit 0: the light lies inside an object: its chains start inside, and the straight
+//! shadow ray is estimated too). Then the
 //! chain records: word 0 the chain's length k | its reflection mask << 8 (bit v: the light
 //! reflects at vertex v, else it refracts), then its k facet indices (BVH leaf order,
 //! `Bvh::triangles`) from the light's side. Then each table: n^3 + 1 prefix offsets (relative to
@@ -62,6 +64,8 @@ pub const CELLS: u32 = 32;
 pub const DEPTH: u32 = 3;
 /// The most `path.mnee_depth` may be (the GPU's state holds a leg index below 12).
 pub const MAX_DEPTH: u32 = 8;
+/// Reflections per chain at most, by default (`path.mnee_reflections`).
+pub const REFLECTIONS: u32 = 1;
 /// Rays per facet edge by default (`path.mnee_rays`): rays^2 rays per facet.
 pub const RAYS: u32 = 12;
 /// The widening of a point light's single-refraction beam boxes, in cells.
@@ -73,9 +77,9 @@ pub const POINT_PAD: f64 = 0.25;
 /// grows with that.
 pub const CHAIN_PAD: f64 = 0.3;
 /// Rays per facet edge at most (a facet many cells long).
-pub const MAX_RAYS: usize = 256;
+pub const MAX_RAYS: usize = 512;
 /// Words before the first chain record.
-const HEADER: usize = 40;
+const HEADER: usize = 72;
 
 fn v(a: [f32; 4]) -> DVec3 {
     DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64)
@@ -90,11 +94,13 @@ pub struct ChainOptions {
     pub depth: u32,
     /// Rays per facet edge of the search for longer chains.
     pub rays: u32,
+    /// Reflections per chain at most.
+    pub reflections: u32,
 }
 
 impl Default for ChainOptions {
     fn default() -> Self {
-        ChainOptions { cells: CELLS, depth: DEPTH, rays: RAYS }
+        ChainOptions { cells: CELLS, depth: DEPTH, rays: RAYS, reflections: REFLECTIONS }
     }
 }
 
@@ -153,6 +159,10 @@ struct Search<'a> {
     bvh: &'a Bvh,
     iors: &'a [f64],
     depth: usize,
+    /// The fewest facets a chain has that is listed here (single refractions are listed apart).
+    min_len: usize,
+    /// Reflections per chain at most.
+    reflections: usize,
     /// The chains found, in order of discovery, each with the last legs of the rays that follow
     /// it: start, unit direction, length, and the path length from the first facet to the start.
     found: Vec<(Vec<Vertex>, Vec<(DVec3, DVec3, f64, f64)>)>,
@@ -186,13 +196,17 @@ impl Search<'_> {
         let eta = if entering { 1.0 / ior } else { ior };
         let refracted = refract(d, nf, eta);
         let reflected = (d - 2.0 * d.dot(nf) * nf).normalize();
+        let reflected_so_far = chain.iter().filter(|x| x.reflect).count();
         for (dir, reflect) in [(refracted, false), (Some(reflected), true)] {
             let Some(dir) = dir else { continue };
+            if reflect && reflected_so_far >= self.reflections {
+                continue;
+            }
             // A refraction crosses to the other side; a reflection stays.
             let now_inside = if reflect { inside } else { !inside };
             chain.push(Vertex { facet: f, reflect });
             let hit = self.next(p, dir);
-            if now_inside && chain.len() >= 2 {
+            if now_inside && chain.len() >= self.min_len {
                 // The leg up to the next surface is where this chain can light a point.
                 let len = hit.map_or(0.0, |h| h.1);
                 let k = match self.index.get(chain.as_slice()) {
@@ -215,9 +229,9 @@ impl Search<'_> {
     }
 }
 
-/// The chain tables for the lights in `mask` (bit i: light i, outside every object), over the
-/// medium's bounds.
-pub fn facet_grid(scene: &Scene, bvh: Option<&Bvh>, mask: u32, opts: ChainOptions) -> Vec<u32> {
+/// The chain tables for the lights in `mask` (bit i: light i; set in `inside` where the light
+/// lies inside an object, else it is outside every object), over the medium's bounds.
+pub fn facet_grid(scene: &Scene, bvh: Option<&Bvh>, mask: u32, inside: u32, opts: ChainOptions) -> Vec<u32> {
     let mut out = vec![0u32; HEADER];
     let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
     for (k, x) in lo.to_array().iter().chain(hi.to_array().iter()).enumerate() {
@@ -249,9 +263,24 @@ pub fn facet_grid(scene: &Scene, bvh: Option<&Bvh>, mask: u32, opts: ChainOption
         };
         // Each facet's chains (its single refraction first) with the cells that list them, found
         // in parallel and laid out in facet order: the same buffer on any number of threads.
+        let light_inside = inside & (1 << i) != 0;
+        out[40 + i] = u32::from(light_inside);
+        // The material of the object holding a light inside (the first surface any ray from it
+        // meets is its own object's: the meshes are disjoint and none lies inside another).
+        let own = match point {
+            Some(l) if light_inside => bvh
+                .intersect(l.as_vec3(), glam::Vec3::new(0.5773, 0.5774, 0.5773503), 0.0, f32::INFINITY)
+                .map(|h| bvh.tag(h.triangle)),
+            _ => None,
+        };
         let per_facet: Vec<Vec<(Vec<u32>, Vec<u32>)>> = (0..tris.len())
             .into_par_iter()
-            .map(|j| facet_chains(bvh, &iors, &grid, j, point, travel, opts, reach, step))
+            .map(|j| {
+                if own.is_some_and(|m| bvh.tag(j as u32) != m) {
+                    return Vec::new();
+                }
+                facet_chains(bvh, &iors, &grid, j, point, travel, light_inside, opts, reach, step)
+            })
             .collect();
         let mut lists: Vec<Vec<u32>> = vec![Vec::new(); n * n * n];
         for chains in per_facet {
@@ -291,6 +320,7 @@ fn facet_chains(
     j: usize,
     point: Option<DVec3>,
     travel: DVec3,
+    light_inside: bool,
     opts: ChainOptions,
     reach: f64,
     step: f64,
@@ -299,8 +329,10 @@ fn facet_chains(
     let a = v(t.v0);
     let corners = [a, a + v(t.e1), a + v(t.e2)];
     let normal = v(t.e1).cross(v(t.e2)).normalize_or_zero();
+    // The light on the facet's outer side, or on its inner side for a light inside an object
+    // (whether it is this facet's object, the rays' clear first legs decide).
     let lit = match point {
-        Some(p) => (p - a).dot(normal) > 0.0,
+        Some(p) => ((p - a).dot(normal) > 0.0) != light_inside,
         None => travel.dot(normal) < 0.0,
     };
     if !lit {
@@ -313,6 +345,46 @@ fn facet_chains(
     };
     let mut out = Vec::new();
     let ior = iors[(bvh.tag(j as u32) as usize).min(iors.len() - 1)];
+    // From a light inside, the light reflected once at facet j: the cone from the light's mirror
+    // image through the facet (a flat mirror keeps rays straight), marked by its corner rays as
+    // a single refraction is, then the longer chains the rays find.
+    if light_inside {
+        if let (Some(l), true) = (point, opts.reflections >= 1) {
+            let image = l - 2.0 * (l - a).dot(normal) * normal;
+            let rays = corners.map(|c| (c, (c - image).normalize()));
+            let mut cells = Vec::new();
+            let mut s = 0.0;
+            while s <= reach {
+                let (mut blo, mut bhi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+                for (c, d) in rays {
+                    for ds in [s, s + step] {
+                        blo = blo.min(c + d * ds);
+                        bhi = bhi.max(c + d * ds);
+                    }
+                }
+                grid.each(blo - grid.cell * 1e-3, bhi + grid.cell * 1e-3, |idx| cells.push(idx as u32));
+                s += step;
+            }
+            out.push((vec![1 | (1 << 8), j as u32], finish(cells)));
+        }
+        if opts.depth >= 2 {
+            trace_chains(
+                bvh,
+                iors,
+                grid,
+                j,
+                point,
+                travel,
+                true,
+                opts.depth,
+                opts.rays,
+                opts.reflections,
+                reach,
+                &mut out,
+            );
+        }
+        return out;
+    }
     // The single refraction through facet j.
     let pad = if point.is_some() { POINT_PAD } else { 1e-3 };
     let mut cells = Vec::new();
@@ -343,24 +415,68 @@ fn facet_chains(
         cells.extend(0..(grid.n * grid.n * grid.n) as u32);
     }
     out.push((vec![1, j as u32], finish(cells)));
-    if opts.depth < 2 {
-        return out;
+    if opts.depth >= 2 {
+        trace_chains(
+            bvh,
+            iors,
+            grid,
+            j,
+            point,
+            travel,
+            false,
+            opts.depth,
+            opts.rays,
+            opts.reflections,
+            reach,
+            &mut out,
+        );
     }
+    out
+}
+
+/// Appends to `out` the chains of up to `depth` facets that rays from the light through facet
+/// `j` follow (`light_inside`: they start inside the facet's object), with their cells.
+#[allow(clippy::too_many_arguments)]
+fn trace_chains(
+    bvh: &Bvh,
+    iors: &[f64],
+    grid: &Cells,
+    j: usize,
+    point: Option<DVec3>,
+    travel: DVec3,
+    light_inside: bool,
+    depth: u32,
+    rays: u32,
+    reflections: u32,
+    reach: f64,
+    out: &mut Vec<(Vec<u32>, Vec<u32>)>,
+) {
+    let t = &bvh.triangles[j];
+    let a = v(t.v0);
     // Longer chains: rays over the facet, followed through both events at every surface.
-    let mut search = Search { bvh, iors, depth: opts.depth as usize, found: Vec::new(), index: HashMap::new() };
+    let mut search = Search {
+        bvh,
+        iors,
+        depth: depth as usize,
+        min_len: 2,
+        reflections: reflections as usize,
+        found: Vec::new(),
+        index: HashMap::new(),
+    };
     // At least `rays` per edge, and enough that neighbouring rays leave the facet less than
     // half a cell apart (a box's facets are many cells long).
     let edge = [v(t.e1).length(), v(t.e2).length(), (v(t.e2) - v(t.e1)).length()].into_iter().fold(0.0, f64::max);
-    let r = (opts.rays.max(1) as usize).max((2.0 * edge / grid.cell.min_element()).ceil() as usize).min(MAX_RAYS);
+    let r = (rays.max(1) as usize).max((2.0 * edge / grid.cell.min_element()).ceil() as usize).min(MAX_RAYS);
     let spacing = edge / r as f64;
     // How fast neighbouring rays part (radians): a point light's rays diverge by their spacing
     // over their distance from it; refraction and reflection at flat facets change the angle by
     // a bounded factor, allowed for twice over.
     let spread = match point {
-        Some(l) => 2.0 * spacing / (a - l).length().max(1e-6),
+        // The facet's nearest point to the light is no nearer than its plane.
+        Some(l) => 2.0 * spacing / (a - l).dot(v(t.e1).cross(v(t.e2)).normalize_or_zero()).abs().max(1e-6),
         None => 0.0,
     };
-    let mut chain = Vec::with_capacity(opts.depth as usize);
+    let mut chain = Vec::with_capacity(depth as usize);
     for ua in 0..r {
         for ub in 0..r - ua {
             // The centroids of the r^2 sub-triangles of the facet.
@@ -383,7 +499,7 @@ fn facet_chains(
                 if search.next(p, -d).is_some_and(|(_, t)| t < back) {
                     continue;
                 }
-                search.follow(&mut chain, j as u32, p, d, false, 0.0);
+                search.follow(&mut chain, j as u32, p, d, light_inside, 0.0);
             }
         }
     }
@@ -404,9 +520,9 @@ fn facet_chains(
                 }
             });
         }
-        out.push((words, finish(cells)));
+        cells.sort_unstable();
+        out.push((words, cells));
     }
-    out
 }
 
 /// How many chains a cell lists on average, per light in the table (for the render's stats).

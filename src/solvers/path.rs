@@ -266,41 +266,30 @@ pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
     mask
 }
 
-/// Which lights are delta lights (point, directional) outside every refractive object, as a
-/// bit mask: their light reaches the media only through smooth dielectric boundaries, along
-/// refracted and reflected paths that a straight shadow ray cannot follow and a scattered path
-/// reaches with probability 0 (a delta light behind a delta interface). Camera paths reach them
-/// by manifold next-event estimation (Hanika et al. 2015) specialised to flat facets: every
-/// specular chain (the facets the light refracts or reflects at, up to `path.mnee_depth`) that
-/// holds at the scattering point adds its share (glsl/path/trace.comp `mnee_estimate`, the
-/// chains listed per cell by src/solvers/mnee.rs). Any number of objects, convex or not.
-/// Refused, naming the reason: a delta light inside one of several objects (the others see it
-/// only through two refractions, and its own object's reflections are not chained), objects
-/// that refract beside index-matched ones (a leg in vacuum would cross an index-matched medium),
-/// light 32 or later (the mask's width).
-pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
-    let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok(0) };
+/// Which delta lights (point, directional) path reaches through specular chains, as bit masks
+/// (chains, and of those the lights inside an object): with a refractive object, every point
+/// or directional light. One outside every object reaches the media only through their smooth
+/// dielectric boundaries, along refracted and reflected paths that a straight shadow ray
+/// cannot follow and a scattered path reaches with probability 0 (a delta light behind a delta
+/// interface); one inside an object reaches its own medium straight too, and by chains the
+/// light it reflects at the boundary and the light it sends into other objects or back into
+/// another sheet of its own. Camera paths reach the chains by manifold next-event estimation
+/// (Hanika et al. 2015) specialised to flat facets: every specular chain (the facets the light
+/// refracts or reflects at, up to `path.mnee_depth`) that holds at the scattering point adds its
+/// share (glsl/path/trace.comp `mnee_estimate`, the chains listed per cell by
+/// src/solvers/mnee.rs). Refused, naming the reason: objects that refract beside index-matched
+/// ones (a leg in vacuum would cross an index-matched medium, and a straight shadow ray a
+/// refractive one), light 32 or later (the masks' width).
+pub fn refractive_lights(scene: &Scene) -> Result<(u32, u32), SolverError> {
+    let Some(object) = scene.object.as_ref().filter(|o| o.refractive()) else { return Ok((0, 0)) };
     // The objects' indices for messages ("1.5", or "1.5, 1.33" for objects of several materials).
     let iors = object.materials.iter().map(|m| m.ior.to_string()).collect::<Vec<_>>().join(", ");
-    let mut mask = 0u32;
+    let (mut mask, mut inside) = (0u32, 0u32);
     for (i, light) in scene.lights.iter().enumerate() {
-        let outside = object.light_outside(light);
-        // A point light inside one of several meshes is outside the others, whose media it
-        // reaches only through two refracting surfaces.
-        if !outside && object.parts.len() > 1 && !matches!(light, Light::Environment { .. }) {
-            return Err(SolverError::Unsupported(format!(
-                "path: light {i} ({}) lies inside one of the scene's {} objects, whose boundaries refract (ior {}); the \
-                    others see it only through two refractions, which path's manifold next-event estimation does not \
-                    chain from a light inside an object: light them with an environment or a light outside every \
-                    object, or set ior = 1 on every object",
-                light.kind_name(),
-                object.parts.len(),
-                iors
-            )));
-        }
-        if !outside {
+        if matches!(light, Light::Environment { .. }) {
             continue;
         }
+        let outside = object.light_outside(light);
         let why = if object.materials.iter().any(|m| m.ior == 1.0) {
             Some(
                 "some objects are index-matched (ior 1) beside refractive ones, and path's manifold next-event \
@@ -314,23 +303,28 @@ pub fn refractive_lights(scene: &Scene) -> Result<u32, SolverError> {
         };
         if let Some(why) = why {
             return Err(SolverError::Unsupported(format!(
-                "path: light {i} ({}) lies outside {}, whose {} (ior {}); {why}: light the objects with an \
-                    environment or a point light inside one object, or give every object an ior other than 1",
+                "path: light {i} ({}) lies {} {}, whose {} (ior {}); {why}: light the objects with an \
+                    environment, or give every object an ior other than 1",
                 light.kind_name(),
+                if outside { "outside" } else { "inside one of" },
                 if object.parts.len() == 1 { "the object" } else { "the objects" },
                 if object.parts.len() == 1 { "boundary refracts" } else { "boundaries refract" },
                 iors
             )));
         }
         mask |= 1 << i;
+        if !outside {
+            inside |= 1 << i;
+        }
     }
-    Ok(mask)
+    Ok((mask, inside))
 }
 
-/// The chain lists of manifold NEE for the lights in `mnee` (a header alone when none).
-fn mnee_grid(scene: &Scene, mnee: u32, opts: super::mnee::ChainOptions) -> Vec<u32> {
+/// The chain lists of manifold NEE for the lights in `mnee` (`inside`: those inside an object;
+/// a header alone when none).
+fn mnee_grid(scene: &Scene, (mnee, inside): (u32, u32), opts: super::mnee::ChainOptions) -> Vec<u32> {
     let bvh = scene.object.as_ref().filter(|_| mnee != 0).map(|o| o.bvh.as_ref());
-    super::mnee::facet_grid(scene, bvh, mnee, opts)
+    super::mnee::facet_grid(scene, bvh, mnee, inside, opts)
 }
 
 /// The `path.mnee_*` knobs, `mnee_depth=auto` resolved for the scene.
@@ -344,7 +338,12 @@ fn chain_options(k: &Knobs, scene: &Scene) -> Result<super::mnee::ChainOptions, 
     } else {
         raw.parse::<u32>().map_err(|e| k.invalid("mnee_depth", e.to_string()))?
     };
-    Ok(super::mnee::ChainOptions { cells: k.get("mnee_cells")?, depth, rays: k.get("mnee_rays")? })
+    Ok(super::mnee::ChainOptions {
+        cells: k.get("mnee_cells")?,
+        depth,
+        rays: k.get("mnee_rays")?,
+        reflections: k.get("mnee_reflections")?,
+    })
 }
 
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
@@ -584,6 +583,16 @@ impl Solver for Path {
                     sphere 3 adds 0.05% of the image at 4x the time), 3 for several objects or one that is not convex",
             ),
             Knob::fixed(
+                "mnee_reflections",
+                "1",
+                Range::int(0, super::mnee::MAX_DEPTH as u64),
+                "reflections per specular chain at most: 1 (default) takes the light's beam reflected once at a \
+                    boundary (Fresnel F: 4% at normal incidence in glass, up to 1 under total internal reflection) \
+                    and leaves out beams reflected twice or more (F^2 and less, except where total internal \
+                    reflection traps them); each one more multiplies the chains (on a glass sphere with a light \
+                    inside, 2 makes 16x the list, 160 MB)",
+            ),
+            Knob::fixed(
                 "mnee_rays",
                 "12",
                 Range::int(1, 64),
@@ -657,10 +666,10 @@ impl Solver for Path {
                 )));
             }
         }
-        let mnee = refractive_lights(scene)?;
+        let (mnee, mnee_inside) = refractive_lights(scene)?;
         // Equiangular sampling connects straight to the light: none through the boundary.
-        let equiangular = equiangular & !mnee;
-        let mnee_grid = mnee_grid(scene, mnee, chain_opts);
+        let equiangular = equiangular & !(mnee & !mnee_inside);
+        let mnee_grid = mnee_grid(scene, (mnee, mnee_inside), chain_opts);
         let (traced, lt_notes) = light_traced(scene, &lt_mode, collision_cap)?;
         let light_mask = traced.iter().fold(0u32, |m, &i| m | (1 << i));
         // Camera paths are needed for every light not traced from the light side.
@@ -779,7 +788,7 @@ impl Solver for Path {
         let (traced, _) = light_traced(scene, &mode, knobs.get("collision_cap")?)?;
         let stats = resumable::STATS_WORDS * 4;
         let grid =
-            mnee_grid(scene, refractive_lights(scene).unwrap_or(0), chain_options(knobs, scene)?).len() as u64 * 4;
+            mnee_grid(scene, refractive_lights(scene).unwrap_or((0, 0)), chain_options(knobs, scene)?).len() as u64 * 4;
         let camera = if traced.len() < scene.lights.len() || traced.is_empty() {
             pixels * (32 + STATE_BYTES_PER_PIXEL) + stats + grid
         } else {
