@@ -130,6 +130,27 @@ impl Cells {
         }
     }
 
+    /// The cells a beam spanned by three rays (corner, unit direction) overlaps over [0,
+    /// reach], in steps `step`: the box of the corners at both ends of each step (the beam between
+    /// two cross-sections lies in their hull when its rays are straight lines), widened by `pad`
+    /// cells. Unsorted, with repeats.
+    fn beam(&self, rays: [(DVec3, DVec3); 3], reach: f64, step: f64, pad: f64) -> Vec<u32> {
+        let mut cells = Vec::new();
+        let mut s = 0.0;
+        while s <= reach {
+            let (mut blo, mut bhi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+            for (c, d) in rays {
+                for ds in [s, s + step] {
+                    blo = blo.min(c + d * ds);
+                    bhi = bhi.max(c + d * ds);
+                }
+            }
+            self.each(blo - self.cell * pad, bhi + self.cell * pad, |idx| cells.push(idx as u32));
+            s += step;
+        }
+        cells
+    }
+
     /// The cells along the segment c + d s, s in [0, len] (a ray's leg), in steps of half a
     /// cell, each step's box widened by `pad` cells.
     fn along(&self, c: DVec3, d: DVec3, len: f64, pad: f64, f: &mut impl FnMut(usize)) {
@@ -345,91 +366,37 @@ fn facet_chains(
     };
     let mut out = Vec::new();
     let ior = iors[(bvh.tag(j as u32) as usize).min(iors.len() - 1)];
-    // From a light inside, the light reflected once at facet j: the cone from the light's mirror
-    // image through the facet (a flat mirror keeps rays straight), marked by its corner rays as
-    // a single refraction is, then the longer chains the rays find.
     if light_inside {
+        // From a light inside, the light reflected once at facet j: the cone from the light's
+        // mirror image through the facet (a flat mirror keeps rays straight), marked by its
+        // corner rays as a single refraction is; the longer chains the rays find follow.
         if let (Some(l), true) = (point, opts.reflections >= 1) {
             let image = l - 2.0 * (l - a).dot(normal) * normal;
-            let rays = corners.map(|c| (c, (c - image).normalize()));
-            let mut cells = Vec::new();
-            let mut s = 0.0;
-            while s <= reach {
-                let (mut blo, mut bhi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-                for (c, d) in rays {
-                    for ds in [s, s + step] {
-                        blo = blo.min(c + d * ds);
-                        bhi = bhi.max(c + d * ds);
-                    }
-                }
-                grid.each(blo - grid.cell * 1e-3, bhi + grid.cell * 1e-3, |idx| cells.push(idx as u32));
-                s += step;
-            }
+            let cells = grid.beam(corners.map(|c| (c, (c - image).normalize())), reach, step, 1e-3);
             out.push((vec![1 | (1 << 8), j as u32], finish(cells)));
         }
-        if opts.depth >= 2 {
-            trace_chains(
-                bvh,
-                iors,
-                grid,
-                j,
-                point,
-                travel,
-                true,
-                opts.depth,
-                opts.rays,
-                opts.reflections,
-                reach,
-                &mut out,
-            );
-        }
-        return out;
-    }
-    // The single refraction through facet j.
-    let pad = if point.is_some() { POINT_PAD } else { 1e-3 };
-    let mut cells = Vec::new();
-    let dirs = corners.map(|c| {
-        let d = match point {
-            Some(p) => (c - p).normalize(),
-            None => travel,
-        };
-        refract(d, normal, 1.0 / ior)
-    });
-    if let [Some(d0), Some(d1), Some(d2)] = dirs {
-        let rays = [(corners[0], d0), (corners[1], d1), (corners[2], d2)];
-        let mut s = 0.0;
-        while s <= reach {
-            let (mut blo, mut bhi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-            for (c, d) in rays {
-                for ds in [s, s + step] {
-                    blo = blo.min(c + d * ds);
-                    bhi = bhi.max(c + d * ds);
-                }
-            }
-            grid.each(blo - grid.cell * pad, bhi + grid.cell * pad, |idx| cells.push(idx as u32));
-            s += step;
-        }
     } else {
-        // Total internal reflection at a corner (an object less dense than vacuum, ior < 1):
-        // the beam's edge runs along the plane; list the facet everywhere.
-        cells.extend(0..(grid.n * grid.n * grid.n) as u32);
+        // The single refraction through facet j.
+        let pad = if point.is_some() { POINT_PAD } else { 1e-3 };
+        let dirs = corners.map(|c| {
+            let d = match point {
+                Some(p) => (c - p).normalize(),
+                None => travel,
+            };
+            refract(d, normal, 1.0 / ior)
+        });
+        let cells = if let [Some(d0), Some(d1), Some(d2)] = dirs {
+            grid.beam([(corners[0], d0), (corners[1], d1), (corners[2], d2)], reach, step, pad)
+        } else {
+            // Total internal reflection at a corner (an object less dense than vacuum, ior < 1):
+            // the beam's edge runs along the plane; list the facet everywhere.
+            (0..(grid.n * grid.n * grid.n) as u32).collect()
+        };
+        out.push((vec![1, j as u32], finish(cells)));
     }
-    out.push((vec![1, j as u32], finish(cells)));
     if opts.depth >= 2 {
-        trace_chains(
-            bvh,
-            iors,
-            grid,
-            j,
-            point,
-            travel,
-            false,
-            opts.depth,
-            opts.rays,
-            opts.reflections,
-            reach,
-            &mut out,
-        );
+        let how = (point, travel, light_inside);
+        trace_chains(bvh, iors, grid, j, how, opts, reach, &mut out);
     }
     out
 }
@@ -442,15 +409,12 @@ fn trace_chains(
     iors: &[f64],
     grid: &Cells,
     j: usize,
-    point: Option<DVec3>,
-    travel: DVec3,
-    light_inside: bool,
-    depth: u32,
-    rays: u32,
-    reflections: u32,
+    (point, travel, light_inside): (Option<DVec3>, DVec3, bool),
+    opts: ChainOptions,
     reach: f64,
     out: &mut Vec<(Vec<u32>, Vec<u32>)>,
 ) {
+    let ChainOptions { depth, rays, reflections, .. } = opts;
     let t = &bvh.triangles[j];
     let a = v(t.v0);
     // Longer chains: rays over the facet, followed through both events at every surface.
