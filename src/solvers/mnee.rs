@@ -77,7 +77,7 @@ pub const POINT_PAD: f64 = 0.25;
 /// grows with that.
 pub const CHAIN_PAD: f64 = 0.3;
 /// Rays per facet edge at most (a facet many cells long).
-pub const MAX_RAYS: usize = 512;
+pub const MAX_RAYS: usize = 256;
 /// Words before the first chain record.
 const HEADER: usize = 72;
 
@@ -152,14 +152,15 @@ impl Cells {
     }
 
     /// The cells along the segment c + d s, s in [0, len] (a ray's leg), in steps of half a
-    /// cell, each step's box widened by `pad` cells.
-    fn along(&self, c: DVec3, d: DVec3, len: f64, pad: f64, f: &mut impl FnMut(usize)) {
+    /// cell, each step's box widened by `pad` cells and `pad_world` scene units.
+    fn along(&self, c: DVec3, d: DVec3, len: f64, pad: f64, pad_world: f64, f: &mut impl FnMut(usize)) {
         let step = 0.5 * self.cell.min_element();
         let mut s = 0.0;
         loop {
             let s1 = (s + step).min(len);
             let (a, b) = (c + d * s, c + d * s1);
-            self.each(a.min(b) - self.cell * pad, a.max(b) + self.cell * pad, &mut *f);
+            let w = self.cell * pad + DVec3::splat(pad_world);
+            self.each(a.min(b) - w, a.max(b) + w, &mut *f);
             if s1 >= len {
                 break;
             }
@@ -476,8 +477,9 @@ fn trace_chains(
         let mut cells = Vec::new();
         for (c, d, len, acc) in legs {
             let len = if len > 0.0 { len } else { reach };
-            let pad = CHAIN_PAD + spread * (acc + len) / grid.cell.min_element();
-            grid.along(c, d, len, pad, &mut |idx| {
+            // The gap to the neighbouring rays, in scene units: isotropic, so not scaled by a
+            // cell's shortest side (a flat slab's cells are 24 times thinner than wide).
+            grid.along(c, d, len, CHAIN_PAD, spread * (acc + len), &mut |idx| {
                 if stamp[idx] != id as u32 {
                     stamp[idx] = id as u32;
                     cells.push(idx as u32);
