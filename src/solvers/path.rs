@@ -327,19 +327,20 @@ fn mnee_grid(scene: &Scene, (mnee, inside): (u32, u32), opts: super::mnee::Chain
     super::mnee::facet_grid(scene, bvh, mnee, inside, opts)
 }
 
-/// Below this optical thickness of one convex object (its thinnest channel's sigma_t times its
-/// bounds' shortest side), `auto` carries the light's beams reflected at its surface
-/// (`path.mnee_reflections` 1, `path.mnee_depth` 2); above it they are left out by default.
-pub const REFLECTED_BEAMS_BELOW: f32 = 8.0;
+/// Below this optical thickness of the objects (the thinnest channel's sigma_t of any of their
+/// materials times the bounds' shortest side), `auto` carries the light's beams reflected at
+/// their surfaces (`path.mnee_reflections` 1); above it they are left out by default.
+pub const REFLECTED_BEAMS_BELOW: f32 = 4.0;
 
 /// The `path.mnee_*` knobs, `auto` resolved for the scene. Several objects or a mesh that is
-/// not convex need chains of three facets (light through one object or sheet into another) and
-/// take one reflection. One convex object takes single refractions only (its image as before
-/// chains), unless it is optically thin (below [`REFLECTED_BEAMS_BELOW`]), where the beam
-/// reflected at its far face reaches much of it: measured, on a glass sphere of sigma_t 2 those
-/// beams add 0.8% (light outside) and 1.0% (inside) at 4.5x and 10-40x the time, and in a thin
-/// slab with the light inside 134% (total internal reflection); on `scenes/milk-orb.toml`
-/// (optical thickness 11) path took over 25x the time with them.
+/// not convex need chains of three facets (light through one object or sheet into another);
+/// one convex object takes single refractions only (its image as before chains). Reflected
+/// beams only where the objects are optically thin (below [`REFLECTED_BEAMS_BELOW`]), where the
+/// beam reflected at a far face reaches much of the medium. Measured on lavapipe: on a glass
+/// sphere of sigma_t 2 (optical thickness 3.2) they add 0.8% (light outside) and 1.0% (inside)
+/// at 4.5x and 10-40x the time, and in a thin slab with the light inside 134% (total internal
+/// reflection); on `scenes/wax-blob.toml` (7.2) 0.44% at 19x the time, and on
+/// `scenes/milk-orb.toml` (11) path took over 25x the time with them.
 fn chain_options(k: &Knobs, scene: &Scene) -> Result<super::mnee::ChainOptions, SolverError> {
     let several = match &scene.object {
         Some(o) => o.parts.len() > 1 || !o.convex,
@@ -351,7 +352,7 @@ fn chain_options(k: &Knobs, scene: &Scene) -> Result<super::mnee::ChainOptions, 
     });
     let raw: String = k.get("mnee_reflections")?;
     let reflections = if raw == "auto" {
-        u32::from(several || thin)
+        u32::from(thin)
     } else {
         raw.parse::<u32>().map_err(|e| k.invalid("mnee_reflections", e.to_string()))?
     };
@@ -604,7 +605,7 @@ impl Solver for Path {
                 "facets per specular chain at most, for a delta light behind refractive boundaries: 1 single \
                     refractions (and an inside light's single reflections); 2 adds the light reflected once inside \
                     before it scatters; 3 light that crosses a whole object or sheet on its way in; auto: 3 for \
-                    several objects or one that is not convex, 2 for one optically thin convex object (below 8), else \
+                    several objects or one that is not convex, 2 for one optically thin convex object (below 4), else \
                     1",
             ),
             Knob::fixed(
@@ -614,8 +615,8 @@ impl Solver for Path {
                 "reflections per specular chain at most: 1 takes the light's beam reflected once at a boundary \
                     (Fresnel F: 4% at normal incidence in glass, up to 1 under total internal reflection), 0 none; \
                     beams reflected twice or more are left out unless raised (each one more multiplies the chains); \
-                    auto: 1 for several objects, one that is not convex or one optically thin (sigma_t x its bounds' \
-                    shortest side below 8), else 0 (measured: 0.8-1.0% of a glass sphere's image at 4.5-40x the time)",
+                    auto: 1 where the objects are optically thin (sigma_t x the bounds' shortest side below 4), else 0 \
+                    (measured: 0.4-1.0% of the image at 4.5-40x the time on a glass sphere and the wax blob)",
             ),
             Knob::fixed(
                 "mnee_rays",
