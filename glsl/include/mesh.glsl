@@ -149,17 +149,31 @@ bool mesh_hit(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out vec
 // walk) is not enough; every facet is tried. The mesh is convex (the host checks), so the
 // segment from x to ps and the way from ps to the light cross nothing else.
 
-// Whether p (on the plane of triangle tri) lies in it: barycentric coordinates, edges shared
-// by two facets counted by both (a set of measure zero).
-bool point_in_triangle(uint tri, vec3 p) {
+// The barycentric coordinates (u, v) of p's projection on the plane of triangle tri: p = v0 +
+// u e1 + v e2 where p lies on it. False for a degenerate triangle.
+bool triangle_coords(uint tri, vec3 p, out vec2 uv) {
     vec3 e1 = tris[tri].e1.xyz, e2 = tris[tri].e2.xyz, w = p - tris[tri].v0.xyz;
     float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
     float w1 = dot(w, e1), w2 = dot(w, e2);
     float den = d11 * d22 - d12 * d12;
+    uv = vec2(1.0 / 3.0);
     if (!(den > 0.0)) return false;
-    float u = (d22 * w1 - d12 * w2) / den;
-    float v = (d11 * w2 - d12 * w1) / den;
-    return u >= 0.0 && v >= 0.0 && u + v <= 1.0;
+    uv = vec2((d22 * w1 - d12 * w2) / den, (d11 * w2 - d12 * w1) / den);
+    return true;
+}
+
+// Whether p (on the plane of triangle tri) lies in it: barycentric coordinates, edges shared
+// by two facets counted by both (a set of measure zero).
+bool point_in_triangle(uint tri, vec3 p) {
+    vec2 uv;
+    if (!triangle_coords(tri, p, uv)) return false;
+    return uv.x >= 0.0 && uv.y >= 0.0 && uv.x + uv.y <= 1.0;
+}
+
+// Barycentric coordinates moved onto the triangle (negative ones to 0, a sum past 1 scaled to 1).
+vec2 onto_triangle(vec2 uv) {
+    uv = max(uv, vec2(0.0));
+    return uv.x + uv.y > 1.0 ? uv / (uv.x + uv.y) : uv;
 }
 
 // Facet j's refraction point ps toward x (inside) for the light (`point`: a point light at

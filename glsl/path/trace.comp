@@ -446,25 +446,17 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check,
         // through x) meets the first facet's plane, clamped onto the facet; its centroid where
         // the line runs along the plane. (From the centroid of a facet many times larger than
         // the light's distance, the first ray can meet total internal reflection.)
+        uint f0 = mnee_cells[c + 1u];
+        vec3 v0 = tris[f0].v0.xyz, e1 = tris[f0].e1.xyz, e2 = tris[f0].e2.xyz;
         vec2 ab = vec2(1.0 / 3.0);
         {
-            uint f0 = mnee_cells[c + 1u];
-            vec3 v0 = tris[f0].v0.xyz, e1 = tris[f0].e1.xyz, e2 = tris[f0].e2.xyz;
             vec3 n0 = cross(e1, e2);
             vec3 o0 = point ? light : x;
             vec3 d0 = point ? x - light : light;
             float den = dot(d0, n0);
-            if (abs(den) > 1e-12 * length(d0) * length(n0)) {
-                vec3 w0 = o0 + d0 * (dot(v0 - o0, n0) / den) - v0;
-                float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
-                float det0 = d11 * d22 - d12 * d12;
-                if (det0 > 0.0) {
-                    vec2 b = vec2(d22 * dot(w0, e1) - d12 * dot(w0, e2), d11 * dot(w0, e2) - d12 * dot(w0, e1)) / det0;
-                    b = max(b, vec2(0.0));
-                    if (b.x + b.y > 1.0) b /= b.x + b.y;
-                    ab = b;
-                }
-            }
+            vec2 b;
+            if (abs(den) > 1e-12 * length(d0) * length(n0) && triangle_coords(f0, o0 + d0 * (dot(v0 - o0, n0) / den), b))
+                ab = onto_triangle(b);
         }
         vec3 q, w, qa, qb, wa, wb;
         float fres;
@@ -472,26 +464,17 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check,
         // Converged when x lies within float rounding of the ray: relative to the coordinates'
         // magnitude and to the first facet's (its point is v0 + a e1 + b e2, rounded at that
         // scale: on a facet 17 units long, 1e-5 and more).
-        float tol;
-        {
-            uint f0 = mnee_cells[c + 1u];
-            tol = 4e-6 * (1.0 + max3(abs(x)) + max3(abs(tris[f0].v0.xyz)) + length(tris[f0].e1.xyz) + length(tris[f0].e2.xyz));
-        }
+        float tol = 4e-6 * (1.0 + max3(abs(x)) + max3(abs(v0)) + length(e1) + length(e2));
         // Where that start's ray meets total internal reflection (x seen beyond the critical
         // angle of a light inside), the foot of a point light on the facet's plane: its ray
-        // crosses the first plane along the normal, and most chains through it.
-        if (!chain_trace(c, ab, light, point, light_in, q, w, qa, qb, wa, wb, fres) && point) {
+        // crosses the first plane along the normal, and most chains through it. A start that
+        // went through keeps its trace for the first iteration (traced).
+        bool traced = chain_trace(c, ab, light, point, light_in, q, w, qa, qb, wa, wb, fres);
+        if (!traced && point) {
             iters++;
-            uint f0 = mnee_cells[c + 1u];
-            vec3 v0 = tris[f0].v0.xyz, e1 = tris[f0].e1.xyz, e2 = tris[f0].e2.xyz;
             vec3 n0 = normalize(cross(e1, e2));
-            vec3 w0 = light - n0 * dot(light - v0, n0) - v0;
-            float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
-            float det0 = d11 * d22 - d12 * d12;
-            vec2 b = vec2(d22 * dot(w0, e1) - d12 * dot(w0, e2), d11 * dot(w0, e2) - d12 * dot(w0, e1)) / det0;
-            b = max(b, vec2(0.0));
-            if (b.x + b.y > 1.0) b /= b.x + b.y;
-            ab = b;
+            vec2 b;
+            if (triangle_coords(f0, light - n0 * dot(light - v0, n0), b)) ab = onto_triangle(b);
         }
         // The last coordinates whose ray went through the whole chain: a step into total
         // internal reflection is halved back toward them (near the critical angle the map from
@@ -501,7 +484,9 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check,
         uint back = 0u;
         for (uint it = 0u; it < 40u; it++) {
             iters++;
-            if (!chain_trace(c, ab, light, point, light_in, q, w, qa, qb, wa, wb, fres)) {
+            bool through = traced || chain_trace(c, ab, light, point, light_in, q, w, qa, qb, wa, wb, fres);
+            traced = false;
+            if (!through) {
                 if (!good || back >= 12u) return false;
                 ab = 0.5 * (ab + ab_good);
                 back++;
@@ -520,8 +505,6 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check,
                 if (!(s > 0.0)) return false;
                 // The ray tube at x (perpendicular to w) and at the light.
                 float dA = abs(dot(w, cross(ja, jb)));
-                uint f0 = mnee_cells[c + 1u];
-                vec3 e1 = tris[f0].e1.xyz, e2 = tris[f0].e2.xyz;
                 float src;
                 if (point) {
                     vec3 r0 = ch_p[0] - light;

@@ -169,6 +169,11 @@ impl Cells {
     }
 }
 
+/// The index of the object facet `f` bounds (its material's, by the BVH's tag).
+fn facet_ior(bvh: &Bvh, iors: &[f64], f: u32) -> f64 {
+    iors[(bvh.tag(f) as usize).min(iors.len() - 1)]
+}
+
 /// One event of a traced ray at a facet.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct Vertex {
@@ -198,7 +203,7 @@ impl Search<'_> {
     }
 
     fn ior(&self, f: u32) -> f64 {
-        self.iors[(self.bvh.tag(f) as usize).min(self.iors.len() - 1)]
+        facet_ior(self.bvh, self.iors, f)
     }
 
     /// The next surface along p + t d (t > a small offset): facet, distance.
@@ -366,7 +371,7 @@ fn facet_chains(
         cells
     };
     let mut out = Vec::new();
-    let ior = iors[(bvh.tag(j as u32) as usize).min(iors.len() - 1)];
+    let ior = facet_ior(bvh, iors, j as u32);
     if light_inside {
         // From a light inside, the light reflected once at facet j: the cone from the light's
         // mirror image through the facet (a flat mirror keeps rays straight), marked by its
