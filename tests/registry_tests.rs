@@ -109,6 +109,7 @@ impl Solver for Absorber {
             passes: Vec::new(),
             gpu_ms: 0.0,
             host: Default::default(),
+            pipelines: Vec::new(),
             stats: Stats::new(()),
             warnings: Vec::new(),
         };
@@ -449,4 +450,36 @@ fn memory_estimates_equal_what_renders_allocate() {
     let out = crate::common::render(&gpu, &s, crate::common::SH_SINGLE, &[("sh-single.index", "grid")]);
     assert_eq!(estimate, out.report.device_bytes, "sh-single with its grid index");
     assert_clean(&gpu);
+}
+
+/// Every `layout(constant_id = N) const T NAME` in glsl/ names the same constant as
+/// `gpu_scene::SPEC_NAMES` (the names a render's JSON gives each pipeline's features), and no
+/// id means two things.
+#[test]
+fn specialisation_constant_names_match_the_glsl() {
+    use scatterlab::solvers::gpu_scene::SPEC_NAMES;
+    let mut seen: std::collections::BTreeMap<u32, String> = Default::default();
+    let mut stack = vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("glsl")];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+                continue;
+            }
+            let text = std::fs::read_to_string(&p).unwrap();
+            for line in text.lines() {
+                let Some(rest) = line.trim().strip_prefix("layout(constant_id = ") else { continue };
+                let (id, decl) = rest.split_once(')').expect("constant_id = N)");
+                let id: u32 = id.trim().parse().expect("a numeric constant_id");
+                // `const T NAME = ...;`
+                let name = decl.split_whitespace().nth(2).expect("const T NAME").to_string();
+                if let Some(before) = seen.insert(id, name.clone()) {
+                    assert_eq!(before, name, "constant_id {id} names two constants ({})", p.display());
+                }
+            }
+        }
+    }
+    let table: std::collections::BTreeMap<u32, String> = SPEC_NAMES.iter().map(|(i, n)| (*i, n.to_string())).collect();
+    assert_eq!(seen, table, "gpu_scene::SPEC_NAMES differs from the GLSL declarations");
 }

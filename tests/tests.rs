@@ -24,6 +24,7 @@ mod output_tests;
 mod path_extremes_tests;
 mod phase_gpu;
 mod physics_tests;
+mod pipeline_cache_tests;
 mod refraction_tests;
 mod registry_tests;
 mod report_tests;

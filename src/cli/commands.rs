@@ -90,6 +90,9 @@ pub(super) fn gpu_options(a: &GpuArgs) -> GpuOptions {
     if a.queues.is_some() {
         o.queues = a.queues.clone();
     }
+    if a.no_cache {
+        o.cache_dir = None;
+    }
     o
 }
 

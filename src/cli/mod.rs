@@ -43,6 +43,11 @@ pub struct GpuArgs {
     /// one, except when shared. One line of error where the device cannot. Env SCATTERLAB_QUEUES.
     #[arg(long, global = true, value_parser = clap::builder::PossibleValuesParser::new(crate::gpu::QueueChoice::NAMES))]
     pub queues: Option<String>,
+    /// Build every pipeline afresh: neither load nor save the persistent pipeline cache
+    /// ($SCATTERLAB_CACHE_DIR, else $XDG_CACHE_HOME/scatterlab, else ~/.cache/scatterlab; one
+    /// file per device and driver). SCATTERLAB_CACHE_DIR=off does the same.
+    #[arg(long, global = true)]
+    pub no_cache: bool,
 }
 
 #[derive(Args, Debug)]

@@ -31,6 +31,10 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let gpu = open_gpu(&a)?;
     let (out, comparison) = run(&gpu, solver, &scene, &settings, &a)?;
     check_validation(&gpu)?;
+    // Saved now rather than when the device closes, so the JSON can say what the driver kept.
+    if let (Some(w), _) = gpu.save_pipeline_cache() {
+        eprintln!("warning: {w}");
+    }
     let nonfinite = out.image.nan_inf_count();
     if nonfinite > 0 {
         bail!(
@@ -314,6 +318,8 @@ fn write_outputs(
             "gpu_ms": r.gpu_ms,
             "wall_s": wall_s,
             "host": r.host,
+            "pipelines": r.pipelines,
+            "pipeline_cache": gpu.pipeline_cache_status(),
             "passes": r.passes,
             "stats": r.stats,
             "warnings": r.warnings,

@@ -32,18 +32,23 @@ pub struct GpuOptions {
     /// The queue mapping asked for (`auto`, `shared`, `same-family`, `separate-families`);
     /// `None` is `auto`. Checked when the device opens.
     pub queues: Option<String>,
+    /// Directory of the persistent pipeline cache (super::cache); `None`: in memory only
+    /// (`--no-cache`).
+    pub cache_dir: Option<std::path::PathBuf>,
 }
 
 impl Default for GpuOptions {
     /// Validation from `SCATTERLAB_VALIDATE=1`, device from `SCATTERLAB_DEVICE`, timeout from
-    /// `SCATTERLAB_GPU_TIMEOUT` (seconds, default 300), queue mapping from `SCATTERLAB_QUEUES`.
+    /// `SCATTERLAB_GPU_TIMEOUT` (seconds, default 300), queue mapping from `SCATTERLAB_QUEUES`,
+    /// pipeline cache directory from `SCATTERLAB_CACHE_DIR` or the user's cache directory.
     fn default() -> Self {
         let validate = std::env::var(ENV_VALIDATE).map(|v| v != "0" && !v.is_empty()).unwrap_or(false);
         let device = std::env::var(ENV_DEVICE).ok().filter(|s| !s.is_empty());
         let secs =
             std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
         let queues = std::env::var(ENV_QUEUES).ok().filter(|s| !s.is_empty());
-        GpuOptions { validate, device, timeout: Duration::from_secs_f64(secs), queues }
+        let cache_dir = super::cache::default_cache_dir();
+        GpuOptions { validate, device, timeout: Duration::from_secs_f64(secs), queues, cache_dir }
     }
 }
 
@@ -110,6 +115,8 @@ pub(crate) struct Shared {
     pub copy_families: Vec<u32>,
     pub validation: Arc<ValidationLog>,
     _validation_box: Option<Box<Arc<ValidationLog>>>,
+    /// The pipeline cache, loaded from disk at open and saved back at drop (super::cache).
+    pub pipeline_cache: Mutex<super::cache::DiskCache>,
 }
 
 impl Shared {
@@ -131,6 +138,13 @@ impl Shared {
 
 impl Drop for Shared {
     fn drop(&mut self) {
+        if let Ok(mut c) = self.pipeline_cache.lock() {
+            // At exit there is no caller left to hand a warning to.
+            if let Some(w) = c.save(&self.device) {
+                eprintln!("warning: {w}");
+            }
+            c.destroy(&self.device);
+        }
         unsafe {
             let _ = self.device.device_wait_idle();
             // The allocator must go before the device it allocates from.
@@ -419,6 +433,8 @@ pub struct Gpu {
     pub(crate) host: Arc<Mutex<super::host::HostTimes>>,
     /// Staging buffers kept between uploads [0] and readbacks [1] (super::memory).
     pub(crate) staging_cache: Arc<Mutex<[Option<super::memory::Staging>; 2]>>,
+    /// Pipelines built in this process, and what each render asked for (super::pipeline).
+    pub(crate) pipeline_memo: Arc<Mutex<super::pipeline::PipelineMemo>>,
     pub(crate) timeout: Duration,
 }
 
@@ -583,7 +599,22 @@ impl Gpu {
             mapping,
             device_local_bytes,
         };
+        let (disk_cache, cache_warning) = match super::cache::DiskCache::open(
+            &device,
+            opts.cache_dir.as_deref(),
+            super::cache::CacheIdentity::of(&props),
+        ) {
+            Ok(c) => c,
+            Err(e) => {
+                unsafe { device.destroy_device(None) };
+                return Err(e);
+            }
+        };
+        if let Some(w) = &cache_warning {
+            eprintln!("warning: {w}");
+        }
         let shared = Shared {
+            pipeline_cache: Mutex::new(disk_cache),
             push_descriptor: ash::khr::push_descriptor::Device::new(&instance, &device),
             calibrated: calibrated.then(|| ash::ext::calibrated_timestamps::Device::new(&instance, &device)),
             host_query_reset,
@@ -605,6 +636,7 @@ impl Gpu {
             submit: Arc::new(Mutex::new(super::submit::SubmitState::default())),
             host: Arc::new(Mutex::new(super::host::HostTimes::default())),
             staging_cache: Arc::new(Mutex::new([None, None])),
+            pipeline_memo: Arc::new(Mutex::new(Default::default())),
             timeout: opts.timeout,
         })
     }
@@ -621,6 +653,19 @@ impl Gpu {
 
     pub fn info(&self) -> &DeviceInfo {
         &self.shared.info
+    }
+
+    /// How the pipeline cache file was found, and how much the driver keeps in it.
+    pub fn pipeline_cache_status(&self) -> super::cache::PipelineCacheStatus {
+        self.shared.pipeline_cache.lock().expect("pipeline cache lock").status.clone()
+    }
+
+    /// Save the pipeline cache now (it is saved when the device closes anyway): returns the
+    /// warning where it cannot be written, and how many bytes the driver keeps in it.
+    pub fn save_pipeline_cache(&self) -> (Option<String>, u64) {
+        let mut c = self.shared.pipeline_cache.lock().expect("pipeline cache lock");
+        let w = c.save(&self.shared.device);
+        (w, c.status.saved_bytes)
     }
 
     /// Validation errors seen so far (0 when validation is off).

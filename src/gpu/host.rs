@@ -17,7 +17,10 @@ pub struct HostCost {
 
 impl HostCost {
     fn add(&mut self, bytes: u64, started: Instant) {
-        self.count += 1;
+        self.add_n(1, bytes, started);
+    }
+    fn add_n(&mut self, n: u64, bytes: u64, started: Instant) {
+        self.count += n;
         self.bytes += bytes;
         self.ms += started.elapsed().as_secs_f64() * 1e3;
     }
@@ -57,7 +60,17 @@ pub(crate) enum HostKind {
 
 impl HostTimes {
     pub(crate) fn add(&mut self, kind: HostKind, bytes: u64, started: Instant) {
-        let c = match kind {
+        self.cost(kind).add(bytes, started);
+    }
+
+    /// `n` of `kind` done together since `started` (pipelines built in parallel: their count,
+    /// and the wall time of the lot).
+    pub(crate) fn add_count(&mut self, kind: HostKind, n: u64, started: Instant) {
+        self.cost(kind).add_n(n, 0, started);
+    }
+
+    fn cost(&mut self, kind: HostKind) -> &mut HostCost {
+        match kind {
             HostKind::Pipelines => &mut self.pipelines,
             HostKind::Allocations => &mut self.allocations,
             HostKind::Fills => &mut self.fills,
@@ -65,8 +78,7 @@ impl HostTimes {
             HostKind::Readbacks => &mut self.readbacks,
             HostKind::Submits => &mut self.submits,
             HostKind::Waits => &mut self.waits,
-        };
-        c.add(bytes, started);
+        }
     }
 
     /// One line for a render's summary: the kinds that took at least a millisecond.

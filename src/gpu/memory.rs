@@ -1,6 +1,7 @@
 //! Buffers and 3D images through gpu-allocator, each with a debug name; they free themselves
 //! when the last reference (including an in-flight submission's) is dropped.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -11,6 +12,8 @@ use gpu_allocator::MemoryLocation;
 use super::context::{Gpu, Shared};
 use super::error::{GpuError, Result, VkContext};
 use super::host::HostKind;
+use super::queues::QueueRole;
+use super::submit::SyncPoint;
 
 pub(crate) struct BufferInner {
     pub shared: Arc<Shared>,
@@ -20,6 +23,11 @@ pub(crate) struct BufferInner {
     pub name: String,
     /// Shared with the transfer role's family too (`Gpu::transfer_buffer`, `Gpu::host_buffer`).
     pub transfer: bool,
+    /// Per queue role, the last timeline value of a submission that used it (0: none): a
+    /// readback or a host write waits for these only, not for every queue, so a thread reading
+    /// back its own results does not wait for another role's work (path's light paths beside
+    /// its camera paths).
+    pub last_use: [AtomicU64; 3],
 }
 
 /// Return an allocation to gpu-allocator (after its Vulkan object is destroyed). A failure
@@ -54,6 +62,18 @@ impl Buffer {
     }
     pub(crate) fn raw(&self) -> vk::Buffer {
         self.inner.raw
+    }
+    /// Record that the submission reaching `value` on `role` uses this buffer.
+    pub(crate) fn mark_use(&self, role: QueueRole, value: u64) {
+        self.inner.last_use[role.index()].fetch_max(value, Ordering::SeqCst);
+    }
+    /// The points after which no submitted work touches this buffer.
+    pub(crate) fn last_uses(&self) -> Vec<SyncPoint> {
+        QueueRole::ALL
+            .iter()
+            .map(|r| SyncPoint { role: *r, value: self.inner.last_use[r.index()].load(Ordering::SeqCst) })
+            .filter(|p| p.value > 0)
+            .collect()
     }
     /// Host pointer when the memory is host-visible and coherent (lavapipe, ReBAR), else None.
     fn mapped(&self) -> Option<*mut u8> {
@@ -256,6 +276,7 @@ impl Gpu {
                 size,
                 name: name.into(),
                 transfer,
+                last_use: Default::default(),
             }),
         })
     }
@@ -288,7 +309,7 @@ impl Gpu {
         let started = Instant::now();
         if let Some(p) = b.mapped() {
             if in_use {
-                self.wait_idle_roles()?;
+                self.wait_points(&b.last_uses())?;
             }
             unsafe { std::ptr::write_bytes(p, 0, b.size() as usize) };
             self.host_add(HostKind::Fills, b.size(), started);
@@ -317,8 +338,9 @@ impl Gpu {
         }
         let started = Instant::now();
         if let Some(p) = b.mapped() {
-            // Host writes to coherent memory are made visible by the next queue submission.
-            self.wait_idle_roles()?;
+            // Host writes to coherent memory are made visible by the next queue submission;
+            // work still using the buffer must be done first.
+            self.wait_points(&b.last_uses())?;
             unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p.add(offset as usize), bytes.len()) };
             self.host_add(HostKind::Uploads, bytes.len() as u64, started);
             return Ok(());
@@ -345,7 +367,8 @@ impl Gpu {
     pub fn read_buffer_prefix(&self, b: &Buffer, bytes: u64) -> Result<Vec<u8>> {
         let n = bytes.min(b.size());
         let started = Instant::now();
-        self.wait_idle_roles()?;
+        // Only the work that used this buffer: another role's work goes on meanwhile.
+        self.wait_points(&b.last_uses())?;
         if let Some(p) = b.mapped() {
             let mut out = vec![0u8; n as usize];
             unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };

@@ -2,6 +2,7 @@
 //! physics or solvers: it opens a device, maps queue roles, allocates buffers and 3D images,
 //! builds pipelines from reflected SPIR-V, and submits passes described as data.
 
+mod cache;
 mod context;
 mod error;
 mod host;
@@ -10,6 +11,7 @@ mod pipeline;
 mod queues;
 mod submit;
 
+pub use cache::{default_cache_dir, PipelineCacheStatus, ENV_CACHE_DIR};
 pub use context::{
     choose_device, list_devices, DeviceInfo, DeviceSummary, Gpu, GpuOptions, ENV_DEVICE, ENV_QUEUES, ENV_TIMEOUT,
     ENV_VALIDATE,
@@ -17,7 +19,7 @@ pub use context::{
 pub use error::{GpuError, Result};
 pub use host::{HostCost, HostTimes};
 pub use memory::{Buffer, Image3d, VolumeFormat};
-pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, Reflection, ShaderSource, Spec, SpecKind};
+pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, PipelineRecord, Reflection, ShaderSource, Spec, SpecKind};
 pub use queues::{
     map_roles, map_roles_as, map_roles_named, FamilyInfo, MappingKind, QueueChoice, QueueRole, QueueSlot, RoleMapping,
 };

@@ -2,10 +2,11 @@
 //! from the SPIR-V (reflection), so Rust never restates what a shader declares; what a pass
 //! binds is checked against that, binding by binding.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 
 use ash::vk;
+use serde::Serialize;
 
 use super::context::{Gpu, Shared};
 use super::error::{GpuError, Result, VkContext};
@@ -164,7 +165,8 @@ fn spec_constants(m: &rspirv_reflect::rspirv::dr::Module) -> std::result::Result
 }
 
 /// A specialization constant value (`layout(constant_id = N) const ...`), 4 bytes each.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(untagged)]
 pub enum Spec {
     Bool(bool),
     U32(u32),
@@ -226,13 +228,116 @@ impl Pipeline {
     }
 }
 
+/// A pipeline a render asked for: built (its host milliseconds) or taken from those this
+/// process built before (`reused`). `Gpu::take_pipeline_records`.
+#[derive(Clone, Debug, Serialize)]
+pub struct PipelineRecord {
+    pub shader: &'static str,
+    /// Its specialization constants, `(constant_id, value)`.
+    pub spec: Vec<(u32, Spec)>,
+    pub ms: f64,
+    pub reused: bool,
+}
+
+/// The pipelines this process built, by shader and specialization: a pipeline is built once
+/// per process (`animate`, `report`, `bench` and the tests render many times on one device),
+/// and the records of what each render asked for.
+#[derive(Default)]
+pub(crate) struct PipelineMemo {
+    built: HashMap<(&'static str, Vec<u8>), Pipeline>,
+    records: Vec<PipelineRecord>,
+}
+
+fn memo_key(kernel: &Kernel, spec: &[(u32, Spec)]) -> (&'static str, Vec<u8>) {
+    let mut bytes = Vec::with_capacity(spec.len() * 8);
+    for (id, v) in spec {
+        bytes.extend_from_slice(&id.to_le_bytes());
+        bytes.extend_from_slice(&v.bytes());
+    }
+    (kernel.shader.name, bytes)
+}
+
 impl Gpu {
     /// Build a compute pipeline of `kernel` with the given specialization constants
     /// `(constant_id, value)`: exactly the ones the kernel declares, each declared by the
     /// shader with the same type (a mismatch is an error naming the shader, never a silent
-    /// default).
+    /// default). A pipeline this process built before with the same constants is reused.
     pub fn pipeline(&self, kernel: &Kernel, spec: &[(u32, Spec)]) -> Result<Pipeline> {
+        Ok(self.pipelines(&[(kernel, spec)])?.remove(0))
+    }
+
+    /// [`Gpu::pipeline`] for several at once: those not built yet are built in parallel on
+    /// the host's threads (`vkCreateComputePipelines` is thread-safe, the pipeline cache
+    /// internally synchronised), so a render's setup waits for its slowest pipeline rather than
+    /// for their sum.
+    pub fn pipelines(&self, wanted: &[(&Kernel, &[(u32, Spec)])]) -> Result<Vec<Pipeline>> {
+        use rayon::prelude::*;
         let started = std::time::Instant::now();
+        let keys: Vec<_> = wanted.iter().map(|(k, s)| memo_key(k, s)).collect();
+        let mut found: Vec<Option<Pipeline>> = {
+            let memo = self.pipeline_memo.lock().expect("pipeline memo lock");
+            keys.iter().map(|k| memo.built.get(k).cloned()).collect()
+        };
+        // Each missing (shader, constants) once, even if asked for twice.
+        let mut missing: Vec<usize> = Vec::new();
+        for (i, f) in found.iter().enumerate() {
+            if f.is_none() && !missing.iter().any(|j| keys[*j] == keys[i]) {
+                missing.push(i);
+            }
+        }
+        let built: Vec<(usize, Result<(Pipeline, f64)>)> = missing
+            .par_iter()
+            .map(|&i| {
+                let t = std::time::Instant::now();
+                (i, self.build(wanted[i].0, wanted[i].1).map(|p| (p, t.elapsed().as_secs_f64() * 1e3)))
+            })
+            .collect();
+        let mut memo = self.pipeline_memo.lock().expect("pipeline memo lock");
+        let mut new = 0u64;
+        for (i, r) in built {
+            let (p, ms) = r?;
+            memo.records.push(PipelineRecord { shader: p.name, spec: wanted[i].1.to_vec(), ms, reused: false });
+            memo.built.insert(keys[i].clone(), p.clone());
+            found[i] = Some(p);
+            new += 1;
+        }
+        let mut out = Vec::with_capacity(wanted.len());
+        for (i, f) in found.into_iter().enumerate() {
+            let p = match f {
+                Some(p) => {
+                    if !missing.contains(&i) {
+                        memo.records.push(PipelineRecord {
+                            shader: p.name,
+                            spec: wanted[i].1.to_vec(),
+                            ms: 0.0,
+                            reused: true,
+                        });
+                    }
+                    p
+                }
+                None => memo.built.get(&keys[i]).cloned().expect("built above"),
+            };
+            out.push(p);
+        }
+        drop(memo);
+        if new > 0 {
+            self.host.lock().expect("host times lock").add_count(super::host::HostKind::Pipelines, new, started);
+        }
+        Ok(out)
+    }
+
+    /// Take the records of the pipelines asked for so far ([`PipelineRecord`]).
+    pub fn take_pipeline_records(&self) -> Vec<PipelineRecord> {
+        std::mem::take(&mut self.pipeline_memo.lock().expect("pipeline memo lock").records)
+    }
+
+    /// Forget the pipelines built so far (the next request builds again, through the pipeline
+    /// cache): `report` measures pipeline creation warm and cold with it.
+    pub fn forget_pipelines(&self) {
+        self.pipeline_memo.lock().expect("pipeline memo lock").built.clear();
+    }
+
+    fn build(&self, kernel: &Kernel, spec: &[(u32, Spec)]) -> Result<Pipeline> {
         let src = &kernel.shader;
         let reflection = reflect(src)?;
         let given: BTreeMap<u32, SpecKind> = spec.iter().map(|(id, v)| (*id, v.kind())).collect();
@@ -297,11 +402,11 @@ impl Gpu {
             .name(c"main")
             .specialization_info(&spec_info);
         let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
-        let pipeline = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
+        let cache = s.pipeline_cache.lock().expect("pipeline cache lock").cache;
+        let pipeline = unsafe { d.create_compute_pipelines(cache, &[info], None) };
         unsafe { d.destroy_shader_module(module, None) };
         let pipeline = pipeline.map_err(|(_, e)| GpuError::Vk { call: "vkCreateComputePipelines", result: e })?[0];
         s.name_object(pipeline, src.name);
-        self.host_add(super::host::HostKind::Pipelines, 0, started);
         Ok(Pipeline {
             inner: Arc::new(PipelineInner { shared: s.clone(), pipeline, layout, set_layout }),
             name: src.name,

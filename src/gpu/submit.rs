@@ -61,6 +61,11 @@ impl Resource {
             Resource::Image(i) => i.name(),
         }
     }
+    fn mark_use(&self, role: QueueRole, value: u64) {
+        if let Resource::Buffer(b) = self {
+            b.mark_use(role, value);
+        }
+    }
 }
 
 impl From<&Buffer> for Resource {
@@ -226,6 +231,11 @@ struct InFlight {
 #[derive(Default)]
 pub(crate) struct SubmitState {
     submitted: [u64; 3],
+    /// Per role, the highest value a host wait has waited for: a wait for no more returns at
+    /// once and is not counted as a round trip. Only waits raise it (not a poll of the
+    /// timeline): the count of host waits is then the code's own, the same on a CPU driver,
+    /// which finishes work while it is submitted, as on a GPU, which runs behind the host.
+    completed: [u64; 3],
     in_flight: Vec<InFlight>,
     timings: Vec<PassTiming>,
 }
@@ -553,6 +563,9 @@ impl Gpu {
             e => GpuError::Vk { call: "vkQueueSubmit2", result: e },
         })?;
         st.submitted[role.index()] = value;
+        for r in &keep {
+            r.mark_use(role, value);
+        }
         let point = SyncPoint { role, value };
         st.in_flight.push(InFlight {
             point,
@@ -568,7 +581,10 @@ impl Gpu {
         Ok(point)
     }
 
-    /// Run a one-off command buffer on the trace role and wait for it (uploads, readbacks).
+    /// Run a one-off command buffer (uploads, readbacks, fills) and wait for it. It waits on
+    /// the device for the work that last used `buffers` (images: for everything submitted), and
+    /// goes on the role that used them where that is one compute role, so a readback of one
+    /// role's results queues behind neither another role's work nor a host wait for it.
     pub(crate) fn one_shot(
         &self,
         buffers: &[Buffer],
@@ -576,11 +592,27 @@ impl Gpu {
         record: impl FnOnce(&ash::Device, vk::CommandBuffer),
     ) -> Result<()> {
         let keep: Vec<Resource> = buffers.iter().map(Resource::from).chain(images.iter().map(Resource::from)).collect();
+        let mut waits: Vec<SyncPoint> = buffers.iter().flat_map(|b| b.last_uses()).collect();
+        if !images.is_empty() {
+            waits.extend(QueueRole::ALL.iter().map(|r| self.submitted(*r)).filter(|p| p.value > 0));
+        }
+        let roles: HashSet<QueueRole> = waits.iter().map(|w| w.role).collect();
+        let role = match roles.iter().next() {
+            Some(r) if roles.len() == 1 && *r != QueueRole::Transfer => *r,
+            _ => QueueRole::Trace,
+        };
+        // One wait per role, for its highest value.
+        let mut merged: Vec<SyncPoint> = Vec::new();
+        for w in waits {
+            match merged.iter_mut().find(|m| m.role == w.role) {
+                Some(m) => m.value = m.value.max(w.value),
+                None => merged.push(w),
+            }
+        }
         let d = self.shared.device.clone();
-        let p =
-            self.record_and_submit(QueueRole::Trace, &[], vec!["transfer".into()], keep, Vec::new(), None, |cb, _| {
-                record(&d, cb)
-            })?;
+        let p = self.record_and_submit(role, &merged, vec!["transfer".into()], keep, Vec::new(), None, |cb, _| {
+            record(&d, cb)
+        })?;
         self.wait(p)
     }
 
@@ -594,44 +626,60 @@ impl Gpu {
 
     /// Block until `point` is reached, or fail after the configured timeout.
     pub fn wait(&self, point: SyncPoint) -> Result<()> {
+        self.wait_points(&[point])
+    }
+
+    /// Block until every point is reached: one host wait (counted once in the host times), none
+    /// where a wait before saw them all reached already.
+    pub fn wait_points(&self, points: &[SyncPoint]) -> Result<()> {
         let s = &self.shared;
-        let sems = [s.role(point.role).timeline];
-        let values = [point.value];
+        let pending: Vec<SyncPoint> = {
+            let st = self.submit.lock().expect("submit lock");
+            points.iter().copied().filter(|p| p.value > st.completed[p.role.index()]).collect()
+        };
+        if pending.is_empty() {
+            return Ok(());
+        }
+        let sems: Vec<vk::Semaphore> = pending.iter().map(|p| s.role(p.role).timeline).collect();
+        let values: Vec<u64> = pending.iter().map(|p| p.value).collect();
         let info = vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values);
         let started = Instant::now();
         let r = unsafe { s.device.wait_semaphores(&info, self.timeout.as_nanos().min(u64::MAX as u128) as u64) };
         self.host_add(super::host::HostKind::Waits, 0, started);
+        let names = |st: &SubmitState| st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>();
         match r {
-            Ok(()) => self.collect(),
+            Ok(()) => {
+                let mut st = self.submit.lock().expect("submit lock");
+                for p in &pending {
+                    let c = &mut st.completed[p.role.index()];
+                    *c = (*c).max(p.value);
+                }
+                drop(st);
+                self.collect()
+            }
             Err(vk::Result::TIMEOUT) => {
                 let st = self.submit.lock().expect("submit lock");
-                let passes = st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>().join(", ");
+                let first = pending[0];
                 Err(GpuError::Timeout {
-                    role: point.role.to_string(),
-                    value: point.value,
+                    role: first.role.to_string(),
+                    value: first.value,
                     seconds: started.elapsed().as_secs_f64(),
-                    passes,
+                    passes: names(&st).join(", "),
                 })
             }
             Err(vk::Result::ERROR_DEVICE_LOST) => {
                 let st = self.submit.lock().expect("submit lock");
-                Err(GpuError::DeviceLost {
-                    passes: st.in_flight.iter().flat_map(|f| f.names.iter().cloned()).collect::<Vec<_>>().join(", "),
-                })
+                Err(GpuError::DeviceLost { passes: names(&st).join(", ") })
             }
             Err(e) => Err(GpuError::Vk { call: "vkWaitSemaphores", result: e }),
         }
     }
 
-    /// Wait until everything submitted on every role has finished.
+    /// Wait until everything submitted on every role has finished (one host wait).
     pub fn wait_idle_roles(&self) -> Result<()> {
-        for role in QueueRole::ALL {
-            let p = self.submitted(role);
-            if p.value > 0 {
-                self.wait(p)?;
-            }
-        }
-        Ok(())
+        let points: Vec<SyncPoint> =
+            QueueRole::ALL.iter().map(|r| self.submitted(*r)).filter(|p| p.value > 0).collect();
+        self.wait_points(&points)
     }
 
     /// Free finished submissions and turn their timestamps into [`PassTiming`]s.

@@ -108,6 +108,32 @@ pub const MESH_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_REFRACTIVE, SpecKind::Bool),
 ];
 
+/// Every specialisation constant's name, by id, as the GLSL declares it
+/// (`layout(constant_id = N) const T NAME`): ids are unique across all shaders, so a render's
+/// JSON can name the features each pipeline was built for. `registry_tests` checks the table
+/// against every declaration in glsl/.
+pub const SPEC_NAMES: &[(u32, &str)] = &[
+    (SPEC_DENSITY_KIND, "DENSITY_KIND"),
+    (SPEC_CHROMATIC, "CHROMATIC"),
+    (SPEC_ANISOTROPIC, "ANISOTROPIC"),
+    (3, "NCH"),
+    (4, "B"),
+    (5, "WG"),
+    (6, "FIXED"),
+    (7, "LINKS"),
+    (8, "OCTAVES"),
+    (9, "STEP_FIT"),
+    (SPEC_HAS_MESH, "HAS_MESH"),
+    (SPEC_REFRACTIVE, "REFRACTIVE"),
+    (SPEC_FIELDS, "FIELDS"),
+    (13, "MATS"),
+];
+
+/// The name of specialisation constant `id` ([`SPEC_NAMES`]).
+pub fn spec_name(id: u32) -> String {
+    SPEC_NAMES.iter().find(|(i, _)| *i == id).map_or_else(|| format!("constant_{id}"), |(_, n)| n.to_string())
+}
+
 /// Bindings of the mesh's BVH nodes and triangles in kernels that include mesh.glsl.
 pub const MESH_NODES_BINDING: u32 = 6;
 pub const MESH_TRIS_BINDING: u32 = 7;

@@ -416,8 +416,32 @@ pub struct RenderReport {
     pub gpu_ms: f64,
     /// The Vulkan core's host work during the render (pipelines, allocations, copies, waits).
     pub host: crate::gpu::HostTimes,
+    /// Every pipeline the render used, with the scene features it was specialised for.
+    pub pipelines: Vec<PipelineUse>,
     pub stats: Stats,
     pub warnings: Vec<String>,
+}
+
+/// A pipeline a render used: its shader, the specialisation constants it was built with (by
+/// name: the features compiled in), the host milliseconds its build took, and whether this
+/// process had built it before (`reused`, 0 ms).
+#[derive(Clone, Debug, Serialize)]
+pub struct PipelineUse {
+    pub shader: &'static str,
+    pub spec: std::collections::BTreeMap<String, crate::gpu::Spec>,
+    pub ms: f64,
+    pub reused: bool,
+}
+
+impl PipelineUse {
+    fn of(r: crate::gpu::PipelineRecord) -> PipelineUse {
+        PipelineUse {
+            shader: r.shader,
+            spec: r.spec.iter().map(|(id, v)| (gpu_scene::spec_name(*id), *v)).collect(),
+            ms: r.ms,
+            reused: r.reused,
+        }
+    }
 }
 
 impl RenderReport {
@@ -438,6 +462,7 @@ impl RenderReport {
             device_bytes,
             gpu_ms: passes.iter().map(|p| p.duration_ms()).sum(),
             host: gpu.take_host_times(),
+            pipelines: gpu.take_pipeline_records().into_iter().map(PipelineUse::of).collect(),
             passes,
             stats,
             warnings: Vec::new(),
