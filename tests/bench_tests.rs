@@ -31,6 +31,9 @@ fn speedup_at_equal_error_on_a_constructed_curve() {
         value: "v".into(),
         gpu_ms,
         wall_ms: gpu_ms,
+        cold_gpu_ms: gpu_ms,
+        cold_wall_ms: gpu_ms,
+        warm: Default::default(),
         metrics: Metrics {
             rel_l2,
             rel_mse: 0.0,
@@ -118,6 +121,11 @@ fn bench_walks_every_ladder_and_writes_sane_outputs() {
         "value",
         "gpu_ms",
         "wall_ms",
+        "cold_gpu_ms",
+        "cold_wall_ms",
+        "warm_runs",
+        "gpu_spread",
+        "settled",
         "rel_l2",
         "rel_mse",
         "rmse",
@@ -222,6 +230,8 @@ fn bench_and_stability_commands_end_to_end() {
         out.to_str().unwrap(),
         "--cache",
         cache.to_str().unwrap(),
+        "--repeats",
+        "2",
     ];
     let (ok, stdout, stderr) = run(&args);
     assert!(ok, "bench failed: {stderr}");
@@ -229,6 +239,11 @@ fn bench_and_stability_commands_end_to_end() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
     assert_eq!(json["points"].as_array().unwrap().len(), 6);
+    // One cold render apart, then one warm (--repeats 2): both timed.
+    for p in json["points"].as_array().unwrap() {
+        assert_eq!(p["warm"]["runs"], 1, "{p}");
+        assert!(p["cold_gpu_ms"].as_f64().unwrap() > 0.0 && p["gpu_ms"].as_f64().unwrap() > 0.0, "{p}");
+    }
     assert!(json["device"]["mapping"].is_object() && json["references"][0]["cached"] == false);
     assert!(json["points"]
         .as_array()

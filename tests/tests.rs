@@ -5,6 +5,7 @@ mod animate_tests;
 mod bench_tests;
 mod cli_tests;
 mod common;
+mod device_convergence_tests;
 mod dom_streaming;
 mod dom_tests;
 mod equiangular_tests;

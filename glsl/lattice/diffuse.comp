@@ -37,6 +37,9 @@ layout(std430, binding = 4) buffer Tally { vec4 tally[]; };
 // Irradiance), so the host can take the increment over a chunk of steps for the tail
 // extrapolation (src/solvers/lattice.rs, Diffuser::iterate).
 layout(std430, binding = 5) writeonly buffer Snapshot { float snap[]; };
+// The iteration's control (lattice/check.comp): word 0 set once it has converged, after which
+// the rest of a submitted batch of steps returns at once and leaves the lattice as it stood.
+layout(std430, binding = 7) readonly buffer Control { uint ctrl_stopped; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;          // lattice voxels xyz, w = number of voxels V
@@ -80,6 +83,8 @@ float escape_probability(float tau) {
 }
 
 void main() {
+    // Uniform over the dispatch, before any barrier.
+    if (ctrl_stopped != 0u) return;
     uvec3 n = pc.dims.xyz;
     uint V = pc.dims.w;
     ivec3 local = ivec3(gl_LocalInvocationID);

@@ -18,6 +18,14 @@
 // workgroup folds them into slot pc.slot of `stats` (as uint bits: for non-negative floats the
 // order of the bits is the order of the values, and a NaN, 0x7fc00000, sorts above +inf, so a
 // non-finite value cannot hide). The host reads 8 bytes per iteration instead of all of I.
+//
+// And the iteration stops on the device: a batch of iterations is one submission, and with
+// pc.check each dispatch first judges the one before it (slot pc.slot - 1) by the tolerance:
+// converged (largest change <= tol x largest I') or faulted (a negative or non-finite value),
+// it writes its verdict to stats[0] and every later dispatch of the batch returns at once,
+// leaving I as it stood. stats[1] counts the dispatches that ran, so the host knows which of
+// the ping-pong buffers holds the result. The rule is exactly the host's
+// (src/solvers/networks.rs, `verdict`), in f32 on both sides.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -29,7 +37,9 @@ layout(std430, binding = 2) readonly buffer Direct { vec4 direct[]; };       // 
 layout(std430, binding = 3) readonly buffer Current { vec4 current[]; };     // I [p][i], rgb
 layout(std430, binding = 4) writeonly buffer Next { vec4 next[]; };          // I' [p][i]
 layout(std430, binding = 5) readonly buffer Phase { float phase[]; };        // P[d][i]
-layout(std430, binding = 6) buffer Stats { uint stats[]; };                  // [slot]: max change, max I'
+// [0] verdict that stopped the batch (0: none, 1 converged, 2 fault), [1] dispatches that ran,
+// [2 + 2 slot], [3 + 2 slot]: the slot's max change and max I'.
+layout(std430, binding = 6) buffer Stats { uint stats[]; };
 
 layout(push_constant) uniform Push {
     vec4 alpha;      // rgb opacity of a particle
@@ -39,6 +49,8 @@ layout(push_constant) uniform Push {
     uint directions;
     uint units;
     uint slot;       // where this iteration's change and peak go in `stats`
+    uint check;      // 1: first judge slot - 1 against tol, and stop where it converged or faulted
+    float tol;       // largest change per iteration, relative to the largest I'
 } pc;
 
 const uint NONE = 0xffffffffu;
@@ -64,9 +76,31 @@ vec3 step_one(uint p, uint i) {
     return (1.0 - a) * current[vp * D + i].rgb + a * pc.albedo.rgb * (lit + scattered);
 }
 
+const uint GO_ON = 0u, CONVERGED = 1u, FAULT = 2u;
+
+// The host's rule (networks.rs `verdict`): a negative or non-finite change or peak is a fault;
+// else converged where change <= tol x peak (or nothing is lit).
+uint verdict(float change, float peak) {
+    if (isnan(change) || isinf(change) || change < 0.0 || isnan(peak) || isinf(peak) || peak < 0.0) return FAULT;
+    if (peak <= 0.0) return CONVERGED;
+    return change <= pc.tol * peak ? CONVERGED : GO_ON;
+}
+
 void main() {
     uint p = gl_GlobalInvocationID.x, i = gl_GlobalInvocationID.y;
     uint l = gl_LocalInvocationIndex;
+    bool first = p == 0u && i == 0u;
+    // Every invocation reaches the same verdict from the same words: the return is uniform.
+    if (pc.check != 0u) {
+        if (stats[0] != GO_ON) return;
+        // Slot - 1 sits at 2 + 2 (slot - 1) = 2 slot.
+        uint v = verdict(uintBitsToFloat(stats[2u * pc.slot]), uintBitsToFloat(stats[2u * pc.slot + 1u]));
+        if (v != GO_ON) {
+            if (first) stats[0] = v;
+            return;
+        }
+    }
+    if (first) atomicAdd(stats[1], 1u);
     float change = 0.0, peak = 0.0;
     if (p < pc.particles && i < pc.directions) {
         uint k = p * pc.directions + i;
@@ -89,7 +123,7 @@ void main() {
         barrier();
     }
     if (l == 0u) {
-        atomicMax(stats[2u * pc.slot], floatBitsToUint(change_max[0]));
-        atomicMax(stats[2u * pc.slot + 1u], floatBitsToUint(peak_max[0]));
+        atomicMax(stats[2u * pc.slot + 2u], floatBitsToUint(change_max[0]));
+        atomicMax(stats[2u * pc.slot + 3u], floatBitsToUint(peak_max[0]));
     }
 }

@@ -32,6 +32,10 @@ layout(std430, binding = 3) readonly buffer SigmaS { float sigma_s[]; };  // [c]
 layout(std430, binding = 4) writeonly buffer Source { float source[]; };  // [c][m][voxel]
 layout(std430, binding = 5) buffer Camera { float camera[]; };            // [c][voxel], summed over bounces
 
+// dom's convergence test on the device (ordinates/converge.comp): word 0 set once the iteration
+// has converged, after which the rest of a submitted batch returns at once.
+layout(std430, binding = 6) readonly buffer Control { uint ctrl_stopped; };
+
 layout(push_constant) uniform Push {
     uvec4 dims;      // voxels xyz, w = voxel count
     uint storage;    // M
@@ -44,6 +48,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
+    if (ctrl_stopped != 0u) return;
     uint v = gl_GlobalInvocationID.x;
     uint V = pc.dims.w;
     if (v >= V) return;

@@ -35,6 +35,10 @@ layout(std430, binding = 7) buffer FaceX { float face_x[]; };
 layout(std430, binding = 8) buffer FaceY { float face_y[]; };
 layout(std430, binding = 9) buffer FaceZ { float face_z[]; };
 
+// dom's convergence test on the device (ordinates/converge.comp): word 0 set once the iteration
+// has converged, after which the rest of a submitted batch returns at once.
+layout(std430, binding = 10) readonly buffer Control { uint ctrl_stopped; };
+
 layout(push_constant) uniform Push {
     uvec4 dims;       // voxels xyz, w = voxel count
     int plane;        // the plane index w
@@ -79,6 +83,7 @@ uint voxel_index(ivec3 p) {
 }
 
 void main() {
+    if (ctrl_stopped != 0u) return;
     ivec3 n = ivec3(pc.dims.xyz);
     ivec2 ab = ivec2(gl_GlobalInvocationID.xy);
     uint o = gl_GlobalInvocationID.z;

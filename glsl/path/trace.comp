@@ -103,10 +103,18 @@ layout(push_constant) uniform Push {
     uint mnee;            // bit i: light i is outside the refractive mesh: reached by manifold NEE
 } pc;
 
+// What the scene needs, set by the host (src/solvers/path.rs, `trace_spec`): code for a feature
+// the scene lacks is not compiled in (the defaults model everything). MNEE: some light is
+// reached through specular chains; EQUIANGULAR: some point light is also sampled by
+// equiangular sampling; ENVIRONMENT: the scene has an environment light.
+layout(constant_id = 14) const bool MNEE = true;
+layout(constant_id = 15) const bool EQUIANGULAR = true;
+layout(constant_id = 16) const bool ENVIRONMENT = true;
+
 // Whether light i (point or directional, outside every refractive object) reaches scattering
 // points inside through their surfaces only: manifold next-event estimation through every
 // specular chain that holds (mnee_estimate; the chains listed by src/solvers/mnee.rs).
-bool mnee_light(uint i) { return REFRACTIVE && i < 32u && ((pc.mnee >> i) & 1u) != 0u; }
+bool mnee_light(uint i) { return MNEE && REFRACTIVE && i < 32u && ((pc.mnee >> i) & 1u) != 0u; }
 // Whether chain light i lies inside an object: its own medium also sees it straight.
 bool mnee_light_inside(uint i) { return i < 32u && (mnee_cells[40u + i] & 1u) != 0u; }
 
@@ -184,7 +192,7 @@ vec3 ev_v = vec3(0.0);       // EV_EQ: the camera-ray transmittance; EV_NEE: the
 
 // Whether point light i is also sampled by equiangular sampling (the host decides per light:
 // where its 1/r^2 varies strongly over the medium, path.equiangular).
-bool eq_light(uint i) { return i < 32u && ((pc.equiangular >> i) & 1u) != 0u; }
+bool eq_light(uint i) { return EQUIANGULAR && i < 32u && ((pc.equiangular >> i) & 1u) != 0u; }
 
 // The equiangular estimate for every point light along the ray (o, d) over [t_in, t_out],
 // added to L with throughput beta (the throughput at the ray's origin). Transmittances by
@@ -677,7 +685,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     if (ev_step == EV_START) {
         // Equiangular sampling only where a scattering vertex here would be allowed
         // (depth + 1 <= max_depth), exactly where the distance-sampled NEE below happens.
-        ev_eq_on = pc.equiangular != 0u && depth < pc.max_depth && seg.x < seg.y;
+        ev_eq_on = EQUIANGULAR && pc.equiangular != 0u && depth < pc.max_depth && seg.x < seg.y;
         ev_step = ev_eq_on && max3(beta) > 0.0 ? EV_EQ : EV_FLIGHT;
         ev_light = 0u;
         ev_sub = 0u;
@@ -707,7 +715,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         }
     }
     if (ev_step == EV_ESCAPE) {
-        if (max3(beta) > 0.0) {
+        if (ENVIRONMENT && max3(beta) > 0.0) {
             for (; ev_light < light_count; ev_light++) {
                 if (iters >= iter_limit) return EVENT_PAUSED;
                 iters++;
@@ -770,7 +778,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
             if (!transmittance_run(rng)) return EVENT_PAUSED;
             vec3 T = trk.T;
             L += beta * T * phase_eval(g, dot(d, wi)) * li.value.rgb;
-        } else {
+        } else if (ENVIRONMENT) {
             // Uniform direction: the importance sampling of a constant environment.
             if (ev_sub == 0u) ev_v = uniform_sphere(rnd2(rng));
             vec3 wi = ev_v;
@@ -851,7 +859,7 @@ void main() {
     // Only a pixel between samples can be one no ray of which meets the medium.
     bool pixel_misses = !in_flight && pixel_misses_medium(px);
     vec3 env_seen = vec3(0.0);   // what a camera ray that misses the medium sees
-    for (uint i = 0u; i < scene.image.z; i++)
+    for (uint i = 0u; ENVIRONMENT && i < scene.image.z; i++)
         if (uint(scene.lights[i].pos_kind.w) == LIGHT_ENVIRONMENT) env_seen += scene.lights[i].value.rgb;
 
     while (iters < pc.budget) {

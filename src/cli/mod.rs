@@ -122,8 +122,10 @@ pub enum Command {
         /// Samples per pixel of the `path` reference.
         #[arg(long, default_value_t = 4096)]
         ref_spp: u32,
-        /// Renders per point; times are medians.
-        #[arg(long, default_value_t = 1)]
+        /// Renders per point, at most: the first is reported apart as the cold start (pipelines
+        /// built; on a GPU, clocks still low), the rest are warm and stop once two agree within
+        /// 5%; times are the warm renders' medians, with their spread. 1: the cold render alone.
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=100))]
         repeats: u32,
         /// The cheap end of each ladder only (its three cheapest rungs).
         #[arg(long, conflicts_with = "points")]

@@ -35,6 +35,9 @@ pub struct GpuOptions {
     /// Directory of the persistent pipeline cache (super::cache); `None`: in memory only
     /// (`--no-cache`).
     pub cache_dir: Option<std::path::PathBuf>,
+    /// Open the device as if it lacked `shaderFloat64`: the solvers then test convergence on
+    /// the host, as on such devices (tests compare the two).
+    pub without_float64: bool,
 }
 
 impl Default for GpuOptions {
@@ -48,7 +51,14 @@ impl Default for GpuOptions {
             std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
         let queues = std::env::var(ENV_QUEUES).ok().filter(|s| !s.is_empty());
         let cache_dir = super::cache::default_cache_dir();
-        GpuOptions { validate, device, timeout: Duration::from_secs_f64(secs), queues, cache_dir }
+        GpuOptions {
+            validate,
+            device,
+            timeout: Duration::from_secs_f64(secs),
+            queues,
+            cache_dir,
+            without_float64: false,
+        }
     }
 }
 
@@ -79,6 +89,9 @@ pub struct DeviceInfo {
     pub max_compute_shared_memory: u32,
     pub timestamp_period_ns: f32,
     pub float_atomics: bool,
+    /// `shaderFloat64`: double precision in shaders (the lattice's convergence test on the
+    /// device needs it; without it that test runs on the host, a wait per chunk).
+    pub float64: bool,
     pub calibrated_timestamps: bool,
     pub queue_families: Vec<FamilyInfo>,
     pub mapping: RoleMapping,
@@ -509,6 +522,9 @@ impl Gpu {
             unsafe { instance.get_physical_device_features2(pd, &mut f2) };
             q12.host_query_reset == vk::TRUE
         };
+        let float64 =
+            !opts.without_float64 && unsafe { instance.get_physical_device_features(pd) }.shader_float64 == vk::TRUE;
+        let core = vk::PhysicalDeviceFeatures::default().shader_float64(float64);
         let mut f12 =
             vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true).host_query_reset(host_query_reset);
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true);
@@ -518,6 +534,7 @@ impl Gpu {
         let mut info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_infos)
             .enabled_extension_names(&ext_names)
+            .enabled_features(&core)
             .push_next(&mut f12)
             .push_next(&mut f13);
         if float_atomics {
@@ -594,6 +611,7 @@ impl Gpu {
             max_compute_shared_memory: props.limits.max_compute_shared_memory_size,
             timestamp_period_ns: props.limits.timestamp_period,
             float_atomics,
+            float64,
             calibrated_timestamps: calibrated,
             queue_families: chosen.summary.queue_families.clone(),
             mapping,

@@ -220,6 +220,17 @@ impl Gpu {
         Ok(b)
     }
 
+    /// A small storage buffer in host-visible memory, zero-filled, for what the device tells the
+    /// host once per batch (convergence records, stop flags): the host reads it through its
+    /// mapping after one wait, with no copy submitted and waited for. Keep it small: on a
+    /// discrete GPU shaders reach it across the bus.
+    pub fn feedback_buffer(&self, name: &str, size: u64) -> Result<Buffer> {
+        let b =
+            self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::STORAGE_BUFFER, MemoryLocation::GpuToCpu, false)?;
+        self.zero(&b, false)?;
+        Ok(b)
+    }
+
     /// A storage buffer holding `data`.
     pub fn buffer_with<T: bytemuck::Pod>(&self, name: &str, data: &[T]) -> Result<Buffer> {
         let bytes: &[u8] = bytemuck::cast_slice(data);

@@ -236,6 +236,9 @@ pub(crate) struct SubmitState {
     /// timeline): the count of host waits is then the code's own, the same on a CPU driver,
     /// which finishes work while it is submitted, as on a GPU, which runs behind the host.
     completed: [u64; 3],
+    /// When the first submission of passes since the last [`Gpu::take_first_submit`] was
+    /// made: a render's start-up is the time before it (pipelines, allocations, uploads).
+    first_submit: Option<Instant>,
     in_flight: Vec<InFlight>,
     timings: Vec<PassTiming>,
 }
@@ -260,6 +263,7 @@ impl Gpu {
     /// Record `passes` into one command buffer on `role`'s queue, waiting on `waits`, and
     /// signal the role's next timeline value, which is returned.
     pub fn submit(&self, role: QueueRole, passes: &[Pass], waits: &[SyncPoint]) -> Result<SyncPoint> {
+        self.submit.lock().expect("submit lock").first_submit.get_or_insert_with(Instant::now);
         for p in passes {
             p.check()?;
             if p.role != role {
@@ -629,6 +633,27 @@ impl Gpu {
         self.wait_points(&[point])
     }
 
+    /// [`Gpu::wait`] that calls `tick` every `every` while it waits (to show progress of the
+    /// work in flight: `tick` may poll [`Gpu::reached`]): one host wait, counted once.
+    pub fn wait_ticking(&self, point: SyncPoint, every: std::time::Duration, mut tick: impl FnMut()) -> Result<()> {
+        let s = &self.shared;
+        let started = Instant::now();
+        loop {
+            if self.submit.lock().expect("submit lock").completed[point.role.index()] >= point.value {
+                return Ok(());
+            }
+            let sems = [s.role(point.role).timeline];
+            let values = [point.value];
+            let info = vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values);
+            match unsafe { s.device.wait_semaphores(&info, every.as_nanos() as u64) } {
+                Err(vk::Result::TIMEOUT) if started.elapsed() < self.timeout => tick(),
+                // Reached (or failed, or past the limit): the counted wait finishes the job
+                // and reports any failure as every wait does.
+                _ => return self.wait(point),
+            }
+        }
+    }
+
     /// Block until every point is reached: one host wait (counted once in the host times), none
     /// where a wait before saw them all reached already.
     pub fn wait_points(&self, points: &[SyncPoint]) -> Result<()> {
@@ -729,6 +754,11 @@ impl Gpu {
             unsafe { d.free_command_buffers(s.role(f.point.role).pool, &[f.cb]) };
         }
         Ok(())
+    }
+
+    /// When the first submission since the last call was made (and start again).
+    pub fn take_first_submit(&self) -> Option<Instant> {
+        self.submit.lock().expect("submit lock").first_submit.take()
     }
 
     /// Take the pass timings collected so far.

@@ -17,7 +17,7 @@ use sha2::{Digest, Sha256};
 use crate::gpu::{DeviceInfo, Gpu};
 use crate::output::{self, Image, Metrics};
 use crate::scene::Scene;
-use crate::solvers::{self, Rung, Solver};
+use crate::solvers::{self, RenderOutput, Rung, Solver};
 
 use super::render_with as render;
 
@@ -88,8 +88,19 @@ pub struct Point {
     pub solver: &'static str,
     pub knob: String,
     pub value: String,
+    /// Medians of the warm renders (of the cold one where it ran alone).
     pub gpu_ms: f64,
     pub wall_ms: f64,
+    /// The first render of the point in the process, reported apart (pipelines built; on a
+    /// GPU, clocks possibly still low).
+    #[serde(default)]
+    pub cold_gpu_ms: f64,
+    #[serde(default)]
+    pub cold_wall_ms: f64,
+    /// The warm renders' GPU times: how many, their spread, whether the last two agreed
+    /// within 5%.
+    #[serde(default)]
+    pub warm: super::Spread,
     pub metrics: Metrics,
     pub iterations: Option<u64>,
     pub converged: Option<bool>,
@@ -275,16 +286,16 @@ pub fn bench_scene(
     for &solver in solvers {
         for rung in ladder(solver, scene, points_) {
             progress(&format!("{name}: {} {}={}", solver.name(), rung.knob, rung.value));
-            let mut gpu_ms = Vec::new();
-            let mut wall_ms = Vec::new();
-            let mut last = None;
-            for _ in 0..repeats.max(1) {
-                let (r, wall) = render(gpu, scene, solver, &rung.sets, false)?;
-                gpu_ms.push(r.report.gpu_ms);
-                wall_ms.push(wall);
-                last = Some(r);
-            }
-            let r = last.expect("at least one repeat");
+            // One cold render, then warm ones until two agree within 5% (at most repeats - 1).
+            let runs = super::Runs::take(
+                repeats.max(1) - 1,
+                |(r, _): &(RenderOutput, f64)| r.report.gpu_ms,
+                || render(gpu, scene, solver, &rung.sets, false),
+            )?;
+            let warm = runs.spread(|(r, _)| r.report.gpu_ms);
+            let wall = runs.spread(|(_, w)| *w);
+            let (cold_gpu_ms, cold_wall_ms) = (runs.cold.0.report.gpu_ms, runs.cold.1);
+            let r = &runs.last().0;
             let metrics = output::compare(&r.image, reference).map_err(|e| e.to_string())?;
             let stats = &r.report.stats;
             for f in &stats.throughput {
@@ -301,8 +312,11 @@ pub fn bench_scene(
                 solver: solver.name(),
                 knob: rung.knob.clone(),
                 value: rung.value.clone(),
-                gpu_ms: super::median(&gpu_ms),
-                wall_ms: super::median(&wall_ms),
+                gpu_ms: warm.median,
+                wall_ms: wall.median,
+                cold_gpu_ms,
+                cold_wall_ms,
+                warm,
                 metrics,
                 iterations: stats.convergence.map(|c| c.iterations),
                 converged: stats.convergence.map(|c| c.converged),
@@ -343,6 +357,11 @@ pub fn csv(points: &[Point]) -> Result<String, String> {
         "value",
         "gpu_ms",
         "wall_ms",
+        "cold_gpu_ms",
+        "cold_wall_ms",
+        "warm_runs",
+        "gpu_spread",
+        "settled",
         "rel_l2",
         "rel_l2_denoised",
         "speedup",
@@ -365,6 +384,11 @@ pub fn csv(points: &[Point]) -> Result<String, String> {
             p.value.clone(),
             format!("{:.3}", p.gpu_ms),
             format!("{:.3}", p.wall_ms),
+            format!("{:.3}", p.cold_gpu_ms),
+            format!("{:.3}", p.cold_wall_ms),
+            p.warm.runs.to_string(),
+            format!("{:.4}", p.warm.spread),
+            p.warm.settled.to_string(),
             format!("{:.6e}", m.rel_l2),
             format!("{:.6e}", p.rel_l2_denoised),
             p.speedup.map(|x| format!("{x:.4}")).unwrap_or_default(),

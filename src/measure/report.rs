@@ -56,7 +56,8 @@ pub struct Figure {
     pub fraction_of_bandwidth: Option<f64>,
 }
 
-/// One headline workload.
+/// One headline workload. Its times are the warm runs' medians: the first run is reported
+/// apart as the cold start ([`super::Runs`]).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Workload {
     pub name: String,
@@ -73,6 +74,45 @@ pub struct Workload {
     pub span_ms: f64,
     pub device_bytes: u64,
     pub figures: Vec<Figure>,
+    /// The warm runs' wall times (median, spread, whether the last two agreed within 5%).
+    #[serde(default)]
+    pub wall: super::Spread,
+    /// GPU time over span: below 80% the host kept the GPU waiting.
+    #[serde(default)]
+    pub gpu_busy: f64,
+    /// From the render's start to its first submission of passes (pipelines, allocations,
+    /// uploads), and the wall time outside the GPU's span (start-up, waits between batches,
+    /// readbacks, the image), warm medians.
+    #[serde(default)]
+    pub startup_ms: f64,
+    #[serde(default)]
+    pub overhead_ms: f64,
+    /// Host milliseconds building pipelines: cold (the first run, nothing built in this process)
+    /// and warm (built again through the pipeline cache the cold run filled).
+    #[serde(default)]
+    pub pipelines_cold_ms: f64,
+    #[serde(default)]
+    pub pipelines_warm_ms: f64,
+    /// Host waits and submissions of a warm run, the solver's iterations, waits per iteration.
+    #[serde(default)]
+    pub waits: u64,
+    #[serde(default)]
+    pub submits: u64,
+    #[serde(default)]
+    pub iterations: Option<u64>,
+    #[serde(default)]
+    pub waits_per_iteration: Option<f64>,
+    /// The cold run: wall, GPU and span ms.
+    #[serde(default)]
+    pub cold: Option<ColdRun>,
+}
+
+/// The first run of a workload in the process: pipelines built, clocks possibly still low.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct ColdRun {
+    pub wall_ms: f64,
+    pub gpu_ms: f64,
+    pub span_ms: f64,
 }
 
 /// A concurrent workload (`Solver::concurrency`: lbl, path) under one queue mapping.
@@ -186,7 +226,33 @@ fn load_scene(dir: &Path, h: &Headline) -> Result<(Scene, Settings), Error> {
     Ok((scene, Settings::new(&knob_sets)))
 }
 
-fn run_workload(gpu: &Gpu, dir: &Path, peak: Option<f64>, s: &dyn Solver, h: &Headline) -> Result<Workload, Error> {
+/// What one run of a workload gave.
+struct Run {
+    out: crate::solvers::RenderOutput,
+    wall_ms: f64,
+    span_ms: f64,
+    startup_ms: f64,
+}
+
+fn run_once(gpu: &Gpu, s: &dyn Solver, req: &RenderRequest) -> Result<Run, crate::solvers::SolverError> {
+    gpu.take_timings();
+    gpu.take_first_submit();
+    let started = Instant::now();
+    let out = s.render(gpu, req)?;
+    let wall_ms = started.elapsed().as_secs_f64() * 1e3;
+    let startup_ms = gpu.take_first_submit().map_or(wall_ms, |t| t.duration_since(started).as_secs_f64() * 1e3);
+    let span_ms = super::timeline::summarize(&out.report.passes).span_ns as f64 * 1e-6;
+    Ok(Run { out, wall_ms, span_ms, startup_ms })
+}
+
+fn run_workload(
+    gpu: &Gpu,
+    dir: &Path,
+    peak: Option<f64>,
+    s: &dyn Solver,
+    h: &Headline,
+    max_warm: u32,
+) -> Result<Workload, Error> {
     let mut w = Workload {
         name: h.name.clone(),
         solver: s.name().into(),
@@ -199,32 +265,71 @@ fn run_workload(gpu: &Gpu, dir: &Path, peak: Option<f64>, s: &dyn Solver, h: &He
         span_ms: 0.0,
         device_bytes: 0,
         figures: Vec::new(),
+        wall: Default::default(),
+        gpu_busy: 0.0,
+        startup_ms: 0.0,
+        overhead_ms: 0.0,
+        pipelines_cold_ms: 0.0,
+        pipelines_warm_ms: 0.0,
+        waits: 0,
+        submits: 0,
+        iterations: None,
+        waits_per_iteration: None,
+        cold: None,
     };
     let (scene, settings) = load_scene(dir, h)?;
-    gpu.take_timings();
-    let started = Instant::now();
     let req = RenderRequest { scene: &scene, settings: &settings, force_full: false, progress: &|_| {} };
-    match s.render(gpu, &req) {
-        Err(e) => w.error = Some(e.to_string()),
-        Ok(out) => {
-            w.wall_ms = started.elapsed().as_secs_f64() * 1e3;
-            let r = &out.report;
-            w.gpu_ms = r.gpu_ms;
-            w.span_ms = super::timeline::summarize(&r.passes).span_ns as f64 * 1e-6;
-            w.device_bytes = r.device_bytes;
-            w.figures = r
-                .stats
-                .throughput
-                .iter()
-                .map(|f| Figure {
-                    figure: f.figure.clone(),
-                    value: f.value,
-                    unit: f.unit.clone(),
-                    fraction_of_bandwidth: (f.unit == "GB/s").then_some(()).and(peak).map(|p| f.value / p),
-                })
-                .collect();
+    // Cold: nothing built in this process. The first warm run builds its pipelines again
+    // through the pipeline cache the cold run filled (the driver's compile skipped where it
+    // keeps code there); later runs reuse them, as a process that stays up does.
+    gpu.forget_pipelines();
+    let mut count = 0u32;
+    let runs = super::Runs::take(
+        max_warm,
+        |r: &Run| r.wall_ms,
+        || {
+            if count == 1 {
+                gpu.forget_pipelines();
+            }
+            count += 1;
+            run_once(gpu, s, &req)
+        },
+    );
+    let runs = match runs {
+        Err(e) => {
+            w.error = Some(e.to_string());
+            return Ok(w);
         }
-    }
+        Ok(r) => r,
+    };
+    let c = &runs.cold;
+    w.cold = Some(ColdRun { wall_ms: c.wall_ms, gpu_ms: c.out.report.gpu_ms, span_ms: c.span_ms });
+    w.pipelines_cold_ms = c.out.report.host.pipelines.ms;
+    w.pipelines_warm_ms = runs.warm.first().map_or(0.0, |r| r.out.report.host.pipelines.ms);
+    w.wall = runs.spread(|r| r.wall_ms);
+    w.wall_ms = w.wall.median;
+    w.gpu_ms = runs.spread(|r| r.out.report.gpu_ms).median;
+    w.span_ms = runs.spread(|r| r.span_ms).median;
+    w.startup_ms = runs.spread(|r| r.startup_ms).median;
+    w.overhead_ms = runs.spread(|r| r.wall_ms - r.span_ms).median;
+    w.gpu_busy = if w.span_ms > 0.0 { w.gpu_ms / w.span_ms } else { 0.0 };
+    let r = &runs.last().out.report;
+    w.waits = r.host.waits.count;
+    w.submits = r.host.submits.count;
+    w.iterations = r.stats.convergence.map(|c| c.iterations);
+    w.waits_per_iteration = w.iterations.filter(|n| *n > 0).map(|n| w.waits as f64 / n as f64);
+    w.device_bytes = r.device_bytes;
+    w.figures = r
+        .stats
+        .throughput
+        .iter()
+        .map(|f| Figure {
+            figure: f.figure.clone(),
+            value: f.value,
+            unit: f.unit.clone(),
+            fraction_of_bandwidth: (f.unit == "GB/s").then_some(()).and(peak).map(|p| f.value / p),
+        })
+        .collect();
     Ok(w)
 }
 
@@ -360,7 +465,10 @@ pub fn run(gpu: &Gpu, device: serde_json::Value, opts: &ReportOptions) -> Result
     };
     let peak = report.peak_gb_per_s();
     for (s, h) in solvers::SOLVERS.iter().filter_map(|s| Some((*s, s.headline(opts.quick)?))) {
-        report.workloads.push(run_workload(gpu, &opts.scenes, peak, s, &h)?);
+        // Warm runs until two agree within 5% (at most 6; with --quick one, which shows the
+        // split but cannot say whether the times settled).
+        let max_warm = if opts.quick { 1 } else { 6 };
+        report.workloads.push(run_workload(gpu, &opts.scenes, peak, s, &h, max_warm)?);
     }
     report.queues = queue_matrix(opts, &opts.scenes)?;
     report.wall_s = started.elapsed().as_secs_f64();
@@ -390,7 +498,14 @@ pub fn markdown(r: &Report) -> String {
             b.gb_per_s
         );
     }
-    s += "\n## Headline workloads\n\n| workload | wall ms | GPU ms | span ms | device MiB | throughput | seed |\n| --- | --- | --- | --- | --- | --- | --- |\n";
+    s += "\n## Headline workloads\n\nWarm runs (after one cold run, until two agree within 5%): median wall ms with the \
+          spread of the runs, GPU ms summed over passes, span ms from the first pass's start to the last's end, GPU busy = \
+          GPU / span (below 80% the host keeps the GPU waiting), start-up = render start to the first submission, \
+          overhead = wall - span; pipelines built cold (first run) and warm (again, through the pipeline cache); host \
+          waits per iteration of an iterative solver; the cold run's wall, GPU and span apart.\n\n| workload | wall ms \
+          | GPU ms | span ms | GPU busy | start-up ms | overhead ms | pipelines cold / warm ms | waits (per iteration) \
+          | cold wall / GPU / span ms | device MiB | throughput | seed |\n| --- | --- | --- | --- | --- | --- | --- | --- \
+          | --- | --- | --- | --- | --- |\n";
     for w in &r.workloads {
         if let Some(e) = &w.error {
             s += &format!("| {} | refused: {} | | | | | {} |\n", w.name, e.replace('|', "/"), w.seed);
@@ -405,12 +520,26 @@ pub fn markdown(r: &Report) -> String {
                 format!("{} {:.3e} {}{frac}", f.figure, f.value, f.unit)
             })
             .collect();
+        let waits = match w.waits_per_iteration {
+            Some(x) => format!("{} ({x:.2})", w.waits),
+            None => w.waits.to_string(),
+        };
+        let cold = w.cold.map_or(String::new(), |c| format!("{:.1} / {:.1} / {:.1}", c.wall_ms, c.gpu_ms, c.span_ms));
         s += &format!(
-            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {} |\n",
+            "| {} | {:.1} ±{:.0}%{} | {:.1} | {:.1} | {:.0}% | {:.1} | {:.1} | {:.0} / {:.0} | {} | {} | {:.1} | {} | {} |\n",
             w.name,
             w.wall_ms,
+            100.0 * w.wall.spread,
+            if w.wall.settled { "" } else { " (not settled)" },
             w.gpu_ms,
             w.span_ms,
+            100.0 * w.gpu_busy,
+            w.startup_ms,
+            w.overhead_ms,
+            w.pipelines_cold_ms,
+            w.pipelines_warm_ms,
+            waits,
+            cold,
             w.device_bytes as f64 / 1048576.0,
             figs.join("; "),
             w.seed
@@ -450,6 +579,13 @@ pub fn figures(r: &Report) -> Vec<(String, f64)> {
     for w in r.workloads.iter().filter(|w| w.error.is_none()) {
         out.push((format!("{}: wall ms", w.name), w.wall_ms));
         out.push((format!("{}: GPU ms", w.name), w.gpu_ms));
+        out.push((format!("{}: span ms", w.name), w.span_ms));
+        out.push((format!("{}: GPU busy", w.name), w.gpu_busy));
+        out.push((format!("{}: start-up ms", w.name), w.startup_ms));
+        out.push((format!("{}: host waits", w.name), w.waits as f64));
+        if let Some(c) = w.cold {
+            out.push((format!("{}: cold wall ms", w.name), c.wall_ms));
+        }
         for f in &w.figures {
             out.push((format!("{}: {} {}", w.name, f.figure, f.unit), f.value));
         }

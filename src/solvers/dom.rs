@@ -256,6 +256,76 @@ fn plane(s: &Option<Sweeper>) -> &Sweeper {
     s.as_ref().expect("plane sweeps keep their sweeper")
 }
 
+/// Fewest scattering iterations per submission with the convergence test on the device: the
+/// host waits at most once per 8.
+pub const ITERATIONS_MIN: u32 = 8;
+/// Most iterations per submission.
+pub const ITERATIONS_MAX: u32 = 64;
+/// The GPU work a submission aims at, milliseconds (issue 42: 5-20 ms); batches grow above
+/// ITERATIONS_MIN only where iterations take less than this / ITERATIONS_MIN.
+const BATCH_TARGET_MS: f64 = 12.0;
+
+/// How the scattering iterations ended: iterations, converged, the last change, the tail,
+/// and (with a tail) the light toward the camera after the last iteration.
+type IterationEnd = (u32, bool, f64, Option<Tail>, Vec<Vec<f32>>);
+
+/// The scattering iterations with the convergence test on the device
+/// (glsl/ordinates/converge.comp; the criterion and tail as the host loop in `Dom::render`).
+fn iterate_on_device(
+    gpu: &Gpu,
+    sw: &Sweeper,
+    set: &DomSettings,
+    progress: &dyn Fn(Progress),
+) -> Result<IterationEnd, SolverError> {
+    let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
+    let (mut tail, mut cameras) = (None, Vec::new());
+    let mut batch = ITERATIONS_MIN;
+    let mut last: Option<(f64, u64)> = None;
+    while iterations < set.max_iterations {
+        let b = batch.min(set.max_iterations - iterations);
+        let passes: Vec<Pass> =
+            (1..=b).flat_map(|j| sw.iteration_passes(iterations + j, set.extrapolate, set.tol)).collect();
+        let started = std::time::Instant::now();
+        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+        gpu.wait(point)?;
+        let ctl = sw.control(gpu)?;
+        let ran = ctl.iterations.wrapping_sub(iterations);
+        if ran == 0 || ran > b || (ran < b && ctl.stopped == 0) {
+            return Err(SolverError::Unsupported(format!(
+                "dom: the device judged {ran} of a batch of {b} iterations; please report this"
+            )));
+        }
+        iterations = ctl.iterations;
+        let per = started.elapsed().as_secs_f64() * 1e3 / ran as f64;
+        batch = ((BATCH_TARGET_MS / per.max(1e-3)) as u32).clamp(ITERATIONS_MIN, ITERATIONS_MAX);
+        change = ctl.change;
+        let shown = if ctl.ext_ok != 0 { ctl.ext_change.min(ctl.change) } else { ctl.change };
+        progress(Progress::converging(
+            "scattering iterations",
+            iterations as u64,
+            shown,
+            set.tol,
+            last,
+            (set.max_iterations - iterations) as u64,
+        ));
+        last = Some((shown, iterations as u64));
+        if ctl.stopped != 0 {
+            converged = true;
+            if ctl.tail != 0 {
+                cameras.push(gpu.read_buffer_as(&sw.camera)?);
+                tail = Some(Tail {
+                    ratio: ctl.r2.sqrt(),
+                    share: ctl.share,
+                    camera_ratio2: ctl.camera_ratio2,
+                    camera_before2: sw.camera_after(gpu, iterations.saturating_sub(2), iterations)?.unwrap_or_default(),
+                });
+            }
+            break;
+        }
+    }
+    Ok((iterations, converged, change, tail, cameras))
+}
+
 /// The direct source's device memory, slab by slab of whole layers (thesis 5.2.2 streams the
 /// source by blocks; runs of layers are blocks as wide as the grid, which the marched rays and
 /// the bin pass need no halo for), and group by group of beams. What a slab holds: per beam of
@@ -682,110 +752,126 @@ impl Solver for Dom {
         // tested on the extrapolated fluence (same tolerance, between successive iterations), and
         // at convergence the same tail (with the light toward the camera's own decay, at most the
         // fluence's) is added to that light.
-        let read_camera =
-            |blocked: &Option<BlockSweeper>, sweeper: &Option<Sweeper>| -> Result<Vec<f32>, SolverError> {
-                Ok(match blocked {
-                    Some(b) => b.camera(),
-                    None => gpu.read_buffer_as(&plane(sweeper).camera)?,
-                })
+        // With plane sweeps on a device with double precision the test runs on the device
+        // (glsl/ordinates/converge.comp, the same arithmetic): batches of at least
+        // ITERATIONS_MIN iterations are one submission each, stopped on the device at the
+        // iteration that converged, and the host waits once per batch. Block streaming, and
+        // devices without double precision, test on the host: a wait and a readback of the
+        // fluence (and of the light toward the camera) per iteration.
+        let on_device = blocked.is_none() && plane(&sweeper).tests_on_device();
+        let (iterations, converged, change, tail, mut cameras) = if on_device {
+            iterate_on_device(gpu, plane(&sweeper), &set, req.progress)?
+        } else {
+            let read_camera =
+                |blocked: &Option<BlockSweeper>, sweeper: &Option<Sweeper>| -> Result<Vec<f32>, SolverError> {
+                    Ok(match blocked {
+                        Some(b) => b.camera(),
+                        None => gpu.read_buffer_as(&plane(sweeper).camera)?,
+                    })
+                };
+            let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
+            let sum = |a: &[f32]| -> f64 { a.iter().map(|x| *x as f64).sum() };
+            let max_diff = |a: &[f32], b: &[f32]| -> f64 {
+                a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()))
             };
-        let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
-        let sum = |a: &[f32]| -> f64 { a.iter().map(|x| *x as f64).sum() };
-        let max_diff = |a: &[f32], b: &[f32]| -> f64 {
-            a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()))
-        };
-        let peak = |a: &[f32]| -> f64 { a.iter().fold(0.0f64, |m, x| m.max(*x as f64)) };
-        // rho^2 from the sums of the pairs of bounces (newest last), when it is a decay.
-        let decay2 = |s: &[f64]| -> Option<f64> {
-            match s {
-                [.., a, _, c] if *a > 0.0 && *c > 0.0 => Some(c / a).filter(|r| *r < 1.0),
-                _ => None,
-            }
-        };
-        // The fluence summed over the bounces, the last bounce's, and the light toward the camera
-        // (summed on the device) after the last two iterations (newest last).
-        let mut fluence = vec![0.0f32; nch as usize * v];
-        let mut last_bounce = fluence.clone();
-        let mut cameras: Vec<Vec<f32>> = Vec::new();
-        let (mut pair_sums, mut camera_pair_sums) = (Vec::<f64>::new(), Vec::<f64>::new());
-        let mut previous_extrapolated = None::<Vec<f32>>;
-        let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
-        let mut last_change: Option<(f64, u64)> = None;
-        let mut tail: Option<Tail> = None;
-        while iterations < set.max_iterations {
-            let bounce = match blocked.as_mut() {
-                Some(b) => b.iterate(gpu)?,
-                None => plane(&sweeper).iterate(gpu)?,
+            let peak = |a: &[f32]| -> f64 { a.iter().fold(0.0f64, |m, x| m.max(*x as f64)) };
+            // rho^2 from the sums of the pairs of bounces (newest last), when it is a decay.
+            let decay2 = |s: &[f64]| -> Option<f64> {
+                match s {
+                    [.., a, _, c] if *a > 0.0 && *c > 0.0 => Some(c / a).filter(|r| *r < 1.0),
+                    _ => None,
+                }
             };
-            iterations += 1;
-            fluence.iter_mut().zip(&bounce).for_each(|(f, b)| *f += b);
-            let scale = peak(&fluence);
-            // What this bounce added, against the summed fluence's largest value.
-            change = peak(&bounce) / if scale > 0.0 { scale } else { 1.0 };
-            let mut extrapolated_change = None;
-            let mut ratio = None;
-            // The light toward the camera two iterations back.
-            let mut camera_before2 = None;
-            if set.extrapolate {
-                let camera = read_camera(&blocked, &sweeper)?;
-                if cameras.len() == 2 {
-                    let b2 = cameras.remove(0);
-                    camera_pair_sums.push(diff_sum(&camera, &b2));
-                    camera_before2 = Some(b2);
-                }
-                cameras.push(camera);
-                if iterations >= 2 {
-                    pair_sums.push(sum(&bounce) + sum(&last_bounce));
-                }
-                ratio = decay2(&pair_sums);
-                match ratio {
-                    Some(r2) => {
-                        let f = (r2 / (1.0 - r2)) as f32;
-                        let e: Vec<f32> =
-                            fluence.iter().zip(&bounce).zip(&last_bounce).map(|((t, b), l)| t + (b + l) * f).collect();
-                        if let Some(pe) = &previous_extrapolated {
-                            extrapolated_change = Some(max_diff(&e, pe) / peak(&e).max(f64::MIN_POSITIVE));
-                        }
-                        previous_extrapolated = Some(e);
+            // The fluence summed over the bounces, the last bounce's, and the light toward the camera
+            // (summed on the device) after the last two iterations (newest last).
+            let mut fluence = vec![0.0f32; nch as usize * v];
+            let mut last_bounce = fluence.clone();
+            let mut cameras: Vec<Vec<f32>> = Vec::new();
+            let (mut pair_sums, mut camera_pair_sums) = (Vec::<f64>::new(), Vec::<f64>::new());
+            let mut previous_extrapolated = None::<Vec<f32>>;
+            let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
+            let mut last_change: Option<(f64, u64)> = None;
+            let mut tail: Option<Tail> = None;
+            while iterations < set.max_iterations {
+                let bounce = match blocked.as_mut() {
+                    Some(b) => b.iterate(gpu)?,
+                    None => plane(&sweeper).iterate(gpu)?,
+                };
+                iterations += 1;
+                fluence.iter_mut().zip(&bounce).for_each(|(f, b)| *f += b);
+                let scale = peak(&fluence);
+                // What this bounce added, against the summed fluence's largest value.
+                change = peak(&bounce) / if scale > 0.0 { scale } else { 1.0 };
+                let mut extrapolated_change = None;
+                let mut ratio = None;
+                // The light toward the camera two iterations back.
+                let mut camera_before2 = None;
+                if set.extrapolate {
+                    let camera = read_camera(&blocked, &sweeper)?;
+                    if cameras.len() == 2 {
+                        let b2 = cameras.remove(0);
+                        camera_pair_sums.push(diff_sum(&camera, &b2));
+                        camera_before2 = Some(b2);
                     }
-                    None => previous_extrapolated = None,
+                    cameras.push(camera);
+                    if iterations >= 2 {
+                        pair_sums.push(sum(&bounce) + sum(&last_bounce));
+                    }
+                    ratio = decay2(&pair_sums);
+                    match ratio {
+                        Some(r2) => {
+                            let f = (r2 / (1.0 - r2)) as f32;
+                            let e: Vec<f32> = fluence
+                                .iter()
+                                .zip(&bounce)
+                                .zip(&last_bounce)
+                                .map(|((t, b), l)| t + (b + l) * f)
+                                .collect();
+                            if let Some(pe) = &previous_extrapolated {
+                                extrapolated_change = Some(max_diff(&e, pe) / peak(&e).max(f64::MIN_POSITIVE));
+                            }
+                            previous_extrapolated = Some(e);
+                        }
+                        None => previous_extrapolated = None,
+                    }
                 }
-            }
-            let shown = extrapolated_change.map_or(change, |e| e.min(change));
-            (req.progress)(Progress::converging(
-                "scattering iterations",
-                iterations as u64,
-                shown,
-                set.tol,
-                last_change,
-                (set.max_iterations - iterations) as u64,
-            ));
-            last_change = Some((shown, iterations as u64));
-            if change <= set.tol {
-                converged = true;
-            } else if let (Some(e), Some(r2)) = (extrapolated_change, ratio) {
-                if e <= set.tol {
+                let shown = extrapolated_change.map_or(change, |e| e.min(change));
+                (req.progress)(Progress::converging(
+                    "scattering iterations",
+                    iterations as u64,
+                    shown,
+                    set.tol,
+                    last_change,
+                    (set.max_iterations - iterations) as u64,
+                ));
+                last_change = Some((shown, iterations as u64));
+                if change <= set.tol {
                     converged = true;
-                    change = e;
-                    // The pair the decay was taken from (pushed above), not summed again.
-                    let pair = *pair_sums.last().expect("a decay needs pairs");
-                    let total = sum(&fluence);
-                    let added = pair * r2 / (1.0 - r2);
-                    tail = Some(Tail {
-                        ratio: r2.sqrt(),
-                        share: added / (total + added).max(f64::MIN_POSITIVE),
-                        camera_ratio2: decay2(&camera_pair_sums)
-                            .filter(|_| camera_before2.is_some())
-                            .map_or(0.0, |c| c.min(r2)),
-                        camera_before2: camera_before2.take().unwrap_or_default(),
-                    });
+                } else if let (Some(e), Some(r2)) = (extrapolated_change, ratio) {
+                    if e <= set.tol {
+                        converged = true;
+                        change = e;
+                        // The pair the decay was taken from (pushed above), not summed again.
+                        let pair = *pair_sums.last().expect("a decay needs pairs");
+                        let total = sum(&fluence);
+                        let added = pair * r2 / (1.0 - r2);
+                        tail = Some(Tail {
+                            ratio: r2.sqrt(),
+                            share: added / (total + added).max(f64::MIN_POSITIVE),
+                            camera_ratio2: decay2(&camera_pair_sums)
+                                .filter(|_| camera_before2.is_some())
+                                .map_or(0.0, |c| c.min(r2)),
+                            camera_before2: camera_before2.take().unwrap_or_default(),
+                        });
+                    }
+                }
+                last_bounce = bounce;
+                if converged {
+                    break;
                 }
             }
-            last_bounce = bounce;
-            if converged {
-                break;
-            }
-        }
+            (iterations, converged, change, tail, cameras)
+        };
         // The tail toward the camera: the last pair increment of the gathered light times
         // rho^2 / (1 - rho^2), added to the light the last iteration read (with a tail, the
         // iteration extrapolated, so it read it: no second readback or gather).

@@ -127,6 +127,9 @@ pub const SPEC_NAMES: &[(u32, &str)] = &[
     (SPEC_REFRACTIVE, "REFRACTIVE"),
     (SPEC_FIELDS, "FIELDS"),
     (13, "MATS"),
+    (14, "MNEE"),
+    (15, "EQUIANGULAR"),
+    (16, "ENVIRONMENT"),
 ];
 
 /// The name of specialisation constant `id` ([`SPEC_NAMES`]).

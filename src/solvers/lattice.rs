@@ -137,6 +137,107 @@ pub const DIFFUSE: Kernel = Kernel {
         (SPEC_MATS, SpecKind::Bool),
     ],
 };
+/// The chunk's increment per channel, per workgroup (glsl/lattice/reduce.comp).
+pub const REDUCE: Kernel = Kernel {
+    shader: shader!("lattice/reduce"),
+    push_bytes: std::mem::size_of::<ReducePush>(),
+    spec: &[(SPEC_NCH, SpecKind::U32)],
+};
+/// The convergence test on the device (glsl/lattice/check.comp).
+pub const CHECK: Kernel = Kernel {
+    shader: shader!("lattice/check"),
+    push_bytes: std::mem::size_of::<CheckPush>(),
+    spec: &[(SPEC_NCH, SpecKind::U32)],
+};
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ReducePush {
+    voxels: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct CheckPush {
+    voxels: u32,
+    probes: u32,
+    parts: u32,
+    steps: u32,
+    extrapolate: u32,
+    init: u32,
+    tol: f32,
+    pad: u32,
+}
+
+/// The iteration's state on the device (glsl/lattice/check.comp's `Control`), read by the host
+/// once per batch of chunks.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct Control {
+    stopped: u32,
+    checks: u32,
+    have_inc: u32,
+    prev_n: u32,
+    have_x: u32,
+    tail: u32,
+    measured: u32,
+    prev_measured: u32,
+    change: f64,
+    x_change: f64,
+    prev_measure: f64,
+    prev_inc: [f64; 4],
+    r: [f64; 4],
+    q: [f64; 4],
+}
+
+/// Fewest chunks (of about 8 steps) a submission carries when the test runs on the device: the
+/// host waits at most once per 16 steps.
+pub const CHUNKS_MIN: u32 = 2;
+/// Most chunks a submission carries.
+pub const CHUNKS_MAX: u32 = 64;
+/// The GPU work a submission of chunks aims at, milliseconds (issue 42: 5-20 ms).
+pub const BATCH_TARGET_MS: f64 = 12.0;
+/// Threads of glsl/lattice/reduce.comp's workgroups.
+const REDUCE_WG: u64 = 256;
+
+/// The probe voxels of a lattice of `dims`: every `max(4, largest/8)`-th voxel on each axis
+/// (from half a stride in), those of positive density; where none is, every voxel of positive
+/// density. At most [`probe_capacity`] (more are thinned evenly).
+pub fn probe_voxels(dims: [u32; 3], density: &[f32]) -> Vec<u32> {
+    let [nx, ny, nz] = dims.map(|d| d as usize);
+    let stride = 4usize.max(nx.max(ny).max(nz) / 8);
+    let mut probes: Vec<u32> = Vec::new();
+    for z in (stride / 2..nz).step_by(stride) {
+        for y in (stride / 2..ny).step_by(stride) {
+            for x in (stride / 2..nx).step_by(stride) {
+                let i = x + nx * (y + ny * z);
+                if density[i] > 0.0 {
+                    probes.push(i as u32);
+                }
+            }
+        }
+    }
+    if probes.is_empty() {
+        probes = (0..nx * ny * nz).filter(|i| density[*i] > 0.0).map(|i| i as u32).collect();
+    }
+    let cap = probe_capacity(dims) as usize;
+    if probes.len() > cap {
+        let n = probes.len();
+        probes = (0..cap).map(|k| probes[k * n / cap]).collect();
+    }
+    probes
+}
+
+/// Most probes of a lattice of `dims`: the sparse set's size, or up to 4096 for the
+/// every-voxel fallback (bounded so the device buffers are a function of the lattice alone).
+pub fn probe_capacity(dims: [u32; 3]) -> u64 {
+    let [nx, ny, nz] = dims.map(|d| d as u64);
+    let stride = 4u64.max(nx.max(ny).max(nz) / 8);
+    let along = |n: u64| if n > stride / 2 { (n - stride / 2).div_ceil(stride) } else { 0 };
+    let sparse = along(nx) * along(ny) * along(nz);
+    sparse.max((nx * ny * nz).min(4096))
+}
+
 pub const INJECT: Kernel = Kernel {
     shader: shader!("lattice/inject"),
     push_bytes: std::mem::size_of::<InjectPush>(),
@@ -417,6 +518,17 @@ impl LatticeParams {
             + self.irradiance_floats() * 4
             + if self.extrapolate { self.irradiance_floats() * 4 } else { 16 }
             + n_wg * self.nch as u64 * 16
+            + self.check_bytes()
+    }
+    /// Device bytes of the convergence test on the device: its control record, the
+    /// reduction's per-workgroup sums, the probes and their state (allocated whether or not the
+    /// device runs the test, so the estimate is the device's).
+    pub fn check_bytes(&self) -> u64 {
+        let cap = probe_capacity(self.dims);
+        std::mem::size_of::<Control>() as u64
+            + self.voxels().div_ceil(REDUCE_WG) * self.nch as u64 * 8
+            + 4 * cap
+            + 16 * cap
     }
     /// Floats of the time-integrated field: energy per channel and voxel, then with `flux` the
     /// flux (three per channel and voxel).
@@ -442,6 +554,17 @@ pub struct Diffuser {
     /// The field at the start of the last chunk (with `extrapolate`; else a stand-in).
     snap: Buffer,
     extrapolate: bool,
+    /// The convergence test on the device: its control record (host-visible), the reduction's
+    /// per-workgroup sums, the probe voxels and their state, and the two kernels.
+    control: Buffer,
+    partials: Buffer,
+    probes: Buffer,
+    probe_state: Buffer,
+    /// (None where the device lacks double precision: the test runs on the host.)
+    reduce: Option<Pipeline>,
+    check: Option<Pipeline>,
+    /// Chunks the next batch submits (adapted to the measured chunk time).
+    chunks: u32,
     push: DiffusePush,
     groups: [u32; 3],
     block_steps: u32,
@@ -473,7 +596,16 @@ impl Diffuser {
             (SPEC_MATS, Spec::Bool(materials.several)),
         ];
         let materials = materials.buffer.clone();
-        let pipeline = gpu.pipeline(&DIFFUSE, &spec)?;
+        let nch_spec = [(SPEC_NCH, Spec::U32(p.nch))];
+        // The test's kernels use doubles: built only where the device has them.
+        let (pipeline, reduce, check) = if gpu.info().float64 {
+            let mut built = gpu.pipelines(&[(&DIFFUSE, &spec), (&REDUCE, &nch_spec), (&CHECK, &nch_spec)])?.into_iter();
+            let mut next = || built.next().expect("three pipelines");
+            (next(), Some(next()), Some(next()))
+        } else {
+            (gpu.pipeline(&DIFFUSE, &spec)?, None, None)
+        };
+        let cap = probe_capacity(p.dims);
         let state_bytes = p.lattice.state_bytes(p.nch, v);
         let groups = p.groups();
         let n_wg = groups.iter().map(|x| *x as u64).product::<u64>();
@@ -488,6 +620,13 @@ impl Diffuser {
             tally: gpu.buffer("lattice diffuse tally", n_wg * p.nch as u64 * 16)?,
             snap: gpu.buffer("lattice snapshot", if p.extrapolate { p.irradiance_floats() * 4 } else { 16 })?,
             extrapolate: p.extrapolate,
+            control: gpu.feedback_buffer("lattice convergence control", std::mem::size_of::<Control>() as u64)?,
+            partials: gpu.buffer("lattice increment sums", v.div_ceil(REDUCE_WG) * p.nch as u64 * 8)?,
+            probes: gpu.buffer("lattice probes", 4 * cap)?,
+            probe_state: gpu.buffer("lattice probe state", 16 * cap)?,
+            reduce,
+            check,
+            chunks: CHUNKS_MIN,
             push: DiffusePush {
                 dims: [p.dims[0], p.dims[1], p.dims[2], v as u32],
                 sigma_t: [st[0], st[1], st[2], p.lambda],
@@ -523,7 +662,15 @@ impl Diffuser {
     }
 
     pub fn device_bytes(&self) -> u64 {
-        self.states[0].size() + self.states[1].size() + self.irr.size() + self.tally.size() + self.snap.size()
+        self.states[0].size()
+            + self.states[1].size()
+            + self.irr.size()
+            + self.tally.size()
+            + self.snap.size()
+            + self.control.size()
+            + self.partials.size()
+            + self.probes.size()
+            + self.probe_state.size()
     }
 
     /// The time-integrated energy per voxel and channel ([c * V + v]), then with
@@ -555,6 +702,7 @@ impl Diffuser {
                     .read_write(4, &self.tally)
                     .write(5, &self.snap)
                     .read(6, &self.materials)
+                    .read(7, &self.control)
                     .push(&push)
                     .groups(self.groups),
             );
@@ -585,6 +733,13 @@ impl Diffuser {
     /// extrapolation is applied to the whole field (energy and flux). Where the ratio is not
     /// yet a decay (0 < r < 1 in every channel that moves), the plain criterion applies and
     /// nothing is extrapolated.
+    ///
+    /// Where the device has double precision the test runs on it (glsl/lattice/check.comp,
+    /// the same arithmetic in the same order): a batch of chunks is one submission, the device
+    /// stops stepping at the chunk that converged, and the host waits once per batch (at least
+    /// [`CHUNKS_MIN`] chunks, more where a chunk takes less than [`BATCH_TARGET_MS`] /
+    /// [`CHUNKS_MIN`]). Elsewhere it runs on the host, a wait and a readback of the energies
+    /// per chunk.
     pub fn iterate(
         &mut self,
         gpu: &Gpu,
@@ -593,23 +748,170 @@ impl Diffuser {
         max_iters: u32,
         progress: &dyn Fn(Progress),
     ) -> Result<Iterated, SolverError> {
-        let [nx, ny, nz] = self.dims.map(|d| d as usize);
-        let v = nx * ny * nz;
-        let stride = 4usize.max(nx.max(ny).max(nz) / 8);
-        let mut probes: Vec<usize> = Vec::new();
-        for z in (stride / 2..nz).step_by(stride) {
-            for y in (stride / 2..ny).step_by(stride) {
-                for x in (stride / 2..nx).step_by(stride) {
-                    let i = x + nx * (y + ny * z);
-                    if density[i] > 0.0 {
-                        probes.push(i);
-                    }
+        if self.check.is_some() {
+            self.iterate_on_device(gpu, density, tol, max_iters, progress)
+        } else {
+            self.iterate_on_host(gpu, density, tol, max_iters, progress)
+        }
+    }
+
+    /// Steps per chunk: about 8, whole dispatches.
+    fn chunk_steps(&self) -> u32 {
+        if self.extrapolate {
+            8u32.div_ceil(self.block_steps).max(1) * self.block_steps
+        } else {
+            8 * self.block_steps
+        }
+    }
+
+    fn check_pass(&self, probes: u32, steps: u32, init: bool, tol: f32) -> Pass {
+        let push = CheckPush {
+            voxels: self.voxels() as u32,
+            probes,
+            parts: self.voxels().div_ceil(REDUCE_WG) as u32,
+            steps,
+            extrapolate: self.extrapolate as u32,
+            init: init as u32,
+            tol,
+            pad: 0,
+        };
+        Pass::new("lattice.check", QueueRole::Diffuse, self.check.as_ref().expect("a device with doubles"))
+            .read(0, &self.irr)
+            .read(1, &self.snap)
+            .read(2, &self.partials)
+            .read(3, &self.probes)
+            .read_write(4, &self.probe_state)
+            .read_write(5, &self.control)
+            .push(&push)
+            .groups([1, 1, 1])
+    }
+
+    fn reduce_pass(&self) -> Pass {
+        Pass::new("lattice.reduce", QueueRole::Diffuse, self.reduce.as_ref().expect("a device with doubles"))
+            .read(0, &self.irr)
+            .read(1, &self.snap)
+            .read(2, &self.control)
+            .write(3, &self.partials)
+            .push(&ReducePush { voxels: self.voxels() as u32 })
+            .groups([self.voxels().div_ceil(REDUCE_WG) as u32, 1, 1])
+    }
+
+    fn voxels(&self) -> u64 {
+        self.dims.iter().map(|d| *d as u64).product()
+    }
+
+    /// [`Diffuser::iterate`] with the test on the device.
+    fn iterate_on_device(
+        &mut self,
+        gpu: &Gpu,
+        density: &[f32],
+        tol: f32,
+        max_iters: u32,
+        progress: &dyn Fn(Progress),
+    ) -> Result<Iterated, SolverError> {
+        let probes = probe_voxels(self.dims, density);
+        gpu.write_buffer(&self.probes, 0, bytemuck::cast_slice(&probes))?;
+        gpu.write_buffer(&self.control, 0, bytemuck::bytes_of(&Control::default()))?;
+        let n_probes = probes.len() as u32;
+        let chunk = self.chunk_steps();
+        let report = |iteration: u32, measure: f64, last: Option<(f64, u32)>| {
+            progress(Progress::converging(
+                "lattice iterations",
+                iteration as u64,
+                measure,
+                tol as f64,
+                last.map(|(m, i)| (m, i as u64)),
+                (max_iters - iteration) as u64,
+            ));
+        };
+        let mut last_measure: Option<(f64, u32)> = None;
+        let mut ctl = Control::default();
+        // The first submission records the probes' field at the start.
+        let mut passes = vec![self.check_pass(n_probes, 0, true, tol)];
+        while self.iterations < max_iters {
+            let (cur0, iterations0, checks0) = (self.cur, self.iterations, ctl.checks);
+            // (steps, dispatches) of each chunk submitted.
+            let mut plan: Vec<(u32, usize)> = Vec::new();
+            for _ in 0..self.chunks {
+                let n = chunk.min(max_iters - self.iterations);
+                if n == 0 {
+                    break;
                 }
+                let steps = self.passes_from(n, self.extrapolate);
+                plan.push((n, steps.len()));
+                passes.extend(steps);
+                if self.extrapolate {
+                    passes.push(self.reduce_pass());
+                }
+                passes.push(self.check_pass(n_probes, n, false, tol));
+            }
+            let started = std::time::Instant::now();
+            let point = gpu.submit(QueueRole::Diffuse, &std::mem::take(&mut passes), &[])?;
+            gpu.wait(point)?;
+            ctl = bytemuck::pod_read_unaligned(&gpu.read_buffer_prefix(&self.control, self.control.size())?);
+            // The chunks the device ran: those it judged (a stop skips the rest whole).
+            let ran = (ctl.checks - checks0) as usize;
+            if ran == 0 || ran > plan.len() || (ran < plan.len() && ctl.stopped == 0) {
+                return Err(SolverError::Unsupported(format!(
+                    "lbl: the device judged {ran} of {} chunks of a lattice batch; please report this",
+                    plan.len()
+                )));
+            }
+            self.cur = cur0;
+            self.iterations = iterations0;
+            for (n, dispatches) in &plan[..ran] {
+                self.iterations += n;
+                self.cur = (self.cur + dispatches) % 2;
+            }
+            let per_chunk = started.elapsed().as_secs_f64() * 1e3 / ran as f64;
+            self.chunks = ((BATCH_TARGET_MS / per_chunk.max(1e-3)) as u32).clamp(CHUNKS_MIN, CHUNKS_MAX);
+            let measure = if ctl.measured != 0 { ctl.x_change } else { ctl.change };
+            // The estimate of the iterations left pairs two measures of one kind (with the
+            // tail extrapolation, of the extrapolated field): the check before this batch's
+            // last where it is of the kind, else the last batch's.
+            let kind = |measured: u32| (measured == 1) || !self.extrapolate;
+            if ran >= 2 && kind(ctl.prev_measured) && ctl.prev_measured != 2 {
+                last_measure = Some((ctl.prev_measure, self.iterations - plan[ran - 1].0));
+            }
+            if kind(ctl.measured) {
+                report(self.iterations, measure, last_measure);
+                last_measure = Some((measure, self.iterations));
+            } else {
+                report(self.iterations, measure, None);
+            }
+            if ctl.stopped != 0 {
+                // Stepping again later (a warm start's frames) starts from an open control.
+                let done = plan[ran - 1].0 as f64;
+                let (r, q) = (ctl.r, ctl.q);
+                gpu.write_buffer(&self.control, 0, bytemuck::bytes_of(&Control::default()))?;
+                if ctl.tail != 0 {
+                    let q3 = [q[0], q[1], q[2]];
+                    let tail = self.extrapolate_tail(gpu, q3)?;
+                    let rho = [r[0], r[1], r[2]].map(|r| r.powf(1.0 / done));
+                    return Ok(Iterated {
+                        converged: true,
+                        change: ctl.x_change,
+                        tail: Some(Tail { rho, share: tail }),
+                    });
+                }
+                return Ok(Iterated { converged: true, change: ctl.change, tail: None });
             }
         }
-        if probes.is_empty() {
-            probes = (0..v).filter(|i| density[*i] > 0.0).collect();
-        }
+        let change = if self.iterations == 0 { f64::INFINITY } else { ctl.change };
+        Ok(Iterated { converged: false, change, tail: None })
+    }
+
+    /// [`Diffuser::iterate`] with the test on the host.
+    fn iterate_on_host(
+        &mut self,
+        gpu: &Gpu,
+        density: &[f32],
+        tol: f32,
+        max_iters: u32,
+        progress: &dyn Fn(Progress),
+    ) -> Result<Iterated, SolverError> {
+        let v = self.voxels() as usize;
+        let probes: Vec<usize> = probe_voxels(self.dims, density).into_iter().map(|p| p as usize).collect();
         let nch = self.nch as usize;
         // Per probe, summed over channels: the field extrapolated by q[c] from its value
         // `before` (with q = 0, the field itself).
@@ -639,7 +941,7 @@ impl Diffuser {
         // Plain: a check every 8 dispatches. Extrapolated: every dispatch that makes up about 8
         // steps, since the criterion can stop as soon as the extrapolation settles (each check
         // reads the energies back).
-        let chunk = if self.extrapolate { 8u32.div_ceil(self.block_steps).max(1) } else { 8 } * self.block_steps;
+        let chunk = self.chunk_steps();
         let mut prev = energies(gpu)?;
         let mut prev_probes = probe_sum(&prev);
         // The previous chunk's increment per channel and length, and the previous extrapolation.

@@ -197,7 +197,7 @@ impl Solver for Lbl {
 
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = marching::kernels();
-        k.extend([lattice::DIFFUSE, lattice::INJECT, view::MARCH, view::SHADOW]);
+        k.extend([lattice::DIFFUSE, lattice::REDUCE, lattice::CHECK, lattice::INJECT, view::MARCH, view::SHADOW]);
         k.extend(wave_field::kernels());
         k
     }
@@ -968,10 +968,16 @@ pub fn run_lattice(
         progress(Progress::work("marching rounds", reached as u64, rounds as u64));
     }
     // Rounds count when their transfer has run, not when it was submitted (the queues run
-    // ahead of the host): wait for each in turn, which delays nothing since all is submitted.
-    for (n, point) in transfers.iter().enumerate().skip(reached) {
-        gpu.wait(*point)?;
-        progress(Progress::work("marching rounds", n as u64 + 1, rounds as u64));
+    // ahead of the host): one wait for the last, the count polled while it lasts.
+    if let Some(last) = transfers.last() {
+        let tick = || {
+            while reached < transfers.len() && gpu.reached(transfers[reached]).unwrap_or(false) {
+                reached += 1;
+            }
+            progress(Progress::work("marching rounds", reached as u64, rounds as u64));
+        };
+        gpu.wait_ticking(*last, std::time::Duration::from_millis(100), tick)?;
+        progress(Progress::work("marching rounds", rounds as u64, rounds as u64));
     }
 
     let mut cascade_iterations = Vec::new();

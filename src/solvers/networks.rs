@@ -130,6 +130,9 @@ struct IteratePush {
     directions: u32,
     units: u32,
     slot: u32,
+    /// 1: judge the previous slot against `tol` first (glsl/networks/iterate.comp).
+    check: u32,
+    tol: f32,
 }
 
 /// The lights the direct term takes (point and directional; environments reach the particles
@@ -800,9 +803,48 @@ fn density_depth(scene: &Scene, x: glam::DVec3, w: glam::DVec3, t_far: f64, step
     (0..k as u64).map(|i| scene.density_at((x + w * (a + (i as f64 + 0.5) * dt)).as_vec3()) as f64).sum::<f64>() * dt
 }
 
-/// Iterations per submission; each writes its change and peak into its own slot of the
-/// stats buffer, read back once per submission.
+/// Fewest iterations per submission; each writes its change and peak into its own slot of
+/// the stats buffer, read once per submission (so the host waits at most once per 8).
 pub const BATCH: u32 = 8;
+/// Most iterations per submission: where an iteration takes less than
+/// [`BATCH_TARGET_MS`] / [`BATCH`], batches grow toward that much GPU work (a GPU runs an
+/// iteration of the default network in about a millisecond: a batch of 8 left it waiting for
+/// the host between batches).
+pub const BATCH_MAX: u32 = 64;
+/// The GPU work a submission aims at, milliseconds (issue 42: 5-20 ms).
+pub const BATCH_TARGET_MS: f64 = 12.0;
+/// Words of the stats buffer: verdict, dispatches run, then two per slot.
+const STATS_WORDS: u64 = 2 + 2 * BATCH_MAX as u64;
+
+/// How an iteration is judged ([`Illumination::solve`]; glsl/networks/iterate.comp's
+/// `verdict` is the same rule in the same f32 arithmetic, so host and device agree bit for
+/// bit): a negative or non-finite largest change or largest I is a fault; else converged where
+/// the change is at most `tol` times the largest I (or nothing is lit).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    GoOn,
+    Converged,
+    Fault,
+}
+
+pub fn verdict(change: f32, peak: f32, tol: f32) -> Verdict {
+    let bad = |x: f32| !x.is_finite() || x < 0.0;
+    if bad(change) || bad(peak) {
+        Verdict::Fault
+    } else if peak <= 0.0 || change <= tol * peak {
+        Verdict::Converged
+    } else {
+        Verdict::GoOn
+    }
+}
+
+/// What one submitted batch of iterations did ([`Illumination::batch`]).
+struct BatchRun {
+    /// Per iteration that ran: its change relative to the largest I (NaN at a fault).
+    changes: Vec<f64>,
+    /// The verdict that stopped the batch on the device, if one did.
+    stopped: Option<Verdict>,
+}
 
 /// The illumination network on the device, ready to iterate: the scene, particles, directions,
 /// visibility network, phase matrix, direct light and the two radiance buffers (ping-pong).
@@ -824,6 +866,8 @@ pub struct Illumination {
     pipeline: crate::gpu::Pipeline,
     push: IteratePush,
     step: f32,
+    /// Iterations the next batch submits (adapted to the measured iteration time).
+    batch: u32,
     /// The image's size and a particle's extinction cross-section sigma_t m (rgb, units^2).
     size: [u32; 2],
     /// The camera's origin and, for an orthographic one, its axis: the splats' order.
@@ -880,7 +924,8 @@ impl Illumination {
                 gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
                 gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
             ],
-            stats: gpu.buffer("networks iteration stats", 8 * BATCH as u64)?,
+            stats: gpu.feedback_buffer("networks iteration stats", 4 * STATS_WORDS)?,
+            batch: BATCH,
             current: 0,
             pipeline: gpu.pipeline(&ITERATE, &[])?,
             push: IteratePush {
@@ -891,6 +936,8 @@ impl Illumination {
                 directions: d,
                 units: unit_count(scene, env_dirs),
                 slot: 0,
+                check: 0,
+                tol: 0.0,
             },
             env_dirs,
             step,
@@ -923,7 +970,7 @@ impl Illumination {
     pub fn device_bytes(net: &Network, scene: &Scene, env_dirs: u32, view: u64) -> u64 {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
         let base = super::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
-        let state = 4 * d * d + net.direct_bytes(scene, env_dirs) + 2 * 16 * n * d + 8 * BATCH as u64;
+        let state = 4 * d * d + net.direct_bytes(scene, env_dirs) + 2 * 16 * n * d + 4 * STATS_WORDS;
         let image = 20 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
         base + net.build_bytes().max(state + image.max(view))
     }
@@ -951,54 +998,91 @@ impl Illumination {
     /// the largest I, measured on the device (non-finite where a value went negative or not
     /// finite, which also counts a fault).
     pub fn step(&mut self, gpu: &Gpu, k: u32) -> Result<Vec<f64>, SolverError> {
-        let d = self.push.directions;
         let mut changes = Vec::with_capacity(k as usize);
         let mut left = k;
         while left > 0 {
-            let b = left.min(BATCH);
-            gpu.fill_zero(&self.stats)?;
-            let passes: Vec<Pass> = (0..b as usize)
-                .map(|j| {
-                    let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
-                    Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
-                        .read(0, &self.visible)
-                        .read(1, &self.dirs)
-                        .read(2, &self.direct)
-                        .read(3, &self.field[from])
-                        .write(4, &self.field[to])
-                        .read(5, &self.phase)
-                        .read_write(6, &self.stats)
-                        .push(&IteratePush { slot: j as u32, ..self.push })
-                        .cover([self.push.particles, d, 1])
-                })
-                .collect();
-            let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
-            gpu.wait(point)?;
-            self.current = (self.current + b as usize) % 2;
-            self.iterations += b;
+            let b = left.min(BATCH_MAX);
+            let run = self.batch(gpu, b, None)?;
             left -= b;
-            let raw: Vec<u32> = gpu.read_buffer_as(&self.stats)?;
-            for j in 0..b as usize {
-                let (change, peak) = (f32::from_bits(raw[2 * j]) as f64, f32::from_bits(raw[2 * j + 1]) as f64);
-                // A negative value's bits sort above every positive one: it shows as a
-                // negative (or NaN) maximum.
-                let c = if change.is_finite() && peak.is_finite() && change >= 0.0 && peak >= 0.0 {
-                    if peak > 0.0 {
-                        change / peak
-                    } else {
-                        0.0
-                    }
-                } else {
-                    self.faults += 1;
-                    f64::NAN
-                };
-                changes.push(c);
-            }
+            changes.extend(run.changes);
         }
         if let Some(c) = changes.last() {
             self.change = *c;
         }
         Ok(changes)
+    }
+
+    /// Submit `b` iterations as one batch and wait for it once. With `tol`, each iteration
+    /// after the first judges the one before it on the device and the batch stops at the first
+    /// that converged or faulted (the rest return at once); the iterations that ran are
+    /// counted on the device.
+    fn batch(&mut self, gpu: &Gpu, b: u32, tol: Option<f32>) -> Result<BatchRun, SolverError> {
+        let d = self.push.directions;
+        gpu.fill_zero(&self.stats)?;
+        let passes: Vec<Pass> = (0..b as usize)
+            .map(|j| {
+                let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
+                let push = IteratePush {
+                    slot: j as u32,
+                    check: (tol.is_some() && j > 0) as u32,
+                    tol: tol.unwrap_or(0.0),
+                    ..self.push
+                };
+                Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
+                    .read(0, &self.visible)
+                    .read(1, &self.dirs)
+                    .read(2, &self.direct)
+                    .read(3, &self.field[from])
+                    .write(4, &self.field[to])
+                    .read(5, &self.phase)
+                    .read_write(6, &self.stats)
+                    .push(&push)
+                    .cover([self.push.particles, d, 1])
+            })
+            .collect();
+        let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
+        gpu.wait(point)?;
+        let raw: Vec<u32> = gpu.read_buffer_as(&self.stats)?;
+        let ran = raw[1];
+        let mut changes = Vec::with_capacity(ran as usize);
+        let mut stopped = None;
+        for j in 0..ran as usize {
+            let (change, peak) = (f32::from_bits(raw[2 + 2 * j]), f32::from_bits(raw[3 + 2 * j]));
+            let v = verdict(change, peak, tol.unwrap_or(0.0));
+            changes.push(match v {
+                Verdict::Fault => {
+                    self.faults += 1;
+                    f64::NAN
+                }
+                _ if peak > 0.0 => change as f64 / peak as f64,
+                _ => 0.0,
+            });
+            if tol.is_some() && v != Verdict::GoOn {
+                stopped = Some(v);
+                break;
+            }
+        }
+        // The device's count and the host's reading of the same words must agree: a batch
+        // stops right after the iteration that converged (or at its end).
+        let expected = changes.len() as u32;
+        if tol.is_some() && ran != expected && !(stopped.is_none() && ran == b) {
+            return Err(SolverError::Unsupported(format!(
+                "networks: the device ran {ran} iterations of a batch of {b} but judged convergence after {expected}; \
+                 please report this"
+            )));
+        }
+        if raw[0] != 0 && stopped.is_none() {
+            return Err(SolverError::Unsupported(format!(
+                "networks: the device stopped a batch (verdict {}) that the host judges unfinished; please report this",
+                raw[0]
+            )));
+        }
+        self.current = (self.current + ran as usize) % 2;
+        self.iterations += ran;
+        if let Some(c) = changes.last() {
+            self.change = *c;
+        }
+        Ok(BatchRun { changes, stopped })
     }
 
     /// The scene on the device (for the view pass of `networks.single = view`).
@@ -1097,9 +1181,12 @@ impl Illumination {
         })
     }
 
-    /// Iterate until a step changes I by less than `tol` of its largest value, or `max` steps
-    /// (checked once per [`BATCH`]; the iterations reported are those run), reporting progress.
-    /// Stops at the first fault (a negative or non-finite value).
+    /// Iterate until a step changes I by at most `tol` of its largest value, or `max` steps,
+    /// reporting progress. Batches of iterations are submitted whole and stopped on the device
+    /// at the first converged (or faulted) iteration, so the host waits once per batch and I
+    /// is the converged iteration's, not a later one's; a batch is at least [`BATCH`]
+    /// iterations and grows toward [`BATCH_TARGET_MS`] of GPU work. Stops at the first fault
+    /// (a negative or non-finite value).
     pub fn solve(
         &mut self,
         gpu: &Gpu,
@@ -1109,13 +1196,19 @@ impl Illumination {
     ) -> Result<Converged, SolverError> {
         let mut earlier: Option<(f64, u64)> = None;
         while self.iterations < max {
-            let changes = self.step(gpu, BATCH.min(max - self.iterations))?;
+            let b = self.batch.min(max - self.iterations);
+            let started = std::time::Instant::now();
+            let run = self.batch(gpu, b, Some(tol as f32))?;
+            // The batch's time per iteration run sets the next batch's size.
+            let per = started.elapsed().as_secs_f64() * 1e3 / run.changes.len().max(1) as f64;
+            self.batch = ((BATCH_TARGET_MS / per.max(1e-3)) as u32).clamp(BATCH, BATCH_MAX);
             let it = self.iterations as u64;
-            if self.faults > 0 {
-                break;
-            }
-            if changes.iter().any(|c| *c <= tol) {
-                return Ok(Converged { iterations: self.iterations, converged: true, change: self.change });
+            match run.stopped {
+                Some(Verdict::Converged) => {
+                    return Ok(Converged { iterations: self.iterations, converged: true, change: self.change })
+                }
+                Some(_) => break,
+                None => {}
             }
             progress(super::Progress::converging("networks iteration", it, self.change, tol, earlier, max as u64));
             if earlier.is_none() {

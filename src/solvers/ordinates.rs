@@ -31,10 +31,63 @@ pub const DEPOSIT: Kernel =
 pub const BIN: Kernel =
     Kernel { shader: shader!("ordinates/bin"), push_bytes: std::mem::size_of::<BinPush>(), spec: &[] };
 
+/// dom's convergence test on the device (glsl/ordinates/converge.comp).
+pub const CONVERGE: Kernel =
+    Kernel { shader: shader!("ordinates/converge"), push_bytes: std::mem::size_of::<ConvergePush>(), spec: &[] };
+
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
-    vec![SWEEP, SCATTER, DEPOSIT, BIN]
+    vec![SWEEP, SCATTER, DEPOSIT, BIN, CONVERGE]
 }
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct ConvergePush {
+    voxels: u32,
+    elements: u32,
+    mode: u32,
+    n: u32,
+    parts: u32,
+    extrapolate: u32,
+    /// The tolerance, an f64's two halves (low first).
+    tol: [u32; 2],
+}
+
+/// dom's iteration state on the device (glsl/ordinates/converge.comp's `Control`), read once
+/// per batch of iterations.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct DomControl {
+    pub stopped: u32,
+    /// Iterations judged since the start.
+    pub iterations: u32,
+    pub pairs: u32,
+    pub cam_pairs: u32,
+    pub have_e: u32,
+    pub ratio_ok: u32,
+    /// The last iteration had an extrapolated change.
+    pub ext_ok: u32,
+    /// Converged on the extrapolated fluence: the tail applies.
+    pub tail: u32,
+    pub f: f32,
+    pub pad: [u32; 3],
+    /// The last iteration's change (the extrapolated one where `tail`).
+    pub change: f64,
+    pub ext_change: f64,
+    /// rho^2 of the fluence's pairs of bounces.
+    pub r2: f64,
+    pub prev_sum_b: f64,
+    pub pair: [f64; 3],
+    pub cam_pair: [f64; 3],
+    pub total: f64,
+    pub camera_ratio2: f64,
+    /// The tail's share of the fluence.
+    pub share: f64,
+}
+
+/// Threads of glsl/ordinates/converge.comp's workgroups; doubles per workgroup's figures.
+const CONVERGE_WG: u64 = 256;
+const CONVERGE_FIGURES: u64 = 8;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -201,6 +254,17 @@ pub struct Sweeper {
     /// Voxels the source holds: the grid's, or one slab's
     /// ([`Sweeper::for_source`]).
     source_voxels: u32,
+    /// The convergence test on the device (glsl/ordinates/converge.comp): its kernel, control
+    /// record (host-visible), the bounces summed, the last two bounces, the last extrapolated
+    /// fluence, the light toward the camera of the last three iterations, per-workgroup figures.
+    /// (No kernel where the device lacks double precision: the test runs on the host.)
+    converge: Option<Pipeline>,
+    control: Buffer,
+    accum: Buffer,
+    bounce: Buffer,
+    extrap: Buffer,
+    cam_hist: Buffer,
+    partials: Buffer,
 }
 
 /// A run of whole layers of the grid (z outermost, so its voxels are contiguous): the direct
@@ -350,11 +414,34 @@ impl Sweeper {
         let nch = s.channels as u64;
         let characteristics = s.scheme == Scheme::Characteristics;
         let face_bytes = if characteristics { 8 * slots as u64 * sv * 4 } else { 4 };
+        // The convergence test uses doubles: built only where the device has them.
+        let mut wanted: Vec<(&Kernel, &[(u32, crate::gpu::Spec)])> =
+            vec![(&SWEEP, &[]), (&SCATTER, &[]), (&DEPOSIT, &[]), (&BIN, &[])];
+        if gpu.info().float64 {
+            wanted.push((&CONVERGE, &[]));
+        }
+        let mut built = gpu.pipelines(&wanted)?.into_iter();
+        let (sweep, scatter_p, deposit, bin) = (
+            built.next().expect("sweep"),
+            built.next().expect("scatter"),
+            built.next().expect("deposit"),
+            built.next().expect("bin"),
+        );
+        let converge = built.next();
+        // The convergence test's per-element buffers: one float each without sweeps.
+        let per = |k: u64| 4 * if sweeps { k * nch * sv } else { 1 };
         Ok(Sweeper {
-            sweep: gpu.pipeline(&SWEEP, &[])?,
-            scatter: gpu.pipeline(&SCATTER, &[])?,
-            deposit: gpu.pipeline(&DEPOSIT, &[])?,
-            bin: gpu.pipeline(&BIN, &[])?,
+            sweep,
+            scatter: scatter_p,
+            deposit,
+            bin,
+            converge,
+            control: gpu.feedback_buffer("ordinates convergence control", std::mem::size_of::<DomControl>() as u64)?,
+            accum: gpu.buffer("ordinates fluence summed", per(1))?,
+            bounce: gpu.buffer("ordinates last bounces", per(2))?,
+            extrap: gpu.buffer("ordinates extrapolated fluence", per(1))?,
+            cam_hist: gpu.buffer("ordinates camera history", per(3))?,
+            partials: gpu.buffer("ordinates convergence figures", Self::partial_bytes(nch * sv))?,
             dims: s.dims,
             h: s.h,
             channels: s.channels,
@@ -418,8 +505,14 @@ impl Sweeper {
             + n * 4 + m * 4 + m * 4                           // directions, storage directions, footprints
             + n * m                                           // the scattering matrix
             + if upsampled { n * m } else { 1 } // the upsampling (one float when unused)
-            + if scheme == Scheme::Characteristics { 20 * n + 3 * kept(8 * slots * sv) } else { 1 + 3 };
-        4 * floats
+            + if scheme == Scheme::Characteristics { 20 * n + 3 * kept(8 * slots * sv) } else { 1 + 3 }
+            + kept(sv * channels) + kept(2 * sv * channels) + kept(sv * channels) + kept(3 * sv * channels); // the test's
+        4 * floats + Self::partial_bytes(channels * sv) + std::mem::size_of::<DomControl>() as u64
+    }
+
+    /// Bytes of the convergence test's per-workgroup figures for `elements` channel-voxels.
+    fn partial_bytes(elements: u64) -> u64 {
+        (elements.div_ceil(CONVERGE_WG) * CONVERGE_FIGURES * 8).max(4)
     }
 
     /// Device bytes of its buffers.
@@ -440,6 +533,12 @@ impl Sweeper {
             &self.faces[2],
             &self.fluence,
             &self.camera,
+            &self.control,
+            &self.accum,
+            &self.bounce,
+            &self.extrap,
+            &self.cam_hist,
+            &self.partials,
         ]
         .iter()
         .map(|b| b.size())
@@ -588,6 +687,7 @@ impl Sweeper {
                     .read_write(7, &self.faces[0])
                     .read_write(8, &self.faces[1])
                     .read_write(9, &self.faces[2])
+                    .read(10, &self.control)
                     .push(&push)
                     .cover([nx, ny, 8])
             })
@@ -605,6 +705,7 @@ impl Sweeper {
             .read(3, &self.sigma_s)
             .write(4, &self.source)
             .read_write(5, &self.camera)
+            .read(6, &self.control)
             .push(&ScatterPush {
                 dims: [nx, ny, nz, v],
                 storage: self.storage.len() as u32,
@@ -658,5 +759,75 @@ impl Sweeper {
         let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
         gpu.wait(point)?;
         self.read_fluence(gpu)
+    }
+
+    /// The passes of scattering iteration `n` (from 1) with its convergence test on the device
+    /// (glsl/ordinates/converge.comp; src/solvers/dom.rs has the criterion): once an
+    /// iteration of a submission converges, the rest of it returns at once.
+    pub fn iteration_passes(&self, n: u32, extrapolate: bool, tol: f64) -> Vec<Pass> {
+        let mut passes = Vec::new();
+        for c in 0..self.channels {
+            passes.extend(self.sweep_passes(c));
+            passes.push(self.scatter_pass(c));
+        }
+        let elements = self.channels as u64 * self.voxels() as u64;
+        let parts = elements.div_ceil(CONVERGE_WG) as u32;
+        let bits = tol.to_bits();
+        for mode in [0u32, 1, 2, 3] {
+            if mode == 2 && !extrapolate {
+                continue;
+            }
+            let push = ConvergePush {
+                voxels: self.voxels(),
+                elements: elements as u32,
+                mode,
+                n,
+                parts,
+                extrapolate: extrapolate as u32,
+                tol: [bits as u32, (bits >> 32) as u32],
+            };
+            let wide = mode == 0 || mode == 2;
+            passes.push(
+                Pass::new(
+                    "ordinates.converge",
+                    QueueRole::Diffuse,
+                    self.converge.as_ref().expect("a device with double precision"),
+                )
+                .read(0, &self.fluence)
+                .read(1, &self.camera)
+                .read_write(2, &self.accum)
+                .read_write(3, &self.bounce)
+                .read_write(4, &self.extrap)
+                .read_write(5, &self.cam_hist)
+                .read_write(6, &self.partials)
+                .read_write(7, &self.control)
+                .push(&push)
+                .groups([if wide { parts } else { 1 }, 1, 1]),
+            );
+        }
+        passes
+    }
+
+    /// Whether the convergence test can run on the device (it has double precision).
+    pub fn tests_on_device(&self) -> bool {
+        self.converge.is_some()
+    }
+
+    /// The device's convergence record (after a wait for the batch).
+    pub fn control(&self, gpu: &Gpu) -> Result<DomControl, SolverError> {
+        Ok(bytemuck::pod_read_unaligned(&gpu.read_buffer_prefix(&self.control, self.control.size())?))
+    }
+
+    /// The light toward the camera as it stood after iteration `n` (from 1), kept for the
+    /// last three iterations by the test on the device; `None` before iteration 1 or for one
+    /// no longer kept.
+    pub fn camera_after(&self, gpu: &Gpu, n: u32, latest: u32) -> Result<Option<Vec<f32>>, SolverError> {
+        if n == 0 || n > latest || latest - n >= 3 {
+            return Ok(None);
+        }
+        let all: Vec<f32> = gpu.read_buffer_as(&self.cam_hist)?;
+        let e = (self.channels as u64 * self.voxels() as u64) as usize;
+        let slot = (n % 3) as usize;
+        Ok(Some(all[slot * e..(slot + 1) * e].to_vec()))
     }
 }

@@ -32,7 +32,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use serde::Serialize;
 
-use crate::gpu::{Gpu, Kernel, Pass, QueueRole};
+use crate::gpu::{Gpu, Kernel, Pass, QueueRole, Spec, SpecKind};
 use crate::output::Image;
 use crate::scene::{CameraKind, Light, Scene};
 
@@ -93,7 +93,36 @@ pub struct LightPush {
 }
 
 pub const TRACE: Kernel =
-    Kernel { shader: shader!("path/trace"), push_bytes: std::mem::size_of::<PathPush>(), spec: MESH_SPEC };
+    Kernel { shader: shader!("path/trace"), push_bytes: std::mem::size_of::<PathPush>(), spec: TRACE_SPEC };
+/// glsl/path/trace.comp's own specialisation constants: some light is reached through
+/// specular chains (manifold NEE), some point light is sampled by equiangular sampling, the
+/// scene has an environment light. Code for what a scene lacks is not compiled in.
+pub const SPEC_MNEE: u32 = 14;
+pub const SPEC_EQUIANGULAR: u32 = 15;
+pub const SPEC_ENVIRONMENT: u32 = 16;
+const TRACE_SPEC: &[(u32, SpecKind)] = &[
+    (super::gpu_scene::SPEC_DENSITY_KIND, SpecKind::U32),
+    (super::gpu_scene::SPEC_CHROMATIC, SpecKind::Bool),
+    (super::gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
+    (super::gpu_scene::SPEC_FIELDS, SpecKind::Bool),
+    (super::gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
+    (super::gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
+    (SPEC_MNEE, SpecKind::Bool),
+    (SPEC_EQUIANGULAR, SpecKind::Bool),
+    (SPEC_ENVIRONMENT, SpecKind::Bool),
+];
+
+/// The trace kernel's specialisation: the scene's and the mesh's ([`GpuScene`]), and whether
+/// any light takes manifold NEE (`mnee`, a bit per light) or equiangular sampling
+/// (`equiangular`) and whether the scene has an environment (all on with `--force-full`).
+fn trace_spec(gs: &GpuScene, env: bool, equiangular: u32, mnee: u32) -> Vec<(u32, Spec)> {
+    let full = gs.modelled.forced_full;
+    let mut spec = gs.modelled.mesh_spec();
+    spec.push((SPEC_MNEE, Spec::Bool(mnee != 0 || full)));
+    spec.push((SPEC_EQUIANGULAR, Spec::Bool(equiangular != 0 || full)));
+    spec.push((SPEC_ENVIRONMENT, Spec::Bool(env || full)));
+    spec
+}
 pub const LIGHT: Kernel =
     Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: MESH_SPEC };
 /// The light kernel's bindings of the [[object]]'s BVH nodes and triangles (6 holds its stats).
@@ -724,6 +753,7 @@ impl Solver for Path {
             rr_depth,
             rr_threshold,
             mnee_grid: &mnee_grid,
+            environment: scene.lights.iter().any(|l| matches!(l, Light::Environment { .. })),
         };
         let needs_camera = camera_lights > 0 || traced.is_empty();
         let batches = light_batches.min(spp);
@@ -897,6 +927,8 @@ struct Common<'a> {
     rr_threshold: f32,
     /// The facet lists of manifold NEE (src/solvers/mnee.rs).
     mnee_grid: &'a [u32],
+    /// The scene has an environment light.
+    environment: bool,
 }
 
 impl Common<'_> {
@@ -934,7 +966,7 @@ fn camera_paths(
 ) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
-    let pipeline = gpu.pipeline(&TRACE, &gs.modelled.mesh_spec())?;
+    let pipeline = gpu.pipeline(&TRACE, &trace_spec(gs, c.environment, equiangular, mnee))?;
     let grid = gpu.buffer_with("path manifold NEE facet grid", c.mnee_grid)?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
