@@ -232,3 +232,41 @@ fn the_json_lists_each_pipeline_with_the_features_it_was_built_for() {
     let built = j["host"]["pipelines"]["count"].as_u64().unwrap();
     assert_eq!(built as usize, pipes.iter().filter(|p| p["reused"] == false).count());
 }
+
+/// path's trace kernel is specialised to what the scene needs (issue 42): the default cloud
+/// (a sun and a sky, no object) gets neither manifold NEE nor refraction nor equiangular
+/// sampling compiled in; a glass object under a sun gets refraction and manifold NEE, and no
+/// environment code; `--force-full` gets the three path's own features (the mesh constants
+/// follow the scene's mesh).
+#[test]
+fn path_pipelines_carry_only_what_the_scene_needs() {
+    use crate::common::{gpu, render_with, repo_scene, scene, PATH};
+    use crate::refraction_tests::{mesh, object_scene_seeded};
+    let gpu = gpu();
+    let trace_spec = |out: &scatterlab::solvers::RenderOutput| {
+        let p = out.report.pipelines.iter().find(|p| p.shader == "path/trace").expect("the trace kernel");
+        let get = |k: &str| match p.spec.get(k) {
+            Some(scatterlab::gpu::Spec::Bool(b)) => *b,
+            other => panic!("{k}: {other:?}"),
+        };
+        [get("MNEE"), get("REFRACTIVE"), get("EQUIANGULAR"), get("ENVIRONMENT"), get("HAS_MESH")]
+    };
+    let cloud = repo_scene("scenes/default.toml", &[("render.width", "8"), ("render.height", "8")]);
+    let out = render_with(&gpu, &cloud, PATH, &[("render.spp", "1")], false);
+    assert_eq!(trace_spec(&out), [false, false, false, true, false], "the default cloud");
+    let full = render_with(&gpu, &cloud, PATH, &[("render.spp", "1")], true);
+    let f = trace_spec(&full);
+    assert!(f[0] && f[2] && f[3], "--force-full compiles in manifold NEE, equiangular sampling, the environment: {f:?}");
+    assert_eq!(full.image.data.len(), out.image.data.len());
+    let glass = scene(&object_scene_seeded(
+        3,
+        &format!("mesh = \"{}\"\nior = 1.5", mesh("icosphere.obj")),
+        "sigma_t = 4.0\nalbedo = 0.9\ng = 0.0",
+        "kind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 1.0",
+        8,
+        1,
+    ));
+    let out = render_with(&gpu, &glass, PATH, &[], false);
+    assert_eq!(trace_spec(&out), [true, true, false, false, true], "a glass object under a sun");
+    crate::common::assert_clean(&gpu);
+}
