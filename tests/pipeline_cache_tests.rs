@@ -256,7 +256,10 @@ fn path_pipelines_carry_only_what_the_scene_needs() {
     assert_eq!(trace_spec(&out), [false, false, false, true, false], "the default cloud");
     let full = render_with(&gpu, &cloud, PATH, &[("render.spp", "1")], true);
     let f = trace_spec(&full);
-    assert!(f[0] && f[2] && f[3], "--force-full compiles in manifold NEE, equiangular sampling, the environment: {f:?}");
+    assert!(
+        f[0] && f[2] && f[3],
+        "--force-full compiles in manifold NEE, equiangular sampling, the environment: {f:?}"
+    );
     assert_eq!(full.image.data.len(), out.image.data.len());
     let glass = scene(&object_scene_seeded(
         3,

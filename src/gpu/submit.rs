@@ -387,6 +387,14 @@ impl Gpu {
                         s.debug_device.as_ref().unwrap().cmd_end_debug_utils_label(cb);
                     }
                 }
+                // What the passes wrote is visible to the host once the submission's point is
+                // reached (feedback records read through their mapping).
+                let mb = vk::MemoryBarrier2::default()
+                    .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+                    .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE)
+                    .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+                    .dst_access_mask(vk::AccessFlags2::HOST_READ);
+                d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
             },
         )
     }

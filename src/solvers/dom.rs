@@ -283,8 +283,9 @@ fn iterate_on_device(
     let mut last: Option<(f64, u64)> = None;
     while iterations < set.max_iterations {
         let b = batch.min(set.max_iterations - iterations);
-        let passes: Vec<Pass> =
-            (1..=b).flat_map(|j| sw.iteration_passes(iterations + j, set.extrapolate, set.tol)).collect();
+        let mut passes: Vec<Pass> = if iterations == 0 { vec![sw.control_clear_pass()] } else { Vec::new() };
+        passes.extend((1..=b).flat_map(|j| sw.iteration_passes(iterations + j, set.extrapolate, set.tol)));
+        passes.push(sw.control_copy_pass());
         let started = std::time::Instant::now();
         let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
         gpu.wait(point)?;
@@ -561,7 +562,7 @@ impl Solver for Dom {
         let mut k = marching::kernels();
         k.extend(ordinates::kernels());
         k.push(blocks::BLOCK_SWEEP);
-        k.extend([view::MARCH, view::SHADOW]);
+        k.extend([view::MARCH, view::SHADOW, super::feedback::COPY]);
         k
     }
 

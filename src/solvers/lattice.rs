@@ -525,7 +525,7 @@ impl LatticeParams {
     /// device runs the test, so the estimate is the device's).
     pub fn check_bytes(&self) -> u64 {
         let cap = probe_capacity(self.dims);
-        std::mem::size_of::<Control>() as u64
+        super::feedback::Feedback::bytes(std::mem::size_of::<Control>() as u64)
             + self.voxels().div_ceil(REDUCE_WG) * self.nch as u64 * 8
             + 4 * cap
             + 16 * cap
@@ -556,7 +556,7 @@ pub struct Diffuser {
     extrapolate: bool,
     /// The convergence test on the device: its control record (host-visible), the reduction's
     /// per-workgroup sums, the probe voxels and their state, and the two kernels.
-    control: Buffer,
+    control: super::feedback::Feedback,
     partials: Buffer,
     probes: Buffer,
     probe_state: Buffer,
@@ -620,7 +620,11 @@ impl Diffuser {
             tally: gpu.buffer("lattice diffuse tally", n_wg * p.nch as u64 * 16)?,
             snap: gpu.buffer("lattice snapshot", if p.extrapolate { p.irradiance_floats() * 4 } else { 16 })?,
             extrapolate: p.extrapolate,
-            control: gpu.feedback_buffer("lattice convergence control", std::mem::size_of::<Control>() as u64)?,
+            control: super::feedback::Feedback::new(
+                gpu,
+                "lattice convergence control",
+                std::mem::size_of::<Control>() as u64,
+            )?,
             partials: gpu.buffer("lattice increment sums", v.div_ceil(REDUCE_WG) * p.nch as u64 * 8)?,
             probes: gpu.buffer("lattice probes", 4 * cap)?,
             probe_state: gpu.buffer("lattice probe state", 16 * cap)?,
@@ -667,7 +671,7 @@ impl Diffuser {
             + self.irr.size()
             + self.tally.size()
             + self.snap.size()
-            + self.control.size()
+            + self.control.device_bytes()
             + self.partials.size()
             + self.probes.size()
             + self.probe_state.size()
@@ -702,7 +706,7 @@ impl Diffuser {
                     .read_write(4, &self.tally)
                     .write(5, &self.snap)
                     .read(6, &self.materials)
-                    .read(7, &self.control)
+                    .read(7, self.control.record())
                     .push(&push)
                     .groups(self.groups),
             );
@@ -781,7 +785,7 @@ impl Diffuser {
             .read(2, &self.partials)
             .read(3, &self.probes)
             .read_write(4, &self.probe_state)
-            .read_write(5, &self.control)
+            .read_write(5, self.control.record())
             .push(&push)
             .groups([1, 1, 1])
     }
@@ -790,7 +794,7 @@ impl Diffuser {
         Pass::new("lattice.reduce", QueueRole::Diffuse, self.reduce.as_ref().expect("a device with doubles"))
             .read(0, &self.irr)
             .read(1, &self.snap)
-            .read(2, &self.control)
+            .read(2, self.control.record())
             .write(3, &self.partials)
             .push(&ReducePush { voxels: self.voxels() as u32 })
             .groups([self.voxels().div_ceil(REDUCE_WG) as u32, 1, 1])
@@ -811,7 +815,6 @@ impl Diffuser {
     ) -> Result<Iterated, SolverError> {
         let probes = probe_voxels(self.dims, density);
         gpu.write_buffer(&self.probes, 0, bytemuck::cast_slice(&probes))?;
-        gpu.write_buffer(&self.control, 0, bytemuck::bytes_of(&Control::default()))?;
         let n_probes = probes.len() as u32;
         let chunk = self.chunk_steps();
         let report = |iteration: u32, measure: f64, last: Option<(f64, u32)>| {
@@ -826,8 +829,8 @@ impl Diffuser {
         };
         let mut last_measure: Option<(f64, u32)> = None;
         let mut ctl = Control::default();
-        // The first submission records the probes' field at the start.
-        let mut passes = vec![self.check_pass(n_probes, 0, true, tol)];
+        // The first submission opens the control and records the probes' field at the start.
+        let mut passes = vec![self.control.clear_pass(QueueRole::Diffuse), self.check_pass(n_probes, 0, true, tol)];
         while self.iterations < max_iters {
             let (cur0, iterations0, checks0) = (self.cur, self.iterations, ctl.checks);
             // (steps, dispatches) of each chunk submitted.
@@ -845,10 +848,11 @@ impl Diffuser {
                 }
                 passes.push(self.check_pass(n_probes, n, false, tol));
             }
+            passes.push(self.control.copy_pass(QueueRole::Diffuse));
             let started = std::time::Instant::now();
             let point = gpu.submit(QueueRole::Diffuse, &std::mem::take(&mut passes), &[])?;
             gpu.wait(point)?;
-            ctl = bytemuck::pod_read_unaligned(&gpu.read_buffer_prefix(&self.control, self.control.size())?);
+            ctl = self.control.read(gpu)?;
             // The chunks the device ran: those it judged (a stop skips the rest whole).
             let ran = (ctl.checks - checks0) as usize;
             if ran == 0 || ran > plan.len() || (ran < plan.len() && ctl.stopped == 0) {
@@ -883,7 +887,7 @@ impl Diffuser {
                 // Stepping again later (a warm start's frames) starts from an open control.
                 let done = plan[ran - 1].0 as f64;
                 let (r, q) = (ctl.r, ctl.q);
-                gpu.write_buffer(&self.control, 0, bytemuck::bytes_of(&Control::default()))?;
+                gpu.submit(QueueRole::Diffuse, &[self.control.clear_pass(QueueRole::Diffuse)], &[])?;
                 if ctl.tail != 0 {
                     let q3 = [q[0], q[1], q[2]];
                     let tail = self.extrapolate_tail(gpu, q3)?;

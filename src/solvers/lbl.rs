@@ -199,6 +199,7 @@ impl Solver for Lbl {
         let mut k = marching::kernels();
         k.extend([lattice::DIFFUSE, lattice::REDUCE, lattice::CHECK, lattice::INJECT, view::MARCH, view::SHADOW]);
         k.extend(wave_field::kernels());
+        k.push(super::feedback::COPY);
         k
     }
 

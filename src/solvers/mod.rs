@@ -23,6 +23,7 @@ macro_rules! shader {
 }
 
 pub mod blocks;
+pub mod feedback;
 pub mod gpu_scene;
 pub mod knobs;
 pub mod lattice;

@@ -859,8 +859,9 @@ pub struct Illumination {
     phase: Buffer,
     direct: Buffer,
     field: [Buffer; 2],
-    /// Per iteration of a submission: the largest change of I and the largest I (f32 bits).
-    stats: Buffer,
+    /// Per iteration of a submission: the largest change of I and the largest I (f32 bits),
+    /// after the verdict and the count of iterations run (a device record and its host copy).
+    stats: super::feedback::Feedback,
     /// Which of `field` holds the current I.
     current: usize,
     pipeline: crate::gpu::Pipeline,
@@ -924,7 +925,7 @@ impl Illumination {
                 gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
                 gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
             ],
-            stats: gpu.feedback_buffer("networks iteration stats", 4 * STATS_WORDS)?,
+            stats: super::feedback::Feedback::new(gpu, "networks iteration stats", 4 * STATS_WORDS)?,
             batch: BATCH,
             current: 0,
             pipeline: gpu.pipeline(&ITERATE, &[])?,
@@ -970,7 +971,10 @@ impl Illumination {
     pub fn device_bytes(net: &Network, scene: &Scene, env_dirs: u32, view: u64) -> u64 {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
         let base = super::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
-        let state = 4 * d * d + net.direct_bytes(scene, env_dirs) + 2 * 16 * n * d + 4 * STATS_WORDS;
+        let state = 4 * d * d
+            + net.direct_bytes(scene, env_dirs)
+            + 2 * 16 * n * d
+            + super::feedback::Feedback::bytes(4 * STATS_WORDS);
         let image = 20 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
         base + net.build_bytes().max(state + image.max(view))
     }
@@ -1018,31 +1022,30 @@ impl Illumination {
     /// counted on the device.
     fn batch(&mut self, gpu: &Gpu, b: u32, tol: Option<f32>) -> Result<BatchRun, SolverError> {
         let d = self.push.directions;
-        gpu.fill_zero(&self.stats)?;
-        let passes: Vec<Pass> = (0..b as usize)
-            .map(|j| {
-                let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
-                let push = IteratePush {
-                    slot: j as u32,
-                    check: (tol.is_some() && j > 0) as u32,
-                    tol: tol.unwrap_or(0.0),
-                    ..self.push
-                };
-                Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
-                    .read(0, &self.visible)
-                    .read(1, &self.dirs)
-                    .read(2, &self.direct)
-                    .read(3, &self.field[from])
-                    .write(4, &self.field[to])
-                    .read(5, &self.phase)
-                    .read_write(6, &self.stats)
-                    .push(&push)
-                    .cover([self.push.particles, d, 1])
-            })
-            .collect();
+        let mut passes = vec![self.stats.clear_pass(QueueRole::Diffuse)];
+        passes.extend((0..b as usize).map(|j| {
+            let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
+            let push = IteratePush {
+                slot: j as u32,
+                check: (tol.is_some() && j > 0) as u32,
+                tol: tol.unwrap_or(0.0),
+                ..self.push
+            };
+            Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
+                .read(0, &self.visible)
+                .read(1, &self.dirs)
+                .read(2, &self.direct)
+                .read(3, &self.field[from])
+                .write(4, &self.field[to])
+                .read(5, &self.phase)
+                .read_write(6, self.stats.record())
+                .push(&push)
+                .cover([self.push.particles, d, 1])
+        }));
+        passes.push(self.stats.copy_pass(QueueRole::Diffuse));
         let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
         gpu.wait(point)?;
-        let raw: Vec<u32> = gpu.read_buffer_as(&self.stats)?;
+        let raw: Vec<u32> = self.stats.read_words(gpu)?;
         let ran = raw[1];
         let mut changes = Vec::with_capacity(ran as usize);
         let mut stopped = None;
@@ -1555,7 +1558,7 @@ impl Solver for Networks {
 
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = kernels();
-        k.extend([super::view::MARCH, super::view::SHADOW]);
+        k.extend([super::view::MARCH, super::view::SHADOW, super::feedback::COPY]);
         k
     }
 

@@ -259,7 +259,7 @@ pub struct Sweeper {
     /// fluence, the light toward the camera of the last three iterations, per-workgroup figures.
     /// (No kernel where the device lacks double precision: the test runs on the host.)
     converge: Option<Pipeline>,
-    control: Buffer,
+    control: super::feedback::Feedback,
     accum: Buffer,
     bounce: Buffer,
     extrap: Buffer,
@@ -436,7 +436,11 @@ impl Sweeper {
             deposit,
             bin,
             converge,
-            control: gpu.feedback_buffer("ordinates convergence control", std::mem::size_of::<DomControl>() as u64)?,
+            control: super::feedback::Feedback::new(
+                gpu,
+                "ordinates convergence control",
+                std::mem::size_of::<DomControl>() as u64,
+            )?,
             accum: gpu.buffer("ordinates fluence summed", per(1))?,
             bounce: gpu.buffer("ordinates last bounces", per(2))?,
             extrap: gpu.buffer("ordinates extrapolated fluence", per(1))?,
@@ -507,7 +511,9 @@ impl Sweeper {
             + if upsampled { n * m } else { 1 } // the upsampling (one float when unused)
             + if scheme == Scheme::Characteristics { 20 * n + 3 * kept(8 * slots * sv) } else { 1 + 3 }
             + kept(sv * channels) + kept(2 * sv * channels) + kept(sv * channels) + kept(3 * sv * channels); // the test's
-        4 * floats + Self::partial_bytes(channels * sv) + std::mem::size_of::<DomControl>() as u64
+        4 * floats
+            + Self::partial_bytes(channels * sv)
+            + super::feedback::Feedback::bytes(std::mem::size_of::<DomControl>() as u64)
     }
 
     /// Bytes of the convergence test's per-workgroup figures for `elements` channel-voxels.
@@ -533,7 +539,6 @@ impl Sweeper {
             &self.faces[2],
             &self.fluence,
             &self.camera,
-            &self.control,
             &self.accum,
             &self.bounce,
             &self.extrap,
@@ -542,7 +547,8 @@ impl Sweeper {
         ]
         .iter()
         .map(|b| b.size())
-        .sum()
+        .sum::<u64>()
+            + self.control.device_bytes()
     }
 
     /// Whether the source is stored at fewer directions than swept (the sweep reads all M).
@@ -687,7 +693,7 @@ impl Sweeper {
                     .read_write(7, &self.faces[0])
                     .read_write(8, &self.faces[1])
                     .read_write(9, &self.faces[2])
-                    .read(10, &self.control)
+                    .read(10, self.control.record())
                     .push(&push)
                     .cover([nx, ny, 8])
             })
@@ -705,7 +711,7 @@ impl Sweeper {
             .read(3, &self.sigma_s)
             .write(4, &self.source)
             .read_write(5, &self.camera)
-            .read(6, &self.control)
+            .read(6, self.control.record())
             .push(&ScatterPush {
                 dims: [nx, ny, nz, v],
                 storage: self.storage.len() as u32,
@@ -800,7 +806,7 @@ impl Sweeper {
                 .read_write(4, &self.extrap)
                 .read_write(5, &self.cam_hist)
                 .read_write(6, &self.partials)
-                .read_write(7, &self.control)
+                .read_write(7, self.control.record())
                 .push(&push)
                 .groups([if wide { parts } else { 1 }, 1, 1]),
             );
@@ -813,9 +819,20 @@ impl Sweeper {
         self.converge.is_some()
     }
 
-    /// The device's convergence record (after a wait for the batch).
+    /// The device's convergence record as the last batch's final pass copied it (after the
+    /// wait for that batch).
     pub fn control(&self, gpu: &Gpu) -> Result<DomControl, SolverError> {
-        Ok(bytemuck::pod_read_unaligned(&gpu.read_buffer_prefix(&self.control, self.control.size())?))
+        self.control.read(gpu)
+    }
+
+    /// The pass that copies the record out, a batch's last.
+    pub fn control_copy_pass(&self) -> Pass {
+        self.control.copy_pass(QueueRole::Diffuse)
+    }
+
+    /// The pass that zeroes the record, the first batch's first.
+    pub fn control_clear_pass(&self) -> Pass {
+        self.control.clear_pass(QueueRole::Diffuse)
     }
 
     /// The light toward the camera as it stood after iteration `n` (from 1), kept for the
