@@ -71,15 +71,32 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     };
     let exposure = scene.render.exposure;
     let csv_path = a.out_dir.join("frames.csv");
-    let mut rows = Vec::new();
-    let mut on_frame = |image: &output::Image, _: &solvers::RenderOutput, row: &animate::FrameRow| {
-        let stem = a.out_dir.join(format!("frame-{:04}", row.frame));
-        output::write_exr(&stem.with_extension("exr"), &[("", image)]).map_err(|e| e.to_string())?;
-        if a.png {
-            output::write_png_tonemapped(&stem.with_extension("png"), image, exposure).map_err(|e| e.to_string())?;
+    // The files are written on a thread of their own while the next frame computes (a frame
+    // of lbl at 1024^2 takes milliseconds of GPU; its EXR as long to write): two frames may
+    // wait in the queue, then the sequence waits for the disk. frames.csv is rewritten after
+    // every frame, with each frame's writing time, so an interrupted run keeps what it wrote.
+    let (tx, rx) = std::sync::mpsc::sync_channel::<(output::Image, animate::FrameRow)>(2);
+    let (out_dir, png) = (a.out_dir.clone(), a.png);
+    let writer_csv = csv_path.clone();
+    let writer = std::thread::spawn(move || -> Result<Vec<f64>, String> {
+        let mut written = Vec::new();
+        for (image, mut row) in rx {
+            let t = std::time::Instant::now();
+            let stem = out_dir.join(format!("frame-{:04}", row.frame));
+            output::write_exr(&stem.with_extension("exr"), &[("", &image)]).map_err(|e| e.to_string())?;
+            if png {
+                output::write_png_tonemapped(&stem.with_extension("png"), &image, exposure)
+                    .map_err(|e| e.to_string())?;
+            }
+            row.write_ms = Some(t.elapsed().as_secs_f64() * 1e3);
+            written.push(row);
+            output::write_text(&writer_csv, animate::csv(&written)?).map_err(|e| e.to_string())?;
         }
-        rows.push(row.clone());
-        output::write_text(&csv_path, animate::csv(&rows)?).map_err(|e| e.to_string())?;
+        Ok(written.iter().filter_map(|r| r.write_ms).collect())
+    });
+    let mut on_frame = |image: &output::Image, _: &solvers::RenderOutput, row: &animate::FrameRow| {
+        // A closed channel: the writer stopped on an error, reported after the join.
+        tx.send((image.clone(), row.clone())).map_err(|_| "the frame writer stopped".to_string())?;
         bar.inc(1);
         if !a.quiet {
             bar.suspend(|| {
@@ -101,18 +118,25 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     };
     let orbit = Orbit { frames: a.frames, step_deg: a.orbit_light, reference: !a.no_reference };
     let result = animate::run_sequences(&gpu, seq, reference, &scene, &orbit, &progress, &mut on_frame);
+    drop(tx);
+    let written = writer.join().map_err(|_| anyhow!("the frame writer panicked"))?;
     bar.finish_and_clear();
+    // The writer's error first: it is why the sequence stopped when it did.
+    let write_ms = written.map_err(|e| anyhow!("--out-dir {}: {e}", a.out_dir.display()))?;
     let rows = result.map_err(|e| anyhow!(e))?;
     check_validation(&gpu)?;
     let later: Vec<&animate::FrameRow> = rows.iter().skip(1).collect();
     if !later.is_empty() {
         let mean_ms = later.iter().map(|r| r.time_ms).sum::<f64>() / later.len() as f64;
         let errors: Vec<f64> = later.iter().filter_map(|r| r.rel_l2).collect();
+        let writing = write_ms.iter().skip(1).sum::<f64>() / later.len() as f64;
         eprintln!(
-            "{} frames after the first: {:.1} ms a frame ({:.2} frames/s){}",
+            "{} frames after the first: {:.1} ms a frame ({:.2} frames/s; the files {:.1} ms a frame on their own \
+             thread){}",
             later.len(),
             mean_ms,
             1e3 / mean_ms,
+            writing,
             if errors.is_empty() {
                 String::new()
             } else {

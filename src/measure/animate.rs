@@ -41,6 +41,9 @@ pub struct FrameRow {
     pub energy_ratio: Option<f64>,
     /// Iterations the converged frame took from its own previous frame.
     pub reference_iterations: Option<u64>,
+    /// Host time writing the frame's files, ms (`scatterlab animate` writes them on a thread of
+    /// their own while the next frame computes; empty where nothing was written).
+    pub write_ms: Option<f64>,
 }
 
 /// What a sequence asks for.
@@ -140,6 +143,7 @@ pub fn run_sequences(
             rel_l2: None,
             energy_ratio: None,
             reference_iterations: None,
+            write_ms: None,
         };
         if let Some(r) = &mut reference {
             let truth = r.frame(gpu, &s, &|_| {}).map_err(|e| e.to_string())?;
