@@ -715,11 +715,13 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         }
     }
     if (ev_step == EV_ESCAPE) {
-        if (ENVIRONMENT && max3(beta) > 0.0) {
+        if (max3(beta) > 0.0) {
+            // The loop runs without an environment too: its iteration count decides where a
+            // paused path resumes, and the image must not depend on ENVIRONMENT.
             for (; ev_light < light_count; ev_light++) {
                 if (iters >= iter_limit) return EVENT_PAUSED;
                 iters++;
-                if (uint(scene.lights[ev_light].pos_kind.w) != LIGHT_ENVIRONMENT) continue;
+                if (!ENVIRONMENT || uint(scene.lights[ev_light].pos_kind.w) != LIGHT_ENVIRONMENT) continue;
                 // The camera ray sees the environment directly; later escapes share the
                 // environment with its next-event estimate by MIS, except past a refraction or
                 // reflection (pdf_dir < 0), which next-event estimation cannot reach.
