@@ -36,6 +36,7 @@ mod single_refraction_tests;
 mod slab_reference;
 mod solvers;
 mod stability_tests;
+mod staged_setup_tests;
 mod timeline_tests;
 mod vdb_tests;
 mod wavefront_tests;

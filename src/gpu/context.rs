@@ -38,6 +38,10 @@ pub struct GpuOptions {
     /// Open the device as if it lacked `shaderFloat64`: the solvers then test convergence on
     /// the host, as on such devices (tests compare the two).
     pub without_float64: bool,
+    /// Treat device-local memory as if the host could not map it (a discrete GPU without
+    /// resizable BAR), so that lavapipe takes the staged uploads and device fills such GPUs
+    /// take (tests compare the two).
+    pub unmapped_device_memory: bool,
 }
 
 impl Default for GpuOptions {
@@ -58,6 +62,7 @@ impl Default for GpuOptions {
             queues,
             cache_dir,
             without_float64: false,
+            unmapped_device_memory: false,
         }
     }
 }
@@ -120,6 +125,8 @@ pub(crate) struct Shared {
     /// Query pools are reset from the host (Vulkan 1.2 hostQueryReset): a transfer-only queue
     /// cannot record vkCmdResetQueryPool, and its copies are timed like passes.
     pub host_query_reset: bool,
+    /// [`GpuOptions::unmapped_device_memory`].
+    pub unmapped_device_memory: bool,
     pub roles: [RoleQueue; 3],
     pub info: DeviceInfo,
     /// Families of the compute roles (ordinary buffers are shared among these).
@@ -446,6 +453,8 @@ pub struct Gpu {
     pub(crate) host: Arc<Mutex<super::host::HostTimes>>,
     /// Staging buffers kept between uploads [0] and readbacks [1] (super::memory).
     pub(crate) staging_cache: Arc<Mutex<[Option<super::memory::Staging>; 2]>>,
+    /// Fills and uploads waiting for the next submission, and the upload ring (super::setup).
+    pub(crate) setup: Arc<Mutex<super::setup::Setup>>,
     /// Pipelines built in this process, and what each render asked for (super::pipeline).
     pub(crate) pipeline_memo: Arc<Mutex<super::pipeline::PipelineMemo>>,
     pub(crate) timeout: Duration,
@@ -636,6 +645,7 @@ impl Gpu {
             push_descriptor: ash::khr::push_descriptor::Device::new(&instance, &device),
             calibrated: calibrated.then(|| ash::ext::calibrated_timestamps::Device::new(&instance, &device)),
             host_query_reset,
+            unmapped_device_memory: opts.unmapped_device_memory,
             _entry: entry,
             instance,
             device,
@@ -654,6 +664,7 @@ impl Gpu {
             submit: Arc::new(Mutex::new(super::submit::SubmitState::default())),
             host: Arc::new(Mutex::new(super::host::HostTimes::default())),
             staging_cache: Arc::new(Mutex::new([None, None])),
+            setup: Arc::new(Mutex::new(Default::default())),
             pipeline_memo: Arc::new(Mutex::new(Default::default())),
             timeout: opts.timeout,
         })

@@ -35,7 +35,8 @@ pub struct HostTimes {
     pub pipelines: HostCost,
     /// Buffers created, their memory allocated and bound (bytes: their sizes).
     pub allocations: HostCost,
-    /// Device buffers zero-filled at creation (a fill and a wait each).
+    /// Device buffers zero-filled (a memset where host-visible, else a fill recorded for the
+    /// next submission: gpu/setup.rs).
     pub fills: HostCost,
     /// Host data written into buffers (through a staging buffer where not host-visible).
     pub uploads: HostCost,

@@ -28,6 +28,11 @@ pub(crate) struct BufferInner {
     /// back its own results does not wait for another role's work (path's light paths beside
     /// its camera paths).
     pub last_use: [AtomicU64; 3],
+    /// The submission of set-up work (super::setup) that last wrote it: value << 2 | role, 0
+    /// for none.
+    pub setup_point: AtomicU64,
+    /// In memory the solvers meant for the device alone (`MemoryLocation::GpuOnly`).
+    pub device_local: bool,
 }
 
 /// Return an allocation to gpu-allocator (after its Vulkan object is destroyed). A failure
@@ -78,7 +83,9 @@ impl Buffer {
     /// Host pointer when the memory is host-visible and coherent (lavapipe, ReBAR), else None.
     fn mapped(&self) -> Option<*mut u8> {
         let a = self.inner.allocation.as_ref()?;
-        if !a.memory_properties().contains(vk::MemoryPropertyFlags::HOST_COHERENT) {
+        if !a.memory_properties().contains(vk::MemoryPropertyFlags::HOST_COHERENT)
+            || (self.inner.device_local && self.inner.shared.unmapped_device_memory)
+        {
             return None;
         }
         a.mapped_ptr().map(|p| p.as_ptr() as *mut u8)
@@ -288,6 +295,8 @@ impl Gpu {
                 name: name.into(),
                 transfer,
                 last_use: Default::default(),
+                setup_point: Default::default(),
+                device_local: location == MemoryLocation::GpuOnly,
             }),
         })
     }
@@ -298,7 +307,13 @@ impl Gpu {
         self.staging(name, size, MemoryLocation::GpuToCpu, true)
     }
 
-    fn staging(&self, name: &str, size: u64, location: MemoryLocation, transfer: bool) -> Result<(Buffer, *mut u8)> {
+    pub(crate) fn staging(
+        &self,
+        name: &str,
+        size: u64,
+        location: MemoryLocation,
+        transfer: bool,
+    ) -> Result<(Buffer, *mut u8)> {
         let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::empty(), location, transfer)?;
         let a = b.inner.allocation.as_ref().expect("allocated");
         let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc {
@@ -324,6 +339,11 @@ impl Gpu {
             }
             unsafe { std::ptr::write_bytes(p, 0, b.size() as usize) };
             self.host_add(HostKind::Fills, b.size(), started);
+            return Ok(());
+        }
+        // A buffer no submitted work uses is zeroed by the next submission (super::setup).
+        if !in_use || self.idle(b) {
+            self.defer_fill(b);
             return Ok(());
         }
         let raw = b.raw();
@@ -357,6 +377,11 @@ impl Gpu {
             return Ok(());
         }
         let n = bytes.len() as u64;
+        // Into a buffer no submitted work uses: staged in the ring and copied by the next
+        // submission (super::setup), with no submission and wait of its own.
+        if self.idle(b) && self.defer_upload(b, offset, bytes)? {
+            return Ok(());
+        }
         self.with_staging(n, false, |stage, p| {
             unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p, bytes.len()) };
             let (src, dst) = (stage.raw(), b.raw());
@@ -378,14 +403,17 @@ impl Gpu {
     pub fn read_buffer_prefix(&self, b: &Buffer, bytes: u64) -> Result<Vec<u8>> {
         let n = bytes.min(b.size());
         let started = Instant::now();
-        // Only the work that used this buffer: another role's work goes on meanwhile.
-        self.wait_points(&b.last_uses())?;
+        // Set-up work not yet submitted may write it.
+        self.flush_setup(QueueRole::Trace)?;
         if let Some(p) = b.mapped() {
+            // Only the work that used this buffer: another role's work goes on meanwhile.
+            self.wait_points(&b.last_uses())?;
             let mut out = vec![0u8; n as usize];
             unsafe { std::ptr::copy_nonoverlapping(p, out.as_mut_ptr(), out.len()) };
             self.host_add(HostKind::Readbacks, n, started);
             return Ok(out);
         }
+        // The copy waits on the device for the work that used the buffer, the host for the copy.
         let out = self.with_staging(n, true, |stage, p| {
             let (src, dst) = (b.raw(), stage.raw());
             self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {

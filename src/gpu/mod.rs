@@ -9,6 +9,7 @@ mod host;
 mod memory;
 mod pipeline;
 mod queues;
+mod setup;
 mod submit;
 
 pub use cache::{default_cache_dir, PipelineCacheStatus, ENV_CACHE_DIR};

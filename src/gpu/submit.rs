@@ -235,7 +235,7 @@ pub(crate) struct SubmitState {
     /// once and is not counted as a round trip. Only waits raise it (not a poll of the
     /// timeline): the count of host waits is then the code's own, the same on a CPU driver,
     /// which finishes work while it is submitted, as on a GPU, which runs behind the host.
-    completed: [u64; 3],
+    pub(crate) completed: [u64; 3],
     /// When the first submission of passes since the last [`Gpu::take_first_submit`] was
     /// made: a render's start-up is the time before it (pipelines, allocations, uploads).
     first_submit: Option<Instant>,
@@ -274,6 +274,16 @@ impl Gpu {
                 });
             }
         }
+        // Set-up work recorded since the last submission goes first, on this queue; what
+        // another role set up is waited for on the device (super::setup).
+        self.flush_setup(role)?;
+        let mut waits = waits.to_vec();
+        let bound = passes.iter().flat_map(|p| p.bindings.iter()).filter_map(|b| match &b.resource {
+            Resource::Buffer(buf) => Some(buf),
+            Resource::Image(_) => None,
+        });
+        waits.extend(self.setup_waits(role, bound));
+        let waits = &waits[..];
         let passes_owned = passes.to_vec();
         let names: Vec<String> = passes.iter().map(|p| p.name.clone()).collect();
         let s = self.shared.clone();
@@ -418,6 +428,10 @@ impl Gpu {
                 });
             }
         }
+        self.flush_setup(QueueRole::Trace)?;
+        let mut waits = waits.to_vec();
+        waits.extend(self.setup_waits(role, stages.iter().flatten().flat_map(|c| [&c.src, &c.dst])));
+        let waits = &waits[..];
         let keep: Vec<Resource> =
             stages.iter().flatten().flat_map(|c| [Resource::from(&c.src), Resource::from(&c.dst)]).collect();
         let d = self.shared.device.clone();
@@ -482,7 +496,7 @@ impl Gpu {
 
     /// Record a command buffer with `record` and submit it on `role` with waits and a signal.
     #[allow(clippy::too_many_arguments)]
-    fn record_and_submit(
+    pub(crate) fn record_and_submit(
         &self,
         role: QueueRole,
         waits: &[SyncPoint],
@@ -603,6 +617,9 @@ impl Gpu {
         images: &[Image3d],
         record: impl FnOnce(&ash::Device, vk::CommandBuffer),
     ) -> Result<()> {
+        // Set-up work recorded before this copy is submitted first: the copy may read or write
+        // what it writes, and its point becomes a last use the copy waits for.
+        self.flush_setup(QueueRole::Trace)?;
         let keep: Vec<Resource> = buffers.iter().map(Resource::from).chain(images.iter().map(Resource::from)).collect();
         let mut waits: Vec<SyncPoint> = buffers.iter().flat_map(|b| b.last_uses()).collect();
         if !images.is_empty() {
@@ -710,6 +727,7 @@ impl Gpu {
 
     /// Wait until everything submitted on every role has finished (one host wait).
     pub fn wait_idle_roles(&self) -> Result<()> {
+        self.flush_setup(QueueRole::Trace)?;
         let points: Vec<SyncPoint> =
             QueueRole::ALL.iter().map(|r| self.submitted(*r)).filter(|p| p.value > 0).collect();
         self.wait_points(&points)

@@ -294,9 +294,12 @@ impl WaveKernels {
     }
 }
 
-/// Resample and march the spherical grid of one point light (eq. 4-6).
+/// The spherical grid of one point light and the passes that resample and march it (eq. 4-6),
+/// not yet submitted: the caller adds the gather and submits the three at once, one host wait
+/// per light. The march adds its counts of negative and non-finite nodes to `stats` (words
+/// 0-2), which the caller reads after the last light.
 #[allow(clippy::too_many_arguments)]
-pub fn trace_light(
+fn light_passes(
     gpu: &Gpu,
     scene: &Scene,
     gs: &GpuScene,
@@ -304,7 +307,8 @@ pub fn trace_light(
     set: &WaveSettings,
     position: Vec3,
     intensity: Vec3,
-) -> Result<WaveField, SolverError> {
+    stats: &Buffer,
+) -> Result<(WaveField, Vec<Pass>), SolverError> {
     let m = &scene.medium;
     let radius = (0..8)
         .map(|k| {
@@ -329,7 +333,7 @@ pub fn trace_light(
             nodes * 16
         )));
     }
-    let mut f = WaveField {
+    let f = WaveField {
         position,
         intensity,
         radius,
@@ -345,7 +349,6 @@ pub fn trace_light(
         nonfinite_nodes: 0,
         failed_rays: 0,
     };
-    let stats = gpu.buffer("wave field stats", 16)?;
     let push = f.push(set);
     let passes = vec![
         gs.bind(Pass::new("wave_field.resample", QueueRole::Trace, &kernels.resample))
@@ -357,10 +360,27 @@ pub fn trace_light(
             .read_write(4, &f.psi0)
             .read_write(5, &f.psi1)
             .write(6, &f.tau)
-            .read_write(7, &stats)
+            .read_write(7, stats)
             .push(&push)
             .cover([set.nu, set.nv, 1]),
     ];
+    Ok((f, passes))
+}
+
+/// Resample and march the spherical grid of one point light (eq. 4-6) and wait for it, with
+/// its counts of negative and non-finite nodes (the tests read single fields).
+#[allow(clippy::too_many_arguments)]
+pub fn trace_light(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    kernels: &WaveKernels,
+    set: &WaveSettings,
+    position: Vec3,
+    intensity: Vec3,
+) -> Result<WaveField, SolverError> {
+    let stats = gpu.buffer("wave field stats", 16)?;
+    let (mut f, passes) = light_passes(gpu, scene, gs, kernels, set, position, intensity, &stats)?;
     let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
     gpu.wait(point)?;
     let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
@@ -412,7 +432,9 @@ pub fn wave_volume(
     let lights = traced_lights(scene);
     let channels = volume_channels(&lights, gs.modelled.chromatic);
     let energy = gpu.buffer("wave field volume", v * 4 * channels as u64 * 4)?;
+    // Gather stats (word 0: non-finite voxels), then the march's (words 0-2 of the second).
     let stats = gpu.buffer("wave field gather stats", 16)?;
+    let march_stats = gpu.buffer("wave field stats", 16)?;
     let kernels = WaveKernels::new(gpu, gs)?;
     let mut out = WaveVolume {
         energy,
@@ -427,27 +449,32 @@ pub fn wave_volume(
     };
     let mut field_bytes = 0;
     for (pos, intensity) in lights {
-        let f = trace_light(gpu, scene, gs, &kernels, set, pos, intensity)?;
-        out.negative_nodes += f.negative_nodes;
-        out.nonfinite_nodes += f.nonfinite_nodes;
-        out.failed_rays += f.failed_rays;
+        let (f, mut passes) = light_passes(gpu, scene, gs, &kernels, set, pos, intensity, &march_stats)?;
         field_bytes = field_bytes.max(f.device_bytes());
         let mut push = f.push(set);
         push.cart_dims = [geom.dims[0], geom.dims[1], geom.dims[2], channels];
         push.cart_origin = [geom.origin[0], geom.origin[1], geom.origin[2], geom.lambda];
-        let pass = Pass::new("wave_field.gather", QueueRole::Trace, &kernels.gather)
-            .read(0, &f.psi0)
-            .read(1, &f.psi1)
-            .read(2, &f.tau)
-            .read_write(3, &out.energy)
-            .read_write(4, &stats)
-            .push(&push)
-            .cover(geom.dims);
-        let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
+        passes.push(
+            Pass::new("wave_field.gather", QueueRole::Trace, &kernels.gather)
+                .read(0, &f.psi0)
+                .read(1, &f.psi1)
+                .read(2, &f.tau)
+                .read_write(3, &out.energy)
+                .read_write(4, &stats)
+                .push(&push)
+                .cover(geom.dims),
+        );
+        // One submission and one wait per light: the light's grid is freed before the next one
+        // is made, so a scene's lights never hold more than one grid of device memory.
+        let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
         gpu.wait(point)?;
     }
     let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
     out.nonfinite_voxels = st[0] as u64;
-    out.device_bytes = out.energy.size() + stats.size() + field_bytes;
+    let ms: Vec<u32> = gpu.read_buffer_as(&march_stats)?;
+    out.negative_nodes = ms[0] as u64;
+    out.nonfinite_nodes = ms[1] as u64;
+    out.failed_rays = ms[2] as u64;
+    out.device_bytes = out.energy.size() + stats.size() + march_stats.size() + field_bytes;
     Ok(out)
 }
