@@ -1368,3 +1368,18 @@ fn object_scenes_from_the_command_line() {
     std::fs::write(&s, text).unwrap();
     c.fails(["scene", "info", s.to_str().unwrap()], &["open.toml", "object[0].mesh", "open.obj", "not closed"]);
 }
+
+#[test]
+fn render_help_says_what_each_solver_is_for() {
+    let out = Command::new(env!("CARGO_BIN_EXE_scatterlab")).args(["render", "--help"]).output().unwrap();
+    let (stdout, _) = succeeded(&out);
+    let text = stdout.split_whitespace().collect::<Vec<_>>().join(" ");
+    for s in scatterlab::solvers::SOLVERS {
+        let about = s.about().split_whitespace().collect::<Vec<_>>().join(" ");
+        assert!(
+            text.contains(&format!("- {}: {about}", s.name())),
+            "render --help lacks {}'s line: {stdout}",
+            s.name()
+        );
+    }
+}

@@ -269,7 +269,8 @@ fn direct_source_and_view_stream_slab_by_slab_within_the_budget() {
     );
     assert_eq!(cloud_sky.lights.len(), cloud.lights.len() + 1);
     // (name, scene, sets, budget MiB, view in slabs, beams summed in groups)
-    let cases: [(&str, &scatterlab::scene::Scene, &[(&str, &str)], f64, bool, bool); 2] = [
+    type Case<'a> = (&'a str, &'a scatterlab::scene::Scene, &'a [(&'a str, &'a str)], f64, bool, bool);
+    let cases: [Case; 2] = [
         (
             "sphere under a sun and a sky, 40^3",
             &sphere,
@@ -417,7 +418,7 @@ fn overlap_eviction_frees_the_copies_from_the_sweep_before_them() {
         .expect("the render");
         assert_eq!(out.image.nan_inf_count(), 0, "{evict}: NaN/Inf in the image");
         let s = out.report.detail::<scatterlab::solvers::dom::DomStats>().expect("dom's stats");
-        let st = s.streaming.clone().expect("block sweeps");
+        let st = s.streaming.expect("block sweeps");
         assert!(st.pool_slots * 4 < st.blocks, "{evict}: the blocks stream: {st:?}");
         (out.image, st)
     };

@@ -29,7 +29,7 @@ fn pass_bindings_are_checked_against_reflection() {
     let push = ProbePush { g: 0.0, count: 0, eval_count: 0, seed: 0 };
     // Missing binding 2.
     let pass = Pass::new("probe.missing", QueueRole::Trace, &p).write(0, &a).read(1, &a).push(&push);
-    let e = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail");
+    let e = gpu.submit(QueueRole::Trace, &[pass], &[]).expect_err("must fail");
     let msg = e.to_string();
     assert!(matches!(e, GpuError::Binding { binding: 2, .. }), "{msg}");
     assert!(msg.contains("probe.missing") && msg.contains("binding 2"), "{msg}");
@@ -37,15 +37,15 @@ fn pass_bindings_are_checked_against_reflection() {
     let img = gpu.image3d_with("vol", [1, 1, 1], scatterlab::gpu::VolumeFormat::R32F, &[0.0]).unwrap();
     let pass =
         Pass::new("probe.extra", QueueRole::Trace, &p).write(0, &a).read(1, &a).write(2, &a).read(7, &img).push(&push);
-    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail").to_string();
+    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).expect_err("must fail").to_string();
     assert!(msg.contains("probe.extra") && msg.contains("binding 7"), "{msg}");
     // An image where a buffer is declared.
     let pass = Pass::new("probe.kind", QueueRole::Trace, &p).write(0, &img).read(1, &a).write(2, &a).push(&push);
-    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail").to_string();
+    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).expect_err("must fail").to_string();
     assert!(msg.contains("probe.kind") && msg.contains("binding 0"), "{msg}");
     // Wrong push-constant size.
     let pass = Pass::new("probe.push", QueueRole::Trace, &p).write(0, &a).read(1, &a).write(2, &a).push(&0u32);
-    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).err().expect("must fail").to_string();
+    let msg = gpu.submit(QueueRole::Trace, &[pass], &[]).expect_err("must fail").to_string();
     assert!(msg.contains("probe.push") && msg.contains("push constants"), "{msg}");
     assert_clean(&gpu);
 }
@@ -58,7 +58,7 @@ fn a_wait_before_its_signal_is_refused_not_deadlocked() {
     let push = ProbePush { g: 0.0, count: 0, eval_count: 0, seed: 0 };
     let pass = Pass::new("probe", QueueRole::Diffuse, &p).write(0, &a).read(1, &a).write(2, &a).push(&push);
     let future = SyncPoint { role: QueueRole::Trace, value: gpu.submitted(QueueRole::Trace).value + 1 };
-    let e = gpu.submit(QueueRole::Diffuse, &[pass], &[future]).err().expect("must be refused");
+    let e = gpu.submit(QueueRole::Diffuse, &[pass], &[future]).expect_err("must be refused");
     assert!(matches!(e, GpuError::WaitBeforeSignal { .. }), "{e}");
     assert!(e.to_string().contains("deadlock"));
     assert_clean(&gpu);

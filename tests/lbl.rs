@@ -350,8 +350,7 @@ fn blocked_and_global_lattices_agree_after_convergence() {
             if shared > gpu.info().max_compute_shared_memory {
                 // Too big for this device: refused up front, naming the knob, not a validation error.
                 let e = diffuse_impulse(&gpu, lattice, dims, 0.4, 0.95, 0.3, 1.0, block, steps, [5, 9, 8], 8)
-                    .err()
-                    .expect("refused");
+                    .expect_err("refused");
                 assert!(e.to_string().contains("block 8") && e.to_string().contains("shared memory"), "{e}");
                 continue;
             }

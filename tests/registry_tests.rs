@@ -483,3 +483,15 @@ fn specialisation_constant_names_match_the_glsl() {
     let table: std::collections::BTreeMap<u32, String> = SPEC_NAMES.iter().map(|(i, n)| (*i, n.to_string())).collect();
     assert_eq!(seen, table, "gpu_scene::SPEC_NAMES differs from the GLSL declarations");
 }
+
+/// docs/architecture.md's row for meshes names exactly the solvers that render them.
+#[test]
+fn the_architecture_names_the_solvers_that_render_meshes() {
+    let doc = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/architecture.md")).unwrap();
+    let row = doc.lines().find(|l| l.starts_with("| an [[object]]'s mesh")).expect("the mesh row");
+    let users = row.rsplit('|').nth(1).expect("the row's last column");
+    for s in scatterlab::solvers::SOLVERS {
+        let named = users.contains(&format!("`{}`", s.name()));
+        assert_eq!(named, s.renders_meshes(), "docs/architecture.md's mesh row and {}: {users}", s.name());
+    }
+}

@@ -60,9 +60,7 @@ pub fn slab_discrete_ordinates(tau: f64, albedo: f64, g: f64, mu0: f64, n_half: 
             phase[i][j] = series(&pl[i], &pl[j]);
         }
         let norm: f64 = (0..n).map(|j| wt[j] * phase[i][j]).sum::<f64>() / 2.0;
-        for j in 0..n {
-            phase[i][j] /= norm;
-        }
+        phase[i].iter_mut().for_each(|p| *p /= norm);
     }
     // The once-scattered beam likewise: its discrete distribution over the nodes carries
     // all the scattered energy (a g = 0.75 lobe on 24 nodes would lose 3e-4 of it).

@@ -54,8 +54,8 @@ fn absorber_exact(n: u32) -> Vec<f64> {
                     let chord = ray_sphere(s.camera.origin, d, glam::Vec3::ZERO, 0.45)
                         .map(|(a, b)| (b - a.max(0.0)).max(0.0))
                         .unwrap_or(0.0) as f64;
-                    for c in 0..3 {
-                        acc[c] += 1.5 * (-(s.medium.sigma_t[c] as f64) * chord).exp();
+                    for (a, sigma_t) in acc.iter_mut().zip(s.medium.sigma_t.to_array()) {
+                        *a += 1.5 * (-(sigma_t as f64) * chord).exp();
                     }
                 }
             }

@@ -52,23 +52,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 
-// (1 - e^-x) / x and (x - 1 + e^-x) / x^2 without cancellation near 0 (sweep.comp's).
-vec2 phi_psi(float x) {
-    if (x < 0.5) {
-        float p = 1.0, q = 0.5, t = 1.0;
-        float fp = 1.0, fq = 0.5;
-        for (int k = 1; k <= 7; ++k) {
-            t *= -x;
-            fp /= float(k + 1);
-            fq /= float(k + 2);
-            p += t * fp;
-            q += t * fq;
-        }
-        return vec2(p, q);
-    }
-    float e = exp(-x);
-    return vec2((1.0 - e) / x, (x - 1.0 + e) / (x * x));
-}
+#include "../include/characteristics.glsl"
 
 // Record layout (floats, Bv = B^3 voxels, x fastest, F = B^2): sigma_t [C][Bv], sigma_s [C][Bv],
 // source [C][M][Bv] (G''), scattered [C][M][Bv] (G'), fluence [C][Bv] (this bounce's),

@@ -57,26 +57,8 @@ float read_face(int axis, uint i) {
     return axis == 0 ? face_x[i] : (axis == 1 ? face_y[i] : face_z[i]);
 }
 
-// (1 - e^-x) / x and (x - 1 + e^-x) / x^2 without cancellation near 0: float has no expm1, so
-// their Taylor series below x = 0.5 (the first term left out is below 3e-8 there; above it,
-// x - 1 + e^-x > 0.1 keeps the direct form within 1e-6).
-vec2 phi_psi(float x) {
-    if (x < 0.5) {
-        float p = 1.0, q = 0.5, t = 1.0;
-        // x^k / (k + 1)! and x^k / (k + 2)!, alternating.
-        float fp = 1.0, fq = 0.5;
-        for (int k = 1; k <= 7; ++k) {
-            t *= -x;
-            fp /= float(k + 1);
-            fq /= float(k + 2);
-            p += t * fp;
-            q += t * fq;
-        }
-        return vec2(p, q);
-    }
-    float e = exp(-x);
-    return vec2((1.0 - e) / x, (x - 1.0 + e) / (x * x));
-}
+#extension GL_GOOGLE_include_directive : require
+#include "../include/characteristics.glsl"
 
 uint voxel_index(ivec3 p) {
     return uint(p.x) + pc.dims.x * (uint(p.y) + pc.dims.y * uint(p.z));

@@ -7,14 +7,14 @@ mod render;
 
 use std::path::PathBuf;
 
-use clap::builder::PossibleValuesParser;
+use clap::builder::{PossibleValue, PossibleValuesParser};
 use clap::{Args, Parser, Subcommand};
 
 use crate::solvers::{self, Schedule};
 
-/// `--solver`'s values: every registered solver.
+/// `--solver`'s values: every registered solver, each with what it is for (`--help` lists them).
 fn solver_names() -> PossibleValuesParser {
-    PossibleValuesParser::new(solvers::names())
+    PossibleValuesParser::new(solvers::SOLVERS.iter().map(|s| PossibleValue::new(s.name()).help(s.about())))
 }
 
 #[derive(Parser, Debug)]

@@ -134,7 +134,7 @@ pub(crate) struct Shared {
     /// Every family in use, the transfer role's included (buffers the copies touch).
     pub copy_families: Vec<u32>,
     pub validation: Arc<ValidationLog>,
-    _validation_box: Option<Box<Arc<ValidationLog>>>,
+    _validation_box: Option<LogBox>,
     /// The pipeline cache, loaded from disk at open and saved back at drop (super::cache).
     pub pipeline_cache: Mutex<super::cache::DiskCache>,
 }
@@ -151,6 +151,47 @@ impl Shared {
                 let info = vk::DebugUtilsObjectNameInfoEXT::default().object_handle(handle).object_name(&cname);
                 // Naming is best effort: a failure only loses a debug label.
                 let _ = unsafe { du.set_debug_utils_object_name(&info) };
+            }
+        }
+    }
+}
+
+/// What `Gpu::open_device` has made since the device: destroyed in reverse order by the drop
+/// when a later step fails, handed to `Shared` by [`Opening::disarm`] when none does.
+#[derive(Default)]
+struct Opening {
+    device: Option<ash::Device>,
+    debug_utils: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    semaphores: Vec<vk::Semaphore>,
+    pools: Vec<vk::CommandPool>,
+    allocator: Option<Allocator>,
+}
+
+/// The allocator and messenger, handed over.
+type Handover = (Option<Allocator>, Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>);
+
+impl Opening {
+    fn disarm(mut self) -> Handover {
+        self.device = None;
+        (self.allocator.take(), self.debug_utils.take())
+    }
+}
+
+impl Drop for Opening {
+    fn drop(&mut self) {
+        let Some(device) = self.device.take() else { return };
+        unsafe {
+            // The allocator frees its memory through the device: first.
+            drop(self.allocator.take());
+            for p in &self.pools {
+                device.destroy_command_pool(*p, None);
+            }
+            for s in &self.semaphores {
+                device.destroy_semaphore(*s, None);
+            }
+            device.destroy_device(None);
+            if let Some((du, m)) = self.debug_utils.take() {
+                du.destroy_debug_utils_messenger(m, None);
             }
         }
     }
@@ -304,11 +345,16 @@ fn load_entry() -> Result<ash::Entry> {
     unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))
 }
 
+/// The validation messengers' user data: a `Box` so that its address (handed to the layer as a
+/// thin `*mut c_void`) stays put while the `Arc` inside is shared with the device.
+#[allow(clippy::redundant_allocation)]
+type LogBox = Box<Arc<ValidationLog>>;
+
 fn create_instance(
     entry: &ash::Entry,
     validate: bool,
     log: &Arc<ValidationLog>,
-) -> Result<(ash::Instance, Option<Box<Arc<ValidationLog>>>, bool)> {
+) -> Result<(ash::Instance, Option<LogBox>, bool)> {
     let app = vk::ApplicationInfo::default()
         .application_name(c"scatterlab")
         .engine_name(c"scatterlab")
@@ -479,7 +525,7 @@ impl Gpu {
     fn open_device(
         entry: ash::Entry,
         instance: ash::Instance,
-        boxed: &mut Option<Box<Arc<ValidationLog>>>,
+        boxed: &mut Option<LogBox>,
         debug: bool,
         log: Arc<ValidationLog>,
         opts: &GpuOptions,
@@ -550,19 +596,21 @@ impl Gpu {
             info = info.push_next(&mut fa);
         }
         let device = unsafe { instance.create_device(pd, &info, None) }.vk("vkCreateDevice")?;
+        // From here on a failure destroys what was made (the guard's drop), before the caller
+        // destroys the instance.
+        let mut made = Opening::default();
+        made.device = Some(device.clone());
 
-        let debug_utils = if debug {
+        if debug {
             let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
             // A fresh create-info: reusing one that was chained trips the layer (vulkan-notes.md).
             let mi = messenger_create_info(boxed.as_deref());
             let m = unsafe { du.create_debug_utils_messenger(&mi, None) }.vk("vkCreateDebugUtilsMessengerEXT")?;
-            Some((du, m))
-        } else {
-            None
-        };
+            made.debug_utils = Some((du, m));
+        }
         let debug_device = debug.then(|| ash::ext::debug_utils::Device::new(&instance, &device));
 
-        let make_role = |role: QueueRole| -> Result<RoleQueue> {
+        let make_role = |role: QueueRole, made: &mut Opening| -> Result<RoleQueue> {
             let slot = mapping.slot(role);
             let queue = unsafe { device.get_device_queue(slot.family, slot.index) };
             let mut ty =
@@ -570,6 +618,7 @@ impl Gpu {
             let timeline =
                 unsafe { device.create_semaphore(&vk::SemaphoreCreateInfo::default().push_next(&mut ty), None) }
                     .vk("vkCreateSemaphore")?;
+            made.semaphores.push(timeline);
             let pool = unsafe {
                 device.create_command_pool(
                     &vk::CommandPoolCreateInfo::default()
@@ -579,9 +628,14 @@ impl Gpu {
                 )
             }
             .vk("vkCreateCommandPool")?;
+            made.pools.push(pool);
             Ok(RoleQueue { queue, family: slot.family, timeline, pool })
         };
-        let roles = [make_role(QueueRole::Trace)?, make_role(QueueRole::Diffuse)?, make_role(QueueRole::Transfer)?];
+        let roles = [
+            make_role(QueueRole::Trace, &mut made)?,
+            make_role(QueueRole::Diffuse, &mut made)?,
+            make_role(QueueRole::Transfer, &mut made)?,
+        ];
 
         let allocator = Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
@@ -592,6 +646,7 @@ impl Gpu {
             allocation_sizes: Default::default(),
         })
         .map_err(|e| GpuError::Alloc { name: "allocator".into(), bytes: 0, reason: e.to_string() })?;
+        made.allocator = Some(allocator);
 
         let mut driver = vk::PhysicalDeviceDriverProperties::default();
         let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
@@ -626,17 +681,10 @@ impl Gpu {
             mapping,
             device_local_bytes,
         };
-        let (disk_cache, cache_warning) = match super::cache::DiskCache::open(
-            &device,
-            opts.cache_dir.as_deref(),
-            super::cache::CacheIdentity::of(&props),
-        ) {
-            Ok(c) => c,
-            Err(e) => {
-                unsafe { device.destroy_device(None) };
-                return Err(e);
-            }
-        };
+        let (disk_cache, cache_warning) =
+            super::cache::DiskCache::open(&device, opts.cache_dir.as_deref(), super::cache::CacheIdentity::of(&props))?;
+        // Everything made: Shared owns it from here (and destroys it in its drop).
+        let (allocator, debug_utils) = made.disarm();
         if let Some(w) = &cache_warning {
             eprintln!("warning: {w}");
         }
@@ -649,7 +697,7 @@ impl Gpu {
             _entry: entry,
             instance,
             device,
-            allocator: Mutex::new(Some(allocator)),
+            allocator: Mutex::new(allocator),
             debug_utils,
             debug_device,
             roles,

@@ -348,7 +348,7 @@ impl Gpu {
         }
         let raw = b.raw();
         let size = b.size();
-        self.one_shot(&[b.clone()], &[], |d, cb| unsafe { d.cmd_fill_buffer(cb, raw, 0, size, 0) })?;
+        self.one_shot(std::slice::from_ref(b), &[], |d, cb| unsafe { d.cmd_fill_buffer(cb, raw, 0, size, 0) })?;
         self.host_add(HostKind::Fills, size, started);
         Ok(())
     }
@@ -519,7 +519,7 @@ impl Gpu {
         let (stage, p) = self.staging("staging volume upload", voxels * 4, MemoryLocation::CpuToGpu, false)?;
         unsafe { std::ptr::copy_nonoverlapping(data.as_ptr() as *const u8, p, data.len() * 4) };
         let src = stage.raw();
-        self.one_shot(&[stage.clone()], &[image.clone()], |d, cb| unsafe {
+        self.one_shot(std::slice::from_ref(&stage), std::slice::from_ref(&image), |d, cb| unsafe {
             let to_dst = vk::ImageMemoryBarrier2::default()
                 .src_stage_mask(vk::PipelineStageFlags2::NONE)
                 .dst_stage_mask(vk::PipelineStageFlags2::COPY)

@@ -393,8 +393,8 @@ impl Gpu {
                     if let Some(pool) = pool {
                         d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::COMPUTE_SHADER, pool, 2 * i as u32 + 1);
                     }
-                    if s.debug_device.is_some() {
-                        s.debug_device.as_ref().unwrap().cmd_end_debug_utils_label(cb);
+                    if let Some(du) = &s.debug_device {
+                        du.cmd_end_debug_utils_label(cb);
                     }
                 }
                 // What the passes wrote is visible to the host once the submission's point is

@@ -182,8 +182,8 @@ pub fn run(
         // Exact answers under the environment: the pure absorber (every camera ray crosses one
         // unit: L exp(-sigma_t)) and the furnace (albedo 1: L everywhere).
         let exact_value = match (case.light, case.albedo) {
-            (None, a) if a == 0.0 => Some((-(case.tau as f64)).exp() as f32),
-            (None, a) if a == 1.0 => Some(1.0),
+            (None, 0.0) => Some((-(case.tau as f64)).exp() as f32),
+            (None, 1.0) => Some(1.0),
             _ => None,
         };
         let exact = exact_value.map(|x| {

@@ -97,20 +97,16 @@ pub fn characteristic_geometry(a: [f64; 3]) -> Geometry {
     // T[i][o] = |w_o| f[i][o]: balance its rows to |w_i| and columns to |w_o| (Sinkhorn on
     // 3 x 3; the sampled fractions are within 1/K of it already).
     for _ in 0..200 {
-        for i in 0..3 {
-            let row: f64 = (0..3).map(|o| a[o] * f[i][o]).sum();
+        for (fi, ai) in f.iter_mut().zip(a) {
+            let row: f64 = fi.iter().zip(a).map(|(fio, ao)| ao * fio).sum();
             if row > 0.0 {
-                for o in 0..3 {
-                    f[i][o] *= a[i] / row;
-                }
+                fi.iter_mut().for_each(|fio| *fio *= ai / row);
             }
         }
         for o in 0..3 {
-            let col: f64 = (0..3).map(|i| f[i][o]).sum();
+            let col: f64 = f.iter().map(|fi| fi[o]).sum();
             if col > 0.0 {
-                for i in 0..3 {
-                    f[i][o] /= col;
-                }
+                f.iter_mut().for_each(|fi| fi[o] /= col);
             }
         }
     }

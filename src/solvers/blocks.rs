@@ -334,7 +334,7 @@ impl Residency {
             candidates.select_nth_unstable_by(missing - 1, |a, b| b.0.cmp(&a.0));
             candidates.truncate(missing);
         }
-        candidates.sort_unstable_by(|a, b| b.0.cmp(&a.0));
+        candidates.sort_unstable_by_key(|c| std::cmp::Reverse(c.0));
         let mut victims = candidates.into_iter().map(|(_, s)| s);
         for &b in needed {
             if self.block_slot[b as usize].is_some() {

@@ -168,7 +168,7 @@ impl DomSettings {
                 "auto" => None,
                 n => Some(n.parse().map_err(|_| k.invalid("block", "not a whole number"))?),
             },
-            budget: (budget > 0.0).then(|| (budget * 1048576.0) as u64),
+            budget: (budget > 0.0).then_some((budget * 1048576.0) as u64),
             store: match store.strip_prefix("file:") {
                 Some(dir) => StoreKind::File(dir.into()),
                 None => StoreKind::Memory,

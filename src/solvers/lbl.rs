@@ -358,8 +358,8 @@ impl Lbl {
             // The near ball's light, lumped into the light: 1 / (1 - k) times the image
             // (NearLight).
             for px in view.image.data.chunks_exact_mut(3) {
-                for c in 0..3 {
-                    px[c] = (px[c] as f64 / (1.0 - n.k[c])) as f32;
+                for (p, k) in px.iter_mut().zip(n.k) {
+                    *p = (*p as f64 / (1.0 - k)) as f32;
                 }
             }
         }

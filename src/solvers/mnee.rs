@@ -192,9 +192,13 @@ struct Search<'a> {
     reflections: usize,
     /// The chains found, in order of discovery, each with the last legs of the rays that follow
     /// it: start, unit direction, length, and the path length from the first facet to the start.
-    found: Vec<(Vec<Vertex>, Vec<(DVec3, DVec3, f64, f64)>)>,
+    found: Vec<(Vec<Vertex>, Vec<Leg>)>,
     index: HashMap<Vec<Vertex>, usize>,
 }
+
+/// The last leg of a ray that follows a chain: start, unit direction, length, and the path
+/// length from the first facet to the start.
+type Leg = (DVec3, DVec3, f64, f64);
 
 impl Search<'_> {
     fn normal(&self, f: u32) -> DVec3 {

@@ -239,7 +239,8 @@ pub const RESOLVED_STEPS: f64 = 8.0;
 pub fn position_resolution_note(scene: &Scene) -> Option<String> {
     let m = &scene.medium;
     let majorant = scene.max_sigma_t() as f64 * scene.max_density() as f64;
-    if !(majorant > 0.0) {
+    // Also refuses a NaN majorant.
+    if majorant.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return None;
     }
     let free_path = 1.0 / majorant;

@@ -40,7 +40,8 @@ pub fn check_mesh_budget(k: &Knobs, name: &str, budget: u32, has_mesh: bool) -> 
 pub const ROUNDS_PER_SUBMIT: u32 = 4;
 /// Words in a resumable kernel's stats buffer.
 pub const STATS_WORDS: u64 = 3 + ROUNDS_PER_SUBMIT as u64;
-/// Own-counted loop iterations past which llvmpipe's shared loop limiter (65535) may fire.
+/// Own-counted loop iterations past which llvmpipe's shared loop limiter (65535) may fire: the
+/// kernels' `LOOP_GUARD` (glsl/include/budget.glsl), the one number both sides use (tested).
 pub const LOOP_GUARD: u32 = 60000;
 /// The `budget` knob of every solver with resumable kernels.
 pub fn budget_knob() -> Knob {
@@ -97,5 +98,15 @@ pub fn run_until_done(
         }
         dispatches += n as u64;
         n = ROUNDS_PER_SUBMIT;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_loop_guard_is_the_kernels() {
+        let glsl = include_str!("../../glsl/include/budget.glsl");
+        let want = format!("const uint LOOP_GUARD = {}u;", super::LOOP_GUARD);
+        assert!(glsl.contains(&want), "glsl/include/budget.glsl does not say {want:?}");
     }
 }

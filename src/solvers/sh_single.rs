@@ -798,8 +798,8 @@ pub const RENDER: Kernel =
 /// Most samples per render dispatch.
 const CHUNK: u32 = 2048;
 
-/// glsl/include/budget.glsl's LOOP_GUARD: past it llvmpipe's loop limiter may have fired.
-const LOOP_GUARD: u32 = 60000;
+// glsl/include/budget.glsl's LOOP_GUARD: past it llvmpipe's loop limiter may have fired.
+use super::resumable::LOOP_GUARD;
 
 /// How the render pass finds the samples whose Gaussians a camera segment passes through.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -170,7 +170,8 @@ impl WaveSettings {
     /// channel) and, when any light is traced, one light's spherical grid at a time.
     pub fn device_bytes(&self, scene: &Scene, chromatic: bool, geom: &LatticeGeom) -> u64 {
         let lights = traced_lights(scene);
-        let volume = geom.voxels() * 4 * volume_channels(&lights, chromatic) as u64 * 4 + 16;
+        // The volume and two 16-byte stats buffers (the gather's and the marches').
+        let volume = geom.voxels() * 4 * volume_channels(&lights, chromatic) as u64 * 4 + 32;
         let rays = self.nu as u64 * self.nv as u64;
         let field = rays * ((self.layers as u64 + 1) * 48 + self.layers as u64 * 4);
         volume + if lights.is_empty() { 0 } else { field }
