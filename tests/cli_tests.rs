@@ -1359,7 +1359,7 @@ fn object_scenes_from_the_command_line() {
     let out = c.path("out/x.exr");
     c.fails(
         ["render", wax.to_str().unwrap(), "--solver", "wavefront", "--out", out.to_str().unwrap()],
-        &["wavefront does not render [[object]] meshes", "--solver path, single or lbl"],
+        &["wavefront does not render [[object]] meshes", "--solver path, single, lbl or sh-single"],
     );
     // An open mesh: the file and the edge.
     std::fs::write(c.path("open.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\n").unwrap();

@@ -5,7 +5,7 @@
 use anyhow::{anyhow, bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::commands::{check_validation, gpu_options, parse_sets};
+use super::args::{check_validation, gpu_options, parse_sets};
 use super::AnimateArgs;
 use crate::gpu::Gpu;
 use crate::measure::animate::{self, Orbit};

@@ -2,6 +2,7 @@
 //! run it, and turn any error into one line on stderr and a non-zero exit code.
 
 mod animate;
+mod args;
 mod commands;
 mod render;
 
@@ -15,6 +16,11 @@ use crate::solvers::{self, Schedule};
 /// `--solver`'s values: every registered solver, each with what it is for (`--help` lists them).
 fn solver_names() -> PossibleValuesParser {
     PossibleValuesParser::new(solvers::SOLVERS.iter().map(|s| PossibleValue::new(s.name()).help(s.about())))
+}
+
+/// `--solver`'s default: the registry's reference solver (the ground truth).
+fn default_solver() -> String {
+    solvers::reference().name().into()
 }
 
 #[derive(Parser, Debug)]
@@ -223,7 +229,7 @@ pub struct RenderArgs {
     /// Scene file (TOML, format v1: docs/scene-format.md).
     pub scene: PathBuf,
     /// The solver (`scatterlab knobs` lists each one's knobs).
-    #[arg(long, default_value = "path", value_parser = solver_names())]
+    #[arg(long, default_value_t = default_solver(), value_parser = solver_names())]
     pub solver: String,
     /// Samples per pixel of Monte Carlo solvers (the same as `--set render.spp=N`).
     #[arg(long)]

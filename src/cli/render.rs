@@ -9,7 +9,7 @@ use anyhow::{anyhow, bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
-use super::commands::{check_output_path, check_validation, gpu_options, parse_bytes, parse_sets};
+use super::args::{check_output_path, check_validation, gpu_options, parse_bytes, parse_sets};
 use super::RenderArgs;
 use crate::gpu::{DeviceInfo, Gpu};
 use crate::measure::timeline::{self, ScheduleComparison, TimelineSummary};

@@ -493,11 +493,12 @@ pub fn svg(title: &str, points: &[Point], noise_floor: Option<f64>) -> String {
     }
     s.push_str(&format!(
         "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">GPU time (ms, log)</text>\n<text x=\"16\" y=\"{:.1}\" \
-            transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">relL2 vs path reference (log)</text>\n",
+            transform=\"rotate(-90 16 {:.1})\" text-anchor=\"middle\">relL2 vs {} reference (log)</text>\n",
         (ml + w - mr) / 2.0,
         h - 10.0,
         (mt + h - mb) / 2.0,
-        (mt + h - mb) / 2.0
+        (mt + h - mb) / 2.0,
+        solvers::reference().name()
     ));
     if let Some(n) = floor {
         let y = py(n.log10());

@@ -86,11 +86,21 @@ pub enum SolverError {
 pub fn meshes_unsupported(solver: &str, scene: &Scene) -> Option<String> {
     scene.object.as_ref().map(|o| {
         format!(
-            "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver path, single or lbl, or a \
-                v1 [medium]",
-            o.describe()
+            "{solver} does not render [[object]] meshes yet (the scene's object is {}); use --solver {}, or a v1 [medium]",
+            o.describe(),
+            solvers_that(|s| s.renders_meshes())
         )
     })
+}
+
+/// The registered solvers for which `f` holds, as "a, b or c".
+fn solvers_that(f: impl Fn(&dyn Solver) -> bool) -> String {
+    let names: Vec<&str> = SOLVERS.iter().filter(|s| f(**s)).map(|s| s.name()).collect();
+    match names.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+        Some((last, _)) => last.to_string(),
+        None => String::new(),
+    }
 }
 
 /// Why `solver`, which holds one medium, cannot render `scene`: its [[object]] entries differ
@@ -101,9 +111,10 @@ pub fn materials_unsupported(solver: &str, scene: &Scene) -> Option<String> {
             o.parts.iter().enumerate().filter(|(_, p)| p.material != 0).map(|(i, _)| format!("object[{i}]")).collect();
         format!(
             "{solver} holds one medium, and the scene's objects have {} materials (sigma_t, albedo, g or ior differ \
-                from object[0]'s in {}); use --solver path, or give every object the same material",
+                from object[0]'s in {}); use --solver {}, or give every object the same material",
             o.materials.len(),
-            differ.join(", ")
+            differ.join(", "),
+            solvers_that(|s| s.renders_materials())
         )
     })
 }

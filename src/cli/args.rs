@@ -1,0 +1,81 @@
+//! The argument helpers every subcommand shares: `--set` pairs, sizes, the device options,
+//! output paths and the validation verdict. Below commands, render and animate, which import it
+//! (and not one another's helpers: no import circle in cli/).
+
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Result};
+
+use super::GpuArgs;
+use crate::gpu::{Gpu, GpuOptions};
+
+/// `KEY=VALUE` pairs, each split once at the first `=`.
+pub(super) fn parse_sets(sets: &[String]) -> Result<Vec<(String, String)>> {
+    sets.iter()
+        .map(|s| match s.split_once('=') {
+            Some((k, v)) if !k.trim().is_empty() => Ok((k.trim().to_string(), v.trim().to_string())),
+            _ => Err(anyhow!("--set {s:?}: expected KEY=VALUE, e.g. medium.albedo=0.5 or path.max_depth=1")),
+        })
+        .collect()
+}
+
+/// "4G", "512M", "1024" -> bytes.
+pub(super) fn parse_bytes(s: &str) -> Result<u64> {
+    let t = s.trim();
+    let (num, mult) = match t.chars().last() {
+        Some('K' | 'k') => (&t[..t.len() - 1], 1u64 << 10),
+        Some('M' | 'm') => (&t[..t.len() - 1], 1 << 20),
+        Some('G' | 'g') => (&t[..t.len() - 1], 1 << 30),
+        _ => (t, 1),
+    };
+    let v: f64 = num.parse().map_err(|_| anyhow!("--memory-budget {s:?}: expected a size such as 512M or 4G"))?;
+    if !(v.is_finite() && v > 0.0) {
+        bail!("--memory-budget {s:?}: must be positive");
+    }
+    Ok((v * mult as f64) as u64)
+}
+
+pub(super) fn gpu_options(a: &GpuArgs) -> GpuOptions {
+    let mut o = GpuOptions::default();
+    if a.validate {
+        o.validate = true;
+    }
+    if a.device.is_some() {
+        o.device = a.device.clone();
+    }
+    if a.queues.is_some() {
+        o.queues = a.queues.clone();
+    }
+    if a.no_cache {
+        o.cache_dir = None;
+    }
+    o
+}
+
+/// Fail when the validation layer reported errors: a clean run is the contract of every test.
+pub(super) fn check_validation(gpu: &Gpu) -> Result<()> {
+    let n = gpu.validation_errors();
+    if n > 0 {
+        bail!(
+            "the Vulkan validation layer reported {n} error(s), first: {}",
+            gpu.validation_messages().first().cloned().unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
+pub(super) fn check_output_path(p: &Path, what: &str, ext: &[&str]) -> Result<()> {
+    let e = p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
+    if !ext.contains(&e.as_str()) {
+        bail!("{what} {}: expected a .{} file", p.display(), ext.join(" or ."));
+    }
+    if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !dir.is_dir() {
+            bail!("{what} {}: directory {} does not exist; create it first", p.display(), dir.display());
+        }
+    }
+    if p.is_dir() {
+        bail!("{what} {}: a directory is in the way; choose another file name", p.display());
+    }
+    Ok(())
+}
