@@ -403,8 +403,8 @@ impl Gpu {
     pub fn read_buffer_prefix(&self, b: &Buffer, bytes: u64) -> Result<Vec<u8>> {
         let n = bytes.min(b.size());
         let started = Instant::now();
-        // Set-up work not yet submitted may write it.
-        self.flush_setup(QueueRole::Trace)?;
+        // Set-up work is never recorded for a mapped buffer, and one_shot submits what is
+        // recorded before its copy.
         if let Some(p) = b.mapped() {
             // Only the work that used this buffer: another role's work goes on meanwhile.
             self.wait_points(&b.last_uses())?;

@@ -28,7 +28,7 @@ use super::error::Result;
 use super::host::HostKind;
 use super::memory::Buffer;
 use super::queues::QueueRole;
-use super::submit::{Resource, SyncPoint};
+use super::submit::{latest_per_role, memory_barrier, Resource, SyncPoint};
 
 /// The upload ring's size: a render's scene, grids and tables (the 128^3 cloud's density is 8
 /// MiB) fit several times over. Uploads above a quarter of it are copied on their own.
@@ -112,8 +112,7 @@ impl Ring {
 impl Gpu {
     /// Whether no submitted work can still touch `b` (every last use waited for).
     pub(crate) fn idle(&self, b: &Buffer) -> bool {
-        let st = self.submit.lock().expect("submit lock");
-        b.last_uses().iter().all(|p| p.value <= st.completed[p.role.index()])
+        b.last_uses().into_iter().all(|p| self.reached_known(p))
     }
 
     fn reached_known(&self, p: SyncPoint) -> bool {
@@ -181,28 +180,14 @@ impl Gpu {
         let ring_raw = ring.as_ref().map(|r| r.1);
         let point =
             self.record_and_submit(role, &[], vec!["setup".into()], keep, Vec::new(), None, |cb, _| unsafe {
-                let barrier = |src: vk::PipelineStageFlags2, dst: vk::PipelineStageFlags2, dst_access| {
-                    let mb = vk::MemoryBarrier2::default()
-                        .src_stage_mask(src)
-                        .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                        .dst_stage_mask(dst)
-                        .dst_access_mask(dst_access);
-                    d.cmd_pipeline_barrier2(
-                        cb,
-                        &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)),
-                    );
-                };
+                let written = (vk::PipelineStageFlags2::ALL_TRANSFER, vk::AccessFlags2::TRANSFER_WRITE);
                 // In order; a barrier only before an op on a buffer an earlier op of this batch
                 // wrote (a fill and then an upload into the same buffer).
                 let mut touched = std::collections::HashSet::new();
                 for op in &ops {
                     let dst = op.dst().raw();
                     if !touched.insert(dst) {
-                        barrier(
-                            vk::PipelineStageFlags2::ALL_TRANSFER,
-                            vk::PipelineStageFlags2::ALL_TRANSFER,
-                            vk::AccessFlags2::TRANSFER_WRITE,
-                        );
+                        memory_barrier(&d, cb, written, written);
                         touched.clear();
                         touched.insert(dst);
                     }
@@ -217,10 +202,14 @@ impl Gpu {
                     }
                 }
                 // Everything after reads or writes what the batch wrote.
-                barrier(
-                    vk::PipelineStageFlags2::ALL_TRANSFER,
-                    vk::PipelineStageFlags2::ALL_COMMANDS,
-                    vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE,
+                memory_barrier(
+                    &d,
+                    cb,
+                    written,
+                    (
+                        vk::PipelineStageFlags2::ALL_COMMANDS,
+                        vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE,
+                    ),
                 );
             })?;
         for op in &ops {
@@ -238,17 +227,7 @@ impl Gpu {
     /// Device waits that a submission on `role` using `buffers` needs for set-up work submitted
     /// on another role and not known to be done (one per role, its highest value).
     pub(crate) fn setup_waits<'a>(&self, role: QueueRole, buffers: impl Iterator<Item = &'a Buffer>) -> Vec<SyncPoint> {
-        let mut waits: Vec<SyncPoint> = Vec::new();
-        for p in buffers.filter_map(Buffer::setup_point) {
-            if p.role == role || self.reached_known(p) {
-                continue;
-            }
-            match waits.iter_mut().find(|w| w.role == p.role) {
-                Some(w) => w.value = w.value.max(p.value),
-                None => waits.push(p),
-            }
-        }
-        waits
+        latest_per_role(buffers.filter_map(Buffer::setup_point).filter(|p| p.role != role && !self.reached_known(*p)))
     }
 
     /// Submissions of set-up work since the device opened.

@@ -243,6 +243,37 @@ pub(crate) struct SubmitState {
     timings: Vec<PassTiming>,
 }
 
+/// Record one global memory barrier: what `src_stage` did through `src_access` is made visible
+/// to `dst_access` in `dst_stage`. Every barrier of the core is one of these.
+///
+/// # Safety
+/// `cb` is a command buffer of `d` in the recording state.
+pub(crate) unsafe fn memory_barrier(
+    d: &ash::Device,
+    cb: vk::CommandBuffer,
+    (src_stage, src_access): (vk::PipelineStageFlags2, vk::AccessFlags2),
+    (dst_stage, dst_access): (vk::PipelineStageFlags2, vk::AccessFlags2),
+) {
+    let mb = vk::MemoryBarrier2::default()
+        .src_stage_mask(src_stage)
+        .src_access_mask(src_access)
+        .dst_stage_mask(dst_stage)
+        .dst_access_mask(dst_access);
+    d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+}
+
+/// One point per role, its highest value: what waiting for all of `points` takes.
+pub(crate) fn latest_per_role(points: impl IntoIterator<Item = SyncPoint>) -> Vec<SyncPoint> {
+    let mut merged: Vec<SyncPoint> = Vec::new();
+    for p in points {
+        match merged.iter_mut().find(|m| m.role == p.role) {
+            Some(m) => m.value = m.value.max(p.value),
+            None => merged.push(p),
+        }
+    }
+    merged
+}
+
 impl Gpu {
     /// The last value submitted on a role's timeline.
     pub fn submitted(&self, role: QueueRole) -> SyncPoint {
@@ -307,18 +338,17 @@ impl Gpu {
                         written.contains(&b.resource.key()) || (b.access.writes() && read.contains(&b.resource.key()))
                     });
                     if hazard {
-                        let mb = vk::MemoryBarrier2::default()
-                            .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                            .src_access_mask(
-                                vk::AccessFlags2::SHADER_STORAGE_WRITE | vk::AccessFlags2::SHADER_STORAGE_READ,
-                            )
-                            .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                            .dst_access_mask(
-                                vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE,
-                            );
-                        d.cmd_pipeline_barrier2(
+                        memory_barrier(
+                            d,
                             cb,
-                            &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)),
+                            (
+                                vk::PipelineStageFlags2::COMPUTE_SHADER,
+                                vk::AccessFlags2::SHADER_STORAGE_WRITE | vk::AccessFlags2::SHADER_STORAGE_READ,
+                            ),
+                            (
+                                vk::PipelineStageFlags2::COMPUTE_SHADER,
+                                vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE,
+                            ),
                         );
                         written.clear();
                         read.clear();
@@ -399,12 +429,12 @@ impl Gpu {
                 }
                 // What the passes wrote is visible to the host once the submission's point is
                 // reached (feedback records read through their mapping).
-                let mb = vk::MemoryBarrier2::default()
-                    .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                    .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE)
-                    .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-                    .dst_access_mask(vk::AccessFlags2::HOST_READ);
-                d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+                memory_barrier(
+                    d,
+                    cb,
+                    (vk::PipelineStageFlags2::COMPUTE_SHADER, vk::AccessFlags2::SHADER_STORAGE_WRITE),
+                    (vk::PipelineStageFlags2::HOST, vk::AccessFlags2::HOST_READ),
+                );
             },
         )
     }
@@ -451,15 +481,11 @@ impl Gpu {
                 }
                 for (i, stage) in stages.iter().enumerate() {
                     if i > 0 {
-                        let mb = vk::MemoryBarrier2::default()
-                            .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ)
-                            .dst_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                            .dst_access_mask(vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ);
-                        d.cmd_pipeline_barrier2(
-                            cb,
-                            &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)),
+                        let transfer = (
+                            vk::PipelineStageFlags2::ALL_TRANSFER,
+                            vk::AccessFlags2::TRANSFER_WRITE | vk::AccessFlags2::TRANSFER_READ,
                         );
+                        memory_barrier(&d, cb, transfer, transfer);
                     }
                     for c in stage {
                         d.cmd_copy_buffer(
@@ -470,12 +496,12 @@ impl Gpu {
                         );
                     }
                 }
-                let mb = vk::MemoryBarrier2::default()
-                    .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                    .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                    .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-                    .dst_access_mask(vk::AccessFlags2::HOST_READ);
-                d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+                memory_barrier(
+                    &d,
+                    cb,
+                    (vk::PipelineStageFlags2::ALL_TRANSFER, vk::AccessFlags2::TRANSFER_WRITE),
+                    (vk::PipelineStageFlags2::HOST, vk::AccessFlags2::HOST_READ),
+                );
                 if let Some(p) = pool {
                     d.cmd_write_timestamp2(cb, vk::PipelineStageFlags2::ALL_TRANSFER, p, 1);
                 }
@@ -555,12 +581,12 @@ impl Gpu {
             }
             // Earlier submissions on the same queue are ordered but not made visible without a
             // barrier or semaphore: one global barrier at the start covers that.
-            let mb = vk::MemoryBarrier2::default()
-                .src_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
-                .src_access_mask(vk::AccessFlags2::MEMORY_WRITE)
-                .dst_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
-                .dst_access_mask(vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE);
-            d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(std::slice::from_ref(&mb)));
+            memory_barrier(
+                d,
+                cb,
+                (vk::PipelineStageFlags2::ALL_COMMANDS, vk::AccessFlags2::MEMORY_WRITE),
+                (vk::PipelineStageFlags2::ALL_COMMANDS, vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE),
+            );
             record(cb, pool);
             d.end_command_buffer(cb).vk("vkEndCommandBuffer")?;
         }
@@ -631,13 +657,7 @@ impl Gpu {
             _ => QueueRole::Trace,
         };
         // One wait per role, for its highest value.
-        let mut merged: Vec<SyncPoint> = Vec::new();
-        for w in waits {
-            match merged.iter_mut().find(|m| m.role == w.role) {
-                Some(m) => m.value = m.value.max(w.value),
-                None => merged.push(w),
-            }
-        }
+        let merged = latest_per_role(waits);
         let d = self.shared.device.clone();
         let p = self.record_and_submit(role, &merged, vec!["transfer".into()], keep, Vec::new(), None, |cb, _| {
             record(&d, cb)
