@@ -15,9 +15,9 @@ use glam::Vec3;
 use scatterlab::gpu::reflect;
 use scatterlab::physics::rng::Pcg32;
 use scatterlab::scene::{Density, Grid, LoadOptions, Scene};
-use scatterlab::solvers::gpu_scene::{majorant_dims, majorant_grid, MAJORANT_CELL};
-use scatterlab::solvers::lattice::{lattice_content, Lattice, LatticeGeom};
-use scatterlab::solvers::marching::raymaps;
+use scatterlab::solvers::parts::gpu_scene::{majorant_dims, majorant_grid, MAJORANT_CELL};
+use scatterlab::solvers::parts::lattice::{lattice_content, Lattice, LatticeGeom};
+use scatterlab::solvers::parts::marching::raymaps;
 
 fn scene_path(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)

@@ -7,8 +7,8 @@ use scatterlab::gpu::QueueRole;
 use scatterlab::physics::ordinates::{OrdinatesGrid, Scheme};
 use scatterlab::physics::quadrature::Quadrature;
 use scatterlab::physics::rng::Pcg32;
-use scatterlab::solvers::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind};
-use scatterlab::solvers::ordinates::{Eye, SweepSetup, Sweeper};
+use scatterlab::solvers::dom::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind};
+use scatterlab::solvers::dom::ordinates::{Eye, SweepSetup, Sweeper};
 
 use crate::common::{assert_clean, gpu};
 

@@ -2,9 +2,10 @@
 //! roles and timeline semaphores, timestamps, limits.
 
 use scatterlab::gpu::{reflect, BindingKind, GpuError, Pass, QueueRole, SyncPoint};
-use scatterlab::solvers::gpu_scene::{majorant_dims, majorant_grid, SceneHeader};
-use scatterlab::solvers::probes::{PhasePush as ProbePush, PHASE};
-use scatterlab::solvers::{path, view};
+use scatterlab::solvers::parts::gpu_scene::{majorant_dims, majorant_grid, SceneHeader};
+use scatterlab::solvers::parts::probes::{PhasePush as ProbePush, PHASE};
+use scatterlab::solvers::parts::view;
+use scatterlab::solvers::path;
 
 use crate::common::{assert_clean, gpu};
 

@@ -6,8 +6,8 @@ use std::collections::VecDeque;
 
 use crate::common::{LBL, PATH, SINGLE};
 use scatterlab::gpu::QueueRole;
-use scatterlab::solvers::lattice::{EnergyBook, Lattice, LatticeParams};
 use scatterlab::solvers::lbl::{plan, LblStats, Planned, Step};
+use scatterlab::solvers::parts::lattice::{EnergyBook, Lattice, LatticeParams};
 use scatterlab::solvers::{Schedule, SolverError};
 
 use crate::common::{assert_clean, gpu, render, scene, SceneText};
@@ -161,7 +161,7 @@ fn diffuse_impulse_reflecting(
         lambda,
         block,
         block_steps,
-        escape: scatterlab::solvers::lattice::Escape::None,
+        escape: scatterlab::solvers::parts::lattice::Escape::None,
         drift: false,
         near: None,
         directed: false,
@@ -169,7 +169,7 @@ fn diffuse_impulse_reflecting(
         extrapolate: false,
         boundary_r,
     };
-    scatterlab::solvers::lattice::diffuse_impulse(gpu, &p, source, iterations)
+    scatterlab::solvers::parts::lattice::diffuse_impulse(gpu, &p, source, iterations)
 }
 
 /// Diffusion limit: an impulse in a large homogeneous lattice integrates in time to the Green's
@@ -765,7 +765,7 @@ fn extrapolated_tail_matches_the_converged_lattice_in_fewer_iterations() {
 /// refused naming the knob when the device cannot run it.
 #[test]
 fn derived_block_is_the_largest_the_device_runs() {
-    use scatterlab::solvers::lattice::check_block;
+    use scatterlab::solvers::parts::lattice::check_block;
     let gpu = gpu();
     let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
     for kind in [Lattice::D3q6, Lattice::D3q18] {
@@ -810,9 +810,9 @@ fn cone_drift_is_the_mean_drift_of_a_link_cone() {
     }
     let (f, m, fp) = (side / side_n as f64, out / out_n as f64, pair / side_n as f64);
     eprintln!("drift over a side cone {f:.5}, outward cone mean {m:.5}, pair term {fp:.5}");
-    let cp = scatterlab::solvers::lattice::CONE_DRIFT_PAIR as f64;
+    let cp = scatterlab::solvers::parts::lattice::CONE_DRIFT_PAIR as f64;
     assert!((fp - cp).abs() < 2e-4, "quadrature {fp} vs CONE_DRIFT_PAIR {cp}");
-    let c = scatterlab::solvers::lattice::CONE_DRIFT as f64;
+    let c = scatterlab::solvers::parts::lattice::CONE_DRIFT as f64;
     assert!((f - c).abs() < 2e-4, "quadrature {f} vs CONE_DRIFT {c}");
     assert!(((m + 4.0 * c) / 6.0 - 0.25).abs() < 1e-3, "outward {m}: partial current {}", (m + 4.0 * c) / 6.0);
 }
@@ -953,7 +953,7 @@ fn near_ball_stays_within_a_mean_free_path_or_two_on_coarse_lattices() {
 }
 
 /// lbl.near_light: about a point light inside the medium, the once-scattered light of a ball of
-/// 3 voxels is lumped into the light instead of injected (src/solvers/lbl.rs, NearLight). The
+/// 3 voxels is lumped into the light instead of injected (src/solvers/lbl/mod.rs, NearLight). The
 /// lattice then never sees the concentrated deposits whose six axial beams streamed along the
 /// lattice's axes and drew a "+" through the light. Against `path` on a cube with a light
 /// near its centre (sigma_t 2: a mean free path of 8 voxels, where the beams reach far): the

@@ -7,7 +7,7 @@ use glam::Vec3;
 use scatterlab::gpu::{Gpu, Pass, QueueRole};
 use scatterlab::physics::phase::hg_eval;
 use scatterlab::physics::stats::{chi_square_test, spherical_coords, ChiSquareConfig};
-use scatterlab::solvers::probes::{PhasePush as ProbePush, PHASE};
+use scatterlab::solvers::parts::probes::{PhasePush as ProbePush, PHASE};
 
 use crate::common::{assert_clean, gpu};
 

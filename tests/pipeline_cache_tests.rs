@@ -273,3 +273,43 @@ fn path_pipelines_carry_only_what_the_scene_needs() {
     assert_eq!(trace_spec(&out), [true, true, false, false, true], "a glass object under a sun");
     crate::common::assert_clean(&gpu);
 }
+
+/// The view pass (single, octaves and the view of lbl, dom, networks, wavefront) and the
+/// kernels that share its light units (the shadow volume, networks' direct light and splat)
+/// compile in the environment's quadrature only for a scene with an environment light: a scene
+/// without one paid env_dirs phase evaluations per camera ray for a norm it never used. The
+/// image is the same either way (the constant removes only code that such a scene never
+/// reaches: compared with everything compiled in, `--force-full`).
+#[test]
+fn the_view_pass_carries_the_environment_only_where_the_scene_has_one() {
+    use crate::common::{gpu, render_with, repo_scene, repo_scene_plus, SINGLE};
+    let gpu = gpu();
+    let env_of = |out: &scatterlab::solvers::RenderOutput, shader: &str| {
+        let p = out.report.pipelines.iter().find(|p| p.shader == shader).unwrap_or_else(|| panic!("{shader} built"));
+        match p.spec.get("ENVIRONMENT") {
+            Some(scatterlab::gpu::Spec::Bool(b)) => *b,
+            other => panic!("ENVIRONMENT of {shader}: {other:?}"),
+        }
+    };
+    let size = [("render.width", "12"), ("render.height", "12")];
+    // A point light in a grid cloud: no environment; the shadow volume is built (grid density).
+    let lamp = repo_scene("scenes/point-light-in-cloud.toml", &size);
+    let out = render_with(&gpu, &lamp, SINGLE, &[], false);
+    assert!(!env_of(&out, "view/march") && !env_of(&out, "view/shadow"), "a point light alone");
+    let full = render_with(&gpu, &lamp, SINGLE, &[], true);
+    assert!(env_of(&full, "view/march") && env_of(&full, "view/shadow"), "--force-full");
+    let mean = |o: &scatterlab::solvers::RenderOutput| o.image.mean().iter().sum::<f64>();
+    let (a, b) = (mean(&out), mean(&full));
+    assert!(a > 0.0 && ((a - b) / b).abs() < 1e-5, "the same light either way: {a} and {b} (force-full)");
+    // The same cloud under a sky: the quadrature is compiled in.
+    let mut sky = repo_scene_plus(
+        "scenes/point-light-in-cloud.toml",
+        "\n[[light]]\nkind = \"environment\"\nradiance = [0.2, 0.3, 0.5]\n",
+    );
+    sky.render.width = 12;
+    sky.render.height = 12;
+    let lit = render_with(&gpu, &sky, SINGLE, &[], false);
+    assert!(env_of(&lit, "view/march") && env_of(&lit, "view/shadow"), "with an environment");
+    assert!(mean(&lit) > a, "the sky adds light: {} vs {a}", mean(&lit));
+    crate::common::assert_clean(&gpu);
+}

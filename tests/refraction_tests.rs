@@ -12,9 +12,9 @@ use scatterlab::gpu::{Gpu, Pass, QueueRole};
 use scatterlab::scene::bvh::Bvh;
 use scatterlab::scene::mesh::{load_obj, MeshTransform};
 use scatterlab::scene::{LoadOptions, Scene};
-use scatterlab::solvers::gpu_scene::{SPEC_HAS_MESH, SPEC_REFRACTIVE};
+use scatterlab::solvers::parts::gpu_scene::{SPEC_HAS_MESH, SPEC_REFRACTIVE};
+use scatterlab::solvers::parts::probes::{BvhPush, FresnelPush, BVH, FRESNEL};
 use scatterlab::solvers::path::PathStats;
-use scatterlab::solvers::probes::{BvhPush, FresnelPush, BVH, FRESNEL};
 use scatterlab::solvers::SolverError;
 
 use crate::common::{

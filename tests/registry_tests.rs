@@ -11,7 +11,7 @@ use scatterlab::measure::{bench, stability};
 use scatterlab::output::Image;
 use scatterlab::physics::reference::chord_length_box;
 use scatterlab::scene::{is_scene_key, CameraKind, Light, Scene};
-use scatterlab::solvers::gpu_scene::modelled;
+use scatterlab::solvers::parts::gpu_scene::modelled;
 use scatterlab::solvers::{
     self, knobs, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Settings, Solver, SolverError,
     Stats, Variant, SOLVERS,
@@ -206,21 +206,21 @@ fn every_kernel_matches_its_spirv_and_every_shader_is_used() {
 #[test]
 fn a_wrong_kernel_declaration_is_refused() {
     use scatterlab::gpu::{Spec, SpecKind};
-    let mut k = solvers::view::MARCH;
+    let mut k = solvers::parts::view::MARCH;
     k.push_bytes += 4;
     let e = k.check().unwrap_err().to_string();
     assert!(e.contains("view/march") && e.contains("push constants"), "{e}");
-    let mut k = solvers::view::MARCH;
+    let mut k = solvers::parts::view::MARCH;
     k.spec = &[(0, SpecKind::U32), (1, SpecKind::Bool)];
     let e = k.check().unwrap_err().to_string();
     assert!(e.contains("specialization constants"), "{e}");
     let gpu = gpu();
     // Built with an id the shader does not declare, or with a wrong type.
     let spec = [(0, Spec::U32(0)), (1, Spec::Bool(false)), (2, Spec::Bool(false)), (9, Spec::U32(1))];
-    let e = gpu.pipeline(&solvers::view::MARCH, &spec).err().expect("refused").to_string();
+    let e = gpu.pipeline(&solvers::parts::view::MARCH, &spec).err().expect("refused").to_string();
     assert!(e.contains("view/march") && e.contains("specialization"), "{e}");
     let spec = [(0, Spec::U32(0)), (1, Spec::U32(0)), (2, Spec::Bool(false))];
-    assert!(gpu.pipeline(&solvers::view::MARCH, &spec).is_err());
+    assert!(gpu.pipeline(&solvers::parts::view::MARCH, &spec).is_err());
     assert_clean(&gpu);
 }
 
@@ -329,12 +329,17 @@ fn render_keys_apply_to_a_loaded_scene() {
     assert!(e.contains("medium.albedo") && e.contains("render.spp"), "{e}");
 }
 
-/// No solver imports another solver, no shared part imports a solver, and the CLI and
-/// `measure` name no solver: everything goes through the interface (read from the sources).
+/// The layers of src/solvers/ hold (read from the sources): the interface (interface/)
+/// imports no part and no solver, and reads the registry only through `registered()`; a
+/// shared part (parts/) imports the interface and other parts, never a solver or the registry;
+/// a solver's folder imports the interface, the parts and its own files, never another solver
+/// or the registry. And the CLI and `measure` name no solver: everything goes through the
+/// interface and the registry.
 #[test]
 fn no_code_outside_a_solver_names_it() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let names: Vec<&str> = SOLVERS.iter().map(|s| s.name()).collect();
+    let modules: Vec<String> = names.iter().map(|n| n.replace('-', "_")).collect();
     let read = |dir: &str| -> Vec<(String, String)> {
         let mut out = Vec::new();
         for e in std::fs::read_dir(root.join(dir)).unwrap() {
@@ -345,13 +350,66 @@ fn no_code_outside_a_solver_names_it() {
         }
         out
     };
-    let mut offences = Vec::new();
-    for (file, text) in read("solvers") {
-        for n in &names {
-            let own = file == *n || file == "mod";
-            if !own && (text.contains(&format!("super::{n}::")) || text.contains(&format!("super::{n}}}"))) {
-                offences.push(format!("src/solvers/{file}.rs imports solver {n}"));
+    // Every file under src/solvers/, by its path below it, with its code lines (comments out).
+    let mut files: Vec<(String, Vec<String>)> = Vec::new();
+    let mut stack = vec![root.join("solvers")];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                let rel = p.strip_prefix(root.join("solvers")).unwrap().to_string_lossy().into_owned();
+                let code = std::fs::read_to_string(&p)
+                    .unwrap()
+                    .lines()
+                    .filter(|l| !l.trim_start().starts_with("//"))
+                    .map(str::to_string)
+                    .collect();
+                files.push((rel, code));
             }
+        }
+    }
+    let mut offences = Vec::new();
+    for (rel, code) in &files {
+        let top = rel.split('/').next().unwrap();
+        let depth = rel.matches('/').count();
+        // What `crate::solvers::<next>` may name from here.
+        let allowed: Vec<&str> = match top {
+            "mod.rs" => continue,
+            "interface" => vec!["interface"],
+            "parts" => vec!["interface", "parts"],
+            own => vec!["interface", "parts", own],
+        };
+        for line in code {
+            for rest in line.split("solvers::").skip(1) {
+                let next: String = rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+                if !allowed.contains(&next.as_str()) {
+                    offences.push(format!("src/solvers/{rel} imports solvers::{next}: {}", line.trim()));
+                }
+            }
+            // `super` from a folder's mod.rs (or a file directly in solvers/) is the registry.
+            let super_is_registry = depth == 1 && rel.ends_with("mod.rs") && top != "parts";
+            if super_is_registry && line.contains("super::") {
+                let ok = rel == "interface/mod.rs" && line.trim() == "super::SOLVERS";
+                if !ok {
+                    offences.push(format!("src/solvers/{rel} reaches up into the registry: {}", line.trim()));
+                }
+            }
+            // A part or the interface naming a solver's module through `super::`.
+            if top == "parts" || top == "interface" {
+                for m in &modules {
+                    if line.contains(&format!("super::{m}")) {
+                        offences.push(format!("src/solvers/{rel} imports solver {m}"));
+                    }
+                }
+            }
+        }
+    }
+    // Every solver has its folder.
+    for m in &modules {
+        if !root.join("solvers").join(m).join("mod.rs").is_file() {
+            offences.push(format!("solver {m} has no folder src/solvers/{m}/"));
         }
     }
     for dir in ["cli", "measure"] {
@@ -469,7 +527,7 @@ fn memory_estimates_equal_what_renders_allocate() {
 /// id means two things.
 #[test]
 fn specialisation_constant_names_match_the_glsl() {
-    use scatterlab::solvers::gpu_scene::SPEC_NAMES;
+    use scatterlab::solvers::parts::gpu_scene::SPEC_NAMES;
     let mut seen: std::collections::BTreeMap<u32, String> = Default::default();
     let mut stack = vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("glsl")];
     while let Some(dir) = stack.pop() {
@@ -554,5 +612,84 @@ fn cli_modules_import_without_a_circle() {
         if let Some(circle) = visit(f, &edges, &mut Vec::new(), &mut done) {
             panic!("an import circle in src/cli: {circle}");
         }
+    }
+}
+
+/// docs/architecture.md's shared-parts table is true: one row per file or folder of
+/// src/solvers/parts/, and its "used by" column names exactly the solvers and parts whose
+/// sources import that part (by `parts::<part>`, in a `parts::{..}` group, or as a sibling
+/// part's `super::<part>`).
+#[test]
+fn the_shared_parts_table_is_true() {
+    use std::collections::{BTreeMap, BTreeSet};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let doc = std::fs::read_to_string(root.join("docs/architecture.md")).unwrap();
+    let section = doc.split("## Shared parts").nth(1).expect("a shared parts section");
+    // part -> the names in its row's last column (`path`, `parts/view`).
+    let mut table: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for row in section.lines().take_while(|l| !l.starts_with("## ")).filter(|l| l.starts_with("| ")) {
+        let cols: Vec<&str> = row.split(" | ").collect();
+        let Some(file) = cols.get(1).and_then(|c| c.strip_prefix("`parts/")) else { continue };
+        let part = file.trim_end_matches('`').trim_end_matches(".rs").trim_end_matches('/').to_string();
+        let users = cols.last().unwrap().split('`').skip(1).step_by(2).map(str::to_string).collect();
+        assert!(table.insert(part.clone(), users).is_none(), "two rows for parts/{part}");
+    }
+    // The parts on disk.
+    let parts_dir = root.join("src/solvers/parts");
+    let mut parts = BTreeSet::new();
+    for e in std::fs::read_dir(&parts_dir).unwrap() {
+        let p = e.unwrap().path();
+        let stem = p.file_stem().unwrap().to_string_lossy().into_owned();
+        if stem != "mod" {
+            parts.insert(stem);
+        }
+    }
+    assert_eq!(table.keys().cloned().collect::<BTreeSet<_>>(), parts, "the table's rows and src/solvers/parts/");
+    // Who imports each part, from the sources (comments out).
+    let mut found: BTreeMap<String, BTreeSet<String>> = parts.iter().map(|p| (p.clone(), BTreeSet::new())).collect();
+    let mut stack = vec![root.join("src/solvers")];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+                continue;
+            }
+            let rel = p.strip_prefix(root.join("src/solvers")).unwrap().to_string_lossy().into_owned();
+            let mut segs = rel.split('/');
+            let top = segs.next().unwrap().to_string();
+            let who = match top.as_str() {
+                "mod.rs" | "interface" => continue,
+                "parts" => format!("parts/{}", segs.next().unwrap().trim_end_matches(".rs")),
+                module => SOLVERS.iter().map(|s| s.name()).find(|n| n.replace('-', "_") == module).unwrap().to_string(),
+            };
+            let code: String = std::fs::read_to_string(&p)
+                .unwrap()
+                .lines()
+                .filter(|l| !l.trim_start().starts_with("//"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            let groups: Vec<&str> =
+                code.split("parts::{").skip(1).map(|r| &r[..r.find('}').unwrap_or(r.len())]).collect();
+            for part in &parts {
+                if who == format!("parts/{part}") {
+                    continue;
+                }
+                let word = |text: &str, prefix: &str| {
+                    text.match_indices(&format!("{prefix}{part}")).any(|(i, m)| {
+                        let after = text[i + m.len()..].chars().next();
+                        !after.is_some_and(|c| c.is_alphanumeric() || c == '_')
+                    })
+                };
+                let sibling = top == "parts" && word(&code, "super::");
+                let in_group = groups.iter().any(|g| g.split([',', ' ', '\n', ':', '{']).any(|w| w == part));
+                if word(&code, "parts::") || in_group || sibling {
+                    found.get_mut(part).unwrap().insert(who.clone());
+                }
+            }
+        }
+    }
+    for part in &parts {
+        assert_eq!(table[part], found[part], "docs/architecture.md's row for parts/{part}: used by");
     }
 }

@@ -1,4 +1,4 @@
-//! sh-single's preprocessing (issue 17, thesis 3.2-3.3; src/solvers/sh_single.rs): the
+//! sh-single's preprocessing (issue 17, thesis 3.2-3.3; src/solvers/sh_single/mod.rs): the
 //! Poisson-disk sample set (deterministic, inside the mesh, no two samples closer than their
 //! radii allow, about the requested count, denser near the surface) and each sample's
 //! parameters (the attenuation's spherical-harmonics coefficients against the projection of the
@@ -9,7 +9,7 @@ use std::path::Path;
 use glam::Vec3;
 use scatterlab::physics::quadrature::Quadrature;
 use scatterlab::physics::sh;
-use scatterlab::solvers::gpu_scene::{GpuScene, MAJORANT_CELL};
+use scatterlab::solvers::parts::gpu_scene::{GpuScene, MAJORANT_CELL};
 use scatterlab::solvers::sh_single::{
     depth_below_surface, device_params, optical_depth, poisson_draw, poisson_samples, poisson_samples_with,
     sample_params, Heuristic, Placement, LAYER_SPACING,
@@ -141,7 +141,7 @@ fn layered_samples_lie_on_offset_surfaces() {
     }
 }
 
-/// The darts are tested in parallel batches and accepted in order (src/solvers/sh_single.rs,
+/// The darts are tested in parallel batches and accepted in order (src/solvers/sh_single/mod.rs,
 /// `dart_throw`): the set must be the same on one thread as on many, under both heuristics.
 #[test]
 fn poisson_samples_do_not_depend_on_the_threads() {
@@ -598,7 +598,7 @@ fn sh_single_converges_on_the_cloud_grid() {
 
 #[test]
 fn the_sample_indexes_render_what_visiting_every_sample_renders() {
-    // sh_single.index (src/solvers/sh_single.rs; glsl/sh_single/render.comp). `boxes` skips a
+    // sh_single.index (src/solvers/sh_single/mod.rs; glsl/sh_single/render.comp). `boxes` skips a
     // chunk of (Morton-ordered) samples where the camera segment misses the chunk's box; `grid`
     // walks a grid of the truncated Gaussians along the segment and counts each sample once, in
     // the cell holding its closest point on the segment. Each must give the image of the loop

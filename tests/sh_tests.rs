@@ -11,7 +11,7 @@ use scatterlab::gpu::{Pass, QueueRole};
 use scatterlab::physics::quadrature::Quadrature;
 use scatterlab::physics::rng::Pcg32;
 use scatterlab::physics::sh::{self, MAX_ORDER};
-use scatterlab::solvers::probes::{ShPush, SH};
+use scatterlab::solvers::parts::probes::{ShPush, SH};
 
 use crate::common::{assert_clean, gpu};
 

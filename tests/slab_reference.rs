@@ -318,7 +318,7 @@ fn device_sweep_matches_the_cpu_oracle() {
     use scatterlab::physics::ordinates::{OrdinatesGrid, Scheme};
     use scatterlab::physics::quadrature::Quadrature;
     use scatterlab::physics::rng::Pcg32;
-    use scatterlab::solvers::ordinates::{kernels, Eye, SweepSetup, Sweeper};
+    use scatterlab::solvers::dom::ordinates::{kernels, Eye, SweepSetup, Sweeper};
     for k in kernels() {
         k.check().expect("the ordinates kernels' interfaces");
     }
@@ -460,7 +460,7 @@ fn device_anisotropic_iteration_matches_the_cpu_oracle() {
     use scatterlab::physics::ordinates::{OrdinatesGrid, Scheme};
     use scatterlab::physics::quadrature::Quadrature;
     use scatterlab::physics::rng::Pcg32;
-    use scatterlab::solvers::ordinates::{Eye, SweepSetup, Sweeper};
+    use scatterlab::solvers::dom::ordinates::{Eye, SweepSetup, Sweeper};
     let gpu = gpu();
     let dims = [7usize, 5, 6];
     let voxels = dims.iter().product::<usize>();

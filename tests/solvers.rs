@@ -302,7 +302,7 @@ fn single_converges_to_path_depth_one() {
 }
 
 /// Where a camera-ray step can be optically thick, `single` integrates the shadow
-/// transmittance between each step's ends (src/solvers/view.rs, STEP_FIT_TAU): its default step
+/// transmittance between each step's ends (src/solvers/parts/view.rs, STEP_FIT_TAU): its default step
 /// is then close to a step 16x finer, on `thick-slab.toml` (4.4 mean free paths per default
 /// step: energy within 3%, relL2 under 0.15 at 24 x 24, where pixels seeing the slab's side
 /// faces are many; the midpoint had given 0.38x the energy, relL2 0.66 at 64 x 64) and on a
@@ -314,8 +314,8 @@ fn single_is_step_converged_in_thick_media() {
     let slab = crate::common::repo_scene("scenes/thick-slab.toml", &[("render.width", "24"), ("render.height", "24")]);
     let cube = crate::common::issue_cube("0.0");
     for (name, s, max_rel, max_energy) in [("thick-slab", &slab, 0.15, 0.03), ("cube", &cube, 0.03, 0.01)] {
-        let step = scatterlab::solvers::view::ViewSettings::default_step(s);
-        assert!(scatterlab::solvers::view::step_fit(s, step), "{name}: the fit must be on");
+        let step = scatterlab::solvers::parts::view::ViewSettings::default_step(s);
+        assert!(scatterlab::solvers::parts::view::step_fit(s, step), "{name}: the fit must be on");
         let coarse = render(&gpu, s, SINGLE, &[]);
         let fine = render(&gpu, s, SINGLE, &[("single.step", &format!("{}", step / 16.0))]);
         let m = scatterlab::output::compare(&coarse.image, &fine.image).unwrap();
@@ -326,8 +326,11 @@ fn single_is_step_converged_in_thick_media() {
         assert!(m.rel_l2 < max_rel && (m.energy_ratio - 1.0).abs() < max_energy, "{name}: {m:?}");
     }
     let sphere = crate::common::repo_scene("scenes/homogeneous-sphere.toml", &[]);
-    let step = scatterlab::solvers::view::ViewSettings::default_step(&sphere);
-    assert!(!scatterlab::solvers::view::step_fit(&sphere, step), "sphere steps are 0.135 mean free paths: midpoint");
+    let step = scatterlab::solvers::parts::view::ViewSettings::default_step(&sphere);
+    assert!(
+        !scatterlab::solvers::parts::view::step_fit(&sphere, step),
+        "sphere steps are 0.135 mean free paths: midpoint"
+    );
     assert_clean(&gpu);
 }
 
@@ -565,7 +568,7 @@ fn majorant_cell_changes_the_cost_not_the_answer() {
     let default = render(&gpu, &s, PATH, &[]);
     assert_eq!(
         default.report.settings["majorant_cell"].as_u64(),
-        Some(scatterlab::solvers::gpu_scene::MAJORANT_CELL as u64),
+        Some(scatterlab::solvers::parts::gpu_scene::MAJORANT_CELL as u64),
         "path.majorant_cell's default and gpu_scene::MAJORANT_CELL differ"
     );
     assert_clean(&gpu);

@@ -8,9 +8,9 @@ use glam::Vec3;
 use scatterlab::gpu::Gpu;
 use scatterlab::output::compare;
 use scatterlab::scene::{write_vol, LoadOptions, Scene};
-use scatterlab::solvers::gpu_scene::GpuScene;
 use scatterlab::solvers::lbl::LblStats;
-use scatterlab::solvers::wave_field::{
+use scatterlab::solvers::parts::gpu_scene::GpuScene;
+use scatterlab::solvers::parts::wave_field::{
     trace_light, wave_volume, Boundary, Integrator, WaveField, WaveKernels, WaveSettings,
 };
 

@@ -5,6 +5,14 @@
 #ifndef SCATTERLAB_VIEW
 #define SCATTERLAB_VIEW
 
+// The scene has an environment light (the host's Modelled::environment; on with --model-all).
+// Off, the environment's quadrature (its light units and the per-ray phase norm of the view
+// march) is not compiled in: a scene without one would otherwise pay env_dirs phase
+// evaluations per camera ray for a norm that it never uses. glsl/path/trace.comp declares the
+// same constant (id 16) for its own environment code.
+layout(constant_id = 16) const bool ENVIRONMENT = true;
+bool is_environment(uint kind) { return ENVIRONMENT && kind == LIGHT_ENVIRONMENT; }
+
 // Integral of the grid density from p along w over [0, t_far] inside the medium, midpoint
 // rule in steps of at most `step` (piecewise-constant extinction, as everywhere in the view
 // pass). Multiplied by sigma_t it is the optical depth.
@@ -42,7 +50,7 @@ bool unit_light(uint j, vec3 p, uint env_dirs, out vec3 wi, out float dist) {
         iters++;
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
-        uint n = kind == LIGHT_ENVIRONMENT ? env_dirs : 1u;
+        uint n = is_environment(kind) ? env_dirs : 1u;
         if (j >= n) { j -= n; continue; }
         if (kind == LIGHT_POINT) {
             vec3 to = li.pos_kind.xyz - p;

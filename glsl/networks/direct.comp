@@ -48,7 +48,7 @@ void main() {
     uint k = 0u, light = 0xffffffffu;
     for (uint l = 0u; l < scene.image.z; ++l) {
         iters++;
-        if (uint(scene.lights[l].pos_kind.w) == LIGHT_ENVIRONMENT) continue;
+        if (is_environment(uint(scene.lights[l].pos_kind.w))) continue;
         if (k == j) { light = l; break; }
         ++k;
     }
@@ -72,7 +72,7 @@ void main() {
         wi = vec3(0.0, 0.0, 1.0);
         for (uint l = 0u; l < scene.image.z; ++l) {
             iters++;
-            if (uint(scene.lights[l].pos_kind.w) != LIGHT_ENVIRONMENT) continue;
+            if (!is_environment(uint(scene.lights[l].pos_kind.w))) continue;
             if (e < seen + pc.env_dirs) {
                 wi = fibonacci_dir(e - seen, pc.env_dirs);
                 irradiance = scene.lights[l].value.rgb * (4.0 * PI / float(pc.env_dirs));

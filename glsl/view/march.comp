@@ -280,7 +280,7 @@ uint unit_count() {
     uint u = 0u;
     for (uint i = 0u; i < scene.image.z; ++i) {
         iters++;
-        u += uint(scene.lights[i].pos_kind.w) == LIGHT_ENVIRONMENT ? pc.env_dirs : 1u;
+        u += is_environment(uint(scene.lights[i].pos_kind.w)) ? pc.env_dirs : 1u;
     }
     return u;
 }
@@ -357,7 +357,7 @@ vec3 octave_light(uint unit, float g, float c, vec3 p, vec3 wi, float dist, bool
 void octave_norms(vec3 d, out float onorm[8]) {
     float gi = scene.albedo.w;
     for (uint i = 0u; i < 8u; ++i) {
-        onorm[i] = (i < OCTAVES && ANISOTROPIC) ? env_norm_g(d, gi) : 1.0;
+        onorm[i] = (i < OCTAVES && ANISOTROPIC && ENVIRONMENT) ? env_norm_g(d, gi) : 1.0;
         gi *= pc.octave.z;
     }
 }
@@ -409,12 +409,12 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, 
         iters++;
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
-        uint n = kind == LIGHT_ENVIRONMENT ? pc.env_dirs : 1u;
+        uint n = is_environment(kind) ? pc.env_dirs : 1u;
         if (j >= n) { j -= n; continue; }
         vec3 wi;
         float dist = INF;
         float geo = 1.0;   // the point light's mean 1/r^2 over the step, the quadrature weight
-        bool env = kind == LIGHT_ENVIRONMENT;
+        bool env = is_environment(kind);
         if (kind == LIGHT_POINT) {
             vec3 to = li.pos_kind.xyz - p;
             float dist2 = dot(to, to);
@@ -621,7 +621,7 @@ void main() {
     vec3 env = vec3(0.0);
     for (uint l = 0u; l < scene.image.z; ++l) {
         iters++;
-        if (uint(scene.lights[l].pos_kind.w) == LIGHT_ENVIRONMENT) env += scene.lights[l].value.rgb;
+        if (is_environment(uint(scene.lights[l].pos_kind.w))) env += scene.lights[l].value.rgb;
     }
     // Light units per step; none when nothing scatters (a pure absorber or an empty object needs
     // no shadow rays).
@@ -700,7 +700,8 @@ void main() {
         float dt = len / float(n);
         vec3 p = o + d * (a + (float(i) + offset) * dt);
         if (j < units) {
-            if (norm == 0.0) norm = env_norm(d);
+            // Only an environment unit divides by it (unit_inscatter): without one it is never computed.
+            if (ENVIRONMENT && norm == 0.0) norm = env_norm(d);
             if (OCTAVES > 1u && onorm_k != k) {
                 octave_norms(d, onorm);
                 onorm_k = k;

@@ -441,7 +441,7 @@ impl Gpu {
 
     /// Record buffer copies on `role`'s queue, waiting on `waits`: the stages run in order (a
     /// transfer barrier between them), and a last barrier makes what they wrote visible to the
-    /// host once the returned point is reached. Streaming (src/solvers/blocks.rs) uses it.
+    /// host once the returned point is reached. Streaming (src/solvers/dom/blocks.rs) uses it.
     pub fn submit_copies(&self, role: QueueRole, stages: &[Vec<Copy>], waits: &[SyncPoint]) -> Result<SyncPoint> {
         // A buffer the transfer family was not given (Gpu::transfer_buffer, Gpu::host_buffer)
         // cannot be touched from its queue: refused here, not left to the validation layer.

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::gpu::{Copy, Gpu, GpuOptions, Pass, QueueRole};
 use crate::scene::{LoadOptions, Scene};
-use crate::solvers::probes::{BandwidthPush, BANDWIDTH};
+use crate::solvers::parts::probes::{BandwidthPush, BANDWIDTH};
 use crate::solvers::{self, Headline, RenderRequest, Settings, Solver};
 
 /// The JSON's layout version: bump it when a field changes meaning.

@@ -24,6 +24,9 @@
 //!    centres; nothing is counted twice.
 //!
 
+pub mod blocks;
+pub mod ordinates;
+
 use serde::Serialize;
 
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
@@ -31,16 +34,16 @@ use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 use crate::scene::{CameraKind, Scene};
 
-use super::blocks::{self, BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MAX_BLOCK};
-use super::gpu_scene::{self, GpuScene};
-use super::lattice::LatticeGeom;
-use super::marching::{self, MarchSettings, Marcher};
-use super::ordinates::{self, BeamGroup, Eye, Slab, SweepSetup, Sweeper};
-use super::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
-use super::{
+use self::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MAX_BLOCK};
+use self::ordinates::{BeamGroup, Eye, Slab, SweepSetup, Sweeper};
+use crate::solvers::interface::{
     Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung,
     Solver, SolverError, Stats, Variant,
 };
+use crate::solvers::parts::gpu_scene::{self, GpuScene};
+use crate::solvers::parts::lattice::LatticeGeom;
+use crate::solvers::parts::marching::{self, MarchSettings, Marcher};
+use crate::solvers::parts::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
 
 pub struct Dom;
 
@@ -102,7 +105,8 @@ pub struct DomStats {
 }
 
 struct DomSettings {
-    grid: u32,
+    /// The voxel grid of the sweeps, the marching and the view's volume for `grid`, built once.
+    geom: LatticeGeom,
     quadrature: Quadrature,
     storage: Quadrature,
     scheme: Scheme,
@@ -156,7 +160,7 @@ impl DomSettings {
             return Err(k.invalid("budget", "dom.budget and dom.store stream blocks: set dom.block to 1..16 too"));
         }
         Ok(DomSettings {
-            grid,
+            geom,
             quadrature,
             storage,
             scheme: if scheme == "step" { Scheme::Step } else { Scheme::Characteristics },
@@ -562,7 +566,7 @@ impl Solver for Dom {
         let mut k = marching::kernels();
         k.extend(ordinates::kernels());
         k.push(blocks::BLOCK_SWEEP);
-        k.extend([view::MARCH, view::SHADOW, super::feedback::COPY]);
+        k.extend([view::MARCH, view::SHADOW, crate::solvers::parts::feedback::COPY]);
         k
     }
 
@@ -580,7 +584,7 @@ impl Solver for Dom {
         let gs = GpuScene::upload(gpu, scene, req.force_full)?;
         // One channel when the medium and every light are grey (as lbl's lattice).
         let nch = gpu_scene::channels(scene, gs.modelled.chromatic);
-        let geom = LatticeGeom::new(scene, set.grid);
+        let geom = set.geom;
         let marcher = Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false, false)?;
         let resampler = marching::resampler(gpu, &gs)?;
         let m = &scene.medium;
@@ -985,7 +989,7 @@ impl Solver for Dom {
                 set.tol
             ));
         }
-        report.warnings.extend(super::nonfinite_warning(res.nonfinite_pixels));
+        report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
         let mut stats = Stats::new(ds);
         stats.convergence =
             Some(Convergence { iterations: iterations as u64, converged, final_change: change, tolerance: set.tol });
@@ -1014,7 +1018,7 @@ impl Solver for Dom {
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
         let set = DomSettings::parse(knobs, scene)?;
-        let geom = LatticeGeom::new(scene, set.grid);
+        let geom = set.geom;
         let m = &set.march;
         let (rays, _, beams) = marching::beams(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed);
         let (rays, beams) = (rays.len() as u64, beams.len() as u64);

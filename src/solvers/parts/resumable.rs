@@ -10,7 +10,7 @@
 
 use crate::gpu::{Buffer, Gpu, Pass, QueueRole};
 
-use super::{Knob, Knobs, Range, SolverError};
+use crate::solvers::interface::{Knob, Knobs, Range, SolverError};
 
 /// Largest budget (`path.budget`, `single.budget`) for a scene with an [[object]] mesh.
 /// llvmpipe's loop limiter counts a SIMD batch's loop back-edges together (glsl/include/budget.glsl), at most the sum of its 8
@@ -105,7 +105,7 @@ pub fn run_until_done(
 mod tests {
     #[test]
     fn the_loop_guard_is_the_kernels() {
-        let glsl = include_str!("../../glsl/include/budget.glsl");
+        let glsl = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/glsl/include/budget.glsl"));
         let want = format!("const uint LOOP_GUARD = {}u;", super::LOOP_GUARD);
         assert!(glsl.contains(&want), "glsl/include/budget.glsl does not say {want:?}");
     }

@@ -19,7 +19,7 @@ use crate::scene::{voxelise, Light, Scene};
 
 use super::gpu_scene::{GpuScene, MESH_SPEC, SCENE_SPEC};
 use super::lattice::{LatticeGeom, LATTICE_SPEC, SPEC_LINKS, SPEC_NCH};
-use super::{Knob, Knobs, Range, SolverError};
+use crate::solvers::interface::{Knob, Knobs, Range, SolverError};
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]

@@ -34,7 +34,7 @@ use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 
 use super::ordinates::{to_vec4, Storage, SweepSetup, Tables};
-use super::SolverError;
+use crate::solvers::interface::SolverError;
 
 pub const BLOCK_SWEEP: Kernel =
     Kernel { shader: shader!("ordinates/block_sweep"), push_bytes: std::mem::size_of::<BlockPush>(), spec: &[] };

@@ -13,9 +13,9 @@
 //! to the camera is the single-scattering term, and the lattice carries the rest, so no energy
 //! is counted twice.
 //!
-//! Built from shared parts: [`super::marching`] (raymaps, marching, transfer),
-//! [`super::lattice`] (the lattice, injection, convergence), [`super::view`] (the view pass)
-//! and, for `warm_start=wavefront`, [`super::wave_field`]. This file holds the round graph
+//! Built from shared parts: [`crate::solvers::parts::marching`] (raymaps, marching, transfer),
+//! [`crate::solvers::parts::lattice`] (the lattice, injection, convergence), [`crate::solvers::parts::view`] (the view pass)
+//! and, for `warm_start=wavefront`, [`crate::solvers::parts::wave_field`]. This file holds the round graph
 //! ([`plan`]), the knobs and the bookkeeping. Knobs: `scatterlab knobs lbl`.
 
 use serde::Serialize;
@@ -23,16 +23,18 @@ use serde::Serialize;
 use crate::gpu::{Gpu, Kernel, QueueRole, SyncPoint};
 use crate::scene::Scene;
 
-use super::gpu_scene::{self, GpuScene};
-use super::lattice::{self, check_block, Diffuser, EnergyBook, Injector, Lattice, LatticeGeom, LatticeParams};
-use super::marching::{self, MarchSettings, Marcher};
-use super::view::{self, MsVolume, ViewSettings};
-use super::wave_field::{self, wave_volume, WaveSettings};
-use super::Progress;
-use super::{
+use crate::solvers::interface::Progress;
+use crate::solvers::interface::{
     Animation, Convergence, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung,
     Schedule, Solver, SolverError, Stats, Variant,
 };
+use crate::solvers::parts::gpu_scene::{self, GpuScene};
+use crate::solvers::parts::lattice::{
+    self, check_block, Diffuser, EnergyBook, Injector, Lattice, LatticeGeom, LatticeParams,
+};
+use crate::solvers::parts::marching::{self, MarchSettings, Marcher};
+use crate::solvers::parts::view::{self, MsVolume, ViewSettings};
+use crate::solvers::parts::wave_field::{self, wave_volume, WaveSettings};
 
 pub struct Lbl;
 
@@ -199,7 +201,7 @@ impl Solver for Lbl {
         let mut k = marching::kernels();
         k.extend([lattice::DIFFUSE, lattice::REDUCE, lattice::CHECK, lattice::INJECT, view::MARCH, view::SHADOW]);
         k.extend(wave_field::kernels());
-        k.push(super::feedback::COPY);
+        k.push(crate::solvers::parts::feedback::COPY);
         k
     }
 
@@ -232,7 +234,7 @@ impl Solver for Lbl {
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
         let set = LblSettings::parse(knobs, scene)?;
-        let geom = LatticeGeom::new(scene, set.grid);
+        let geom = set.geom;
         let chromatic = gpu_scene::modelled(scene, false).chromatic;
         let p = lattice_params(scene, &set, &geom, LblSettings::channels(scene, chromatic));
         // The raymaps are cheap on the host: count the rays exactly (misses are dropped).
@@ -337,7 +339,7 @@ impl Lbl {
         set: &LblSettings,
         progress: &dyn Fn(Progress),
     ) -> Result<(RenderOutput, Vec<f32>), SolverError> {
-        let mut gs = GpuScene::upload_with(gpu, scene, force_full, super::gpu_scene::MAJORANT_CELL)?;
+        let mut gs = GpuScene::upload_with(gpu, scene, force_full, crate::solvers::parts::gpu_scene::MAJORANT_CELL)?;
         // Refraction turned off: the marching and view kernels are specialised without it (both
         // read the modelled set), and the report says the boundary was taken as index-matched.
         gs.modelled.refractive &= set.view.refraction;
@@ -375,7 +377,7 @@ impl Lbl {
                 ls.iterations, ls.final_change, set.tol
             ));
         }
-        report.warnings.extend(super::nonfinite_warning(view.nonfinite_pixels));
+        report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         let mut stats = Stats::new(ls.clone());
         stats.convergence = Some(Convergence {
             iterations: ls.iterations as u64,
@@ -480,6 +482,9 @@ pub fn plan(rounds: u32, schedule: Schedule) -> Vec<Planned> {
 #[derive(Clone, Debug)]
 pub struct LblSettings {
     pub grid: u32,
+    /// The lattice's voxel grid over the medium for `grid`, built once here and used by every
+    /// pass of the render (marching, the lattice, a warm start's wave field).
+    pub geom: LatticeGeom,
     pub march: MarchSettings,
     pub lattice: Lattice,
     pub block: u32,
@@ -547,6 +552,7 @@ impl LblSettings {
         let forward_auto = no_backward && !trapping;
         let out = LblSettings {
             grid,
+            geom,
             march: MarchSettings::parse(k, geom.lambda)?,
             lattice: k.get("lattice")?,
             block,
@@ -885,7 +891,7 @@ pub fn run_lattice(
     // Pipeline creation (a shader compile per kernel on a CPU driver) and the raymaps take
     // seconds before the first round: a stage of its own, so the rounds' bar does not sit at 0.
     progress(Progress::work("setup: pipelines, raymaps, lattice", 0, 1));
-    let geom = LatticeGeom::new(scene, set.grid);
+    let geom = set.geom;
     let v = geom.voxels();
     let nch = LblSettings::channels(scene, gs.modelled.chromatic);
     let info = gpu.info().clone();

@@ -18,9 +18,9 @@ use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
 use crate::physics::angular::StorageMap;
 use crate::physics::ordinates::{characteristic_geometry, Scheme};
 use crate::physics::quadrature::Quadrature;
-use crate::solvers::marching::Beam;
+use crate::solvers::parts::marching::Beam;
 
-use super::SolverError;
+use crate::solvers::interface::SolverError;
 
 pub const SWEEP: Kernel =
     Kernel { shader: shader!("ordinates/sweep"), push_bytes: std::mem::size_of::<SweepPush>(), spec: &[] };
@@ -259,7 +259,7 @@ pub struct Sweeper {
     /// fluence, the light toward the camera of the last three iterations, per-workgroup figures.
     /// (No kernel where the device lacks double precision: the test runs on the host.)
     converge: Option<Pipeline>,
-    control: super::feedback::Feedback,
+    control: crate::solvers::parts::feedback::Feedback,
     accum: Buffer,
     bounce: Buffer,
     extrap: Buffer,
@@ -269,7 +269,7 @@ pub struct Sweeper {
 
 /// A run of whole layers of the grid (z outermost, so its voxels are contiguous): the direct
 /// source is made slab by slab when the whole grid's sums would not fit `dom.budget` or one
-/// binding (src/solvers/dom.rs).
+/// binding (src/solvers/dom/mod.rs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Slab {
     /// The first layer and the number of layers.
@@ -436,7 +436,7 @@ impl Sweeper {
             deposit,
             bin,
             converge,
-            control: super::feedback::Feedback::new(
+            control: crate::solvers::parts::feedback::Feedback::new(
                 gpu,
                 "ordinates convergence control",
                 std::mem::size_of::<DomControl>() as u64,
@@ -513,7 +513,7 @@ impl Sweeper {
             + kept(sv * channels) + kept(2 * sv * channels) + kept(sv * channels) + kept(3 * sv * channels); // the test's
         4 * floats
             + Self::partial_bytes(channels * sv)
-            + super::feedback::Feedback::bytes(std::mem::size_of::<DomControl>() as u64)
+            + crate::solvers::parts::feedback::Feedback::bytes(std::mem::size_of::<DomControl>() as u64)
     }
 
     /// Bytes of the convergence test's per-workgroup figures for `elements` channel-voxels.
@@ -768,7 +768,7 @@ impl Sweeper {
     }
 
     /// The passes of scattering iteration `n` (from 1) with its convergence test on the device
-    /// (glsl/ordinates/converge.comp; src/solvers/dom.rs has the criterion): once an
+    /// (glsl/ordinates/converge.comp; src/solvers/dom/mod.rs has the criterion): once an
     /// iteration of a submission converges, the rest of it returns at once.
     pub fn iteration_passes(&self, n: u32, extrapolate: bool, tol: f64) -> Vec<Pass> {
         let mut passes = Vec::new();

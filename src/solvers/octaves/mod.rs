@@ -25,16 +25,16 @@
 //! and passes the sweep; `form = published` keeps the formula as given, for comparison
 //! (docs/octaves.md has both against `path` across thickness, albedo and g).
 //!
-//! Built on the shared view pass ([`super::view`], the sum in glsl/view/march.comp with
+//! Built on the shared view pass ([`crate::solvers::parts::view`], the sum in glsl/view/march.comp with
 //! `OCTAVES` as a specialisation constant): no state beyond the view march. Knobs: `n`, `a`,
 //! `b`, `c` and the view march's as `view_*` (`scatterlab knobs octaves`).
 
 use crate::gpu::{Gpu, Kernel};
 use crate::scene::Scene;
 
-use super::gpu_scene;
-use super::view::{self, Octaves, ViewSettings, MAX_OCTAVES};
-use super::{Knob, Knobs, Range, RenderOutput, RenderRequest, Rung, Solver, SolverError, Variant};
+use crate::solvers::interface::{Knob, Knobs, Range, RenderOutput, RenderRequest, Rung, Solver, SolverError, Variant};
+use crate::solvers::parts::gpu_scene;
+use crate::solvers::parts::view::{self, Octaves, ViewSettings, MAX_OCTAVES};
 
 pub struct OctavesSolver;
 

@@ -28,6 +28,8 @@
 //! independent batches whose spread gives the per-pixel variance (one light path adds to many
 //! pixels).
 
+pub mod mnee;
+
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use serde::Serialize;
@@ -36,12 +38,13 @@ use crate::gpu::{Gpu, Kernel, Pass, QueueRole, Spec, SpecKind};
 use crate::output::Image;
 use crate::scene::{CameraKind, Light, Scene};
 
-use super::gpu_scene::{self, GpuScene, MESH_SPEC};
-use super::Progress;
-use super::{
-    resumable, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
+use crate::solvers::interface::Progress;
+use crate::solvers::interface::{
+    Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
     SolverError, Stats, Variant,
 };
+use crate::solvers::parts::gpu_scene::{self, GpuScene, MESH_SPEC};
+use crate::solvers::parts::resumable;
 
 pub struct Path;
 
@@ -99,14 +102,14 @@ pub const TRACE: Kernel =
 /// scene has an environment light. Code for what a scene lacks is not compiled in.
 pub const SPEC_MNEE: u32 = 14;
 pub const SPEC_EQUIANGULAR: u32 = 15;
-pub const SPEC_ENVIRONMENT: u32 = 16;
+pub const SPEC_ENVIRONMENT: u32 = crate::solvers::parts::gpu_scene::SPEC_ENVIRONMENT;
 const TRACE_SPEC: &[(u32, SpecKind)] = &[
-    (super::gpu_scene::SPEC_DENSITY_KIND, SpecKind::U32),
-    (super::gpu_scene::SPEC_CHROMATIC, SpecKind::Bool),
-    (super::gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
-    (super::gpu_scene::SPEC_FIELDS, SpecKind::Bool),
-    (super::gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
-    (super::gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_DENSITY_KIND, SpecKind::U32),
+    (crate::solvers::parts::gpu_scene::SPEC_CHROMATIC, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_FIELDS, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
     (SPEC_MNEE, SpecKind::Bool),
     (SPEC_EQUIANGULAR, SpecKind::Bool),
     (SPEC_ENVIRONMENT, SpecKind::Bool),
@@ -147,7 +150,7 @@ pub const MAX_LIGHT_TRACED: usize = 32;
 /// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp: the path, the progress
 /// of its current event, and a tracking loop paused mid-flight).
 pub const STATE_BYTES_PER_PIXEL: u64 = 160;
-pub use super::resumable::MESH_MAX_BUDGET;
+pub use crate::solvers::parts::resumable::MESH_MAX_BUDGET;
 /// The kernels keep the index of the light an event is at in 16 bits.
 pub const MAX_LIGHTS: usize = 1 << 16;
 /// A paused tracking loop keeps its majorant cell along y and z in 14 bits each
@@ -307,7 +310,7 @@ pub fn equiangular_lights(scene: &Scene, mode: &str) -> u32 {
 /// (Hanika et al. 2015) specialised to flat facets: every specular chain (the facets the light
 /// refracts or reflects at, up to `path.mnee_depth`) that holds at the scattering point adds its
 /// share (glsl/path/trace.comp `mnee_estimate`, the chains listed per cell by
-/// src/solvers/mnee.rs). Refused, naming the reason: objects that refract beside index-matched
+/// src/solvers/path/mnee.rs). Refused, naming the reason: objects that refract beside index-matched
 /// ones (a leg in vacuum would cross an index-matched medium, and a straight shadow ray a
 /// refractive one), light 32 or later (the masks' width).
 pub fn refractive_lights(scene: &Scene) -> Result<(u32, u32), SolverError> {
@@ -352,9 +355,9 @@ pub fn refractive_lights(scene: &Scene) -> Result<(u32, u32), SolverError> {
 
 /// The chain lists of manifold NEE for the lights in `mnee` (`inside`: those inside an object;
 /// a header alone when none).
-fn mnee_grid(scene: &Scene, (mnee, inside): (u32, u32), opts: super::mnee::ChainOptions) -> Vec<u32> {
+fn mnee_grid(scene: &Scene, (mnee, inside): (u32, u32), opts: mnee::ChainOptions) -> Vec<u32> {
     let bvh = scene.object.as_ref().filter(|_| mnee != 0).map(|o| o.bvh.as_ref());
-    super::mnee::facet_grid(scene, bvh, mnee, inside, opts)
+    mnee::facet_grid(scene, bvh, mnee, inside, opts)
 }
 
 /// Below this optical thickness of the objects (the thinnest channel's sigma_t of any of their
@@ -371,7 +374,7 @@ pub const REFLECTED_BEAMS_BELOW: f32 = 4.0;
 /// at 4.5x and 10-40x the time, and in a thin slab with the light inside 134% (total internal
 /// reflection); on `scenes/wax-blob.toml` (7.2) 0.44% at 19x the time, and on
 /// `scenes/milk-orb.toml` (11) path took over 25x the time with them.
-fn chain_options(k: &Knobs, scene: &Scene) -> Result<super::mnee::ChainOptions, SolverError> {
+fn chain_options(k: &Knobs, scene: &Scene) -> Result<mnee::ChainOptions, SolverError> {
     let several = match &scene.object {
         Some(o) => o.parts.len() > 1 || !o.convex,
         None => false,
@@ -398,7 +401,7 @@ fn chain_options(k: &Knobs, scene: &Scene) -> Result<super::mnee::ChainOptions, 
     } else {
         raw.parse::<u32>().map_err(|e| k.invalid("mnee_depth", e.to_string()))?
     };
-    Ok(super::mnee::ChainOptions { cells: k.get("mnee_cells")?, depth, rays: k.get("mnee_rays")?, reflections })
+    Ok(mnee::ChainOptions { cells: k.get("mnee_cells")?, depth, rays: k.get("mnee_rays")?, reflections })
 }
 
 /// Which lights `path.light_tracing` hands to light paths (indices into `scene.lights`), and a
@@ -631,7 +634,7 @@ impl Solver for Path {
             Knob::fixed(
                 "mnee_depth",
                 "auto",
-                Range::IntOr { min: 1, max: super::mnee::MAX_DEPTH as u64, word: "auto" },
+                Range::IntOr { min: 1, max: mnee::MAX_DEPTH as u64, word: "auto" },
                 "facets per specular chain at most, for a delta light behind refractive boundaries: 1 single \
                     refractions (and an inside light's single reflections); 2 adds the light reflected once inside \
                     before it scatters; 3 light that crosses a whole object or sheet on its way in; auto: 3 for \
@@ -641,7 +644,7 @@ impl Solver for Path {
             Knob::fixed(
                 "mnee_reflections",
                 "auto",
-                Range::IntOr { min: 0, max: super::mnee::MAX_DEPTH as u64, word: "auto" },
+                Range::IntOr { min: 0, max: mnee::MAX_DEPTH as u64, word: "auto" },
                 "reflections per specular chain at most: 1 takes the light's beam reflected once at a boundary \
                     (Fresnel F: 4% at normal incidence in glass, up to 1 under total internal reflection), 0 none; \
                     beams reflected twice or more are left out unless raised (each one more multiplies the chains); \
@@ -689,7 +692,7 @@ impl Solver for Path {
         let default_batch = ((1u64 << 24) / pixels.max(1)).clamp(1, 1024) as u32;
         let batch: u32 = k.get_or("batch", default_batch)?;
         let budget: u32 = k.get("budget")?;
-        super::resumable::check_mesh_budget(&k, "budget", budget, scene.object.is_some())?;
+        crate::solvers::parts::resumable::check_mesh_budget(&k, "budget", budget, scene.object.is_some())?;
         let collision_cap: u32 = k.get("collision_cap")?;
         let eq_mode: String = k.get("equiangular")?;
         let equiangular = equiangular_lights(scene, &eq_mode);
@@ -818,12 +821,9 @@ impl Solver for Path {
         let mnee_lights: Vec<usize> = (0..32).filter(|i| mnee & (1 << i) != 0).collect();
         let mut stats = Stats::new(PathStats {
             light_traced: traced,
-            manifold_nee_facets_per_cell: mnee_lights
-                .iter()
-                .map(|&i| super::mnee::mean_list_length(&mnee_grid, i))
-                .collect(),
+            manifold_nee_facets_per_cell: mnee_lights.iter().map(|&i| mnee::mean_list_length(&mnee_grid, i)).collect(),
             manifold_nee: mnee_lights,
-            manifold_nee_chains: super::mnee::chain_counts(&mnee_grid),
+            manifold_nee_chains: mnee::chain_counts(&mnee_grid),
             camera: camera.as_ref().map(|c| c.1.clone()),
             light_paths: light.as_ref().map(|l| l.1.clone()),
             samples_per_second: per_second(samples),
@@ -926,7 +926,7 @@ struct Common<'a> {
     light_mask: u32,
     rr_depth: u32,
     rr_threshold: f32,
-    /// The facet lists of manifold NEE (src/solvers/mnee.rs).
+    /// The facet lists of manifold NEE (src/solvers/path/mnee.rs).
     mnee_grid: &'a [u32],
     /// The scene has an environment light.
     environment: bool,
@@ -1017,7 +1017,7 @@ fn camera_paths(
 /// glsl/path/light.comp). It only sets the fixed-point scale: splats up to 2^16 times this are
 /// exact to ~7 digits, larger ones are clamped and counted.
 fn typical_splat(scene: &Scene, power_sum: f64) -> f64 {
-    let (header, _) = super::gpu_scene::scene_block(scene);
+    let (header, _) = crate::solvers::parts::gpu_scene::scene_block(scene);
     let k = header.cam_forward[3] as f64;
     let (wd, ht) = (scene.render.width as f64, scene.render.height as f64);
     let a_pix = (2.0 * k / wd) * (2.0 * k * (ht / wd) / ht);

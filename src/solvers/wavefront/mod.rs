@@ -2,9 +2,9 @@
 //! Liktor, Umenhoffer, Toth, "Fast approximation of multiple scattering in inhomogeneous
 //! participating media").
 //!
-//! Around every point light inside the medium the shared part [`super::wave_field`] marches a
+//! Around every point light inside the medium the shared part [`crate::solvers::parts::wave_field`] marches a
 //! spherical grid layer by layer (eq. 4-6) and gathers the multiply scattered fluence and
-//! vector irradiance onto a Cartesian volume; the view pass ([`super::view`]) adds exact single
+//! vector irradiance onto a Cartesian volume; the view pass ([`crate::solvers::parts::view`]) adds exact single
 //! scattering and the two-term in-scattering from that volume (end of section 2.1). Point
 //! lights outside the medium, directional and environment lights contribute their exact
 //! single scattering only, and the render says so in a warning.
@@ -17,14 +17,14 @@ use serde::Serialize;
 use crate::gpu::{Gpu, Kernel};
 use crate::scene::Scene;
 
-use super::gpu_scene::{self, GpuScene};
-use super::lattice::LatticeGeom;
-use super::view::{self, ViewSettings};
-use super::wave_field::{self, wave_volume, WaveSettings, WaveVolume};
-use super::Progress;
-use super::{
+use crate::solvers::interface::Progress;
+use crate::solvers::interface::{
     Headline, Knob, Knobs, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats, Variant,
 };
+use crate::solvers::parts::gpu_scene::{self, GpuScene};
+use crate::solvers::parts::lattice::LatticeGeom;
+use crate::solvers::parts::view::{self, ViewSettings};
+use crate::solvers::parts::wave_field::{self, wave_volume, WaveSettings, WaveVolume};
 
 pub struct Wavefront;
 
@@ -118,7 +118,7 @@ impl Solver for Wavefront {
         let bytes = gs.bytes + vol.device_bytes + res.device_bytes;
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, stats);
         report.warnings = warnings(scene, &set, &vol);
-        report.warnings.extend(super::nonfinite_warning(res.nonfinite_pixels));
+        report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
         Ok(RenderOutput { image: res.image, variance: None, report })
     }
 

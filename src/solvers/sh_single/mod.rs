@@ -32,16 +32,16 @@ use glam::Vec3;
 
 use serde::Serialize;
 
-use super::gpu_scene::{self, GpuScene, MESH_SPEC};
-use super::{
-    Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats, Variant,
-};
 use crate::gpu::{Gpu, Kernel, Pass, QueueRole};
 use crate::output::Image;
 use crate::physics::quadrature::Quadrature;
 use crate::physics::rng::Pcg32;
 use crate::physics::sh;
 use crate::scene::{Density, Grid, Light, Object, Scene};
+use crate::solvers::interface::{
+    Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung, Solver, SolverError, Stats, Variant,
+};
+use crate::solvers::parts::gpu_scene::{self, GpuScene, MESH_SPEC};
 
 /// One sample of the interior: its centre b_i, its Poisson-disk radius (scene units) and the
 /// material it lies in (an index into [`Object::materials`]).
@@ -799,7 +799,7 @@ pub const RENDER: Kernel =
 const CHUNK: u32 = 2048;
 
 // glsl/include/budget.glsl's LOOP_GUARD: past it llvmpipe's loop limiter may have fired.
-use super::resumable::LOOP_GUARD;
+use crate::solvers::parts::resumable::LOOP_GUARD;
 
 /// How the render pass finds the samples whose Gaussians a camera segment passes through.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -1583,7 +1583,7 @@ impl Solver for ShSingle {
         k.finish()?;
         let (image, st, bytes, modelled) = render(gpu, req.scene, &set, req.force_full, req.progress)?;
         let faults = st.nonfinite_pixels as u64;
-        let warning = super::nonfinite_warning(st.nonfinite_pixels);
+        let warning = crate::solvers::interface::nonfinite_warning(st.nonfinite_pixels);
         let mut stats = Stats::new(st);
         stats.faults = faults;
         let mut report = RenderReport::finish(gpu, self, &k, modelled, bytes, stats);

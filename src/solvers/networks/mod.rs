@@ -42,12 +42,12 @@ use crate::physics::geometry::{ray_box, ray_sphere};
 use crate::physics::rng::Pcg32;
 use crate::scene::{Light, Scene};
 
-use super::gpu_scene::GpuScene;
-use super::resumable::LOOP_GUARD;
-use super::{
+use crate::solvers::interface::{
     Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung,
     Solver, SolverError, Stats, Variant,
 };
+use crate::solvers::parts::gpu_scene::GpuScene;
+use crate::solvers::parts::resumable::LOOP_GUARD;
 
 pub const COUNT: Kernel =
     Kernel { shader: shader!("networks/count"), push_bytes: std::mem::size_of::<NetworkPush>(), spec: &[] };
@@ -58,19 +58,19 @@ pub const LINK: Kernel =
 pub const DIRECT: Kernel = Kernel {
     shader: shader!("networks/direct"),
     push_bytes: std::mem::size_of::<DirectPush>(),
-    spec: super::gpu_scene::SCENE_SPEC,
+    spec: crate::solvers::parts::gpu_scene::VIEW_SPEC,
 };
 pub const ITERATE: Kernel =
     Kernel { shader: shader!("networks/iterate"), push_bytes: std::mem::size_of::<IteratePush>(), spec: &[] };
 pub const GATHER: Kernel = Kernel {
     shader: shader!("networks/gather"),
     push_bytes: std::mem::size_of::<GatherPush>(),
-    spec: super::gpu_scene::SCENE_SPEC,
+    spec: crate::solvers::parts::gpu_scene::SCENE_SPEC,
 };
 pub const SPLAT: Kernel = Kernel {
     shader: shader!("networks/splat"),
     push_bytes: std::mem::size_of::<SplatPush>(),
-    spec: super::gpu_scene::SCENE_SPEC,
+    spec: crate::solvers::parts::gpu_scene::VIEW_SPEC,
 };
 
 /// Every kernel of this part.
@@ -145,7 +145,7 @@ pub fn light_units(scene: &Scene) -> Vec<&Light> {
 /// environment (0: environments reach the particles as the network's sky instead).
 /// (The view pass's count, `view::light_units`; direct.comp orders them lights first.)
 pub fn unit_count(scene: &Scene, env_dirs: u32) -> u32 {
-    super::view::light_units(scene, env_dirs)
+    crate::solvers::parts::view::light_units(scene, env_dirs)
 }
 
 /// The sky's radiance: the environments' summed (W/(m^2 sr)).
@@ -676,7 +676,7 @@ impl Network {
                     "networks: the transmittance step {step} takes {steps} steps across the medium; at most {LOOP_GUARD}"
                 )));
             }
-            let pipeline = gpu.pipeline(&DIRECT, &gs.modelled.spec())?;
+            let pipeline = gpu.pipeline(&DIRECT, &gs.modelled.view_spec())?;
             let pass = gs
                 .bind(Pass::new("networks.direct", QueueRole::Trace, &pipeline))
                 .read(3, positions)
@@ -861,7 +861,7 @@ pub struct Illumination {
     field: [Buffer; 2],
     /// Per iteration of a submission: the largest change of I and the largest I (f32 bits),
     /// after the verdict and the count of iterations run (a device record and its host copy).
-    stats: super::feedback::Feedback,
+    stats: crate::solvers::parts::feedback::Feedback,
     /// Which of `field` holds the current I.
     current: usize,
     pipeline: crate::gpu::Pipeline,
@@ -925,7 +925,7 @@ impl Illumination {
                 gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
                 gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
             ],
-            stats: super::feedback::Feedback::new(gpu, "networks iteration stats", 4 * STATS_WORDS)?,
+            stats: crate::solvers::parts::feedback::Feedback::new(gpu, "networks iteration stats", 4 * STATS_WORDS)?,
             batch: BATCH,
             current: 0,
             pipeline: gpu.pipeline(&ITERATE, &[])?,
@@ -970,11 +970,11 @@ impl Illumination {
     /// view`; 0 otherwise).
     pub fn device_bytes(net: &Network, scene: &Scene, env_dirs: u32, view: u64) -> u64 {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
-        let base = super::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
+        let base = crate::solvers::parts::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
         let state = 4 * d * d
             + net.direct_bytes(scene, env_dirs)
             + 2 * 16 * n * d
-            + super::feedback::Feedback::bytes(4 * STATS_WORDS);
+            + crate::solvers::parts::feedback::Feedback::bytes(4 * STATS_WORDS);
         let image = 20 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
         base + net.build_bytes().max(state + image.max(view))
     }
@@ -983,7 +983,7 @@ impl Illumination {
     /// light and the sky, keep I as the next iteration's start.
     pub fn set_lights(&mut self, gpu: &Gpu, net: &Network, scene: &Scene) -> Result<(), SolverError> {
         // The scene block (header and lights), rewritten in place: same size, same layout.
-        let (header, lights) = super::gpu_scene::scene_block(scene);
+        let (header, lights) = crate::solvers::parts::gpu_scene::scene_block(scene);
         let mut bytes = bytemuck::bytes_of(&header).to_vec();
         bytes.extend_from_slice(bytemuck::cast_slice(&lights));
         if unit_count(scene, self.env_dirs) != self.push.units || bytes.len() as u64 != self.gs.block.size() {
@@ -1124,7 +1124,7 @@ impl Illumination {
         order.sort_by(|a, b| keys[*a as usize].total_cmp(&keys[*b as usize]).then(a.cmp(b)));
         let order = gpu.buffer_with("networks splat order", &order)?;
         let gather = gpu.pipeline(&GATHER, &gs.modelled.spec())?;
-        let splat = gpu.pipeline(&SPLAT, &gs.modelled.spec())?;
+        let splat = gpu.pipeline(&SPLAT, &gs.modelled.view_spec())?;
         let (sigma_m, sky) = (self.sigma_m, self.push.sky);
         let passes = [
             gs.bind(Pass::new("networks.gather", QueueRole::Trace, &gather))
@@ -1195,7 +1195,7 @@ impl Illumination {
         gpu: &Gpu,
         tol: f64,
         max: u32,
-        progress: &dyn Fn(super::Progress),
+        progress: &dyn Fn(crate::solvers::interface::Progress),
     ) -> Result<Converged, SolverError> {
         let mut earlier: Option<(f64, u64)> = None;
         while self.iterations < max {
@@ -1213,7 +1213,14 @@ impl Illumination {
                 Some(_) => break,
                 None => {}
             }
-            progress(super::Progress::converging("networks iteration", it, self.change, tol, earlier, max as u64));
+            progress(crate::solvers::interface::Progress::converging(
+                "networks iteration",
+                it,
+                self.change,
+                tol,
+                earlier,
+                max as u64,
+            ));
             if earlier.is_none() {
                 earlier = Some((self.change, it));
             }
@@ -1269,12 +1276,12 @@ pub struct NetworksSettings {
     /// `networks.single = view`: the view pass computes every light's single scattering and
     /// the particles carry the light scattered at least twice; `None`: the particles carry
     /// everything (the paper's image).
-    pub view: Option<super::view::ViewSettings>,
+    pub view: Option<crate::solvers::parts::view::ViewSettings>,
 }
 
 impl NetworksSettings {
     pub fn parse(k: &Knobs, scene: &Scene) -> Result<NetworksSettings, SolverError> {
-        let step: f32 = k.get_or("step", super::view::ViewSettings::default_step(scene))?;
+        let step: f32 = k.get_or("step", crate::solvers::parts::view::ViewSettings::default_step(scene))?;
         let diagonal = (scene.medium.bounds_max - scene.medium.bounds_min).length();
         if diagonal / step > (LOOP_GUARD / 2) as f32 {
             return Err(k.invalid(
@@ -1295,7 +1302,7 @@ impl NetworksSettings {
             footprint: k.get("footprint")?,
             medium_transmittance: k.get::<String>("transmittance")? == "medium",
             view: if k.get::<String>("single")? == "view" {
-                Some(super::view::ViewSettings::parse(k, "view_", scene)?)
+                Some(crate::solvers::parts::view::ViewSettings::parse(k, "view_", scene)?)
             } else {
                 None
             },
@@ -1310,7 +1317,7 @@ impl NetworksSettings {
 
     /// Device bytes of the view pass (0 without it).
     pub fn view_bytes(&self, scene: &Scene) -> u64 {
-        self.view.as_ref().map_or(0, |v| super::view::device_bytes(scene, v))
+        self.view.as_ref().map_or(0, |v| crate::solvers::parts::view::device_bytes(scene, v))
     }
 
     /// The particle model, directions and windows of these settings for `scene` (its seed).
@@ -1355,7 +1362,7 @@ impl Networks {
         if let Some(v) = &set.view {
             // Every light's single scattering and the background, exactly (the view pass),
             // beside the particles' light scattered at least twice.
-            let view = super::view::march(gpu, scene, st.scene(), v, None)?;
+            let view = crate::solvers::parts::view::march(gpu, scene, st.scene(), v, None)?;
             view_nonfinite = view.nonfinite_pixels;
             for (a, b) in img.image.data.iter_mut().zip(&view.image.data) {
                 *a += *b;
@@ -1385,7 +1392,7 @@ impl Networks {
             tolerance: set.tol,
         });
         stats.faults = st.faults + img.nonfinite as u64 + view_nonfinite as u64;
-        let modelled = super::gpu_scene::modelled(scene, force_full);
+        let modelled = crate::solvers::parts::gpu_scene::modelled(scene, force_full);
         let bytes = Illumination::device_bytes(net, scene, set.env_dirs(), set.view_bytes(scene));
         let mut report = RenderReport::finish(gpu, self, k, modelled, bytes, stats);
         let iterate_gpu_ms: f64 =
@@ -1420,7 +1427,7 @@ impl Networks {
                 img.dropped
             ));
         }
-        report.warnings.extend(super::nonfinite_warning(img.nonfinite + view_nonfinite));
+        report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
     }
 }
@@ -1436,7 +1443,7 @@ struct NetworksAnimation {
     force_full: bool,
 }
 
-impl super::Animation for NetworksAnimation {
+impl crate::solvers::interface::Animation for NetworksAnimation {
     fn frame(&mut self, gpu: &Gpu, scene: &Scene, progress: &dyn Fn(Progress)) -> Result<RenderOutput, SolverError> {
         let set = self.set;
         let t = Instant::now();
@@ -1552,13 +1559,19 @@ impl Solver for Networks {
                  (the paper's image)",
             ),
         ];
-        k.extend(super::view::knobs().into_iter().map(|k| k.prefixed("view_").only_with("single=view")));
+        k.extend(
+            crate::solvers::parts::view::knobs().into_iter().map(|k| k.prefixed("view_").only_with("single=view")),
+        );
         k
     }
 
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = kernels();
-        k.extend([super::view::MARCH, super::view::SHADOW, super::feedback::COPY]);
+        k.extend([
+            crate::solvers::parts::view::MARCH,
+            crate::solvers::parts::view::SHADOW,
+            crate::solvers::parts::feedback::COPY,
+        ]);
         k
     }
 
@@ -1579,7 +1592,11 @@ impl Solver for Networks {
         self.finish(gpu, scene, req.force_full, &k, &set, &net, &st, c, build_ms, iterate_ms)
     }
 
-    fn animation(&self, req: &RenderRequest, converge: bool) -> Result<Option<Box<dyn super::Animation>>, SolverError> {
+    fn animation(
+        &self,
+        req: &RenderRequest,
+        converge: bool,
+    ) -> Result<Option<Box<dyn crate::solvers::interface::Animation>>, SolverError> {
         let knobs = req.knobs(self)?;
         let set = NetworksSettings::parse(&knobs, req.scene)?;
         knobs.finish()?;

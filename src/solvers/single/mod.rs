@@ -1,5 +1,5 @@
 //! Solver `single`: the direct term by camera-ray marching with shadow transmittance to each
-//! light and the exact phase function: the shared view pass ([`super::view`]) with no
+//! light and the exact phase function: the shared view pass ([`crate::solvers::parts::view`]) with no
 //! multiple-scattering volume. It converges to `path --set path.max_depth=1` as the step
 //! shrinks (tests/solvers.rs). Knobs: the view march's, unprefixed (`scatterlab knobs single`),
 //! and `refraction`.
@@ -15,9 +15,9 @@
 use crate::gpu::{Gpu, Kernel};
 use crate::scene::Scene;
 
-use super::gpu_scene;
-use super::view::{self, ViewSettings};
-use super::{Knob, Knobs, RenderOutput, RenderRequest, Rung, Solver, SolverError, Variant};
+use crate::solvers::interface::{Knob, Knobs, RenderOutput, RenderRequest, Rung, Solver, SolverError, Variant};
+use crate::solvers::parts::gpu_scene;
+use crate::solvers::parts::view::{self, ViewSettings};
 
 pub struct Single;
 
@@ -35,7 +35,7 @@ impl Solver for Single {
         k.push(Knob::fixed(
             "refraction",
             "true",
-            super::Range::Bool,
+            crate::solvers::interface::Range::Bool,
             "with a refractive [[object]] (ior != 1): Fresnel and Snell at its surface; false renders its boundary \
              as index-matched (what refraction changes)",
         ));

@@ -9,7 +9,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
 
-use super::SolverError;
+use crate::solvers::interface::SolverError;
 
 pub const COPY: Kernel =
     Kernel { shader: shader!("feedback/copy"), push_bytes: std::mem::size_of::<CopyPush>(), spec: &[] };

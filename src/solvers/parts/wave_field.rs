@@ -35,7 +35,7 @@ use crate::scene::{is_grey, Light, Scene};
 use super::gpu_scene::{GpuScene, SCENE_SPEC};
 use super::lattice::LatticeGeom;
 use super::view::MsVolume;
-use super::{Knob, Knobs, Range, SolverError};
+use crate::solvers::interface::{Knob, Knobs, Range, SolverError};
 
 /// How psi0 and psi1 are advanced across a shell.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]

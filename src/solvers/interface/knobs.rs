@@ -203,10 +203,13 @@ impl Settings {
         for (key, value) in &self.pairs {
             let (owner, name) = key.split_once('.').unwrap_or(("", key));
             if owner != solver {
-                let reason = if super::find(owner).is_ok() {
+                let reason = if super::registered().iter().any(|s| s.name() == owner) {
                     format!("is a knob of solver {owner}, but this render uses solver {solver}")
                 } else {
-                    format!("unknown key; solver knobs start with a solver name ({})", super::names().join(", "))
+                    format!(
+                        "unknown key; solver knobs start with a solver name ({})",
+                        super::registered().iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
+                    )
                 };
                 return Err(SolverError::Setting { key: key.clone(), reason });
             }

@@ -16,8 +16,11 @@ use crate::scene::Scene;
 use serde::Serialize;
 
 use super::gpu_scene::GpuScene;
-use super::Progress;
-use super::{resumable, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Solver, SolverError, Stats};
+use super::resumable;
+use crate::solvers::interface::Progress;
+use crate::solvers::interface::{
+    Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Solver, SolverError, Stats,
+};
 
 /// Push constants of glsl/view/march.comp.
 #[repr(C)]
@@ -65,7 +68,7 @@ struct ShadowPush {
 pub const SHADOW: Kernel = Kernel {
     shader: shader!("view/shadow"),
     push_bytes: std::mem::size_of::<ShadowPush>(),
-    spec: super::gpu_scene::SCENE_SPEC,
+    spec: super::gpu_scene::VIEW_SPEC,
 };
 
 /// How the view pass finds the optical depth toward each light unit (`view_shadow`).
@@ -161,6 +164,7 @@ pub const MARCH: Kernel = Kernel {
         (SPEC_STEP_FIT, SpecKind::Bool),
         (super::gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
         (super::gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
+        (super::gpu_scene::SPEC_ENVIRONMENT, SpecKind::Bool),
     ],
 };
 
@@ -405,6 +409,7 @@ pub fn march(
     let mut spec = gs.modelled.mesh_spec();
     spec.push((SPEC_OCTAVES, Spec::U32(v.octaves.n.clamp(1, MAX_OCTAVES))));
     spec.push((SPEC_STEP_FIT, Spec::Bool(step_fit(scene, v.step))));
+    spec.push((super::gpu_scene::SPEC_ENVIRONMENT, Spec::Bool(gs.modelled.environment)));
     let pipeline = gpu.pipeline(&MARCH, &spec)?;
     let o = v.octaves;
     let pixels = w as u64 * h as u64;
@@ -423,7 +428,7 @@ pub fn march(
             let units = light_units(scene, v.env_dirs);
             let voxels = g.dims.iter().map(|d| *d as u64).product::<u64>();
             let buf = gpu.buffer("view shadow volume", shadow_bytes(scene, v))?;
-            let sp = gpu.pipeline(&SHADOW, &gs.modelled.spec())?;
+            let sp = gpu.pipeline(&SHADOW, &gs.modelled.view_spec())?;
             let p = gs
                 .bind(Pass::new("view.shadow", QueueRole::Trace, &sp))
                 .write(3, &buf)
@@ -532,7 +537,9 @@ pub fn render_alone(
 ) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
     // The library's guard (the command line refuses earlier): a solver that holds one medium.
-    if let Some(why) = super::materials_unsupported(solver.name(), scene).filter(|_| !solver.renders_materials()) {
+    if let Some(why) =
+        crate::solvers::interface::materials_unsupported(solver.name(), scene).filter(|_| !solver.renders_materials())
+    {
         return Err(SolverError::Unsupported(why));
     }
     let mut gs = if solver.renders_meshes() {
@@ -554,6 +561,6 @@ pub fn render_alone(
     });
     stats.faults = view.nonfinite_pixels as u64;
     let mut report = RenderReport::finish(gpu, solver, k, gs.modelled.clone(), gs.bytes + view.device_bytes, stats);
-    report.warnings.extend(super::nonfinite_warning(view.nonfinite_pixels));
+    report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
     Ok(RenderOutput { image: view.image, variance: None, report })
 }

@@ -5,15 +5,16 @@
 //! summed deposits into its rest distribution (glsl/lattice/inject.comp), and
 //! [`Diffuser::iterate`] runs it to convergence. Used by `lbl`.
 
+mod geom;
+pub use geom::LatticeGeom;
+
 use bytemuck::{Pod, Zeroable};
-use glam::Vec3;
 use serde::Serialize;
 
 use crate::gpu::{Buffer, DeviceInfo, Gpu, Kernel, Pass, Pipeline, QueueRole, Spec, SpecKind};
-use crate::scene::Scene;
 
-use super::Progress;
-use super::SolverError;
+use crate::solvers::interface::Progress;
+use crate::solvers::interface::SolverError;
 
 /// Specialisation constant ids of glsl/include/lattice.glsl and the lattice kernels.
 pub const SPEC_NCH: u32 = 3;
@@ -367,37 +368,6 @@ impl std::str::FromStr for Escape {
             "all" => Ok(Escape::All),
             _ => Err(format!("unknown escape {s:?}; use none, box or all")),
         }
-    }
-}
-
-/// A Cartesian voxel grid over the medium's box: `dims` cubic voxels of edge `lambda` from
-/// `origin` (the medium's min corner), `grid` voxels along the box's longest side.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct LatticeGeom {
-    pub dims: [u32; 3],
-    pub origin: [f32; 3],
-    pub lambda: f32,
-}
-
-impl LatticeGeom {
-    pub fn new(scene: &Scene, grid: u32) -> LatticeGeom {
-        let ext = scene.medium.bounds_max - scene.medium.bounds_min;
-        let lambda = ext.max_element() / grid as f32;
-        let dims = [0, 1, 2].map(|a| ((ext[a] / lambda) - 1e-4).ceil().max(1.0) as u32);
-        LatticeGeom { dims, origin: scene.medium.bounds_min.to_array(), lambda }
-    }
-    pub fn voxels(&self) -> u64 {
-        self.dims.iter().map(|d| *d as u64).product()
-    }
-    pub fn min(&self) -> Vec3 {
-        Vec3::from(self.origin)
-    }
-    pub fn max(&self) -> Vec3 {
-        self.min() + Vec3::new(self.dims[0] as f32, self.dims[1] as f32, self.dims[2] as f32) * self.lambda
-    }
-    /// `origin` with `lambda` as w (push-constant layout of the grid kernels).
-    pub fn origin4(&self) -> [f32; 4] {
-        [self.origin[0], self.origin[1], self.origin[2], self.lambda]
     }
 }
 
