@@ -6,6 +6,7 @@ mod bench_tests;
 mod cli_tests;
 mod common;
 mod device_convergence_tests;
+mod docs_tests;
 mod dom_streaming;
 mod dom_tests;
 mod equiangular_tests;
