@@ -29,7 +29,7 @@ pub mod ordinates;
 
 use serde::Serialize;
 
-use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole};
+use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
 use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
 use crate::scene::{CameraKind, Scene};
@@ -273,8 +273,300 @@ const BATCH_TARGET_MS: f64 = 12.0;
 /// and (with a tail) the light toward the camera after the last iteration.
 type IterationEnd = (u32, bool, f64, Option<Tail>, Vec<Vec<f32>>);
 
+/// What making the direct source left: the once-scattered source per storage direction (with
+/// blocks; plane sweeps keep it on the device), the bytes it held, and how it was cut.
+struct DirectSource {
+    first: Vec<f32>,
+    /// Device bytes within dom.budget (the sweeper, the binning, a slab's sums and density),
+    /// and with the marcher's too.
+    budgeted: u64,
+    source_bytes: u64,
+    slabs: u32,
+    layers: u32,
+    groups: u32,
+}
+
+/// The first-scattering source (thesis 5.2): the light marched, each voxel's deposits summed per
+/// beam, slab by slab and group by group of beams, each ray marching from its start once per
+/// slab in its group's pass (the same steps: each voxel's integer sum is the same whatever the
+/// cut, and the groups are binned in beam order, so the source is the same bits). With blocks
+/// the density is resampled slab by slab into `density` and the source read back per slab.
+#[allow(clippy::too_many_arguments)]
+fn direct_source(
+    gpu: &Gpu,
+    (gs, resampler, geom): (&GpuScene, &Pipeline, &LatticeGeom),
+    marcher: Marcher,
+    sweeper: &Sweeper,
+    (cut, block, nch, g): (SourceCut, u32, u32, f64),
+    density: &mut [f32],
+    progress: &dyn Fn(Progress),
+) -> Result<DirectSource, SolverError> {
+    let v = geom.voxels() as usize;
+    let beams = marcher.beams.len();
+    let layers = cut.layers;
+    let groups = BeamGroup::split(&marcher.ray_beam, beams as u32, cut.group);
+    let sums = sweeper.deposit_sums(gpu, cut.group as usize)?;
+    let ray_beam = gpu.buffer_with("dom ray beams", &marcher.ray_beam)?;
+    let table = gpu.buffer_with("dom beams", &sweeper.beam_table(g, &marcher.beams))?;
+    let layer = geom.dims[0] * geom.dims[1];
+    let slabs: Vec<Slab> = (0..geom.dims[2])
+        .step_by(layers as usize)
+        .map(|z0| Slab { z0, layers: layers.min(geom.dims[2] - z0), layer })
+        .collect();
+    let storage_m = sweeper.storage.len();
+    let mut first = if block > 0 { vec![0f32; nch as usize * storage_m * v] } else { Vec::new() };
+    let runs: Vec<(Slab, &BeamGroup)> = slabs.iter().flat_map(|s| groups.iter().map(move |g| (*s, g))).collect();
+    let work = (marcher.rounds as usize * runs.len()) as u64;
+    let mut density_bytes = 0;
+    for (i, (slab, group)) in runs.iter().enumerate() {
+        let (slab, first_group) = (*slab, group.beams.start == 0);
+        if i > 0 {
+            if first_group {
+                marcher.reset(gpu)?;
+            }
+            gpu.fill_zero(&sums)?;
+        }
+        if block > 0 && first_group {
+            let d = marching::resample(gpu, gs, geom, resampler, slab.z0, slab.layers)?;
+            density_bytes = density_bytes.max(d.size());
+            let base = slab.base() as usize;
+            density[base..base + slab.voxels() as usize].copy_from_slice(&gpu.read_buffer_as::<f32>(&d)?);
+        }
+        // The rounds in submissions of ROUNDS_PER_SUBMIT (march, deposit) pairs: one wait per
+        // batch rather than per round (the passes' hazards put the barriers between them).
+        let k = marcher.history_slots();
+        let mut round = 0;
+        while round < marcher.rounds {
+            let done = (i * marcher.rounds as usize + round as usize) as u64;
+            progress(Progress::work("marching the direct source", done, work));
+            let batch = ROUNDS_PER_SUBMIT.min(marcher.rounds - round);
+            round += batch;
+            if group.rays.is_empty() {
+                continue;
+            }
+            let passes: Vec<Pass> = (0..batch)
+                .flat_map(|_| {
+                    [
+                        marcher.march_pass(gs, group.rays.clone()),
+                        sweeper.deposit_pass(&marcher.history, &ray_beam, k, group, marcher.scale, &sums, slab),
+                    ]
+                })
+                .collect();
+            let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+            gpu.wait(point)?;
+        }
+        // Each voxel's once-scattered power per beam, shared among the storage directions:
+        // the first-scattering source (per unit volume and sr).
+        let bin = sweeper.bin_pass(&sums, &table, group, marcher.scale, slab);
+        let point = gpu.submit(QueueRole::Diffuse, &[bin], &[])?;
+        gpu.wait(point)?;
+        if block > 0 && group.beams.end == beams as u32 {
+            let part = sweeper.read_first(gpu, slab)?;
+            let (sv, base) = (slab.voxels() as usize, slab.base() as usize);
+            for (cm, chunk) in part.chunks_exact(sv).enumerate() {
+                first[cm * v + base..cm * v + base + sv].copy_from_slice(chunk);
+            }
+        }
+    }
+    progress(Progress::work("marching the direct source", work, work));
+    if block == 0 {
+        density_bytes = geom.voxels() * 4;
+    }
+    // Device bytes while the direct source is made: the marcher, the binning and the slab's
+    // sums and density (with plane sweeps the sweeper is all of the grid's buffers).
+    let budgeted = sweeper.device_bytes() + sums.size() + table.size() + density_bytes;
+    let source_bytes = budgeted + marcher.device_bytes() + ray_beam.size();
+    drop((sums, ray_beam, table, marcher));
+    Ok(DirectSource { first, budgeted, source_bytes, slabs: slabs.len() as u32, layers, groups: groups.len() as u32 })
+}
+
+/// The view pass over the light each voxel scatters toward the camera (as the energy per voxel
+/// that the view scatters isotropically: fluence = energy / lambda^2, as lbl's lattice). Plane
+/// sweeps hand it their camera buffer; with blocks the pool goes first, and the view takes the
+/// volume in slabs of whole layers where it does not fit dom.budget (or one binding): one view
+/// run per slab, the images added (view::MsWindow). Returns the view's result, the sweeps'
+/// device bytes, the streaming stats, the pool's bytes and the number of view slabs.
+#[allow(clippy::too_many_arguments)]
+fn view_step(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    set: &DomSettings,
+    plan: &SourcePlan,
+    (nch, layer): (u32, u32),
+    blocked: Option<BlockSweeper>,
+    sweeper: &Option<Sweeper>,
+    camera_with_tail: Option<Vec<f32>>,
+) -> Result<(view::ViewResult, u64, Option<StreamStats>, u64, u32), SolverError> {
+    let geom = &set.geom;
+    let v = geom.voxels() as usize;
+    Ok(match blocked {
+        Some(b) => {
+            let (stats, pool) = (b.stats, b.device_bytes());
+            let camera = camera_with_tail.unwrap_or_else(|| b.camera());
+            drop(b);
+            let windows = view_windows(plan, set.budget, gpu.info().max_storage_buffer_range);
+            let mut total: Option<view::ViewResult> = None;
+            for w in &windows {
+                let part = match w {
+                    Some(w) => {
+                        let (first, count) = ((w.held[0] * layer) as usize, (w.held[1] * layer) as usize);
+                        let held: Vec<f32> =
+                            camera.chunks_exact(v).flat_map(|c| &c[first..first + count]).copied().collect();
+                        gpu.buffer_with("dom toward the camera (slab)", &held)?
+                    }
+                    None => gpu.buffer_with("dom toward the camera", &camera)?,
+                };
+                let mut r = view::march(gpu, scene, gs, &set.view, Some(&ms_volume(&part, geom, nch, *w)))?;
+                r.device_bytes += part.size();
+                total = Some(match total {
+                    None => r,
+                    Some(mut t) => {
+                        t.image.data.iter_mut().zip(&r.image.data).for_each(|(a, b)| *a += b);
+                        t.dispatches += r.dispatches;
+                        t.max_loop_iterations = t.max_loop_iterations.max(r.max_loop_iterations);
+                        t.nonfinite_pixels += r.nonfinite_pixels;
+                        t.device_bytes = t.device_bytes.max(r.device_bytes);
+                        t
+                    }
+                });
+            }
+            let res = total.expect("at least one view window");
+            (res, pool, Some(stats), pool, windows.len() as u32)
+        }
+        None => {
+            let res =
+                view::march(gpu, scene, gs, &set.view, Some(&ms_volume(&plane(sweeper).camera, geom, nch, None)))?;
+            (res, plane(sweeper).device_bytes(), None, 0, 1)
+        }
+    })
+}
+
+/// The iterations' progress line: iteration `iterations` changed the fluence by `shown` (the
+/// extrapolated change where it is the smaller); `last` is the previous report, for the rate.
+fn show_iteration(
+    progress: &dyn Fn(Progress),
+    set: &DomSettings,
+    iterations: u32,
+    shown: f64,
+    last: &mut Option<(f64, u64)>,
+) {
+    let left = (set.max_iterations - iterations) as u64;
+    progress(Progress::converging("scattering iterations", iterations as u64, shown, set.tol, *last, left));
+    *last = Some((shown, iterations as u64));
+}
+
+/// The scattering iterations tested on the host (block streaming, or a device without double
+/// precision): a wait and a readback of the fluence (and of the light toward the camera) per
+/// iteration; the tail as [`iterate_on_device`] takes it (see `Dom::render`).
+fn iterate_on_host(
+    gpu: &Gpu,
+    blocked: &mut Option<BlockSweeper>,
+    sweeper: &Option<Sweeper>,
+    set: &DomSettings,
+    values: usize,
+    progress: &dyn Fn(Progress),
+) -> Result<IterationEnd, SolverError> {
+    let read_camera = |blocked: &Option<BlockSweeper>, sweeper: &Option<Sweeper>| -> Result<Vec<f32>, SolverError> {
+        Ok(match blocked {
+            Some(b) => b.camera(),
+            None => gpu.read_buffer_as(&plane(sweeper).camera)?,
+        })
+    };
+    let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
+    let sum = |a: &[f32]| -> f64 { a.iter().map(|x| *x as f64).sum() };
+    let max_diff = |a: &[f32], b: &[f32]| -> f64 {
+        a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()))
+    };
+    let peak = |a: &[f32]| -> f64 { a.iter().fold(0.0f64, |m, x| m.max(*x as f64)) };
+    // rho^2 from the sums of the pairs of bounces (newest last), when it is a decay.
+    let decay2 = |s: &[f64]| -> Option<f64> {
+        match s {
+            [.., a, _, c] if *a > 0.0 && *c > 0.0 => Some(c / a).filter(|r| *r < 1.0),
+            _ => None,
+        }
+    };
+    // The fluence summed over the bounces, the last bounce's, and the light toward the camera
+    // (summed on the device) after the last two iterations (newest last).
+    let mut fluence = vec![0.0f32; values];
+    let mut last_bounce = fluence.clone();
+    let mut cameras: Vec<Vec<f32>> = Vec::new();
+    let (mut pair_sums, mut camera_pair_sums) = (Vec::<f64>::new(), Vec::<f64>::new());
+    let mut previous_extrapolated = None::<Vec<f32>>;
+    let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
+    let mut last_change: Option<(f64, u64)> = None;
+    let mut tail: Option<Tail> = None;
+    while iterations < set.max_iterations {
+        let bounce = match blocked.as_mut() {
+            Some(b) => b.iterate(gpu)?,
+            None => plane(sweeper).iterate(gpu)?,
+        };
+        iterations += 1;
+        fluence.iter_mut().zip(&bounce).for_each(|(f, b)| *f += b);
+        let scale = peak(&fluence);
+        // What this bounce added, against the summed fluence's largest value.
+        change = peak(&bounce) / if scale > 0.0 { scale } else { 1.0 };
+        let mut extrapolated_change = None;
+        let mut ratio = None;
+        // The light toward the camera two iterations back.
+        let mut camera_before2 = None;
+        if set.extrapolate {
+            let camera = read_camera(blocked, sweeper)?;
+            if cameras.len() == 2 {
+                let b2 = cameras.remove(0);
+                camera_pair_sums.push(diff_sum(&camera, &b2));
+                camera_before2 = Some(b2);
+            }
+            cameras.push(camera);
+            if iterations >= 2 {
+                pair_sums.push(sum(&bounce) + sum(&last_bounce));
+            }
+            ratio = decay2(&pair_sums);
+            match ratio {
+                Some(r2) => {
+                    let f = (r2 / (1.0 - r2)) as f32;
+                    let e: Vec<f32> =
+                        fluence.iter().zip(&bounce).zip(&last_bounce).map(|((t, b), l)| t + (b + l) * f).collect();
+                    if let Some(pe) = &previous_extrapolated {
+                        extrapolated_change = Some(max_diff(&e, pe) / peak(&e).max(f64::MIN_POSITIVE));
+                    }
+                    previous_extrapolated = Some(e);
+                }
+                None => previous_extrapolated = None,
+            }
+        }
+        let shown = extrapolated_change.map_or(change, |e| e.min(change));
+        show_iteration(progress, set, iterations, shown, &mut last_change);
+        if change <= set.tol {
+            converged = true;
+        } else if let (Some(e), Some(r2)) = (extrapolated_change, ratio) {
+            if e <= set.tol {
+                converged = true;
+                change = e;
+                // The pair the decay was taken from (pushed above), not summed again.
+                let pair = *pair_sums.last().expect("a decay needs pairs");
+                let total = sum(&fluence);
+                let added = pair * r2 / (1.0 - r2);
+                tail = Some(Tail {
+                    ratio: r2.sqrt(),
+                    share: added / (total + added).max(f64::MIN_POSITIVE),
+                    camera_ratio2: decay2(&camera_pair_sums)
+                        .filter(|_| camera_before2.is_some())
+                        .map_or(0.0, |c| c.min(r2)),
+                    camera_before2: camera_before2.take().unwrap_or_default(),
+                });
+            }
+        }
+        last_bounce = bounce;
+        if converged {
+            break;
+        }
+    }
+    Ok((iterations, converged, change, tail, cameras))
+}
+
 /// The scattering iterations with the convergence test on the device
-/// (glsl/ordinates/converge.comp; the criterion and tail as the host loop in `Dom::render`).
+/// (glsl/ordinates/converge.comp; the criterion and tail as [`iterate_on_host`]'s).
 fn iterate_on_device(
     gpu: &Gpu,
     sw: &Sweeper,
@@ -305,15 +597,7 @@ fn iterate_on_device(
         batch = ((BATCH_TARGET_MS / per.max(1e-3)) as u32).clamp(ITERATIONS_MIN, ITERATIONS_MAX);
         change = ctl.change;
         let shown = if ctl.ext_ok != 0 { ctl.ext_change.min(ctl.change) } else { ctl.change };
-        progress(Progress::converging(
-            "scattering iterations",
-            iterations as u64,
-            shown,
-            set.tol,
-            last,
-            (set.max_iterations - iterations) as u64,
-        ));
-        last = Some((shown, iterations as u64));
+        show_iteration(progress, set, iterations, shown, &mut last);
         if ctl.stopped != 0 {
             converged = true;
             if ctl.tail != 0 {
@@ -634,85 +918,18 @@ impl Solver for Dom {
         };
 
         stage("setup");
-        // 5.2: march the light, summing each voxel's deposits per beam; slab by slab and group by
-        // group of beams, each ray marching from its start once per slab in its group's pass
-        // (the same steps: each voxel's integer sum is the same whatever the cut, and the groups
-        // are binned in beam order, so the source is the same bits).
-        let layers = cut.layers;
-        let groups = BeamGroup::split(&marcher.ray_beam, beams as u32, cut.group);
-        let sums = sweeper.deposit_sums(gpu, cut.group as usize)?;
-        let ray_beam = gpu.buffer_with("dom ray beams", &marcher.ray_beam)?;
-        let table = gpu.buffer_with("dom beams", &sweeper.beam_table(m.g as f64, &marcher.beams))?;
+        let (quadrature_g, upsampled, storage_m) = (sweeper.quadrature_g, sweeper.upsampled(), sweeper.storage.len());
         let layer = geom.dims[0] * geom.dims[1];
-        let slabs: Vec<Slab> = (0..geom.dims[2])
-            .step_by(layers as usize)
-            .map(|z0| Slab { z0, layers: layers.min(geom.dims[2] - z0), layer })
-            .collect();
-        let storage_m = sweeper.storage.len();
-        let mut first = if block > 0 { vec![0f32; nch as usize * storage_m * v] } else { Vec::new() };
-        let runs: Vec<(Slab, &BeamGroup)> = slabs.iter().flat_map(|s| groups.iter().map(move |g| (*s, g))).collect();
-        let work = (marcher.rounds as usize * runs.len()) as u64;
-        let mut density_bytes = 0;
-        for (i, (slab, group)) in runs.iter().enumerate() {
-            let (slab, first_group) = (*slab, group.beams.start == 0);
-            if i > 0 {
-                if first_group {
-                    marcher.reset(gpu)?;
-                }
-                gpu.fill_zero(&sums)?;
-            }
-            if block > 0 && first_group {
-                let d = marching::resample(gpu, &gs, &geom, &resampler, slab.z0, slab.layers)?;
-                density_bytes = density_bytes.max(d.size());
-                let base = slab.base() as usize;
-                density[base..base + slab.voxels() as usize].copy_from_slice(&gpu.read_buffer_as::<f32>(&d)?);
-            }
-            // The rounds in submissions of ROUNDS_PER_SUBMIT (march, deposit) pairs: one wait per
-            // batch rather than per round (the passes' hazards put the barriers between them).
-            let k = marcher.history_slots();
-            let mut round = 0;
-            while round < marcher.rounds {
-                let done = (i * marcher.rounds as usize + round as usize) as u64;
-                (req.progress)(Progress::work("marching the direct source", done, work));
-                let batch = ROUNDS_PER_SUBMIT.min(marcher.rounds - round);
-                round += batch;
-                if group.rays.is_empty() {
-                    continue;
-                }
-                let passes: Vec<Pass> = (0..batch)
-                    .flat_map(|_| {
-                        [
-                            marcher.march_pass(&gs, group.rays.clone()),
-                            sweeper.deposit_pass(&marcher.history, &ray_beam, k, group, marcher.scale, &sums, slab),
-                        ]
-                    })
-                    .collect();
-                let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
-                gpu.wait(point)?;
-            }
-            // Each voxel's once-scattered power per beam, shared among the storage directions:
-            // the first-scattering source (per unit volume and sr).
-            let bin = sweeper.bin_pass(&sums, &table, group, marcher.scale, slab);
-            let point = gpu.submit(QueueRole::Diffuse, &[bin], &[])?;
-            gpu.wait(point)?;
-            if block > 0 && group.beams.end == beams as u32 {
-                let part = sweeper.read_first(gpu, slab)?;
-                let (sv, base) = (slab.voxels() as usize, slab.base() as usize);
-                for (cm, chunk) in part.chunks_exact(sv).enumerate() {
-                    first[cm * v + base..cm * v + base + sv].copy_from_slice(chunk);
-                }
-            }
-        }
-        (req.progress)(Progress::work("marching the direct source", work, work));
-        if block == 0 {
-            density_bytes = geom.voxels() * 4;
-        }
-        // Device bytes while the direct source is made: the marcher, the binning and the slab's
-        // sums and density (with plane sweeps the sweeper is all of the grid's buffers).
-        let budgeted = sweeper.device_bytes() + sums.size() + table.size() + density_bytes;
-        let source_bytes = budgeted + marcher.device_bytes() + ray_beam.size();
-        let (quadrature_g, upsampled) = (sweeper.quadrature_g, sweeper.upsampled());
-        drop((sums, ray_beam, table, marcher));
+        let source = direct_source(
+            gpu,
+            (&gs, &resampler, &geom),
+            marcher,
+            &sweeper,
+            (cut, block, nch, m.g as f64),
+            &mut density,
+            req.progress,
+        )?;
+        let DirectSource { first, budgeted, source_bytes, .. } = source;
         stage("direct source");
         let (sigma_t, sigma_s) = if block > 0 { extinction(&density) } else { (sigma_t, sigma_s) };
         drop(density);
@@ -767,115 +984,7 @@ impl Solver for Dom {
         let (iterations, converged, change, tail, mut cameras) = if on_device {
             iterate_on_device(gpu, plane(&sweeper), &set, req.progress)?
         } else {
-            let read_camera =
-                |blocked: &Option<BlockSweeper>, sweeper: &Option<Sweeper>| -> Result<Vec<f32>, SolverError> {
-                    Ok(match blocked {
-                        Some(b) => b.camera(),
-                        None => gpu.read_buffer_as(&plane(sweeper).camera)?,
-                    })
-                };
-            let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
-            let sum = |a: &[f32]| -> f64 { a.iter().map(|x| *x as f64).sum() };
-            let max_diff = |a: &[f32], b: &[f32]| -> f64 {
-                a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()))
-            };
-            let peak = |a: &[f32]| -> f64 { a.iter().fold(0.0f64, |m, x| m.max(*x as f64)) };
-            // rho^2 from the sums of the pairs of bounces (newest last), when it is a decay.
-            let decay2 = |s: &[f64]| -> Option<f64> {
-                match s {
-                    [.., a, _, c] if *a > 0.0 && *c > 0.0 => Some(c / a).filter(|r| *r < 1.0),
-                    _ => None,
-                }
-            };
-            // The fluence summed over the bounces, the last bounce's, and the light toward the camera
-            // (summed on the device) after the last two iterations (newest last).
-            let mut fluence = vec![0.0f32; nch as usize * v];
-            let mut last_bounce = fluence.clone();
-            let mut cameras: Vec<Vec<f32>> = Vec::new();
-            let (mut pair_sums, mut camera_pair_sums) = (Vec::<f64>::new(), Vec::<f64>::new());
-            let mut previous_extrapolated = None::<Vec<f32>>;
-            let (mut iterations, mut converged, mut change) = (0u32, false, f64::INFINITY);
-            let mut last_change: Option<(f64, u64)> = None;
-            let mut tail: Option<Tail> = None;
-            while iterations < set.max_iterations {
-                let bounce = match blocked.as_mut() {
-                    Some(b) => b.iterate(gpu)?,
-                    None => plane(&sweeper).iterate(gpu)?,
-                };
-                iterations += 1;
-                fluence.iter_mut().zip(&bounce).for_each(|(f, b)| *f += b);
-                let scale = peak(&fluence);
-                // What this bounce added, against the summed fluence's largest value.
-                change = peak(&bounce) / if scale > 0.0 { scale } else { 1.0 };
-                let mut extrapolated_change = None;
-                let mut ratio = None;
-                // The light toward the camera two iterations back.
-                let mut camera_before2 = None;
-                if set.extrapolate {
-                    let camera = read_camera(&blocked, &sweeper)?;
-                    if cameras.len() == 2 {
-                        let b2 = cameras.remove(0);
-                        camera_pair_sums.push(diff_sum(&camera, &b2));
-                        camera_before2 = Some(b2);
-                    }
-                    cameras.push(camera);
-                    if iterations >= 2 {
-                        pair_sums.push(sum(&bounce) + sum(&last_bounce));
-                    }
-                    ratio = decay2(&pair_sums);
-                    match ratio {
-                        Some(r2) => {
-                            let f = (r2 / (1.0 - r2)) as f32;
-                            let e: Vec<f32> = fluence
-                                .iter()
-                                .zip(&bounce)
-                                .zip(&last_bounce)
-                                .map(|((t, b), l)| t + (b + l) * f)
-                                .collect();
-                            if let Some(pe) = &previous_extrapolated {
-                                extrapolated_change = Some(max_diff(&e, pe) / peak(&e).max(f64::MIN_POSITIVE));
-                            }
-                            previous_extrapolated = Some(e);
-                        }
-                        None => previous_extrapolated = None,
-                    }
-                }
-                let shown = extrapolated_change.map_or(change, |e| e.min(change));
-                (req.progress)(Progress::converging(
-                    "scattering iterations",
-                    iterations as u64,
-                    shown,
-                    set.tol,
-                    last_change,
-                    (set.max_iterations - iterations) as u64,
-                ));
-                last_change = Some((shown, iterations as u64));
-                if change <= set.tol {
-                    converged = true;
-                } else if let (Some(e), Some(r2)) = (extrapolated_change, ratio) {
-                    if e <= set.tol {
-                        converged = true;
-                        change = e;
-                        // The pair the decay was taken from (pushed above), not summed again.
-                        let pair = *pair_sums.last().expect("a decay needs pairs");
-                        let total = sum(&fluence);
-                        let added = pair * r2 / (1.0 - r2);
-                        tail = Some(Tail {
-                            ratio: r2.sqrt(),
-                            share: added / (total + added).max(f64::MIN_POSITIVE),
-                            camera_ratio2: decay2(&camera_pair_sums)
-                                .filter(|_| camera_before2.is_some())
-                                .map_or(0.0, |c| c.min(r2)),
-                            camera_before2: camera_before2.take().unwrap_or_default(),
-                        });
-                    }
-                }
-                last_bounce = bounce;
-                if converged {
-                    break;
-                }
-            }
-            (iterations, converged, change, tail, cameras)
+            iterate_on_host(gpu, &mut blocked, &sweeper, &set, nch as usize * v, req.progress)?
         };
         // The tail toward the camera: the last pair increment of the gathered light times
         // rho^2 / (1 - rho^2), added to the light the last iteration read (with a tail, the
@@ -896,51 +1005,9 @@ impl Solver for Dom {
         // With blocks the pool goes before the view, which takes the volume in slabs of whole
         // layers where it does not fit dom.budget (or one binding): one view run per slab, the
         // images added (view::MsWindow).
-        let (res, sweeps, streaming, sweep_device_bytes, view_slabs) = match blocked.take() {
-            Some(b) => {
-                let (stats, pool) = (b.stats, b.device_bytes());
-                let camera = camera_with_tail.take().unwrap_or_else(|| b.camera());
-                drop(b);
-                let windows = view_windows(&plan, set.budget, gpu.info().max_storage_buffer_range);
-                let mut total: Option<view::ViewResult> = None;
-                for w in &windows {
-                    let part = match w {
-                        Some(w) => {
-                            let (first, count) = ((w.held[0] * layer) as usize, (w.held[1] * layer) as usize);
-                            let held: Vec<f32> =
-                                camera.chunks_exact(v).flat_map(|c| &c[first..first + count]).copied().collect();
-                            gpu.buffer_with("dom toward the camera (slab)", &held)?
-                        }
-                        None => gpu.buffer_with("dom toward the camera", &camera)?,
-                    };
-                    let mut r = view::march(gpu, scene, &gs, &set.view, Some(&ms_volume(&part, &geom, nch, *w)))?;
-                    r.device_bytes += part.size();
-                    total = Some(match total {
-                        None => r,
-                        Some(mut t) => {
-                            t.image.data.iter_mut().zip(&r.image.data).for_each(|(a, b)| *a += b);
-                            t.dispatches += r.dispatches;
-                            t.max_loop_iterations = t.max_loop_iterations.max(r.max_loop_iterations);
-                            t.nonfinite_pixels += r.nonfinite_pixels;
-                            t.device_bytes = t.device_bytes.max(r.device_bytes);
-                            t
-                        }
-                    });
-                }
-                let res = total.expect("at least one view window");
-                (res, pool, Some(stats), pool, windows.len() as u32)
-            }
-            None => {
-                let res = view::march(
-                    gpu,
-                    scene,
-                    &gs,
-                    &set.view,
-                    Some(&ms_volume(&plane(&sweeper).camera, &geom, nch, None)),
-                )?;
-                (res, plane(&sweeper).device_bytes(), None, 0, 1)
-            }
-        };
+        // The light each voxel scatters toward the camera, through the view pass.
+        let (res, sweeps, streaming, sweep_device_bytes, view_slabs) =
+            view_step(gpu, scene, &gs, &set, &plan, (nch, layer), blocked.take(), &sweeper, camera_with_tail.take())?;
         stage("view");
         // The largest of the phases: making the direct source, sweeping, viewing (plane sweeps
         // keep their sweeper through the view; blocks hand the view their camera volume).
@@ -976,9 +1043,9 @@ impl Solver for Dom {
             streaming,
             sweep_device_bytes,
             view_slabs,
-            source_slabs: slabs.len() as u32,
-            source_layers: layers,
-            source_groups: groups.len() as u32,
+            source_slabs: source.slabs,
+            source_layers: source.layers,
+            source_groups: source.groups,
             source_device_bytes: budgeted,
             stages_ms: stages,
         };
