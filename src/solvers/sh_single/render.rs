@@ -406,6 +406,89 @@ pub fn gaussian_mean_inverse_square(d: f64, s: f64) -> f64 {
     }
 }
 
+/// The image from the render pass's per-pixel sums ([`resolve`]), non-finite pixels set to 0
+/// and counted.
+fn resolve_image(px: &[[f32; 4]], w: u32, h: u32) -> (Image, u32) {
+    let mut image = Image::new(w, h);
+    let mut nonfinite = 0u32;
+    for (rgb, p) in image.data.chunks_exact_mut(3).zip(px.chunks_exact(4)) {
+        let v = resolve(p);
+        if !v.iter().all(|x| x.is_finite()) {
+            nonfinite += 1;
+        }
+        for (o, x) in rgb.iter_mut().zip(v) {
+            *o = if x.is_finite() { x } else { 0.0 };
+        }
+    }
+    (image, nonfinite)
+}
+
+/// One direction of the coarse rule the environment's gradient is averaged over: the direction,
+/// its weight and its SH basis.
+type EnvDirection = (Vec3, f64, Vec<f64>);
+
+/// What the render pass reads of one sample (thesis 3.4): its two words (position and Gaussian
+/// width, sigma_s times its partition weight nu and g), the environment's gradient, its SH
+/// coefficients (and the environment's), and per light the irradiance at the sample attenuated
+/// by psi toward the light (exactly, by the host's walk, toward a point light inside the
+/// object, where psi's walk to infinity would overshoot it) times `single`'s boundary factor,
+/// the unit direction toward the light and the gradient of the optical depth.
+#[allow(clippy::too_many_arguments)]
+fn sample_upload(
+    object: &Object,
+    (s, p, nu): (&Sample, &SampleParams, f32),
+    (lights, inside): (&[(Vec3, Vec3, bool)], &[bool]),
+    (env, env_set, env_dirs): (Vec3, bool, &[EnvDirection]),
+    order: usize,
+    step: f32,
+) -> SampleUpload {
+    let g = object.materials[s.material].g;
+    let mut words = [[0.0f32; 4]; SAMPLE_WORDS];
+    words[0] = [s.position.x, s.position.y, s.position.z, p.a];
+    words[1] = [p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g];
+    words[2] = [nu, 0.0, 0.0, 0.0];
+    if env.max_element() > 0.0 {
+        let sh = if env_set { p.sh_env.as_ref().unwrap_or(&p.sh) } else { &p.sh };
+        words[3..6].copy_from_slice(&environment_gradient(object, s, sh, env_dirs));
+    }
+    let mut coeffs: Vec<f32> = p.sh.iter().flatten().copied().collect();
+    if env_set {
+        coeffs.extend(p.sh_env.iter().flatten().flatten().copied());
+    }
+    let mut lt = Vec::with_capacity(LIGHT_WORDS * lights.len());
+    for ((pos, value, point), inside) in lights.iter().zip(inside) {
+        let (w, e, inside_to) = if *point {
+            let to = *pos - s.position;
+            // The irradiance I / r^2 averaged over the sample's Gaussian, not taken at
+            // its centre: beside a light inside the medium the centre's value is no
+            // measure of the Gaussian's (and is singular at the light).
+            let r2 = to.length_squared();
+            let w = if r2 > 0.0 { to / r2.sqrt() } else { Vec3::Z };
+            let mean = gaussian_mean_inverse_square(r2.sqrt() as f64, (0.5 / p.a as f64).sqrt());
+            (w, *value * mean as f32, inside.then_some(r2.sqrt()))
+        } else {
+            (-*pos, *value, None)
+        };
+        let t_max = inside_to.unwrap_or(f32::INFINITY);
+        let tau_l: [f64; 3] = match inside_to {
+            Some(r) => optical_depth_within(object, s.position, w, r, step),
+            None => {
+                let y = sh::basis(order, [w.x as f64, w.y as f64, w.z as f64]);
+                std::array::from_fn(|c| -reconstruct(&p.sh[c], &y).max(1e-30).ln())
+            }
+        };
+        let ft = boundary_factor_within(object, s.position, w, t_max);
+        let grad = tau_gradient(object, s.position, s.material, w, t_max);
+        let att: [f32; 3] = std::array::from_fn(|c| ((-tau_l[c]).exp() * ft) as f32 * e[c]);
+        lt.push([att[0], att[1], att[2], 0.0]);
+        lt.push([w.x, w.y, w.z, 0.0]);
+        for c in 0..3 {
+            lt.push([grad[c].x, grad[c].y, grad[c].z, tau_l[c].min(1e30) as f32]);
+        }
+    }
+    (words, coeffs, lt)
+}
+
 /// Render `scene` (its [[object]]s, or a v1 medium's box; point, directional and constant
 /// environment lights) by sh-single (`force_full`: model every feature): samples, their parameters (optical depths on the device),
 /// the light terms on the host, the render pass in chunks of samples. Returns the image, the
@@ -445,7 +528,7 @@ pub fn render(
     let env_set = env_coefficients(&os);
     // The environment's gradient is averaged over a coarse product rule (4 x 8 directions,
     // their basis once).
-    let env_dirs: Vec<(Vec3, f64, Vec<f64>)> = {
+    let env_dirs: Vec<EnvDirection> = {
         let q = Quadrature::product(4, 8);
         q.directions
             .iter()
@@ -458,51 +541,7 @@ pub fn render(
         .zip(&params)
         .zip(&nu)
         .map(|((s, p), nu)| {
-            let g = object.materials[s.material].g;
-            let mut words = [[0.0f32; 4]; SAMPLE_WORDS];
-            words[0] = [s.position.x, s.position.y, s.position.z, p.a];
-            words[1] = [p.sigma_s[0] * nu, p.sigma_s[1] * nu, p.sigma_s[2] * nu, g];
-            words[2] = [*nu, 0.0, 0.0, 0.0];
-            if env.max_element() > 0.0 {
-                let sh = if env_set { p.sh_env.as_ref().unwrap_or(&p.sh) } else { &p.sh };
-                words[3..6].copy_from_slice(&environment_gradient(object, s, sh, &env_dirs));
-            }
-            let mut coeffs: Vec<f32> = p.sh.iter().flatten().copied().collect();
-            if env_set {
-                coeffs.extend(p.sh_env.iter().flatten().flatten().copied());
-            }
-            let mut lt = Vec::with_capacity(LIGHT_WORDS * lights.len());
-            for ((pos, value, point), inside) in lights.iter().zip(&inside) {
-                let (w, e, inside_to) = if *point {
-                    let to = *pos - s.position;
-                    // The irradiance I / r^2 averaged over the sample's Gaussian, not taken at
-                    // its centre: beside a light inside the medium the centre's value is no
-                    // measure of the Gaussian's (and is singular at the light).
-                    let r2 = to.length_squared();
-                    let w = if r2 > 0.0 { to / r2.sqrt() } else { Vec3::Z };
-                    let mean = gaussian_mean_inverse_square(r2.sqrt() as f64, (0.5 / p.a as f64).sqrt());
-                    (w, *value * mean as f32, inside.then_some(r2.sqrt()))
-                } else {
-                    (-*pos, *value, None)
-                };
-                let t_max = inside_to.unwrap_or(f32::INFINITY);
-                let tau_l: [f64; 3] = match inside_to {
-                    Some(r) => optical_depth_within(object, s.position, w, r, step),
-                    None => {
-                        let y = sh::basis(set.order, [w.x as f64, w.y as f64, w.z as f64]);
-                        std::array::from_fn(|c| -reconstruct(&p.sh[c], &y).max(1e-30).ln())
-                    }
-                };
-                let ft = boundary_factor_within(object, s.position, w, t_max);
-                let grad = tau_gradient(object, s.position, s.material, w, t_max);
-                let att: [f32; 3] = std::array::from_fn(|c| ((-tau_l[c]).exp() * ft) as f32 * e[c]);
-                lt.push([att[0], att[1], att[2], 0.0]);
-                lt.push([w.x, w.y, w.z, 0.0]);
-                for c in 0..3 {
-                    lt.push([grad[c].x, grad[c].y, grad[c].z, tau_l[c].min(1e30) as f32]);
-                }
-            }
-            (words, coeffs, lt)
+            sample_upload(object, (s, p, *nu), (&lights, &inside), (env, env_set, &env_dirs), set.order, step)
         })
         .collect();
     let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(SAMPLE_WORDS * samples.len());
@@ -613,18 +652,7 @@ pub fn render(
         gpu.fill_zero(&stats_buf)?;
     }
     progress(Progress::work("render pass", 1, 1));
-    let px: Vec<[f32; 4]> = gpu.read_buffer_as(&image_buf)?;
-    let mut image = Image::new(w, h);
-    let mut nonfinite = 0u32;
-    for (rgb, p) in image.data.chunks_exact_mut(3).zip(px.chunks_exact(4)) {
-        let v = resolve(p);
-        if !v.iter().all(|x| x.is_finite()) {
-            nonfinite += 1;
-        }
-        for (o, x) in rgb.iter_mut().zip(v) {
-            *o = if x.is_finite() { x } else { 0.0 };
-        }
-    }
+    let (image, nonfinite) = resolve_image(&gpu.read_buffer_as::<[f32; 4]>(&image_buf)?, w, h);
     let render_s = clock.elapsed().as_secs_f64();
     let bytes = gs.bytes + depth_bytes + sample_bytes + image_buf.size() + stats_buf.size();
     let stats = ShStats {
