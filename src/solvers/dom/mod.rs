@@ -393,13 +393,13 @@ fn view_step(
     gs: &GpuScene,
     set: &DomSettings,
     plan: &SourcePlan,
-    (nch, layer): (u32, u32),
+    nch: u32,
     blocked: Option<BlockSweeper>,
     sweeper: &Option<Sweeper>,
     camera_with_tail: Option<Vec<f32>>,
 ) -> Result<(view::ViewResult, u64, Option<StreamStats>, u64, u32), SolverError> {
     let geom = &set.geom;
-    let v = geom.voxels() as usize;
+    let (v, layer) = (geom.voxels() as usize, geom.dims[0] * geom.dims[1]);
     Ok(match blocked {
         Some(b) => {
             let (stats, pool) = (b.stats, b.device_bytes());
@@ -919,7 +919,6 @@ impl Solver for Dom {
 
         stage("setup");
         let (quadrature_g, upsampled, storage_m) = (sweeper.quadrature_g, sweeper.upsampled(), sweeper.storage.len());
-        let layer = geom.dims[0] * geom.dims[1];
         let source = direct_source(
             gpu,
             (&gs, &resampler, &geom),
@@ -990,7 +989,7 @@ impl Solver for Dom {
         // rho^2 / (1 - rho^2), added to the light the last iteration read (with a tail, the
         // iteration extrapolated, so it read it: no second readback or gather).
         let tail_stats = tail.as_ref().map(|t| (t.ratio, t.share));
-        let mut camera_with_tail = tail.map(|t| {
+        let camera_with_tail = tail.map(|t| {
             let mut camera = cameras.pop().expect("an extrapolating iteration reads the light toward the camera");
             let f = (t.camera_ratio2 / (1.0 - t.camera_ratio2)) as f32;
             camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c += (*c - p).max(0.0) * f);
@@ -1007,7 +1006,7 @@ impl Solver for Dom {
         // images added (view::MsWindow).
         // The light each voxel scatters toward the camera, through the view pass.
         let (res, sweeps, streaming, sweep_device_bytes, view_slabs) =
-            view_step(gpu, scene, &gs, &set, &plan, (nch, layer), blocked.take(), &sweeper, camera_with_tail.take())?;
+            view_step(gpu, scene, &gs, &set, &plan, nch, blocked, &sweeper, camera_with_tail)?;
         stage("view");
         // The largest of the phases: making the direct source, sweeping, viewing (plane sweeps
         // keep their sweeper through the view; blocks hand the view their camera volume).

@@ -13,9 +13,9 @@
 //! to the camera is the single-scattering term, and the lattice carries the rest, so no energy
 //! is counted twice.
 //!
-//! Built from shared parts: [`crate::solvers::parts::marching`] (raymaps, marching, transfer),
-//! [`crate::solvers::parts::lattice`] (the lattice, injection, convergence), [`crate::solvers::parts::view`] (the view pass)
-//! and, for `warm_start=wavefront`, [`crate::solvers::parts::wave_field`]. This file holds the round graph
+//! Built from shared parts (`crate::solvers::parts`): [`marching`] (raymaps, marching,
+//! transfer), [`lattice`] (the lattice, injection, convergence), [`view`] (the view pass) and,
+//! for `warm_start=wavefront`, [`wave_field`]. This file holds the round graph
 //! ([`plan`]), the knobs and the bookkeeping. Knobs: `scatterlab knobs lbl`.
 
 use serde::Serialize;

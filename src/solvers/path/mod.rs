@@ -117,13 +117,14 @@ const TRACE_SPEC: &[(u32, SpecKind)] = &[
 
 /// The trace kernel's specialisation: the scene's and the mesh's ([`GpuScene`]), and whether
 /// any light takes manifold NEE (`mnee`, a bit per light) or equiangular sampling
-/// (`equiangular`) and whether the scene has an environment (all on with `--force-full`).
-fn trace_spec(gs: &GpuScene, env: bool, equiangular: u32, mnee: u32) -> Vec<(u32, Spec)> {
+/// (`equiangular`), and the environment as the scene's modelled features say (all on with
+/// `--force-full`).
+fn trace_spec(gs: &GpuScene, equiangular: u32, mnee: u32) -> Vec<(u32, Spec)> {
     let full = gs.modelled.forced_full;
     let mut spec = gs.modelled.mesh_spec();
     spec.push((SPEC_MNEE, Spec::Bool(mnee != 0 || full)));
     spec.push((SPEC_EQUIANGULAR, Spec::Bool(equiangular != 0 || full)));
-    spec.push((SPEC_ENVIRONMENT, Spec::Bool(env || full)));
+    spec.push((SPEC_ENVIRONMENT, Spec::Bool(gs.modelled.environment)));
     spec
 }
 pub const LIGHT: Kernel =
@@ -757,7 +758,6 @@ impl Solver for Path {
             rr_depth,
             rr_threshold,
             mnee_grid: &mnee_grid,
-            environment: scene.lights.iter().any(|l| matches!(l, Light::Environment { .. })),
         };
         let needs_camera = camera_lights > 0 || traced.is_empty();
         let batches = light_batches.min(spp);
@@ -928,8 +928,6 @@ struct Common<'a> {
     rr_threshold: f32,
     /// The facet lists of manifold NEE (src/solvers/path/mnee.rs).
     mnee_grid: &'a [u32],
-    /// The scene has an environment light.
-    environment: bool,
 }
 
 impl Common<'_> {
@@ -967,7 +965,7 @@ fn camera_paths(
 ) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
-    let pipeline = gpu.pipeline(&TRACE, &trace_spec(gs, c.environment, equiangular, mnee))?;
+    let pipeline = gpu.pipeline(&TRACE, &trace_spec(gs, equiangular, mnee))?;
     let grid = gpu.buffer_with("path manifold NEE facet grid", c.mnee_grid)?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
