@@ -32,7 +32,7 @@ use serde::Serialize;
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
 use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
-use crate::scene::{CameraKind, Scene};
+use crate::scene::{CameraKind, Medium, Scene};
 
 use self::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MAX_BLOCK};
 use self::ordinates::{BeamGroup, Eye, Slab, SweepSetup, Sweeper};
@@ -258,6 +258,136 @@ fn ms_volume<'a>(energy: &'a Buffer, geom: &LatticeGeom, nch: u32, window: Optio
 /// Plane sweeps keep the sweeper that made the direct source.
 fn plane(s: &Option<Sweeper>) -> &Sweeper {
     s.as_ref().expect("plane sweeps keep their sweeper")
+}
+
+/// sigma_t and sigma_s (1/m) per voxel and channel, channel after channel, from the density.
+fn extinction(m: &Medium, nch: u32, density: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
+    for c in 0..nch as usize {
+        sigma_t.extend(density.iter().map(|d| m.sigma_t[c] * d));
+        sigma_s.extend(density.iter().map(|d| m.albedo[c] * m.sigma_t[c] * d));
+    }
+    (sigma_t, sigma_s)
+}
+
+/// `dom.block` auto: whole-grid plane sweeps (0) while their largest buffer (the field, or a
+/// face array) fits one binding, else blocks of 16.
+fn auto_block(gpu: &Gpu, set: &DomSettings) -> u32 {
+    let slots = set.quadrature.by_octant().2.iter().copied().max().unwrap_or(1) as u64;
+    let field = 8 * slots * set.geom.voxels() * 4;
+    if field <= gpu.info().max_storage_buffer_range {
+        0
+    } else {
+        16
+    }
+}
+
+/// What [`source_sweeper`] sets up: the density on the host (plane sweeps: read whole; blocks:
+/// zeros, filled slab by slab), sigma_t and sigma_s where already made, the sweeper, the cut.
+type SourceSweeper = (Vec<f32>, Option<(Vec<f32>, Vec<f32>)>, Sweeper, SourceCut);
+
+/// The sweeper that receives the direct source, and how the source is cut. Plane sweeps take
+/// the density whole (read back here: their sweeps need sigma_t and sigma_s from the start);
+/// blocks get a density to fill slab by slab while the source is made.
+fn source_sweeper(
+    gpu: &Gpu,
+    (gs, resampler): (&GpuScene, &Pipeline),
+    set: &DomSettings,
+    plan: &SourcePlan,
+    (m, nch, eye): (&Medium, u32, Eye),
+    block: u32,
+) -> Result<SourceSweeper, SolverError> {
+    let (geom, g) = (&set.geom, m.g as f64);
+    if block == 0 {
+        let d = marching::resample(gpu, gs, geom, resampler, 0, geom.dims[2])?;
+        let density: Vec<f32> = gpu.read_buffer_as(&d)?;
+        let (sigma_t, sigma_s) = extinction(m, nch, &density);
+        let sweeper = Sweeper::new(gpu, &sweep_setup(set, geom, nch, g, eye, &sigma_t, &sigma_s))?;
+        let cut = SourceCut { layers: geom.dims[2], group: (plan.beams as usize).max(1) as u32 };
+        Ok((density, Some((sigma_t, sigma_s)), sweeper, cut))
+    } else {
+        let cut = plan.cut(set, gpu.info().max_storage_buffer_range, block)?;
+        let setup = sweep_setup(set, geom, nch, g, eye, &[], &[]);
+        Ok((vec![0f32; geom.voxels() as usize], None, Sweeper::for_source(gpu, &setup, cut.layers)?, cut))
+    }
+}
+/// The block sweeper (5.2.2's blocks streamed through dom.budget), holding the direct source.
+fn block_sweeper(
+    gpu: &Gpu,
+    set: &DomSettings,
+    setup: &SweepSetup,
+    block: u32,
+    first: Vec<f32>,
+) -> Result<BlockSweeper, SolverError> {
+    let opts = BlockOptions {
+        block,
+        budget: set.budget,
+        store: set.store.clone(),
+        copies: set.copies,
+        evict: set.evict.unwrap_or({
+            let m = gpu.info().mapping;
+            if m.slot(set.copies) == m.slot(QueueRole::Diffuse) {
+                Evict::Belady
+            } else {
+                Evict::Overlap
+            }
+        }),
+    };
+    let mut b = BlockSweeper::new(gpu, setup, &opts)?;
+    b.set_first(gpu, &first)?;
+    Ok(b)
+}
+
+/// The light toward the camera with the extrapolated tail: the last pair increment of the
+/// gathered light times rho^2 / (1 - rho^2), added to the light the last iteration read (with a
+/// tail, the iteration extrapolated, so it read it: no second readback or gather).
+fn with_tail(t: &Tail, cameras: &mut Vec<Vec<f32>>) -> Vec<f32> {
+    let mut camera = cameras.pop().expect("an extrapolating iteration reads the light toward the camera");
+    let f = (t.camera_ratio2 / (1.0 - t.camera_ratio2)) as f32;
+    camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c += (*c - p).max(0.0) * f);
+    camera
+}
+
+/// dom's stats (its own, with the sweeps' time from the report's passes), the convergence and its
+/// warning, the non-finite pixels, and the transport community's
+/// figures (Kripke, SNAP): cell-direction updates per second of sweep time and the grind time,
+/// ns per cell, direction and iteration. The bandwidth is modelled: an update reads sigma_t,
+/// the source, three upwind radiances and writes one (24 bytes; an upsampled source reads M
+/// more).
+fn dom_stats(
+    mut ds: DomStats,
+    set: &DomSettings,
+    report: &mut RenderReport,
+    nonfinite: u32,
+    (upsampled, storage_m): (bool, usize),
+) -> Stats {
+    let (iterations, converged, change) = (ds.iterations, ds.converged, ds.final_change);
+    let sweeps = report.passes.iter().filter(|p| p.name == "ordinates.sweep" || p.name == "dom.block_sweep");
+    ds.sweep_ms = sweeps.map(|p| p.duration_ms()).sum();
+    if !converged {
+        report.warnings.push(format!(
+            "dom: the scattering iterations did not converge in {iterations} iterations (change {change:.2e}, tolerance \
+             {:.1e}); raise dom.max_iterations or dom.tol",
+            set.tol
+        ));
+    }
+    report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
+    let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
+    let sweep_ms = ds.sweep_ms;
+    let mut stats = Stats::new(ds);
+    stats.convergence =
+        Some(Convergence { iterations: iterations as u64, converged, final_change: change, tolerance: set.tol });
+    stats.faults = nonfinite as u64;
+    if sweep_ms > 0.0 {
+        let per_second = updates / (sweep_ms / 1e3);
+        let bytes = 24.0 + if upsampled { 4.0 * storage_m as f64 } else { 0.0 };
+        stats.throughput = vec![
+            Figure { figure: "cell-direction updates/s".into(), value: per_second, unit: "1/s".into() },
+            Figure { figure: "grind time".into(), value: 1e9 / per_second, unit: "ns".into() },
+            Figure { figure: "sweep modelled bandwidth".into(), value: per_second * bytes / 1e9, unit: "GB/s".into() },
+        ];
+    }
+    stats
 }
 
 /// Fewest scattering iterations per submission with the convergence test on the device: the
@@ -565,6 +695,27 @@ fn iterate_on_host(
     Ok((iterations, converged, change, tail, cameras))
 }
 
+/// 5.3.3-5.3.4, the progressive scattering iterations, each sweeping every channel on the
+/// device; the host reads the fluence of each bounce to judge convergence and sums them.
+/// Iteration n sweeps the light scattered n - 1 times (the thesis's G''), so its fluence
+/// is the n-th bounce's, computed as such rather than as the difference of two nearly
+/// equal totals. Once the bounces decay geometrically, the bounces not yet swept add up to
+/// a geometric tail. It is taken over pairs of iterations: a back-scattering medium's
+/// slow modes alternate in sign (at g -0.9 the ratio of successive bounces swings
+/// 0.73 / 0.76 / 0.74 ...), and the last bounce alone, times r / (1 - r), put the image
+/// 1.6e-4 above the converged one. With the pair P_n = B_n + B_(n-1) and
+/// rho^2 = sum P_n / sum P_(n-2), the tail is P_n rho^2 / (1 - rho^2): exact for the
+/// slowest mode, the alternating ones damped. With dom.extrapolate the convergence is
+/// tested on the extrapolated fluence (same tolerance, between successive iterations), and
+/// at convergence the same tail (with the light toward the camera's own decay, at most the
+/// fluence's) is added to that light.
+/// With plane sweeps on a device with double precision the test runs on the device
+/// (glsl/ordinates/converge.comp, the same arithmetic): batches of at least
+/// ITERATIONS_MIN iterations are one submission each, stopped on the device at the
+/// iteration that converged, and the host waits once per batch. Block streaming, and
+/// devices without double precision, test on the host: a wait and a readback of the
+/// fluence (and of the light toward the camera) per iteration.
+///
 /// The scattering iterations with the convergence test on the device
 /// (glsl/ordinates/converge.comp; the criterion and tail as [`iterate_on_host`]'s).
 fn iterate_on_device(
@@ -876,47 +1027,14 @@ impl Solver for Dom {
             CameraKind::Perspective { .. } => Eye::Point(scene.camera.origin.to_array()),
             CameraKind::Orthographic { .. } => Eye::Toward((-scene.camera.basis().2).to_array()),
         };
-        let v = geom.voxels() as usize;
-        let extinction = |density: &[f32]| {
-            let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
-            for c in 0..nch as usize {
-                sigma_t.extend(density.iter().map(|d| m.sigma_t[c] * d));
-                sigma_s.extend(density.iter().map(|d| m.albedo[c] * m.sigma_t[c] * d));
-            }
-            (sigma_t, sigma_s)
-        };
-        // auto: whole-grid plane sweeps while their largest buffer (the field, or a face
-        // array) fits one binding, else blocks.
-        let block = set.block.unwrap_or_else(|| {
-            let slots = set.quadrature.by_octant().2.iter().copied().max().unwrap_or(1) as u64;
-            let field = 8 * slots * geom.voxels() * 4;
-            if field <= gpu.info().max_storage_buffer_range {
-                0
-            } else {
-                16
-            }
-        });
-        let beams = marcher.beams.len();
+        let block = set.block.unwrap_or_else(|| auto_block(gpu, &set));
         // Plane sweeps hold the whole grid: the direct source is one slab, binned straight into
         // their buffers. Block sweeps make it slab by slab within dom.budget (and one binding),
         // the density resampled and the source read back per slab: nothing grid-sized stays on
         // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
-        let plan = SourcePlan::new(&set, &geom, nch, beams as u64);
-        // The density on the host: read whole for plane sweeps, filled slab by slab for blocks.
-        let mut density: Vec<f32>;
-        let (sigma_t, sigma_s, sweeper, cut) = if block == 0 {
-            let d = marching::resample(gpu, &gs, &geom, &resampler, 0, geom.dims[2])?;
-            density = gpu.read_buffer_as(&d)?;
-            let (sigma_t, sigma_s) = extinction(&density);
-            let sweeper = Sweeper::new(gpu, &sweep_setup(&set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s))?;
-            (sigma_t, sigma_s, sweeper, SourceCut { layers: geom.dims[2], group: beams.max(1) as u32 })
-        } else {
-            let cut = plan.cut(&set, gpu.info().max_storage_buffer_range, block)?;
-            density = vec![0f32; v];
-            let setup = sweep_setup(&set, &geom, nch, m.g as f64, eye, &[], &[]);
-            (Vec::new(), Vec::new(), Sweeper::for_source(gpu, &setup, cut.layers)?, cut)
-        };
-
+        let plan = SourcePlan::new(&set, &geom, nch, marcher.beams.len() as u64);
+        let (mut density, plane_extinction, sweeper, cut) =
+            source_sweeper(gpu, (&gs, &resampler), &set, &plan, (m, nch, eye), block)?;
         stage("setup");
         let (quadrature_g, upsampled, storage_m) = (sweeper.quadrature_g, sweeper.upsampled(), sweeper.storage.len());
         let source = direct_source(
@@ -930,81 +1048,38 @@ impl Solver for Dom {
         )?;
         let DirectSource { first, budgeted, source_bytes, .. } = source;
         stage("direct source");
-        let (sigma_t, sigma_s) = if block > 0 { extinction(&density) } else { (sigma_t, sigma_s) };
+        let (sigma_t, sigma_s) = plane_extinction.unwrap_or_else(|| extinction(m, nch, &density));
         drop(density);
         let setup = sweep_setup(&set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s);
         let (mut blocked, sweeper) = if block > 0 {
             // The direct source's buffers go before the pool comes: dom.budget bounds each phase.
             drop(sweeper);
-            let opts = BlockOptions {
-                block,
-                budget: set.budget,
-                store: set.store.clone(),
-                copies: set.copies,
-                evict: set.evict.unwrap_or({
-                    let m = gpu.info().mapping;
-                    if m.slot(set.copies) == m.slot(QueueRole::Diffuse) {
-                        Evict::Belady
-                    } else {
-                        Evict::Overlap
-                    }
-                }),
-            };
-            let mut b = BlockSweeper::new(gpu, &setup, &opts)?;
-            b.set_first(gpu, &first)?;
-            drop(first);
+            let b = block_sweeper(gpu, &set, &setup, block, first)?;
             stage("block store");
             (Some(b), None)
         } else {
             (None, Some(sweeper))
         };
 
-        // 5.3.3-5.3.4: the progressive scattering iterations, each sweeping every channel on the
-        // device; the host reads the fluence of each bounce to judge convergence and sums them.
-        // Iteration n sweeps the light scattered n - 1 times (the thesis's G''), so its fluence
-        // is the n-th bounce's, computed as such rather than as the difference of two nearly
-        // equal totals. Once the bounces decay geometrically, the bounces not yet swept add up to
-        // a geometric tail. It is taken over pairs of iterations: a back-scattering medium's
-        // slow modes alternate in sign (at g -0.9 the ratio of successive bounces swings
-        // 0.73 / 0.76 / 0.74 ...), and the last bounce alone, times r / (1 - r), put the image
-        // 1.6e-4 above the converged one. With the pair P_n = B_n + B_(n-1) and
-        // rho^2 = sum P_n / sum P_(n-2), the tail is P_n rho^2 / (1 - rho^2): exact for the
-        // slowest mode, the alternating ones damped. With dom.extrapolate the convergence is
-        // tested on the extrapolated fluence (same tolerance, between successive iterations), and
-        // at convergence the same tail (with the light toward the camera's own decay, at most the
-        // fluence's) is added to that light.
-        // With plane sweeps on a device with double precision the test runs on the device
-        // (glsl/ordinates/converge.comp, the same arithmetic): batches of at least
-        // ITERATIONS_MIN iterations are one submission each, stopped on the device at the
-        // iteration that converged, and the host waits once per batch. Block streaming, and
-        // devices without double precision, test on the host: a wait and a readback of the
-        // fluence (and of the light toward the camera) per iteration.
+        // 5.3.3-5.3.4: the progressive scattering iterations (see iterate_on_device).
         let on_device = blocked.is_none() && plane(&sweeper).tests_on_device();
         let (iterations, converged, change, tail, mut cameras) = if on_device {
             iterate_on_device(gpu, plane(&sweeper), &set, req.progress)?
         } else {
+            let v = geom.voxels() as usize;
             iterate_on_host(gpu, &mut blocked, &sweeper, &set, nch as usize * v, req.progress)?
         };
-        // The tail toward the camera: the last pair increment of the gathered light times
-        // rho^2 / (1 - rho^2), added to the light the last iteration read (with a tail, the
-        // iteration extrapolated, so it read it: no second readback or gather).
         let tail_stats = tail.as_ref().map(|t| (t.ratio, t.share));
-        let camera_with_tail = tail.map(|t| {
-            let mut camera = cameras.pop().expect("an extrapolating iteration reads the light toward the camera");
-            let f = (t.camera_ratio2 / (1.0 - t.camera_ratio2)) as f32;
-            camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c += (*c - p).max(0.0) * f);
-            camera
-        });
+        let camera_with_tail = tail.map(|t| with_tail(&t, &mut cameras));
         if let (Some(camera), None) = (&camera_with_tail, &blocked) {
             gpu.write_buffer(&plane(&sweeper).camera, 0, bytemuck::cast_slice(camera))?;
         }
         stage("iterations");
         // The light each voxel scatters toward the camera, as the energy per voxel that the view
-        // pass scatters isotropically (fluence = energy / lambda^2, as lbl's lattice).
-        // With blocks the pool goes before the view, which takes the volume in slabs of whole
-        // layers where it does not fit dom.budget (or one binding): one view run per slab, the
-        // images added (view::MsWindow).
-        // The light each voxel scatters toward the camera, through the view pass.
+        // pass scatters isotropically (fluence = energy / lambda^2, as lbl's lattice). With
+        // blocks the pool goes before the view, which takes the volume in slabs of whole layers
+        // where it does not fit dom.budget (or one binding): one view run per slab, the images
+        // added (view::MsWindow).
         let (res, sweeps, streaming, sweep_device_bytes, view_slabs) =
             view_step(gpu, scene, &gs, &set, &plan, nch, blocked, &sweeper, camera_with_tail)?;
         stage("view");
@@ -1017,12 +1092,6 @@ impl Solver for Dom {
                 source_bytes.max(sweeps + res.device_bytes)
             };
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device, Stats::new(()));
-        let sweep_ms = report
-            .passes
-            .iter()
-            .filter(|p| p.name == "ordinates.sweep" || p.name == "dom.block_sweep")
-            .map(|p| p.duration_ms())
-            .sum();
         let ds = DomStats {
             grid: geom,
             quadrature: set.quadrature.name.clone(),
@@ -1037,7 +1106,7 @@ impl Solver for Dom {
             final_change: change,
             tail_ratio: tail_stats.map(|t| t.0),
             tail_share: tail_stats.map(|t| t.1),
-            sweep_ms,
+            sweep_ms: 0.0,
             block,
             streaming,
             sweep_device_bytes,
@@ -1048,37 +1117,7 @@ impl Solver for Dom {
             source_device_bytes: budgeted,
             stages_ms: stages,
         };
-        if !converged {
-            report.warnings.push(format!(
-                "dom: the scattering iterations did not converge in {iterations} iterations (change {change:.2e}, tolerance \
-                 {:.1e}); raise dom.max_iterations or dom.tol",
-                set.tol
-            ));
-        }
-        report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
-        let mut stats = Stats::new(ds);
-        stats.convergence =
-            Some(Convergence { iterations: iterations as u64, converged, final_change: change, tolerance: set.tol });
-        stats.faults = res.nonfinite_pixels as u64;
-        // The transport community's figures (Kripke, SNAP): cell-direction updates per second of
-        // sweep time and the grind time, ns per cell, direction and iteration. The bandwidth is
-        // modelled: an update reads sigma_t, the source, three upwind radiances and writes one
-        // (24 bytes; an upsampled source reads M more).
-        let updates = geom.voxels() as f64 * set.quadrature.len() as f64 * nch as f64 * iterations as f64;
-        if sweep_ms > 0.0 {
-            let per_second = updates / (sweep_ms / 1e3);
-            let bytes = 24.0 + if upsampled { 4.0 * storage_m as f64 } else { 0.0 };
-            stats.throughput = vec![
-                Figure { figure: "cell-direction updates/s".into(), value: per_second, unit: "1/s".into() },
-                Figure { figure: "grind time".into(), value: 1e9 / per_second, unit: "ns".into() },
-                Figure {
-                    figure: "sweep modelled bandwidth".into(),
-                    value: per_second * bytes / 1e9,
-                    unit: "GB/s".into(),
-                },
-            ];
-        }
-        report.stats = stats;
+        report.stats = dom_stats(ds, &set, &mut report, res.nonfinite_pixels, (upsampled, storage_m));
         Ok(RenderOutput { image: res.image, variance: None, report })
     }
 
