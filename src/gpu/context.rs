@@ -279,6 +279,148 @@ pub struct DeviceSummary {
     pub missing: Vec<String>,
 }
 
+/// The optional features this device has and scatterlab uses: float atomics (lbl's fast
+/// transfer), calibrated timestamps (GPU times on the host clock), host query reset, and
+/// float64 (dom's convergence test on the device; `--without-float64` turns it off).
+struct Features {
+    float_atomics: bool,
+    calibrated: bool,
+    host_query_reset: bool,
+    float64: bool,
+}
+
+impl Features {
+    fn of(instance: &ash::Instance, pd: vk::PhysicalDevice, opts: &GpuOptions) -> Features {
+        let float_atomics = has_extension(instance, pd, ash::ext::shader_atomic_float::NAME) && {
+            let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut fa);
+            unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+            fa.shader_buffer_float32_atomic_add == vk::TRUE
+        };
+        let calibrated = has_extension(instance, pd, ash::ext::calibrated_timestamps::NAME);
+        let host_query_reset = {
+            let mut q12 = vk::PhysicalDeviceVulkan12Features::default();
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut q12);
+            unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+            q12.host_query_reset == vk::TRUE
+        };
+        let float64 =
+            !opts.without_float64 && unsafe { instance.get_physical_device_features(pd) }.shader_float64 == vk::TRUE;
+        Features { float_atomics, calibrated, host_query_reset, float64 }
+    }
+}
+
+/// The logical device: the queues the roles map to, and the extensions and features it uses.
+fn create_device(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+    mapping: &RoleMapping,
+    f: &Features,
+) -> Result<ash::Device> {
+    // Queues: clamp the count to what the family reports (lavapipe accepts more and only
+    // the validation layer complains; vulkan-notes.md).
+    let mut per_family: Vec<(u32, u32)> = Vec::new();
+    for role in QueueRole::ALL {
+        let slot = mapping.slot(role);
+        match per_family.iter_mut().find(|(f, _)| *f == slot.family) {
+            Some((_, n)) => *n = (*n).max(slot.index + 1),
+            None => per_family.push((slot.family, slot.index + 1)),
+        }
+    }
+    let priorities = [1.0f32; 2];
+    let queue_infos: Vec<vk::DeviceQueueCreateInfo> = per_family
+        .iter()
+        .map(|(f, n)| {
+            vk::DeviceQueueCreateInfo::default().queue_family_index(*f).queue_priorities(&priorities[..*n as usize])
+        })
+        .collect();
+    let mut ext_names = vec![ash::khr::push_descriptor::NAME.as_ptr()];
+    if f.float_atomics {
+        ext_names.push(ash::ext::shader_atomic_float::NAME.as_ptr());
+    }
+    if f.calibrated {
+        ext_names.push(ash::ext::calibrated_timestamps::NAME.as_ptr());
+    }
+    let core = vk::PhysicalDeviceFeatures::default().shader_float64(f.float64);
+    let mut f12 =
+        vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true).host_query_reset(f.host_query_reset);
+    let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true);
+    let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
+        .shader_buffer_float32_atomics(f.float_atomics)
+        .shader_buffer_float32_atomic_add(f.float_atomics);
+    let mut info = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queue_infos)
+        .enabled_extension_names(&ext_names)
+        .enabled_features(&core)
+        .push_next(&mut f12)
+        .push_next(&mut f13);
+    if f.float_atomics {
+        info = info.push_next(&mut fa);
+    }
+    unsafe { instance.create_device(pd, &info, None) }.vk("vkCreateDevice")
+}
+
+/// A role's queue, its timeline semaphore and its command pool, each handed to `made` as it
+/// is created (destroyed there if a later step fails).
+fn make_role(device: &ash::Device, mapping: &RoleMapping, role: QueueRole, made: &mut Opening) -> Result<RoleQueue> {
+    let slot = mapping.slot(role);
+    let queue = unsafe { device.get_device_queue(slot.family, slot.index) };
+    let mut ty = vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE).initial_value(0);
+    let timeline = unsafe { device.create_semaphore(&vk::SemaphoreCreateInfo::default().push_next(&mut ty), None) }
+        .vk("vkCreateSemaphore")?;
+    made.semaphores.push(timeline);
+    let pool = unsafe {
+        device.create_command_pool(
+            &vk::CommandPoolCreateInfo::default()
+                .queue_family_index(slot.family)
+                .flags(vk::CommandPoolCreateFlags::TRANSIENT),
+            None,
+        )
+    }
+    .vk("vkCreateCommandPool")?;
+    made.pools.push(pool);
+    Ok(RoleQueue { queue, family: slot.family, timeline, pool })
+}
+
+/// What the render reports and the solvers size themselves by: the device's names, driver,
+/// limits, optional features, queues and its largest device-local heap.
+fn device_info(instance: &ash::Instance, chosen: &Candidate, f: &Features, mapping: RoleMapping) -> DeviceInfo {
+    let (pd, props) = (chosen.physical, &chosen.props);
+    let mut driver = vk::PhysicalDeviceDriverProperties::default();
+    let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
+    unsafe { instance.get_physical_device_properties2(pd, &mut p2) };
+    let mem = unsafe { instance.get_physical_device_memory_properties(pd) };
+    let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+        .iter()
+        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|h| h.size)
+        .max()
+        .unwrap_or(0);
+    DeviceInfo {
+        index: chosen.summary.index,
+        name: chosen.summary.name.clone(),
+        device_type: type_name(props.device_type).into(),
+        software: props.device_type == vk::PhysicalDeviceType::CPU,
+        vendor_id: props.vendor_id,
+        device_id: props.device_id,
+        api_version: version_string(props.api_version),
+        driver_name: cstr_array(&driver.driver_name),
+        driver_info: cstr_array(&driver.driver_info),
+        max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
+        max_image_dimension_3d: props.limits.max_image_dimension3_d,
+        max_compute_workgroup_count: props.limits.max_compute_work_group_count,
+        max_compute_workgroup_invocations: props.limits.max_compute_work_group_invocations,
+        max_compute_shared_memory: props.limits.max_compute_shared_memory_size,
+        timestamp_period_ns: props.limits.timestamp_period,
+        float_atomics: f.float_atomics,
+        float64: f.float64,
+        calibrated_timestamps: f.calibrated,
+        queue_families: chosen.summary.queue_families.clone(),
+        mapping,
+        device_local_bytes,
+    }
+}
+
 struct Candidate {
     physical: vk::PhysicalDevice,
     summary: DeviceSummary,
@@ -532,70 +674,14 @@ impl Gpu {
     ) -> Result<Gpu> {
         let chosen = choose(candidates(&instance)?, opts.device.as_deref())?;
         let pd = chosen.physical;
-        let props = chosen.props;
         let mut mapping = chosen.summary.mapping.expect("checked by missing_features");
         if let Some(q) = opts.queues.as_deref() {
             mapping = super::queues::map_roles_named(&chosen.summary.queue_families, q)
                 .map_err(|reason| GpuError::Queues { choice: q.into(), device: chosen.summary.name.clone(), reason })?;
         }
 
-        // Queues: clamp the count to what the family reports (lavapipe accepts more and only
-        // the validation layer complains; vulkan-notes.md).
-        let mut per_family: Vec<(u32, u32)> = Vec::new();
-        for role in QueueRole::ALL {
-            let slot = mapping.slot(role);
-            match per_family.iter_mut().find(|(f, _)| *f == slot.family) {
-                Some((_, n)) => *n = (*n).max(slot.index + 1),
-                None => per_family.push((slot.family, slot.index + 1)),
-            }
-        }
-        let priorities = [1.0f32; 2];
-        let queue_infos: Vec<vk::DeviceQueueCreateInfo> = per_family
-            .iter()
-            .map(|(f, n)| {
-                vk::DeviceQueueCreateInfo::default().queue_family_index(*f).queue_priorities(&priorities[..*n as usize])
-            })
-            .collect();
-
-        let float_atomics = has_extension(&instance, pd, ash::ext::shader_atomic_float::NAME) && {
-            let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
-            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut fa);
-            unsafe { instance.get_physical_device_features2(pd, &mut f2) };
-            fa.shader_buffer_float32_atomic_add == vk::TRUE
-        };
-        let calibrated = has_extension(&instance, pd, ash::ext::calibrated_timestamps::NAME);
-        let mut ext_names = vec![ash::khr::push_descriptor::NAME.as_ptr()];
-        if float_atomics {
-            ext_names.push(ash::ext::shader_atomic_float::NAME.as_ptr());
-        }
-        if calibrated {
-            ext_names.push(ash::ext::calibrated_timestamps::NAME.as_ptr());
-        }
-        let host_query_reset = {
-            let mut q12 = vk::PhysicalDeviceVulkan12Features::default();
-            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut q12);
-            unsafe { instance.get_physical_device_features2(pd, &mut f2) };
-            q12.host_query_reset == vk::TRUE
-        };
-        let float64 =
-            !opts.without_float64 && unsafe { instance.get_physical_device_features(pd) }.shader_float64 == vk::TRUE;
-        let core = vk::PhysicalDeviceFeatures::default().shader_float64(float64);
-        let mut f12 =
-            vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true).host_query_reset(host_query_reset);
-        let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true);
-        let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
-            .shader_buffer_float32_atomics(float_atomics)
-            .shader_buffer_float32_atomic_add(float_atomics);
-        let mut info = vk::DeviceCreateInfo::default()
-            .queue_create_infos(&queue_infos)
-            .enabled_extension_names(&ext_names)
-            .enabled_features(&core)
-            .push_next(&mut f12)
-            .push_next(&mut f13);
-        if float_atomics {
-            info = info.push_next(&mut fa);
-        }
-        let device = unsafe { instance.create_device(pd, &info, None) }.vk("vkCreateDevice")?;
+        let features = Features::of(&instance, pd, opts);
+        let device = create_device(&instance, pd, &mapping, &features)?;
         // From here on a failure destroys what was made (the guard's drop), before the caller
         // destroys the instance.
         let mut made = Opening::default();
@@ -610,31 +696,10 @@ impl Gpu {
         }
         let debug_device = debug.then(|| ash::ext::debug_utils::Device::new(&instance, &device));
 
-        let make_role = |role: QueueRole, made: &mut Opening| -> Result<RoleQueue> {
-            let slot = mapping.slot(role);
-            let queue = unsafe { device.get_device_queue(slot.family, slot.index) };
-            let mut ty =
-                vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE).initial_value(0);
-            let timeline =
-                unsafe { device.create_semaphore(&vk::SemaphoreCreateInfo::default().push_next(&mut ty), None) }
-                    .vk("vkCreateSemaphore")?;
-            made.semaphores.push(timeline);
-            let pool = unsafe {
-                device.create_command_pool(
-                    &vk::CommandPoolCreateInfo::default()
-                        .queue_family_index(slot.family)
-                        .flags(vk::CommandPoolCreateFlags::TRANSIENT),
-                    None,
-                )
-            }
-            .vk("vkCreateCommandPool")?;
-            made.pools.push(pool);
-            Ok(RoleQueue { queue, family: slot.family, timeline, pool })
-        };
         let roles = [
-            make_role(QueueRole::Trace, &mut made)?,
-            make_role(QueueRole::Diffuse, &mut made)?,
-            make_role(QueueRole::Transfer, &mut made)?,
+            make_role(&device, &mapping, QueueRole::Trace, &mut made)?,
+            make_role(&device, &mapping, QueueRole::Diffuse, &mut made)?,
+            make_role(&device, &mapping, QueueRole::Transfer, &mut made)?,
         ];
 
         let allocator = Allocator::new(&AllocatorCreateDesc {
@@ -648,41 +713,12 @@ impl Gpu {
         .map_err(|e| GpuError::Alloc { name: "allocator".into(), bytes: 0, reason: e.to_string() })?;
         made.allocator = Some(allocator);
 
-        let mut driver = vk::PhysicalDeviceDriverProperties::default();
-        let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
-        unsafe { instance.get_physical_device_properties2(pd, &mut p2) };
-        let mem = unsafe { instance.get_physical_device_memory_properties(pd) };
-        let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
-            .iter()
-            .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
-            .map(|h| h.size)
-            .max()
-            .unwrap_or(0);
-        let info = DeviceInfo {
-            index: chosen.summary.index,
-            name: chosen.summary.name.clone(),
-            device_type: type_name(props.device_type).into(),
-            software: props.device_type == vk::PhysicalDeviceType::CPU,
-            vendor_id: props.vendor_id,
-            device_id: props.device_id,
-            api_version: version_string(props.api_version),
-            driver_name: cstr_array(&driver.driver_name),
-            driver_info: cstr_array(&driver.driver_info),
-            max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
-            max_image_dimension_3d: props.limits.max_image_dimension3_d,
-            max_compute_workgroup_count: props.limits.max_compute_work_group_count,
-            max_compute_workgroup_invocations: props.limits.max_compute_work_group_invocations,
-            max_compute_shared_memory: props.limits.max_compute_shared_memory_size,
-            timestamp_period_ns: props.limits.timestamp_period,
-            float_atomics,
-            float64,
-            calibrated_timestamps: calibrated,
-            queue_families: chosen.summary.queue_families.clone(),
-            mapping,
-            device_local_bytes,
-        };
-        let (disk_cache, cache_warning) =
-            super::cache::DiskCache::open(&device, opts.cache_dir.as_deref(), super::cache::CacheIdentity::of(&props))?;
+        let info = device_info(&instance, &chosen, &features, mapping);
+        let (disk_cache, cache_warning) = super::cache::DiskCache::open(
+            &device,
+            opts.cache_dir.as_deref(),
+            super::cache::CacheIdentity::of(&chosen.props),
+        )?;
         // Everything made: Shared owns it from here (and destroys it in its drop).
         let (allocator, debug_utils) = made.disarm();
         if let Some(w) = &cache_warning {
@@ -691,8 +727,8 @@ impl Gpu {
         let shared = Shared {
             pipeline_cache: Mutex::new(disk_cache),
             push_descriptor: ash::khr::push_descriptor::Device::new(&instance, &device),
-            calibrated: calibrated.then(|| ash::ext::calibrated_timestamps::Device::new(&instance, &device)),
-            host_query_reset,
+            calibrated: features.calibrated.then(|| ash::ext::calibrated_timestamps::Device::new(&instance, &device)),
+            host_query_reset: features.host_query_reset,
             unmapped_device_memory: opts.unmapped_device_memory,
             _entry: entry,
             instance,

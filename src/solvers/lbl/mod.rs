@@ -20,7 +20,7 @@
 
 use serde::Serialize;
 
-use crate::gpu::{Gpu, Kernel, QueueRole, SyncPoint};
+use crate::gpu::{DeviceInfo, Gpu, Kernel, QueueRole, SyncPoint};
 use crate::scene::Scene;
 
 use crate::solvers::interface::Progress;
@@ -892,32 +892,9 @@ pub fn run_lattice(
     // seconds before the first round: a stage of its own, so the rounds' bar does not sit at 0.
     progress(Progress::work("setup: pipelines, raymaps, lattice", 0, 1));
     let geom = set.geom;
-    let v = geom.voxels();
     let nch = LblSettings::channels(scene, gs.modelled.chromatic);
     let info = gpu.info().clone();
-    let state_bytes = set.lattice.state_bytes(nch, v);
-    if state_bytes > info.max_storage_buffer_range {
-        return Err(SolverError::Setting {
-            key: "lbl.grid".into(),
-            reason: format!(
-                "a {}x{}x{} lattice with {nch} channel(s) needs {state_bytes} bytes per state buffer, over this \
-                    device's maxStorageBufferRange {}; lower lbl.grid",
-                geom.dims[0], geom.dims[1], geom.dims[2], info.max_storage_buffer_range
-            ),
-        });
-    }
-    // A derived block steps down (8, 4, 2) to what this device's shared memory and workgroup
-    // size allow; one the user set is checked as it is.
-    let mut set = set.clone();
-    while set.block_auto && set.block > 2 && check_block(&info, set.lattice, nch, set.block).is_err() {
-        set.block /= 2;
-        if set.block_steps_auto {
-            set.block_steps = set.block;
-        }
-    }
-    let set = &set;
-    check_block(&info, set.lattice, nch, set.block)
-        .map_err(|reason| SolverError::Setting { key: "lbl.block".into(), reason })?;
+    let set = &fitted(&info, set, nch)?;
     // Float atomics are the fast path where the device has them; fixed point is deterministic.
     let fixed = set.deterministic || !info.float_atomics;
     let params = lattice_params(scene, set, &geom, nch);
@@ -934,93 +911,14 @@ pub fn run_lattice(
     let injector = Injector::new(gpu, &params, fixed, marcher.scale, &materials)?;
     let rounds = marcher.rounds;
 
-    let steps = plan(rounds, set.schedule);
-    let mut points: Vec<SyncPoint> = Vec::with_capacity(steps.len());
     // A warm or cascadic start needs the whole deposit s before the iteration starts from the
     // guess, so the rounds only march and transfer (the sums accumulate until one injection).
     let warm = set.seeded();
     progress(Progress::work("setup: pipelines, raymaps, lattice", 1, 1));
-    progress(Progress::work("marching rounds", 0, rounds as u64));
-    let mut transfers: Vec<SyncPoint> = Vec::with_capacity(rounds as usize);
-    // Rounds reported done so far: the count never goes back (on a GPU the queues run ahead of
-    // the submissions, so rounds are seen done here before the waits below).
-    let mut reached = 0;
-    for st in &steps {
-        let waits: Vec<SyncPoint> = st.waits.iter().map(|w| points[*w]).collect();
-        if warm && matches!(st.step, Step::Diffuse(_)) {
-            // Nothing waits on a diffusion step: keep the plan's indices with a stand-in.
-            points.push(*points.last().expect("a diffusion step follows a transfer"));
-            continue;
-        }
-        let passes = match st.step {
-            Step::March(_) => vec![marcher.march_pass(gs, 0..marcher.ray_count)],
-            Step::Transfer(_) => {
-                let mut p = vec![marcher.transfer_pass(QueueRole::Diffuse)];
-                if !warm {
-                    p.push(injector.pass(&marcher.sums, &lattice));
-                }
-                p
-            }
-            Step::Diffuse(_) => lattice.passes(set.iters_per_round),
-        };
-        let point = gpu.submit(st.role, &passes, &waits)?;
-        points.push(point);
-        if let Step::Transfer(_) = st.step {
-            transfers.push(point);
-        }
-        // Submission can block while the queues work (lavapipe's does): report what has run.
-        while reached < transfers.len() && gpu.reached(transfers[reached])? {
-            reached += 1;
-        }
-        progress(Progress::work("marching rounds", reached as u64, rounds as u64));
-    }
-    // Rounds count when their transfer has run, not when it was submitted (the queues run
-    // ahead of the host): one wait for the last, the count polled while it lasts.
-    if let Some(last) = transfers.last() {
-        let tick = || {
-            while reached < transfers.len() && gpu.reached(transfers[reached]).unwrap_or(false) {
-                reached += 1;
-            }
-            progress(Progress::work("marching rounds", reached as u64, rounds as u64));
-        };
-        gpu.wait_ticking(*last, std::time::Duration::from_millis(100), tick)?;
-        progress(Progress::work("marching rounds", rounds as u64, rounds as u64));
-    }
+    march_rounds(gpu, gs, set, (&marcher, &injector), &mut lattice, warm, progress)?;
 
-    let mut cascade_iterations = Vec::new();
-    if let Some(ws) = &set.warm_start {
-        let vol = wave_volume(gpu, scene, gs, ws, Some(geom))?;
-        let wf: Vec<f32> = gpu.read_buffer_as(&vol.energy)?;
-        let (energy, flux) = wf.split_at(vol.channels as usize * v as usize);
-        let guess = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: vol.channels as usize };
-        let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
-        seed(gpu, &mut lattice, &guess.links(nch as usize, v as usize), Some(&inject), None)?;
-    } else if set.cascade > 0 {
-        let (guess, iterations) = cascade(gpu, set, &marcher, &params)?;
-        cascade_iterations = iterations;
-        let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
-        seed(gpu, &mut lattice, &guess.links(nch as usize, v as usize), Some(&inject), None)?;
-    } else if let Some(previous) = &set.previous {
-        // The previous frame's field, same lattice: its fluence as it is, and its flux where
-        // the lattice integrated one (params.flux), else by Fick's law (the cascade's
-        // prolongation at a factor of 1).
-        let e = nch as usize * v as usize;
-        if previous.len() != e && previous.len() != 4 * e {
-            return Err(SolverError::Unsupported(
-                "lbl: the previous frame's lattice has another size or channel count".to_string(),
-            ));
-        }
-        let (energy, flux) = previous.split_at(e);
-        let g = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: nch as usize };
-        let guess = if flux.is_empty() {
-            let density = lattice::read_f32(gpu, &marcher.density)?;
-            prolong(&g, geom.dims, geom.lambda, geom.dims, geom.lambda, &density, &params)
-        } else {
-            g
-        };
-        let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
-        seed(gpu, &mut lattice, &guess.links(nch as usize, v as usize), Some(&inject), None)?;
-    }
+    let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
+    let cascade_iterations = start(gpu, (scene, gs, set), (&marcher, &params), &mut lattice, &inject)?;
 
     // Iterate to convergence: relative change of the time-integrated energy at sparse probes.
     let density = lattice::read_f32(gpu, &marcher.density)?;
@@ -1056,26 +954,7 @@ pub fn run_lattice(
         + lattice.device_bytes()
         + materials.buffer.size()
         + if forward_field { irr.size() } else { 0 };
-    let near_light = match (params.near, scene.lights.first()) {
-        (Some((_, radius)), Some(crate::scene::Light::Point { intensity, .. })) => {
-            let mut e = injector.near_energy(gpu)?;
-            if nch == 1 {
-                e = [e[0]; 3];
-            }
-            // The raymap carries 4 pi I from a light inside (marching::raymaps); what scatters
-            // is at most albedo times that, so k < 1.
-            let k = [0, 1, 2].map(|c| {
-                let power = 4.0 * std::f64::consts::PI * intensity[c] as f64;
-                if power > 0.0 {
-                    (e[c] / power).clamp(0.0, 0.999)
-                } else {
-                    0.0
-                }
-            });
-            Some(NearLight { radius, k })
-        }
-        _ => None,
-    };
+    let near_light = near_light(gpu, scene, &params, &injector, nch)?;
     Ok(LatticeResult {
         irradiance,
         irradiance_buffer: irr,
@@ -1106,6 +985,178 @@ pub fn run_lattice(
             near_light,
         },
     })
+}
+
+/// The settings fitted to the device: the lattice's state within one binding (else one line
+/// naming lbl.grid), and a derived block stepped down (8, 4, 2) to what this device's shared
+/// memory and workgroup size allow; one the user set is checked as it is.
+fn fitted(info: &DeviceInfo, set: &LblSettings, nch: u32) -> Result<LblSettings, SolverError> {
+    let geom = set.geom;
+    let v = geom.voxels();
+    let state_bytes = set.lattice.state_bytes(nch, v);
+    if state_bytes > info.max_storage_buffer_range {
+        return Err(SolverError::Setting {
+            key: "lbl.grid".into(),
+            reason: format!(
+                "a {}x{}x{} lattice with {nch} channel(s) needs {state_bytes} bytes per state buffer, over this \
+                    device's maxStorageBufferRange {}; lower lbl.grid",
+                geom.dims[0], geom.dims[1], geom.dims[2], info.max_storage_buffer_range
+            ),
+        });
+    }
+    let mut set = set.clone();
+    while set.block_auto && set.block > 2 && check_block(info, set.lattice, nch, set.block).is_err() {
+        set.block /= 2;
+        if set.block_steps_auto {
+            set.block_steps = set.block;
+        }
+    }
+    check_block(info, set.lattice, nch, set.block)
+        .map_err(|reason| SolverError::Setting { key: "lbl.block".into(), reason })?;
+    Ok(set)
+}
+
+/// The marching rounds (thesis 4.2): each round's march, its transfer into the deposit sums
+/// (and, cold, its injection into the lattice), and diffusion steps between, submitted on the
+/// queue roles in the schedule's order with the waits it plans (lbl.schedule); `warm` skips the
+/// diffusion and injection (a seeded start injects the whole deposit once). Returns when the
+/// last transfer has run, the rounds' progress reported as they finish.
+fn march_rounds(
+    gpu: &Gpu,
+    gs: &GpuScene,
+    set: &LblSettings,
+    (marcher, injector): (&Marcher, &Injector),
+    lattice: &mut Diffuser,
+    warm: bool,
+    progress: &dyn Fn(Progress),
+) -> Result<(), SolverError> {
+    let rounds = marcher.rounds;
+    let steps = plan(rounds, set.schedule);
+    let mut points: Vec<SyncPoint> = Vec::with_capacity(steps.len());
+    progress(Progress::work("marching rounds", 0, rounds as u64));
+    let mut transfers: Vec<SyncPoint> = Vec::with_capacity(rounds as usize);
+    // Rounds reported done so far: the count never goes back (on a GPU the queues run ahead of
+    // the submissions, so rounds are seen done here before the waits below).
+    let mut reached = 0;
+    for st in &steps {
+        let waits: Vec<SyncPoint> = st.waits.iter().map(|w| points[*w]).collect();
+        if warm && matches!(st.step, Step::Diffuse(_)) {
+            // Nothing waits on a diffusion step: keep the plan's indices with a stand-in.
+            points.push(*points.last().expect("a diffusion step follows a transfer"));
+            continue;
+        }
+        let passes = match st.step {
+            Step::March(_) => vec![marcher.march_pass(gs, 0..marcher.ray_count)],
+            Step::Transfer(_) => {
+                let mut p = vec![marcher.transfer_pass(QueueRole::Diffuse)];
+                if !warm {
+                    p.push(injector.pass(&marcher.sums, lattice));
+                }
+                p
+            }
+            Step::Diffuse(_) => lattice.passes(set.iters_per_round),
+        };
+        let point = gpu.submit(st.role, &passes, &waits)?;
+        points.push(point);
+        if let Step::Transfer(_) = st.step {
+            transfers.push(point);
+        }
+        // Submission can block while the queues work (lavapipe's does): report what has run.
+        while reached < transfers.len() && gpu.reached(transfers[reached])? {
+            reached += 1;
+        }
+        progress(Progress::work("marching rounds", reached as u64, rounds as u64));
+    }
+    // Rounds count when their transfer has run, not when it was submitted (the queues run
+    // ahead of the host): one wait for the last, the count polled while it lasts.
+    if let Some(last) = transfers.last() {
+        let tick = || {
+            while reached < transfers.len() && gpu.reached(transfers[reached]).unwrap_or(false) {
+                reached += 1;
+            }
+            progress(Progress::work("marching rounds", reached as u64, rounds as u64));
+        };
+        gpu.wait_ticking(*last, std::time::Duration::from_millis(100), tick)?;
+        progress(Progress::work("marching rounds", rounds as u64, rounds as u64));
+    }
+    Ok(())
+}
+
+/// Seed the lattice where the iteration starts from a guess ([`seed`]): a wavefront solve
+/// (lbl.warm_start), the cascadic start (lbl.cascade) or the previous frame's field (animate).
+/// Returns the cascade's iterations per level (empty otherwise).
+fn start(
+    gpu: &Gpu,
+    (scene, gs, set): (&Scene, &GpuScene, &LblSettings),
+    (marcher, params): (&Marcher, &LatticeParams),
+    lattice: &mut Diffuser,
+    inject: &dyn Fn(&Diffuser) -> crate::gpu::Pass,
+) -> Result<Vec<u32>, SolverError> {
+    let mut cascade_iterations = Vec::new();
+    let (geom, v, nch) = (set.geom, set.geom.voxels(), params.nch);
+    if let Some(ws) = &set.warm_start {
+        let vol = wave_volume(gpu, scene, gs, ws, Some(geom))?;
+        let wf: Vec<f32> = gpu.read_buffer_as(&vol.energy)?;
+        let (energy, flux) = wf.split_at(vol.channels as usize * v as usize);
+        let guess = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: vol.channels as usize };
+        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
+    } else if set.cascade > 0 {
+        let (guess, iterations) = cascade(gpu, set, marcher, params)?;
+        cascade_iterations = iterations;
+        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
+    } else if let Some(previous) = &set.previous {
+        // The previous frame's field, same lattice: its fluence as it is, and its flux where
+        // the lattice integrated one (params.flux), else by Fick's law (the cascade's
+        // prolongation at a factor of 1).
+        let e = nch as usize * v as usize;
+        if previous.len() != e && previous.len() != 4 * e {
+            return Err(SolverError::Unsupported(
+                "lbl: the previous frame's lattice has another size or channel count".to_string(),
+            ));
+        }
+        let (energy, flux) = previous.split_at(e);
+        let g = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: nch as usize };
+        let guess = if flux.is_empty() {
+            let density = lattice::read_f32(gpu, &marcher.density)?;
+            prolong(&g, geom.dims, geom.lambda, geom.dims, geom.lambda, &density, params)
+        } else {
+            g
+        };
+        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
+    }
+    Ok(cascade_iterations)
+}
+
+/// Where a point light sits inside the medium (params.near), the share k of its power the
+/// lattice's injection near it scattered, per channel, for the view pass.
+fn near_light(
+    gpu: &Gpu,
+    scene: &Scene,
+    params: &LatticeParams,
+    injector: &Injector,
+    nch: u32,
+) -> Result<Option<NearLight>, SolverError> {
+    let near = match (params.near, scene.lights.first()) {
+        (Some((_, radius)), Some(crate::scene::Light::Point { intensity, .. })) => {
+            let mut e = injector.near_energy(gpu)?;
+            if nch == 1 {
+                e = [e[0]; 3];
+            }
+            // The raymap carries 4 pi I from a light inside (marching::raymaps); what scatters
+            // is at most albedo times that, so k < 1.
+            let k = [0, 1, 2].map(|c| {
+                let power = 4.0 * std::f64::consts::PI * intensity[c] as f64;
+                if power > 0.0 {
+                    (e[c] / power).clamp(0.0, 0.999)
+                } else {
+                    0.0
+                }
+            });
+            Some(NearLight { radius, k })
+        }
+        _ => None,
+    };
+    Ok(near)
 }
 
 /// A guess G of a lattice's time-integrated field, per voxel: the fluence times lambda^2 per

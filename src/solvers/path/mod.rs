@@ -705,27 +705,7 @@ impl Solver for Path {
         let schedule: Schedule = k.get("schedule")?;
         let chain_opts = chain_options(&k, scene)?;
         k.finish()?;
-        if scene.lights.len() >= MAX_LIGHTS {
-            return Err(SolverError::Unsupported(format!(
-                "path: {} lights; the path kernels index lights in 20 bits, so at most {} (merge lights or use \
-                    an environment)",
-                scene.lights.len(),
-                MAX_LIGHTS - 1
-            )));
-        }
-        if let Some(g) = scene.features().grid_dims {
-            let md = gpu_scene::majorant_dims(g, majorant_cell);
-            if md[1] >= MAX_MAJORANT_CELLS || md[2] >= MAX_MAJORANT_CELLS {
-                return Err(SolverError::Unsupported(format!(
-                    "path: a grid of {} x {} x {} voxels; with majorant cells of {majorant_cell} voxels the path \
-                        kernels take at most {} voxels along y and z (raise path.majorant_cell)",
-                    g[0],
-                    g[1],
-                    g[2],
-                    (MAX_MAJORANT_CELLS - 1) * majorant_cell
-                )));
-            }
-        }
+        check_limits(scene, majorant_cell)?;
         let (mnee, mnee_inside) = refractive_lights(scene)?;
         // Equiangular sampling connects straight to the light: none through the boundary.
         let equiangular = equiangular & !(mnee & !mnee_inside);
@@ -761,57 +741,14 @@ impl Solver for Path {
         };
         let needs_camera = camera_lights > 0 || traced.is_empty();
         let batches = light_batches.min(spp);
-        let (camera, light) = if needs_camera && !traced.is_empty() && schedule == Schedule::Concurrent {
-            // Both kernels, independent (they estimate disjoint sets of paths into buffers of
-            // their own): the light paths on the diffuse role from a second host thread, the
-            // camera paths on the trace role here, so a device with two queues runs them at
-            // once. Each is the same computation as on one role: the same image, bit for bit.
-            let (cam, lt) = std::thread::scope(|s| {
-                let light = s.spawn(|| light_paths(&common, scene, &traced, batches, QueueRole::Diffuse, &|_| {}));
-                let cam = camera_paths(&common, batch, [equiangular, mnee], QueueRole::Trace, &|done| {
-                    (req.progress)(Progress::work("samples per pixel (camera paths)", done, total))
-                });
-                (cam, light.join())
-            });
-            let lt = lt.map_err(|_| SolverError::Unsupported("path: the light-path thread panicked".into()))?;
-            (Some(cam?), Some(lt?))
-        } else {
-            let camera = if needs_camera {
-                Some(camera_paths(&common, batch, [equiangular, mnee], QueueRole::Trace, &|done| {
-                    (req.progress)(Progress::work("samples per pixel", done, total))
-                })?)
-            } else {
-                None
-            };
-            let offset = if camera.is_some() { spp as u64 } else { 0 };
-            let light = if traced.is_empty() {
-                None
-            } else {
-                Some(light_paths(&common, scene, &traced, batches, QueueRole::Trace, &|done| {
-                    (req.progress)(Progress::work(stage, offset + done, total))
-                })?)
-            };
-            (camera, light)
-        };
+        let kinds = Kernels { camera: needs_camera, traced: &traced, batch, batches, features: [equiangular, mnee] };
+        let (camera, light) = run_kernels(&common, scene, &kinds, schedule, (stage, total), req.progress)?;
         (req.progress)(Progress::work(stage, total, total));
 
-        // The two kernels estimate disjoint sets of paths (partition by light): means and
-        // variances (independent estimates) add.
-        let mut image = Image::new(w, h);
-        let mut variance = Image::new(w, h);
         let mut warnings: Vec<String> = position_resolution_note(scene).into_iter().collect();
         warnings.extend(lt_notes);
-        let mut device_bytes = gs.bytes;
-        for part in [camera.as_ref().map(|c| &c.0), light.as_ref().map(|l| &l.0)].into_iter().flatten() {
-            for (a, b) in image.data.iter_mut().zip(&part.image.data) {
-                *a += b;
-            }
-            for (a, b) in variance.data.iter_mut().zip(&part.variance.data) {
-                *a += b;
-            }
-            warnings.extend(part.warnings.iter().cloned());
-            device_bytes += part.device_bytes;
-        }
+        let parts = [camera.as_ref().map(|c| &c.0), light.as_ref().map(|l| &l.0)];
+        let (image, variance, device_bytes) = sum_parts(w, h, parts.into_iter().flatten(), &mut warnings, gs.bytes);
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device_bytes, Stats::new(()));
         let seconds = report.gpu_ms * 1e-3;
         let per_second = |x: f64| if seconds > 0.0 { x / seconds } else { 0.0 };
@@ -955,6 +892,121 @@ struct Part {
     device_bytes: u64,
 }
 
+/// The path kernels' limits: lights indexed in 20 bits, majorant cells counted in 10 along y
+/// and z; a scene past them is one line naming the knob or what to change.
+fn check_limits(scene: &Scene, majorant_cell: u32) -> Result<(), SolverError> {
+    if scene.lights.len() >= MAX_LIGHTS {
+        return Err(SolverError::Unsupported(format!(
+            "path: {} lights; the path kernels index lights in 20 bits, so at most {} (merge lights or use \
+                an environment)",
+            scene.lights.len(),
+            MAX_LIGHTS - 1
+        )));
+    }
+    if let Some(g) = scene.features().grid_dims {
+        let md = gpu_scene::majorant_dims(g, majorant_cell);
+        if md[1] >= MAX_MAJORANT_CELLS || md[2] >= MAX_MAJORANT_CELLS {
+            return Err(SolverError::Unsupported(format!(
+                "path: a grid of {} x {} x {} voxels; with majorant cells of {majorant_cell} voxels the path \
+                    kernels take at most {} voxels along y and z (raise path.majorant_cell)",
+                g[0],
+                g[1],
+                g[2],
+                (MAX_MAJORANT_CELLS - 1) * majorant_cell
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// What the camera and the light kernels each give: their part of the image and their stats.
+type CameraPart = (Part, CameraStats);
+type LightPart = (Part, LightStats);
+
+/// Which kernels a render runs: camera paths (for the lights not traced from their side), light
+/// paths from `traced`, and their batches and sampling features ([equiangular, mnee] masks).
+struct Kernels<'a> {
+    camera: bool,
+    traced: &'a [usize],
+    batch: u32,
+    batches: u32,
+    features: [u32; 2],
+}
+
+/// Run the camera and light kernels, one after the other on the trace role, or (path.schedule
+/// concurrent, both kernels) at once on the two compute roles; `(stage, total)` names the
+/// progress bar's work.
+fn run_kernels(
+    common: &Common,
+    scene: &Scene,
+    kinds: &Kernels,
+    schedule: Schedule,
+    (stage, total): (&'static str, u64),
+    progress: &dyn Fn(Progress),
+) -> Result<(Option<CameraPart>, Option<LightPart>), SolverError> {
+    let Kernels { camera: needs_camera, traced, batch, batches, features: [equiangular, mnee] } = *kinds;
+    let spp = common.spp;
+    let (camera, light) = if needs_camera && !traced.is_empty() && schedule == Schedule::Concurrent {
+        // Both kernels, independent (they estimate disjoint sets of paths into buffers of
+        // their own): the light paths on the diffuse role from a second host thread, the
+        // camera paths on the trace role here, so a device with two queues runs them at
+        // once. Each is the same computation as on one role: the same image, bit for bit.
+        let (cam, lt) = std::thread::scope(|s| {
+            let light = s.spawn(|| light_paths(common, scene, traced, batches, QueueRole::Diffuse, &|_| {}));
+            let cam = camera_paths(common, batch, [equiangular, mnee], QueueRole::Trace, &|done| {
+                progress(Progress::work("samples per pixel (camera paths)", done, total))
+            });
+            (cam, light.join())
+        });
+        let lt = lt.map_err(|_| SolverError::Unsupported("path: the light-path thread panicked".into()))?;
+        (Some(cam?), Some(lt?))
+    } else {
+        let camera = if needs_camera {
+            Some(camera_paths(common, batch, [equiangular, mnee], QueueRole::Trace, &|done| {
+                progress(Progress::work("samples per pixel", done, total))
+            })?)
+        } else {
+            None
+        };
+        let offset = if camera.is_some() { spp as u64 } else { 0 };
+        let light = if traced.is_empty() {
+            None
+        } else {
+            Some(light_paths(common, scene, traced, batches, QueueRole::Trace, &|done| {
+                progress(Progress::work(stage, offset + done, total))
+            })?)
+        };
+        (camera, light)
+    };
+    Ok((camera, light))
+}
+
+/// The image and variance of the kernels' parts, and the device bytes with `scene_bytes`: the
+/// two kernels estimate disjoint sets of paths (partition by light), so means and variances
+/// (independent estimates) add. The parts' warnings join `warnings`.
+fn sum_parts<'a>(
+    w: u32,
+    h: u32,
+    parts: impl Iterator<Item = &'a Part>,
+    warnings: &mut Vec<String>,
+    scene_bytes: u64,
+) -> (Image, Image, u64) {
+    let mut image = Image::new(w, h);
+    let mut variance = Image::new(w, h);
+    let mut device_bytes = scene_bytes;
+    for part in parts {
+        for (a, b) in image.data.iter_mut().zip(&part.image.data) {
+            *a += b;
+        }
+        for (a, b) in variance.data.iter_mut().zip(&part.variance.data) {
+            *a += b;
+        }
+        warnings.extend(part.warnings.iter().cloned());
+        device_bytes += part.device_bytes;
+    }
+    (image, variance, device_bytes)
+}
+
 /// Camera paths (glsl/path/trace.comp) for every light not in `c.light_mask`.
 fn camera_paths(
     c: &Common,
@@ -1032,6 +1084,60 @@ fn typical_splat(scene: &Scene, power_sum: f64) -> f64 {
     }
 }
 
+/// The light kernel's batches, folded on the host: per pixel and channel the sums over batches
+/// of n_b m_b and of n_b m_b^2, with m_b the batch's estimate from its n_b rounds of `pixels`
+/// paths; the same for the image mean (over pixels and channels), whose standard error cannot
+/// be had from the per-pixel variances: one light path adds to many pixels, so they correlate.
+struct BatchSums {
+    s1: Vec<f64>,
+    s2: Vec<f64>,
+    t1: f64,
+    t2: f64,
+}
+
+impl BatchSums {
+    fn new(n: usize) -> BatchSums {
+        BatchSums { s1: vec![0.0; n], s2: vec![0.0; n], t1: 0.0, t2: 0.0 }
+    }
+
+    /// Fold one batch of `rounds` rounds of `paths` paths: its 64-bit fixed-point sums (two words
+    /// each, in quanta of 1 / `inv_quantum`), whose means are the estimates m_b.
+    fn fold(&mut self, words: &[u32], inv_quantum: f64, paths: f64, rounds: u32) {
+        let mut batch_total = 0f64;
+        for (i, pair) in words.chunks_exact(2).enumerate() {
+            let sum = (((pair[1] as u64) << 32) | pair[0] as u64) as f64 / inv_quantum;
+            let m_b = sum / paths;
+            self.s1[i] += rounds as f64 * m_b;
+            self.s2[i] += rounds as f64 * m_b * m_b;
+            batch_total += m_b;
+        }
+        let mean_b = batch_total / self.s1.len() as f64;
+        self.t1 += rounds as f64 * mean_b;
+        self.t2 += rounds as f64 * mean_b * mean_b;
+    }
+
+    /// The image, its per-pixel variance of the mean, the image mean and its standard error:
+    /// Var(mean) = sum_b n_b (m_b - m)^2 / ((B - 1) N), with N = sum_b n_b = `spp` rounds.
+    fn finish(&self, w: u32, h: u32, spp: u32, batches: u32) -> (Image, Image, f64, f64) {
+        let mut image = Image::new(w, h);
+        let mut variance = Image::new(w, h);
+        let rounds_total = spp as f64;
+        let var = |s1: f64, s2: f64| {
+            let m = s1 / rounds_total;
+            if batches > 1 {
+                (s2 - rounds_total * m * m).max(0.0) / ((batches - 1) as f64 * rounds_total)
+            } else {
+                0.0
+            }
+        };
+        for i in 0..self.s1.len() {
+            image.data[i] = (self.s1[i] / rounds_total) as f32;
+            variance.data[i] = var(self.s1[i], self.s2[i]) as f32;
+        }
+        (image, variance, self.t1 / rounds_total, var(self.t1, self.t2).sqrt())
+    }
+}
+
 /// Light paths (glsl/path/light.comp) from the lights in `traced`, `spp` per pixel, in
 /// `batches` independent batches whose spread gives the per-pixel variance.
 fn light_paths(
@@ -1059,13 +1165,7 @@ fn light_paths(
     let lstats = gpu.buffer("light splat stats", 16)?;
     let zeros = vec![0u8; splats.size() as usize];
     let n_total = c.spp as f64 * pixels as f64;
-    // Per pixel and channel: sum over batches of n_b m_b and of n_b m_b^2, with m_b the batch's
-    // estimate from its n_b rounds of `pixels` paths.
-    let mut s1 = vec![0f64; 3 * pixels as usize];
-    let mut s2 = vec![0f64; 3 * pixels as usize];
-    // The same for the image mean (over pixels and channels), whose standard error cannot be
-    // had from the per-pixel variances: one light path adds to many pixels, so they correlate.
-    let (mut t1, mut t2) = (0f64, 0f64);
+    let mut sums = BatchSums::new(3 * pixels as usize);
     let mut sample_end = 0u32;
     let mut dispatches = 0u64;
     let mut first_rounds = 1u32;
@@ -1093,18 +1193,7 @@ fn light_paths(
         dispatches += n;
         let words: Vec<u32> = gpu.read_buffer_as(&splats)?;
         let paths = (sample_end - start) as f64 * pixels as f64;
-        let mut batch_total = 0f64;
-        for (i, pair) in words.chunks_exact(2).enumerate() {
-            let sum = (((pair[1] as u64) << 32) | pair[0] as u64) as f64 / inv_quantum;
-            // Batch estimate m_b = sum / paths; accumulate n_b m_b and n_b m_b^2 (n_b in rounds).
-            let m_b = sum / paths;
-            s1[i] += rounds as f64 * m_b;
-            s2[i] += rounds as f64 * m_b * m_b;
-            batch_total += m_b;
-        }
-        let mean_b = batch_total / s1.len() as f64;
-        t1 += rounds as f64 * mean_b;
-        t2 += rounds as f64 * mean_b * mean_b;
+        sums.fold(&words, inv_quantum, paths, rounds);
         progress(sample_end as u64);
     }
     let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
@@ -1116,25 +1205,7 @@ fn light_paths(
             ls[1]
         )));
     }
-    let mut image = Image::new(w, h);
-    let mut variance = Image::new(w, h);
-    let rounds_total = c.spp as f64;
-    for i in 0..s1.len() {
-        let m = s1[i] / rounds_total;
-        image.data[i] = m as f32;
-        // Var(mean) = sum_b n_b (m_b - m)^2 / ((B - 1) N), with N = sum_b n_b rounds.
-        variance.data[i] = if batches > 1 {
-            ((s2[i] - rounds_total * m * m).max(0.0) / ((batches - 1) as f64 * rounds_total)) as f32
-        } else {
-            0.0
-        };
-    }
-    let image_mean = t1 / rounds_total;
-    let mean_stderr = if batches > 1 {
-        ((t2 - rounds_total * image_mean * image_mean).max(0.0) / ((batches - 1) as f64 * rounds_total)).sqrt()
-    } else {
-        0.0
-    };
+    let (image, variance, image_mean, mean_stderr) = sums.finish(w, h, c.spp, batches);
     let mut warnings = Vec::new();
     if st[0] > 0 {
         warnings.push(format!(

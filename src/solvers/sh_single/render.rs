@@ -3,6 +3,7 @@
 //! in closed form (thesis 3.4; glsl/sh_single/render.comp).
 
 use super::*;
+use crate::gpu::Buffer;
 
 /// Push constants of glsl/sh_single/render.comp.
 #[repr(C)]
@@ -489,6 +490,189 @@ fn sample_upload(
     (words, coeffs, lt)
 }
 
+/// The samples on the device, and what the render pass needs of them on the host.
+struct SampleBuffers {
+    sample: Buffer,
+    coeff: Buffer,
+    light: Buffer,
+    starts: Buffer,
+    items: Buffer,
+    n: u32,
+    centres: Vec<Vec3>,
+    reach: Vec<f32>,
+    index: Option<GaussianIndex>,
+    boxes: bool,
+}
+
+impl SampleBuffers {
+    fn bytes(&self) -> u64 {
+        self.sample.size() + self.coeff.size() + self.light.size() + self.starts.size() + self.items.size()
+    }
+}
+
+/// The samples on the device ([`SampleBuffers`]): per sample its two words, its coefficients,
+/// and per light its light term; the Gaussians' reach and the cell index where sh-single.index
+/// asks for one.
+fn upload_samples(
+    gpu: &Gpu,
+    (os, object): (&Scene, &Object),
+    (samples, params, nu): (&[Sample], &[SampleParams], &[f32]),
+    (lights, inside): (&[(Vec3, Vec3, bool)], &[bool]),
+    set: &ShSettings,
+    step: f32,
+) -> Result<SampleBuffers, SolverError> {
+    // Per sample: its two words, its coefficients, and per light the irradiance at the sample
+    // attenuated by psi toward the light (exactly, by the host's walk, toward a point light
+    // inside the object, where psi's walk to infinity would overshoot it) and `single`'s
+    // boundary factor, and the unit direction toward the light.
+    use rayon::prelude::*;
+    let (env, env_set) = (split_lights(os).1, env_coefficients(os));
+    // The environment's gradient is averaged over a coarse product rule (4 x 8 directions,
+    // their basis once).
+    let env_dirs: Vec<EnvDirection> = {
+        let q = Quadrature::product(4, 8);
+        q.directions
+            .iter()
+            .zip(&q.weights)
+            .map(|(d, w)| (glam::DVec3::from_array(*d).as_vec3(), *w, sh::basis(set.order, *d)))
+            .collect()
+    };
+    let per_sample: Vec<SampleUpload> = samples
+        .par_iter()
+        .zip(params)
+        .zip(nu)
+        .map(|((s, p), nu)| {
+            sample_upload(object, (s, p, *nu), (lights, inside), (env, env_set, &env_dirs), set.order, step)
+        })
+        .collect();
+    let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(SAMPLE_WORDS * samples.len());
+    let mut coeffs: Vec<f32> = Vec::with_capacity(samples.len() * 3 * sh::coefficients(set.order));
+    let mut lterms: Vec<[f32; 4]> = Vec::with_capacity(LIGHT_WORDS * samples.len() * lights.len());
+    for (words, c, lt) in per_sample {
+        sample_words.extend_from_slice(&words);
+        coeffs.extend(c);
+        lterms.extend(lt);
+    }
+    if lterms.is_empty() {
+        lterms.push([0.0; 4]);
+    }
+    let sample_buf = gpu.buffer_with("sh-single samples", &sample_words)?;
+    let coeff_buf = gpu.buffer_with("sh-single coefficients", &coeffs)?;
+    let light_buf = gpu.buffer_with("sh-single light terms", &lterms)?;
+    let centres: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
+    let reach = sample_reach(samples, set.width_scale);
+    let index = (set.index == SampleIndex::Grid).then(|| GaussianIndex::build(&centres, &reach));
+    let boxes = set.index != SampleIndex::None;
+    let (starts_buf, items_buf) = match &index {
+        Some(ix) => (
+            gpu.buffer_with("sh-single index cells", &ix.starts)?,
+            gpu.buffer_with("sh-single index items", &ix.items)?,
+        ),
+        None => (gpu.buffer("sh-single index (none)", 16)?, gpu.buffer("sh-single index (none)", 16)?),
+    };
+    Ok(SampleBuffers {
+        sample: sample_buf,
+        coeff: coeff_buf,
+        light: light_buf,
+        starts: starts_buf,
+        items: items_buf,
+        n: samples.len() as u32,
+        centres,
+        reach,
+        index,
+        boxes,
+    })
+}
+
+/// The render pass (glsl/sh_single/render.comp): every camera ray gathers the samples in chunks
+/// of `chunk`, the passes of one image submitted together; where the kernel reports a chain past
+/// the loop guard, the image is rendered again with half the chunk. Returns the chunk and the
+/// dispatches.
+fn render_pass(
+    gpu: &Gpu,
+    gs: &GpuScene,
+    set: &ShSettings,
+    up: &SampleBuffers,
+    (lights, env, env_set, step): (usize, Vec3, bool, f32),
+    (image_buf, stats_buf, w, h): (&Buffer, &Buffer, u32, u32),
+) -> Result<(u32, u64), SolverError> {
+    let pipeline = gpu.pipeline(&RENDER, &gs.modelled.mesh_spec())?;
+    let (n, index, centres, reach) = (up.n, &up.index, &up.centres, &up.reach);
+    // llvmpipe's loop limiter (glsl/include/budget.glsl) counts every back-edge of an
+    // invocation: a sample the camera ray reaches costs 4 + 4 lights of them per inside segment
+    // (glsl/sh_single/render.comp, segment_light), order^2 + 3 more with an environment and
+    // order^2 more in a grid density (psi toward the camera). Chunks start where a ray reaching
+    // every sample of one segment stays within the guard; where the kernel reports more (many
+    // segments), the render is run again with half the chunk.
+    let n_coeff = sh::coefficients(set.order);
+    let per_sample = (4
+        + 4 * lights
+        + if env.max_element() > 0.0 { n_coeff + 3 } else { 0 }
+        + if gs.modelled.density == "constant" { 0 } else { n_coeff }) as u32;
+    // With the index a visited sample also costs its entries in the cells walked (a few), and
+    // the walk its cells (at most the sum of the dimensions per segment).
+    let (per_sample, walk) = match &index {
+        Some(ix) => (per_sample + 4, ix.dims.iter().sum::<u32>() + 3),
+        None => (per_sample, 0),
+    };
+    let mut chunk = ((LOOP_GUARD / 2).saturating_sub(walk) / per_sample).clamp(1, CHUNK);
+    let mut dispatches = 0u64;
+    loop {
+        let mut passes = Vec::new();
+        let mut first = 0u32;
+        loop {
+            let count = (n - first).min(chunk);
+            let (bl, bh) = chunk_box(centres, reach, first as usize, count as usize);
+            passes.push(
+                gs.bind_mesh(Pass::new("sh_single.render", QueueRole::Trace, &pipeline))
+                    .read(3, &up.sample)
+                    .read(4, &up.coeff)
+                    .read(5, &up.light)
+                    .read_write(8, image_buf)
+                    .read_write(9, stats_buf)
+                    .read(10, &up.starts)
+                    .read(11, &up.items)
+                    .push(&RenderPush {
+                        first,
+                        count,
+                        order: set.order as u32,
+                        lights: lights as u32,
+                        env: [env.x, env.y, env.z, if first == 0 { 1.0 } else { 0.0 }],
+                        env_coeffs: env_set as u32,
+                        step,
+                        pad: [0; 2],
+                        grid: index.as_ref().map_or([0.0; 4], |ix| [ix.origin.x, ix.origin.y, ix.origin.z, ix.cell]),
+                        grid_dims: index.as_ref().map_or([0; 4], |ix| [ix.dims[0], ix.dims[1], ix.dims[2], 1]),
+                        box_lo: [bl.x, bl.y, bl.z, if up.boxes { 1.0 } else { 0.0 }],
+                        box_hi: [bh.x, bh.y, bh.z, 0.0],
+                    })
+                    .cover([w, h, 1]),
+            );
+            first += count;
+            if first >= n {
+                break;
+            }
+        }
+        dispatches += passes.len() as u64;
+        let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+        gpu.wait(point)?;
+        let most: Vec<u32> = gpu.read_buffer_as(stats_buf)?;
+        if most[0] <= LOOP_GUARD {
+            break;
+        }
+        if chunk == 1 {
+            return Err(SolverError::Unsupported(format!(
+                "sh-single: a camera ray's chain took {} loop iterations for one sample, past this device's loop \
+                 limiter; lower sh-single.order",
+                most[0]
+            )));
+        }
+        chunk /= 2;
+        gpu.fill_zero(stats_buf)?;
+    }
+    Ok((chunk, dispatches))
+}
+
 /// Render `scene` (its [[object]]s, or a v1 medium's box; point, directional and constant
 /// environment lights) by sh-single (`force_full`: model every feature): samples, their parameters (optical depths on the device),
 /// the light terms on the host, the render pass in chunks of samples. Returns the image, the
@@ -520,144 +704,30 @@ pub fn render(
     let inside: Vec<bool> = lights.iter().map(|(pos, _, point)| *point && object.contains(*pos)).collect();
     let nu = partition_weights(object, &samples, &params);
     let weights_s = clock.elapsed().as_secs_f64() - sampling_s - depths_s;
-    // Per sample: its two words, its coefficients, and per light the irradiance at the sample
-    // attenuated by psi toward the light (exactly, by the host's walk, toward a point light
-    // inside the object, where psi's walk to infinity would overshoot it) and `single`'s
-    // boundary factor, and the unit direction toward the light.
-    use rayon::prelude::*;
-    let env_set = env_coefficients(&os);
-    // The environment's gradient is averaged over a coarse product rule (4 x 8 directions,
-    // their basis once).
-    let env_dirs: Vec<EnvDirection> = {
-        let q = Quadrature::product(4, 8);
-        q.directions
-            .iter()
-            .zip(&q.weights)
-            .map(|(d, w)| (glam::DVec3::from_array(*d).as_vec3(), *w, sh::basis(set.order, *d)))
-            .collect()
-    };
-    let per_sample: Vec<SampleUpload> = samples
-        .par_iter()
-        .zip(&params)
-        .zip(&nu)
-        .map(|((s, p), nu)| {
-            sample_upload(object, (s, p, *nu), (&lights, &inside), (env, env_set, &env_dirs), set.order, step)
-        })
-        .collect();
-    let mut sample_words: Vec<[f32; 4]> = Vec::with_capacity(SAMPLE_WORDS * samples.len());
-    let mut coeffs: Vec<f32> = Vec::with_capacity(samples.len() * 3 * sh::coefficients(set.order));
-    let mut lterms: Vec<[f32; 4]> = Vec::with_capacity(LIGHT_WORDS * samples.len() * lights.len());
-    for (words, c, lt) in per_sample {
-        sample_words.extend_from_slice(&words);
-        coeffs.extend(c);
-        lterms.extend(lt);
-    }
-    if lterms.is_empty() {
-        lterms.push([0.0; 4]);
-    }
-    let sample_buf = gpu.buffer_with("sh-single samples", &sample_words)?;
-    let coeff_buf = gpu.buffer_with("sh-single coefficients", &coeffs)?;
-    let light_buf = gpu.buffer_with("sh-single light terms", &lterms)?;
-    let centres: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
-    let reach = sample_reach(&samples, set.width_scale);
-    let index = (set.index == SampleIndex::Grid).then(|| GaussianIndex::build(&centres, &reach));
-    let boxes = set.index != SampleIndex::None;
-    let (starts_buf, items_buf) = match &index {
-        Some(ix) => (
-            gpu.buffer_with("sh-single index cells", &ix.starts)?,
-            gpu.buffer_with("sh-single index items", &ix.items)?,
-        ),
-        None => (gpu.buffer("sh-single index (none)", 16)?, gpu.buffer("sh-single index (none)", 16)?),
-    };
-    let sample_bytes = sample_buf.size() + coeff_buf.size() + light_buf.size() + starts_buf.size() + items_buf.size();
+    let up = upload_samples(gpu, (&os, object), (&samples, &params, &nu), (&lights, &inside), set, step)?;
     let preprocess_s = clock.elapsed().as_secs_f64();
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 3, 3));
     let clock = std::time::Instant::now();
     let (w, h) = (os.render.width, os.render.height);
     let image_buf = gpu.buffer("sh-single radiance", w as u64 * h as u64 * 64)?;
-    let pipeline = gpu.pipeline(&RENDER, &gs.modelled.mesh_spec())?;
-    let n = samples.len() as u32;
-    // llvmpipe's loop limiter (glsl/include/budget.glsl) counts every back-edge of an
-    // invocation: a sample the camera ray reaches costs 4 + 4 lights of them per inside segment
-    // (glsl/sh_single/render.comp, segment_light), order^2 + 3 more with an environment and
-    // order^2 more in a grid density (psi toward the camera). Chunks start where a ray reaching
-    // every sample of one segment stays within the guard; where the kernel reports more (many
-    // segments), the render is run again with half the chunk.
     let stats_buf = gpu.buffer("sh-single stats", 16)?;
-    let n_coeff = sh::coefficients(set.order);
-    let per_sample = (4
-        + 4 * lights.len()
-        + if env.max_element() > 0.0 { n_coeff + 3 } else { 0 }
-        + if gs.modelled.density == "constant" { 0 } else { n_coeff }) as u32;
-    // With the index a visited sample also costs its entries in the cells walked (a few), and
-    // the walk its cells (at most the sum of the dimensions per segment).
-    let (per_sample, walk) = match &index {
-        Some(ix) => (per_sample + 4, ix.dims.iter().sum::<u32>() + 3),
-        None => (per_sample, 0),
-    };
-    let mut chunk = ((LOOP_GUARD / 2).saturating_sub(walk) / per_sample).clamp(1, CHUNK);
-    let mut dispatches = 0u64;
     progress(Progress::work("render pass", 0, 1));
-    loop {
-        let mut passes = Vec::new();
-        let mut first = 0u32;
-        loop {
-            let count = (n - first).min(chunk);
-            let (bl, bh) = chunk_box(&centres, &reach, first as usize, count as usize);
-            passes.push(
-                gs.bind_mesh(Pass::new("sh_single.render", QueueRole::Trace, &pipeline))
-                    .read(3, &sample_buf)
-                    .read(4, &coeff_buf)
-                    .read(5, &light_buf)
-                    .read_write(8, &image_buf)
-                    .read_write(9, &stats_buf)
-                    .read(10, &starts_buf)
-                    .read(11, &items_buf)
-                    .push(&RenderPush {
-                        first,
-                        count,
-                        order: set.order as u32,
-                        lights: lights.len() as u32,
-                        env: [env.x, env.y, env.z, if first == 0 { 1.0 } else { 0.0 }],
-                        env_coeffs: env_set as u32,
-                        step,
-                        pad: [0; 2],
-                        grid: index.as_ref().map_or([0.0; 4], |ix| [ix.origin.x, ix.origin.y, ix.origin.z, ix.cell]),
-                        grid_dims: index.as_ref().map_or([0; 4], |ix| [ix.dims[0], ix.dims[1], ix.dims[2], 1]),
-                        box_lo: [bl.x, bl.y, bl.z, if boxes { 1.0 } else { 0.0 }],
-                        box_hi: [bh.x, bh.y, bh.z, 0.0],
-                    })
-                    .cover([w, h, 1]),
-            );
-            first += count;
-            if first >= n {
-                break;
-            }
-        }
-        dispatches += passes.len() as u64;
-        let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
-        gpu.wait(point)?;
-        let most: Vec<u32> = gpu.read_buffer_as(&stats_buf)?;
-        if most[0] <= LOOP_GUARD {
-            break;
-        }
-        if chunk == 1 {
-            return Err(SolverError::Unsupported(format!(
-                "sh-single: a camera ray's chain took {} loop iterations for one sample, past this device's loop \
-                 limiter; lower sh-single.order",
-                most[0]
-            )));
-        }
-        chunk /= 2;
-        gpu.fill_zero(&stats_buf)?;
-    }
+    let (chunk, dispatches) = render_pass(
+        gpu,
+        &gs,
+        set,
+        &up,
+        (lights.len(), env, env_coefficients(&os), step),
+        (&image_buf, &stats_buf, w, h),
+    )?;
     progress(Progress::work("render pass", 1, 1));
     let (image, nonfinite) = resolve_image(&gpu.read_buffer_as::<[f32; 4]>(&image_buf)?, w, h);
     let render_s = clock.elapsed().as_secs_f64();
+    let sample_bytes = up.bytes();
     let bytes = gs.bytes + depth_bytes + sample_bytes + image_buf.size() + stats_buf.size();
     let stats = ShStats {
         requested: set.samples,
-        samples: samples.len(),
+        samples: up.n as usize,
         order: set.order,
         directions: q.directions.len(),
         sample_bytes,
