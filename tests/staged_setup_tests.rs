@@ -117,3 +117,27 @@ fn the_upload_ring_wraps_without_losing_a_byte() {
     assert!((3..=12).contains(&flushes), "{flushes} set-up submissions");
     assert_clean(&gpu);
 }
+
+/// A 3D image (a density grid) is staged and uploaded with the next submission's set-up work:
+/// no submission and no host wait of its own (one per grid before), on a mapped device too
+/// (images are always in device memory). What the render then reads is checked bit for bit by
+/// tools/render-digest and the grid scenes above.
+#[test]
+fn a_grid_upload_waits_for_nothing() {
+    for gpu in [gpu(), unmapped()] {
+        let data: Vec<f32> = (0..32 * 16 * 8).map(|i| i as f32 * 0.5).collect();
+        let before = gpu.setup_submissions();
+        gpu.take_host_times();
+        let image = gpu.image3d_with("grid", [32, 16, 8], scatterlab::gpu::VolumeFormat::R32F, &data).unwrap();
+        let host = gpu.take_host_times();
+        assert_eq!(host.waits.count, 0, "uploading a grid waited {} times", host.waits.count);
+        assert_eq!(host.uploads.bytes, 32 * 16 * 8 * 4, "the grid's upload is not counted as one");
+        assert_eq!(gpu.setup_submissions(), before, "the grid was submitted on its own");
+        // The next submission carries it (an empty one here), and the device stays clean.
+        let point = gpu.submit(scatterlab::gpu::QueueRole::Trace, &[], &[]).unwrap();
+        gpu.wait(point).unwrap();
+        assert_eq!(gpu.setup_submissions(), before + 1, "the grid's upload went with no submission");
+        assert_eq!(image.dims(), [32, 16, 8]);
+        assert_clean(&gpu);
+    }
+}

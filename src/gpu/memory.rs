@@ -99,6 +99,8 @@ pub(crate) struct ImageInner {
     pub allocation: Option<Allocation>,
     pub dims: [u32; 3],
     pub name: String,
+    /// The submission of set-up work that uploaded it (super::setup), as `Buffer`'s.
+    pub setup_point: AtomicU64,
 }
 
 impl Drop for ImageInner {
@@ -348,7 +350,7 @@ impl Gpu {
         }
         let raw = b.raw();
         let size = b.size();
-        self.one_shot(std::slice::from_ref(b), &[], |d, cb| unsafe { d.cmd_fill_buffer(cb, raw, 0, size, 0) })?;
+        self.one_shot(std::slice::from_ref(b), |d, cb| unsafe { d.cmd_fill_buffer(cb, raw, 0, size, 0) })?;
         self.host_add(HostKind::Fills, size, started);
         Ok(())
     }
@@ -385,7 +387,7 @@ impl Gpu {
         self.with_staging(n, false, |stage, p| {
             unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), p, bytes.len()) };
             let (src, dst) = (stage.raw(), b.raw());
-            self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
+            self.one_shot(&[stage.clone(), b.clone()], |d, cb| unsafe {
                 d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: offset, size: n }])
             })
         })?;
@@ -416,7 +418,7 @@ impl Gpu {
         // The copy waits on the device for the work that used the buffer, the host for the copy.
         let out = self.with_staging(n, true, |stage, p| {
             let (src, dst) = (b.raw(), stage.raw());
-            self.one_shot(&[stage.clone(), b.clone()], &[], |d, cb| unsafe {
+            self.one_shot(&[stage.clone(), b.clone()], |d, cb| unsafe {
                 d.cmd_copy_buffer(cb, src, dst, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: n }])
             })?;
             let mut out = vec![0u8; n as usize];
@@ -513,52 +515,17 @@ impl Gpu {
                 allocation: Some(allocation),
                 dims,
                 name: name.into(),
+                setup_point: Default::default(),
             }),
         };
 
+        // Staged now (the caller's slice may go away) and copied by the next submission's set-up
+        // work (super::setup): no submission and host wait of its own.
+        let started = Instant::now();
         let (stage, p) = self.staging("staging volume upload", voxels * 4, MemoryLocation::CpuToGpu, false)?;
         unsafe { std::ptr::copy_nonoverlapping(data.as_ptr() as *const u8, p, data.len() * 4) };
-        let src = stage.raw();
-        self.one_shot(std::slice::from_ref(&stage), std::slice::from_ref(&image), |d, cb| unsafe {
-            let to_dst = vk::ImageMemoryBarrier2::default()
-                .src_stage_mask(vk::PipelineStageFlags2::NONE)
-                .dst_stage_mask(vk::PipelineStageFlags2::COPY)
-                .dst_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                .old_layout(vk::ImageLayout::UNDEFINED)
-                .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
-                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                .image(raw)
-                .subresource_range(range);
-            d.cmd_pipeline_barrier2(
-                cb,
-                &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_dst)),
-            );
-            let region = vk::BufferImageCopy::default()
-                .image_subresource(vk::ImageSubresourceLayers {
-                    aspect_mask: vk::ImageAspectFlags::COLOR,
-                    mip_level: 0,
-                    base_array_layer: 0,
-                    layer_count: 1,
-                })
-                .image_extent(vk::Extent3D { width: dims[0], height: dims[1], depth: dims[2] });
-            d.cmd_copy_buffer_to_image(cb, src, raw, vk::ImageLayout::TRANSFER_DST_OPTIMAL, &[region]);
-            let to_general = vk::ImageMemoryBarrier2::default()
-                .src_stage_mask(vk::PipelineStageFlags2::COPY)
-                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                .dst_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
-                .dst_access_mask(vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE)
-                .old_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
-                .new_layout(vk::ImageLayout::GENERAL)
-                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                .image(raw)
-                .subresource_range(range);
-            d.cmd_pipeline_barrier2(
-                cb,
-                &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_general)),
-            );
-        })?;
+        self.defer_image_upload(stage, &image);
+        self.host_add(HostKind::Uploads, voxels * 4, started);
         Ok(image)
     }
 }

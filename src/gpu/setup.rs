@@ -1,5 +1,7 @@
-//! Set-up work that waits for the next submission: zero-fills of new device-local buffers and
-//! uploads into buffers no submitted work uses, staged through one ring of host-visible memory.
+//! Set-up work that waits for the next submission: zero-fills of new device-local buffers,
+//! uploads into buffers no submitted work uses, staged through one ring of host-visible memory,
+//! and the uploads of new 3D images (each from a staging buffer of its own, kept until the copy
+//! has run).
 //!
 //! Where device memory is not host-visible (a discrete GPU without resizable BAR), each fill
 //! and each upload used to be a submission of its own and a host wait for it: a render's 20-40
@@ -26,7 +28,7 @@ use gpu_allocator::MemoryLocation;
 use super::context::Gpu;
 use super::error::Result;
 use super::host::HostKind;
-use super::memory::Buffer;
+use super::memory::{Buffer, Image3d};
 use super::queues::QueueRole;
 use super::submit::{latest_per_role, memory_barrier, Resource, SyncPoint};
 
@@ -39,15 +41,75 @@ enum Op {
     Fill(Buffer),
     /// Copy `size` bytes from the ring at `src` to `dst` at `offset`.
     Copy { src: u64, dst: Buffer, offset: u64, size: u64 },
+    /// Copy the whole of `stage` into the new `image` and leave it in `GENERAL` layout.
+    Image { stage: Buffer, image: Image3d },
 }
 
 impl Op {
-    fn dst(&self) -> &Buffer {
+    /// The buffer the op writes (an image is new: nothing else in the batch writes it).
+    fn dst(&self) -> Option<&Buffer> {
         match self {
-            Op::Fill(b) => b,
-            Op::Copy { dst, .. } => dst,
+            Op::Fill(b) => Some(b),
+            Op::Copy { dst, .. } => Some(dst),
+            Op::Image { .. } => None,
         }
     }
+
+    /// What the submission must keep alive until it has run.
+    fn resources(&self) -> Vec<Resource> {
+        match self {
+            Op::Fill(b) | Op::Copy { dst: b, .. } => vec![Resource::from(b)],
+            Op::Image { stage, image } => vec![Resource::from(stage), Resource::from(image)],
+        }
+    }
+}
+
+/// Record the upload of a whole 3D image from a buffer: UNDEFINED -> TRANSFER_DST, the copy,
+/// TRANSFER_DST -> GENERAL (made visible to every later command).
+///
+/// # Safety
+/// `cb` is a command buffer of `d` in the recording state.
+unsafe fn record_image_upload(d: &ash::Device, cb: vk::CommandBuffer, src: vk::Buffer, image: &Image3d) {
+    let (raw, dims) = (image.inner.raw, image.dims());
+    let range = vk::ImageSubresourceRange {
+        aspect_mask: vk::ImageAspectFlags::COLOR,
+        base_mip_level: 0,
+        level_count: 1,
+        base_array_layer: 0,
+        layer_count: 1,
+    };
+    let barrier = |from: vk::ImageLayout, to: vk::ImageLayout| {
+        vk::ImageMemoryBarrier2::default()
+            .old_layout(from)
+            .new_layout(to)
+            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .image(raw)
+            .subresource_range(range)
+    };
+    let to_dst = barrier(vk::ImageLayout::UNDEFINED, vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+        .src_stage_mask(vk::PipelineStageFlags2::NONE)
+        .dst_stage_mask(vk::PipelineStageFlags2::COPY)
+        .dst_access_mask(vk::AccessFlags2::TRANSFER_WRITE);
+    d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_dst)));
+    let region = vk::BufferImageCopy::default()
+        .image_subresource(vk::ImageSubresourceLayers {
+            aspect_mask: vk::ImageAspectFlags::COLOR,
+            mip_level: 0,
+            base_array_layer: 0,
+            layer_count: 1,
+        })
+        .image_extent(vk::Extent3D { width: dims[0], height: dims[1], depth: dims[2] });
+    d.cmd_copy_buffer_to_image(cb, src, raw, vk::ImageLayout::TRANSFER_DST_OPTIMAL, &[region]);
+    let to_general = barrier(vk::ImageLayout::TRANSFER_DST_OPTIMAL, vk::ImageLayout::GENERAL)
+        .src_stage_mask(vk::PipelineStageFlags2::COPY)
+        .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+        .dst_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+        .dst_access_mask(vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE);
+    d.cmd_pipeline_barrier2(
+        cb,
+        &vk::DependencyInfo::default().image_memory_barriers(std::slice::from_ref(&to_general)),
+    );
 }
 
 /// A region of the ring and the submission that reads it (`None`: not submitted yet).
@@ -126,6 +188,11 @@ impl Gpu {
         self.host_add(HostKind::Fills, b.size(), started);
     }
 
+    /// Upload the new `image` from `stage` (host-visible, filled) with the next set-up batch.
+    pub(crate) fn defer_image_upload(&self, stage: Buffer, image: &Image3d) {
+        self.setup.lock().expect("setup lock").ops.push(Op::Image { stage, image: image.clone() });
+    }
+
     /// Stage `bytes` for `b` at `offset` through the ring, without a submission of its own.
     /// `false`: too large for the ring; the caller copies it itself.
     pub(crate) fn defer_upload(&self, b: &Buffer, offset: u64, bytes: &[u8]) -> Result<bool> {
@@ -172,7 +239,7 @@ impl Gpu {
         }
         let ops = std::mem::take(&mut setup.ops);
         let ring = setup.ring.as_ref().map(|r| (r.buffer.clone(), r.buffer.raw()));
-        let mut keep: Vec<Resource> = ops.iter().map(|o| Resource::from(o.dst())).collect();
+        let mut keep: Vec<Resource> = ops.iter().flat_map(Op::resources).collect();
         if let Some((b, _)) = &ring {
             keep.push(Resource::from(b));
         }
@@ -185,20 +252,22 @@ impl Gpu {
                 // wrote (a fill and then an upload into the same buffer).
                 let mut touched = std::collections::HashSet::new();
                 for op in &ops {
-                    let dst = op.dst().raw();
-                    if !touched.insert(dst) {
-                        memory_barrier(&d, cb, written, written);
-                        touched.clear();
-                        touched.insert(dst);
+                    if let Some(dst) = op.dst().map(Buffer::raw) {
+                        if !touched.insert(dst) {
+                            memory_barrier(&d, cb, written, written);
+                            touched.clear();
+                            touched.insert(dst);
+                        }
                     }
                     match op {
-                        Op::Fill(b) => d.cmd_fill_buffer(cb, dst, 0, b.size(), 0),
-                        Op::Copy { src, offset, size, .. } => d.cmd_copy_buffer(
+                        Op::Fill(b) => d.cmd_fill_buffer(cb, b.raw(), 0, b.size(), 0),
+                        Op::Copy { src, dst, offset, size } => d.cmd_copy_buffer(
                             cb,
                             ring_raw.expect("a copy has a ring"),
-                            dst,
+                            dst.raw(),
                             &[vk::BufferCopy { src_offset: *src, dst_offset: *offset, size: *size }],
                         ),
+                        Op::Image { stage, image } => record_image_upload(&d, cb, stage.raw(), image),
                     }
                 }
                 // Everything after reads or writes what the batch wrote.
@@ -213,7 +282,10 @@ impl Gpu {
                 );
             })?;
         for op in &ops {
-            op.dst().set_setup_point(point);
+            match op {
+                Op::Image { image, .. } => image.set_setup_point(point),
+                _ => op.dst().expect("a buffer op writes a buffer").set_setup_point(point),
+            }
         }
         if let Some(r) = setup.ring.as_mut() {
             for region in r.regions.iter_mut().filter(|r| r.point.is_none()) {
@@ -224,10 +296,18 @@ impl Gpu {
         Ok(())
     }
 
-    /// Device waits that a submission on `role` using `buffers` needs for set-up work submitted
-    /// on another role and not known to be done (one per role, its highest value).
-    pub(crate) fn setup_waits<'a>(&self, role: QueueRole, buffers: impl Iterator<Item = &'a Buffer>) -> Vec<SyncPoint> {
-        latest_per_role(buffers.filter_map(Buffer::setup_point).filter(|p| p.role != role && !self.reached_known(*p)))
+    /// Device waits that a submission on `role` using `resources` needs for set-up work
+    /// submitted on another role and not known to be done (one per role, its highest value).
+    pub(crate) fn setup_waits<'a>(
+        &self,
+        role: QueueRole,
+        resources: impl Iterator<Item = &'a Resource>,
+    ) -> Vec<SyncPoint> {
+        let points = resources.filter_map(|r| match r {
+            Resource::Buffer(b) => b.setup_point(),
+            Resource::Image(i) => i.setup_point(),
+        });
+        latest_per_role(points.filter(|p| p.role != role && !self.reached_known(*p)))
     }
 
     /// Submissions of set-up work since the device opened.
@@ -241,6 +321,17 @@ impl Buffer {
         self.inner.setup_point.store(p.value << 2 | p.role.index() as u64, Ordering::SeqCst);
     }
     /// The submission of the set-up work that last wrote this buffer, if any.
+    pub(crate) fn setup_point(&self) -> Option<SyncPoint> {
+        let v = self.inner.setup_point.load(Ordering::SeqCst);
+        (v != 0).then(|| SyncPoint { role: QueueRole::ALL[(v & 3) as usize], value: v >> 2 })
+    }
+}
+
+impl Image3d {
+    pub(crate) fn set_setup_point(&self, p: SyncPoint) {
+        self.inner.setup_point.store(p.value << 2 | p.role.index() as u64, Ordering::SeqCst);
+    }
+    /// The submission of the set-up work that uploaded this image, if any.
     pub(crate) fn setup_point(&self) -> Option<SyncPoint> {
         let v = self.inner.setup_point.load(Ordering::SeqCst);
         (v != 0).then(|| SyncPoint { role: QueueRole::ALL[(v & 3) as usize], value: v >> 2 })

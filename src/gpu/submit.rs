@@ -309,11 +309,7 @@ impl Gpu {
         // another role set up is waited for on the device (super::setup).
         self.flush_setup(role)?;
         let mut waits = waits.to_vec();
-        let bound = passes.iter().flat_map(|p| p.bindings.iter()).filter_map(|b| match &b.resource {
-            Resource::Buffer(buf) => Some(buf),
-            Resource::Image(_) => None,
-        });
-        waits.extend(self.setup_waits(role, bound));
+        waits.extend(self.setup_waits(role, passes.iter().flat_map(|p| p.bindings.iter()).map(|b| &b.resource)));
         let waits = &waits[..];
         let passes_owned = passes.to_vec();
         let names: Vec<String> = passes.iter().map(|p| p.name.clone()).collect();
@@ -460,7 +456,9 @@ impl Gpu {
         }
         self.flush_setup(QueueRole::Trace)?;
         let mut waits = waits.to_vec();
-        waits.extend(self.setup_waits(role, stages.iter().flatten().flat_map(|c| [&c.src, &c.dst])));
+        let copied: Vec<Resource> =
+            stages.iter().flatten().flat_map(|c| [Resource::from(&c.src), Resource::from(&c.dst)]).collect();
+        waits.extend(self.setup_waits(role, copied.iter()));
         let waits = &waits[..];
         let keep: Vec<Resource> =
             stages.iter().flatten().flat_map(|c| [Resource::from(&c.src), Resource::from(&c.dst)]).collect();
@@ -634,23 +632,18 @@ impl Gpu {
     }
 
     /// Run a one-off command buffer (uploads, readbacks, fills) and wait for it. It waits on
-    /// the device for the work that last used `buffers` (images: for everything submitted), and
-    /// goes on the role that used them where that is one compute role, so a readback of one
+    /// the device for the work that last used `buffers`, and goes on the role that used them where that is one compute role, so a readback of one
     /// role's results queues behind neither another role's work nor a host wait for it.
     pub(crate) fn one_shot(
         &self,
         buffers: &[Buffer],
-        images: &[Image3d],
         record: impl FnOnce(&ash::Device, vk::CommandBuffer),
     ) -> Result<()> {
         // Set-up work recorded before this copy is submitted first: the copy may read or write
         // what it writes, and its point becomes a last use the copy waits for.
         self.flush_setup(QueueRole::Trace)?;
-        let keep: Vec<Resource> = buffers.iter().map(Resource::from).chain(images.iter().map(Resource::from)).collect();
-        let mut waits: Vec<SyncPoint> = buffers.iter().flat_map(|b| b.last_uses()).collect();
-        if !images.is_empty() {
-            waits.extend(QueueRole::ALL.iter().map(|r| self.submitted(*r)).filter(|p| p.value > 0));
-        }
+        let keep: Vec<Resource> = buffers.iter().map(Resource::from).collect();
+        let waits: Vec<SyncPoint> = buffers.iter().flat_map(|b| b.last_uses()).collect();
         let roles: HashSet<QueueRole> = waits.iter().map(|w| w.role).collect();
         let role = match roles.iter().next() {
             Some(r) if roles.len() == 1 && *r != QueueRole::Transfer => *r,
