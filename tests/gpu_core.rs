@@ -232,3 +232,28 @@ fn validation_errors_are_counted() {
     assert_eq!(gpu.validation_errors(), 1);
     assert!(gpu.validation_messages()[0].contains("injected"));
 }
+
+/// Closing a device with work in flight (a render that returned an error mid-flight, a test
+/// that panicked, a timeout) frees nothing the device still uses: the last handle waits for the
+/// work before the submissions' buffers go. Before, the buffers were destroyed under the
+/// running copies (the validation layer: VUID-vkDestroyBuffer-buffer-00922; on lavapipe its
+/// threads then wrote freed memory). The copies here (1 GiB through the compute queue) are still
+/// running when the handle drops: the test checks that they were, so it cannot pass vacuously.
+#[test]
+fn closing_a_device_with_work_in_flight_frees_nothing_under_it() {
+    use scatterlab::gpu::Copy;
+    let gpu = gpu();
+    let log = gpu.validation_log();
+    let n = 128u64 << 20;
+    let a = gpu.buffer("in flight a", n).unwrap();
+    let b = gpu.buffer("in flight b", n).unwrap();
+    let stage: Vec<Copy> = vec![Copy { src: a.clone(), src_offset: 0, dst: b.clone(), dst_offset: 0, size: n }];
+    let point = gpu.submit_copies(QueueRole::Trace, &vec![stage; 8], &[]).unwrap();
+    drop((a, b));
+    let running = !gpu.reached(point).unwrap();
+    drop(gpu);
+    let errors = log.errors.load(std::sync::atomic::Ordering::SeqCst);
+    let messages = log.first_errors.lock().unwrap().clone();
+    assert_eq!(errors, 0, "closing the device with work in flight: {messages:#?}");
+    assert!(running, "the copies had finished before the device was closed: the test proved nothing");
+}

@@ -633,6 +633,10 @@ fn choose(cands: Vec<Candidate>, wanted: Option<&str>) -> Result<Candidate> {
     cands.into_iter().find(|c| Some(c.summary.index) == index).ok_or(GpuError::NoDevice)
 }
 
+/// How long the last handle to a device waits, as it goes, for work still in flight (after an
+/// error returned mid-render or a timeout) before it gives up and leaks that work's resources.
+pub(crate) const DROP_GRACE: Duration = Duration::from_secs(10);
+
 /// The opened GPU: device, allocator, queue roles. Cheap to clone.
 #[derive(Clone)]
 pub struct Gpu {
@@ -779,6 +783,12 @@ impl Gpu {
         let mut c = self.shared.pipeline_cache.lock().expect("pipeline cache lock");
         let w = c.save(&self.shared.device);
         (w, c.status.saved_bytes)
+    }
+
+    /// The validation log itself, which outlives the device (a test of what happens as the
+    /// device goes reads it after the drop).
+    pub fn validation_log(&self) -> Arc<ValidationLog> {
+        self.shared.validation.clone()
     }
 
     /// Validation errors seen so far (0 when validation is off).

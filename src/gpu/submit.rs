@@ -9,6 +9,7 @@
 //! deadlocks. [`Gpu::submit`] refuses such a submission with an error instead of hanging.
 
 use std::collections::HashSet;
+use std::sync::Arc;
 use std::time::Instant;
 
 use ash::vk;
@@ -272,6 +273,48 @@ pub(crate) fn latest_per_role(points: impl IntoIterator<Item = SyncPoint>) -> Ve
         }
     }
     merged
+}
+
+/// The last handle to a device waits for the work still in flight before the submissions'
+/// resources (buffers, images, pipelines, command buffers, query pools) go: dropped at once,
+/// they were destroyed while the device still used them (the validation layer's
+/// VUID-vkDestroyBuffer-buffer-00922 after a timeout; on lavapipe, whose threads then write
+/// freed memory, a heap corruption such as glibc's "malloc_consolidate(): unaligned fastbin
+/// chunk" or a segfault). Work that does not finish within [`super::context::DROP_GRACE`] (a hung
+/// device) keeps its resources forever: leaked, never freed under the device.
+impl Drop for Gpu {
+    fn drop(&mut self) {
+        if Arc::strong_count(&self.submit) > 1 {
+            return;
+        }
+        let Ok(mut st) = self.submit.lock() else { return };
+        if st.in_flight.is_empty() {
+            return;
+        }
+        let points: Vec<SyncPoint> = QueueRole::ALL
+            .iter()
+            .map(|r| SyncPoint { role: *r, value: st.submitted[r.index()] })
+            .filter(|p| p.value > st.completed[p.role.index()])
+            .collect();
+        let s = &self.shared;
+        let sems: Vec<vk::Semaphore> = points.iter().map(|p| s.role(p.role).timeline).collect();
+        let values: Vec<u64> = points.iter().map(|p| p.value).collect();
+        let info = vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values);
+        let grace = super::context::DROP_GRACE.as_nanos() as u64;
+        if points.is_empty() || unsafe { s.device.wait_semaphores(&info, grace) }.is_ok() {
+            // Finished: the in-flight records go the usual way (command buffers freed, query
+            // pools destroyed) before their resources.
+            drop(st);
+            let _ = self.collect();
+        } else {
+            eprintln!(
+                "warning: the device did not finish its work within {} s of being closed; its resources are left \
+                 allocated rather than freed under it",
+                super::context::DROP_GRACE.as_secs()
+            );
+            std::mem::forget(std::mem::take(&mut st.in_flight));
+        }
+    }
 }
 
 impl Gpu {
