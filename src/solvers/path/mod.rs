@@ -1163,39 +1163,57 @@ fn light_paths(
     let state = gpu.buffer("light path state", pixels * LIGHT_STATE_BYTES)?;
     let stats = gpu.buffer("light path stats", resumable::STATS_WORDS * 4)?;
     let lstats = gpu.buffer("light splat stats", 16)?;
-    let zeros = vec![0u8; splats.size() as usize];
     let n_total = c.spp as f64 * pixels as f64;
-    let mut sums = BatchSums::new(3 * pixels as usize);
     let mut sample_end = 0u32;
     let mut dispatches = 0u64;
     let mut first_rounds = 1u32;
-    for b in 0..batches {
-        let rounds = c.spp / batches + u32::from(b < c.spp % batches);
-        let start = sample_end;
-        sample_end += rounds;
-        gpu.write_buffer(&splats, 0, &zeros)?;
-        let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut first_rounds, |slot| {
-            let push = LightPush {
-                head: c.head(sample_end, slot),
-                inv_quantum: inv_quantum as f32,
-                power_sum: power_sum as f32,
+    // Each batch's sums are folded on another host thread while the next batch runs on the
+    // device (at 1024^2 the fold is 3 M pixel-channels of f64 arithmetic the GPU would wait
+    // for); the folds run in batch order, so the image is the same bits.
+    let sums = std::thread::scope(|scope| -> Result<BatchSums, SolverError> {
+        let mut folding: Option<std::thread::ScopedJoinHandle<BatchSums>> = None;
+        let mut idle = Some(BatchSums::new(3 * pixels as usize));
+        for b in 0..batches {
+            let rounds = c.spp / batches + u32::from(b < c.spp % batches);
+            let start = sample_end;
+            sample_end += rounds;
+            // A fill, not an upload of zeros: no host buffer, and no staged copy waited for where
+            // device memory is not mapped (splats of 24 MB at 1024^2 are past the upload ring's).
+            gpu.fill_zero(&splats)?;
+            let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut first_rounds, |slot| {
+                let push = LightPush {
+                    head: c.head(sample_end, slot),
+                    inv_quantum: inv_quantum as f32,
+                    power_sum: power_sum as f32,
+                };
+                gs.bind(Pass::new("path.light", role, &pipeline))
+                    .read(LIGHT_MESH_NODES_BINDING, &gs.mesh_nodes)
+                    .read(LIGHT_MESH_TRIS_BINDING, &gs.mesh_tris)
+                    .read_write(3, &splats)
+                    .read_write(4, &stats)
+                    .read_write(5, &state)
+                    .read_write(6, &lstats)
+                    .push(&push)
+                    .cover([w, h, 1])
+            })?;
+            dispatches += n;
+            let words: Vec<u32> = gpu.read_buffer_as(&splats)?;
+            let paths = (sample_end - start) as f64 * pixels as f64;
+            let mut sums = match folding.take() {
+                Some(f) => f.join().expect("a batch fold does not panic"),
+                None => idle.take().expect("the sums before the first fold"),
             };
-            gs.bind(Pass::new("path.light", role, &pipeline))
-                .read(LIGHT_MESH_NODES_BINDING, &gs.mesh_nodes)
-                .read(LIGHT_MESH_TRIS_BINDING, &gs.mesh_tris)
-                .read_write(3, &splats)
-                .read_write(4, &stats)
-                .read_write(5, &state)
-                .read_write(6, &lstats)
-                .push(&push)
-                .cover([w, h, 1])
-        })?;
-        dispatches += n;
-        let words: Vec<u32> = gpu.read_buffer_as(&splats)?;
-        let paths = (sample_end - start) as f64 * pixels as f64;
-        sums.fold(&words, inv_quantum, paths, rounds);
-        progress(sample_end as u64);
-    }
+            folding = Some(scope.spawn(move || {
+                sums.fold(&words, inv_quantum, paths, rounds);
+                sums
+            }));
+            progress(sample_end as u64);
+        }
+        Ok(match folding {
+            Some(f) => f.join().expect("a batch fold does not panic"),
+            None => idle.take().expect("no batch folded"),
+        })
+    })?;
     let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
     let ls: Vec<u32> = gpu.read_buffer_as(&lstats)?;
     if ls[1] > 0 {
