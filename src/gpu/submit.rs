@@ -287,7 +287,9 @@ impl Drop for Gpu {
         if Arc::strong_count(&self.submit) > 1 {
             return;
         }
-        let Ok(mut st) = self.submit.lock() else { return };
+        // One lock, held to the end, never taken again here (a lock that cannot be had is left
+        // alone: the records go as they did before).
+        let Ok(mut st) = self.submit.try_lock() else { return };
         if st.in_flight.is_empty() {
             return;
         }
@@ -301,18 +303,24 @@ impl Drop for Gpu {
         let values: Vec<u64> = points.iter().map(|p| p.value).collect();
         let info = vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values);
         let grace = super::context::DROP_GRACE.as_nanos() as u64;
+        let in_flight = std::mem::take(&mut st.in_flight);
         if points.is_empty() || unsafe { s.device.wait_semaphores(&info, grace) }.is_ok() {
-            // Finished: the in-flight records go the usual way (command buffers freed, query
-            // pools destroyed) before their resources.
-            drop(st);
-            let _ = self.collect();
+            // Finished: each record's query pool and command buffer go, then its resources.
+            for f in in_flight {
+                unsafe {
+                    if let Some(pool) = f.queries {
+                        s.device.destroy_query_pool(pool, None);
+                    }
+                    s.device.free_command_buffers(s.role(f.point.role).pool, &[f.cb]);
+                }
+            }
         } else {
             eprintln!(
                 "warning: the device did not finish its work within {} s of being closed; its resources are left \
                  allocated rather than freed under it",
                 super::context::DROP_GRACE.as_secs()
             );
-            std::mem::forget(std::mem::take(&mut st.in_flight));
+            std::mem::forget(in_flight);
         }
     }
 }
