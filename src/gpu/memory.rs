@@ -132,6 +132,15 @@ impl Image3d {
     }
 }
 
+/// The whole of a 3D image: its one colour mip level and layer (views and layout changes).
+pub(crate) const WHOLE_VOLUME: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
+    aspect_mask: vk::ImageAspectFlags::COLOR,
+    base_mip_level: 0,
+    level_count: 1,
+    base_array_layer: 0,
+    layer_count: 1,
+};
+
 /// Supported 3D image formats.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VolumeFormat {
@@ -488,13 +497,7 @@ impl Gpu {
             }
         };
         unsafe { s.device.bind_image_memory(raw, allocation.memory(), allocation.offset()) }.vk("vkBindImageMemory")?;
-        let range = vk::ImageSubresourceRange {
-            aspect_mask: vk::ImageAspectFlags::COLOR,
-            base_mip_level: 0,
-            level_count: 1,
-            base_array_layer: 0,
-            layer_count: 1,
-        };
+        let range = WHOLE_VOLUME;
         let view = unsafe {
             s.device.create_image_view(
                 &vk::ImageViewCreateInfo::default()

@@ -19,7 +19,7 @@
 //! that submitted work may still use, keep the old path (a copy waited for).
 
 use std::collections::VecDeque;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use ash::vk;
@@ -28,7 +28,7 @@ use gpu_allocator::MemoryLocation;
 use super::context::Gpu;
 use super::error::Result;
 use super::host::HostKind;
-use super::memory::{Buffer, Image3d};
+use super::memory::{Buffer, Image3d, WHOLE_VOLUME};
 use super::queues::QueueRole;
 use super::submit::{latest_per_role, memory_barrier, Resource, SyncPoint};
 
@@ -70,14 +70,7 @@ impl Op {
 /// # Safety
 /// `cb` is a command buffer of `d` in the recording state.
 unsafe fn record_image_upload(d: &ash::Device, cb: vk::CommandBuffer, src: vk::Buffer, image: &Image3d) {
-    let (raw, dims) = (image.inner.raw, image.dims());
-    let range = vk::ImageSubresourceRange {
-        aspect_mask: vk::ImageAspectFlags::COLOR,
-        base_mip_level: 0,
-        level_count: 1,
-        base_array_layer: 0,
-        layer_count: 1,
-    };
+    let (raw, dims, range) = (image.inner.raw, image.dims(), WHOLE_VOLUME);
     let barrier = |from: vk::ImageLayout, to: vk::ImageLayout| {
         vk::ImageMemoryBarrier2::default()
             .old_layout(from)
@@ -316,24 +309,32 @@ impl Gpu {
     }
 }
 
+/// A set-up point kept in one word: value << 2 | role, 0 for none.
+fn store_point(word: &AtomicU64, p: SyncPoint) {
+    word.store(p.value << 2 | p.role.index() as u64, Ordering::SeqCst);
+}
+
+fn load_point(word: &AtomicU64) -> Option<SyncPoint> {
+    let v = word.load(Ordering::SeqCst);
+    (v != 0).then(|| SyncPoint { role: QueueRole::ALL[(v & 3) as usize], value: v >> 2 })
+}
+
 impl Buffer {
     pub(crate) fn set_setup_point(&self, p: SyncPoint) {
-        self.inner.setup_point.store(p.value << 2 | p.role.index() as u64, Ordering::SeqCst);
+        store_point(&self.inner.setup_point, p);
     }
     /// The submission of the set-up work that last wrote this buffer, if any.
     pub(crate) fn setup_point(&self) -> Option<SyncPoint> {
-        let v = self.inner.setup_point.load(Ordering::SeqCst);
-        (v != 0).then(|| SyncPoint { role: QueueRole::ALL[(v & 3) as usize], value: v >> 2 })
+        load_point(&self.inner.setup_point)
     }
 }
 
 impl Image3d {
     pub(crate) fn set_setup_point(&self, p: SyncPoint) {
-        self.inner.setup_point.store(p.value << 2 | p.role.index() as u64, Ordering::SeqCst);
+        store_point(&self.inner.setup_point, p);
     }
     /// The submission of the set-up work that uploaded this image, if any.
     pub(crate) fn setup_point(&self) -> Option<SyncPoint> {
-        let v = self.inner.setup_point.load(Ordering::SeqCst);
-        (v != 0).then(|| SyncPoint { role: QueueRole::ALL[(v & 3) as usize], value: v >> 2 })
+        load_point(&self.inner.setup_point)
     }
 }
