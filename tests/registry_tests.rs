@@ -693,3 +693,59 @@ fn the_shared_parts_table_is_true() {
         assert_eq!(table[part], found[part], "docs/architecture.md's row for parts/{part}: used by");
     }
 }
+
+/// A medium's coefficients reach the kernels by one route, the scene block's material table
+/// (glsl/include/scene_block.glsl): no push-constant block in glsl/ carries sigma_t, albedo,
+/// sigma_s, sigma_a or an index of refraction, and the scene block's header holds no copy of
+/// the table's entries. g is left in two kinds of push constants, named here: the phase
+/// function's probe (a test kernel over any g, no medium) and dom's sweeps, whose medium is
+/// the voxel fields they sweep (sigma_t and sigma_s per voxel and channel, resampled on the
+/// host and streamed out of core in blocks) with g beside them.
+#[test]
+fn material_coefficients_reach_kernels_by_the_material_table_only() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("glsl");
+    let coefficient = ["sigma_t", "albedo", "sigma_s", "sigma_a", "ior", "eta"];
+    let g_allowed = ["probe/phase.comp", "ordinates/bin.comp", "ordinates/scatter.comp", "ordinates/block_sweep.comp"];
+    let members = |block: &str| -> Vec<String> {
+        block
+            .lines()
+            .map(|l| l.split("//").next().unwrap().trim().to_string())
+            .filter(|l| l.ends_with(';'))
+            .flat_map(|l| {
+                // `vec4 a, b;` or `uint x[3];`: the names after the type.
+                let names = l.trim_end_matches(';').split_once(' ').map_or("", |(_, n)| n).to_string();
+                names.split(',').map(|n| n.split('[').next().unwrap().trim().to_string()).collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    let mut stack = vec![root.clone()];
+    let mut blocks = 0;
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+                continue;
+            }
+            let rel = p.strip_prefix(&root).unwrap().to_string_lossy().into_owned();
+            let text = std::fs::read_to_string(&p).unwrap();
+            let Some(start) = text.find("layout(push_constant)") else { continue };
+            let body = &text[start..];
+            let block = &body[body.find('{').unwrap() + 1..body.find("} pc;").expect("a push block ends `} pc;`")];
+            blocks += 1;
+            for m in members(block) {
+                assert!(!coefficient.contains(&m.as_str()), "{rel}: push constant `{m}` is a material coefficient");
+                assert!(m != "g" || g_allowed.contains(&rel.as_str()), "{rel}: push constant `g` (read the table)");
+            }
+        }
+    }
+    assert!(blocks >= 30, "only {blocks} push-constant blocks found");
+    let block = std::fs::read_to_string(root.join("include/scene_block.glsl")).unwrap();
+    let header = &block[block.find("buffer SceneBlock {").unwrap()..];
+    let header = &header[..header.find("} scene;").unwrap()];
+    let names = members(header);
+    assert!(names.contains(&"materials".to_string()), "the scene block holds the table: {names:?}");
+    for m in &names {
+        assert!(!coefficient.contains(&m.as_str()) && m != "g" && m != "object", "the header copies `{m}`");
+    }
+}

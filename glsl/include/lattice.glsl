@@ -16,26 +16,25 @@ layout(constant_id = 3) const uint NCH = 3u;
 // Links per voxel besides the rest: 6 (D3Q6) or 18 (D3Q18).
 layout(constant_id = 7) const uint LINKS = 6u;
 
-// One material as the lattice kernels read it (src/solvers/lattice.rs, LatticeMaterial).
-struct LatticeMaterial {
-    vec4 sigma_t;   // rgb extinction scale, 1/unit
-    vec4 albedo;    // rgb sigma_s / sigma_t; w = g
-    vec4 extra;     // x = reflectance of its object's surface for the links leaving it (0: index-matched)
-};
-
 #ifdef LATTICE_MATERIALS_BINDING
-// Several materials (lbl over [[object]]s of different media, src/solvers/lbl.rs): each voxel
-// names the material it holds most of (src/scene/voxelise.rs, material_occupancy), and that
-// material's coefficients replace the push constants' single medium. False for one medium,
-// whose kernels never read the table. (Declared only by the kernels that read the table.)
+// The voxels' media come from the scene block's material table (scene_block.glsl, bound at
+// SCENE_BINDING): the one route by which sigma_t, albedo and g reach every kernel. Entry 0 is
+// the medium's; with several materials (lbl over [[object]]s of different media,
+// src/solvers/lbl/mod.rs) each voxel names the material it holds most of
+// (src/scene/voxelise.rs, material_occupancy). (Declared only by the kernels that read media.)
+#include "scene_block.glsl"
 layout(constant_id = 13) const bool MATS = false;
 
-// The material table (16 entries, as scene.glsl's MAX_MATERIALS), then the material of every
-// voxel. A 16-byte stand-in without MATS.
+// What the lattice adds to the table: per material, the reflectance of its object's surface
+// for the links leaving it (0: index-matched, or refraction off; the diffuse Fresnel
+// reflectance from inside, computed on the host), then with MATS the material of every voxel.
 layout(std430, binding = LATTICE_MATERIALS_BINDING) readonly buffer LatticeMaterials {
-    LatticeMaterial lmat[16];
+    float boundary_r[MAX_MATERIALS];
     uint vmat[];
 };
+
+// The material of voxel v: 0, the medium's, unless the voxels name theirs.
+uint lattice_material(uint v) { return MATS ? min(vmat[v], uint(MAX_MATERIALS - 1)) : 0u; }
 #endif
 
 const ivec3 LATTICE_DIR[19] = ivec3[19](ivec3(0),

@@ -1,59 +1,12 @@
-// scene.glsl: the scene block every solver reads (binding SCENE_BINDING), the medium's
-// density, the camera, and majorant segments for tracking. Layout mirrors
-// `solvers::gpu_scene::SceneBlock` (std430, vec4-aligned members only).
+// scene.glsl: the scene block every solver reads (binding SCENE_BINDING; its layout in
+// scene_block.glsl), the medium's density, the camera, and majorant segments for tracking.
 #ifndef SCATTERLAB_SCENE
 #define SCATTERLAB_SCENE
-#include "common.glsl"
-
-#define LIGHT_POINT 0u
-#define LIGHT_DIRECTIONAL 1u
-#define LIGHT_ENVIRONMENT 2u
+#include "scene_block.glsl"
 
 #define DENSITY_CONSTANT 0u
 #define DENSITY_SPHERE 1u
 #define DENSITY_GRID 2u
-
-// One object's material: the medium's coefficients inside it and its refractive index.
-struct ObjectMaterial {
-    vec4 sigma_t;    // rgb extinction scale, 1/unit; w = max over channels
-    vec4 albedo;     // rgb sigma_s / sigma_t; w = g
-    vec4 ior;        // x: refractive index inside, relative to the vacuum outside
-};
-
-// One density field (src/solvers/gpu_scene.rs GpuField): a density kind over a box; a grid's
-// voxels lie in the density atlas from z slice bounds_max.w on, its majorant cells in maj[]
-// from grid_dims.w on. Field 0 is the medium's in every scene (the header's box and density).
-struct DensityField {
-    vec4 bounds_min;   // xyz: the box; w: the density kind (uint bits)
-    vec4 bounds_max;   // xyz: the box; w: the first z slice in the atlas (uint bits)
-    vec4 sphere;       // sphere density: centre xyz, radius w
-    uvec4 grid_dims;   // grid voxels xyz; w: the first majorant cell
-    uvec4 maj_dims;    // majorant cells xyz; w: voxels per cell edge
-};
-
-struct Light {
-    vec4 pos_kind;   // point: position; directional: travel direction (unit); w = kind
-    vec4 value;      // rgb: intensity W/sr | irradiance W/m^2 | radiance W/(m^2 sr)
-};
-
-layout(std430, binding = SCENE_BINDING) readonly buffer SceneBlock {
-    vec4 bounds_min;     // medium box, scene units
-    vec4 bounds_max;
-    vec4 sigma_t;        // rgb extinction scale, 1/unit; w = max over channels
-    vec4 albedo;         // rgb sigma_s / sigma_t; w = g
-    vec4 sphere;         // sphere density: centre xyz, radius w
-    uvec4 grid_dims;     // grid density: voxels xyz
-    uvec4 maj_dims;      // majorant grid cells xyz; w = voxels per cell edge
-    vec4 cam_origin;     // w: 0 perspective, 1 orthographic
-    vec4 cam_forward;    // unit; w: tan(fov/2) (perspective) or extent/2 (orthographic)
-    vec4 cam_right;      // unit
-    vec4 cam_up;         // unit
-    uvec4 image;         // width, height, light count, 0
-    vec4 object;         // the [[object]] (format v2): x = ior inside object[0] (1 without one)
-    ObjectMaterial materials[MAX_MATERIALS];   // the objects' materials; [0] is the medium's in every scene
-    DensityField fields[MAX_MATERIALS];        // the materials' density fields (ior.y); [0] the medium's
-    Light lights[];
-} scene;
 
 // Specialisation: the kernels compile only the density kind and physics a scene needs.
 layout(constant_id = 0) const uint DENSITY_KIND = 0u;

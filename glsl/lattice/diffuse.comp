@@ -20,6 +20,7 @@
 //   absorbed += (kappa_t - kappa_s) S;  leaked += out_i where v + e_i leaves the lattice.
 #extension GL_GOOGLE_include_directive : require
 #define LATTICE_MATERIALS_BINDING 6
+#define SCENE_BINDING 8
 #include "../include/lattice.glsl"
 
 layout(constant_id = 4) const uint B = 4u;   // block edge in voxels
@@ -43,15 +44,13 @@ layout(std430, binding = 7) readonly buffer Control { uint ctrl_stopped; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;          // lattice voxels xyz, w = number of voxels V
-    vec4 sigma_t;        // rgb extinction scale (1/unit), w = lambda (voxel edge, scene units)
-    vec4 albedo;         // rgb, w = g
+    float lambda;        // voxel edge, scene units
     uint inner_steps;
     uint escape;         // first-flight escape weights (D3Q6): 0 none, 1 at the box's faces, 2 also at zero density
     uint flux;           // 1: integrate the flux too
     uint snapshot;       // 1: copy the field to Snapshot before adding this dispatch's part
     float drift;         // share of a link's carried light leaving per open face parallel to it (0: off)
     float drift_pair;    // the share leaving through either of two such faces on different axes counted twice
-    float boundary_r;    // reflectance of a refractive object's boundary for the lattice's links (0: none)
 } pc;
 
 shared float sh_out[LINKS * B * B * B];
@@ -96,16 +95,11 @@ void main() {
 
     float kt[3], ks[3];
     float dens = inside ? density[v] : 0.0;
-    // The voxel's medium: the push constants' one, or (MATS) the material the voxel names.
-    vec4 m_sigma_t = pc.sigma_t, m_albedo = pc.albedo;
-    float m_boundary_r = pc.boundary_r;
-    if (MATS && inside) {
-        LatticeMaterial lm = lmat[min(vmat[v], 15u)];
-        m_sigma_t = vec4(lm.sigma_t.xyz, pc.sigma_t.w);
-        m_albedo = lm.albedo;
-        m_boundary_r = lm.extra.x;
-    }
-    for (uint c = 0u; c < NCH; ++c) lattice_kappa(m_sigma_t[c] * dens, m_albedo[c], m_albedo.w, pc.sigma_t.w, kt[c], ks[c]);
+    // The voxel's medium: the material table's entry for it (the medium's unless MATS).
+    uint mat = inside ? lattice_material(v) : 0u;
+    vec4 m_sigma_t = scene.materials[mat].sigma_t, m_albedo = scene.materials[mat].albedo;
+    float m_boundary_r = boundary_r[mat];
+    for (uint c = 0u; c < NCH; ++c) lattice_kappa(m_sigma_t[c] * dens, m_albedo[c], m_albedo.w, pc.lambda, kt[c], ks[c]);
 
     // Share of scattered (and rest) energy per link and channel. D3Q6 sends 1/6 to each link;
     // at the medium's boundary (a neighbour outside the lattice or of zero density) that lets
@@ -129,7 +123,7 @@ void main() {
         if (LINKS == 6u && pc.escape != 0u && vac > 0u && inside && dens > 0.0) {
             float ss = m_sigma_t[c] * dens * m_albedo[c] * (1.0 - m_albedo.w);
             float sa = m_sigma_t[c] * dens * (1.0 - m_albedo[c]);
-            float tau = (ss + sa) * pc.sigma_t.w;
+            float tau = (ss + sa) * pc.lambda;
             w_out = min(max(escape_probability(tau), 1.0 / 6.0), 1.0 / float(vac));
             w_in = vac < 6u ? (1.0 - float(vac) * w_out) / float(6u - vac) : 0.0;
         }
@@ -172,11 +166,11 @@ void main() {
         lk[i - 1u] = f;
     }
 
-    // A refractive object's boundary (pc.boundary_r > 0: an [[object]] with ior != 1): light
+    // A refractive object's boundary (boundary_r > 0: an [[object]] with ior != 1): light
     // inside a dense medium meets its surface from inside and is partly reflected back (all of
     // it beyond the critical angle), which traps it: the fluence of a glass-bound medium is
     // higher than that of the same medium index-matched. The link leaving an occupied voxel
-    // toward an unoccupied one (or out of the lattice) gives the share pc.boundary_r of what it
+    // toward an unoccupied one (or out of the lattice) gives the share boundary_r of what it
     // carries to the opposite link, which carries it back in: the diffuse (cosine-weighted
     // hemispherical) Fresnel reflectance from inside, computed on the host
     // (src/physics/dielectric.rs, diffuse_fresnel), the boundary condition of diffusion

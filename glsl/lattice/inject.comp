@@ -30,6 +30,7 @@
 // through the light.
 #extension GL_GOOGLE_include_directive : require
 #define LATTICE_MATERIALS_BINDING 4
+#define SCENE_BINDING 5
 #include "../include/lattice.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
@@ -45,9 +46,8 @@ layout(std430, binding = 3) buffer NearTally { vec2 near_tally[]; };  // the sam
 layout(push_constant) uniform Push {
     uvec4 dims;        // lattice voxels xyz, w = V
     float inv_scale;   // 1 / fixed-point scale
-    float g;           // Henyey-Greenstein asymmetry of the once-scattered light
     uint directed;     // 1: the sums carry the deposit fluxes (above)
-    uint pad;
+    uint pad0, pad1;
     vec4 near;         // the near ball: centre (voxel units from the min corner), radius in voxels (0: none)
 } pc;
 
@@ -78,8 +78,9 @@ void main() {
             e = take(c * V + v, false);
             float rest = e;
             if (pc.directed != 0u) {
-                // The voxel's g: the medium's, or (MATS) its material's.
-                float g = MATS ? lmat[min(vmat[v], 15u)].albedo.w : pc.g;
+                // The voxel's g (Henyey-Greenstein asymmetry of its once-scattered light): its
+                // material's in the table (the medium's unless MATS).
+                float g = scene.materials[lattice_material(v)].albedo.w;
                 vec3 m = g * vec3(take(NCH * V + (3u * c) * V + v, true),
                                      take(NCH * V + (3u * c + 1u) * V + v, true),
                                      take(NCH * V + (3u * c + 2u) * V + v, true));

@@ -83,7 +83,7 @@ void main() {
         dist = INF;
     }
     float depth = density_depth(x, wi, dist, pc.step);
-    vec3 t = exp(-scene.sigma_t.rgb * depth);
+    vec3 t = exp(-scene.materials[0].sigma_t.rgb * depth);
     direct[2u * (p * pc.units + j)] = vec4(irradiance * t, float(iters));
     direct[2u * (p * pc.units + j) + 1u] = vec4(-wi, 0.0);
 }

@@ -37,7 +37,7 @@ void main() {
     if (p >= pc.particles) return;
     vec3 x = positions[p].xyz;
     vec3 o = scene.cam_origin.w < 0.5 ? normalize(scene.cam_origin.xyz - x) : -scene.cam_forward.xyz;
-    float g = scene.albedo.w;
+    float g = scene.materials[0].albedo.w;
     vec3 lit = vec3(0.0);
     for (uint j = 0u; pc.direct == 1u && j < pc.units; ++j) {
         uint e = 2u * (p * pc.units + j);
@@ -50,6 +50,6 @@ void main() {
         sum += radiance[p * pc.directions + d].rgb * w;
         norm += w;
     }
-    vec3 c = scene.albedo.rgb * (lit + (norm > 0.0 ? sum / norm : vec3(0.0)));
+    vec3 c = scene.materials[0].albedo.rgb * (lit + (norm > 0.0 ? sum / norm : vec3(0.0)));
     colour[p] = vec4(c, 0.0);
 }

@@ -28,6 +28,9 @@
 // (src/solvers/networks.rs, `verdict`), in f32 on both sides.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
+// The medium's albedo and g: the scene block's material table, entry 0.
+#define SCENE_BINDING 7
+#include "../include/scene_block.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
@@ -43,7 +46,6 @@ layout(std430, binding = 6) buffer Stats { uint stats[]; };
 
 layout(push_constant) uniform Push {
     vec4 alpha;      // rgb opacity of a particle
-    vec4 albedo;     // rgb; w = g
     vec4 sky;        // rgb: the environment's radiance
     uint particles;
     uint directions;
@@ -64,7 +66,7 @@ vec3 step_one(uint p, uint i) {
     uint vp = visible[p * D + i];
     if (vp == NONE) return pc.sky.rgb;
     vec3 wi = dirs[3u * i + 2u].xyz;
-    float g = pc.albedo.w;
+    float g = scene.materials[0].albedo.w;
     vec3 lit = vec3(0.0);
     for (uint j = 0u; j < pc.units; ++j) {
         uint e = 2u * (vp * pc.units + j);
@@ -73,7 +75,7 @@ vec3 step_one(uint p, uint i) {
     vec3 scattered = vec3(0.0);
     for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];
     vec3 a = pc.alpha.rgb;
-    return (1.0 - a) * current[vp * D + i].rgb + a * pc.albedo.rgb * (lit + scattered);
+    return (1.0 - a) * current[vp * D + i].rgb + a * scene.materials[0].albedo.rgb * (lit + scattered);
 }
 
 const uint GO_ON = 0u, CONVERGED = 1u, FAULT = 2u;

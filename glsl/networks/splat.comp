@@ -83,7 +83,7 @@ void main() {
     vec3 scale = vec3(1.0);
     vec3 T_medium = vec3(1.0);
     if (pc.step > 0.0) {
-        vec3 tau = scene.sigma_t.rgb * density_depth(o, d, 1e30, pc.step);
+        vec3 tau = scene.materials[0].sigma_t.rgb * density_depth(o, d, 1e30, pc.step);
         float kernels = 0.0;
         for (uint j = 0u; j < n; ++j) {
             iters++;

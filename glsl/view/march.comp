@@ -208,7 +208,7 @@ vec3 box_depth_of(vec3 sigma_t, vec3 p, vec3 w, float t_far) {
     return sigma_t * density_depth(p, w, t_far, pc.shadow_step);
 }
 
-vec3 box_depth(vec3 p, vec3 w, float t_far) { return box_depth_of(scene.sigma_t.xyz, p, w, t_far); }
+vec3 box_depth(vec3 p, vec3 w, float t_far) { return box_depth_of(scene.materials[0].sigma_t.xyz, p, w, t_far); }
 
 // Surface crossings a shadow ray follows through the mesh before it is taken as blocked.
 const uint MAX_CROSSINGS = 16u;
@@ -272,7 +272,7 @@ vec3 unit_depth(uint unit, uint side, vec3 p, vec3 w, float dist) {
     vec3 f;
     grid_corners(box_voxel_coord(p, n), n, i0, i1, f);
     iters++;
-    return scene.sigma_t.xyz * TRILINEAR(sdepth, base, n, i0, i1, f);
+    return scene.materials[0].sigma_t.xyz * TRILINEAR(sdepth, base, n, i0, i1, f);
 }
 
 // Light units per step: one per point or directional light, env_dirs per environment.
@@ -332,7 +332,7 @@ vec3 octave_sum(float g, float c, vec3 tau, vec3 tau_chord, bool env, float onor
     vec3 s = vec3(0.0);
     float a = 1.0, b = 1.0, gi = g;
     vec3 w = vec3(1.0);
-    vec3 scattered = pc.octave.w != 0.0 ? scene.albedo.xyz * (vec3(1.0) - exp(-tau_chord)) : vec3(1.0);
+    vec3 scattered = pc.octave.w != 0.0 ? scene.materials[0].albedo.xyz * (vec3(1.0) - exp(-tau_chord)) : vec3(1.0);
     for (uint i = 0u; i < OCTAVES; ++i) {
         iters++;
         s += b * w * phase_eval(gi, c) * exp(-a * tau) / (env ? onorm[i] : 1.0);
@@ -355,7 +355,7 @@ vec3 octave_light(uint unit, float g, float c, vec3 p, vec3 wi, float dist, bool
 
 // The environment quadrature norm of every octave's phase function (g c^i) for direction d.
 void octave_norms(vec3 d, out float onorm[8]) {
-    float gi = scene.albedo.w;
+    float gi = scene.materials[0].albedo.w;
     for (uint i = 0u; i < 8u; ++i) {
         onorm[i] = (i < OCTAVES && ANISOTROPIC && ENVIRONMENT) ? env_norm_g(d, gi) : 1.0;
         gi *= pc.octave.z;

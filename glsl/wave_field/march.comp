@@ -104,10 +104,10 @@ struct Material { vec3 st; vec3 str; vec3 sa; vec3 se; };
 
 Material material(float dens) {
     Material m;
-    m.st = scene.sigma_t.xyz * dens;
-    vec3 ss = m.st * scene.albedo.xyz;
+    m.st = scene.materials[0].sigma_t.xyz * dens;
+    vec3 ss = m.st * scene.materials[0].albedo.xyz;
     m.sa = m.st - ss;
-    m.str = m.st - ss * scene.albedo.w;   // g in albedo.w
+    m.str = m.st - ss * scene.materials[0].albedo.w;   // g in albedo.w
     m.se = sqrt(max(vec3(0.0), 3.0 * m.sa * m.str));
     return m;
 }
@@ -151,7 +151,7 @@ void main() {
     float delta = pc.light.w;
     uint layers = pc.dims.z;
     uint integrator = pc.dims.w;
-    float g = scene.albedo.w;
+    float g = scene.materials[0].albedo.w;
     vec3 phi_src = pc.intensity.rgb;
 
     if (integrator == 2u) {
@@ -181,7 +181,7 @@ void main() {
         zb = mix(zb, 2.0 / 3.0 * r_exit / max(tau_r, vec3(1e-30)), lessThan(zb, vec3(0.0)));
         // Z = psi0 / psi1 at the exit (header): phi = 0 at the extrapolated boundary, across a
         // plane-parallel extrapolation layer of optical thickness x_b = sigma_e 2 D.
-        vec3 a = scene.albedo.xyz;
+        vec3 a = scene.materials[0].albedo.xyz;
         vec3 xb = 2.0 * sqrt(max(vec3(0.0), (1.0 - a) / (3.0 * (1.0 - a * g))));
         vec3 cb, sb, kb;
         scaled_hyperbolic(xb, cb, sb, kb);

@@ -21,7 +21,7 @@
 use serde::Serialize;
 
 use crate::gpu::{DeviceInfo, Gpu, Kernel, QueueRole, SyncPoint};
-use crate::scene::Scene;
+use crate::scene::{Scene, MAX_MATERIALS};
 
 use crate::solvers::interface::Progress;
 use crate::solvers::interface::{
@@ -254,7 +254,10 @@ impl Solver for Lbl {
             + m.device_bytes(&geom, rays, p.nch, p.directed, true)
             + p.diffuser_bytes()
             + p.injector_bytes()
-            + lattice::LatticeMaterials::bytes(geom.voxels(), lattice_materials(scene, &set).is_some())
+            + lattice::LatticeMaterials::bytes(
+                geom.voxels(),
+                scene.object.as_ref().is_some_and(|o| o.several_materials()),
+            )
             + warm
             + view::device_bytes(scene, &set.view))
     }
@@ -819,16 +822,13 @@ pub struct LatticeResult {
     pub stats: LblStats,
 }
 
-/// The lattice over `geom` for this scene and these knobs.
+/// The lattice over `geom` for this scene and these knobs. (Its media come from the scene
+/// block's material table: [`lattice_materials`].)
 fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32) -> LatticeParams {
-    let m = &scene.medium;
     LatticeParams {
         dims: geom.dims,
         nch,
         lattice: set.lattice,
-        sigma_t: m.sigma_t.to_array(),
-        albedo: m.albedo.to_array(),
-        g: m.g,
         lambda: geom.lambda,
         block: set.block,
         block_steps: set.block_steps,
@@ -844,40 +844,23 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         directed: set.directed && scene.features().anisotropic,
         flux: set.flux != view::FluxUse::None && scene.features().anisotropic,
         extrapolate: set.extrapolate,
-        // A refractive object's surface reflects the lattice's outgoing links back in.
-        boundary_r: match &scene.object {
-            Some(o) if o.refractive() && set.view.refraction => {
-                crate::physics::dielectric::diffuse_fresnel(o.ior as f64) as f32
-            }
-            _ => 0.0,
-        },
     }
 }
 
-/// The lattice's material table for objects of several materials (glsl/include/lattice.glsl):
-/// each material's coefficients, and the diffuse Fresnel reflectance of its surface from
-/// inside where it refracts (and `lbl.view_refraction` is on). None for one medium.
-fn lattice_materials(scene: &Scene, set: &LblSettings) -> Option<Vec<lattice::LatticeMaterial>> {
-    let o = scene.object.as_ref().filter(|o| o.several_materials())?;
-    Some(
-        o.materials
-            .iter()
-            .map(|m| lattice::LatticeMaterial {
-                sigma_t: [m.sigma_t.x, m.sigma_t.y, m.sigma_t.z, 0.0],
-                albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
-                extra: [
-                    if m.ior != 1.0 && set.view.refraction {
-                        crate::physics::dielectric::diffuse_fresnel(m.ior as f64) as f32
-                    } else {
-                        0.0
-                    },
-                    0.0,
-                    0.0,
-                    0.0,
-                ],
-            })
-            .collect(),
-    )
+/// What the lattice adds to the scene block's material table (glsl/include/lattice.glsl): per
+/// material, the diffuse Fresnel reflectance from inside of its object's surface, for the links
+/// leaving its voxels, where it refracts and `lbl.view_refraction` is on (0 elsewhere: a medium
+/// without an object, or index-matched).
+fn lattice_materials(scene: &Scene, set: &LblSettings) -> [f32; MAX_MATERIALS] {
+    let mut reflect = [0.0; MAX_MATERIALS];
+    if let Some(o) = &scene.object {
+        for (r, m) in reflect.iter_mut().zip(&o.materials) {
+            if m.ior != 1.0 && set.view.refraction {
+                *r = crate::physics::dielectric::diffuse_fresnel(m.ior as f64) as f32;
+            }
+        }
+    }
+    reflect
 }
 
 /// Run marching, transfer and diffusion to convergence.
@@ -903,10 +886,9 @@ pub fn run_lattice(
         marcher.enable_forward(gpu, nch)?;
     }
     // Objects of several materials: each voxel names its material (the marcher's voxelisation).
-    let materials = match (lattice_materials(scene, set), &marcher.voxel_materials) {
-        (Some(table), Some(voxels)) => lattice::LatticeMaterials::new(gpu, Some((&table, voxels)))?,
-        _ => lattice::LatticeMaterials::new(gpu, None)?,
-    };
+    let several = scene.object.as_ref().is_some_and(|o| o.several_materials());
+    let voxels = marcher.voxel_materials.as_deref().filter(|_| several);
+    let materials = lattice::LatticeMaterials::new(gpu, &gs.block, lattice_materials(scene, set), voxels)?;
     let mut lattice = Diffuser::new(gpu, marcher.density.clone(), &params, &materials)?;
     let injector = Injector::new(gpu, &params, fixed, marcher.scale, &materials)?;
     let rounds = marcher.rounds;
@@ -1101,7 +1083,7 @@ fn start(
         let guess = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: vol.channels as usize };
         seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
     } else if set.cascade > 0 {
-        let (guess, iterations) = cascade(gpu, set, marcher, params)?;
+        let (guess, iterations) = cascade(gpu, (scene, gs, set), marcher, params)?;
         cascade_iterations = iterations;
         seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
     } else if let Some(previous) = &set.previous {
@@ -1118,7 +1100,7 @@ fn start(
         let g = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: nch as usize };
         let guess = if flux.is_empty() {
             let density = lattice::read_f32(gpu, &marcher.density)?;
-            prolong(&g, geom.dims, geom.lambda, geom.dims, geom.lambda, &density, params)
+            prolong(&g, geom.dims, geom.lambda, geom.dims, geom.lambda, &density, &scene.medium)
         } else {
             g
         };
@@ -1238,7 +1220,7 @@ fn seed(
 /// could not resolve.
 fn cascade(
     gpu: &Gpu,
-    set: &LblSettings,
+    (scene, gs, set): (&Scene, &GpuScene, &LblSettings),
     marcher: &Marcher,
     fine: &LatticeParams,
 ) -> Result<(Guess, Vec<u32>), SolverError> {
@@ -1262,11 +1244,13 @@ fn cascade(
         let dep = restrict(&deposits, fine.dims, nch, f, false);
         let params = LatticeParams { dims, lambda, ..*fine };
         let dens_buf = gpu.buffer_with("cascade density", &dens)?;
-        let mut d = Diffuser::new(gpu, dens_buf, &params, &lattice::LatticeMaterials::new(gpu, None)?)?;
+        // One medium (the settings refuse the cascade with several materials).
+        let materials = lattice::LatticeMaterials::new(gpu, &gs.block, lattice_materials(scene, set), None)?;
+        let mut d = Diffuser::new(gpu, dens_buf, &params, &materials)?;
         match &guess {
             Some((g, from, from_lambda)) => {
                 d.plain();
-                let p = prolong(g, *from, *from_lambda, dims, lambda, &dens, fine);
+                let p = prolong(g, *from, *from_lambda, dims, lambda, &dens, &scene.medium);
                 seed(gpu, &mut d, &p.links(nch, dens.len()), None, Some(&dep))?;
             }
             None => {
@@ -1282,7 +1266,7 @@ fn cascade(
         guess = Some((Guess { energy, flux: Vec::new(), channels: nch }, dims, lambda));
     }
     let (g, from, from_lambda) = guess.expect("at least one level");
-    Ok((prolong(&g, from, from_lambda, fine.dims, fine.lambda, &density, fine), iterations))
+    Ok((prolong(&g, from, from_lambda, fine.dims, fine.lambda, &density, &scene.medium), iterations))
 }
 
 /// Restrict per-voxel values (`nch` channels, [c V + v]) from `dims` to the grid of `f` times
@@ -1318,7 +1302,8 @@ fn restrict(x: &[f32], dims: [u32; 3], nch: usize, f: u32, mean: bool) -> Vec<f3
 /// Prolong a coarse guess (`from` voxels of edge `from_lambda`, same origin) to `dims` voxels of
 /// edge `lambda`: the fluence trilinear between coarse voxel centres (energy = fluence
 /// lambda^2 scales by (lambda / from_lambda)^2), and the flux by Fick's law from its central
-/// differences, E = -grad(phi) / (3 sigma_t' density), none where the density is 0.
+/// differences, E = -grad(phi) / (3 sigma_t' density), none where the density is 0, sigma_t'
+/// the reduced extinction of `medium` (the scene's one medium: a seeded start refuses several).
 fn prolong(
     g: &Guess,
     from: [u32; 3],
@@ -1326,7 +1311,7 @@ fn prolong(
     dims: [u32; 3],
     lambda: f32,
     density: &[f32],
-    p: &LatticeParams,
+    medium: &crate::scene::Medium,
 ) -> Guess {
     let nch = g.channels;
     let [nx, ny, nz] = dims.map(|d| d as usize);
@@ -1364,7 +1349,7 @@ fn prolong(
     let mut flux = vec![0f32; 3 * nch * v];
     let n = [nx, ny, nz];
     for c in 0..nch {
-        let st = p.sigma_t[c] * (1.0 - p.albedo[c] * p.g);
+        let st = medium.sigma_t[c] * (1.0 - medium.albedo[c] * medium.g);
         for z in 0..nz {
             for y in 0..ny {
                 for x in 0..nx {

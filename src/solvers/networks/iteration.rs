@@ -132,7 +132,6 @@ impl Illumination {
             pipeline: gpu.pipeline(&ITERATE, &[])?,
             push: IteratePush {
                 alpha: [alpha.x, alpha.y, alpha.z, 0.0],
-                albedo: [m.albedo.x, m.albedo.y, m.albedo.z, m.g],
                 sky: [sky.x, sky.y, sky.z, 0.0],
                 particles: n,
                 directions: d,
@@ -240,6 +239,7 @@ impl Illumination {
                 .write(4, &self.field[to])
                 .read(5, &self.phase)
                 .read_write(6, self.stats.record())
+                .read(7, &self.gs.block)
                 .push(&push)
                 .cover([self.push.particles, d, 1])
         }));

@@ -122,7 +122,6 @@ struct DirectPush {
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 struct IteratePush {
     alpha: [f32; 4],
-    albedo: [f32; 4],
     sky: [f32; 4],
     particles: u32,
     directions: u32,

@@ -19,8 +19,6 @@ pub use crate::solvers::interface::modelled::*;
 pub struct SceneHeader {
     pub bounds_min: [f32; 4],
     pub bounds_max: [f32; 4],
-    pub sigma_t: [f32; 4],
-    pub albedo: [f32; 4],
     pub sphere: [f32; 4],
     pub grid_dims: [u32; 4],
     pub maj_dims: [u32; 4],
@@ -29,10 +27,10 @@ pub struct SceneHeader {
     pub cam_right: [f32; 4],
     pub cam_up: [f32; 4],
     pub image: [u32; 4],
-    /// The [[object]] (format v2): x = ior inside object[0] (1 without one).
-    pub object: [f32; 4],
-    /// The objects' materials ([`crate::scene::Object::materials`]; a triangle's `v0[3]`
-    /// names its own): the medium's as material 0 in every scene, zeros past the last.
+    /// The material table, the one route by which a medium's coefficients reach a kernel
+    /// (glsl/include/scene_block.glsl): the objects' materials
+    /// ([`crate::scene::Object::materials`]; a triangle's `v0[3]` names its own), the medium's
+    /// as material 0 in every scene, zeros past the last.
     pub materials: [GpuMaterial; MAX_MATERIALS],
     /// The density fields the materials name (`GpuMaterial::ior[1]`): the medium's as field 0
     /// in every scene, zeros past the last.
@@ -186,8 +184,6 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
     let mut header = SceneHeader {
         bounds_min: v4(m.bounds_min, 0.0),
         bounds_max: v4(m.bounds_max, 0.0),
-        sigma_t: v4(m.sigma_t, m.sigma_t.max_element()),
-        albedo: v4(m.albedo, m.g),
         sphere,
         grid_dims,
         maj_dims,
@@ -196,7 +192,6 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
         cam_right: v4(right, 0.0),
         cam_up: v4(up, 0.0),
         image: [scene.render.width, scene.render.height, lights.len() as u32, 0],
-        object: [scene.object.as_ref().map_or(1.0, |o| o.ior), 0.0, 0.0, 0.0],
         materials: gpu_materials(scene),
         fields: atlas.fields,
     };
@@ -209,21 +204,35 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
 
 /// The scene block's material table: the objects' materials, or the v1 medium's alone.
 fn gpu_materials(scene: &Scene) -> [GpuMaterial; MAX_MATERIALS] {
-    let one = |x: &Material| GpuMaterial {
-        sigma_t: v4(x.sigma_t, x.sigma_t.max_element()),
-        albedo: v4(x.albedo, x.g),
-        ior: [x.ior, f32::from_bits(x.field as u32), 0.0, 0.0],
-    };
     let mut table = [GpuMaterial::zeroed(); MAX_MATERIALS];
     match &scene.object {
         Some(o) => {
             for (slot, x) in table.iter_mut().zip(&o.materials) {
-                *slot = one(x);
+                *slot = gpu_material(x);
             }
         }
-        None => table[0] = one(&Material::of(&scene.medium, 1.0, 0)),
+        None => table[0] = gpu_material(&Material::of(&scene.medium, 1.0, 0)),
     }
     table
+}
+
+fn gpu_material(x: &Material) -> GpuMaterial {
+    GpuMaterial {
+        sigma_t: v4(x.sigma_t, x.sigma_t.max_element()),
+        albedo: v4(x.albedo, x.g),
+        ior: [x.ior, f32::from_bits(x.field as u32), 0.0, 0.0],
+    }
+}
+
+/// A scene block that holds a material table and nothing else (no box, camera or light), for
+/// kernels that read only the table run without a scene: the lattice's test bench
+/// ([`crate::solvers::parts::lattice::diffuse_impulse`]).
+pub fn table_block(materials: &[Material]) -> SceneHeader {
+    let mut header = SceneHeader::zeroed();
+    for (slot, x) in header.materials.iter_mut().zip(materials) {
+        *slot = gpu_material(x);
+    }
+    header
 }
 
 /// The density fields on the device: every grid in one 3D image (the atlas: grids stacked

@@ -13,8 +13,10 @@ use serde::Serialize;
 
 use crate::gpu::{Buffer, DeviceInfo, Gpu, Kernel, Pass, Pipeline, QueueRole, Spec, SpecKind};
 
+use crate::scene::{Material, MAX_MATERIALS};
 use crate::solvers::interface::Progress;
 use crate::solvers::interface::SolverError;
+use crate::solvers::parts::gpu_scene::table_block;
 
 /// Specialisation constant ids of glsl/include/lattice.glsl and the lattice kernels.
 pub const SPEC_NCH: u32 = 3;
@@ -25,51 +27,49 @@ pub const SPEC_LINKS: u32 = 7;
 /// glsl/include/lattice.glsl's MATS: the voxels name their materials (several media).
 const SPEC_MATS: u32 = 13;
 
-/// Entries of the lattice's material table (glsl/include/lattice.glsl, scene.glsl's
-/// MAX_MATERIALS).
-pub const LATTICE_MATERIALS: usize = 16;
-
-/// One material as the lattice kernels read it (glsl/include/lattice.glsl, LatticeMaterial).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-pub struct LatticeMaterial {
-    /// rgb extinction scale, 1/unit.
-    pub sigma_t: [f32; 4],
-    /// rgb sigma_s / sigma_t; w = g.
-    pub albedo: [f32; 4],
-    /// x = the reflectance of its object's surface for links leaving it (0: index-matched).
-    pub extra: [f32; 4],
-}
-
-/// The lattice's materials on the device: the table, then the material of every voxel (one
-/// u32 each), shared by the diffusion and injection kernels. Without several materials a
-/// stand-in of the table's size is bound (the kernels, specialised without MATS, never read it).
+/// The lattice's media on the device. The coefficients (sigma_t, albedo, g) come from the
+/// scene block's material table (glsl/include/scene_block.glsl), the one route by which they
+/// reach any kernel; the lattice adds, in a buffer of its own, each material's boundary
+/// reflectance and, with several materials, the material of every voxel
+/// (glsl/include/lattice.glsl). Shared by the diffusion and injection kernels.
 pub struct LatticeMaterials {
+    /// The scene block (its material table; entry 0 the medium's).
+    pub scene: Buffer,
+    /// Per material the reflectance of its surface for the links leaving it, then with
+    /// `several` one u32 per voxel naming its material.
     pub buffer: Buffer,
     /// The voxels name their materials (the kernels' MATS).
     pub several: bool,
 }
 
 impl LatticeMaterials {
-    /// `table`: the materials and each voxel's; None for one medium.
-    pub fn new(gpu: &Gpu, table: Option<(&[LatticeMaterial], &[u32])>) -> Result<LatticeMaterials, SolverError> {
-        let mut bytes = vec![0u8; LATTICE_MATERIALS * std::mem::size_of::<LatticeMaterial>()];
-        if let Some((mats, voxels)) = table {
-            for (k, m) in mats.iter().take(LATTICE_MATERIALS).enumerate() {
-                let at = k * std::mem::size_of::<LatticeMaterial>();
-                bytes[at..at + std::mem::size_of::<LatticeMaterial>()].copy_from_slice(bytemuck::bytes_of(m));
-            }
-            bytes.extend_from_slice(bytemuck::cast_slice(voxels));
-        } else {
-            bytes.extend_from_slice(&[0u8; 4]);
+    /// `scene`: the scene block; `boundary_r`: per material of its table, the reflectance of
+    /// its object's surface from inside for the lattice's links
+    /// ([`crate::physics::dielectric::diffuse_fresnel`] at its index; 0: index-matched or
+    /// none); `voxels`: each voxel's material, None for one medium.
+    pub fn new(
+        gpu: &Gpu,
+        scene: &Buffer,
+        boundary_r: [f32; MAX_MATERIALS],
+        voxels: Option<&[u32]>,
+    ) -> Result<LatticeMaterials, SolverError> {
+        let mut bytes = bytemuck::cast_slice::<f32, u8>(&boundary_r).to_vec();
+        match voxels {
+            Some(v) => bytes.extend_from_slice(bytemuck::cast_slice(v)),
+            None => bytes.extend_from_slice(&[0u8; 4]),
         }
-        debug_assert_eq!(bytes.len() as u64, Self::bytes(table.map_or(0, |t| t.1.len() as u64), table.is_some()));
-        Ok(LatticeMaterials { buffer: gpu.buffer_with("lattice materials", &bytes)?, several: table.is_some() })
+        debug_assert_eq!(bytes.len() as u64, Self::bytes(voxels.map_or(0, |v| v.len() as u64), voxels.is_some()));
+        Ok(LatticeMaterials {
+            scene: scene.clone(),
+            buffer: gpu.buffer_with("lattice materials", &bytes)?,
+            several: voxels.is_some(),
+        })
     }
 
-    /// Device bytes for `voxels` voxels, with several materials or the stand-in.
+    /// Device bytes for `voxels` voxels, with several materials or the stand-in (the scene
+    /// block is its owner's).
     pub fn bytes(voxels: u64, several: bool) -> u64 {
-        (LATTICE_MATERIALS * std::mem::size_of::<LatticeMaterial>()) as u64 + if several { 4 * voxels } else { 4 }
+        4 * MAX_MATERIALS as u64 + if several { 4 * voxels } else { 4 }
     }
 }
 
@@ -81,9 +81,8 @@ pub const LATTICE_SPEC: &[(u32, SpecKind)] = &[(SPEC_NCH, SpecKind::U32), (SPEC_
 struct InjectPush {
     dims: [u32; 4],
     inv_scale: f32,
-    g: f32,
     directed: u32,
-    pad: u32,
+    pad: [u32; 2],
     /// The near ball of a point light inside the medium ([`LatticeParams::near`]): centre in
     /// voxel units from the lattice's min corner, radius in voxels (0: none).
     near: [f32; 4],
@@ -93,8 +92,8 @@ struct InjectPush {
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 struct DiffusePush {
     dims: [u32; 4],
-    sigma_t: [f32; 4],
-    albedo: [f32; 4],
+    /// Voxel edge, scene units.
+    lambda: f32,
     inner_steps: u32,
     /// First-flight escape weights (D3Q6): 0 none, 1 at the box's faces, 2 also at zero density.
     escape: u32,
@@ -107,8 +106,6 @@ struct DiffusePush {
     drift: f32,
     /// [`CONE_DRIFT_PAIR`] with the drift, else 0.
     drift_pair: f32,
-    /// [`LatticeParams::boundary_r`].
-    boundary_r: f32,
 }
 
 /// Mean drift toward a face of light in a D3Q6 link parallel to it, per voxel of path:
@@ -440,10 +437,6 @@ pub struct LatticeParams {
     pub dims: [u32; 3],
     pub nch: u32,
     pub lattice: Lattice,
-    /// Extinction (1/unit) and albedo per channel, HG g: the medium's.
-    pub sigma_t: [f32; 3],
-    pub albedo: [f32; 3],
-    pub g: f32,
     /// Voxel edge, scene units.
     pub lambda: f32,
     /// Block edge b (2, 4 or 8) and lattice steps per dispatch within a block (1: global).
@@ -467,9 +460,6 @@ pub struct LatticeParams {
     /// scattered light around a point light, which `lbl` lumps into the light
     /// (`lbl.near_light`). None: every deposit is injected.
     pub near: Option<([f32; 3], f32)>,
-    /// Reflectance of a refractive object's surface for the links leaving its occupied voxels
-    /// ([`crate::physics::dielectric::diffuse_fresnel`] at its index, from inside; 0: none).
-    pub boundary_r: f32,
 }
 
 impl LatticeParams {
@@ -516,7 +506,9 @@ impl LatticeParams {
 pub struct Diffuser {
     pipeline: Pipeline,
     density: Buffer,
-    /// [`LatticeMaterials`]'s buffer (counted by its owner, not in [`Diffuser::device_bytes`]).
+    /// [`LatticeMaterials`]'s buffers: the scene block and the lattice's own (counted by their
+    /// owners, not in [`Diffuser::device_bytes`]).
+    scene: Buffer,
     materials: Buffer,
     states: [Buffer; 2],
     irr: Buffer,
@@ -548,8 +540,8 @@ pub struct Diffuser {
 
 impl Diffuser {
     /// A zero lattice over `density` (one value per voxel, multiplying the extinction), of
-    /// one medium (`p`'s coefficients), or, where `materials` has several, of the material each
-    /// voxel names.
+    /// one medium (the material table's first entry), or, where `materials` has several, of the
+    /// material each voxel names.
     pub fn new(
         gpu: &Gpu,
         density: Buffer,
@@ -565,7 +557,7 @@ impl Diffuser {
             (SPEC_LINKS, Spec::U32(p.lattice.links())),
             (SPEC_MATS, Spec::Bool(materials.several)),
         ];
-        let materials = materials.buffer.clone();
+        let (scene, materials) = (materials.scene.clone(), materials.buffer.clone());
         let nch_spec = [(SPEC_NCH, Spec::U32(p.nch))];
         // The test's kernels use doubles: built only where the device has them.
         let (pipeline, reduce, check) = if gpu.info().float64 {
@@ -579,11 +571,11 @@ impl Diffuser {
         let state_bytes = p.lattice.state_bytes(p.nch, v);
         let groups = p.groups();
         let n_wg = groups.iter().map(|x| *x as u64).product::<u64>();
-        let (st, al) = (p.sigma_t, p.albedo);
         let drift_on = p.drift && p.escape != Escape::None;
         Ok(Diffuser {
             pipeline,
             density,
+            scene,
             materials,
             states: [gpu.buffer("lattice state A", state_bytes)?, gpu.buffer("lattice state B", state_bytes)?],
             irr: gpu.buffer("lattice irradiance", p.irradiance_floats() * 4)?,
@@ -603,8 +595,7 @@ impl Diffuser {
             chunks: CHUNKS_MIN,
             push: DiffusePush {
                 dims: [p.dims[0], p.dims[1], p.dims[2], v as u32],
-                sigma_t: [st[0], st[1], st[2], p.lambda],
-                albedo: [al[0], al[1], al[2], p.g],
+                lambda: p.lambda,
                 inner_steps: 1,
                 escape: p.escape.code(),
                 flux: p.flux as u32,
@@ -612,7 +603,6 @@ impl Diffuser {
                 // The drift acts only with the escape weights (at the same open faces).
                 drift: if drift_on { CONE_DRIFT } else { 0.0 },
                 drift_pair: if drift_on { CONE_DRIFT_PAIR } else { 0.0 },
-                boundary_r: p.boundary_r,
             },
             groups,
             block_steps: p.block_steps,
@@ -677,6 +667,7 @@ impl Diffuser {
                     .write(5, &self.snap)
                     .read(6, &self.materials)
                     .read(7, self.control.record())
+                    .read(8, &self.scene)
                     .push(&push)
                     .groups(self.groups),
             );
@@ -1044,7 +1035,8 @@ impl Diffuser {
 /// its axial links (their first moment), clears the sums, and tallies what it injected.
 pub struct Injector {
     pipeline: Pipeline,
-    /// [`LatticeMaterials`]'s buffer (the voxels' g).
+    /// [`LatticeMaterials`]'s buffers (the voxels' g).
+    scene: Buffer,
     materials: Buffer,
     tally: Buffer,
     near_tally: Buffer,
@@ -1068,9 +1060,9 @@ impl Injector {
             (SPEC_LINKS, Spec::U32(p.lattice.links())),
             (SPEC_MATS, Spec::Bool(materials.several)),
         ];
-        let materials = materials.buffer.clone();
         Ok(Injector {
-            materials,
+            scene: materials.scene.clone(),
+            materials: materials.buffer.clone(),
             pipeline: gpu.pipeline(&INJECT, &spec)?,
             tally: gpu.buffer("lattice inject tally", p.injector_bytes() / 2)?,
             near_tally: gpu.buffer("lattice near-light tally", p.injector_bytes() / 2)?,
@@ -1078,9 +1070,8 @@ impl Injector {
             push: InjectPush {
                 dims: [p.dims[0], p.dims[1], p.dims[2], p.voxels() as u32],
                 inv_scale: 1.0 / scale,
-                g: p.g,
                 directed: p.directed as u32,
-                pad: 0,
+                pad: [0; 2],
                 near: p.near.map_or([0.0; 4], |(c, r)| [c[0], c[1], c[2], r]),
             },
         })
@@ -1094,6 +1085,7 @@ impl Injector {
             .read_write(2, &self.tally)
             .read_write(3, &self.near_tally)
             .read(4, &self.materials)
+            .read(5, &self.scene)
             .push(&self.push)
             .cover([self.push.dims[3], 1, 1])
     }
@@ -1148,11 +1140,13 @@ pub fn lattice_content(state: &[f32], dims: [u32; 3], nch: u32, lattice: Lattice
 }
 
 /// Test bench for the lattice alone: unit energy deposited at `source` in a homogeneous
-/// medium filling the whole lattice (`p.sigma_t[0]`, `p.albedo[0]`, one channel),
-/// `iterations` steps; returns the time-integrated energy per voxel and the energy book.
+/// medium filling the whole lattice (`medium`'s first channel, one channel), its boundary
+/// reflecting `boundary_r` of what leaves, `iterations` steps; returns the time-integrated
+/// energy per voxel and the energy book.
 pub fn diffuse_impulse(
     gpu: &Gpu,
     p: &LatticeParams,
+    (medium, boundary_r): (&Material, f32),
     source: [u32; 3],
     iterations: u32,
 ) -> Result<(Vec<f32>, EnergyBook), SolverError> {
@@ -1160,7 +1154,11 @@ pub fn diffuse_impulse(
     let v: u64 = dims.iter().map(|d| *d as u64).product();
     let density = gpu.buffer_with("impulse density", &vec![1f32; v as usize])?;
     let p = LatticeParams { nch: 1, ..*p };
-    let mut d = Diffuser::new(gpu, density, &p, &LatticeMaterials::new(gpu, None)?)?;
+    // The kernels read the medium from a scene block's material table, as in a render.
+    let scene = gpu.buffer_with("impulse material table", bytemuck::bytes_of(&table_block(&[*medium])))?;
+    let mut reflect = [0.0; MAX_MATERIALS];
+    reflect[0] = boundary_r;
+    let mut d = Diffuser::new(gpu, density, &p, &LatticeMaterials::new(gpu, &scene, reflect, None)?)?;
     let src = (source[0] + dims[0] * (source[1] + dims[1] * source[2])) as u64;
     gpu.write_buffer(d.state(), src * 4, bytemuck::bytes_of(&1f32))?;
     let mut left = iterations;
