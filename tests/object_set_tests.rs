@@ -202,7 +202,7 @@ fn two_entries_render_as_the_one_mesh_that_joins_them() {
         (PATH, vec![]),
         (SINGLE, vec![("single.env_dirs", "16")]),
         // Fixed-point transfer: float atomics sum in whatever order the threads run.
-        (LBL, vec![("lbl.grid", "16"), ("lbl.view_step", "0.05"), ("lbl.deterministic", "true")]),
+        (LBL, vec![("lbl.grid", "18"), ("lbl.view_step", "0.05"), ("lbl.deterministic", "true")]),
     ] {
         let a = render(&gpu, &two, solver, &sets);
         let b = render(&gpu, &one, solver, &sets);

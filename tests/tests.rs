@@ -39,5 +39,6 @@ mod solvers;
 mod stability_tests;
 mod staged_setup_tests;
 mod timeline_tests;
+mod trust_tests;
 mod vdb_tests;
 mod wavefront_tests;

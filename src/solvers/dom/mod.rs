@@ -41,7 +41,7 @@ use crate::solvers::interface::{
     Solver, SolverError, Stats, Variant,
 };
 use crate::solvers::parts::gpu_scene::{self, GpuScene};
-use crate::solvers::parts::lattice::LatticeGeom;
+use crate::solvers::parts::lattice::{GridTrust, LatticeGeom};
 use crate::solvers::parts::marching::{self, MarchSettings, Marcher};
 use crate::solvers::parts::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
 
@@ -63,6 +63,8 @@ fn sphere_workload(name: String, grid: &str, size: &str, more: &[(&str, &str)], 
 #[derive(Clone, Debug, Serialize)]
 pub struct DomStats {
     pub grid: LatticeGeom,
+    /// How finely the grid resolves the medium, against what dom was validated at.
+    pub trust: GridTrust,
     pub quadrature: String,
     pub directions: usize,
     /// The storage set (`1`: isotropic) and its size M.
@@ -371,6 +373,7 @@ fn dom_stats(
             set.tol
         ));
     }
+    report.warnings.extend(ds.trust.warning("dom"));
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
     let sweep_ms = ds.sweep_ms;
@@ -1094,6 +1097,7 @@ impl Solver for Dom {
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device, Stats::new(()));
         let ds = DomStats {
             grid: geom,
+            trust: geom.trust(scene),
             quadrature: set.quadrature.name.clone(),
             directions: set.quadrature.len(),
             storage: set.storage.name.clone(),
@@ -1278,6 +1282,7 @@ impl Solver for Dom {
             },
             s.sweep_ms
         )];
+        lines.push(format!("dom: {}", s.trust.line()));
         if let Some(st) = &s.streaming {
             lines.push(format!(
                 "dom: blocks of {}^3: {} blocks, pool {} slots of {} KiB ({}), {} uploads ({} waiting for the sweep \

@@ -310,23 +310,26 @@ impl Solver for Lbl {
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(l) = report.detail::<LblStats>() else { return Vec::new() };
         let d = l.lattice.dims;
-        vec![format!(
-            "lbl: {}x{}x{} {} lattice, {} channel(s){}, {} rays, {} rounds, {} iterations ({})",
-            d[0],
-            d[1],
-            d[2],
-            l.lattice_kind.name(),
-            l.channels,
-            if l.channels == 1 { " (grey medium and lights)" } else { "" },
-            l.rays,
-            l.rounds,
-            l.iterations,
-            match (l.converged, l.tail) {
-                (false, _) => "NOT converged".to_string(),
-                (true, None) => "converged".to_string(),
-                (true, Some(t)) => format!("converged; tail extrapolated: {:.1}% of the fluence", 100.0 * t.share),
-            }
-        )]
+        vec![
+            format!(
+                "lbl: {}x{}x{} {} lattice, {} channel(s){}, {} rays, {} rounds, {} iterations ({})",
+                d[0],
+                d[1],
+                d[2],
+                l.lattice_kind.name(),
+                l.channels,
+                if l.channels == 1 { " (grey medium and lights)" } else { "" },
+                l.rays,
+                l.rounds,
+                l.iterations,
+                match (l.converged, l.tail) {
+                    (false, _) => "NOT converged".to_string(),
+                    (true, None) => "converged".to_string(),
+                    (true, Some(t)) => format!("converged; tail extrapolated: {:.1}% of the fluence", 100.0 * t.share),
+                }
+            ),
+            format!("lbl: {}", l.trust.line()),
+        ]
     }
 }
 
@@ -380,6 +383,7 @@ impl Lbl {
                 ls.iterations, ls.final_change, set.tol
             ));
         }
+        report.warnings.extend(ls.trust.warning("lbl"));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         let mut stats = Stats::new(ls.clone());
         stats.convergence = Some(Convergence {
@@ -769,6 +773,8 @@ pub struct NearLight {
 #[derive(Clone, Debug, Serialize)]
 pub struct LblStats {
     pub lattice: LatticeGeom,
+    /// How finely the lattice resolves the medium, against what lbl was validated at.
+    pub trust: lattice::GridTrust,
     pub lattice_kind: Lattice,
     /// Block edge and steps per dispatch the lattice ran with (a derived block may have
     /// stepped down to fit the device).
@@ -942,6 +948,7 @@ pub fn run_lattice(
         irradiance_buffer: irr,
         stats: LblStats {
             lattice: geom,
+            trust: geom.trust(scene),
             lattice_kind: set.lattice,
             block: set.block,
             block_steps: set.block_steps,

@@ -6,7 +6,7 @@
 //! [`Diffuser::iterate`] runs it to convergence. Used by `lbl`.
 
 mod geom;
-pub use geom::LatticeGeom;
+pub use geom::{GridTrust, LatticeGeom, VALIDATED_ACROSS};
 
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
