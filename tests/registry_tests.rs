@@ -529,14 +529,8 @@ fn memory_estimates_equal_what_renders_allocate() {
 fn specialisation_constant_names_match_the_glsl() {
     use scatterlab::solvers::parts::gpu_scene::SPEC_NAMES;
     let mut seen: std::collections::BTreeMap<u32, String> = Default::default();
-    let mut stack = vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("glsl")];
-    while let Some(dir) = stack.pop() {
-        for e in std::fs::read_dir(&dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-                continue;
-            }
+    for p in files_under(&Path::new(env!("CARGO_MANIFEST_DIR")).join("glsl")) {
+        {
             let text = std::fs::read_to_string(&p).unwrap();
             for line in text.lines() {
                 let Some(rest) = line.trim().strip_prefix("layout(constant_id = ") else { continue };
@@ -718,15 +712,9 @@ fn material_coefficients_reach_kernels_by_the_material_table_only() {
             })
             .collect()
     };
-    let mut stack = vec![root.clone()];
     let mut blocks = 0;
-    while let Some(dir) = stack.pop() {
-        for e in std::fs::read_dir(&dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-                continue;
-            }
+    for p in files_under(&root) {
+        {
             let rel = p.strip_prefix(&root).unwrap().to_string_lossy().into_owned();
             let text = std::fs::read_to_string(&p).unwrap();
             let Some(start) = text.find("layout(push_constant)") else { continue };
@@ -748,4 +736,20 @@ fn material_coefficients_reach_kernels_by_the_material_table_only() {
     for m in &names {
         assert!(!coefficient.contains(&m.as_str()) && m != "g" && m != "object", "the header copies `{m}`");
     }
+}
+
+/// Every file under `dir`, at any depth.
+fn files_under(dir: &Path) -> Vec<std::path::PathBuf> {
+    let (mut files, mut stack) = (Vec::new(), vec![dir.to_path_buf()]);
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                files.push(p);
+            }
+        }
+    }
+    files
 }
