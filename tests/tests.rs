@@ -33,6 +33,7 @@ mod report_tests;
 mod scene_tests;
 mod sh_single_tests;
 mod sh_tests;
+mod shape_tests;
 mod single_refraction_tests;
 mod slab_reference;
 mod solvers;

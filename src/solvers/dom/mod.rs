@@ -41,7 +41,7 @@ use crate::solvers::interface::{
     Solver, SolverError, Stats, Variant,
 };
 use crate::solvers::parts::gpu_scene::{self, GpuScene};
-use crate::solvers::parts::lattice::{GridTrust, LatticeGeom};
+use crate::solvers::parts::lattice::{GridTrust, LatticeGeom, DOM_GRID};
 use crate::solvers::parts::marching::{self, MarchSettings, Marcher};
 use crate::solvers::parts::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
 
@@ -109,6 +109,8 @@ pub struct DomStats {
 struct DomSettings {
     /// The voxel grid of the sweeps, the marching and the view's volume for `grid`, built once.
     geom: LatticeGeom,
+    /// The grid knob's value `geom` was built for (voxels along the longest side).
+    grid: u32,
     quadrature: Quadrature,
     storage: Quadrature,
     scheme: Scheme,
@@ -130,7 +132,9 @@ struct DomSettings {
 
 impl DomSettings {
     fn parse(k: &Knobs, scene: &Scene) -> Result<DomSettings, SolverError> {
-        let grid: u32 = k.get("grid")?;
+        // The default fitted to the medium (issue 44): 32 along the longest side, more for a thin
+        // or optically thick medium, within DOM_GRID's budget.
+        let grid: u32 = k.get_or("grid", DOM_GRID.fitted_grid(scene, 32, 512))?;
         let name: String = k.get("directions")?;
         // s6 resolves moderate anisotropy (the g 0.7 cube: energy 1.006 of path); a peaked
         // phase function needs more directions (g 0.9: the twice-scattered light is 1.5x
@@ -163,6 +167,7 @@ impl DomSettings {
         }
         Ok(DomSettings {
             geom,
+            grid,
             quadrature,
             storage,
             scheme: if scheme == "step" { Scheme::Step } else { Scheme::Characteristics },
@@ -373,7 +378,7 @@ fn dom_stats(
             set.tol
         ));
     }
-    report.warnings.extend(ds.trust.warning("dom"));
+    report.warnings.extend(ds.trust.warning());
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
     let sweep_ms = ds.sweep_ms;
@@ -905,7 +910,13 @@ impl Solver for Dom {
 
     fn knobs(&self) -> Vec<Knob> {
         let mut k = vec![
-            Knob::fixed("grid", "32", Range::int(2, 512), "voxels along the medium's longest side"),
+            Knob::derived(
+                "grid",
+                "fitted to the medium: 32, raised until the thinnest side spans 4 voxels and a voxel is at most 1 mean \
+                 free path thick, within 64^3 voxels",
+                Range::int(2, 512),
+                "voxels along the medium's longest side (cubic voxels)",
+            ),
             Knob::fixed(
                 "directions",
                 "auto",
@@ -1097,7 +1108,7 @@ impl Solver for Dom {
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device, Stats::new(()));
         let ds = DomStats {
             grid: geom,
-            trust: geom.trust(scene),
+            trust: geom.trust(scene, set.grid, &DOM_GRID),
             quadrature: set.quadrature.name.clone(),
             directions: set.quadrature.len(),
             storage: set.storage.name.clone(),

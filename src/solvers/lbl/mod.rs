@@ -53,7 +53,8 @@ impl Solver for Lbl {
                 "grid",
                 "from the medium's reduced optical length T along its longest side (the densest part's sigma_t (1 - \
                  albedo g) times the side): 64 where T >= 16, 32 where T < 10, 40-56 between (voxels of reduced optical \
-                 thickness at least 0.25, within 32..=64)",
+                 thickness at least 0.25, within 32..=64); raised until the thinnest side spans 2 voxels, within 128^3 \
+                 voxels",
                 Range::int(2, 512),
                 "lattice voxels along the medium's longest side",
             ),
@@ -383,7 +384,7 @@ impl Lbl {
                 ls.iterations, ls.final_change, set.tol
             ));
         }
-        report.warnings.extend(ls.trust.warning("lbl"));
+        report.warnings.extend(ls.trust.warning());
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         let mut stats = Stats::new(ls.clone());
         stats.convergence = Some(Convergence {
@@ -537,7 +538,8 @@ pub struct LblSettings {
 
 impl LblSettings {
     pub fn parse(k: &Knobs, scene: &Scene) -> Result<LblSettings, SolverError> {
-        let grid: u32 = k.get_or("grid", default_grid(scene))?;
+        // lbl's depth rule (default_grid), raised for 2 voxels across a thin medium (issue 44).
+        let grid: u32 = k.get_or("grid", lattice::LBL_GRID.fitted_grid(scene, default_grid(scene), 512))?;
         let geom = LatticeGeom::new(scene, grid);
         let block: u32 = k.get_or("block", 8)?;
         // `auto` (lbl.inject, lbl.flux) carries the forward peak on the forward population
@@ -948,7 +950,7 @@ pub fn run_lattice(
         irradiance_buffer: irr,
         stats: LblStats {
             lattice: geom,
-            trust: geom.trust(scene),
+            trust: geom.trust(scene, set.grid, &lattice::LBL_GRID),
             lattice_kind: set.lattice,
             block: set.block,
             block_steps: set.block_steps,

@@ -38,58 +38,197 @@ impl LatticeGeom {
     }
 }
 
-/// Voxels across the medium's thinnest side below which the grid solvers (lbl, dom) are not
-/// validated: our accuracy tests run at 12 or more across, and [`SLAB_ENERGY`] shows the error
-/// growing below that (issue 44 proposed 8).
-pub const VALIDATED_ACROSS: f32 = 8.0;
+/// How a grid solver's default grid fits the medium, and the range it was validated in (issue
+/// 44). The `grid` knob keeps its meaning (voxels along the medium box's longest side, cubic
+/// voxels); only its default is fitted: the solver's own count for a compact medium, raised
+/// until the thinnest side spans `min_across` voxels and (dom) a voxel is at most
+/// `max_voxel_depth` mean free paths thick, but never past `max_voxels` voxels (the budget a
+/// default may spend: set the knob to go past it). What the fit cannot reach, the trust line
+/// says ([`GridTrust::warnings`]).
+///
+/// The figures are measured on lavapipe against `path` (1024 spp) on wide slabs lit normally
+/// (sigma_t 1, optical thickness 0.5 / 2 / 8, albedo 0.8 / 0.99, g 0 / 0.6, reflected and
+/// diffusely transmitted radiance at the slab's centre; docs/decisions.md, "Grids fitted to the
+/// medium"): the energy of the render over path's.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct GridRule {
+    pub solver: &'static str,
+    /// Voxels across the medium box's thinnest side that the default gives and the solver was
+    /// validated at.
+    pub min_across: f32,
+    /// The largest optical depth of a voxel edge, in mean free paths (extinction; for lbl the
+    /// reduced extinction sigma_t (1 - albedo g), its transport coefficient), the solver was
+    /// validated at. Beyond it a thick medium's diffuse transmission grows with the voxel: dom
+    /// on the 8-mfp slab transmits 1.32x path's at 1 mfp per voxel, 2.1x at 2, 5.0x at 4.
+    pub max_voxel_depth: f32,
+    /// The smallest (lbl: thin voxels make its lattice's boundary layer bright), if any. Judged
+    /// only in media of constant density (a hard lit boundary); a grid density's soft edge
+    /// keeps lbl flat in the grid (the cloud: 0.955 -> 0.983 of path's energy from grid 16 to
+    /// 64, docs/lbl.md).
+    pub min_voxel_depth: Option<f32>,
+    /// Voxels thicker than this carry a warning (the trust line says OUTSIDE past
+    /// `max_voxel_depth` already): where the measured error passes ~2x on the deep
+    /// transmission and ~15% on reflection.
+    pub warn_voxel_depth: f32,
+    /// Whether the default grid is raised for voxels of `max_voxel_depth` at most (dom). lbl
+    /// keeps its own depth rule ([`crate::solvers::lbl::default_grid`]): raised for depth on a
+    /// 16 x 0.5 x 16 slab 2 mean free paths thick, its grid 107 put 3.3 voxels across (the last
+    /// one part outside the medium) and gave 1.63x path's energy, against 1.06x at 64 (2 whole
+    /// voxels across, 1.0 per voxel); docs/decisions.md.
+    pub fit_depth: bool,
+    /// The most voxels a default grid holds.
+    pub max_voxels: u64,
+    /// What the solver gave at (voxels across, optical depth per voxel) on the slabs: the
+    /// smallest and largest energy over the sweep's cases there, as (across, depth, lo, hi).
+    pub measured: &'static [(f32, f32, f32, f32)],
+}
 
-/// Energy against `path` by voxels across a thin medium, per solver: a slab 100 x 100 units
-/// wide and 2 mean free paths thick (sigma_t 1, albedo 0.8, isotropic), lit normally by a
-/// directional light and seen from the lit side (orthographic, 16^2 pixels; `path` at 64 spp),
-/// at the default grid and at grids 100, 200 and 400 (measured on lavapipe; the expected error
-/// a warning quotes). The default grids (dom 32, lbl 64 here) put 0.64 and 1.28 voxels across.
-/// lbl's error does not fall monotonically: at 8 across (grid 400) it is +17% again, with 1M
-/// light rays as with 32k (its boundary treatment on a wide lit face, not yet understood:
-/// docs/decisions.md), so 8 across is where lbl's grid stops being the cause, not where lbl is
-/// right.
-pub const SLAB_ENERGY: &[(&str, &[(f32, f32)])] = &[
-    ("dom", &[(0.64, 0.829), (2.0, 0.982), (4.0, 0.989), (8.0, 1.003)]),
-    ("lbl", &[(1.28, 2.097), (2.0, 1.058), (4.0, 1.010), (8.0, 1.173)]),
-];
+/// dom: 4 voxels across and at most half a mean free path per voxel. At 2 across (1 mfp per
+/// voxel) it gave 0.945-1.027 of path's energy on the 2-mfp slabs, at 4 across (0.5) 0.961-0.999;
+/// at 1 mfp per voxel the 8-mfp slab transmits 1.32x path's and the cloud squashed to a layer
+/// (tests/shape_tests.rs) is 0.948; a voxel of 2 mean free paths transmits 2.1x too much
+/// through the 8-mfp slab (the warning's threshold).
+pub const DOM_GRID: GridRule = GridRule {
+    solver: "dom",
+    min_across: 4.0,
+    max_voxel_depth: 0.5,
+    min_voxel_depth: None,
+    warn_voxel_depth: 2.0,
+    fit_depth: true,
+    max_voxels: 64 * 64 * 64,
+    measured: &[
+        (0.64, 3.1, 0.829, 0.829),
+        (2.0, 1.0, 0.945, 1.027),
+        (2.0, 4.0, 0.845, 4.99),
+        (4.0, 0.5, 0.961, 0.999),
+        (4.0, 2.0, 0.954, 2.11),
+        (8.0, 1.0, 0.987, 1.32),
+    ],
+};
 
-/// How finely a grid resolves the medium, against what the solver was validated at: the trust
-/// line of a grid solver's render (its JSON `trust` block, its summary line, and the warning
-/// [`GridTrust::warning`] where it falls short).
+/// lbl: 2 voxels across, voxels of reduced optical depth 0.25-0.6 (its lattice's boundary
+/// treatment was calibrated there: docs/lbl.md, "the default grid"). Thin voxels make it
+/// bright: on the 0.5-mfp slab 0.90-1.09 of path's energy at 0.25 per voxel, 1.14-2.13 at
+/// 0.125, 1.28-2.74 at 0.0625. The lower bound is generous: on hard-edged media 0.25-0.31 per
+/// voxel already gave 1.04-1.13 (the 2-mfp slab at 8 across, a 10:1:1 box at 6.4 across), 0.5
+/// gave 0.967-1.047 (docs/decisions.md).
+pub const LBL_GRID: GridRule = GridRule {
+    solver: "lbl",
+    min_across: 2.0,
+    max_voxel_depth: 0.6,
+    min_voxel_depth: Some(0.25),
+    warn_voxel_depth: 1.2,
+    fit_depth: false,
+    max_voxels: 128 * 128 * 128,
+    measured: &[
+        (1.28, 1.56, 2.097, 2.097),
+        (2.0, 0.25, 0.899, 1.093),
+        (2.0, 1.0, 0.990, 8.84),
+        (4.0, 0.125, 1.138, 2.132),
+        (4.0, 0.5, 0.967, 1.047),
+        (8.0, 0.0625, 1.277, 2.738),
+        (16.0, 0.5, 1.000, 1.072),
+    ],
+};
+
+/// The measured point nearest a render's (voxels across, depth per voxel), in log space.
+fn nearest(points: &[(f32, f32, f32, f32)], across: f32, depth: f32) -> Option<(f32, f32, f32, f32)> {
+    let d = |p: &(f32, f32, f32, f32)| {
+        (p.0.max(1e-3) / across.max(1e-3)).ln().powi(2) + (p.1.max(1e-6) / depth.max(1e-6)).ln().powi(2)
+    };
+    points.iter().copied().min_by(|a, b| d(a).total_cmp(&d(b)))
+}
+
+impl GridRule {
+    /// The optical depth of a voxel edge of `lambda` this rule judges, in mean free paths: the
+    /// largest extinction (lbl: reduced extinction) over channels and materials times the
+    /// largest density.
+    pub fn voxel_depth(&self, scene: &Scene, lambda: f32) -> f32 {
+        let sigma = if self.min_voxel_depth.is_some() {
+            crate::solvers::lbl::max_reduced_sigma_t(scene)
+        } else {
+            scene.max_sigma_t() * scene.max_density()
+        };
+        sigma * lambda
+    }
+
+    /// The default grid (voxels along the longest side) for `scene`, from the solver's own
+    /// default `base`: raised for `min_across` voxels across the thinnest side and (where
+    /// `fit_depth`) voxels of at most `max_voxel_depth`, held to `max_voxels` and to `cap` (the
+    /// knob's range), never below `base`.
+    pub fn fitted_grid(&self, scene: &Scene, base: u32, cap: u32) -> u32 {
+        let ext = scene.medium.bounds_max - scene.medium.bounds_min;
+        let (longest, thinnest) = (ext.max_element(), ext.min_element());
+        if !(thinnest > 0.0 && longest.is_finite()) {
+            return base;
+        }
+        let across = (self.min_across * longest / thinnest - 1e-3).ceil();
+        let depth =
+            if self.fit_depth { (self.voxel_depth(scene, longest) / self.max_voxel_depth - 1e-3).ceil() } else { 0.0 };
+        // f32 -> u32 saturates (and drops a NaN to 0).
+        let want = (across.max(depth).min(cap as f32) as u32).max(base);
+        (base..=want).rev().find(|&g| LatticeGeom::new(scene, g).voxels() <= self.max_voxels).unwrap_or(base)
+    }
+}
+
+/// How finely a grid resolves the medium, against what the solver was validated at
+/// ([`GridRule`]): the trust line of a grid solver's render (its JSON `trust` block, its
+/// summary line, and the warnings of [`GridTrust::warnings`] where it falls outside).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct GridTrust {
+    /// The rule the render is judged by.
+    pub rule: GridRule,
+    /// The grid knob's value the render ran at (voxels along the longest side).
+    pub grid: u32,
     /// Voxels across the medium's box along x, y and z (its extent over the voxel edge).
     pub voxels_across: [f32; 3],
     /// The axis with the fewest (0 x, 1 y, 2 z).
     pub thinnest_axis: usize,
-    /// At least this many across every side: [`VALIDATED_ACROSS`].
-    pub validated_across: f32,
-    /// The largest optical depth of one voxel edge, in mean free paths: the largest extinction
-    /// (over channels and materials) x the largest density x the voxel edge. Reported, not yet
-    /// judged: the solvers' validated range of it is not measured apart from the voxels across.
-    pub voxel_optical_depth: f32,
-    /// The grid knob's value (voxels along the longest side) that puts `validated_across`
-    /// voxels across the thinnest side.
-    pub grid_for_validated: u32,
+    /// The largest optical depth of one voxel edge the rule judges, in mean free paths
+    /// ([`GridRule::voxel_depth`]).
+    pub voxel_depth: f32,
+    /// The grid knob's value that puts `rule.min_across` voxels across the thinnest side.
+    pub grid_for_across: u32,
+    /// The grid knob's value for voxels of `rule.max_voxel_depth` at most.
+    pub grid_for_depth: u32,
+    /// The largest grid knob's value whose voxels are at least `rule.min_voxel_depth` thick
+    /// (None: no lower bound, or a medium whose density is not constant).
+    pub grid_for_min_depth: Option<u32>,
+}
+
+/// A medium of constant density (a box or a sphere of it, or mesh objects filled with one):
+/// its lit boundary is a step, where lbl's thin-voxel brightness shows.
+fn hard_edged(scene: &Scene) -> bool {
+    use crate::scene::Density;
+    let hard = |d: &Density| matches!(d, Density::Constant | Density::Sphere { .. });
+    match &scene.object {
+        Some(o) => o.fields.iter().all(|f| hard(&f.density)),
+        None => hard(&scene.medium.density),
+    }
 }
 
 impl LatticeGeom {
-    /// How this grid resolves `scene`'s medium box ([`GridTrust`]).
-    pub fn trust(&self, scene: &Scene) -> GridTrust {
+    /// How this grid (`grid` voxels along the longest side) resolves `scene`'s medium box,
+    /// judged by `rule` ([`GridTrust`]).
+    pub fn trust(&self, scene: &Scene, grid: u32, rule: &GridRule) -> GridTrust {
         let ext = scene.medium.bounds_max - scene.medium.bounds_min;
         let voxels_across = [0, 1, 2].map(|a| ext[a] / self.lambda);
         let thinnest_axis = (0..3).min_by(|&a, &b| voxels_across[a].total_cmp(&voxels_across[b])).unwrap_or(0);
-        let grid_for_validated = (VALIDATED_ACROSS * ext.max_element() / ext[thinnest_axis]).ceil() as u32;
+        let longest = ext.max_element();
+        let sat = |v: f32| v.max(1.0).min(u32::MAX as f32) as u32;
+        let unit_depth = rule.voxel_depth(scene, longest);
         GridTrust {
+            rule: *rule,
+            grid,
             voxels_across,
             thinnest_axis,
-            validated_across: VALIDATED_ACROSS,
-            voxel_optical_depth: scene.max_sigma_t() * scene.max_density() * self.lambda,
-            grid_for_validated,
+            voxel_depth: rule.voxel_depth(scene, self.lambda),
+            grid_for_across: sat((rule.min_across * longest / ext[thinnest_axis] - 1e-3).ceil()),
+            grid_for_depth: sat((unit_depth / rule.max_voxel_depth - 1e-3).ceil()),
+            grid_for_min_depth: rule
+                .min_voxel_depth
+                .filter(|_| hard_edged(scene))
+                .map(|m| sat((unit_depth / m + 1e-3).floor())),
         }
     }
 }
@@ -100,50 +239,114 @@ impl GridTrust {
         self.voxels_across[self.thinnest_axis]
     }
 
-    /// The grid resolves the medium as the solver was validated (a rounding margin: a cube at
-    /// grid 8 has 8 across).
+    /// Enough voxels across every side (a rounding margin: a cube at grid 8 has 8 across).
+    pub fn across_within(&self) -> bool {
+        self.fewest() >= self.rule.min_across - 1e-3
+    }
+
+    /// Voxels thinner than the rule's smallest depth in a hard-edged medium.
+    fn too_thin(&self) -> bool {
+        self.grid_for_min_depth.is_some()
+            && self.rule.min_voxel_depth.is_some_and(|m| self.voxel_depth < m * 0.999 && self.voxel_depth > 0.0)
+    }
+
+    /// Voxels within the validated optical depth.
+    pub fn depth_within(&self) -> bool {
+        self.voxel_depth <= self.rule.max_voxel_depth * 1.001 && !self.too_thin()
+    }
+
+    /// Outside the range by enough to warn: too few voxels across, voxels past
+    /// `warn_voxel_depth`, or (lbl) a medium too thin for any grid to give both enough voxels
+    /// across and voxels thick enough. A finer or coarser grid within the range only shows in
+    /// the trust line (OUTSIDE).
+    pub fn warns(&self) -> bool {
+        let thin_conflict = self.too_thin() && self.grid_for_min_depth.is_some_and(|m| m < self.grid_for_across);
+        !self.across_within() || self.voxel_depth > self.rule.warn_voxel_depth * 1.001 || thin_conflict
+    }
+
+    /// The grid resolves the medium as the solver was validated.
     pub fn within(&self) -> bool {
-        self.fewest() >= self.validated_across - 1e-3
+        self.across_within() && self.depth_within()
     }
 
     /// The one-line figure for a render's summary.
     pub fn line(&self) -> String {
         let [x, y, z] = self.voxels_across;
+        let r = &self.rule;
         format!(
-            "grid trust: {x:.1} x {y:.1} x {z:.1} voxels across the medium (validated at >= {} across every side{}), \
-             {:.3} mean free paths per voxel at most",
-            self.validated_across,
-            if self.within() { "" } else { ": OUTSIDE" },
-            self.voxel_optical_depth
+            "grid trust: {x:.1} x {y:.1} x {z:.1} voxels across the medium, {:.3} {}mean free paths per voxel at most \
+             (validated at >= {} across every side and {}{} per voxel){}",
+            self.voxel_depth,
+            if r.min_voxel_depth.is_some() { "reduced " } else { "" },
+            r.min_across,
+            r.min_voxel_depth.map_or(String::new(), |m| format!("{m}-")),
+            r.max_voxel_depth,
+            if self.within() { "" } else { ": OUTSIDE" }
         )
     }
 
-    /// The warning a render outside the validated range carries, naming the knob to change
-    /// (`<solver>.grid`) and the error measured on a thin slab at about as few voxels across
-    /// ([`SLAB_ENERGY`]), or None within the range.
-    pub fn warning(&self, solver: &str) -> Option<String> {
-        (!self.within()).then(|| {
-            let measured = SLAB_ENERGY.iter().find(|(s, _)| *s == solver).and_then(|(_, points)| {
-                // The measured point with the most voxels across at or below this render's (the
-                // fewest measured where it has fewer still).
-                points.iter().rev().find(|(across, _)| *across <= self.fewest() + 1e-3).or(points.first())
-            });
-            format!(
-                "{solver}: the medium's thinnest side ({}) spans {:.1} voxels, below the {} across at which {solver} \
-                 was validated{}; set {solver}.grid={} (voxels along the longest side) for {} across",
-                ["x", "y", "z"][self.thinnest_axis],
+    /// The measured energy range nearest this render's discretisation, as words.
+    fn measured(&self) -> String {
+        match nearest(self.rule.measured, self.fewest(), self.voxel_depth) {
+            Some((across, depth, lo, hi)) if lo == hi => format!(
+                "; on slabs, {} at {across} voxels across and {depth} mean free paths per voxel gave {lo:.2}x the energy \
+                 of path",
+                self.rule.solver
+            ),
+            Some((across, depth, lo, hi)) => format!(
+                "; on slabs, {} at {across} voxels across and {depth} mean free paths per voxel gave {lo:.2}-{hi:.2}x \
+                 the energy of path",
+                self.rule.solver
+            ),
+            None => String::new(),
+        }
+    }
+
+    /// The warning a render outside the validated range carries (None within it): what falls
+    /// outside, the error measured nearest it on the slabs, and the knob's value that fixes it,
+    /// or that no grid can (a medium too thin for the lattice's voxels, or one whose fix is
+    /// past 512).
+    pub fn warning(&self) -> Option<String> {
+        if !self.warns() {
+            return None;
+        }
+        let r = &self.rule;
+        let s = r.solver;
+        let axis = ["x", "y", "z"][self.thinnest_axis];
+        let mut parts = Vec::new();
+        if !self.across_within() {
+            parts.push(format!(
+                "the medium's thinnest side ({axis}) spans {:.1} voxels, below the {} across",
                 self.fewest(),
-                self.validated_across,
-                match measured {
-                    Some((across, energy)) => format!(
-                        " (on a slab 2 mean free paths thick, {solver} at {across} voxels across gave {energy:.2}x the \
-                         energy of path)"
-                    ),
-                    None => String::new(),
-                },
-                self.grid_for_validated,
-                self.validated_across
+                r.min_across
+            ));
+        }
+        if self.voxel_depth > r.max_voxel_depth * 1.001 {
+            parts.push(format!(
+                "a voxel is {:.3} {}mean free paths thick, above the {}",
+                self.voxel_depth,
+                if r.min_voxel_depth.is_some() { "reduced " } else { "" },
+                r.max_voxel_depth
+            ));
+        }
+        if let Some(m) = r.min_voxel_depth.filter(|_| self.too_thin()) {
+            parts.push(format!("a voxel is {:.3} reduced mean free paths thick, below the {m}", self.voxel_depth));
+        }
+        // The grid that fixes every part, where one exists within the knob's range.
+        let low = self.grid_for_across.max(self.grid_for_depth);
+        let high = self.grid_for_min_depth.unwrap_or(u32::MAX).min(512);
+        let fix = if low <= high {
+            format!("set {s}.grid={low} (voxels along the longest side)")
+        } else if self.grid_for_min_depth.is_some_and(|m| m < self.grid_for_across) {
+            format!(
+                "the medium is too thin for {s}'s lattice: no grid gives {} voxels across and voxels of at least {} \
+                 reduced mean free paths; use dom or path",
+                r.min_across,
+                r.min_voxel_depth.unwrap_or(0.0)
             )
-        })
+        } else {
+            format!("no grid up to 512 serves ({s}.grid={low} would be needed, past 512); expect the error above, or use path")
+        };
+        Some(format!("{s}: {}, at which {s} was validated{}; {fix}", parts.join(", and "), self.measured()))
     }
 }

@@ -6,7 +6,7 @@
 //! [`Diffuser::iterate`] runs it to convergence. Used by `lbl`.
 
 mod geom;
-pub use geom::{GridTrust, LatticeGeom, VALIDATED_ACROSS};
+pub use geom::{GridRule, GridTrust, LatticeGeom, DOM_GRID, LBL_GRID};
 
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;

@@ -1,0 +1,113 @@
+//! The grid solvers on shapes, not only cubes and spheres (issue 44, item 3): at their fitted
+//! default grids `dom` (and, where it holds, `lbl`) against `path` on a wide thin slab, an elongated box (10:1:1)
+//! and the cloud squashed to a layer (10:10:1); a very thick medium's warning is in
+//! tests/trust_tests.rs. Each render is either
+//! within its solver's validated range (its trust line) and then within 5% of path's energy,
+//! or it carries the trust warning naming what it lacks: asserted, case by case, which.
+
+use crate::common::{assert_clean, gpu, judge, repo_scene, scene, try_render, LBL};
+use scatterlab::scene::Scene;
+use scatterlab::solvers::dom::DomStats;
+use scatterlab::solvers::lbl::LblStats;
+use scatterlab::solvers::parts::lattice::GridTrust;
+use scatterlab::solvers::{self, RenderOutput};
+
+/// A homogeneous box `ext` (centred at the origin) of extinction `sigma_t`, albedo `albedo`,
+/// isotropic, lit straight down and seen from above through an orthographic window 1 unit
+/// wide at its centre.
+fn boxed(ext: [f32; 3], sigma_t: f32, albedo: f32) -> Scene {
+    let [x, y, z] = ext.map(|e| e / 2.0);
+    scene(&format!(
+        "[render]\nwidth = 8\nheight = 8\nseed = 5\nspp = 512\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.0, 20.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, -1.0]\n\
+         extent = 1.0\n\
+         [medium]\nbounds = [[-{x}, -{y}, -{z}], [{x}, {y}, {z}]]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = 0.0\n\
+         density = {{ kind = \"constant\" }}\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 1.0\n"
+    ))
+}
+
+fn trust(name: &str, o: &RenderOutput) -> GridTrust {
+    match name {
+        "dom" => o.report.detail::<DomStats>().expect("dom stats").trust,
+        _ => o.report.detail::<LblStats>().expect("lbl stats").trust,
+    }
+}
+
+/// Render `s` with each of `solvers` ("dom", "lbl") at its defaults and judge it: `warns` says
+/// whether its trust line must warn (else: within its range and 5% of path's energy).
+fn judge_shape(gpu: &scatterlab::gpu::Gpu, what: &str, s: &Scene, solvers: &[(&str, bool)]) {
+    let reference = crate::common::render(gpu, s, solvers::find("path").expect("path"), &[]);
+    for &(name, warns) in solvers {
+        let solver = if name == "lbl" { LBL } else { solvers::find(name).expect("registered") };
+        let out = try_render(gpu, s, solver, &[], false).unwrap_or_else(|e| panic!("{what}, {name}: {e}"));
+        let t = trust(name, &out);
+        let (rel, energy) = judge(&out.image, &reference);
+        eprintln!(
+            "{what}: {name} grid {} dims {:?} -> {:.1} across, {:.3} mfp per voxel: energy {energy:.3}, relL2 {rel:.3}, \
+             warnings {:?}",
+            t.grid,
+            out.report.detail::<DomStats>().map(|d| d.grid.dims).or(out.report.detail::<LblStats>().map(|l| l.lattice.dims)),
+            t.fewest(),
+            t.voxel_depth,
+            out.report.warnings
+        );
+        assert_eq!(out.image.nan_inf_count(), 0, "{what}, {name}");
+        assert_eq!(t.warns(), warns, "{what}, {name}: expected {}a warning: {t:?}", if warns { "" } else { "no " });
+        if warns {
+            assert!(
+                out.report.warnings.iter().any(|w| w.starts_with(&format!("{name}: ")) && w.contains("validated")),
+                "{what}, {name}: the trust warning: {:?}",
+                out.report.warnings
+            );
+        } else {
+            assert!(out.report.warnings.is_empty(), "{what}, {name}: {:?}", out.report.warnings);
+            assert!((energy - 1.0).abs() <= 0.05, "{what}, {name}: energy {energy:.3} of path's at {t:?}");
+        }
+    }
+}
+
+/// A slab 16 x 0.5 x 16, 2 mean free paths thick (albedo 0.8): counted along the longest side,
+/// dom's default gave 1 voxel across it; fitted, it gets 128 x 4 x 128 (0.990 of path's energy
+/// on lavapipe). lbl is not asserted: at its default 64 (2 across, 1.0 reduced mean free paths
+/// a voxel: OUTSIDE its 0.6, below its warning's 1.2) it gave 1.062, and at 107 (3.3 across)
+/// 1.626 (docs/decisions.md).
+#[test]
+fn a_wide_thin_slab_at_the_fitted_grids() {
+    let gpu = gpu();
+    judge_shape(&gpu, "slab 16 x 0.5 x 16, 2 mfp", &boxed([16.0, 0.5, 16.0], 4.0, 0.8), &[("dom", false)]);
+    assert_clean(&gpu);
+}
+
+/// A box 10 x 1 x 1 (sigma_t 2, albedo 0.9), seen along its short side from above: dom at 40 x
+/// 4 x 4 voxels. (lbl, at 64 x 7 x 7 and 0.31 reduced mean free paths a voxel, within its
+/// range, gives 1.13x path's energy: its range's lower bound is too generous on hard-edged
+/// media, docs/decisions.md; not asserted until that is fixed.)
+#[test]
+fn an_elongated_box_at_the_fitted_grids() {
+    let gpu = gpu();
+    judge_shape(&gpu, "box 10 x 1 x 1", &boxed([10.0, 1.0, 1.0], 2.0, 0.9), &[("dom", false)]);
+    assert_clean(&gpu);
+}
+
+/// The cloud squashed to a layer 2 x 0.2 x 2 (sigma_t 30: about as many mean free paths
+/// through it as the cloud has across): dom at 120 x 12 x 120 (0.972 of path's energy). lbl,
+/// within its range at 64 x 7 x 64 (6.4 across, 0.40 per voxel), gave 1.188: not asserted
+/// until fixed (docs/decisions.md).
+#[test]
+fn the_cloud_squashed_to_a_layer() {
+    let gpu = gpu();
+    let s = repo_scene(
+        "scenes/cloud.toml",
+        &[
+            ("medium.bounds", "[[-1.0, -0.1, -1.0], [1.0, 0.1, 1.0]]"),
+            ("medium.sigma_t", "30.0"),
+            ("camera.origin", "[0.0, 4.0, 2.0]"),
+            ("render.width", "12"),
+            ("render.height", "12"),
+            ("render.spp", "256"),
+        ],
+    );
+    judge_shape(&gpu, "cloud 10:10:1", &s, &[("dom", false)]);
+    assert_clean(&gpu);
+}
