@@ -70,11 +70,10 @@ pub struct GridRule {
     /// `max_voxel_depth` already): where the measured error passes ~2x on the deep
     /// transmission and ~15% on reflection.
     pub warn_voxel_depth: f32,
-    /// Whether the default grid is raised for voxels of `max_voxel_depth` at most (dom). lbl
-    /// keeps its own depth rule ([`crate::solvers::lbl::default_grid`]): raised for depth on a
-    /// 16 x 0.5 x 16 slab 2 mean free paths thick, its grid 107 put 3.3 voxels across (the last
-    /// one part outside the medium) and gave 1.63x path's energy, against 1.06x at 64 (2 whole
-    /// voxels across, 1.0 per voxel); docs/decisions.md.
+    /// Whether the default grid is raised for voxels of `max_voxel_depth` at most (both; lbl's
+    /// own rule, [`crate::solvers::lbl::default_grid`], stops at 64 along the longest side: on a
+    /// 16 x 0.5 x 16 slab 2 mean free paths thick that is 1.0 per voxel and 1.06x path's energy,
+    /// fitted 128, 0.5 per voxel, 0.98x).
     pub fit_depth: bool,
     /// The most voxels a default grid holds.
     pub max_voxels: u64,
@@ -118,7 +117,7 @@ pub const LBL_GRID: GridRule = GridRule {
     max_voxel_depth: 0.6,
     min_voxel_depth: Some(0.25),
     warn_voxel_depth: 1.2,
-    fit_depth: false,
+    fit_depth: true,
     max_voxels: 128 * 128 * 128,
     measured: &[
         (1.28, 1.56, 2.097, 2.097),
@@ -167,7 +166,21 @@ impl GridRule {
             if self.fit_depth { (self.voxel_depth(scene, longest) / self.max_voxel_depth - 1e-3).ceil() } else { 0.0 };
         // f32 -> u32 saturates (and drops a NaN to 0).
         let want = (across.max(depth).min(cap as f32) as u32).max(base);
-        (base..=want).rev().find(|&g| LatticeGeom::new(scene, g).voxels() <= self.max_voxels).unwrap_or(base)
+        let fits = |g: u32| LatticeGeom::new(scene, g).voxels() <= self.max_voxels;
+        let want = (base..=want).rev().find(|&g| fits(g)).unwrap_or(base);
+        // Whole voxels across the thinnest side where a grid up to a quarter finer gives them
+        // (within 5% of a voxel): the medium's boundary then lies on voxel faces, where the
+        // lattice's boundary treatment sits (a slab 2 mfp thick, lbl at 3.1 / 3.3 voxels across:
+        // 1.15 / 1.05 of path's energy, at 3 or 4 across 1.00 / 0.98).
+        let ratio = thinnest / longest;
+        let whole = |g: u32| {
+            let n = g as f32 * ratio;
+            (n - n.round()).abs() < 0.05 && n.round() >= 1.0
+        };
+        if whole(want) {
+            return want;
+        }
+        (want..=(want + want / 4).min(cap)).find(|&g| whole(g) && fits(g)).unwrap_or(want)
     }
 }
 
