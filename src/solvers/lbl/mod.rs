@@ -709,27 +709,13 @@ const GRID_MIN_VOXEL_TAU: f32 = 0.25;
 const GRID_MIN: u32 = 32;
 const GRID_MAX: u32 = 64;
 
-/// The largest reduced extinction sigma_t (1 - albedo g) (1/unit, max over channels, the
-/// lattice's transport coefficient: docs/lbl.md) of the medium and of every object's
-/// material, times the largest density.
-pub fn max_reduced_sigma_t(scene: &Scene) -> f32 {
-    let reduced = |st: glam::Vec3, albedo: glam::Vec3, g: f32| (st * (glam::Vec3::ONE - albedo * g)).max_element();
-    let medium = reduced(scene.medium.sigma_t, scene.medium.albedo, scene.medium.g);
-    let materials = scene.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
-    let largest = materials
-        .iter()
-        .map(|m| reduced(m.sigma_t, m.albedo, m.g))
-        .fold(if scene.object.is_some() { 0.0 } else { medium }, f32::max);
-    largest * scene.max_density()
-}
-
 /// The default `lbl.grid`: voxels of reduced optical thickness at least
 /// [`GRID_MIN_VOXEL_TAU`] at the medium's densest, in multiples of 8 (the block edge) within
 /// [`GRID_MIN`]..=[`GRID_MAX`].
 pub fn default_grid(scene: &Scene) -> u32 {
     let side = (scene.medium.bounds_max - scene.medium.bounds_min).max_element();
     // An optical length beyond f32 saturates at GRID_MAX (f32::min also drops a NaN).
-    let t = max_reduced_sigma_t(scene) * side;
+    let t = lattice::max_reduced_sigma_t(scene) * side;
     let fit = 8 * (t / (8.0 * GRID_MIN_VOXEL_TAU)).floor().min(GRID_MAX as f32) as u32;
     fit.clamp(GRID_MIN, GRID_MAX)
 }

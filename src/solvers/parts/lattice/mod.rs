@@ -6,7 +6,7 @@
 //! [`Diffuser::iterate`] runs it to convergence. Used by `lbl`.
 
 mod geom;
-pub use geom::{GridRule, GridTrust, LatticeGeom, DOM_GRID, LBL_GRID};
+pub use geom::{max_reduced_sigma_t, GridRule, GridTrust, LatticeGeom, DOM_GRID, LBL_GRID};
 
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
