@@ -58,7 +58,7 @@ pub fn max_reduced_sigma_t(scene: &Scene) -> f32 {
 /// until the thinnest side spans `min_across` voxels and (dom) a voxel is at most
 /// `max_voxel_depth` mean free paths thick, but never past `max_voxels` voxels (the budget a
 /// default may spend: set the knob to go past it). What the fit cannot reach, the trust line
-/// says ([`GridTrust::warnings`]).
+/// says ([`GridTrust::warning`]).
 ///
 /// The figures are measured on lavapipe against `path` (1024 spp) on wide slabs lit normally
 /// (sigma_t 1, optical thickness 0.5 / 2 / 8, albedo 0.8 / 0.99, g 0 / 0.6, reflected and
@@ -87,11 +87,9 @@ pub struct GridRule {
     /// tests/lbl.rs), while the slab's transmission is 1.3-2.4x at 1-2 and the sphere of
     /// sigma_t 160 (2.5 a voxel) 0.90 of path's energy, of sigma_t 640 (10) 0.83.
     pub warn_voxel_depth: f32,
-    /// Whether the default grid is raised for voxels of `max_voxel_depth` at most (both; lbl's
-    /// own rule, `lbl::default_grid`, stops at 64 along the longest side: on a
-    /// 16 x 0.5 x 16 slab 2 mean free paths thick that is 1.0 per voxel and 1.06x path's energy,
-    /// fitted 128, 0.5 per voxel, 0.98x).
-    pub fit_depth: bool,
+    /// Whether a voxel's depth is judged in reduced extinction sigma_t (1 - albedo g) (lbl: its
+    /// lattice's transport coefficient) rather than extinction (dom).
+    pub reduced: bool,
     /// The most voxels a default grid holds.
     pub max_voxels: u64,
     /// What the solver gave at (voxels across, optical depth per voxel) on the slabs: the
@@ -110,7 +108,7 @@ pub const DOM_GRID: GridRule = GridRule {
     max_voxel_depth: 0.5,
     min_voxel_depth: None,
     warn_voxel_depth: 2.0,
-    fit_depth: true,
+    reduced: false,
     max_voxels: 64 * 64 * 64,
     measured: &[
         (0.64, 3.1, 0.829, 0.829),
@@ -134,15 +132,19 @@ pub const LBL_GRID: GridRule = GridRule {
     max_voxel_depth: 0.6,
     min_voxel_depth: Some(0.25),
     warn_voxel_depth: 3.0,
-    fit_depth: true,
+    reduced: true,
     max_voxels: 128 * 128 * 128,
     measured: &[
         (1.28, 1.56, 2.097, 2.097),
         (2.0, 0.25, 0.899, 1.093),
-        (2.0, 1.0, 0.990, 8.84),
+        (2.0, 1.0, 1.029, 1.068),
+        (2.0, 4.0, 0.990, 8.84),
         (4.0, 0.125, 1.138, 2.132),
         (4.0, 0.5, 0.967, 1.047),
+        (4.0, 2.0, 1.091, 2.44),
         (8.0, 0.0625, 1.277, 2.738),
+        (8.0, 0.25, 1.022, 1.128),
+        (8.0, 1.0, 1.066, 1.34),
         (16.0, 0.5, 1.000, 1.072),
     ],
 };
@@ -160,29 +162,35 @@ impl GridRule {
     /// largest extinction (lbl: reduced extinction) over channels and materials times the
     /// largest density.
     pub fn voxel_depth(&self, scene: &Scene, lambda: f32) -> f32 {
-        let sigma = if self.min_voxel_depth.is_some() {
-            max_reduced_sigma_t(scene)
-        } else {
-            scene.max_sigma_t() * scene.max_density()
-        };
+        let sigma = if self.reduced { max_reduced_sigma_t(scene) } else { scene.max_sigma_t() * scene.max_density() };
         sigma * lambda
     }
 
+    /// The grid knob's value (voxels along the longest side) that puts `min_across` voxels
+    /// across the medium box's thinnest side (unrounded past the ceiling: f32).
+    fn grid_for_across(&self, scene: &Scene) -> f32 {
+        let ext = scene.medium.bounds_max - scene.medium.bounds_min;
+        (self.min_across * ext.max_element() / ext.min_element() - 1e-3).ceil()
+    }
+
+    /// The grid knob's value for voxels of `max_voxel_depth` at most.
+    fn grid_for_depth(&self, scene: &Scene) -> f32 {
+        let longest = (scene.medium.bounds_max - scene.medium.bounds_min).max_element();
+        (self.voxel_depth(scene, longest) / self.max_voxel_depth - 1e-3).ceil()
+    }
+
     /// The default grid (voxels along the longest side) for `scene`, from the solver's own
-    /// default `base`: raised for `min_across` voxels across the thinnest side and (where
-    /// `fit_depth`) voxels of at most `max_voxel_depth`, held to `max_voxels` and to `cap` (the
-    /// knob's range), never below `base`.
+    /// default `base`: raised for `min_across` voxels across the thinnest side and voxels of at
+    /// most `max_voxel_depth`, held to `max_voxels` and to `cap` (the knob's range), never below
+    /// `base`.
     pub fn fitted_grid(&self, scene: &Scene, base: u32, cap: u32) -> u32 {
         let ext = scene.medium.bounds_max - scene.medium.bounds_min;
         let (longest, thinnest) = (ext.max_element(), ext.min_element());
         if !(thinnest > 0.0 && longest.is_finite()) {
             return base;
         }
-        let across = (self.min_across * longest / thinnest - 1e-3).ceil();
-        let depth =
-            if self.fit_depth { (self.voxel_depth(scene, longest) / self.max_voxel_depth - 1e-3).ceil() } else { 0.0 };
         // f32 -> u32 saturates (and drops a NaN to 0).
-        let want = (across.max(depth).min(cap as f32) as u32).max(base);
+        let want = (self.grid_for_across(scene).max(self.grid_for_depth(scene)).min(cap as f32) as u32).max(base);
         let fits = |g: u32| LatticeGeom::new(scene, g).voxels() <= self.max_voxels;
         let want = (base..=want).rev().find(|&g| fits(g)).unwrap_or(base);
         // Whole voxels across the thinnest side where a grid up to a quarter finer gives them
@@ -203,7 +211,7 @@ impl GridRule {
 
 /// How finely a grid resolves the medium, against what the solver was validated at
 /// ([`GridRule`]): the trust line of a grid solver's render (its JSON `trust` block, its
-/// summary line, and the warnings of [`GridTrust::warnings`] where it falls outside).
+/// summary line, and the warnings of [`GridTrust::warning`] where it falls outside).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct GridTrust {
     /// The rule the render is judged by.
@@ -244,17 +252,16 @@ impl LatticeGeom {
         let ext = scene.medium.bounds_max - scene.medium.bounds_min;
         let voxels_across = [0, 1, 2].map(|a| ext[a] / self.lambda);
         let thinnest_axis = (0..3).min_by(|&a, &b| voxels_across[a].total_cmp(&voxels_across[b])).unwrap_or(0);
-        let longest = ext.max_element();
         let sat = |v: f32| v.max(1.0).min(u32::MAX as f32) as u32;
-        let unit_depth = rule.voxel_depth(scene, longest);
+        let unit_depth = rule.voxel_depth(scene, ext.max_element());
         GridTrust {
             rule: *rule,
             grid,
             voxels_across,
             thinnest_axis,
             voxel_depth: rule.voxel_depth(scene, self.lambda),
-            grid_for_across: sat((rule.min_across * longest / ext[thinnest_axis] - 1e-3).ceil()),
-            grid_for_depth: sat((unit_depth / rule.max_voxel_depth - 1e-3).ceil()),
+            grid_for_across: sat(rule.grid_for_across(scene)),
+            grid_for_depth: sat(rule.grid_for_depth(scene)),
             grid_for_min_depth: rule
                 .min_voxel_depth
                 .filter(|_| hard_edged(scene))
@@ -307,7 +314,7 @@ impl GridTrust {
             "grid trust: {x:.1} x {y:.1} x {z:.1} voxels across the medium, {:.3} {}mean free paths per voxel at most \
              (validated at >= {} across every side and {}{} per voxel){}",
             self.voxel_depth,
-            if r.min_voxel_depth.is_some() { "reduced " } else { "" },
+            if r.reduced { "reduced " } else { "" },
             r.min_across,
             r.min_voxel_depth.map_or(String::new(), |m| format!("{m}-")),
             r.max_voxel_depth,
@@ -317,19 +324,15 @@ impl GridTrust {
 
     /// The measured energy range nearest this render's discretisation, as words.
     fn measured(&self) -> String {
-        match nearest(self.rule.measured, self.fewest(), self.voxel_depth) {
-            Some((across, depth, lo, hi)) if lo == hi => format!(
-                "; on slabs, {} at {across} voxels across and {depth} mean free paths per voxel gave {lo:.2}x the energy \
-                 of path",
-                self.rule.solver
-            ),
-            Some((across, depth, lo, hi)) => format!(
-                "; on slabs, {} at {across} voxels across and {depth} mean free paths per voxel gave {lo:.2}-{hi:.2}x \
-                 the energy of path",
-                self.rule.solver
-            ),
-            None => String::new(),
-        }
+        let Some((across, depth, lo, hi)) = nearest(self.rule.measured, self.fewest(), self.voxel_depth) else {
+            return String::new();
+        };
+        let range = if lo == hi { format!("{lo:.2}") } else { format!("{lo:.2}-{hi:.2}") };
+        format!(
+            "; on slabs, {} at {across} voxels across and {depth} mean free paths per voxel gave {range}x the energy of \
+             path",
+            self.rule.solver
+        )
     }
 
     /// The warning a render outside the validated range carries (None within it): what falls
@@ -355,7 +358,7 @@ impl GridTrust {
             parts.push(format!(
                 "a voxel is {:.3} {}mean free paths thick, above the {}",
                 self.voxel_depth,
-                if r.min_voxel_depth.is_some() { "reduced " } else { "" },
+                if r.reduced { "reduced " } else { "" },
                 r.max_voxel_depth
             ));
         }
