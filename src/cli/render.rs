@@ -27,6 +27,12 @@ pub fn render(a: RenderArgs) -> Result<()> {
     if let Some(why) = solver.mesh_refusal(&scene) {
         bail!("{}: {why}", a.scene.display());
     }
+    // What the discretisation is known to miss, said before any work (the render's report
+    // carries the same lines; they are not printed twice).
+    let early = solver.preflight(&scene, &settings.knobs(solver.name(), solver.knobs())?)?;
+    for w in &early {
+        eprintln!("warning: {w}");
+    }
     let provenance = provenance(&a, solver, &scene, &overrides)?;
     let gpu = open_gpu(&a)?;
     let (out, comparison) = run(&gpu, solver, &scene, &settings, &a)?;
@@ -46,7 +52,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let timeline = timeline::summarize(&out.report.passes);
     let exposure = a.exposure.unwrap_or(scene.render.exposure);
     write_outputs(&a, &provenance, exposure, &gpu, &out, &timeline, comparison.as_ref(), wall_s)?;
-    print_summary(&a, exposure, solver, gpu.info(), &out, &timeline, comparison.as_ref(), wall_s);
+    print_summary(&a, exposure, solver, gpu.info(), &out, &timeline, comparison.as_ref(), (wall_s, &early));
     Ok(())
 }
 
@@ -351,10 +357,10 @@ fn print_summary(
     out: &RenderOutput,
     timeline: &TimelineSummary,
     comparison: Option<&ScheduleComparison>,
-    wall_s: f64,
+    (wall_s, printed): (f64, &[String]),
 ) {
     let r = &out.report;
-    for w in &r.warnings {
+    for w in r.warnings.iter().filter(|w| !printed.contains(w)) {
         eprintln!("warning: {w}");
     }
     if a.quiet {

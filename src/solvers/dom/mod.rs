@@ -25,6 +25,7 @@
 //!
 
 pub mod blocks;
+pub mod directions;
 pub mod ordinates;
 
 use serde::Serialize;
@@ -35,6 +36,7 @@ use crate::physics::quadrature::Quadrature;
 use crate::scene::{CameraKind, Medium, Scene};
 
 use self::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MAX_BLOCK};
+use self::directions::DirectionsTrust;
 use self::ordinates::{BeamGroup, Eye, Slab, SweepSetup, Sweeper};
 use crate::solvers::interface::{
     Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung,
@@ -65,6 +67,9 @@ pub struct DomStats {
     pub grid: LatticeGeom,
     /// How finely the grid resolves the medium, against what dom was validated at.
     pub trust: GridTrust,
+    /// How the swept and stored directions resolve the phase function, against what dom was
+    /// validated with.
+    pub directions_trust: DirectionsTrust,
     pub quadrature: String,
     pub directions: usize,
     /// The storage set (`1`: isotropic) and its size M.
@@ -136,16 +141,9 @@ impl DomSettings {
         // or optically thick medium, within DOM_GRID's budget.
         let grid: u32 = k.get_or("grid", DOM_GRID.fitted_grid(scene, 32, 512))?;
         let name: String = k.get("directions")?;
-        // s6 resolves moderate anisotropy (the g 0.7 cube: energy 1.006 of path); a peaked
-        // phase function needs more directions (g 0.9: the twice-scattered light is 1.5x
-        // path's at s6, 1.16x at s8, 1.04x at product-8x16; docs/dom.md); at g 0.99 product-8x16
-        // still put the stability case 0.8% over the lossless bound, product-16x32 does not.
-        let name = match name.as_str() {
-            "auto" if scene.medium.g.abs() >= 0.95 => "product-16x32".to_string(),
-            "auto" if scene.medium.g.abs() >= 0.8 => "product-8x16".to_string(),
-            "auto" => "s6".to_string(),
-            _ => name,
-        };
+        // s6 resolves moderate anisotropy, a peaked phase function needs more directions
+        // (directions::DIRECTIONS_FOR_G, the table the trust line judges by).
+        let name = if name == "auto" { directions::auto_set(scene.medium.g).to_string() } else { name };
         let quadrature = Quadrature::named(&name).map_err(|e| k.invalid("directions", e))?;
         let stored: String = k.get("storage")?;
         // Model only what the scene needs: an isotropic medium scatters the same way into every
@@ -379,6 +377,7 @@ fn dom_stats(
         ));
     }
     report.warnings.extend(ds.trust.warning());
+    report.warnings.extend(ds.directions_trust.warning());
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
     let sweep_ms = ds.sweep_ms;
@@ -1109,6 +1108,7 @@ impl Solver for Dom {
         let ds = DomStats {
             grid: geom,
             trust: geom.trust(scene, set.grid, &DOM_GRID),
+            directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
             quadrature: set.quadrature.name.clone(),
             directions: set.quadrature.len(),
             storage: set.storage.name.clone(),
@@ -1234,6 +1234,15 @@ impl Solver for Dom {
         Some(("copies", "compute", "transfer"))
     }
 
+    fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        let set = DomSettings::parse(knobs, scene)?;
+        let grid = set.geom.trust(scene, set.grid, &DOM_GRID).warning();
+        Ok(grid
+            .into_iter()
+            .chain(DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage).warning())
+            .collect())
+    }
+
     /// Over the grid and the number of directions N (issue 13's ladder), cheapest first: level-
     /// symmetric sets where s6 resolves the phase function, product sets where |g| >= 0.8
     /// (as `dom.directions=auto` picks).
@@ -1294,6 +1303,7 @@ impl Solver for Dom {
             s.sweep_ms
         )];
         lines.push(format!("dom: {}", s.trust.line()));
+        lines.push(format!("dom: {}", s.directions_trust.line()));
         if let Some(st) = &s.streaming {
             lines.push(format!(
                 "dom: blocks of {}^3: {} blocks, pool {} slots of {} KiB ({}), {} uploads ({} waiting for the sweep \

@@ -61,6 +61,13 @@ pub trait Solver: Sync {
     fn ladder(&self, scene: &Scene) -> Vec<Rung>;
     /// How `stability` runs it: at least one variant; each judged separately.
     fn stability(&self) -> Vec<Variant>;
+    /// The render's trust warnings that the scene and the knobs decide before any work: a
+    /// discretisation outside what the solver was validated for, named with the knob that
+    /// fixes it (a solver that cannot serve the scene says so before it runs). `render` prints
+    /// them first; the render's report carries the same lines among its warnings.
+    fn preflight(&self, _scene: &Scene, _knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        Ok(Vec::new())
+    }
     /// Why the method does not apply to this scene, if it does not (`bench` skips it there
     /// and says why, rather than plotting another solver's result under its name).
     fn inapplicable(&self, scene: &Scene) -> Option<String> {

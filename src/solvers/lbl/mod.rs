@@ -233,6 +233,11 @@ impl Solver for Lbl {
         Ok(Some(Box::new(LblAnimation { knobs, set, converge })))
     }
 
+    fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        let set = LblSettings::parse(knobs, scene)?;
+        Ok(set.geom.trust(scene, set.grid, &lattice::LBL_GRID).warning().into_iter().collect())
+    }
+
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
         let set = LblSettings::parse(knobs, scene)?;
         let geom = set.geom;

@@ -199,6 +199,8 @@ pub struct NetworksStats {
     pub window: u32,
     /// A particle's opacity across a window pixel (rgb).
     pub opacity: [f64; 3],
+    /// The particles' spacing against the mean free path, against what networks was validated at.
+    pub trust: ParticleTrust,
     /// b: a particle's radius (scene units), the splats' footprint width at networks.footprint 1.
     pub particle_radius: f64,
     pub iterations: u32,
@@ -331,6 +333,7 @@ impl Networks {
             directions: set.directions,
             window: net.window.m,
             opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
+            trust: ParticleTrust::new(scene, &net.particles, set.particles),
             particle_radius: net.particle_radius(),
             iterations: c.iterations,
             converged: c.converged,
@@ -384,6 +387,7 @@ impl Networks {
                 img.dropped
             ));
         }
+        report.warnings.extend(ParticleTrust::new(scene, &net.particles, set.particles).warning());
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
     }
@@ -596,9 +600,17 @@ impl Solver for Networks {
         ))
     }
 
+    fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        let n: u32 = knobs.get("particles")?;
+        let particles = Particles::sample(scene, n, scene.render.seed)?;
+        Ok(ParticleTrust::new(scene, &particles, n).warning().into_iter().collect())
+    }
+
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<NetworksStats>() else { return Vec::new() };
-        vec![format!(
+        let trust = format!("networks: {}", s.trust.line());
+        vec![
+            format!(
             "networks: {} particles x {} directions, {}x{} windows (particle opacity {:.2}), {} iterations ({}, change \
              {:.1e}); network {:.0} ms, iteration {:.0} ms, image {:.0} ms",
             s.particles,
@@ -612,6 +624,8 @@ impl Solver for Networks {
             s.build_ms,
             s.iterate_ms,
             s.image_ms
-        )]
+        ),
+            trust,
+        ]
     }
 }

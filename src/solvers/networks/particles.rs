@@ -48,6 +48,127 @@ pub struct Particles {
     /// The volume where the density is non-zero (scene units^3), estimated on the same lattice
     /// as the integral.
     pub occupied: f64,
+    /// The mass-weighted mean of density^(2/3) and the largest density (both on the same
+    /// lattice): what [`ParticleTrust`] turns into mean free paths per particle spacing.
+    pub density_23: f64,
+    pub density_max: f64,
+}
+
+/// The density's integral (scene units^3), the volume where it is non-zero, the mass-weighted
+/// mean of density^(2/3) and the largest density, by the midpoint rule on a 96^3 lattice of the
+/// medium's bounds.
+fn measure(scene: &Scene) -> (f64, f64, f64, f64) {
+    let m = &scene.medium;
+    let (lo, size) = (m.bounds_min, m.bounds_max - m.bounds_min);
+    const LATTICE: u32 = 96;
+    let (mut sum, mut sum_53, mut occupied, mut max) = (0f64, 0f64, 0u64, 0f64);
+    for z in 0..LATTICE {
+        for y in 0..LATTICE {
+            for x in 0..LATTICE {
+                let u = (Vec3::new(x as f32, y as f32, z as f32) + 0.5) / LATTICE as f32;
+                let d = scene.density_at(lo + u * size) as f64;
+                sum += d;
+                sum_53 += d * d.max(0.0).powf(2.0 / 3.0);
+                occupied += (d > 0.0) as u64;
+                max = max.max(d);
+            }
+        }
+    }
+    let cells = (LATTICE as f64).powi(3);
+    let volume = size.x as f64 * size.y as f64 * size.z as f64;
+    (sum / cells * volume, occupied as f64 / cells * volume, sum_53 / sum.max(f64::MIN_POSITIVE), max)
+}
+
+/// The particles' spacing against the medium's mean free path (issue 44, item 2: "particles
+/// per mean free path for networks"): n particles drawn in proportion to the density stand
+/// (m / density)^(1/3) apart where the density is `density` (m a particle's mass), so a spacing
+/// is sigma_t density^(2/3) m^(1/3) mean free paths there. Where it is over about one, a
+/// particle's neighbours lie beyond the light's reach and the network misses the light scattered
+/// twice or more. Measured on the cube (optical thickness 1-20, docs/networks.md, energy / relL2
+/// against path): 0.625 mean free paths a spacing 0.987 / 0.114, 0.99 0.926 / 0.181, 1.57
+/// 0.78-0.99 / 0.26-0.31, 2.5 0.70-0.93 / 0.36-0.55, 4.0 0.70-0.87 / 0.44-0.66 (and the sphere of
+/// sigma_t 1000 at 72: 0.45 of the energy).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ParticleTrust {
+    pub particles: u32,
+    /// Mean free paths across a particle spacing where the particles are (mass-weighted: most
+    /// particles sit there) and at the densest point, in the most opaque channel.
+    pub spacing_depth: f64,
+    pub spacing_depth_max: f64,
+    /// The particles that bring `spacing_depth` to the validated depth (None: past the knob's
+    /// range).
+    pub particles_needed: Option<u32>,
+}
+
+impl ParticleTrust {
+    /// Mean free paths a spacing networks was validated at (the cube of optical thickness 5 at
+    /// 128 particles: 0.99, energy 0.926).
+    pub const VALIDATED: f64 = 1.0;
+    /// Past this, a warning: between the cube's 0.99 (0.926 / 0.181) and 1.57 (down to 0.78 of the
+    /// energy, relL2 up to 0.31: three times networks' published error).
+    pub const WARN: f64 = 1.25;
+    /// `networks.particles`' largest value.
+    pub const MAX_PARTICLES: u32 = 16384;
+
+    pub fn new(scene: &Scene, p: &Particles, n: u32) -> ParticleTrust {
+        let sigma = scene.medium.sigma_t.max_element() as f64;
+        let m13 = p.mass.max(0.0).cbrt();
+        let spacing_depth = sigma * p.density_23 * m13;
+        // The spacing shrinks as n^(-1/3): n (depth / validated)^3 particles bring it down.
+        let want = (n as f64 * (spacing_depth / Self::VALIDATED).powi(3)).ceil();
+        ParticleTrust {
+            particles: n,
+            spacing_depth,
+            spacing_depth_max: sigma * p.density_max.max(0.0).powf(2.0 / 3.0) * m13,
+            particles_needed: (want <= Self::MAX_PARTICLES as f64).then_some(want.max(n as f64) as u32),
+        }
+    }
+
+    pub fn within(&self) -> bool {
+        self.spacing_depth <= Self::VALIDATED * 1.001
+    }
+
+    pub fn warns(&self) -> bool {
+        // A NaN depth (a medium with no density never gets here) would warn too.
+        self.spacing_depth > Self::WARN || self.spacing_depth.is_nan()
+    }
+
+    /// The one-line figure for a render's summary.
+    pub fn line(&self) -> String {
+        format!(
+            "particle trust: a particle spacing is {:.2} mean free paths where the particles are ({:.2} at the densest), \
+             {} particles (validated at <= {} a spacing){}",
+            self.spacing_depth,
+            self.spacing_depth_max,
+            self.particles,
+            Self::VALIDATED,
+            if self.within() { "" } else { ": OUTSIDE" }
+        )
+    }
+
+    /// The warning a render too coarse for its medium carries: the figure, the error measured
+    /// nearest it, and the particle count that fixes it, or that none in range does.
+    pub fn warning(&self) -> Option<String> {
+        if !self.warns() {
+            return None;
+        }
+        let fix = match self.particles_needed {
+            Some(n) => format!("set networks.particles={n}"),
+            None => format!(
+                "no networks.particles up to {} serves (the medium is too dense for the particle model); use lbl, dom \
+                 or path",
+                Self::MAX_PARTICLES
+            ),
+        };
+        Some(format!(
+            "networks: a particle spacing is {:.2} mean free paths where the particles are ({} particles), above the {} \
+             networks was validated at (on the cube of optical thickness 20, 1.6 mean free paths a spacing gave \
+             0.78-0.99 of path's energy and relL2 0.26-0.31, 2.5 gave 0.70-0.93 and 0.36-0.55); {fix}",
+            self.spacing_depth,
+            self.particles,
+            Self::VALIDATED
+        ))
+    }
 }
 
 impl Particles {
@@ -57,21 +178,7 @@ impl Particles {
     pub fn sample(scene: &Scene, n: u32, seed: u64) -> Result<Particles, SolverError> {
         let m = &scene.medium;
         let (lo, size) = (m.bounds_min, m.bounds_max - m.bounds_min);
-        const LATTICE: u32 = 96;
-        let (mut sum, mut occupied) = (0f64, 0u64);
-        for z in 0..LATTICE {
-            for y in 0..LATTICE {
-                for x in 0..LATTICE {
-                    let u = (Vec3::new(x as f32, y as f32, z as f32) + 0.5) / LATTICE as f32;
-                    let d = scene.density_at(lo + u * size) as f64;
-                    sum += d;
-                    occupied += (d > 0.0) as u64;
-                }
-            }
-        }
-        let cells = (LATTICE as f64).powi(3);
-        let volume = size.x as f64 * size.y as f64 * size.z as f64;
-        let integral = sum / cells * volume;
+        let (integral, occupied, density_23, density_max) = measure(scene);
         let max = scene.max_density();
         if integral.is_nan() || integral <= 0.0 || max.is_nan() || max <= 0.0 {
             return Err(SolverError::Unsupported(
@@ -99,7 +206,7 @@ impl Particles {
                 positions.push(p);
             }
         }
-        Ok(Particles { positions, mass: integral / n as f64, occupied: occupied as f64 / cells * volume })
+        Ok(Particles { positions, mass: integral / n as f64, occupied, density_23, density_max })
     }
 }
 
