@@ -648,8 +648,9 @@ fn scene_never_panics_on_odd_input() {
 
 // ---------------------------------------------------------------------------- shipped scenes
 
-const SHIPPED: [&str; 12] = [
+const SHIPPED: [&str; 13] = [
     "homogeneous-sphere.toml",
+    "cloud-layer.toml",
     "anisotropic-cube.toml",
     "cloud.toml",
     "point-light-in-cloud.toml",
