@@ -1383,3 +1383,28 @@ fn render_help_says_what_each_solver_is_for() {
         );
     }
 }
+
+/// A trust warning the scene and knobs decide is said before the work (here before the device
+/// opens: asking for a device that does not exist fails after it) and once only, and the JSON
+/// carries it: networks with 64 particles in a cube 100 mean free paths across.
+#[test]
+fn trust_warnings_come_before_the_work_and_once() {
+    let c = Case::new();
+    let s = c.scene(&base().set("medium.sigma_t", "100.0"));
+    let knobs = ["--solver", "networks", "--set", "networks.particles=64", "--set", "networks.directions=16"];
+    let warned = |o: &Output| {
+        String::from_utf8_lossy(&o.stderr)
+            .lines()
+            .filter(|l| l.starts_with("warning: networks: a particle spacing is") && l.contains("use lbl, dom or path"))
+            .count()
+    };
+    let early = c.run([&c.render_args(&s, &knobs)[..], &["--device".to_string(), "99".to_string()][..]].concat());
+    assert!(!early.status.success(), "the device does not exist");
+    assert_eq!(warned(&early), 1, "{}", String::from_utf8_lossy(&early.stderr));
+    let out = c.render(&s, &knobs);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(warned(&out), 1, "printed once: {}", String::from_utf8_lossy(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&fs::read(c.path("out/x.json")).expect("x.json")).unwrap();
+    let warnings = json["warnings"].as_array().expect("warnings").iter().filter_map(|w| w.as_str()).collect::<Vec<_>>();
+    assert!(warnings.iter().any(|w| w.contains("particle spacing")), "{warnings:?}");
+}

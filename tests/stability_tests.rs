@@ -63,9 +63,10 @@ fn stability_sweep_lbl_hard_requirements() {
         }
         // The thin slab (16:16:1 at the fitted grid), found by the sweep and not fixed
         // (docs/decisions.md): its furnace (albedo 1) draws pixels 1.8% over the environment's
-        // radiance (dom: 1.7%), and forward-scattering (g 0.6, albedo 0.99) 17% over, where the
-        // trust line warns of a thin layer. Held to that, so that a fix, or a worse excess,
-        // shows here.
+        // radiance (dom: 1.7%) from its raymaps' noise (the largest pixel 0.989 at 4x the rays,
+        // the mean 0.98), and forward-scattering (g 0.6, albedo 0.99) 17% over with the mean
+        // over too (1.045), where the trust line warns of a thin layer. Held to that, so that a
+        // fix, or a worse excess, shows here.
         if o.group == "shape" && (o.case.contains("albedo 1,") || o.case.contains("g 0.6")) {
             eprintln!("{}: passed {}, over the bound by {:.4}", o.case, o.passed, o.max_over_bound);
             let (limit, warned) = if o.case.contains("g 0.6") {
