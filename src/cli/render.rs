@@ -52,7 +52,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let timeline = timeline::summarize(&out.report.passes);
     let exposure = a.exposure.unwrap_or(scene.render.exposure);
     write_outputs(&a, &provenance, exposure, &gpu, &out, &timeline, comparison.as_ref(), wall_s)?;
-    print_summary(&a, exposure, solver, gpu.info(), &out, &timeline, comparison.as_ref(), (wall_s, &early));
+    print_summary(&a, exposure, solver, gpu.info(), &out, &timeline, comparison.as_ref(), wall_s, &early);
     Ok(())
 }
 
@@ -346,7 +346,7 @@ fn write_outputs(
     staging.commit().map_err(|e| anyhow!("{e}; nothing was written"))
 }
 
-/// Warnings always; unless `--quiet`, what was modelled, times, the solver's own lines, the
+/// Warnings always (but those `printed` before the work); unless `--quiet`, what was modelled, times, the solver's own lines, the
 /// queues where work ran on more than one role, and what was written.
 #[allow(clippy::too_many_arguments)]
 fn print_summary(
@@ -357,7 +357,8 @@ fn print_summary(
     out: &RenderOutput,
     timeline: &TimelineSummary,
     comparison: Option<&ScheduleComparison>,
-    (wall_s, printed): (f64, &[String]),
+    wall_s: f64,
+    printed: &[String],
 ) {
     let r = &out.report;
     for w in r.warnings.iter().filter(|w| !printed.contains(w)) {

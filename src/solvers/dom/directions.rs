@@ -64,6 +64,16 @@ impl DirectionsTrust {
         self.directions < self.needed
     }
 
+    /// Too few for a peaked phase function (|g| >= 0.8), where the error was measured large.
+    fn too_few_peaked(&self) -> bool {
+        self.too_few() && self.g.abs() >= DIRECTIONS_FOR_G[1].0
+    }
+
+    /// An anisotropic medium's source stored at one direction.
+    fn stored_isotropically(&self) -> bool {
+        self.g != 0.0 && self.stored == 1
+    }
+
     /// An anisotropic medium's source stored at fewer directions than swept: the upsampling
     /// smears the lobe (the g 0.75 slab: product-16x8 stored at product-8x8 reflects 1.4% too
     /// little, s8 stored at s6 6.7%; stored isotropically the cloud loses 10% of its energy and
@@ -83,7 +93,7 @@ impl DirectionsTrust {
     /// lost). Fewer directions than s6 at milder g, or a storage set between, only show in the
     /// trust line (OUTSIDE): not measured large.
     pub fn warns(&self) -> bool {
-        (self.too_few() && self.g.abs() >= DIRECTIONS_FOR_G[1].0) || (self.g != 0.0 && self.stored == 1)
+        self.too_few_peaked() || self.stored_isotropically()
     }
 
     /// The one-line figure for a render's summary.
@@ -108,7 +118,7 @@ impl DirectionsTrust {
             return None;
         }
         let mut parts = Vec::new();
-        if self.too_few() && self.g.abs() >= DIRECTIONS_FOR_G[1].0 {
+        if self.too_few_peaked() {
             parts.push(format!(
                 "g {} swept at {} ({} directions), below the {} dom was validated with at |g| >= {} (on the thin cube at \
                  g 0.9 the twice-scattered light was 1.51x path's at s6, 1.16x at s8, 1.04x at product-8x16); set \
@@ -121,7 +131,7 @@ impl DirectionsTrust {
                 self.auto
             ));
         }
-        if self.g != 0.0 && self.stored == 1 {
+        if self.stored_isotropically() {
             parts.push(format!(
                 "an anisotropic medium (g {}) with its source stored isotropically (dom.storage=1) loses its lobe (the \
                  g 0.6 cloud lost 10% of path's energy, the g 0.7 cube 21%); set dom.storage=auto",

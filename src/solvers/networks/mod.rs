@@ -328,12 +328,13 @@ impl Networks {
             }
         }
         let image_ms = t.elapsed().as_secs_f64() * 1e3;
+        let trust = ParticleTrust::new(scene, &net.particles, set.particles);
         let detail = NetworksStats {
             particles: set.particles,
             directions: set.directions,
             window: net.window.m,
             opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
-            trust: ParticleTrust::new(scene, &net.particles, set.particles),
+            trust,
             particle_radius: net.particle_radius(),
             iterations: c.iterations,
             converged: c.converged,
@@ -387,7 +388,7 @@ impl Networks {
                 img.dropped
             ));
         }
-        report.warnings.extend(ParticleTrust::new(scene, &net.particles, set.particles).warning());
+        report.warnings.extend(trust.warning());
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
     }
@@ -601,9 +602,8 @@ impl Solver for Networks {
     }
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
-        let n: u32 = knobs.get("particles")?;
-        let particles = Particles::sample(scene, n, scene.render.seed)?;
-        Ok(ParticleTrust::new(scene, &particles, n).warning().into_iter().collect())
+        // The density's lattice alone: the particles themselves are drawn by the render.
+        Ok(ParticleTrust::of(scene, knobs.get("particles")?).warning().into_iter().collect())
     }
 
     fn summary(&self, report: &RenderReport) -> Vec<String> {

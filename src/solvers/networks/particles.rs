@@ -110,16 +110,28 @@ impl ParticleTrust {
     /// `networks.particles`' largest value.
     pub const MAX_PARTICLES: u32 = 16384;
 
+    /// The trust of `p`, `n` particles drawn for `scene`.
     pub fn new(scene: &Scene, p: &Particles, n: u32) -> ParticleTrust {
+        Self::from_density(scene, n, p.mass, p.density_23, p.density_max)
+    }
+
+    /// The trust of `n` particles in `scene` before any is drawn (the density's lattice only).
+    pub fn of(scene: &Scene, n: u32) -> ParticleTrust {
+        let (integral, _, density_23, density_max) = measure(scene);
+        Self::from_density(scene, n, integral / n as f64, density_23, density_max)
+    }
+
+    /// From a particle's mass `mass` and the density's figures ([`Particles::density_23`]).
+    fn from_density(scene: &Scene, n: u32, mass: f64, density_23: f64, density_max: f64) -> ParticleTrust {
         let sigma = scene.medium.sigma_t.max_element() as f64;
-        let m13 = p.mass.max(0.0).cbrt();
-        let spacing_depth = sigma * p.density_23 * m13;
+        let m13 = mass.max(0.0).cbrt();
+        let spacing_depth = sigma * density_23 * m13;
         // The spacing shrinks as n^(-1/3): n (depth / validated)^3 particles bring it down.
         let want = (n as f64 * (spacing_depth / Self::VALIDATED).powi(3)).ceil();
         ParticleTrust {
             particles: n,
             spacing_depth,
-            spacing_depth_max: sigma * p.density_max.max(0.0).powf(2.0 / 3.0) * m13,
+            spacing_depth_max: sigma * density_max.max(0.0).powf(2.0 / 3.0) * m13,
             particles_needed: (want <= Self::MAX_PARTICLES as f64).then_some(want.max(n as f64) as u32),
         }
     }

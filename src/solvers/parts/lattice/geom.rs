@@ -337,7 +337,14 @@ impl GridTrust {
     /// medium, which no grid serves. A finer or coarser grid within the range only shows in
     /// the trust line (OUTSIDE).
     pub fn warns(&self) -> bool {
-        self.warning().is_some()
+        self.grid_warns() || self.thin_layer.is_some()
+    }
+
+    /// The grid's part of [`GridTrust::warns`]: too few voxels across, voxels past
+    /// `warn_voxel_depth`, or a medium too thin for any grid to give both.
+    fn grid_warns(&self) -> bool {
+        let thin_conflict = self.too_thin() && self.grid_for_min_depth.is_some_and(|m| m < self.grid_for_across);
+        !self.across_within() || self.voxel_depth > self.rule.warn_voxel_depth * 1.001 || thin_conflict
     }
 
     /// The grid resolves the medium as the solver was validated.
@@ -392,7 +399,7 @@ impl GridTrust {
         });
         let grid = self.grid_warning();
         match (layer, grid) {
-            (Some(l), Some(g)) => Some(format!("{l}; and {g}")),
+            (Some(l), Some(g)) => Some(format!("{l}; and {}", g.trim_start_matches(&format!("{s}: ")))),
             (l, g) => l.or(g),
         }
     }
@@ -402,8 +409,7 @@ impl GridTrust {
         let r = &self.rule;
         let s = r.solver;
         let axis = ["x", "y", "z"][self.thinnest_axis];
-        let thin_conflict = self.too_thin() && self.grid_for_min_depth.is_some_and(|m| m < self.grid_for_across);
-        if self.across_within() && self.voxel_depth <= r.warn_voxel_depth * 1.001 && !thin_conflict {
+        if !self.grid_warns() {
             return None;
         }
         let mut parts = Vec::new();
