@@ -37,6 +37,7 @@ mod shape_tests;
 mod single_refraction_tests;
 mod slab_reference;
 mod solvers;
+mod specialize_tests;
 mod stability_tests;
 mod staged_setup_tests;
 mod timeline_tests;

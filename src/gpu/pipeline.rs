@@ -237,6 +237,10 @@ pub struct PipelineRecord {
     pub spec: Vec<(u32, Spec)>,
     pub ms: f64,
     pub reused: bool,
+    /// Why the driver specialised it rather than the host (src/gpu/specialize.rs): `None`
+    /// where the host did (every kernel of ours, unless [`super::GpuOptions::driver_specialization`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub driver_specialized: Option<String>,
 }
 
 /// The pipelines this process built, by shader and specialization: a pipeline is built once
@@ -247,6 +251,9 @@ pub(crate) struct PipelineMemo {
     built: HashMap<(&'static str, Vec<u8>), Pipeline>,
     records: Vec<PipelineRecord>,
 }
+
+/// A pipeline built, why the driver specialised it (`None`: the host did), its build's host ms.
+type Built = (Pipeline, Option<String>, f64);
 
 fn memo_key(kernel: &Kernel, spec: &[(u32, Spec)]) -> (&'static str, Vec<u8>) {
     let mut bytes = Vec::with_capacity(spec.len() * 8);
@@ -285,18 +292,24 @@ impl Gpu {
                 missing.push(i);
             }
         }
-        let built: Vec<(usize, Result<(Pipeline, f64)>)> = missing
+        let built: Vec<(usize, Result<Built>)> = missing
             .par_iter()
             .map(|&i| {
                 let t = std::time::Instant::now();
-                (i, self.build(wanted[i].0, wanted[i].1).map(|p| (p, t.elapsed().as_secs_f64() * 1e3)))
+                (i, self.build(wanted[i].0, wanted[i].1).map(|(p, why)| (p, why, t.elapsed().as_secs_f64() * 1e3)))
             })
             .collect();
         let mut memo = self.pipeline_memo.lock().expect("pipeline memo lock");
         let mut new = 0u64;
         for (i, r) in built {
-            let (p, ms) = r?;
-            memo.records.push(PipelineRecord { shader: p.name, spec: wanted[i].1.to_vec(), ms, reused: false });
+            let (p, driver_specialized, ms) = r?;
+            memo.records.push(PipelineRecord {
+                shader: p.name,
+                spec: wanted[i].1.to_vec(),
+                ms,
+                reused: false,
+                driver_specialized,
+            });
             memo.built.insert(keys[i].clone(), p.clone());
             found[i] = Some(p);
             new += 1;
@@ -311,6 +324,7 @@ impl Gpu {
                             spec: wanted[i].1.to_vec(),
                             ms: 0.0,
                             reused: true,
+                            driver_specialized: None,
                         });
                     }
                     p
@@ -337,7 +351,8 @@ impl Gpu {
         self.pipeline_memo.lock().expect("pipeline memo lock").built.clear();
     }
 
-    fn build(&self, kernel: &Kernel, spec: &[(u32, Spec)]) -> Result<Pipeline> {
+    /// The pipeline, and why it was not specialised on the host (`None`: it was).
+    fn build(&self, kernel: &Kernel, spec: &[(u32, Spec)]) -> Result<(Pipeline, Option<String>)> {
         let src = &kernel.shader;
         let reflection = reflect(src)?;
         let given: BTreeMap<u32, SpecKind> = spec.iter().map(|(id, v)| (*id, v.kind())).collect();
@@ -356,7 +371,18 @@ impl Gpu {
         let d = &s.device;
         let words = ash::util::read_spv(&mut std::io::Cursor::new(src.spirv))
             .map_err(|e| GpuError::Shader { shader: src.name.into(), reason: format!("cannot read SPIR-V: {e}") })?;
-        let module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
+        // Specialised on the host (src/gpu/specialize.rs says why), unless asked not to or the
+        // pass cannot: then the driver specialises the kernel as compiled, the same program.
+        let host = if s.driver_specialization {
+            Err("asked for (GpuOptions::driver_specialization, SCATTERLAB_SPECIALIZE=driver)".to_string())
+        } else {
+            super::specialize::specialize(&words, spec)
+        };
+        let (code, spec) = match &host {
+            Ok(specialized) => (specialized.as_slice(), &[][..]),
+            Err(_) => (words.as_slice(), spec),
+        };
+        let module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(code), None) }
             .vk("vkCreateShaderModule")?;
         let layout_bindings: Vec<vk::DescriptorSetLayoutBinding> = reflection
             .bindings
@@ -407,10 +433,13 @@ impl Gpu {
         unsafe { d.destroy_shader_module(module, None) };
         let pipeline = pipeline.map_err(|(_, e)| GpuError::Vk { call: "vkCreateComputePipelines", result: e })?[0];
         s.name_object(pipeline, src.name);
-        Ok(Pipeline {
-            inner: Arc::new(PipelineInner { shared: s.clone(), pipeline, layout, set_layout }),
-            name: src.name,
-            reflection,
-        })
+        Ok((
+            Pipeline {
+                inner: Arc::new(PipelineInner { shared: s.clone(), pipeline, layout, set_layout }),
+                name: src.name,
+                reflection,
+            },
+            host.err(),
+        ))
     }
 }

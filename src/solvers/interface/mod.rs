@@ -334,6 +334,9 @@ pub struct PipelineUse {
     pub spec: std::collections::BTreeMap<String, crate::gpu::Spec>,
     pub ms: f64,
     pub reused: bool,
+    /// Why the driver specialised it, not the host (`gpu::specialize`); absent where the host did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub driver_specialized: Option<String>,
 }
 
 impl PipelineUse {
@@ -343,6 +346,7 @@ impl PipelineUse {
             spec: r.spec.iter().map(|(id, v)| (modelled::spec_name(*id), *v)).collect(),
             ms: r.ms,
             reused: r.reused,
+            driver_specialized: r.driver_specialized,
         }
     }
 }
