@@ -151,7 +151,7 @@ fn freeze(
                 *inst = Instruction::new(Op::ConstantComposite, inst.result_type, id, inst.operands.clone());
             }
             Op::SpecConstantOp => {
-                let v = fold(inst, ty, &types, &values)?;
+                let v = fold(inst, ty, &values)?;
                 *inst = match v {
                     Value::Bool(b) => Instruction::new(
                         if b { Op::ConstantTrue } else { Op::ConstantFalse },
@@ -173,12 +173,7 @@ fn freeze(
 
 /// The value of an `OpSpecConstantOp` over constants already frozen: the operations glslang
 /// emits for our kernels' constant expressions (comparisons, logic, integer arithmetic).
-fn fold(
-    inst: &Instruction,
-    ty: Option<Scalar>,
-    types: &HashMap<Word, Scalar>,
-    values: &HashMap<Word, Value>,
-) -> Result<Value, String> {
+fn fold(inst: &Instruction, ty: Option<Scalar>, values: &HashMap<Word, Value>) -> Result<Value, String> {
     let (op, args) = match inst.operands.split_first() {
         Some((Operand::LiteralSpecConstantOpInteger(op), rest)) => (*op, rest),
         _ => return Err("an OpSpecConstantOp without its operation".into()),
@@ -203,7 +198,6 @@ fn fold(
         Some(Scalar::Int { .. }) => Ok(()),
         _ => Err(format!("{op:?} to a type other than a 32-bit integer")),
     };
-    let _ = types;
     use Value::{Bool, Int};
     Ok(match op {
         Op::LogicalNot => Bool(!boolean(0)?),
