@@ -13,3 +13,8 @@ pub mod output;
 pub mod physics;
 pub mod scene;
 pub mod solvers;
+
+/// The build's identity: 12 hex digits of a SHA-256 over the files it was built from (src/,
+/// spirv/, Cargo.toml, Cargo.lock; `build.rs`). Recorded in every output's provenance beside
+/// the version, and part of every cache key of a rendered reference.
+pub const BUILD: &str = env!("SCATTERLAB_BUILD");

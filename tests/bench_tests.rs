@@ -4,7 +4,7 @@
 use crate::common::{LBL, PATH, SINGLE};
 use scatterlab::measure::bench;
 
-use crate::common::{assert_clean, gpu, render, scene};
+use crate::common::{assert_clean, gpu, scene};
 
 #[test]
 fn pareto_front_on_a_constructed_example() {
@@ -92,7 +92,7 @@ irradiance = 2.0
 fn bench_walks_every_ladder_and_writes_sane_outputs() {
     let gpu = gpu();
     let s = scene(TINY);
-    let reference = render(&gpu, &s, PATH, &[("render.spp", "512")]).image;
+    let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "512")]).image;
     let kinds = [PATH, SINGLE, LBL];
     let (points, thr) =
         bench::bench_scene(&gpu, "tiny", &s, &reference, &kinds, &bench::Points::Cheapest(3), 1, &|_| {}).unwrap();

@@ -388,9 +388,69 @@ impl TailTally {
 
 /// relL2 of `out` against a `path` reference with the reference's own noise removed (its
 /// variance layer), and the image's energy ratio: how the accuracy tests judge a solver.
-pub fn judge(out: &scatterlab::output::Image, reference: &scatterlab::solvers::RenderOutput) -> (f64, f64) {
-    let m = scatterlab::output::compare(out, &reference.image).unwrap();
-    let floor =
-        scatterlab::output::metrics::noise_floor(out, &reference.image, None, reference.variance.as_ref()).unwrap();
+pub fn judge(out: &scatterlab::output::Image, reference: &impl AsReference) -> (f64, f64) {
+    let (image, variance) = reference.parts();
+    let m = scatterlab::output::compare(out, image).unwrap();
+    let floor = scatterlab::output::metrics::noise_floor(out, image, None, variance).unwrap();
     (floor.rel_l2_corrected.expect("path writes a variance layer"), m.energy_ratio)
+}
+
+/// A `path` reference: its image and the variance of each pixel's mean.
+pub struct Reference {
+    pub image: Image,
+    pub variance: Option<Image>,
+}
+
+/// What [`judge`] reads of a reference: a render, or a [`path_reference`].
+pub trait AsReference {
+    fn parts(&self) -> (&Image, Option<&Image>);
+}
+
+impl AsReference for RenderOutput {
+    fn parts(&self) -> (&Image, Option<&Image>) {
+        (&self.image, self.variance.as_ref())
+    }
+}
+
+impl AsReference for Reference {
+    fn parts(&self) -> (&Image, Option<&Image>) {
+        (&self.image, self.variance.as_ref())
+    }
+}
+
+/// `path`'s render of `scene` with `sets` (a reference at high spp), kept on disk for every other
+/// test of this build that asks for the same one: dom's, networks' and wavefront's across-the-range
+/// tests judge themselves against the same anisotropic cubes at 2048 spp, minutes of lavapipe
+/// each. A render is a function of the scene, its seed, the device and the engine (the
+/// Determinism rule), so the key is exactly those: the scene as loaded (every field, grid data
+/// included, through its `Debug` form, which prints floats exactly), the sets, the device and
+/// driver, and `scatterlab::BUILD` (a hash of the engine's source: a changed tracer never finds
+/// an old tracer's image). A fresh render is checked as `render` checks it (finite,
+/// non-negative, no warning) before it is kept; a file that cannot be read is rendered again.
+pub fn path_reference(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> Reference {
+    use sha2::{Digest, Sha256};
+    let info = gpu.info();
+    let mut h = Sha256::new();
+    h.update(format!("{scene:?}").as_bytes());
+    h.update(format!("|{sets:?}|{}|{}|{}|", info.name, info.driver_name, info.driver_info).as_bytes());
+    h.update(scatterlab::BUILD.as_bytes());
+    let key: String = h.finalize().iter().take(12).map(|b| format!("{b:02x}")).collect();
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("path-references");
+    let file = dir.join(format!("{key}.exr"));
+    if let (Ok(image), Ok(variance)) =
+        (scatterlab::output::read_exr(&file), scatterlab::output::read_exr_layer(&file, "variance"))
+    {
+        if (image.width, image.height) == (scene.render.width, scene.render.height) {
+            return Reference { image, variance: Some(variance) };
+        }
+    }
+    let out = render(gpu, scene, PATH, sets);
+    let variance = out.variance.expect("path reports its variance");
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    // Written beside and renamed over: a test reading it meanwhile sees the whole file or none.
+    let part = dir.join(format!("{key}.{}.part.exr", std::process::id()));
+    scatterlab::output::write_exr(&part, &[("", &out.image), ("variance", &variance)])
+        .unwrap_or_else(|e| panic!("{}: {e}", part.display()));
+    std::fs::rename(&part, &file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+    Reference { image: out.image, variance: Some(variance) }
 }

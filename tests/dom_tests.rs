@@ -3,7 +3,7 @@
 //! and g on a cube, on the anisotropic cloud where `lbl` loses energy, deterministic; the
 //! storage directions matter for anisotropic media and not for isotropic ones.
 
-use crate::common::{assert_clean, gpu, judge, render, repo_scene, scene, SceneText, LBL, PATH, SINGLE};
+use crate::common::{assert_clean, gpu, judge, render, repo_scene, scene, SceneText, LBL, SINGLE};
 use scatterlab::output::compare;
 use scatterlab::solvers::{self, RenderOutput};
 
@@ -33,7 +33,7 @@ fn dom_converges_toward_path_on_the_sphere() {
     let gpu = gpu();
     let size = [("render.width", "32"), ("render.height", "32")];
     let s = repo_scene("scenes/homogeneous-sphere.toml", &size);
-    let reference = render(&gpu, &s, PATH, &[("render.spp", "2048")]).image;
+    let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "2048")]).image;
     let mut last = (f64::INFINITY, 0.0);
     for grid in ["8", "16", "32"] {
         let out = render(&gpu, &s, dom(), &[SMALL.as_slice(), &[("dom.grid", grid)]].concat());
@@ -77,7 +77,7 @@ fn dom_matches_path_across_thickness_albedo_and_g() {
             "scenes/anisotropic-cube.toml",
             &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
         );
-        let reference = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
+        let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "2048")]);
         let out = render(&gpu, &s, dom(), &view);
         let (rel, e) = judge(&out.image, &reference);
         eprintln!("{case}: dom energy {e:.4}, relL2 {rel:.4}");
@@ -90,7 +90,7 @@ fn dom_matches_path_across_thickness_albedo_and_g() {
             "scenes/anisotropic-cube.toml",
             &[&size[..], &[("medium.sigma_t", "20"), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
         );
-        let reference = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
+        let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "2048")]);
         let coarse = judge(&render(&gpu, &s, dom(), &view).image, &reference);
         let fine = judge(&render(&gpu, &s, dom(), &[&view[..], &[("dom.grid", "24")]].concat()).image, &reference);
         eprintln!(
@@ -110,7 +110,7 @@ fn dom_matches_path_across_thickness_albedo_and_g() {
 fn dom_keeps_the_energy_on_the_anisotropic_cloud() {
     let gpu = gpu();
     let s = repo_scene("scenes/cloud.toml", &[("render.width", "24"), ("render.height", "24")]);
-    let reference = render(&gpu, &s, PATH, &[("render.spp", "1024")]);
+    let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "1024")]);
     let sets = [("dom.grid", "24"), ("dom.rays", "16384"), ("dom.view_supersample", "2")];
     let out = render(&gpu, &s, dom(), &sets);
     let (rel, e) = judge(&out.image, &reference);

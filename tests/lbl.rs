@@ -4,7 +4,7 @@
 
 use std::collections::VecDeque;
 
-use crate::common::{LBL, PATH, SINGLE};
+use crate::common::{LBL, SINGLE};
 use scatterlab::gpu::QueueRole;
 use scatterlab::solvers::lbl::{plan, LblStats, Planned, Step};
 use scatterlab::solvers::parts::lattice::{EnergyBook, Lattice, LatticeParams};
@@ -510,7 +510,7 @@ fn no_albedo_lbl_equals_single() {
 fn lbl_beats_single_against_path_at_albedo_09() {
     let gpu = gpu();
     let s = scene(&SPHERE.replace("ALBEDO", "0.9"));
-    let reference = render(&gpu, &s, PATH, &[]);
+    let reference = crate::common::path_reference(&gpu, &s, &[]);
     let l = render(&gpu, &s, LBL, &with(&[("lbl.grid", "32"), ("lbl.rays", "16384")]));
     let v = render(&gpu, &s, SINGLE, &[]);
     let el = scatterlab::output::compare(&l.image, &reference.image).unwrap();
@@ -633,7 +633,7 @@ fn forward_peak_brings_lbl_closer_to_path_across_g_and_thickness() {
         for sigma_t in ["1.0", "20.0"] {
             for g in ["-0.6", "0.6", "0.9"] {
                 let s = forward_cube(sigma_t, g, dir);
-                let reference = render(&gpu, &s, PATH, &[]);
+                let reference = crate::common::path_reference(&gpu, &s, &[]);
                 // The cube 1 mean free path across with g 0.6 or 0.9 is too thin for lbl's
                 // lattice (its reduced optical thickness 0.1-0.4: 2 voxels across are thinner
                 // than 0.25 each): each of its renders says so, in its one warning; at g -0.6
@@ -690,7 +690,7 @@ fn forward_population_beats_the_directed_injection_across_the_range() {
         for &(sigma_t, g) in cases {
             {
                 let s = forward_cube(sigma_t, g, dir);
-                let reference = render(&gpu, &s, PATH, &[]);
+                let reference = crate::common::path_reference(&gpu, &s, &[]);
                 let fwd = render(&gpu, &s, LBL, &[small[0], small[1], ("lbl.inject", "forward")]);
                 let dir_ = render(&gpu, &s, LBL, &[small[0], small[1], ("lbl.inject", "directed")]);
                 let mf = scatterlab::output::compare(&fwd.image, &reference.image).unwrap();
@@ -856,7 +856,7 @@ fn surface_drift_brings_lit_cubes_closer_to_path() {
     }
     let (mut ln_on, mut ln_off, mut rel_on, mut rel_off) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for (name, s) in &cases {
-        let reference = render(&gpu, s, PATH, &[]);
+        let reference = crate::common::path_reference(&gpu, s, &[]);
         let on = render(&gpu, s, LBL, &small);
         let mut off_sets = small.to_vec();
         off_sets.push(("lbl.drift", "false"));
@@ -900,7 +900,7 @@ fn issue_cubes_at_the_default_grid_keep_path_energy() {
     for (g, grid) in [("0.0", 64u32), ("0.6", 32)] {
         let s = crate::common::issue_cube(g);
         assert_eq!(scatterlab::solvers::lbl::default_grid(&s), grid, "g {g}");
-        let reference = render(&gpu, &s, PATH, &[]);
+        let reference = crate::common::path_reference(&gpu, &s, &[]);
         // Supersampled view: at 24 x 24 the cube's edge pixels are a large share, and path
         // averages over each pixel (unsupersampled, the g 0.6 cube reads 1.072 here, 1.033 at
         // 64 x 64).
@@ -957,7 +957,7 @@ fn near_ball_stays_within_a_mean_free_path_or_two_on_coarse_lattices() {
                 density = { kind = \"sphere\", center = [0, 0, 0], radius = 1.0 }\n\
                 [[light]]\nkind = \"point\"\nposition = [0.2, 0.1, 0.0]\nintensity = 1.0\n";
     let s = scene(text);
-    let reference = render(&gpu, &s, PATH, &[]);
+    let reference = crate::common::path_reference(&gpu, &s, &[]);
     let capped = render(&gpu, &s, LBL, &[("lbl.grid", "16")]);
     let three = render(&gpu, &s, LBL, &[("lbl.grid", "16"), ("lbl.near_light", "3")]);
     let (rel_c, e_c) = crate::common::judge(&capped.image, &reference);
@@ -989,7 +989,7 @@ fn near_light_ball_removes_the_plus_around_a_light_inside() {
          [[light]]\nkind = \"point\"\nposition = [0.03, -0.02, 0.01]\nintensity = 1.0\n",
     );
     let small = [("lbl.grid", "32"), ("lbl.rays", "16384")];
-    let reference = render(&gpu, &s, PATH, &[]);
+    let reference = crate::common::path_reference(&gpu, &s, &[]);
     let on = render(&gpu, &s, LBL, &small);
     let mut off_sets = small.to_vec();
     off_sets.push(("lbl.near_light", "0"));

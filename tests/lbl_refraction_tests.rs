@@ -9,7 +9,7 @@
 use scatterlab::physics::dielectric::diffuse_fresnel;
 use scatterlab::scene::voxelise;
 
-use crate::common::{assert_clean, gpu, judge, render, scene, LBL, PATH};
+use crate::common::{assert_clean, gpu, judge, render, scene, LBL};
 use crate::refraction_tests::{mesh, object_scene_seeded, ENV};
 
 #[test]
@@ -74,7 +74,7 @@ fn with_and_without_refraction(
     // Without the light's beams reflected inside the glass before they scatter
     // (`path.mnee_reflections=0`), which lbl does not model either: on a glass sphere they add
     // about 1% of the image, and carrying them takes path 4-10x the time (tests/mnee_tests.rs).
-    let reference = render(gpu, &s, PATH, &[("path.mnee_reflections", "0")]);
+    let reference = crate::common::path_reference(gpu, &s, &[("path.mnee_reflections", "0")]);
     let sets = [("lbl.grid", grid), ("lbl.view_step", "0.05")];
     let on = render(gpu, &s, LBL, &sets);
     let off = render(gpu, &s, LBL, &[sets[0], sets[1], ("lbl.refraction", "false")]);

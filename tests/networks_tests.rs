@@ -317,7 +317,7 @@ fn a_warm_start_after_a_small_light_move_beats_ten_cold_iterations() {
 /// the view pass alone (nothing scatters twice).
 #[test]
 fn networks_approaches_path_across_thickness_albedo_and_g() {
-    use crate::common::{render, NETWORKS, PATH, SINGLE};
+    use crate::common::{render, NETWORKS, SINGLE};
     let gpu = gpu();
     let size = [("render.width", "24"), ("render.height", "24")];
     // sigma_t, albedo, g, energy range, relL2 bound at 512 x 64.
@@ -335,7 +335,7 @@ fn networks_approaches_path_across_thickness_albedo_and_g() {
             "scenes/anisotropic-cube.toml",
             &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", g)]].concat(),
         );
-        let reference = render(&gpu, &s, PATH, &[("render.spp", "2048")]);
+        let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "2048")]);
         // The thick cube (a mean free path of 0.05 against particles 0.12-0.2 apart) is outside
         // what networks was validated for, and each render says so, naming the particles it
         // would take; the others carry no warning.
@@ -383,14 +383,14 @@ fn networks_approaches_path_across_thickness_albedo_and_g() {
 /// (lbl 0.987 / 0.072: on the sphere's steep lit side 512 particles are too few).
 #[test]
 fn networks_on_the_cloud_and_the_sphere_beside_lbl() {
-    use crate::common::{render, LBL, NETWORKS, PATH};
+    use crate::common::{render, LBL, NETWORKS};
     let gpu = gpu();
     for (scene, spp, energy, error) in [
         ("scenes/cloud.toml", "1024", (0.95, 1.05), 0.15),
         ("scenes/homogeneous-sphere.toml", "2048", (0.88, 1.0), 0.2),
     ] {
         let s = repo_scene(scene, &[("render.width", "24"), ("render.height", "24")]);
-        let reference = render(&gpu, &s, PATH, &[("render.spp", spp)]);
+        let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", spp)]);
         let out = render(&gpu, &s, NETWORKS, &[("networks.particles", "512"), ("networks.directions", "64")]);
         let (rel, e) = judge(&out.image, &reference);
         let (lrel, le) = judge(&render(&gpu, &s, LBL, &[]).image, &reference);
@@ -407,10 +407,10 @@ fn networks_on_the_cloud_and_the_sphere_beside_lbl() {
 /// Here (16 x 16, D 16) its energy is within 5% of 2048 particles' and both within 10% of path's.
 #[test]
 fn sixteen_thousand_particles_splat_in_order() {
-    use crate::common::{render, NETWORKS, PATH};
+    use crate::common::NETWORKS;
     let gpu = gpu();
     let s = repo_scene("scenes/cloud.toml", &[("render.width", "16"), ("render.height", "16")]);
-    let reference = render(&gpu, &s, PATH, &[("render.spp", "256")]);
+    let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "256")]);
     let mut energy = Vec::new();
     for n in ["2048", "16384"] {
         // The farthest of over 256 splats on a pixel are left out, with a warning.

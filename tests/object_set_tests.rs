@@ -228,7 +228,7 @@ fn lbl_matches_path_on_a_pair_of_glass_objects() {
     // Measured (48 x 48, default grid, path at 4096 spp): relL2 0.043, energy 1.016.
     let gpu = gpu();
     let s = scene(&pair("sigma_t = 6.0\nalbedo = 0.95", "1.5", ENV, 32, 512));
-    let reference = render(&gpu, &s, PATH, &[]);
+    let reference = crate::common::path_reference(&gpu, &s, &[]);
     let out = render(&gpu, &s, LBL, &[("lbl.grid", "32"), ("lbl.view_step", "0.05")]);
     let (rel, energy) = judge(&out.image, &reference);
     eprintln!("pair: lbl relL2 {rel:.4} energy {energy:.4}");

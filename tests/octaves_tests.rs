@@ -4,7 +4,7 @@
 use scatterlab::output::compare;
 use scatterlab::solvers::{RenderOutput, Solver};
 
-use crate::common::{assert_clean, gpu, render, scene, PATH, SINGLE};
+use crate::common::{assert_clean, gpu, render, scene, SINGLE};
 
 pub const OCTAVES: &dyn Solver = &scatterlab::solvers::octaves::OctavesSolver;
 
@@ -143,7 +143,7 @@ fn octaves_against_path_across_the_range() {
                     continue;
                 }
                 let s = scene(&cube(st, al, g));
-                let reference = render(&gpu, &s, PATH, &[("render.spp", "256")]);
+                let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "256")]);
                 let oct = render(&gpu, &s, OCTAVES, &[]);
                 let single = render(&gpu, &s, SINGLE, &[]);
                 let mo = compare(&oct.image, &reference.image).unwrap();

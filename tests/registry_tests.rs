@@ -286,7 +286,7 @@ fn a_fake_solver_is_picked_up_everywhere() {
     let gpu = gpu();
     let s = scene(CUBE);
     // Bench walks its ladder beside a real solver, against the reference.
-    let reference = render(&gpu, &s, PATH, &[("render.spp", "4096")]).image;
+    let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "4096")]).image;
     let (points, _) =
         bench::bench_scene(&gpu, "cube", &s, &reference, &[FAKE, SINGLE], &bench::Points::Cheapest(3), 1, &|_| {})
             .unwrap();

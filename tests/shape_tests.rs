@@ -37,7 +37,7 @@ fn trust(name: &str, o: &RenderOutput) -> GridTrust {
 /// Render `s` with each of `solvers` ("dom", "lbl") at its defaults and judge it: `warns` says
 /// whether its trust line must warn (else: within its range and 5% of path's energy).
 fn judge_shape(gpu: &scatterlab::gpu::Gpu, what: &str, s: &Scene, solvers: &[(&str, bool)]) {
-    let reference = crate::common::render(gpu, s, solvers::find("path").expect("path"), &[]);
+    let reference = crate::common::path_reference(gpu, s, &[]);
     for &(name, warns) in solvers {
         let solver = if name == "lbl" { LBL } else { solvers::find(name).expect("registered") };
         let out = try_render(gpu, s, solver, &[], false).unwrap_or_else(|e| panic!("{what}, {name}: {e}"));

@@ -5,7 +5,7 @@
 //! the energy; against the same solver with refraction turned off; a furnace of an empty
 //! convex glass; energy never created in non-convex ones; split invariance.
 
-use crate::common::{assert_clean, gpu, judge, render, scene, try_render, PATH, SINGLE};
+use crate::common::{assert_clean, gpu, judge, render, scene, try_render, SINGLE};
 use crate::refraction_tests::{mesh, object_scene_seeded, ENV};
 
 /// A one-object scene as refraction_tests', with this file's seed.
@@ -73,7 +73,8 @@ fn single_with_refraction_agrees_with_path_single_scattering_across_the_range() 
         let s = scene(&text);
         // Single scattering without the light's beams reflected at the surface before they
         // scatter (single has none; tests/mnee_tests.rs measures them).
-        let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
+        let reference =
+            crate::common::path_reference(&gpu, &s, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
         // Steps of 0.05 (72 across the sphere's box; the default is 128): CI time. The thick
         // case's steps are integrated exactly (the step fit), the others are thin per step.
         let sets = [("single.supersample", "2"), ("single.env_dirs", dirs), ("single.step", "0.05")];
@@ -115,7 +116,8 @@ fn single_with_a_light_inside_a_refractive_object_agrees_with_path() {
         let s = scene(&text);
         // Single scattering without the light's beams reflected at the surface before they
         // scatter (single has none; tests/mnee_tests.rs measures them).
-        let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
+        let reference =
+            crate::common::path_reference(&gpu, &s, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
         let on = render(&gpu, &s, SINGLE, SS);
         let off = render(&gpu, &s, SINGLE, &[SS[0], ("single.refraction", "false")]);
         let (rel_on, e_on) = judge(&on.image, &reference);
@@ -169,7 +171,7 @@ fn single_at_ior_1_matches_the_index_matched_path() {
     let s = scene(&text);
     // Single scattering without the light's beams reflected at the surface before they
     // scatter (single has none; tests/mnee_tests.rs measures them).
-    let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
+    let reference = crate::common::path_reference(&gpu, &s, &[("path.max_depth", "1"), ("path.mnee_reflections", "0")]);
     let out = render(&gpu, &s, SINGLE, SS);
     let (rel, e) = judge(&out.image, &reference);
     eprintln!("index-matched torus: relL2 {rel:.4}, energy {e:.4}");

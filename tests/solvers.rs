@@ -281,7 +281,7 @@ fn single_converges_to_path_depth_one() {
     let gpu = gpu();
     let text = scatterlab_scene_point_and_sun(0.5, "[0.9, 0.7, 0.5]");
     let s = scene(&text);
-    let reference = render(&gpu, &s, PATH, &[("path.max_depth", "1"), ("render.spp", "2048")]);
+    let reference = crate::common::path_reference(&gpu, &s, &[("path.max_depth", "1"), ("render.spp", "2048")]);
     let var = reference.variance.as_ref().unwrap();
     // Noise floor of the reference's relL2: sqrt(sum var) / ||ref||.
     let norm = reference.image.data.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();

@@ -3,7 +3,7 @@
 //! in a homogeneous sphere; both integrators at the extremes, the paper's "hole" case, and the
 //! rendered image against `path` with the light inside the cloud and inside a thick cube.
 
-use crate::common::{LBL, PATH, SINGLE, WAVEFRONT};
+use crate::common::{LBL, SINGLE, WAVEFRONT};
 use glam::Vec3;
 use scatterlab::gpu::Gpu;
 use scatterlab::output::compare;
@@ -388,7 +388,7 @@ fn hole_enclosed_by_absorber_stays_dark() {
 fn light_inside_cloud_beats_the_direct_term() {
     let gpu = gpu();
     let sc = cloud_with_light_inside(24);
-    let reference = render(&gpu, &sc, PATH, &[("render.spp", "1024")]);
+    let reference = crate::common::path_reference(&gpu, &sc, &[("render.spp", "1024")]);
     let wf = render(&gpu, &sc, WAVEFRONT, &[]);
     let direct = render(&gpu, &sc, SINGLE, &[]);
     let e_wf = compare(&wf.image, &reference.image).unwrap();
@@ -432,7 +432,7 @@ fn extrapolated_boundary_energy_on_a_forward_scattering_cloud() {
     let sc =
         Scene::from_str(&text, "cloud-light.toml", std::path::Path::new("scenes"), &small, &LoadOptions::default())
             .unwrap();
-    let reference = render(&gpu, &sc, PATH, &[("render.spp", "1024")]);
+    let reference = crate::common::path_reference(&gpu, &sc, &[("render.spp", "1024")]);
     let wf = render(&gpu, &sc, WAVEFRONT, &[]);
     let e = compare(&wf.image, &reference.image).unwrap();
     eprintln!("g = 0.6 cloud, light inside, 24x24: wavefront relL2 {:.3}, energy {:.3}", e.rel_l2, e.energy_ratio);
@@ -459,7 +459,7 @@ fn extrapolated_boundary_energy_in_a_thick_cube() {
              density = {{ kind = \"constant\" }}\n\
              [[light]]\nkind = \"point\"\nposition = [0.03, -0.02, 0.01]\nintensity = 10.0\n"
         ));
-        let reference = render(&gpu, &sc, PATH, &[("render.spp", "2048")]);
+        let reference = crate::common::path_reference(&gpu, &sc, &[("render.spp", "2048")]);
         let wf = render(&gpu, &sc, WAVEFRONT, &[]);
         let inf = render(&gpu, &sc, WAVEFRONT, &[("wavefront.boundary", "infinite")]);
         let e = compare(&wf.image, &reference.image).unwrap();
@@ -527,7 +527,7 @@ fn lbl_warm_start_from_wavefront_is_closer_after_equal_iterations() {
 fn bench_ladder_runs_for_wavefront() {
     let gpu = gpu();
     let sc = cloud_with_light_inside(16);
-    let reference = render(&gpu, &sc, PATH, &[("render.spp", "256")]).image;
+    let reference = crate::common::path_reference(&gpu, &sc, &[("render.spp", "256")]).image;
     let (points, _) = scatterlab::measure::bench::bench_scene(
         &gpu,
         "cloud-inside",

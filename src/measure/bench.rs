@@ -173,7 +173,8 @@ pub fn pareto(points: &[(f64, f64)]) -> Vec<bool> {
 }
 
 /// Cache key of a reference: scene content (file text, overrides, grid data), engine
-/// version, device and driver, reference spp.
+/// version and build (a change to the tracer must not find the old tracer's reference),
+/// device and driver, reference spp.
 pub fn reference_key(
     scene_text: &str,
     scene: &Scene,
@@ -187,6 +188,7 @@ pub fn reference_key(
         h.update(format!("{k}={v};").as_bytes());
     }
     h.update(env!("CARGO_PKG_VERSION").as_bytes());
+    h.update(crate::BUILD.as_bytes());
     h.update(
         format!("{}|{}|{}|{}|seed^{REFERENCE_SEED}", device.name, device.driver_name, device.driver_info, spp)
             .as_bytes(),

@@ -455,7 +455,7 @@ pub fn run(gpu: &Gpu, device: serde_json::Value, opts: &ReportOptions) -> Result
     let bandwidth = probe_bandwidth(gpu, bytes, runs)?;
     let mut report = Report {
         schema: SCHEMA,
-        engine: format!("scatterlab {}", env!("CARGO_PKG_VERSION")),
+        engine: crate::output::engine(),
         quick: opts.quick,
         device,
         bandwidth,

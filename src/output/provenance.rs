@@ -50,7 +50,7 @@ impl Provenance {
     }
 }
 
-/// The engine's name and version, as recorded.
+/// The engine's name, version and build (the hash of the source it was built from), as recorded.
 pub fn engine() -> String {
-    format!("scatterlab {}", env!("CARGO_PKG_VERSION"))
+    format!("scatterlab {} (build {})", env!("CARGO_PKG_VERSION"), crate::BUILD)
 }

@@ -142,6 +142,8 @@ pub struct ShStats {
     pub weights_s: f64,
     /// The density heuristic the radii followed (`sh_single.density`: depth or divergence).
     pub density: &'static str,
+    /// How far to trust the sample set: the surface's spacing in mean free paths.
+    pub trust: SampleTrust,
 }
 
 /// The solver `sh-single` (module docs).
@@ -224,11 +226,20 @@ impl Solver for ShSingle {
         let (image, st, bytes, modelled) = render(gpu, req.scene, &set, req.force_full, req.progress)?;
         let faults = st.nonfinite_pixels as u64;
         let warning = crate::solvers::interface::nonfinite_warning(st.nonfinite_pixels);
+        let trust_warnings = st.trust.warnings();
         let mut stats = Stats::new(st);
         stats.faults = faults;
         let mut report = RenderReport::finish(gpu, self, &k, modelled, bytes, stats);
+        report.warnings.extend(trust_warnings);
         report.warnings.extend(warning);
         Ok(RenderOutput { image, variance: None, report })
+    }
+
+    fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        let set = ShSettings::parse(knobs, scene)?;
+        let os = object_scene(scene);
+        let object = os.object.as_ref().expect("object scene");
+        Ok(SampleTrust::of(&os, object, set.samples, set.seed).warnings())
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
@@ -273,22 +284,25 @@ impl Solver for ShSingle {
 
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<ShStats>() else { return Vec::new() };
-        vec![format!(
-            "sh-single: {} samples ({} requested, {} heuristic), order {} ({} coefficients per channel), {} \
+        vec![
+            format!(
+                "sh-single: {} samples ({} requested, {} heuristic), order {} ({} coefficients per channel), {} \
              directions, sample set {:.1} MB; \
              preprocessing {:.2} s (sampling {:.2}, optical depths {:.2}, weights {:.2}), render {:.2} s",
-            s.samples,
-            s.requested,
-            s.density,
-            s.order,
-            sh::coefficients(s.order),
-            s.directions,
-            s.sample_bytes as f64 / 1e6,
-            s.preprocess_s,
-            s.sampling_s,
-            s.depths_s,
-            s.weights_s,
-            s.render_s
-        )]
+                s.samples,
+                s.requested,
+                s.density,
+                s.order,
+                sh::coefficients(s.order),
+                s.directions,
+                s.sample_bytes as f64 / 1e6,
+                s.preprocess_s,
+                s.sampling_s,
+                s.depths_s,
+                s.weights_s,
+                s.render_s
+            ),
+            format!("sh-single: {}", s.trust.line()),
+        ]
     }
 }

@@ -740,6 +740,7 @@ pub fn render(
         depths_s,
         weights_s,
         density: set.heuristic.name(),
+        trust: SampleTrust::of(&os, object, set.samples, set.seed),
     };
     Ok((image, stats, bytes, gs.modelled.clone()))
 }
