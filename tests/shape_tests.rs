@@ -16,6 +16,11 @@ use scatterlab::solvers::{self, RenderOutput};
 /// isotropic, lit straight down and seen from above through an orthographic window 1 unit
 /// wide at its centre.
 fn boxed(ext: [f32; 3], sigma_t: f32, albedo: f32) -> Scene {
+    boxed_lit(ext, sigma_t, albedo, "[0.0, -1.0, 0.0]")
+}
+
+/// [`boxed`] lit along `direction` (the direction the light travels).
+fn boxed_lit(ext: [f32; 3], sigma_t: f32, albedo: f32, direction: &str) -> Scene {
     let [x, y, z] = ext.map(|e| e / 2.0);
     scene(&format!(
         "[render]\nwidth = 8\nheight = 8\nseed = 5\nspp = 512\n\
@@ -23,7 +28,7 @@ fn boxed(ext: [f32; 3], sigma_t: f32, albedo: f32) -> Scene {
          extent = 1.0\n\
          [medium]\nbounds = [[-{x}, -{y}, -{z}], [{x}, {y}, {z}]]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = 0.0\n\
          density = {{ kind = \"constant\" }}\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 1.0\n"
+         [[light]]\nkind = \"directional\"\ndirection = {direction}\nirradiance = 1.0\n"
     ))
 }
 
@@ -77,6 +82,21 @@ fn a_wide_thin_slab_at_the_fitted_grids() {
         &gpu,
         "slab 16 x 0.5 x 16, 2 mfp",
         &boxed([16.0, 0.5, 16.0], 4.0, 0.8),
+        &[("dom", false), ("lbl", false)],
+    );
+    assert_clean(&gpu);
+}
+
+/// The same slab lit at 60 degrees from its normal (the light's path through it twice as long):
+/// at their fitted grids dom gave 0.986 of path's energy (bias relL2 0.036) and lbl 0.992
+/// (0.019) on lavapipe, against 0.990 and 0.998 lit normally.
+#[test]
+fn a_wide_thin_slab_lit_at_60_degrees() {
+    let gpu = gpu();
+    judge_shape(
+        &gpu,
+        "slab 16 x 0.5 x 16, 2 mfp, lit at 60 degrees",
+        &boxed_lit([16.0, 0.5, 16.0], 4.0, 0.8, "[0.8660254, -0.5, 0.0]"),
         &[("dom", false), ("lbl", false)],
     );
     assert_clean(&gpu);
