@@ -461,6 +461,15 @@ pub(crate) fn nonfinite_warning(pixels: u32) -> Option<String> {
     (pixels > 0).then(|| format!("{pixels} pixels were not finite and were set to 0 (a bug: please report the scene)"))
 }
 
+/// The count of points (networks' particles, sh-single's samples) that brings their spacing,
+/// `spacing` at `count` points, down to `validated`, never fewer than `count`: points spread
+/// through a volume stand count^(-1/3) apart, so count (spacing / validated)^3 of them. None
+/// past `max`, the knob's largest value (no count in range serves).
+pub(crate) fn count_for_spacing(count: u32, spacing: f64, validated: f64, max: u32) -> Option<u32> {
+    let want = (count as f64 * (spacing / validated).powi(3)).ceil();
+    (want <= max as f64).then_some(want.max(count as f64) as u32)
+}
+
 /// The registered solvers (the registry's [`SOLVERS`](super::SOLVERS)): the one place the
 /// interface reads the registry, for the messages that name the solvers that can do what
 /// another cannot (a refusal, an unknown knob's owner).

@@ -126,13 +126,16 @@ impl ParticleTrust {
         let sigma = scene.medium.sigma_t.max_element() as f64;
         let m13 = mass.max(0.0).cbrt();
         let spacing_depth = sigma * density_23 * m13;
-        // The spacing shrinks as n^(-1/3): n (depth / validated)^3 particles bring it down.
-        let want = (n as f64 * (spacing_depth / Self::VALIDATED).powi(3)).ceil();
         ParticleTrust {
             particles: n,
             spacing_depth,
             spacing_depth_max: sigma * density_max.max(0.0).powf(2.0 / 3.0) * m13,
-            particles_needed: (want <= Self::MAX_PARTICLES as f64).then_some(want.max(n as f64) as u32),
+            particles_needed: crate::solvers::interface::count_for_spacing(
+                n,
+                spacing_depth,
+                Self::VALIDATED,
+                Self::MAX_PARTICLES,
+            ),
         }
     }
 

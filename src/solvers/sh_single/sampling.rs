@@ -355,8 +355,6 @@ impl SampleTrust {
         let r0 = first_radius(object, count, seed, &Scale::Depth(depth_mfp(object))) as f64;
         let sigma = max_sigma_t(object) as f64 * os.max_density() as f64;
         let surface_spacing = sigma * r0 / 2.0;
-        // The spacing shrinks as count^(-1/3): count (spacing / validated)^3 samples bring it down.
-        let want = (count as f64 * (surface_spacing / Self::VALIDATED).powi(3)).ceil();
         let scattering = || object.materials.iter().filter(|m| m.albedo.max_element() > 0.0);
         let sky = os.lights.iter().any(|l| matches!(l, Light::Environment { .. }));
         let g = scattering().map(|m| m.g).fold(f32::NEG_INFINITY, f32::max);
@@ -366,7 +364,12 @@ impl SampleTrust {
             requested: count,
             r0,
             surface_spacing,
-            samples_needed: (want <= Self::MAX_SAMPLES as f64).then_some(want.max(count as f64) as u32),
+            samples_needed: crate::solvers::interface::count_for_spacing(
+                count,
+                surface_spacing,
+                Self::VALIDATED,
+                Self::MAX_SAMPLES,
+            ),
             scatters: scattering().next().is_some(),
             forward_under_sky: (sky && g >= Self::FORWARD_G && optical_radius >= Self::FORWARD_DEPTH).then_some(g),
         }
