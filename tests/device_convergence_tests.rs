@@ -10,7 +10,7 @@ use scatterlab::scene::Scene;
 use scatterlab::solvers::dom::Dom;
 use scatterlab::solvers::{RenderOutput, Solver};
 
-use crate::common::{assert_clean, gpu, issue_cube, repo_scene, try_render, LBL, NETWORKS};
+use crate::common::{assert_clean, gpu, issue_cube, repo_scene, try_render, LBL, NETWORKS, PATH};
 
 const DOM: &dyn Solver = &Dom;
 
@@ -53,6 +53,50 @@ fn iterative_solvers_wait_at_most_once_per_eight_iterations() {
             n / 8 + SETUP_WAITS
         );
     }
+}
+
+/// path's light batches are traced in groups, each batch splatting into a slice of its own
+/// (glsl/path/light.comp, batch_of): the host waits once per group, not once or twice per batch,
+/// and the image and its variance (the batches' spread) are the same bits as one batch per wait.
+#[test]
+fn path_light_batches_wait_once_per_group_with_the_same_bits() {
+    let gpu = gpu();
+    let scene = repo_scene(
+        "scenes/point-light-in-cloud.toml",
+        &[("render.width", "16"), ("render.height", "16"), ("render.spp", "24")],
+    );
+    let batches = 16u64;
+    let base = [("path.light_tracing", "on"), ("path.light_batches", "16")];
+    let mut one = base.to_vec();
+    one.push(("path.light_group", "1"));
+    let mut five = base.to_vec();
+    five.push(("path.light_group", "5"));
+    let grouped = render(&gpu, &scene, PATH, &base);
+    let single = render(&gpu, &scene, PATH, &one);
+    let uneven = render(&gpu, &scene, PATH, &five);
+    let waits = |o: &RenderOutput| o.report.host.waits.count;
+    println!(
+        "path, {batches} light batches: {} host waits grouped, {} in groups of 5, {} one batch at a time",
+        waits(&grouped),
+        waits(&uneven),
+        waits(&single)
+    );
+    assert!(
+        waits(&grouped) <= batches / 8 + SETUP_WAITS,
+        "{} host waits for {batches} light batches (at most {} allowed)",
+        waits(&grouped),
+        batches / 8 + SETUP_WAITS
+    );
+    assert!(waits(&single) >= batches, "one batch per wait waited only {} times", waits(&single));
+    for (what, o) in [("grouped", &grouped), ("in groups of 5", &uneven)] {
+        assert_eq!(o.image.data, single.image.data, "the image {what} differs from one batch at a time");
+        assert_eq!(
+            o.variance.as_ref().unwrap().data,
+            single.variance.as_ref().unwrap().data,
+            "the variance {what} differs from one batch at a time"
+        );
+    }
+    assert!(single.variance.as_ref().unwrap().data.iter().any(|v| *v > 0.0), "no pixel has a variance");
 }
 
 /// The same render with the convergence test on the device and on the host: the same

@@ -85,11 +85,26 @@ layout(push_constant) uniform Push {
     float rr_threshold;   // ... for throughput below this (survival max(beta) / threshold)
     float inv_quantum;    // fixed-point quanta per unit of splat (W/(m^2 sr) per path)
     float power_sum;      // sum over light-traced lights of their mean intensity (W/sr)
+    uint batch_q;         // paths per slot in a batch: spp / batches ...
+    uint batch_r;         // ... plus one in the first spp % batches batches
+    uint group_first;     // the first batch whose sums this submission's splat slices hold
 } pc;
 
 // 2^40 quanta: a splat larger than that is clamped (and counted, so the host warns).
 const float SPLAT_MAX = 1099511627776.0;
 const float TWO32 = 4294967296.0;
+
+// Word offset of the splat slice of the batch the path in flight belongs to: batches are
+// ranges of path indices per slot, and a group of them is traced in one resumable run, each
+// path splatting into its own batch's slice (64-bit integer sums: the same bits in any order).
+uint slice_words = 0u;
+
+// The batch that path index k of a slot belongs to (batch b holds batch_q paths, one more when
+// b < batch_r: the host's split).
+uint batch_of(uint k) {
+    uint big = pc.batch_r * (pc.batch_q + 1u);
+    return k < big ? k / (pc.batch_q + 1u) : pc.batch_r + (k - big) / pc.batch_q;
+}
 
 uint splat_clamped = 0u;
 uint sum_overflow = 0u;
@@ -152,7 +167,7 @@ bool splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
     if (max3(T) <= 0.0) return true;
     vec3 c = beta * T * (phase_eval(scene.materials[path_mat].albedo.w, dot(d_in, w_cam)) * W) * pc.inv_quantum;
     if (any(isnan(c)) || any(isinf(c))) { truncated = true; return true; }
-    uint base = 6u * (px.y * res.x + px.x);
+    uint base = slice_words + 6u * (px.y * res.x + px.x);
     splat_count++;
     for (uint ch = 0u; ch < 3u; ++ch) {
         float q = c[ch];
@@ -287,6 +302,7 @@ void main() {
             }
         }
         iters++;
+        slice_words = 6u * res.x * res.y * (batch_of(k) - pc.group_first);
         // A paused event (a free flight or a camera connection) is resumed whatever beta is.
         bool fresh = !ev_splat && !trk_resume;
         int r = fresh && max3(beta) <= 0.0 ? EVENT_ENDED : advance(o, d, beta, emitted_weight(light), depth, rng);

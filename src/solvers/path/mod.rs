@@ -26,7 +26,7 @@
 //! measured in docs/measurements.md. At most 32 lights (the first 32) can be light traced.
 //! "spp" is the same budget for both: `spp` light paths per pixel, split into `light_batches`
 //! independent batches whose spread gives the per-pixel variance (one light path adds to many
-//! pixels).
+//! pixels), traced `light_group` batches per host wait, each into a splat slice of its own.
 
 pub mod mnee;
 
@@ -93,6 +93,11 @@ pub struct LightPush {
     pub inv_quantum: f32,
     /// Sum of the mean intensities (W/sr) of the light-traced lights.
     pub power_sum: f32,
+    /// Paths per slot in a batch, spp / batches, one more in the first `batch_r` batches.
+    pub batch_q: u32,
+    pub batch_r: u32,
+    /// The batch whose sums the first splat slice holds.
+    pub group_first: u32,
 }
 
 pub const TRACE: Kernel =
@@ -133,9 +138,12 @@ pub const LIGHT: Kernel =
 const LIGHT_MESH_NODES_BINDING: u32 = 7;
 const LIGHT_MESH_TRIS_BINDING: u32 = 8;
 
-/// Per path slot of the light kernel: the 64-bit fixed-point splat sums (3 channels x 2
-/// words) of its pixel and the resumable state (`LightState`).
-pub const LIGHT_BYTES_PER_PIXEL: u64 = 24 + LIGHT_STATE_BYTES;
+/// One batch's slice of the light splats, per pixel: 3 channels x one 64-bit sum.
+pub const LIGHT_SLICE_BYTES_PER_PIXEL: u64 = 24;
+/// Light batches are traced in groups, one splat slice per batch of a group, so that the host
+/// waits once per group rather than once per batch (issue 42): as many slices as fit in this
+/// many bytes (10 at 1024^2: the default 16 batches in two groups of 8; all 16 at 512^2).
+pub const LIGHT_GROUP_BYTES: u64 = 256 << 20;
 /// Per path slot: the resumable light-path state (`LightState` in glsl/path/light.comp: the
 /// path, and a tracking loop paused mid-flight, in a chained interval through a mesh too).
 pub const LIGHT_STATE_BYTES: u64 = 128;
@@ -671,6 +679,14 @@ impl Solver for Path {
                 Range::int(1, u32::MAX as u64),
                 "independent batches of light paths (at most spp), whose spread gives the variance",
             ),
+            Knob::fixed(
+                "light_group",
+                "0",
+                Range::int(0, u32::MAX as u64),
+                "light batches traced per host wait, each with a splat slice of 24 bytes a pixel; 0: as many as \
+                    fit in 256 MiB (the default 16 at up to 512x512, two groups of 8 at 1024x1024); the image is \
+                    the same bits whatever the grouping",
+            ),
         ]
     }
 
@@ -701,6 +717,7 @@ impl Solver for Path {
         let rr_threshold: f32 = k.get("rr_threshold")?;
         let lt_mode: String = k.get("light_tracing")?;
         let light_batches: u32 = k.get("light_batches")?;
+        let light_group: u32 = k.get("light_group")?;
         let majorant_cell: u32 = k.get("majorant_cell")?;
         let schedule: Schedule = k.get("schedule")?;
         let chain_opts = chain_options(&k, scene)?;
@@ -741,7 +758,14 @@ impl Solver for Path {
         };
         let needs_camera = camera_lights > 0 || traced.is_empty();
         let batches = light_batches.min(spp);
-        let kinds = Kernels { camera: needs_camera, traced: &traced, batch, batches, features: [equiangular, mnee] };
+        let group = light_group_size(pixels, batches, light_group);
+        let kinds = Kernels {
+            camera: needs_camera,
+            traced: &traced,
+            batch,
+            batches: [batches, group],
+            features: [equiangular, mnee],
+        };
         let (camera, light) = run_kernels(&common, scene, &kinds, schedule, (stage, total), req.progress)?;
         (req.progress)(Progress::work(stage, total, total));
 
@@ -788,7 +812,13 @@ impl Solver for Path {
         } else {
             0
         };
-        let light = if traced.is_empty() { 0 } else { pixels * LIGHT_BYTES_PER_PIXEL + stats + 16 };
+        let batches = knobs.get::<u32>("light_batches")?.min(scene.render.spp);
+        let slices = light_group_size(pixels, batches, knobs.get("light_group")?) as u64;
+        let light = if traced.is_empty() {
+            0
+        } else {
+            pixels * (LIGHT_STATE_BYTES + slices * LIGHT_SLICE_BYTES_PER_PIXEL) + stats + 16
+        };
         Ok(gpu_scene::scene_bytes_with(scene, knobs.get("majorant_cell")?) + camera + light)
     }
 
@@ -929,7 +959,8 @@ struct Kernels<'a> {
     camera: bool,
     traced: &'a [usize],
     batch: u32,
-    batches: u32,
+    /// Light batches, and how many are traced per host wait.
+    batches: [u32; 2],
     features: [u32; 2],
 }
 
@@ -1138,13 +1169,26 @@ impl BatchSums {
     }
 }
 
+/// Batches of light paths traced together, one splat slice each: `asked` (`path.light_group`)
+/// or, where it is 0, as many as fit in [`LIGHT_GROUP_BYTES`] (at least one); spread evenly
+/// over the groups that `batches` needs.
+pub fn light_group_size(pixels: u64, batches: u32, asked: u32) -> u32 {
+    let fit = if asked > 0 {
+        asked.min(batches.max(1))
+    } else {
+        (LIGHT_GROUP_BYTES / (pixels * LIGHT_SLICE_BYTES_PER_PIXEL).max(1)).clamp(1, batches.max(1) as u64) as u32
+    };
+    let groups = batches.div_ceil(fit).max(1);
+    batches.div_ceil(groups).max(1)
+}
+
 /// Light paths (glsl/path/light.comp) from the lights in `traced`, `spp` per pixel, in
 /// `batches` independent batches whose spread gives the per-pixel variance.
 fn light_paths(
     c: &Common,
     scene: &Scene,
     traced: &[usize],
-    batches: u32,
+    [batches, group]: [u32; 2],
     role: QueueRole,
     progress: &dyn Fn(u64),
 ) -> Result<(Part, LightStats), SolverError> {
@@ -1159,32 +1203,43 @@ fn light_paths(
         .sum();
     let inv_quantum = QUANTA_PER_TYPICAL_SPLAT / typical_splat(scene, power_sum);
     let pipeline = gpu.pipeline(&LIGHT, &gs.modelled.mesh_spec())?;
-    let splats = gpu.buffer("light splats", pixels * 24)?;
+    let slice_words = (pixels * LIGHT_SLICE_BYTES_PER_PIXEL / 4) as usize;
+    let splats = gpu.buffer("light splats", group as u64 * pixels * LIGHT_SLICE_BYTES_PER_PIXEL)?;
     let state = gpu.buffer("light path state", pixels * LIGHT_STATE_BYTES)?;
     let stats = gpu.buffer("light path stats", resumable::STATS_WORDS * 4)?;
     let lstats = gpu.buffer("light splat stats", 16)?;
     let n_total = c.spp as f64 * pixels as f64;
-    let mut sample_end = 0u32;
+    let (batch_q, batch_r) = (c.spp / batches, c.spp % batches);
+    // Paths per slot in batch b, and the path index that ends it.
+    let rounds_of = |b: u32| batch_q + u32::from(b < batch_r);
+    let end_of = |b: u32| (b + 1) * batch_q + (b + 1).min(batch_r);
     let mut dispatches = 0u64;
     let mut first_rounds = 1u32;
-    // Each batch's sums are folded on another host thread while the next batch runs on the
-    // device (at 1024^2 the fold is 3 M pixel-channels of f64 arithmetic the GPU would wait
+    // A group of batches is one resumable run over its path indices, each path splatting into
+    // its batch's slice (glsl/path/light.comp, batch_of): the host waits once per few
+    // dispatches of the group and once for its readback, not once or twice per batch, and the
+    // slices' 64-bit integer sums are the same bits in whatever order the splats land.
+    // Each group's sums are folded on another host thread while the next group runs on the
+    // device (at 1024^2 a batch's fold is 3 M pixel-channels of f64 arithmetic the GPU would wait
     // for); the folds run in batch order, so the image is the same bits.
     let sums = std::thread::scope(|scope| -> Result<BatchSums, SolverError> {
         let mut folding: Option<std::thread::ScopedJoinHandle<BatchSums>> = None;
         let mut idle = Some(BatchSums::new(3 * pixels as usize));
-        for b in 0..batches {
-            let rounds = c.spp / batches + u32::from(b < c.spp % batches);
-            let start = sample_end;
-            sample_end += rounds;
+        let mut first = 0u32;
+        while first < batches {
+            let last = (first + group).min(batches);
+            let sample_end = end_of(last - 1);
             // A fill, not an upload of zeros: no host buffer, and no staged copy waited for where
-            // device memory is not mapped (splats of 24 MB at 1024^2 are past the upload ring's).
+            // device memory is not mapped (splats of 24 MB a batch at 1024^2 are past the upload ring's).
             gpu.fill_zero(&splats)?;
             let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut first_rounds, |slot| {
                 let push = LightPush {
                     head: c.head(sample_end, slot),
                     inv_quantum: inv_quantum as f32,
                     power_sum: power_sum as f32,
+                    batch_q,
+                    batch_r,
+                    group_first: first,
                 };
                 gs.bind(Pass::new("path.light", role, &pipeline))
                     .read(LIGHT_MESH_NODES_BINDING, &gs.mesh_nodes)
@@ -1197,16 +1252,23 @@ fn light_paths(
                     .cover([w, h, 1])
             })?;
             dispatches += n;
-            let words: Vec<u32> = gpu.read_buffer_as(&splats)?;
-            let paths = (sample_end - start) as f64 * pixels as f64;
+            let bytes =
+                gpu.read_buffer_prefix(&splats, (last - first) as u64 * pixels * LIGHT_SLICE_BYTES_PER_PIXEL)?;
+            let words: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
+            drop(bytes);
             let mut sums = match folding.take() {
                 Some(f) => f.join().expect("a batch fold does not panic"),
                 None => idle.take().expect("the sums before the first fold"),
             };
+            let group_first = first;
             folding = Some(scope.spawn(move || {
-                sums.fold(&words, inv_quantum, paths, rounds);
+                for (i, slice) in words.chunks_exact(slice_words).enumerate() {
+                    let rounds = rounds_of(group_first + i as u32);
+                    sums.fold(slice, inv_quantum, rounds as f64 * pixels as f64, rounds);
+                }
                 sums
             }));
+            first = last;
             progress(sample_end as u64);
         }
         Ok(match folding {
