@@ -78,7 +78,11 @@ pub fn try_render(
     let scene = scene.with_overrides(&scene_sets).unwrap_or_else(|e| panic!("test bug: {e}"));
     let settings = Settings::new(&knob_sets);
     let req = RenderRequest { scene: &scene, settings: &settings, force_full, progress: &|_| {} };
-    solver.render(gpu, &req)
+    let started = std::time::Instant::now();
+    let out = solver.render(gpu, &req);
+    // Where a test's time goes (`--no-capture`): the suite's budget is kept by reading it.
+    eprintln!("[time] {} {sets:?}: {:.2} s", solver.name(), started.elapsed().as_secs_f64());
+    out
 }
 
 pub fn render_with(
@@ -441,6 +445,7 @@ pub fn path_reference(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> Refere
         (scatterlab::output::read_exr(&file), scatterlab::output::read_exr_layer(&file, "variance"))
     {
         if (image.width, image.height) == (scene.render.width, scene.render.height) {
+            eprintln!("[time] path reference {sets:?}: kept ({key})");
             return Reference { image, variance: Some(variance) };
         }
     }

@@ -92,7 +92,7 @@ fn render_ok(gpu: &scatterlab::gpu::Gpu, text: &str, what: &str) -> RenderOutput
 ///   paths deep and wide); at 1e7 the free path (1e-8) is below the float32 resolution of
 ///   positions at the face (6e-8), the render says so (`position_resolution_note`) and the
 ///   face is biased bright, but never past the lossless bound;
-/// - albedo 0.99, point light: the image total not above the lossless (albedo 1) render's.
+/// - albedo 0.99, point light: the image total not above that of albedo 0.999.
 ///
 /// About 2 s on lavapipe (2 cores): free paths this short end a path's walk within a few
 /// hundred events.
@@ -127,15 +127,18 @@ fn path_renders_any_optical_thickness_and_keeps_the_exact_answers() {
             );
         }
 
-        // Scattering under the point light: the total within the lossless render's.
+        // Scattering under the point light: the total within a brighter medium's (albedo
+        // 0.999: the image grows with the albedo). Not albedo 1: there a path random-walks
+        // ~tau^2 events before it escapes, 35 s of the test's 77 at tau 1e4 for a bound that
+        // the collision cap cuts short anyway.
         let what = format!("sigma_t {sigma_t:e}, albedo 0.99, point light");
         let out = render_ok(&gpu, &cube(sigma_t, 0.99, POINT, 64), &what);
-        let lossless = render_ok(&gpu, &cube(sigma_t, 1.0, POINT, 64), &format!("{what}, lossless"));
+        let lossless = render_ok(&gpu, &cube(sigma_t, 0.999, POINT, 64), &format!("{what}, albedo 0.999"));
         let (m, se) = mean_and_stderr(&out.image, out.variance.as_ref().unwrap());
         let (mb, seb) = mean_and_stderr(&lossless.image, lossless.variance.as_ref().unwrap());
-        eprintln!("{what}: image mean {m:.5} +- {se:.5}, lossless {mb:.5} +- {seb:.5}");
+        eprintln!("{what}: image mean {m:.5} +- {se:.5}, albedo 0.999 {mb:.5} +- {seb:.5}");
         assert!(m > 0.0, "{what}: black");
-        assert!(m <= mb + 5.0 * (se * se + seb * seb).sqrt(), "{what}: mean {m} above the lossless {mb}");
+        assert!(m <= mb + 5.0 * (se * se + seb * seb).sqrt(), "{what}: mean {m} above albedo 0.999's {mb}");
     }
     assert_clean(&gpu);
 }

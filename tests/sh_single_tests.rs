@@ -579,12 +579,12 @@ fn sh_single_converges_on_the_cloud_grid() {
     // own psi made this 1.20-1.33x `single` (and a light inside the cloud 1.42-1.54x); now the
     // energy converges to single's as the samples grow (32 x 32, depth heuristic: 1.13 / 1.04 /
     // 1.02 at 4000 / 16000 / 64000 samples; relL2 0.42 / 0.19 / 0.13; 20 x 20 here, divergence:
-    // 0.192 / 0.131 at 2000 / 12000, depth 0.445 / 0.223).
+    // 0.192 / 0.131 at 2000 / 12000, depth 0.445 / 0.223; 8000 here, CI time).
     let gpu = gpu();
     let s = crate::common::repo_scene("scenes/cloud.toml", &[("render.width", "20"), ("render.height", "20")]);
     let reference = crate::common::render(&gpu, &s, crate::common::SINGLE, &[]);
     let mut last = f64::INFINITY;
-    for samples in ["2000", "12000"] {
+    for samples in ["2000", "8000"] {
         // `auto` samples a grid by the thesis's divergence heuristic; the depth heuristic,
         // blind to the density's gradients, must do worse at the same count (96 x 96: relL2
         // 0.43 / 0.23 against 0.19 / 0.14 at 2000 / 8000 samples).
@@ -604,7 +604,7 @@ fn sh_single_converges_on_the_cloud_grid() {
         assert!(m.rel_l2 < md.rel_l2, "{samples} samples: divergence {} against depth {}", m.rel_l2, md.rel_l2);
         assert!(m.rel_l2 < last, "{samples} samples: relL2 {} not below {last}", m.rel_l2);
         last = m.rel_l2;
-        if samples == "12000" {
+        if samples == "8000" {
             assert!((m.energy_ratio - 1.0).abs() < 0.08, "energy {}", m.energy_ratio);
             assert!(m.rel_l2 < 0.3, "relL2 {}", m.rel_l2);
         }
@@ -643,7 +643,9 @@ fn the_sample_indexes_render_what_visiting_every_sample_renders() {
     };
     for (what, s) in &cases {
         let with = |index| {
-            let sets = [("sh-single.samples", "3000"), ("sh-single.order", "3"), ("sh-single.index", index)];
+            // 2200 samples: two chunks (of at most 2048), and the samples' projection, not the
+            // pixels, is the render's time (3000 took 48 s in all, CI time).
+            let sets = [("sh-single.samples", "2200"), ("sh-single.order", "3"), ("sh-single.index", index)];
             crate::common::render(&gpu, s, crate::common::SH_SINGLE, &sets)
         };
         let brute = with("none");
