@@ -69,14 +69,15 @@ fn path_light_batches_wait_once_per_group_with_the_same_bits() {
     let base = [("path.light_tracing", "on"), ("path.light_batches", "16")];
     let mut one = base.to_vec();
     one.push(("path.light_group", "1"));
-    let mut five = base.to_vec();
-    five.push(("path.light_group", "5"));
+    // At most 6 a wait, spread evenly: groups of 6, 6 and 4 (a last group shorter than the rest).
+    let mut six = base.to_vec();
+    six.push(("path.light_group", "6"));
     let grouped = render(&gpu, &scene, PATH, &base);
     let single = render(&gpu, &scene, PATH, &one);
-    let uneven = render(&gpu, &scene, PATH, &five);
+    let uneven = render(&gpu, &scene, PATH, &six);
     let waits = |o: &RenderOutput| o.report.host.waits.count;
     println!(
-        "path, {batches} light batches: {} host waits grouped, {} in groups of 5, {} one batch at a time",
+        "path, {batches} light batches: {} host waits grouped, {} in groups of 6, 6 and 4, {} one batch at a time",
         waits(&grouped),
         waits(&uneven),
         waits(&single)
@@ -88,7 +89,7 @@ fn path_light_batches_wait_once_per_group_with_the_same_bits() {
         batches / 8 + SETUP_WAITS
     );
     assert!(waits(&single) >= batches, "one batch per wait waited only {} times", waits(&single));
-    for (what, o) in [("grouped", &grouped), ("in groups of 5", &uneven)] {
+    for (what, o) in [("grouped", &grouped), ("in groups of 6, 6 and 4", &uneven)] {
         assert_eq!(o.image.data, single.image.data, "the image {what} differs from one batch at a time");
         assert_eq!(
             o.variance.as_ref().unwrap().data,

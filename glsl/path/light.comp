@@ -106,6 +106,11 @@ uint batch_of(uint k) {
     return k < big ? k / (pc.batch_q + 1u) : pc.batch_r + (k - big) / pc.batch_q;
 }
 
+// The word offset of path index k's batch slice in this group's splats.
+uint slice_of(uint k, uvec2 res) {
+    return 6u * res.x * res.y * (batch_of(k) - pc.group_first);
+}
+
 uint splat_clamped = 0u;
 uint sum_overflow = 0u;
 uint splat_count = 0u;
@@ -250,6 +255,8 @@ void main() {
     vec3 beta = st.beta_key.xyz;
     uvec2 rng = uvec2(floatBitsToUint(st.beta_key.w), st.k_flags.w);
     uint k = st.k_flags.x;
+    // A path resumed in flight splats into its batch's slice; a new path sets its own below.
+    slice_words = slice_of(k, res);
     bool in_flight = (st.k_flags.y & FLAG_IN_FLIGHT) != 0u;
     truncated = (st.k_flags.y & FLAG_TRUNCATED) != 0u;
     trk_resume = (st.k_flags.y & FLAG_TRACKING) != 0u;
@@ -268,6 +275,7 @@ void main() {
     while (iters < pc.budget) {
         if (!in_flight) {
             if (k >= pc.sample_end) break;
+            slice_words = slice_of(k, res);
             // Streams keyed apart from the camera kernel's (seed_hi is mixed differently).
             rng = rng_init(pc.seed_lo, pc.seed_hi ^ 0x6c8e9cf5u, slot_index, k);
             // The light, with probability proportional to its mean intensity (inverse CDF).
@@ -302,7 +310,6 @@ void main() {
             }
         }
         iters++;
-        slice_words = 6u * res.x * res.y * (batch_of(k) - pc.group_first);
         // A paused event (a free flight or a camera connection) is resumed whatever beta is.
         bool fresh = !ev_splat && !trk_resume;
         int r = fresh && max3(beta) <= 0.0 ? EVENT_ENDED : advance(o, d, beta, emitted_weight(light), depth, rng);

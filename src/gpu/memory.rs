@@ -440,8 +440,12 @@ impl Gpu {
 
     /// Read a buffer as a typed vector.
     pub fn read_buffer_as<T: bytemuck::Pod>(&self, b: &Buffer) -> Result<Vec<T>> {
-        let bytes = self.read_buffer(b)?;
-        Ok(bytemuck::pod_collect_to_vec(&bytes))
+        self.read_buffer_prefix_as(b, b.size())
+    }
+
+    /// Read the first `bytes` bytes of a buffer as a typed vector ([`Gpu::read_buffer_prefix`]).
+    pub fn read_buffer_prefix_as<T: bytemuck::Pod>(&self, b: &Buffer, bytes: u64) -> Result<Vec<T>> {
+        Ok(bytemuck::pod_collect_to_vec(&self.read_buffer_prefix(b, bytes)?))
     }
 
     /// A 3D storage image holding `data` (x fastest), left in `GENERAL` layout.

@@ -683,9 +683,9 @@ impl Solver for Path {
                 "light_group",
                 "0",
                 Range::int(0, u32::MAX as u64),
-                "light batches traced per host wait, each with a splat slice of 24 bytes a pixel; 0: as many as \
-                    fit in 256 MiB (the default 16 at up to 512x512, two groups of 8 at 1024x1024); the image is \
-                    the same bits whatever the grouping",
+                "most light batches traced per host wait, each with a splat slice of 24 bytes a pixel, spread \
+                    evenly over the waits; 0: as many as fit in 256 MiB (the default 16 at up to 512x512, two groups \
+                    of 8 at 1024x1024); the image is the same bits whatever the grouping",
             ),
         ]
     }
@@ -1252,10 +1252,8 @@ fn light_paths(
                     .cover([w, h, 1])
             })?;
             dispatches += n;
-            let bytes =
-                gpu.read_buffer_prefix(&splats, (last - first) as u64 * pixels * LIGHT_SLICE_BYTES_PER_PIXEL)?;
-            let words: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
-            drop(bytes);
+            let words: Vec<u32> =
+                gpu.read_buffer_prefix_as(&splats, (last - first) as u64 * pixels * LIGHT_SLICE_BYTES_PER_PIXEL)?;
             let mut sums = match folding.take() {
                 Some(f) => f.join().expect("a batch fold does not panic"),
                 None => idle.take().expect("the sums before the first fold"),
