@@ -674,3 +674,35 @@ fn the_sample_indexes_render_what_visiting_every_sample_renders() {
     }
     assert_clean(&gpu);
 }
+
+#[test]
+fn sh_single_never_creates_energy_on_a_thick_slab_with_few_samples() {
+    // The shipped thick slab (optical thickness 50, albedo 0.99, 4 x 0.5 x 4, sun and sky) with
+    // few samples: their Gaussians are wide, and a sample many mean free paths under the top face
+    // reaches past it. The light's optical depth is linear across a Gaussian; unfloored it went far
+    // below zero there and the attenuation to exp(+tau^2 / 18): at 64 x 64 the image was 585x
+    // path's energy at 250 samples and 3.9e7x at 1000 (image mean 8.8e6). Floored at zero depth
+    // (glsl/sh_single/render.comp, lit_gaussian), a sample's light is at most its unattenuated
+    // value: measured at 24 x 24, 0.53 (250) and 0.66 (1000) of single's energy, the dark bias
+    // the warning states (0.56-0.78 of single's energy at 0.87-2.2 mean free paths apart).
+    let gpu = gpu();
+    let sets = [("render.width", "24"), ("render.height", "24")];
+    let s = crate::common::repo_scene("scenes/thick-slab.toml", &sets);
+    let reference = crate::common::render(&gpu, &s, crate::common::SINGLE, &[]);
+    let max_ref = reference.image.data.iter().fold(0.0f32, |m, v| m.max(*v));
+    let sum = |d: &[f32]| d.iter().map(|v| *v as f64).sum::<f64>();
+    for samples in ["250", "1000"] {
+        let out =
+            crate::common::try_render(&gpu, &s, crate::common::SH_SINGLE, &[("sh-single.samples", samples)], false)
+                .unwrap_or_else(|e| panic!("{samples} samples: {e}"));
+        let w = &out.report.warnings;
+        assert!(w.iter().any(|l| l.contains("mean free paths apart")), "{samples} samples: {w:?}");
+        assert!(out.image.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{samples} samples: NaN, Inf or negative");
+        let energy = sum(&out.image.data) / sum(&reference.image.data);
+        let max = out.image.data.iter().fold(0.0f32, |m, v| m.max(*v));
+        eprintln!("thick slab, {samples} samples: energy {energy:.4} of single's, brightest pixel {max:.4} (single {max_ref:.4})");
+        assert!(energy > 0.4 && energy < 1.0, "{samples} samples: energy {energy} of single's");
+        assert!(max < 1.5 * max_ref, "{samples} samples: brightest pixel {max} against single's {max_ref}");
+    }
+    assert_clean(&gpu);
+}

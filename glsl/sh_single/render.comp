@@ -44,8 +44,8 @@ layout(std430, binding = 3) readonly buffer Samples { vec4 samples[]; };
 // Sample i's attenuation coefficients: [(i * 3 + c) * order^2 + k]; with env_coeffs each sample has
 // six sets, psi's three then the environment's three: [(i * 6 + c) * order^2 + k], [(i * 6 + 3 + c) ...].
 layout(std430, binding = 4) readonly buffer Coeffs { float coeffs[]; };
-// Sample i, light j, from LIGHT_WORDS (i * lights + j): the irradiance attenuated toward the
-// light (psi) rgb; the unit direction toward the light; per channel the gradient of the optical
+// Sample i, light j, from LIGHT_WORDS (i * lights + j): the irradiance before attenuation
+// toward the light (the boundary factor's only) rgb; the unit direction toward the light; per channel the gradient of the optical
 // depth toward the light with respect to the sample's position, w = that depth
 // (src/solvers/sh_single.rs, tau_gradient).
 layout(std430, binding = 5) readonly buffer LightTerms { vec4 lterms[]; };
@@ -106,22 +106,41 @@ const uint LIGHT_WORDS = 5u;
 // interpolated linearly between them.
 const uint CHORD_POINTS = 32u;
 
+// exp(C) int_{u0}^{u1} exp(-a u^2 - S u) du, zero where u1 <= u0: a Gaussian times the exponential
+// of a linear optical depth, in closed form by completing the square (the depth's slope S moves
+// the peak by -S / 2a and raises it by S^2 / 4a).
+float gauss_linear(float C, float a, float S, float u0, float u1) {
+    if (u1 <= u0) return 0.0;
+    float shift = S / (2.0 * a);
+    return gauss_interval(C + S * shift * 0.5, a, u0 + shift, u1 + shift);
+}
+
 // The Gaussian's integral along the segment with the camera's optical depth (tau_c, slope s
-// about t_c) and a light's optical depth linear across the Gaussian: tau_l(b_i) + grad .
-// (r_perp + d (t - t_c)), r_perp the ray's closest point less b_i; gr = (grad, tau_l(b_i)),
-// relative to the value at the centre that the light term already carries. The linear depth
-// is kept from going negative within three standard deviations of t_c (back, ahead: the
-// stretch of the segment there on either side): grad is a first-order model of a surface that
-// curves.
+// about t_c) and a light's absolute attenuation exp(-tau_l(x)), tau_l linear across the Gaussian:
+// tau_l(b_i) + grad . (r_perp + d (t - t_c)), r_perp the ray's closest point less b_i; gr = (grad,
+// tau_l(b_i)). The caller multiplies by the light's unattenuated value. grad is a first-order
+// model of a surface that curves, so the linear depth is floored at zero: exp(-max(tau_l, 0)),
+// in two closed-form pieces either side of its zero. Without the floor a steep gradient across
+// a wide Gaussian (a sample many mean free paths under the surface of a thick slab, its Gaussian
+// reaching past the surface) took the depth far below zero and the attenuation to exp(+tau^2/18):
+// sh-single's thick slab came out 10^2-10^8 times `single`'s energy. With it the light factor is
+// at most 1, so the Gaussian's part is at most its camera-attenuated coverage (energy is never
+// created). The slope is also kept from taking the depth below zero within three standard
+// deviations of t_c (back, ahead: the stretch of the segment there on either side), which flattens
+// the model where the Gaussian has its weight.
 float lit_gaussian(vec4 gr, vec3 rperp, vec3 d, float a, float h2, float tc, float t1, float tau_c, float s, float back, float ahead) {
     float tau_near = max(gr.w + dot(gr.xyz, rperp), 0.0);
-    float k = gr.w - tau_near;                 // -grad . r_perp, at most tau_l(b_i)
     float sl = dot(gr.xyz, d);
     if (sl > 0.0 && back > 0.0) sl = min(sl, tau_near / back);
     if (sl < 0.0 && ahead > 0.0) sl = max(sl, -tau_near / ahead);
-    float S = s + sl;
-    float shift = S / (2.0 * a);
-    return gauss_interval(-a * h2 - tau_c + k + S * shift * 0.5, a, -tc + shift, t1 - tc + shift);
+    float C = -a * h2 - tau_c;
+    float u0 = -tc, u1 = t1 - tc;
+    if (sl == 0.0) return gauss_linear(C - tau_near, a, s, u0, u1);
+    // tau_l(u) = tau_near + sl u is zero at uz; below it on the side the slope falls to.
+    float uz = -tau_near / sl;
+    if (sl > 0.0)
+        return gauss_linear(C, a, s, u0, min(uz, u1)) + gauss_linear(C - tau_near, a, s + sl, max(uz, u0), u1);
+    return gauss_linear(C - tau_near, a, s + sl, u0, min(uz, u1)) + gauss_linear(C, a, s, max(uz, u0), u1);
 }
 
 // Per channel, sum_lm f^l c_lm Y_lm(d) over the coefficients of one set (from `base`, three
@@ -188,6 +207,8 @@ void add_sample(uint i, vec3 x, vec3 d, float t1, bool constant, vec3 st, uint n
     for (uint j = 0u; j < pc.lights; ++j) {
         iters++;
         uint base = LIGHT_WORDS * (i * pc.lights + j);
+        // The light's value at the sample before attenuation: the host's boundary factor
+        // times the irradiance (the attenuation is lit_gaussian's, from gr.w).
         vec3 e = lterms[base].rgb;
         vec3 w = lterms[base + 1u].xyz;
         float p = hg_eval(g, dot(w, d));
@@ -202,7 +223,15 @@ void add_sample(uint i, vec3 x, vec3 d, float t1, bool constant, vec3 st, uint n
         // The environment's attenuation varies across the Gaussian as the lights' does:
         // with the psi-weighted mean gradient over directions (sh_single.rs,
         // environment_gradient).
-        envs = max(envs, vec3(0.0));
+        // lit_gaussian gives the absolute attenuation, with the depth -ln(mean psi) at the
+        // centre (gr.w): the environment's value before it is envs / mean psi. That ratio
+        // is at most 4 pi max p = (1 + |g|) / (1 - |g|)^2 (envs = int psi p <= max p int psi),
+        // which also keeps it finite; where mean psi underflows, the isotropic ratio 1.
+        float ratio_max = (1.0 + abs(g)) / ((1.0 - abs(g)) * (1.0 - abs(g)));
+        for (uint c = 0u; c < 3u; ++c) {
+            float mean_psi = exp(-samples[SAMPLE_WORDS * i + 3u + c].w);
+            envs[c] = mean_psi > 1e-30 ? min(max(envs[c], 0.0) / mean_psi, ratio_max) : 1.0;
+        }
         for (uint c = 0u; c < 3u; ++c) {
             iters++;
             lit[c] += pc.env[c] * envs[c] * lit_gaussian(samples[SAMPLE_WORDS * i + 3u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);

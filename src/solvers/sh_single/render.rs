@@ -256,7 +256,7 @@ pub fn partition_weights(object: &Object, samples: &[Sample], params: &[SamplePa
         .collect()
 }
 
-/// Words per sample and light in the light-term buffer: the attenuated irradiance, the unit
+/// Words per sample and light in the light-term buffer: the unattenuated irradiance, the unit
 /// direction toward the light, and per channel the gradient of the optical depth toward it with
 /// that depth ([`tau_gradient`]).
 pub(super) const LIGHT_WORDS: usize = 5;
@@ -480,8 +480,12 @@ fn sample_upload(
         };
         let ft = boundary_factor_within(object, s.position, w, t_max);
         let grad = tau_gradient(object, s.position, s.material, w, t_max);
-        let att: [f32; 3] = std::array::from_fn(|c| ((-tau_l[c]).exp() * ft) as f32 * e[c]);
-        lt.push([att[0], att[1], att[2], 0.0]);
+        // The light before its attenuation (boundary factor times irradiance): the render
+        // attenuates it by exp(-tau_l) from the depth and gradient below, floored at zero depth
+        // (glsl/sh_single/render.comp, lit_gaussian), so no product of a tiny attenuation and
+        // its large inverse is ever formed.
+        let unattenuated: [f32; 3] = std::array::from_fn(|c| ft as f32 * e[c]);
+        lt.push([unattenuated[0], unattenuated[1], unattenuated[2], 0.0]);
         lt.push([w.x, w.y, w.z, 0.0]);
         for c in 0..3 {
             lt.push([grad[c].x, grad[c].y, grad[c].z, tau_l[c].min(1e30) as f32]);
