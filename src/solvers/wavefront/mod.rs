@@ -12,6 +12,8 @@
 //! Knobs: the wave field's (`nu`, `nv`, `layers`, `integrator`, `boundary`, `explicit_start`, `grid`) and
 //! the view march's as `view_*` (`scatterlab knobs wavefront`).
 
+mod trust;
+
 use serde::Serialize;
 
 use crate::gpu::{Gpu, Kernel};
@@ -25,6 +27,8 @@ use crate::solvers::parts::gpu_scene::{self, GpuScene};
 use crate::solvers::parts::lattice::LatticeGeom;
 use crate::solvers::parts::view::{self, ViewSettings};
 use crate::solvers::parts::wave_field::{self, wave_volume, WaveSettings, WaveVolume};
+
+pub use trust::WaveTrust;
 
 pub struct Wavefront;
 
@@ -44,6 +48,8 @@ pub struct WavefrontStats {
     pub dispatches: u64,
     pub max_loop_iterations: u32,
     pub nonfinite_pixels: u32,
+    /// How far to trust the render: its discretisation against what wavefront was validated at.
+    pub trust: WaveTrust,
 }
 
 /// Warnings a wavefront result carries: lights the method does not trace, and where the
@@ -94,6 +100,7 @@ impl Solver for Wavefront {
         let set = WaveSettings::parse(&k, "")?;
         let view = ViewSettings::parse(&k, "view_", scene)?;
         k.finish()?;
+        let trust = WaveTrust::of(scene, &set);
         let gs = GpuScene::upload(gpu, scene, req.force_full)?;
         (req.progress)(Progress::work("passes", 0, 2));
         let vol = wave_volume(gpu, scene, &gs, &set, None)?;
@@ -111,6 +118,7 @@ impl Solver for Wavefront {
             dispatches: res.dispatches,
             max_loop_iterations: res.max_loop_iterations,
             nonfinite_pixels: res.nonfinite_pixels,
+            trust,
         });
         // The march's own state went negative or non-finite (the gather clamps it, so the
         // image alone would not show it): a failure of the integrator.
@@ -118,6 +126,7 @@ impl Solver for Wavefront {
         let bytes = gs.bytes + vol.device_bytes + res.device_bytes;
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, stats);
         report.warnings = warnings(scene, &set, &vol);
+        report.warnings.extend(trust.warnings());
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
         Ok(RenderOutput { image: res.image, variance: None, report })
     }
@@ -181,6 +190,10 @@ impl Solver for Wavefront {
             .collect()
     }
 
+    fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        Ok(WaveTrust::of(scene, &WaveSettings::parse(knobs, "")?).warnings())
+    }
+
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
         if let Some(why) = self.mesh_refusal(scene) {
             return Some(why);
@@ -193,9 +206,12 @@ impl Solver for Wavefront {
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<WavefrontStats>() else { return Vec::new() };
         let d = s.cartesian.dims;
-        vec![format!(
-            "wavefront: {} point light(s) traced, gathered onto {}x{}x{} voxels, {} channel(s)",
-            s.lights_traced, d[0], d[1], d[2], s.channels
-        )]
+        vec![
+            format!(
+                "wavefront: {} point light(s) traced, gathered onto {}x{}x{} voxels, {} channel(s)",
+                s.lights_traced, d[0], d[1], d[2], s.channels
+            ),
+            format!("wavefront: {}", s.trust.line()),
+        ]
     }
 }

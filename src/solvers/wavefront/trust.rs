@@ -1,0 +1,238 @@
+//! How far to trust a `wavefront` render (issue 44, item 2): its three discretisations (the
+//! gather's Cartesian voxels, the spherical grid's shells and the angle between its rays), each
+//! in mean free paths at the medium's densest, and the one limit of the method no knob lifts
+//! (diffusion, eq. 4, for light that has crossed many mean free paths of an absorbing medium).
+//!
+//! The thresholds are measured on lavapipe against `path` (1024 spp, 32 x 32, bias and energy
+//! from `scatterlab compare`) on a cube [-0.5, 0.5]^3 of constant density with a point light at
+//! its centre, sigma_t 2 / 20 / 100, albedo 0.5-0.99, g 0, each knob swept with the others at
+//! their defaults (docs/wavefront.md, "How far to trust it"). The energy quoted is against the
+//! same case at the fine end of the knob, so the method's own bias (docs/wavefront.md: up to
+//! 1.21x at albedo 0.99, optical radius 10) is kept apart from the discretisation's.
+
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::scene::Scene;
+use crate::solvers::parts::lattice::LatticeGeom;
+use crate::solvers::parts::wave_field::{traced_lights, WaveSettings, MAX_LAYERS};
+
+/// The figures of one render ([`WaveTrust::of`]): its JSON `trust` block, its summary line and,
+/// where it falls outside the range by enough, its warnings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct WaveTrust {
+    /// The point lights inside the medium the method traces: with none, nothing is gathered
+    /// (the render is exact single scattering) and no figure below applies.
+    pub lights_traced: usize,
+    /// Mean free paths across a gather voxel's edge at the densest point (sigma_t max over
+    /// channels times the largest density times the voxel edge).
+    pub voxel_depth: f32,
+    /// Mean free paths across one radial shell (radius / layers) at the densest point, the
+    /// largest over the traced lights.
+    pub shell_depth: f32,
+    /// Mean free paths between neighbouring rays at the farthest corner of the box (radius
+    /// times the rays' angular spacing sqrt(4 pi / (nu nv))) at the densest point, the largest
+    /// over the traced lights.
+    pub ray_gap: f32,
+    /// The smallest albedo over channels.
+    pub albedo: f32,
+    /// The optical depth from a traced light to the box along the axis where it is least (the
+    /// six axis directions, marched through the density; sigma_t max over channels), the largest
+    /// over the traced lights: how far the light has diffused before the camera sees it.
+    pub light_depth: f32,
+    /// The knobs' values that bring each figure to the validated one (None: within it already,
+    /// or past the knob's range).
+    pub grid_needed: Option<u32>,
+    pub layers_needed: Option<u32>,
+    pub rays_needed: Option<(u32, u32)>,
+}
+
+impl WaveTrust {
+    /// Mean free paths a gather voxel was validated at: 0.5 gave within 2% of the energy at the
+    /// finest grid (sigma_t 20, albedo 0.95 and 0.99), 1.0 +8%, 1.25 0 to +11%.
+    pub const VOXEL: f32 = 0.5;
+    /// Past this a warning: 2.5-3.1 gave +33-40%, 6.25 +114%; 1.56 (the default grid on the
+    /// sigma_t 100 cube) +4%, so the line says OUTSIDE there without a warning.
+    pub const VOXEL_WARN: f32 = 2.0;
+    /// Mean free paths a shell was validated at (the default 128 layers on the sigma_t 100 cube,
+    /// 2.7: within 1%). The shells sample where each ray leaves the medium for the extrapolated
+    /// boundary, so the error past it is not monotone: 3.6 gave -17%, 5.4 +34%, 10.8 +48%.
+    pub const SHELL: f32 = 3.0;
+    /// Mean free paths between rays at the farthest corner validated at: up to 7 within 5%
+    /// (sigma_t 20 at 128-2048 rays, 100 at 2048).
+    pub const RAY_GAP: f32 = 7.0;
+    /// Past this a warning: 11 gave +13-20%, 14 +16%, 18 +28%, 27 +38%, 54 +90%.
+    pub const RAY_GAP_WARN: f32 = 10.0;
+    /// Below this albedo, with the light deeper than [`WaveTrust::DEEP`], diffusion misses the
+    /// light: at 10 mean free paths deep albedo 0.5 gave 0.69 of path's energy, 0.8 0.84, 0.9
+    /// 1.00; at 2.5-5 deep albedo 0.5 and 0.8 gave 1.00-1.12.
+    pub const ALBEDO: f32 = 0.9;
+    /// Mean free paths from the light to the box past which the albedo limit applies.
+    pub const DEEP: f32 = 8.0;
+    /// `wavefront.grid`'s largest value, and `nu`'s and `nv`'s.
+    const MAX_GRID: u32 = 1024;
+    const MAX_RAYS: u32 = 4096;
+
+    /// The trust of a render of `scene` at `set`.
+    pub fn of(scene: &Scene, set: &WaveSettings) -> WaveTrust {
+        let sigma = scene.medium.sigma_t.max_element() * scene.max_density();
+        let lambda = LatticeGeom::new(scene, set.grid).lambda;
+        let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
+        let lights = traced_lights(scene);
+        let radius = lights.iter().map(|(p, _)| farthest_corner(lo, hi, *p)).fold(0.0f32, f32::max);
+        let spacing = (4.0 * std::f32::consts::PI / (set.nu as f32 * set.nv as f32)).sqrt();
+        let light_depth = lights.iter().map(|(p, _)| least_axis_depth(scene, *p)).fold(0.0f32, f32::max);
+        let voxel_depth = sigma * lambda;
+        let shell_depth = sigma * radius / set.layers as f32;
+        let ray_gap = sigma * radius * spacing;
+        let longest = (hi - lo).max_element();
+        let grid_needed = (voxel_depth > Self::VOXEL * 1.001)
+            .then(|| (sigma * longest / Self::VOXEL).ceil())
+            .filter(|g| *g <= Self::MAX_GRID as f32)
+            .map(|g| g as u32);
+        let layers_needed = (shell_depth > Self::SHELL * 1.001)
+            .then(|| (sigma * radius / Self::SHELL).ceil())
+            .filter(|l| *l <= MAX_LAYERS as f32)
+            .map(|l| l as u32);
+        // Rays nu x nv = 4 pi (sigma R / gap)^2, nu = 2 nv as the defaults (64 x 32).
+        let rays_needed = (ray_gap > Self::RAY_GAP * 1.001)
+            .then(|| {
+                let n = 4.0 * std::f32::consts::PI * (sigma * radius / Self::RAY_GAP).powi(2);
+                (n / 2.0).sqrt().ceil()
+            })
+            .filter(|nv| 2.0 * nv <= Self::MAX_RAYS as f32)
+            .map(|nv| (2 * nv as u32, nv as u32));
+        WaveTrust {
+            lights_traced: lights.len(),
+            voxel_depth,
+            shell_depth,
+            ray_gap,
+            albedo: scene.medium.albedo.min_element(),
+            light_depth,
+            grid_needed,
+            layers_needed,
+            rays_needed,
+        }
+    }
+
+    fn diffusion_outside(&self) -> bool {
+        self.albedo < Self::ALBEDO && self.light_depth > Self::DEEP
+    }
+
+    /// Every figure within what wavefront was validated at.
+    pub fn within(&self) -> bool {
+        self.lights_traced == 0
+            || self.voxel_depth <= Self::VOXEL * 1.001
+                && self.shell_depth <= Self::SHELL * 1.001
+                && self.ray_gap <= Self::RAY_GAP * 1.001
+                && !self.diffusion_outside()
+    }
+
+    /// The one-line figure for a render's summary.
+    pub fn line(&self) -> String {
+        if self.lights_traced == 0 {
+            return "wave trust: no point light inside the medium, nothing gathered: exact single scattering only"
+                .to_string();
+        }
+        format!(
+            "wave trust: {:.2} mean free paths a gather voxel, {:.2} a shell, {:.2} between rays at the farthest corner \
+             (validated at <= {}, {} and {}); albedo {:.2}, the light {:.1} mean free paths deep (validated at albedo >= \
+             {} where it is over {} deep){}",
+            self.voxel_depth,
+            self.shell_depth,
+            self.ray_gap,
+            Self::VOXEL,
+            Self::SHELL,
+            Self::RAY_GAP,
+            self.albedo,
+            self.light_depth,
+            Self::ALBEDO,
+            Self::DEEP,
+            if self.within() { "" } else { ": OUTSIDE" }
+        )
+    }
+
+    /// The warnings of a render outside the range by enough to matter: each figure with the
+    /// error measured nearest it and the knob's value that fixes it.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut w = Vec::new();
+        if self.lights_traced == 0 {
+            return w;
+        }
+        let fix = |needed: Option<String>, knob: &str| {
+            needed.unwrap_or_else(|| format!("no {knob} in its range serves; expect the error above, or use path"))
+        };
+        if self.voxel_depth > Self::VOXEL_WARN || self.voxel_depth.is_nan() {
+            w.push(format!(
+                "wavefront: a gather voxel is {:.2} mean free paths across at the densest, above the {} wavefront was \
+                 validated at (on a cube with the light inside, 2.5-3.1 gave 1.33-1.40x the energy of a fine grid, 6.25 \
+                 2.1x); {}",
+                self.voxel_depth,
+                Self::VOXEL,
+                fix(self.grid_needed.map(|g| format!("set wavefront.grid={g}")), "wavefront.grid")
+            ));
+        }
+        if self.shell_depth > Self::SHELL * 1.001 {
+            w.push(format!(
+                "wavefront: a radial shell is {:.2} mean free paths thick at the densest, above the {} wavefront was \
+                 validated at (on a cube with the light inside, 3.6-10.8 gave 0.83-1.48x the energy of fine shells); {}",
+                self.shell_depth,
+                Self::SHELL,
+                fix(self.layers_needed.map(|l| format!("set wavefront.layers={l}")), "wavefront.layers")
+            ));
+        }
+        if self.ray_gap > Self::RAY_GAP_WARN {
+            w.push(format!(
+                "wavefront: neighbouring rays stand {:.1} mean free paths apart at the farthest corner, above the {} \
+                 wavefront was validated at (on a cube with the light inside, 11-18 gave 1.13-1.28x the energy of fine \
+                 rays, 27-54 1.4-1.9x); {}",
+                self.ray_gap,
+                Self::RAY_GAP,
+                fix(
+                    self.rays_needed.map(|(nu, nv)| format!("set wavefront.nu={nu} wavefront.nv={nv}")),
+                    "wavefront.nu x nv"
+                )
+            ));
+        }
+        if self.diffusion_outside() {
+            w.push(format!(
+                "wavefront: albedo {:.2} with the light {:.1} mean free paths deep: outside what wavefront was validated \
+                 for (its diffusion, eq. 4, needs little absorption once light has crossed many mean free paths: with the \
+                 light 10 deep in a cube, albedo 0.5 gave 0.69x path's energy, 0.8 0.84x, 0.9 1.00x); no knob fixes it, \
+                 use path or dom",
+                self.albedo, self.light_depth
+            ));
+        }
+        w
+    }
+}
+
+/// Distance from `p` to the farthest corner of the box [lo, hi] (the spherical grid's radius).
+fn farthest_corner(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
+    (p - lo).abs().max((hi - p).abs()).length()
+}
+
+/// The least optical depth (sigma_t max over channels) from `p` to the medium's box along the
+/// six axis directions, marched at 256 midpoints a direction.
+fn least_axis_depth(scene: &Scene, p: Vec3) -> f32 {
+    let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
+    let sigma = scene.medium.sigma_t.max_element();
+    let mut least = f32::INFINITY;
+    for axis in 0..3 {
+        for (dir, len) in [(1.0f32, hi[axis] - p[axis]), (-1.0, p[axis] - lo[axis])] {
+            let len = len.max(0.0);
+            const STEPS: u32 = 256;
+            let h = len / STEPS as f32;
+            let mut w = Vec3::ZERO;
+            w[axis] = dir;
+            let depth: f32 =
+                (0..STEPS).map(|k| scene.density_at(p + w * ((k as f32 + 0.5) * h)) * h).sum::<f32>() * sigma;
+            least = least.min(depth);
+        }
+    }
+    if least.is_finite() {
+        least
+    } else {
+        0.0
+    }
+}
