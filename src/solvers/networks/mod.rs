@@ -495,7 +495,7 @@ impl Solver for Networks {
             ),
             Knob::derived(
                 "step",
-                "1/128 of the medium's diagonal",
+                "1/128 of the medium's diagonal, at most 1/16 of its thinnest side",
                 Range::positive(),
                 "transmittance march step (scene units) of the direct light and the image's medium transmittance",
             ),
