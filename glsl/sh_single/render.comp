@@ -229,12 +229,11 @@ void add_sample(uint i, vec3 x, vec3 d, float t1, bool constant, vec3 st, uint n
         // which also keeps it finite; where mean psi underflows, the isotropic ratio 1.
         float ratio_max = (1.0 + abs(g)) / ((1.0 - abs(g)) * (1.0 - abs(g)));
         for (uint c = 0u; c < 3u; ++c) {
-            float mean_psi = exp(-samples[SAMPLE_WORDS * i + 3u + c].w);
-            envs[c] = mean_psi > 1e-30 ? min(max(envs[c], 0.0) / mean_psi, ratio_max) : 1.0;
-        }
-        for (uint c = 0u; c < 3u; ++c) {
             iters++;
-            lit[c] += pc.env[c] * envs[c] * lit_gaussian(samples[SAMPLE_WORDS * i + 3u + c], rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
+            vec4 gr = samples[SAMPLE_WORDS * i + 3u + c];
+            float mean_psi = exp(-gr.w);
+            float before = mean_psi > 1e-30 ? min(max(envs[c], 0.0) / mean_psi, ratio_max) : 1.0;
+            lit[c] += pc.env[c] * before * lit_gaussian(gr, rperp, d, a, h2, tc, t1, tau_c[c], slope[c], back, ahead);
         }
     }
     L += sg.rgb * lit;

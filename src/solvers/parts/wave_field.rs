@@ -277,6 +277,22 @@ pub fn traced_lights(scene: &Scene) -> Vec<(Vec3, Vec3)> {
         .collect()
 }
 
+/// The spherical grid's radius around a light at `position`: its distance to the farthest corner
+/// of the medium's box (scene units).
+pub fn farthest_corner(scene: &Scene, position: Vec3) -> f32 {
+    let m = &scene.medium;
+    (0..8)
+        .map(|k| {
+            let c = Vec3::new(
+                if k & 1 == 0 { m.bounds_min.x } else { m.bounds_max.x },
+                if k & 2 == 0 { m.bounds_min.y } else { m.bounds_max.y },
+                if k & 4 == 0 { m.bounds_min.z } else { m.bounds_max.z },
+            );
+            c.distance(position)
+        })
+        .fold(0.0f32, f32::max)
+}
+
 /// The solver's three pipelines, built once per render and shared by every light.
 pub struct WaveKernels {
     resample: Pipeline,
@@ -310,17 +326,7 @@ fn light_passes(
     intensity: Vec3,
     stats: &Buffer,
 ) -> Result<(WaveField, Vec<Pass>), SolverError> {
-    let m = &scene.medium;
-    let radius = (0..8)
-        .map(|k| {
-            let c = Vec3::new(
-                if k & 1 == 0 { m.bounds_min.x } else { m.bounds_max.x },
-                if k & 2 == 0 { m.bounds_min.y } else { m.bounds_max.y },
-                if k & 4 == 0 { m.bounds_min.z } else { m.bounds_max.z },
-            );
-            c.distance(position)
-        })
-        .fold(0.0f32, f32::max);
+    let radius = farthest_corner(scene, position);
     let rays = set.nu as u64 * set.nv as u64;
     let nodes = rays * (set.layers as u64 + 1);
     let max = gpu.info().max_storage_buffer_range;

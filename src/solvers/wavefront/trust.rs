@@ -15,7 +15,7 @@ use serde::Serialize;
 
 use crate::scene::Scene;
 use crate::solvers::parts::lattice::LatticeGeom;
-use crate::solvers::parts::wave_field::{traced_lights, WaveSettings, MAX_LAYERS};
+use crate::solvers::parts::wave_field::{farthest_corner, traced_lights, WaveSettings, MAX_LAYERS};
 
 /// The figures of one render ([`WaveTrust::of`]): its JSON `trust` block, its summary line and,
 /// where it falls outside the range by enough, its warnings.
@@ -75,11 +75,11 @@ impl WaveTrust {
 
     /// The trust of a render of `scene` at `set`.
     pub fn of(scene: &Scene, set: &WaveSettings) -> WaveTrust {
-        let sigma = scene.medium.sigma_t.max_element() * scene.max_density();
+        let sigma = scene.max_sigma_t() * scene.max_density();
         let lambda = LatticeGeom::new(scene, set.grid).lambda;
         let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
         let lights = traced_lights(scene);
-        let radius = lights.iter().map(|(p, _)| farthest_corner(lo, hi, *p)).fold(0.0f32, f32::max);
+        let radius = lights.iter().map(|(p, _)| farthest_corner(scene, *p)).fold(0.0f32, f32::max);
         let spacing = (4.0 * std::f32::consts::PI / (set.nu as f32 * set.nv as f32)).sqrt();
         let light_depth = lights.iter().map(|(p, _)| least_axis_depth(scene, *p)).fold(0.0f32, f32::max);
         let voxel_depth = sigma * lambda;
@@ -207,16 +207,11 @@ impl WaveTrust {
     }
 }
 
-/// Distance from `p` to the farthest corner of the box [lo, hi] (the spherical grid's radius).
-fn farthest_corner(lo: Vec3, hi: Vec3, p: Vec3) -> f32 {
-    (p - lo).abs().max((hi - p).abs()).length()
-}
-
 /// The least optical depth (sigma_t max over channels) from `p` to the medium's box along the
 /// six axis directions, marched at 256 midpoints a direction.
 fn least_axis_depth(scene: &Scene, p: Vec3) -> f32 {
     let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
-    let sigma = scene.medium.sigma_t.max_element();
+    let sigma = scene.max_sigma_t();
     let mut least = f32::INFINITY;
     for axis in 0..3 {
         for (dir, len) in [(1.0f32, hi[axis] - p[axis]), (-1.0, p[axis] - lo[axis])] {
