@@ -3,10 +3,25 @@
 //! The version number alone does not change when the engine does: a cached `path` reference
 //! keyed by it (bench's, the tests') would outlive a fix to the tracer, and two renders from
 //! different trees would claim the same engine in their provenance.
+//!
+//! And the identity of what a `path` render is a function of, `SCATTERLAB_REFERENCE_BUILD`:
+//! the same hash without the files `path` cannot reach, the other solvers' folders (a solver
+//! never imports another: tests/registry_tests.rs holds that), the CLI and `measure` (above
+//! the solvers), `main.rs`, and the SPIR-V folders of kernels `path` does not run
+//! (`SCATTERLAB_REFERENCE_EXCLUDED_SPIRV`; tests/registry_tests.rs checks none holds one of
+//! path's kernels). A kept `path` reference keyed by it survives a change to `lbl`, not one to
+//! the tracer, the scene code, the GPU layer or a shared part.
 
 use std::path::{Path, PathBuf};
 
 use sha2::{Digest, Sha256};
+
+/// SPIR-V folders whose kernels `path` never runs.
+const REFERENCE_EXCLUDED_SPIRV: &[&str] =
+    &["lattice", "marching", "networks", "ordinates", "sh_single", "wave_field", "view", "probe"];
+/// Folders of `src/solvers/` that a `path` render runs code from: its own, the shared parts and
+/// the interface. Every other folder there is another solver's.
+const REFERENCE_SOLVER_FOLDERS: &[&str] = &["path", "parts", "interface"];
 
 fn files(dir: &Path, out: &mut Vec<PathBuf>) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
@@ -17,6 +32,30 @@ fn files(dir: &Path, out: &mut Vec<PathBuf>) {
         } else {
             out.push(p);
         }
+    }
+}
+
+/// 12 hex digits of a SHA-256 over `named` (relative name, file), in name order.
+fn identity(named: &[(String, PathBuf)]) -> String {
+    let mut h = Sha256::new();
+    for (name, path) in named {
+        let bytes = std::fs::read(path).unwrap_or_default();
+        h.update((name.len() as u64).to_le_bytes());
+        h.update(name.as_bytes());
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(&bytes);
+    }
+    h.finalize().iter().take(6).map(|b| format!("{b:02x}")).collect()
+}
+
+/// Whether the file `name` (relative to the root) can change what a `path` render gives.
+fn reaches_path(name: &str) -> bool {
+    let parts: Vec<&str> = name.split('/').collect();
+    match parts.as_slice() {
+        ["src", "cli" | "measure", ..] | ["src", "main.rs"] => false,
+        ["src", "solvers", dir, _, ..] => REFERENCE_SOLVER_FOLDERS.contains(dir),
+        ["spirv", dir, _, ..] => !REFERENCE_EXCLUDED_SPIRV.contains(dir),
+        _ => true,
     }
 }
 
@@ -38,14 +77,8 @@ fn main() {
         .map(|p| (p.strip_prefix(&root).unwrap_or(&p).to_string_lossy().replace('\\', "/"), p))
         .collect();
     named.sort();
-    let mut h = Sha256::new();
-    for (name, path) in &named {
-        let bytes = std::fs::read(path).unwrap_or_default();
-        h.update((name.len() as u64).to_le_bytes());
-        h.update(name.as_bytes());
-        h.update((bytes.len() as u64).to_le_bytes());
-        h.update(&bytes);
-    }
-    let id: String = h.finalize().iter().take(6).map(|b| format!("{b:02x}")).collect();
-    println!("cargo:rustc-env=SCATTERLAB_BUILD={id}");
+    println!("cargo:rustc-env=SCATTERLAB_BUILD={}", identity(&named));
+    let reference: Vec<(String, PathBuf)> = named.into_iter().filter(|(n, _)| reaches_path(n)).collect();
+    println!("cargo:rustc-env=SCATTERLAB_REFERENCE_BUILD={}", identity(&reference));
+    println!("cargo:rustc-env=SCATTERLAB_REFERENCE_EXCLUDED_SPIRV={}", REFERENCE_EXCLUDED_SPIRV.join(","));
 }

@@ -18,3 +18,13 @@ pub mod solvers;
 /// spirv/, Cargo.toml, Cargo.lock; `build.rs`). Recorded in every output's provenance beside
 /// the version, and part of every cache key of a rendered reference.
 pub const BUILD: &str = env!("SCATTERLAB_BUILD");
+
+/// The identity of what a `path` render is a function of (`build.rs`): [`BUILD`] without the
+/// other solvers, the CLI, `measure` and the SPIR-V folders `path` never runs
+/// ([`REFERENCE_EXCLUDED_SPIRV`]). The key of a kept `path` reference: a fix to `lbl` leaves the
+/// tests' references valid, a fix to the tracer, the scene code or the GPU layer does not.
+pub const REFERENCE_BUILD: &str = env!("SCATTERLAB_REFERENCE_BUILD");
+
+/// The folders of `spirv/` left out of [`REFERENCE_BUILD`], comma-separated: none holds a kernel
+/// `path` runs (tests/registry_tests.rs).
+pub const REFERENCE_EXCLUDED_SPIRV: &str = env!("SCATTERLAB_REFERENCE_EXCLUDED_SPIRV");

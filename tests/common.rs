@@ -422,40 +422,93 @@ impl AsReference for Reference {
     }
 }
 
-/// `path`'s render of `scene` with `sets` (a reference at high spp), kept on disk for every other
-/// test of this build that asks for the same one: dom's, networks' and wavefront's across-the-range
-/// tests judge themselves against the same anisotropic cubes at 2048 spp, minutes of lavapipe
-/// each. A render is a function of the scene, its seed, the device and the engine (the
-/// Determinism rule), so the key is exactly those: the scene as loaded (every field, grid data
-/// included, through its `Debug` form, which prints floats exactly), the sets, the device and
-/// driver, and `scatterlab::BUILD` (a hash of the engine's source: a changed tracer never finds
-/// an old tracer's image). A fresh render is checked as `render` checks it (finite,
-/// non-negative, no warning) before it is kept; a file that cannot be read is rendered again.
-pub fn path_reference(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> Reference {
+/// Where a [`path_reference`] came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReferenceSource {
+    /// Committed in `tests/data/path-references/` (`tools/path-references keep` put it there).
+    Committed,
+    /// Kept in `target/tmp/path-references/` by an earlier test of this build.
+    Kept,
+    /// Rendered now (and kept).
+    Rendered,
+}
+
+/// The committed store of `path` references: what a clean checkout (CI) finds without
+/// rendering.
+pub const COMMITTED_REFERENCES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/path-references");
+
+/// The identity every reference of this build on `gpu` shares, the first part of its file's
+/// name: `scatterlab::REFERENCE_BUILD` (the code a `path` render is a function of: build.rs),
+/// this file (the render helpers a reference goes through), the device and driver. A changed
+/// tracer, scene loader or GPU layer gives a new identity, and no old image is found.
+pub fn reference_identity(gpu: &Gpu) -> String {
     use sha2::{Digest, Sha256};
     let info = gpu.info();
     let mut h = Sha256::new();
+    h.update(scatterlab::REFERENCE_BUILD.as_bytes());
+    h.update(include_bytes!("common.rs"));
+    h.update(format!("|{}|{}|{}|", info.name, info.driver_name, info.driver_info).as_bytes());
+    h.finalize().iter().take(6).map(|b| format!("{b:02x}")).collect()
+}
+
+/// `path`'s render of `scene` with `sets` (a reference at high spp), kept on disk for every other
+/// test that asks for the same one: dom's, networks' and wavefront's across-the-range tests
+/// judge themselves against the same anisotropic cubes at 2048 spp, minutes of lavapipe each,
+/// and the refraction tests' references (manifold next-event estimation) are most of their time.
+/// A render is a function of the scene, its seed, the device and the code it runs (the
+/// Determinism rule), so the key is exactly those: [`reference_identity`] (the code, the
+/// device), then the scene as loaded (every field, grid data included, through its `Debug`
+/// form, which prints floats exactly) and the sets. Found first among the committed references
+/// (a clean checkout renders none that `tools/path-references keep` stored for its code), then
+/// among this machine's kept ones; a fresh render is checked as `render` checks it (finite,
+/// non-negative, no warning) before it is kept; a file that cannot be read is rendered again.
+/// Every key asked for is listed in `target/tmp/path-references/used.txt`, which
+/// `tools/path-references keep` copies from.
+pub fn path_reference(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> Reference {
+    path_reference_from(gpu, scene, sets).0
+}
+
+/// [`path_reference`], and where it came from.
+pub fn path_reference_from(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> (Reference, ReferenceSource) {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
     h.update(format!("{scene:?}").as_bytes());
-    h.update(format!("|{sets:?}|{}|{}|{}|", info.name, info.driver_name, info.driver_info).as_bytes());
-    h.update(scatterlab::BUILD.as_bytes());
-    let key: String = h.finalize().iter().take(12).map(|b| format!("{b:02x}")).collect();
+    h.update(format!("|{sets:?}|").as_bytes());
+    let key: String = h.finalize().iter().take(10).map(|b| format!("{b:02x}")).collect();
+    let name = format!("{}-{key}.exr", reference_identity(gpu));
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("path-references");
-    let file = dir.join(format!("{key}.exr"));
-    if let (Ok(image), Ok(variance)) =
-        (scatterlab::output::read_exr(&file), scatterlab::output::read_exr_layer(&file, "variance"))
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     {
-        if (image.width, image.height) == (scene.render.width, scene.render.height) {
-            eprintln!("[time] path reference {sets:?}: kept ({key})");
-            return Reference { image, variance: Some(variance) };
+        // One short line per append: whole lines whatever other tests append meanwhile.
+        use std::io::Write;
+        let used = dir.join("used.txt");
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&used)
+            .unwrap_or_else(|e| panic!("{}: {e}", used.display()));
+        f.write_all(format!("{name}\n").as_bytes()).unwrap_or_else(|e| panic!("{}: {e}", used.display()));
+    }
+    for (store, source) in
+        [(Path::new(COMMITTED_REFERENCES), ReferenceSource::Committed), (&dir, ReferenceSource::Kept)]
+    {
+        let file = store.join(&name);
+        if let (Ok(image), Ok(variance)) =
+            (scatterlab::output::read_exr(&file), scatterlab::output::read_exr_layer(&file, "variance"))
+        {
+            if (image.width, image.height) == (scene.render.width, scene.render.height) {
+                eprintln!("[time] path reference {sets:?}: {source:?} ({name})");
+                return (Reference { image, variance: Some(variance) }, source);
+            }
         }
     }
     let out = render(gpu, scene, PATH, sets);
     let variance = out.variance.expect("path reports its variance");
-    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    let file = dir.join(&name);
     // Written beside and renamed over: a test reading it meanwhile sees the whole file or none.
-    let part = dir.join(format!("{key}.{}.part.exr", std::process::id()));
+    let part = dir.join(format!("{name}.{}.part.exr", std::process::id()));
     scatterlab::output::write_exr(&part, &[("", &out.image), ("variance", &variance)])
         .unwrap_or_else(|e| panic!("{}: {e}", part.display()));
     std::fs::rename(&part, &file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
-    Reference { image: out.image, variance: Some(variance) }
+    (Reference { image: out.image, variance: Some(variance) }, ReferenceSource::Rendered)
 }

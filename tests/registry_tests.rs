@@ -753,3 +753,26 @@ fn files_under(dir: &Path) -> Vec<std::path::PathBuf> {
     }
     files
 }
+
+/// The kept `path` references' key (`scatterlab::REFERENCE_BUILD`, build.rs) leaves out the
+/// SPIR-V folders `path` never runs: none of them may hold a kernel it does, or a changed
+/// kernel would keep an old tracer's references. (The source it leaves out, the other solvers,
+/// is held apart by `no_code_outside_a_solver_names_it`.)
+#[test]
+fn the_reference_build_leaves_out_no_kernel_path_runs() {
+    let reference = scatterlab::solvers::reference();
+    let excluded: Vec<&str> = scatterlab::REFERENCE_EXCLUDED_SPIRV.split(',').collect();
+    assert!(excluded.len() >= 4 && excluded.contains(&"lattice"), "{excluded:?}");
+    let kernels = reference.kernels();
+    assert!(kernels.len() >= 2, "{} runs {} kernels", reference.name(), kernels.len());
+    for k in kernels {
+        let folder = k.shader.name.split('/').next().unwrap_or_default();
+        assert!(
+            !excluded.contains(&folder),
+            "{} runs {} but spirv/{folder} is left out of REFERENCE_BUILD",
+            reference.name(),
+            k.shader.name
+        );
+    }
+    assert_ne!(scatterlab::REFERENCE_BUILD, scatterlab::BUILD);
+}

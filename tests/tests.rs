@@ -24,6 +24,7 @@ mod object_set_tests;
 mod octaves_tests;
 mod output_tests;
 mod path_extremes_tests;
+mod path_reference_tests;
 mod phase_gpu;
 mod physics_tests;
 mod pipeline_cache_tests;
