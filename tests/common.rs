@@ -64,6 +64,7 @@ pub fn issue_cube(g: &str) -> Scene {
     ))
 }
 
+// reference-identity: begin (what a path reference goes through: reference_identity hashes it)
 /// A render with its error (or warnings) left to the caller. `sets` holds solver knobs
 /// (`lbl.grid`) and `render.*` scene keys (`render.spp`), as a bench ladder does.
 pub fn try_render(
@@ -104,6 +105,26 @@ pub fn render_with(
 
 pub fn render(gpu: &Gpu, scene: &Scene, solver: &dyn Solver, sets: &[(&str, &str)]) -> RenderOutput {
     render_with(gpu, scene, solver, sets, false)
+}
+// reference-identity: end
+
+/// A render outside the solver's validated range on purpose: finite and non-negative as
+/// [`render`] asks, and carrying warnings, each containing one of `expected` (a fragment of the
+/// trust line's warning), every one of them met.
+pub fn render_warned(
+    gpu: &Gpu,
+    scene: &Scene,
+    solver: &dyn Solver,
+    sets: &[(&str, &str)],
+    expected: &[&str],
+) -> RenderOutput {
+    let out = try_render(gpu, scene, solver, sets, false).unwrap_or_else(|e| panic!("render failed: {e}"));
+    assert_eq!(out.image.nan_inf_count(), 0, "NaN/Inf in the image");
+    assert!(out.image.data.iter().all(|v| *v >= 0.0), "negative radiance");
+    let w = &out.report.warnings;
+    assert!(w.iter().all(|w| expected.iter().any(|e| w.contains(e))), "warnings {w:?}, expected only {expected:?}");
+    assert!(expected.iter().all(|e| w.iter().any(|w| w.contains(e))), "warnings {w:?}, expected each of {expected:?}");
+    out
 }
 
 /// Mean over all pixels and channels, and the standard error of that mean from the
@@ -422,6 +443,7 @@ impl AsReference for Reference {
     }
 }
 
+// reference-identity: begin
 /// Where a [`path_reference`] came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ReferenceSource {
@@ -446,7 +468,11 @@ pub fn reference_identity(gpu: &Gpu) -> String {
     let info = gpu.info();
     let mut h = Sha256::new();
     h.update(scatterlab::REFERENCE_BUILD.as_bytes());
-    h.update(include_bytes!("common.rs"));
+    // The helpers a reference is rendered and kept through, between this file's markers.
+    // (The markers are spelt in two pieces here, so that this code does not split its own block.)
+    for block in include_str!("common.rs").split(concat!("// reference-", "identity: begin")).skip(1) {
+        h.update(block.split(concat!("// reference-", "identity: end")).next().unwrap_or(block).as_bytes());
+    }
     h.update(format!("|{}|{}|{}|", info.name, info.driver_name, info.driver_info).as_bytes());
     h.finalize().iter().take(6).map(|b| format!("{b:02x}")).collect()
 }
@@ -512,3 +538,4 @@ pub fn path_reference_from(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> (
     std::fs::rename(&part, &file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
     (Reference { image: out.image, variance: Some(variance) }, ReferenceSource::Rendered)
 }
+// reference-identity: end

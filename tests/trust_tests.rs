@@ -173,3 +173,25 @@ fn lbl_names_a_thin_soft_or_forward_scattering_layer() {
     (rod.medium.bounds_min.z, rod.medium.bounds_max.z, rod.medium.g) = (-0.5, 0.5, 0.6);
     assert!(layer(&rod).thin_layer.is_none(), "{:?}", layer(&rod));
 }
+
+/// The 16 x 0.5 x 16 slab 8 mean free paths thick (sigma_t 16): dom's fitted grid is held to its
+/// 64^3-voxel budget at 1.33 mean free paths a voxel (193 x 7 x 193), where the slab lit at 60 degrees gave 0.947
+/// of path's energy (docs/decisions.md). Past 1 mean free path a voxel dom warns, naming the grid
+/// that brings a voxel to 0.5 (512, past the default's budget: the user's to spend); the 2-wide
+/// slab of tests/shape_tests.rs (0.998 at 0.5 a voxel) does not warn.
+#[test]
+fn dom_warns_on_voxels_past_one_mean_free_path() {
+    let wide = slab(16.0, 0.5, 16.0);
+    let g = DOM_GRID.fitted_grid(&wide, 32, 512);
+    let geom = LatticeGeom::new(&wide, g);
+    assert!(geom.voxels() <= DOM_GRID.max_voxels, "{geom:?}");
+    let t = geom.trust(&wide, g, &DOM_GRID);
+    assert!(t.voxel_depth > 1.3 && t.voxel_depth < 1.35 && t.across_within(), "{t:?}");
+    let w = t.warning().expect("voxels past 1 mean free path warn");
+    assert!(w.starts_with("dom: ") && w.contains("mean free paths thick, above the 0.5"), "{w}");
+    assert!(w.contains("0.95x the energy of path") && w.contains("set dom.grid=512"), "{w}");
+    let narrow = slab(2.0, 0.5, 16.0);
+    let g = DOM_GRID.fitted_grid(&narrow, 32, 512);
+    let t = LatticeGeom::new(&narrow, g).trust(&narrow, g, &DOM_GRID);
+    assert!(t.within() && t.warning().is_none(), "{t:?}");
+}
