@@ -6,11 +6,13 @@
 //!
 //! And the identity of what a `path` render is a function of, `SCATTERLAB_REFERENCE_BUILD`:
 //! the same hash without the files `path` cannot reach, the other solvers' folders (a solver
-//! never imports another: tests/registry_tests.rs holds that), the CLI and `measure` (above
-//! the solvers), `main.rs`, and the SPIR-V folders of kernels `path` does not run
+//! never imports another: tests/registry_tests.rs holds that), the shared parts it does not
+//! import (`SCATTERLAB_REFERENCE_PARTS` are those it does), the CLI and `measure` (above the
+//! solvers), `main.rs`, and the SPIR-V folders of kernels `path` does not run
 //! (`SCATTERLAB_REFERENCE_EXCLUDED_SPIRV`; tests/registry_tests.rs checks none holds one of
-//! path's kernels). A kept `path` reference keyed by it survives a change to `lbl`, not one to
-//! the tracer, the scene code, the GPU layer or a shared part.
+//! path's kernels and that the parts are all path imports). A kept `path` reference keyed by it
+//! survives a change to `lbl` or the lattice, not one to the tracer, the scene code, the GPU
+//! layer or a part it imports.
 
 use std::path::{Path, PathBuf};
 
@@ -19,9 +21,13 @@ use sha2::{Digest, Sha256};
 /// SPIR-V folders whose kernels `path` never runs.
 const REFERENCE_EXCLUDED_SPIRV: &[&str] =
     &["lattice", "marching", "networks", "ordinates", "sh_single", "wave_field", "view", "probe"];
-/// Folders of `src/solvers/` that a `path` render runs code from: its own, the shared parts and
-/// the interface. Every other folder there is another solver's.
-const REFERENCE_SOLVER_FOLDERS: &[&str] = &["path", "parts", "interface"];
+/// Folders of `src/solvers/` that a `path` render runs code from: its own and the interface
+/// (and of the shared parts, those of [`REFERENCE_PARTS`]). Every other folder there is another
+/// solver's.
+const REFERENCE_SOLVER_FOLDERS: &[&str] = &["path", "interface"];
+/// The files of `src/solvers/parts/` that `path` imports, and what they import in turn
+/// (tests/registry_tests.rs follows the imports and fails if one is missing).
+const REFERENCE_PARTS: &[&str] = &["mod.rs", "gpu_scene.rs", "resumable.rs"];
 
 fn files(dir: &Path, out: &mut Vec<PathBuf>) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
@@ -53,6 +59,8 @@ fn reaches_path(name: &str) -> bool {
     let parts: Vec<&str> = name.split('/').collect();
     match parts.as_slice() {
         ["src", "cli" | "measure", ..] | ["src", "main.rs"] => false,
+        ["src", "solvers", "parts", file] => REFERENCE_PARTS.contains(file),
+        ["src", "solvers", "parts", _, _, ..] => false,
         ["src", "solvers", dir, _, ..] => REFERENCE_SOLVER_FOLDERS.contains(dir),
         ["spirv", dir, _, ..] => !REFERENCE_EXCLUDED_SPIRV.contains(dir),
         _ => true,
@@ -81,4 +89,5 @@ fn main() {
     let reference: Vec<(String, PathBuf)> = named.into_iter().filter(|(n, _)| reaches_path(n)).collect();
     println!("cargo:rustc-env=SCATTERLAB_REFERENCE_BUILD={}", identity(&reference));
     println!("cargo:rustc-env=SCATTERLAB_REFERENCE_EXCLUDED_SPIRV={}", REFERENCE_EXCLUDED_SPIRV.join(","));
+    println!("cargo:rustc-env=SCATTERLAB_REFERENCE_PARTS={}", REFERENCE_PARTS.join(","));
 }

@@ -20,11 +20,15 @@ pub mod solvers;
 pub const BUILD: &str = env!("SCATTERLAB_BUILD");
 
 /// The identity of what a `path` render is a function of (`build.rs`): [`BUILD`] without the
-/// other solvers, the CLI, `measure` and the SPIR-V folders `path` never runs
-/// ([`REFERENCE_EXCLUDED_SPIRV`]). The key of a kept `path` reference: a fix to `lbl` leaves the
+/// other solvers, the shared parts `path` does not import ([`REFERENCE_PARTS`]), the CLI,
+/// `measure` and the SPIR-V folders `path` never runs ([`REFERENCE_EXCLUDED_SPIRV`]). The key of a kept `path` reference: a fix to `lbl` leaves the
 /// tests' references valid, a fix to the tracer, the scene code or the GPU layer does not.
 pub const REFERENCE_BUILD: &str = env!("SCATTERLAB_REFERENCE_BUILD");
 
 /// The folders of `spirv/` left out of [`REFERENCE_BUILD`], comma-separated: none holds a kernel
 /// `path` runs (tests/registry_tests.rs).
 pub const REFERENCE_EXCLUDED_SPIRV: &str = env!("SCATTERLAB_REFERENCE_EXCLUDED_SPIRV");
+
+/// The files of `src/solvers/parts/` kept in [`REFERENCE_BUILD`], comma-separated: the parts
+/// `path` imports, directly or through another part (tests/registry_tests.rs).
+pub const REFERENCE_PARTS: &str = env!("SCATTERLAB_REFERENCE_PARTS");

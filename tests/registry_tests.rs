@@ -776,3 +776,65 @@ fn the_reference_build_leaves_out_no_kernel_path_runs() {
     }
     assert_ne!(scatterlab::REFERENCE_BUILD, scatterlab::BUILD);
 }
+
+/// The shared parts kept in the references' key (`scatterlab::REFERENCE_PARTS`) are every part
+/// `path` imports, following the imports from its folder through the parts (`parts::<name>` and,
+/// inside a part, `super::<name>`; comments skipped): a part it reached but the key left out
+/// would keep an old tracer's references after a change to that part.
+#[test]
+fn the_reference_build_keeps_every_part_path_imports() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/solvers");
+    let kept: BTreeSet<&str> = scatterlab::REFERENCE_PARTS.split(',').collect();
+    assert!(kept.contains("mod.rs"), "{kept:?}");
+    let parts: BTreeSet<String> = std::fs::read_dir(src.join("parts"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().trim_end_matches(".rs").to_string())
+        .collect();
+    // The part modules named in `text`'s code (not its comments).
+    let named = |text: &str, inside_parts: bool| -> BTreeSet<String> {
+        let mut out = BTreeSet::new();
+        for line in text.lines().filter(|l| !l.trim_start().starts_with("//")) {
+            let mut prefixes = vec!["parts::"];
+            if inside_parts {
+                prefixes.push("super::");
+            }
+            for prefix in prefixes {
+                for (i, _) in line.match_indices(prefix) {
+                    let rest = &line[i + prefix.len()..];
+                    // `parts::name` or a group, `parts::{a, b::c}`.
+                    let group = rest.strip_prefix('{').map(|g| g.split('}').next().unwrap_or(g));
+                    for item in group.map_or(vec![rest], |g| g.split(',').collect()) {
+                        let name: String =
+                            item.trim_start().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+                        if parts.contains(&name) {
+                            out.insert(name);
+                        }
+                    }
+                }
+            }
+        }
+        out
+    };
+    let mut todo: Vec<String> = files_under(&src.join("path"))
+        .iter()
+        .flat_map(|p| named(&std::fs::read_to_string(p).unwrap(), false))
+        .collect();
+    let mut reached = BTreeSet::new();
+    while let Some(part) = todo.pop() {
+        if !reached.insert(part.clone()) {
+            continue;
+        }
+        let dir = src.join("parts").join(&part);
+        let files = if dir.is_dir() { files_under(&dir) } else { vec![src.join("parts").join(format!("{part}.rs"))] };
+        for f in files {
+            todo.extend(named(&std::fs::read_to_string(&f).unwrap(), true));
+        }
+    }
+    assert!(reached.contains("gpu_scene") && reached.contains("resumable"), "{reached:?}");
+    for part in &reached {
+        assert!(
+            kept.contains(format!("{part}.rs").as_str()),
+            "path imports parts::{part}, which REFERENCE_BUILD leaves out (build.rs, REFERENCE_PARTS)"
+        );
+    }
+}
