@@ -288,8 +288,13 @@ fn single_converges_to_path_depth_one() {
     let noise = var.data.iter().map(|v| *v as f64).sum::<f64>().sqrt() / norm;
     let mut errs = Vec::new();
     for step in ["0.1", "0.03", "0.005"] {
-        let out =
-            render(&gpu, &s, SINGLE, &[("single.step", step), ("single.supersample", "4"), ("single.jitter", "1")]);
+        let sets = [("single.step", step), ("single.supersample", "4"), ("single.jitter", "1")];
+        // 0.1 is 6.4 of the grid's voxels a step: outside on purpose, and the trust line says so.
+        let out = if step == "0.1" {
+            crate::common::render_warned(&gpu, &s, SINGLE, &sets, &["a camera-ray step across 6.4 density voxels"])
+        } else {
+            render(&gpu, &s, SINGLE, &sets)
+        };
         let m = scatterlab::output::compare(&out.image, &reference.image).unwrap();
         errs.push(m.rel_l2);
     }

@@ -195,3 +195,85 @@ fn dom_warns_on_voxels_past_one_mean_free_path() {
     let t = LatticeGeom::new(&narrow, g).trust(&narrow, g, &DOM_GRID);
     assert!(t.within() && t.warning().is_none(), "{t:?}");
 }
+
+/// The view march's trust (single and octaves, src/solvers/parts/view/trust.rs): at their
+/// defaults the shipped scenes they are for are within the validated range; a step past the
+/// warning limits carries one warning naming the solver's own knob and the step that brings it
+/// within, and that step comes within the measured bounds (4% relL2 and 2% of the energy)
+/// of a step four times finer still, on a grid density (the cloud) and on a sphere.
+#[test]
+fn the_view_march_says_how_far_to_trust_its_step_and_the_fix_comes_within_it() {
+    use scatterlab::solvers::parts::view::{ViewSettings, ViewStats, ViewTrust};
+    use scatterlab::solvers::Settings;
+    let small = [("render.width", "24"), ("render.height", "24")];
+    let trust_of = |s: &scatterlab::scene::Scene, solver: &str, sets: &[(String, String)]| -> ViewTrust {
+        let table = solvers::find(solver).expect("registered").knobs();
+        let knobs = Settings::new(sets).knobs(solver, table).expect("knobs");
+        let prefix = if solver == "single" { "" } else { "view_" };
+        ViewTrust::of(s, &ViewSettings::parse(&knobs, prefix, s).expect("settings"))
+    };
+    for rel in [
+        "scenes/cloud.toml",
+        "scenes/cloud-layer.toml",
+        "scenes/point-light-in-cloud.toml",
+        "scenes/homogeneous-sphere.toml",
+        "scenes/thick-slab.toml",
+        "scenes/smoke-torus.toml",
+    ] {
+        let s = crate::common::repo_scene(rel, &[]);
+        for solver in ["single", "octaves"] {
+            let t = trust_of(&s, solver, &[]);
+            assert!(t.within() && !t.warns(), "{rel} {solver}: the default step is within: {t:?}");
+            assert!(!t.line().contains("OUTSIDE"), "{rel}: {}", t.line());
+        }
+    }
+    // A shadow ray marched through the grid in steps of 6.4 voxels is named with its own knob,
+    // the camera step (the default) left alone.
+    let full = crate::common::repo_scene("scenes/cloud.toml", &[]);
+    let pair = |k: &str, v: &str| (k.to_string(), v.to_string());
+    let t = trust_of(&full, "single", &[pair("single.shadow", "march"), pair("single.shadow_step", "0.2")]);
+    let w = t.warning("single", "").expect("a shadow step of 6.4 voxels warns");
+    assert!(
+        w.contains("a shadow-ray step across 6.4 density voxels") && w.ends_with("set single.shadow_step=0.0625"),
+        "{w}"
+    );
+    assert!(t.step_needed.is_none() && !w.contains("single.step="), "{w}");
+    let gpu = gpu();
+    let cloud = crate::common::repo_scene("scenes/cloud.toml", &small);
+    let sphere = crate::common::repo_scene("scenes/homogeneous-sphere.toml", &small);
+    // 8 times the default step: 6.9 voxels of the cloud's grid a step; on the sphere 16 times:
+    // 4.2 steps across it.
+    for (name, s, solver, knob, times, part) in [
+        ("cloud", &cloud, "single", "single.step", 8.0, "density voxels"),
+        ("sphere", &sphere, "octaves", "octaves.view_step", 16.0, "steps across the medium's thinnest extent"),
+    ] {
+        let solver_ref = solvers::find(solver).expect("registered");
+        let coarse_step = format!("{}", ViewSettings::default_step(s) * times);
+        let coarse = try_render(&gpu, s, solver_ref, &[(knob, &coarse_step)], false).expect("render");
+        let w = &coarse.report.warnings;
+        assert_eq!(w.len(), 1, "{name}: one warning: {w:?}");
+        assert!(w[0].contains(part) && w[0].contains(&format!("set {knob}=")), "{name}: {}", w[0]);
+        let t = coarse.report.detail::<ViewStats>().expect("view stats").trust;
+        assert!(!t.within() && t.warns(), "{name}: {t:?}");
+        assert!(solver_ref.summary(&coarse.report).iter().any(|l| l.contains("view trust") && l.ends_with("OUTSIDE")));
+        let json = serde_json::to_value(&coarse.report).expect("the report serialises");
+        assert!(json.to_string().contains("\"steps_across\""), "{name}: the JSON carries the trust block");
+        // The knob's value the warning names is the step it reports as needed, and it is within.
+        let fix = w[0].rsplit(&format!("set {knob}=")).next().expect("a value").trim().to_string();
+        let fixed: f32 = fix.parse().unwrap_or_else(|_| panic!("{name}: {fix:?} is a number"));
+        assert!((fixed / t.step_needed.expect("a step")).ln().abs() < 0.01, "{name}: {fixed} against {t:?}");
+        let within = render(&gpu, s, solver_ref, &[(knob, &fix)]);
+        assert!(within.report.detail::<ViewStats>().expect("view stats").trust.within(), "{name}");
+        let finer = render(&gpu, s, solver_ref, &[(knob, &format!("{}", fixed / 4.0))]);
+        let m = scatterlab::output::compare(&within.image, &finer.image).expect("same size");
+        let c = scatterlab::output::compare(&coarse.image, &finer.image).expect("same size");
+        eprintln!(
+            "{name}: {solver} at the warned step relL2 {:.4} energy {:.4}; at the fix {fix}: relL2 {:.4} energy {:.4}",
+            c.rel_l2, c.energy_ratio, m.rel_l2, m.energy_ratio
+        );
+        assert!(m.rel_l2 < 0.04 && (m.energy_ratio - 1.0).abs() < 0.02, "{name}: the fix is within: {m:?}");
+        // The warned step was measurably worse: the warning is not a formality.
+        assert!(c.rel_l2 > 2.0 * m.rel_l2, "{name}: warned {c:?} against the fix {m:?}");
+    }
+    assert_clean(&gpu);
+}

@@ -103,7 +103,17 @@ impl Solver for OctavesSolver {
         let k = req.knobs(self)?;
         let v = Self::parse(&k, scene)?;
         k.finish()?;
-        view::render_alone(gpu, self, req, &k, &v)
+        view::render_alone(gpu, self, req, &k, &v, "view_")
+    }
+
+    /// The view march's trust warning, before the device opens ([`view::ViewTrust`]).
+    fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        let v = Self::parse(knobs, scene)?;
+        Ok(view::ViewTrust::of(scene, &v).warning(self.name(), "view_").into_iter().collect())
+    }
+
+    fn summary(&self, report: &crate::solvers::interface::RenderReport) -> Vec<String> {
+        view::trust_summary(self.name(), report)
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {

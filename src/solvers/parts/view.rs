@@ -9,6 +9,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
+pub mod trust;
+pub use trust::ViewTrust;
+
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, QueueRole, Spec, SpecKind};
 use crate::output::Image;
 use crate::scene::Scene;
@@ -533,16 +536,25 @@ pub struct ViewStats {
     pub dispatches: u64,
     pub max_loop_iterations: u32,
     pub nonfinite_pixels: u32,
+    /// How far to trust the march's step ([`ViewTrust`]).
+    pub trust: ViewTrust,
+}
+
+/// The summary line of a solver that is the view pass alone (`single`, `octaves`): its trust.
+pub fn trust_summary(solver: &str, report: &RenderReport) -> Vec<String> {
+    report.detail::<ViewStats>().map(|s| vec![format!("{solver}: {}", s.trust.line())]).unwrap_or_default()
 }
 
 /// A render that is the view pass alone, with settings `v` read from `k` (`single`,
-/// `octaves`): upload the scene, march, report.
+/// `octaves`): upload the scene, march, report. `prefix`: where the solver's knobs keep the
+/// view march's ("" for single, "view_" for octaves), for the trust warning's knob.
 pub fn render_alone(
     gpu: &Gpu,
     solver: &dyn Solver,
     req: &RenderRequest,
     k: &Knobs,
     v: &ViewSettings,
+    prefix: &str,
 ) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
     // The library's guard (the command line refuses earlier): a solver that holds one medium.
@@ -562,14 +574,17 @@ pub fn render_alone(
     (req.progress)(Progress::work("view pass", 0, 1));
     let view = march(gpu, scene, &gs, v, None)?;
     (req.progress)(Progress::work("view pass", 1, 1));
+    let trust = ViewTrust::of(scene, v);
     let mut stats = Stats::new(ViewStats {
         octaves: v.octaves.n,
         dispatches: view.dispatches,
         max_loop_iterations: view.max_loop_iterations,
         nonfinite_pixels: view.nonfinite_pixels,
+        trust,
     });
     stats.faults = view.nonfinite_pixels as u64;
     let mut report = RenderReport::finish(gpu, solver, k, gs.modelled.clone(), gs.bytes + view.device_bytes, stats);
+    report.warnings.extend(trust.warning(solver.name(), prefix));
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
     Ok(RenderOutput { image: view.image, variance: None, report })
 }

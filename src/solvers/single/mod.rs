@@ -52,7 +52,17 @@ impl Solver for Single {
         let mut v = ViewSettings::parse(&k, "", scene)?;
         v.refraction = k.get::<bool>("refraction")?;
         k.finish()?;
-        view::render_alone(gpu, self, req, &k, &v)
+        view::render_alone(gpu, self, req, &k, &v, "")
+    }
+
+    /// The view march's trust warning, before the device opens ([`view::ViewTrust`]).
+    fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
+        let v = ViewSettings::parse(knobs, "", scene)?;
+        Ok(view::ViewTrust::of(scene, &v).warning(self.name(), "").into_iter().collect())
+    }
+
+    fn summary(&self, report: &crate::solvers::interface::RenderReport) -> Vec<String> {
+        view::trust_summary(self.name(), report)
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
