@@ -1,8 +1,9 @@
 // A diagnostic preload for suite runs (tools/catch-throw): every C++ exception thrown in the
 // process is reported on stderr with its type and a backtrace before it is thrown on. A clean
-// run throws none (checked on the whole suite, docs/decisions.md, "A foreign exception"), so
-// any report names the library that threw; one that reaches a Vulkan call from Rust aborts the
-// test with "Rust cannot catch foreign exceptions", and nextest keeps this report in its output.
+// run throws none (checked on the whole suite: docs/decisions.md, "... a foreign exception
+// hunted"), so any report names the library that threw; one that reaches a Vulkan call from
+// Rust aborts the test with "Rust cannot catch foreign exceptions", and nextest keeps this
+// report in its output.
 // The interposition works for throws that reach __cxa_throw through the dynamic linker (the
 // validation layer, LLVM, SPIRV-Tools and libstdc++'s own __throw_* helpers all call it so).
 #define _GNU_SOURCE
