@@ -104,8 +104,9 @@ fn a_wide_thin_slab_lit_at_60_degrees() {
 
 /// A box 10 x 1 x 1 (sigma_t 2, albedo 0.9), seen along its short side from above: dom at 40 x
 /// 4 x 4 voxels (0.974 of path's energy). (lbl, at 70 x 7 x 7 and 0.29 reduced mean free paths
-/// a voxel, within its range, gave 0.937 on lavapipe; 1.13 at 64 x 7 x 7 before voxels the box
-/// ends inside held their share of it: not asserted until understood, docs/decisions.md.)
+/// a voxel, within its range, gave 0.941 on lavapipe; 1.13 at 64 x 7 x 7 before voxels the box
+/// ends inside held their share of it; 0.879-1.156 from grid 35 to 320: not asserted until
+/// understood, docs/lbl.md, "Compact hard-edged media".)
 #[test]
 fn an_elongated_box_at_the_fitted_grids() {
     let gpu = gpu();

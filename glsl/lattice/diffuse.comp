@@ -81,6 +81,47 @@ float escape_probability(float tau) {
     return (0.5 - expint_e3(tau)) / (2.0 * tau);
 }
 
+// The same escape through several open faces of the voxel at once, where some are adjacent (an
+// edge or a corner of the medium's box). Per-face probabilities add only for disjoint events,
+// i.e. opposite faces: a photon heading out through +x and +y at once leaves through whichever
+// it meets first, and counting it at both let an edge voxel of optical edge 0.29 lose 0.67 of
+// what it scattered where 0.54 escapes, a corner 1.0 for 0.67 (the 2-mfp cube at 7^3 voxels
+// 0.86 of path's energy, docs/lbl.md). Split the directions into octants: in one whose signs
+// meet k open faces the escape is q_k(tau) (q_1 = 2 escape_probability, the first-flight
+// integral restricted to the octant), so the union is sum over the eight octants q_k / 8.
+// ESC_Q2 and ESC_Q3 tabulate q_2 / q_1 and q_3 / q_1 (1 for a thin voxel, 2 and 3 for a
+// thick one, whose escape happens near one face at a time) at tau = 2^(j - 5), j = 0..10, from
+// the quadrature in src/solvers/parts/lattice/escape.rs (which a unit test checks this table
+// against); linear in log2 tau between nodes, in tau below the first (from 1 at tau = 0).
+const float ESC_Q2[11] = float[11](1.04976, 1.08213, 1.13243, 1.20800, 1.31659, 1.46220, 1.63385,
+    1.79168, 1.89393, 1.94695, 1.97347);
+const float ESC_Q3[11] = float[11](1.05892, 1.10033, 1.16847, 1.27868, 1.45264, 1.71414, 2.06471,
+    2.43144, 2.69669, 2.84458, 2.92136);
+float escape_ratio(uint k, float tau) {
+    if (k <= 1u) return float(k);
+    float x = log2(max(tau, 1e-30)) + 5.0;
+    float lo = k == 2u ? ESC_Q2[0] : ESC_Q3[0];
+    if (x <= 0.0) return 1.0 + (lo - 1.0) * tau * 32.0;
+    if (x >= 10.0) return k == 2u ? ESC_Q2[10] : ESC_Q3[10];
+    uint j = uint(floor(x));
+    float f = x - float(j);
+    return k == 2u ? mix(ESC_Q2[j], ESC_Q2[j + 1u], f) : mix(ESC_Q3[j], ESC_Q3[j + 1u], f);
+}
+// Total first-flight escape of a D3Q6 voxel whose links to vacuum are `vac_mask` (bit i - 1 for
+// link i: +x, -x, +y, -y, +z, -z).
+float escape_union(uint vac_mask, float tau) {
+    float sum = 0.0;
+    for (uint o = 0u; o < 8u; ++o) {
+        uint k = 0u;
+        for (uint a = 0u; a < 3u; ++a) {
+            uint link_bit = 2u * a + ((o >> a) & 1u);   // the octant's side of axis a: + (0) or - (1)
+            k += (vac_mask >> link_bit) & 1u;
+        }
+        sum += escape_ratio(k, tau);
+    }
+    return 2.0 * escape_probability(tau) * sum / 8.0;
+}
+
 void main() {
     // Uniform over the dispatch, before any barrier.
     if (ctrl_stopped != 0u) return;
@@ -113,6 +154,7 @@ void main() {
     uint vac_mask = 0u;   // bit i - 1: the neighbour along link i is vacuum (as escape counts it)
     for (uint c = 0u; c < NCH; ++c) {
         uint vac = 0u;
+        vac_mask = 0u;
         for (uint i = 1u; i <= LINKS; ++i) {
             ivec3 q = p + LATTICE_DIR[i];
             bool vacuum = !lattice_inside(q, n) || (pc.escape == 2u && density[lattice_index(q, n)] <= 0.0);
@@ -124,7 +166,10 @@ void main() {
             float ss = m_sigma_t[c] * dens * m_albedo[c] * (1.0 - m_albedo.w);
             float sa = m_sigma_t[c] * dens * (1.0 - m_albedo[c]);
             float tau = (ss + sa) * pc.lambda;
-            w_out = min(max(escape_probability(tau), 1.0 / 6.0), 1.0 / float(vac));
+            // The union over the open faces, shared evenly among their links (by symmetry for
+            // an edge or a corner; a face or opposite faces give escape_probability each, as
+            // before).
+            w_out = min(max(escape_union(vac_mask, tau) / float(vac), 1.0 / 6.0), 1.0 / float(vac));
             w_in = vac < 6u ? (1.0 - float(vac) * w_out) / float(6u - vac) : 0.0;
         }
         for (uint i = 1u; i <= LINKS; ++i) {
