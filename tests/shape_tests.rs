@@ -103,14 +103,31 @@ fn a_wide_thin_slab_lit_at_60_degrees() {
 }
 
 /// A box 10 x 1 x 1 (sigma_t 2, albedo 0.9), seen along its short side from above: dom at 40 x
-/// 4 x 4 voxels (0.974 of path's energy). (lbl, at 70 x 7 x 7 and 0.29 reduced mean free paths
-/// a voxel, within its range, gave 0.941 on lavapipe; 1.13 at 64 x 7 x 7 before voxels the box
-/// ends inside held their share of it; 0.879-1.156 from grid 35 to 320: not asserted until
-/// understood, docs/lbl.md, "Compact hard-edged media".)
+/// 4 x 4 voxels (0.974 of path's energy).
+///
+/// lbl, at 70 x 7 x 7 and 0.29 reduced mean free paths a voxel, within its range, gives 0.946
+/// of this reference's energy on lavapipe (0.941 of one at 4096 spp) without a warning: 5-6% dark, outside the 5% the other shapes keep, a known
+/// deviation (docs/lbl.md, "Compact hard-edged media": 0.879-1.156 from grid 35 to 320, the
+/// direction changing with the medium, so no bound in the trust line catches it). Held to what
+/// was measured, so that a fix (within 5%) or a worse bias shows here: energy 0.92-0.96,
+/// unwarned.
 #[test]
 fn an_elongated_box_at_the_fitted_grids() {
     let gpu = gpu();
-    judge_shape(&gpu, "box 10 x 1 x 1", &boxed([10.0, 1.0, 1.0], 2.0, 0.9), &[("dom", false)]);
+    let s = boxed([10.0, 1.0, 1.0], 2.0, 0.9);
+    judge_shape(&gpu, "box 10 x 1 x 1", &s, &[("dom", false)]);
+    let reference = crate::common::path_reference(&gpu, &s, &[]);
+    let out = try_render(&gpu, &s, LBL, &[], false).expect("lbl on the box");
+    let (rel, energy) = judge(&out.image, &reference);
+    let t = trust("lbl", &out);
+    eprintln!("box 10 x 1 x 1: lbl grid {} -> {:.1} across: energy {energy:.3}, relL2 {rel:.3}", t.grid, t.fewest());
+    assert_eq!(out.image.nan_inf_count(), 0);
+    assert!(out.report.warnings.is_empty(), "{:?}", out.report.warnings);
+    assert!(
+        (0.92..=0.96).contains(&energy),
+        "lbl on the box: energy {energy:.3} of path's, outside the measured 0.92-0.96: a fix (update docs/lbl.md and \
+         assert 5% here) or a regression"
+    );
     assert_clean(&gpu);
 }
 
