@@ -295,14 +295,20 @@ fn stability_extremes_both_integrators() {
     }
     // The exponential integrator's whole render stays finite and non-negative at the stiffest corner too.
     // At sigma_t 1e4 every discretisation is thousands of mean free paths (the trust line's
-    // warnings: voxel, shell and ray gap, and at albedo 0.5 the diffusion limit); at 1e-3 none.
-    for (sigma_t, albedo, warnings) in [(1e4f32, 0.5f32, 4usize), (1e-3, 1.0, 0), (1e4, 1.0, 3)] {
+    // warnings: voxel, shell and ray gap, and at albedo 0.5 the diffusion limit; and the view
+    // march's, its default camera step 270 mean free paths thick); at 1e-3 none.
+    for (sigma_t, albedo, warnings) in [(1e4f32, 0.5f32, 5usize), (1e-3, 1.0, 0), (1e4, 1.0, 4)] {
         let sc = scene(&cube(sigma_t, albedo, 0.0, [0.0, 0.0, 0.0], 8));
         let out = try_render(&gpu, &sc, WAVEFRONT, &[("wavefront.grid", "16"), ("wavefront.layers", "64")], false)
             .unwrap_or_else(|e| panic!("sigma_t {sigma_t}: {e}"));
         assert!(out.image.data.iter().all(|x| x.is_finite() && *x >= 0.0));
         let w = &out.report.warnings;
         assert!(w.len() == warnings && w.iter().all(|l| l.starts_with("wavefront: ")), "sigma_t {sigma_t}: {w:?}");
+        assert_eq!(
+            w.iter().any(|l| l.contains("camera-ray step") && l.contains("wavefront.view_step=")),
+            warnings > 0,
+            "sigma_t {sigma_t}: {w:?}"
+        );
     }
     assert_clean(&gpu);
 }

@@ -70,6 +70,9 @@ pub struct DomStats {
     /// How the swept and stored directions resolve the phase function, against what dom was
     /// validated with.
     pub directions_trust: DirectionsTrust,
+    /// How far to trust the view march that gathers the swept field toward the camera
+    /// (`dom.view_step`, `dom.view_shadow_step`).
+    pub view_trust: view::ViewTrust,
     pub quadrature: String,
     pub directions: usize,
     /// The storage set (`1`: isotropic) and its size M.
@@ -378,6 +381,7 @@ fn dom_stats(
     }
     report.warnings.extend(ds.trust.warning());
     report.warnings.extend(ds.directions_trust.warning());
+    report.warnings.extend(ds.view_trust.warning("dom", "view_"));
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
     let sweep_ms = ds.sweep_ms;
@@ -1109,6 +1113,7 @@ impl Solver for Dom {
             grid: geom,
             trust: geom.trust(scene, set.grid, &DOM_GRID),
             directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
+            view_trust: view::ViewTrust::of(scene, &set.view),
             quadrature: set.quadrature.name.clone(),
             directions: set.quadrature.len(),
             storage: set.storage.name.clone(),
@@ -1240,6 +1245,7 @@ impl Solver for Dom {
         Ok(grid
             .into_iter()
             .chain(DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage).warning())
+            .chain(view::ViewTrust::of(scene, &set.view).warning(self.name(), "view_"))
             .collect())
     }
 
@@ -1304,6 +1310,7 @@ impl Solver for Dom {
         )];
         lines.push(format!("dom: {}", s.trust.line()));
         lines.push(format!("dom: {}", s.directions_trust.line()));
+        lines.push(format!("dom: {}", s.view_trust.line()));
         if let Some(st) = &s.streaming {
             lines.push(format!(
                 "dom: blocks of {}^3: {} blocks, pool {} slots of {} KiB ({}), {} uploads ({} waiting for the sweep \

@@ -235,7 +235,8 @@ impl Solver for Lbl {
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let set = LblSettings::parse(knobs, scene)?;
-        Ok(set.geom.trust(scene, set.grid, &lattice::LBL_GRID).warning().into_iter().collect())
+        let grid = set.geom.trust(scene, set.grid, &lattice::LBL_GRID).warning();
+        Ok(grid.into_iter().chain(view::ViewTrust::of(scene, &set.view).warning(self.name(), "view_")).collect())
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
@@ -335,6 +336,7 @@ impl Solver for Lbl {
                 }
             ),
             format!("lbl: {}", l.trust.line()),
+            format!("lbl: {}", l.view_trust.line()),
         ]
     }
 }
@@ -390,6 +392,7 @@ impl Lbl {
             ));
         }
         report.warnings.extend(ls.trust.warning());
+        report.warnings.extend(ls.view_trust.warning(self.name(), "view_"));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         let mut stats = Stats::new(ls.clone());
         stats.convergence = Some(Convergence {
@@ -768,6 +771,9 @@ pub struct LblStats {
     pub lattice: LatticeGeom,
     /// How finely the lattice resolves the medium, against what lbl was validated at.
     pub trust: lattice::GridTrust,
+    /// How far to trust the view march that gathers the lattice's field toward the camera
+    /// (`lbl.view_step`, `lbl.view_shadow_step`).
+    pub view_trust: view::ViewTrust,
     pub lattice_kind: Lattice,
     /// Block edge and steps per dispatch the lattice ran with (a derived block may have
     /// stepped down to fit the device).
@@ -942,6 +948,7 @@ pub fn run_lattice(
         stats: LblStats {
             lattice: geom,
             trust: geom.trust(scene, set.grid, &lattice::LBL_GRID),
+            view_trust: view::ViewTrust::of(scene, &set.view),
             lattice_kind: set.lattice,
             block: set.block,
             block_steps: set.block_steps,

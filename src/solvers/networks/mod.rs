@@ -201,6 +201,9 @@ pub struct NetworksStats {
     pub opacity: [f64; 3],
     /// The particles' spacing against the mean free path, against what networks was validated at.
     pub trust: ParticleTrust,
+    /// With `networks.single=view`: how far to trust the view march that adds every light's
+    /// single scattering (`networks.view_step`, `networks.view_shadow_step`).
+    pub view_trust: Option<crate::solvers::parts::view::ViewTrust>,
     /// b: a particle's radius (scene units), the splats' footprint width at networks.footprint 1.
     pub particle_radius: f64,
     pub iterations: u32,
@@ -335,6 +338,7 @@ impl Networks {
             window: net.window.m,
             opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
             trust,
+            view_trust: set.view.as_ref().map(|v| crate::solvers::parts::view::ViewTrust::of(scene, v)),
             particle_radius: net.particle_radius(),
             iterations: c.iterations,
             converged: c.converged,
@@ -389,6 +393,9 @@ impl Networks {
             ));
         }
         report.warnings.extend(trust.warning());
+        if let Some(v) = &set.view {
+            report.warnings.extend(crate::solvers::parts::view::ViewTrust::of(scene, v).warning("networks", "view_"));
+        }
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
     }
@@ -603,13 +610,20 @@ impl Solver for Networks {
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         // The density's lattice alone: the particles themselves are drawn by the render.
-        Ok(ParticleTrust::of(scene, knobs.get("particles")?).warning().into_iter().collect())
+        let particles = ParticleTrust::of(scene, knobs.get("particles")?).warning();
+        let set = NetworksSettings::parse(knobs, scene)?;
+        let view = set
+            .view
+            .as_ref()
+            .and_then(|v| crate::solvers::parts::view::ViewTrust::of(scene, v).warning(self.name(), "view_"));
+        Ok(particles.into_iter().chain(view).collect())
     }
 
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<NetworksStats>() else { return Vec::new() };
         let trust = format!("networks: {}", s.trust.line());
-        vec![
+        let view = s.view_trust.map(|v| format!("networks: {}", v.line()));
+        let mut lines = vec![
             format!(
             "networks: {} particles x {} directions, {}x{} windows (particle opacity {:.2}), {} iterations ({}, change \
              {:.1e}); network {:.0} ms, iteration {:.0} ms, image {:.0} ms",
@@ -626,6 +640,8 @@ impl Solver for Networks {
             s.image_ms
         ),
             trust,
-        ]
+        ];
+        lines.extend(view);
+        lines
     }
 }

@@ -50,6 +50,9 @@ pub struct WavefrontStats {
     pub nonfinite_pixels: u32,
     /// How far to trust the render: its discretisation against what wavefront was validated at.
     pub trust: WaveTrust,
+    /// How far to trust the view march that gathers the field toward the camera
+    /// (`wavefront.view_step`, `wavefront.view_shadow_step`).
+    pub view_trust: view::ViewTrust,
 }
 
 /// Warnings a wavefront result carries: lights the method does not trace, and where the
@@ -119,6 +122,7 @@ impl Solver for Wavefront {
             max_loop_iterations: res.max_loop_iterations,
             nonfinite_pixels: res.nonfinite_pixels,
             trust,
+            view_trust: view::ViewTrust::of(scene, &view),
         });
         // The march's own state went negative or non-finite (the gather clamps it, so the
         // image alone would not show it): a failure of the integrator.
@@ -127,6 +131,7 @@ impl Solver for Wavefront {
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, stats);
         report.warnings = warnings(scene, &set, &vol);
         report.warnings.extend(trust.warnings());
+        report.warnings.extend(view::ViewTrust::of(scene, &view).warning(self.name(), "view_"));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
         Ok(RenderOutput { image: res.image, variance: None, report })
     }
@@ -191,7 +196,10 @@ impl Solver for Wavefront {
     }
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
-        Ok(WaveTrust::of(scene, &WaveSettings::parse(knobs, "")?).warnings())
+        let view = ViewSettings::parse(knobs, "view_", scene)?;
+        let mut w = WaveTrust::of(scene, &WaveSettings::parse(knobs, "")?).warnings();
+        w.extend(view::ViewTrust::of(scene, &view).warning(self.name(), "view_"));
+        Ok(w)
     }
 
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
@@ -212,6 +220,7 @@ impl Solver for Wavefront {
                 s.lights_traced, d[0], d[1], d[2], s.channels
             ),
             format!("wavefront: {}", s.trust.line()),
+            format!("wavefront: {}", s.view_trust.line()),
         ]
     }
 }
