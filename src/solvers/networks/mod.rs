@@ -332,13 +332,14 @@ impl Networks {
         }
         let image_ms = t.elapsed().as_secs_f64() * 1e3;
         let trust = ParticleTrust::new(scene, &net.particles, set.particles);
+        let view_trust = set.view.as_ref().map(|v| crate::solvers::parts::view::ViewTrust::of(scene, v));
         let detail = NetworksStats {
             particles: set.particles,
             directions: set.directions,
             window: net.window.m,
             opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
             trust,
-            view_trust: set.view.as_ref().map(|v| crate::solvers::parts::view::ViewTrust::of(scene, v)),
+            view_trust,
             particle_radius: net.particle_radius(),
             iterations: c.iterations,
             converged: c.converged,
@@ -393,9 +394,7 @@ impl Networks {
             ));
         }
         report.warnings.extend(trust.warning());
-        if let Some(v) = &set.view {
-            report.warnings.extend(crate::solvers::parts::view::ViewTrust::of(scene, v).warning("networks", "view_"));
-        }
+        report.warnings.extend(view_trust.and_then(|v| v.warning(self.name(), "view_")));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
     }

@@ -104,6 +104,7 @@ impl Solver for Wavefront {
         let view = ViewSettings::parse(&k, "view_", scene)?;
         k.finish()?;
         let trust = WaveTrust::of(scene, &set);
+        let view_trust = view::ViewTrust::of(scene, &view);
         let gs = GpuScene::upload(gpu, scene, req.force_full)?;
         (req.progress)(Progress::work("passes", 0, 2));
         let vol = wave_volume(gpu, scene, &gs, &set, None)?;
@@ -122,7 +123,7 @@ impl Solver for Wavefront {
             max_loop_iterations: res.max_loop_iterations,
             nonfinite_pixels: res.nonfinite_pixels,
             trust,
-            view_trust: view::ViewTrust::of(scene, &view),
+            view_trust,
         });
         // The march's own state went negative or non-finite (the gather clamps it, so the
         // image alone would not show it): a failure of the integrator.
@@ -131,7 +132,7 @@ impl Solver for Wavefront {
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, stats);
         report.warnings = warnings(scene, &set, &vol);
         report.warnings.extend(trust.warnings());
-        report.warnings.extend(view::ViewTrust::of(scene, &view).warning(self.name(), "view_"));
+        report.warnings.extend(view_trust.warning(self.name(), "view_"));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
         Ok(RenderOutput { image: res.image, variance: None, report })
     }
