@@ -232,7 +232,7 @@ fn the_view_march_says_how_far_to_trust_its_step_and_the_fix_comes_within_it() {
     let full = crate::common::repo_scene("scenes/cloud.toml", &[]);
     let pair = |k: &str, v: &str| (k.to_string(), v.to_string());
     let t = trust_of(&full, "single", &[pair("single.shadow", "march"), pair("single.shadow_step", "0.2")]);
-    let w = t.warning("single", "").expect("a shadow step of 6.4 voxels warns");
+    let w = t.warning("single").expect("a shadow step of 6.4 voxels warns");
     assert!(
         w.contains("a shadow-ray step across 6.4 density voxels") && w.ends_with("set single.shadow_step=0.0625"),
         "{w}"

@@ -381,7 +381,7 @@ fn dom_stats(
     }
     report.warnings.extend(ds.trust.warning());
     report.warnings.extend(ds.directions_trust.warning());
-    report.warnings.extend(ds.view_trust.warning("dom", "view_"));
+    report.warnings.extend(ds.view_trust.warning("dom"));
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
     let sweep_ms = ds.sweep_ms;
@@ -1245,7 +1245,7 @@ impl Solver for Dom {
         Ok(grid
             .into_iter()
             .chain(DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage).warning())
-            .chain(view::ViewTrust::of(scene, &set.view).warning(self.name(), "view_"))
+            .chain(view::ViewTrust::of(scene, &set.view).warning(self.name()))
             .collect())
     }
 

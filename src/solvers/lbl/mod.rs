@@ -236,7 +236,7 @@ impl Solver for Lbl {
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let set = LblSettings::parse(knobs, scene)?;
         let grid = set.geom.trust(scene, set.grid, &lattice::LBL_GRID).warning();
-        Ok(grid.into_iter().chain(view::ViewTrust::of(scene, &set.view).warning(self.name(), "view_")).collect())
+        Ok(grid.into_iter().chain(view::ViewTrust::of(scene, &set.view).warning(self.name())).collect())
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
@@ -392,7 +392,7 @@ impl Lbl {
             ));
         }
         report.warnings.extend(ls.trust.warning());
-        report.warnings.extend(ls.view_trust.warning(self.name(), "view_"));
+        report.warnings.extend(ls.view_trust.warning(self.name()));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         let mut stats = Stats::new(ls.clone());
         stats.convergence = Some(Convergence {

@@ -394,7 +394,7 @@ impl Networks {
             ));
         }
         report.warnings.extend(trust.warning());
-        report.warnings.extend(view_trust.and_then(|v| v.warning(self.name(), "view_")));
+        report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report })
     }
@@ -611,10 +611,8 @@ impl Solver for Networks {
         // The density's lattice alone: the particles themselves are drawn by the render.
         let particles = ParticleTrust::of(scene, knobs.get("particles")?).warning();
         let set = NetworksSettings::parse(knobs, scene)?;
-        let view = set
-            .view
-            .as_ref()
-            .and_then(|v| crate::solvers::parts::view::ViewTrust::of(scene, v).warning(self.name(), "view_"));
+        let view =
+            set.view.as_ref().and_then(|v| crate::solvers::parts::view::ViewTrust::of(scene, v).warning(self.name()));
         Ok(particles.into_iter().chain(view).collect())
     }
 

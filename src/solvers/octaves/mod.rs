@@ -43,7 +43,7 @@ impl OctavesSolver {
         let mut v = ViewSettings::parse(k, "view_", scene)?;
         let bounded = k.get::<String>("form")? == "bounded";
         v.octaves = Octaves { n: k.get("n")?, a: k.get("a")?, b: k.get("b")?, c: k.get("c")?, bounded };
-        v.fit_shadow(k, "view_", scene)
+        v.fit_shadow(k, scene)
     }
 }
 
@@ -103,13 +103,13 @@ impl Solver for OctavesSolver {
         let k = req.knobs(self)?;
         let v = Self::parse(&k, scene)?;
         k.finish()?;
-        view::render_alone(gpu, self, req, &k, &v, "view_")
+        view::render_alone(gpu, self, req, &k, &v)
     }
 
     /// The view march's trust warning, before the device opens ([`view::ViewTrust`]).
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let v = Self::parse(knobs, scene)?;
-        Ok(view::ViewTrust::of(scene, &v).warning(self.name(), "view_").into_iter().collect())
+        Ok(view::ViewTrust::of(scene, &v).warning(self.name()).into_iter().collect())
     }
 
     fn summary(&self, report: &crate::solvers::interface::RenderReport) -> Vec<String> {

@@ -259,6 +259,10 @@ pub struct ViewSettings {
     /// With a refractive [[object]]: Fresnel and Snell at its surface (`single.refraction`);
     /// false renders it as if index-matched, for measuring what refraction buys.
     pub refraction: bool,
+    /// Where the solver's knobs keep these: "" for single's own, "view_" for a solver that
+    /// prefixes the view march's. Kept from [`ViewSettings::parse`], so that what names a knob
+    /// (the trust warning, the shadow volume's refusal) names the one that was read.
+    pub prefix: &'static str,
 }
 
 impl ViewSettings {
@@ -277,7 +281,7 @@ impl ViewSettings {
     }
 
     /// Read `<prefix>step` etc., with defaults scaled to the medium.
-    pub fn parse(k: &Knobs, prefix: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
+    pub fn parse(k: &Knobs, prefix: &'static str, scene: &Scene) -> Result<ViewSettings, SolverError> {
         let diag = (scene.medium.bounds_max - scene.medium.bounds_min).length();
         let key = |n: &str| format!("{prefix}{n}");
         let step: f32 = k.get_or(&key("step"), Self::default_step(scene))?;
@@ -292,6 +296,7 @@ impl ViewSettings {
             octaves: Octaves::SINGLE,
             shadow: Shadow::resolve(&shadow_mode, scene),
             refraction: true,
+            prefix,
         };
         if scene.object.is_some() && shadow_mode == "volume" {
             // The shadow volume holds the density integral alone; through a mesh the depth
@@ -302,7 +307,7 @@ impl ViewSettings {
             ));
         }
         resumable::check_mesh_budget(k, &key("budget"), v.budget, scene.object.is_some())?;
-        let v = v.fit_shadow(k, prefix, scene)?;
+        let v = v.fit_shadow(k, scene)?;
         for (name, x) in [("step", v.step), ("shadow_step", v.shadow_step)] {
             // A shadow march runs in one loop (it cannot be split across dispatches), so its
             // length is bounded; camera-ray steps are resumable and only bounded for sanity.
@@ -321,7 +326,8 @@ impl ViewSettings {
     /// the shadow volume would be larger, `auto` marches instead and `volume` says what to
     /// change. Solvers that change the settings after [`ViewSettings::parse`] (octaves: both
     /// chord directions) call it again.
-    pub fn fit_shadow(self, k: &Knobs, prefix: &str, scene: &Scene) -> Result<ViewSettings, SolverError> {
+    pub fn fit_shadow(self, k: &Knobs, scene: &Scene) -> Result<ViewSettings, SolverError> {
+        let prefix = self.prefix;
         let bytes = shadow_bytes(scene, &self);
         if bytes <= MAX_SHADOW_VOLUME_BYTES {
             return Ok(self);
@@ -546,15 +552,13 @@ pub fn trust_summary(solver: &str, report: &RenderReport) -> Vec<String> {
 }
 
 /// A render that is the view pass alone, with settings `v` read from `k` (`single`,
-/// `octaves`): upload the scene, march, report. `prefix`: where the solver's knobs keep the
-/// view march's ("" for single, "view_" for octaves), for the trust warning's knob.
+/// `octaves`): upload the scene, march, report.
 pub fn render_alone(
     gpu: &Gpu,
     solver: &dyn Solver,
     req: &RenderRequest,
     k: &Knobs,
     v: &ViewSettings,
-    prefix: &str,
 ) -> Result<RenderOutput, SolverError> {
     let scene = req.scene;
     // The library's guard (the command line refuses earlier): a solver that holds one medium.
@@ -584,7 +588,7 @@ pub fn render_alone(
     });
     stats.faults = view.nonfinite_pixels as u64;
     let mut report = RenderReport::finish(gpu, solver, k, gs.modelled.clone(), gs.bytes + view.device_bytes, stats);
-    report.warnings.extend(trust.warning(solver.name(), prefix));
+    report.warnings.extend(trust.warning(solver.name()));
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
     Ok(RenderOutput { image: view.image, variance: None, report })
 }

@@ -52,13 +52,13 @@ impl Solver for Single {
         let mut v = ViewSettings::parse(&k, "", scene)?;
         v.refraction = k.get::<bool>("refraction")?;
         k.finish()?;
-        view::render_alone(gpu, self, req, &k, &v, "")
+        view::render_alone(gpu, self, req, &k, &v)
     }
 
     /// The view march's trust warning, before the device opens ([`view::ViewTrust`]).
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let v = ViewSettings::parse(knobs, "", scene)?;
-        Ok(view::ViewTrust::of(scene, &v).warning(self.name(), "").into_iter().collect())
+        Ok(view::ViewTrust::of(scene, &v).warning(self.name()).into_iter().collect())
     }
 
     fn summary(&self, report: &crate::solvers::interface::RenderReport) -> Vec<String> {

@@ -132,7 +132,7 @@ impl Solver for Wavefront {
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), bytes, stats);
         report.warnings = warnings(scene, &set, &vol);
         report.warnings.extend(trust.warnings());
-        report.warnings.extend(view_trust.warning(self.name(), "view_"));
+        report.warnings.extend(view_trust.warning(self.name()));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
         Ok(RenderOutput { image: res.image, variance: None, report })
     }
@@ -199,7 +199,7 @@ impl Solver for Wavefront {
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let view = ViewSettings::parse(knobs, "view_", scene)?;
         let mut w = WaveTrust::of(scene, &WaveSettings::parse(knobs, "")?).warnings();
-        w.extend(view::ViewTrust::of(scene, &view).warning(self.name(), "view_"));
+        w.extend(view::ViewTrust::of(scene, &view).warning(self.name()));
         Ok(w)
     }
 

@@ -50,6 +50,9 @@ pub struct ViewTrust {
     pub step_needed: Option<f32>,
     /// The largest shadow-ray step within it, where the shadow step is past it.
     pub shadow_step_needed: Option<f32>,
+    /// The settings' knob prefix ([`ViewSettings::prefix`]), for the knob the warning names.
+    #[serde(skip)]
+    pub prefix: &'static str,
 }
 
 /// A warning limit of the march: past `warn` (below it for steps across, where fewer is worse).
@@ -120,6 +123,7 @@ impl ViewTrust {
             shadow_step_voxels: shadow_step.zip(voxel).map(|(s, e)| s / e),
             step_needed: (v.step > step_fits * 1.001).then_some(step_fits),
             shadow_step_needed: shadow_step.filter(|s| *s > fits * 1.001).map(|_| fits),
+            prefix: v.prefix,
         }
     }
 
@@ -202,9 +206,10 @@ impl ViewTrust {
 
     /// The warning a march past the limits carries (None within them, or outside by less than
     /// the warning limits: the line says OUTSIDE then): what is past, what was measured there and
-    /// the knob's value that brings it within (`prefix`: "" for single's unprefixed knobs,
-    /// "view_" for a solver that prefixes the view march's).
-    pub fn warning(&self, solver: &str, prefix: &str) -> Option<String> {
+    /// the knob's value that brings it within, named as `solver` reads it (with the prefix its
+    /// settings were parsed with).
+    pub fn warning(&self, solver: &str) -> Option<String> {
+        let prefix = self.prefix;
         let (step, shadow) = (self.step_past(), self.shadow_past());
         if step.is_empty() && shadow.is_empty() {
             return None;
