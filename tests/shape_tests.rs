@@ -204,14 +204,14 @@ fn shell(camera: &str) -> Scene {
 /// The shell at the defaults, seen from the side (perspective) and from above (an orthographic
 /// window over its middle 1 x 1, where the light crosses the lit cap, the hollow and the far
 /// wall). Measured on lavapipe (energy over path's, bias relL2): from the side dom 1.002 / 0.146,
-/// lbl 1.018 / 0.134, networks 0.983 / 0.188; from above dom 0.9499 / 0.088 (grid 40: 5.0% dark, on the
-/// edge of the 5%, held at 0.945; 0.959 at grid 64), lbl 0.974 / 0.100, networks 0.934 / 0.137, all unwarned. The relL2 at 16^2 is the
-/// shell's silhouette, 1-2 pixels wide, that every voxel solver smears. networks from above is
-/// 6.6% dark within the spacing it was validated at (0.94 mean free paths a spacing, the 1.0
-/// of its rule: the cube gave 0.926 at 0.99), and falls toward path's as its particles grow
-/// (256: 0.849, warned at 1.49 a spacing; 4096: 0.979 at 0.59; 16384: 0.994 at 0.37): its
-/// rule's bound is too loose for this shell, a known gap (docs/decisions.md, "A thin shell,
-/// asserted"), held here to what was measured so that a fix or a worse bias shows.
+/// lbl 1.018 / 0.134, networks 0.983 / 0.188; from above dom 0.9499 / 0.088 (grid 40: 5.0% dark,
+/// on the edge of the 5%, held at 0.945; 0.959 at grid 64), lbl 0.974 / 0.100, networks 0.934 /
+/// 0.137. The relL2 at 16^2 is the shell's silhouette, 1-2 pixels wide, that every voxel solver
+/// smears. networks' particles stand 0.94 mean free paths apart in the wall: from above it fell
+/// toward path's as they grew (256: 0.849 at 1.49 a spacing; 4096: 0.979 at 0.59; 16384: 0.994
+/// at 0.37). Its trust rule let 0.94 pass unwarned (validated at <= 1 a spacing) until this
+/// case; it now warns past 0.7 and names the count for 0.6 (3922), which is asserted to bring
+/// the view from above within 5% unwarned (0.976, relL2 0.115).
 #[test]
 fn a_thin_spherical_shell() {
     let gpu = gpu();
@@ -219,14 +219,23 @@ fn a_thin_spherical_shell() {
     let top = shell(
         "kind = \"orthographic\"\norigin = [0.0, 20.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, -1.0]\nextent = 1.0",
     );
-    // (view, solver, the energy range asserted, the bias relL2 bound).
-    let cases: [(&str, &Scene, [(&str, f64, f64, f64); 3]); 2] = [
-        ("side", &side, [("dom", 0.95, 1.05, 0.2), ("lbl", 0.95, 1.05, 0.2), ("networks", 0.95, 1.05, 0.25)]),
-        ("top", &top, [("dom", 0.945, 1.05, 0.12), ("lbl", 0.95, 1.05, 0.14), ("networks", 0.92, 0.95, 0.18)]),
+    // (view, solver, whether it warns, the energy range asserted, the bias relL2 bound).
+    type Case = (&'static str, bool, f64, f64, f64);
+    let cases: [(&str, &Scene, [Case; 3]); 2] = [
+        (
+            "side",
+            &side,
+            [("dom", false, 0.95, 1.05, 0.2), ("lbl", false, 0.95, 1.05, 0.2), ("networks", true, 0.95, 1.05, 0.25)],
+        ),
+        (
+            "top",
+            &top,
+            [("dom", false, 0.945, 1.05, 0.12), ("lbl", false, 0.95, 1.05, 0.14), ("networks", true, 0.92, 0.95, 0.18)],
+        ),
     ];
     for (view, s, solvers) in cases {
         let reference = crate::common::path_reference(&gpu, s, &[]);
-        for (name, lo, hi, rel_max) in solvers {
+        for (name, warns, lo, hi, rel_max) in solvers {
             let solver = solvers::find(name).expect("registered");
             let out = try_render(&gpu, s, solver, &[], false).unwrap_or_else(|e| panic!("shell {view}, {name}: {e}"));
             let (rel, energy) = judge(&out.image, &reference);
@@ -240,12 +249,29 @@ fn a_thin_spherical_shell() {
                 out.report.warnings
             );
             assert_eq!(out.image.nan_inf_count(), 0, "shell {view}, {name}");
-            assert!(out.report.warnings.is_empty(), "shell {view}, {name}: {:?}", out.report.warnings);
             assert!(
                 (lo..=hi).contains(&energy),
                 "shell {view}, {name}: energy {energy:.4} of path's, outside {lo}-{hi}"
             );
             assert!(rel < rel_max, "shell {view}, {name}: relL2 {rel:.4}");
+            if !warns {
+                assert!(out.report.warnings.is_empty(), "shell {view}, {name}: {:?}", out.report.warnings);
+                continue;
+            }
+            let [w] = &out.report.warnings[..] else { panic!("shell {view}, {name}: {:?}", out.report.warnings) };
+            let n = w
+                .rsplit_once("set networks.particles=")
+                .map(|(_, n)| n.parse::<u32>().expect("a count"))
+                .unwrap_or_else(|| panic!("shell {view}: the warning names no count: {w}"));
+            if view == "top" {
+                // The count the warning names brings the darker view within 5%, unwarned.
+                let n = n.to_string();
+                let fixed = try_render(&gpu, s, solver, &[("networks.particles", &n)], false).expect("render");
+                let (rel, energy) = judge(&fixed.image, &reference);
+                eprintln!("shell {view}: {name} at {n} particles: energy {energy:.4}, relL2 {rel:.4}");
+                assert!(fixed.report.warnings.is_empty(), "{:?}", fixed.report.warnings);
+                assert!((0.95..=1.05).contains(&energy) && rel < 0.14, "shell {view}, {name} at {n}: {energy}, {rel}");
+            }
         }
     }
     assert_clean(&gpu);
