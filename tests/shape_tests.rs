@@ -1,10 +1,9 @@
 //! The grid solvers on shapes, not only cubes and spheres (issue 44, item 3): at their fitted
 //! default grids `dom` and `lbl` against `path` on a wide thin slab, an elongated box (10:1:1),
-//! the cloud squashed to a layer (10:10:1) and a thin spherical shell (dom, lbl and networks); a very
-//! thick medium's warning is in
-//! tests/trust_tests.rs. Each render is either
-//! within its solver's validated range (its trust line) and then within 5% of path's energy,
-//! or it carries the trust warning naming what it lacks: asserted, case by case, which.
+//! the cloud squashed to a layer (10:10:1) and a thin spherical shell (with `networks` too); a
+//! very thick medium's warning is in tests/trust_tests.rs. Each render is either within its
+//! solver's validated range (its trust line) and then within 5% of path's energy, or it carries
+//! the trust warning naming what it lacks: asserted, case by case, which.
 
 use crate::common::{assert_clean, gpu, judge, repo_scene, scene, try_render, LBL};
 use scatterlab::scene::Scene;
