@@ -9,7 +9,7 @@ use crate::common::{assert_clean, gpu, judge, repo_scene, scene, try_render, LBL
 use scatterlab::scene::Scene;
 use scatterlab::solvers::dom::DomStats;
 use scatterlab::solvers::lbl::LblStats;
-use scatterlab::solvers::parts::lattice::GridTrust;
+use scatterlab::solvers::parts::lattice::{GridTrust, LatticeGeom, ShapeLimit, LBL_GRID};
 use scatterlab::solvers::{self, RenderOutput};
 
 /// A homogeneous box `ext` (centred at the origin) of extinction `sigma_t`, albedo `albedo`,
@@ -21,12 +21,17 @@ fn boxed(ext: [f32; 3], sigma_t: f32, albedo: f32) -> Scene {
 
 /// [`boxed`] lit along `direction` (the direction the light travels).
 fn boxed_lit(ext: [f32; 3], sigma_t: f32, albedo: f32, direction: &str) -> Scene {
+    boxed_g(ext, sigma_t, albedo, 0.0, direction)
+}
+
+/// [`boxed_lit`] of asymmetry `g` (Henyey-Greenstein).
+fn boxed_g(ext: [f32; 3], sigma_t: f32, albedo: f32, g: f32, direction: &str) -> Scene {
     let [x, y, z] = ext.map(|e| e / 2.0);
     scene(&format!(
         "[render]\nwidth = 8\nheight = 8\nseed = 5\nspp = 512\n\
          [camera]\nkind = \"orthographic\"\norigin = [0.0, 20.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, -1.0]\n\
          extent = 1.0\n\
-         [medium]\nbounds = [[-{x}, -{y}, -{z}], [{x}, {y}, {z}]]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = 0.0\n\
+         [medium]\nbounds = [[-{x}, -{y}, -{z}], [{x}, {y}, {z}]]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = {g}\n\
          density = {{ kind = \"constant\" }}\n\
          [[light]]\nkind = \"directional\"\ndirection = {direction}\nirradiance = 1.0\n"
     ))
@@ -102,32 +107,88 @@ fn a_wide_thin_slab_lit_at_60_degrees() {
     assert_clean(&gpu);
 }
 
+/// Wide slabs across thickness, albedo, g and the light's angle (issue 44, item 3), at the
+/// corners where lbl's trust line has to speak (lavapipe, energy of the render over path's at
+/// the fitted defaults; every case of the 24 measured is in docs/lbl.md, "Shapes outside the
+/// range"). dom is within 5% on all of them (0.958-1.000 over the 24; here 0.961-0.998).
+/// lbl warns on:
+/// - a 0.5-mfp isotropic slab at albedo 0.99 (0.916: a thin bright hard-edged layer);
+/// - forward-scattering slabs at any thickness (0.5 mfp at albedo 0.5 lit at 60 degrees,
+///   0.995; 2 mfp at albedo 0.99, 1.013; 8 mfp at albedo 0.5, 1.208, which no rule caught
+///   before: it was judged a layer only up to 4 reduced mean free paths).
+///
+/// It is within 5% unwarned on the 2-mfp isotropic slab at albedo 0.99 lit at 60 degrees (0.987).
+#[test]
+fn wide_slabs_across_thickness_albedo_g_and_angle() {
+    let gpu = gpu();
+    let normal = "[0.0, -1.0, 0.0]";
+    let oblique = "[0.8660254, -0.5, 0.0]";
+    type Case<'a> = (&'a str, Scene, &'a [(&'a str, bool)]);
+    let cases: [Case; 5] = [
+        (
+            "slab 0.5 mfp, albedo 0.99",
+            boxed_g([16.0, 0.5, 16.0], 1.0, 0.99, 0.0, normal),
+            &[("dom", false), ("lbl", true)],
+        ),
+        (
+            "slab 0.5 mfp, albedo 0.5, g 0.6, at 60 degrees",
+            boxed_g([16.0, 0.5, 16.0], 1.0, 0.5, 0.6, oblique),
+            &[("dom", false), ("lbl", true)],
+        ),
+        (
+            "slab 2 mfp, albedo 0.99, g 0.6",
+            boxed_g([16.0, 0.5, 16.0], 4.0, 0.99, 0.6, normal),
+            &[("dom", false), ("lbl", true)],
+        ),
+        (
+            "slab 8 mfp, albedo 0.5, g 0.6",
+            boxed_g([2.0, 0.5, 2.0], 16.0, 0.5, 0.6, normal),
+            &[("dom", false), ("lbl", true)],
+        ),
+        (
+            "slab 2 mfp, albedo 0.99, at 60 degrees",
+            boxed_g([16.0, 0.5, 16.0], 4.0, 0.99, 0.0, oblique),
+            &[("lbl", false)],
+        ),
+    ];
+    for (what, s, solvers) in &cases {
+        judge_shape(&gpu, what, s, solvers);
+    }
+    assert_clean(&gpu);
+}
+
 /// A box 10 x 1 x 1 (sigma_t 2, albedo 0.9), seen along its short side from above: dom at 40 x
 /// 4 x 4 voxels (0.974 of path's energy).
 ///
-/// lbl, at 70 x 7 x 7 and 0.29 reduced mean free paths a voxel, within its range, gives 0.946
-/// of this reference's energy on lavapipe (0.941 of one at 4096 spp) without a warning: 5-6% dark, outside the 5% the other shapes keep, a known
-/// deviation (docs/lbl.md, "Compact hard-edged media": 0.879-1.156 from grid 35 to 320, the
-/// direction changing with the medium, so no bound in the trust line catches it). Held to what
-/// was measured, so that a fix (within 5%) or a worse bias shows here: energy 0.92-0.96,
-/// unwarned.
+/// lbl, at 70 x 7 x 7 and 0.29 reduced mean free paths a voxel, gives 0.946 of path's energy on
+/// lavapipe: its boundary treatment leaves elongated bright hard-edged media 4-9% dark at its
+/// defaults (rods 1-12 mean free paths across at albedo 0.8-0.99: 0.91-0.98; 0.88-1.25 as the
+/// grid moves, docs/lbl.md "Shapes outside the range"), so the render says so: asserted, with
+/// the energy held to what was measured so that a fix or a worse bias shows here.
 #[test]
 fn an_elongated_box_at_the_fitted_grids() {
     let gpu = gpu();
     let s = boxed([10.0, 1.0, 1.0], 2.0, 0.9);
-    judge_shape(&gpu, "box 10 x 1 x 1", &s, &[("dom", false)]);
+    judge_shape(&gpu, "box 10 x 1 x 1", &s, &[("dom", false), ("lbl", true)]);
     let reference = crate::common::path_reference(&gpu, &s, &[]);
     let out = try_render(&gpu, &s, LBL, &[], false).expect("lbl on the box");
-    let (rel, energy) = judge(&out.image, &reference);
+    let (_, energy) = judge(&out.image, &reference);
     let t = trust("lbl", &out);
-    eprintln!("box 10 x 1 x 1: lbl grid {} -> {:.1} across: energy {energy:.3}, relL2 {rel:.3}", t.grid, t.fewest());
-    assert_eq!(out.image.nan_inf_count(), 0);
-    assert!(out.report.warnings.is_empty(), "{:?}", out.report.warnings);
+    assert!(matches!(t.shape, Some(ShapeLimit::Elongated { aspect, .. }) if (aspect - 10.0).abs() < 1e-3), "{t:?}");
+    assert!(
+        out.report.warnings.iter().any(|w| w.contains("hard-edged box 10.0 times longer") && w.contains("use dom")),
+        "{:?}",
+        out.report.warnings
+    );
     assert!(
         (0.92..=0.96).contains(&energy),
-        "lbl on the box: energy {energy:.3} of path's, outside the measured 0.92-0.96: a fix (update docs/lbl.md and \
-         assert 5% here) or a regression"
+        "lbl on the box: energy {energy:.3} of path's, outside the measured 0.92-0.96: a fix (update docs/lbl.md, \
+         the shape rule, and assert 5% here) or a regression"
     );
+    // Brighter at albedo 0.5 (0.98 of path's energy), the rod is within lbl's range again.
+    let dim = boxed([10.0, 1.0, 1.0], 2.0, 0.5);
+    let t = LatticeGeom::new(&dim, 70).trust(&dim, 70, &LBL_GRID);
+    assert!(t.shape.is_none() && t.warning().is_none(), "{t:?}");
     assert_clean(&gpu);
 }
 

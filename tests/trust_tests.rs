@@ -8,7 +8,7 @@ use crate::common::{assert_clean, gpu, render, scene, try_render, LBL};
 use scatterlab::solvers;
 use scatterlab::solvers::dom::DomStats;
 use scatterlab::solvers::lbl::LblStats;
-use scatterlab::solvers::parts::lattice::{GridTrust, LatticeGeom, DOM_GRID, LBL_GRID};
+use scatterlab::solvers::parts::lattice::{GridTrust, LatticeGeom, ShapeLimit, DOM_GRID, LBL_GRID};
 
 /// A slab `w` x `t` x `w` (y thin) of extinction `sigma_t`, albedo 0.8, lit from above and seen
 /// from above.
@@ -29,8 +29,8 @@ fn close(a: f32, b: f32) -> bool {
 
 /// The fitted defaults on an 8 x 0.25 x 8 slab, 1 mean free path thick: counted along the
 /// longest side as before (dom 32), the thickness got 1 voxel. dom now gets 128 (4 across,
-/// 0.25 mean free paths a voxel), lbl 64 (2 across, 0.5 reduced mean free paths); both are
-/// within their rules. Where a grid a quarter finer gives whole voxels across the thin side,
+/// 0.25 mean free paths a voxel), lbl 64 (2 across, 0.5 reduced mean free paths); both grids
+/// are within their rules (lbl warns on the slab itself: a thin bright layer). Where a grid a quarter finer gives whole voxels across the thin side,
 /// the default takes it: a 10 x 1 x 1 box at lbl's 64 would have 6.4 across, it gets 70.
 #[test]
 fn default_grids_fit_a_thin_slab_on_every_axis() {
@@ -48,7 +48,10 @@ fn default_grids_fit_a_thin_slab_on_every_axis() {
     rod.medium.albedo = glam::Vec3::splat(0.9);
     assert_eq!(LBL_GRID.fitted_grid(&rod, scatterlab::solvers::lbl::default_grid(&rod), 512), 70);
     let lbl = LatticeGeom::new(&s, 64).trust(&s, 64, &LBL_GRID);
-    assert!(lbl.within(), "{lbl:?}");
+    // The grid is within lbl's rule; the slab itself (1 mean free path of albedo 0.8) is a thin
+    // bright hard-edged layer, outside lbl's range at any grid.
+    assert!(lbl.across_within() && lbl.depth_within(), "{lbl:?}");
+    assert!(matches!(lbl.shape, Some(ShapeLimit::ThinBrightLayer { .. })) && !lbl.within(), "{lbl:?}");
     assert!(close(lbl.fewest(), 2.0) && close(lbl.voxel_depth, 0.5), "{lbl:?}");
     // A compact medium keeps the solver's own default: a cube 10 mean free paths across at
     // dom's 32; 20 across asks for 40 (half a mean free path a voxel).
@@ -142,8 +145,10 @@ fn a_medium_no_grid_can_serve_is_named_as_such() {
 /// lbl names a thin layer of a soft or forward-scattering medium whatever its grid (the cloud
 /// squashed to 2 x 0.2 x 2 came out 1.08-1.27x path's energy at 3-14 voxels across, the 2-mfp
 /// slabs with g 0.6 up to 1.30x at 4), and leaves alone what it was measured right on: a
-/// hard-edged isotropic layer (the 2-mfp slab at 4 across, 0.97-1.00), a compact cloud, a rod
-/// (two thin sides, not a layer) and a layer thick enough that the light does not cross it.
+/// hard-edged isotropic layer (the 2-mfp slab at 4 across, 0.97-1.00; thick, 8 mean free paths),
+/// a compact cloud and a rod (two thin sides, not a layer). A forward-scattering hard-edged
+/// layer is named at any thickness (slabs with g 0.6: 1.07-1.27x at 5.5-16.8 reduced mean free
+/// paths).
 #[test]
 fn lbl_names_a_thin_soft_or_forward_scattering_layer() {
     let layer = |s: &scatterlab::scene::Scene| {
@@ -164,14 +169,73 @@ fn lbl_names_a_thin_soft_or_forward_scattering_layer() {
     assert!(layer(&s).warning().is_none(), "{:?}", layer(&s));
     s.medium.g = 0.6;
     assert!(layer(&s).warning().is_some_and(|w| w.contains("forward-scattering")), "{:?}", layer(&s));
-    // Thick: 8 reduced mean free paths across the thin side.
+    // Thick, 8 reduced mean free paths across the thin side: forward-scattering and hard-edged
+    // it is still named (such slabs measured 1.07-1.27x at 5.5-16.8), isotropic it is not.
     s.medium.sigma_t = glam::Vec3::splat(40.0);
-    assert!(layer(&s).thin_layer.is_none(), "{:?}", layer(&s));
+    assert!(layer(&s).thin_layer.is_some_and(|d| close(d, 0.5 * 40.0 * (1.0 - 0.8 * 0.6))), "{:?}", layer(&s));
+    s.medium.g = 0.0;
+    assert!(layer(&s).thin_layer.is_none() && layer(&s).warning().is_none(), "{:?}", layer(&s));
     let cloud = crate::common::repo_scene("scenes/cloud.toml", &[]);
     assert!(layer(&cloud).thin_layer.is_none() && layer(&cloud).warning().is_none());
     let mut rod = slab(10.0, 1.0, 2.0);
     (rod.medium.bounds_min.z, rod.medium.bounds_max.z, rod.medium.g) = (-0.5, 0.5, 0.6);
     assert!(layer(&rod).thin_layer.is_none(), "{:?}", layer(&rod));
+}
+
+/// lbl names the hard-edged shapes its boundary treatment leaves outside 5% at its defaults
+/// (docs/lbl.md, "Shapes outside the range"), whatever the grid: a bright box at least 4 times
+/// longer than its thinnest side and under 16 reduced mean free paths across it (10:1:1 at 1-12
+/// across: 0.91-0.97x path's energy at albedo 0.9-0.99), and a bright isotropic layer under 1.5
+/// thick (0.5 mfp: 0.92-0.94x). It leaves alone the shapes measured within 5%: the cube
+/// (1.01-1.04 at 1-8 across), the 2:1:1 and 3:3:1 boxes (0.95-1.04), a dim rod (albedo 0.5:
+/// 0.97-1.01), a thick rod (20 across: 1.01), the 2-mfp slab (0.99-1.02), and soft media.
+#[test]
+fn lbl_names_elongated_and_thin_bright_hard_edged_media() {
+    let trust = |ext: [f32; 3], sigma_t: f32, albedo: f32| {
+        let mut s = slab(ext[0], ext[1], sigma_t);
+        let z = ext[2] / 2.0;
+        (s.medium.bounds_min.z, s.medium.bounds_max.z) = (-z, z);
+        s.medium.albedo = glam::Vec3::splat(albedo);
+        let g = LBL_GRID.fitted_grid(&s, scatterlab::solvers::lbl::default_grid(&s), 512);
+        (LatticeGeom::new(&s, g).trust(&s, g, &LBL_GRID), s)
+    };
+    let (rod, _) = trust([10.0, 1.0, 1.0], 2.0, 0.9);
+    let Some(ShapeLimit::Elongated { aspect, depth, albedo }) = rod.shape else { panic!("{rod:?}") };
+    assert!(close(aspect, 10.0) && close(depth, 2.0) && close(albedo, 0.9), "{rod:?}");
+    let w = rod.warning().expect("the rod warns");
+    assert!(w.starts_with("lbl: the medium is a hard-edged box 10.0 times longer") && w.contains("use dom or path"));
+    assert!(!rod.within() && rod.line().ends_with("OUTSIDE"), "{rod:?}");
+    for (ext, sigma_t, albedo) in
+        [([4.0, 1.0, 1.0], 8.0, 0.99), ([4.0, 2.0, 1.0], 2.0, 0.99), ([10.0, 1.0, 1.0], 12.0, 0.8)]
+    {
+        let (t, _) = trust(ext, sigma_t, albedo);
+        assert!(
+            matches!(t.shape, Some(ShapeLimit::Elongated { .. })) && t.warns(),
+            "{ext:?} {sigma_t} {albedo}: {t:?}"
+        );
+    }
+    let (layer, _) = trust([16.0, 0.5, 16.0], 1.0, 0.99);
+    assert!(matches!(layer.shape, Some(ShapeLimit::ThinBrightLayer { .. })), "{layer:?}");
+    assert!(layer.warning().is_some_and(|w| w.contains("hard-edged layer 0.50 reduced")), "{layer:?}");
+    for (ext, sigma_t, albedo) in [
+        ([1.0, 1.0, 1.0], 2.0, 0.99),
+        ([2.0, 1.0, 1.0], 4.0, 0.99),
+        ([3.0, 1.0, 3.0], 2.0, 0.99),
+        ([10.0, 1.0, 1.0], 2.0, 0.5),
+        ([10.0, 1.0, 1.0], 20.0, 0.99),
+        ([16.0, 0.5, 16.0], 4.0, 0.99),
+    ] {
+        let (t, _) = trust(ext, sigma_t, albedo);
+        assert!(t.shape.is_none() && t.warning().is_none(), "{ext:?} {sigma_t} {albedo}: {t:?}");
+    }
+    // A soft density of the rod's shape is not judged by it (the cloud's grid stretched 10:1:1).
+    let cloud =
+        crate::common::repo_scene("scenes/cloud.toml", &[("medium.bounds", "[[-5.0, -0.5, -0.5], [5.0, 0.5, 0.5]]")]);
+    let g = LBL_GRID.fitted_grid(&cloud, scatterlab::solvers::lbl::default_grid(&cloud), 512);
+    assert!(LatticeGeom::new(&cloud, g).trust(&cloud, g, &LBL_GRID).shape.is_none());
+    // dom sets no such limit.
+    let (_, s) = trust([10.0, 1.0, 1.0], 2.0, 0.9);
+    assert!(LatticeGeom::new(&s, 40).trust(&s, 40, &DOM_GRID).shape.is_none());
 }
 
 /// The 16 x 0.5 x 16 slab 8 mean free paths thick (sigma_t 16): dom's fitted grid is held to its

@@ -94,10 +94,15 @@ pub struct GridRule {
     /// The most voxels a default grid holds.
     pub max_voxels: u64,
     /// A layer (the medium's second-thinnest side at least [`LAYER_ASPECT`] times its
-    /// thinnest) at most this many reduced mean free paths thick at its densest, of a soft
-    /// (grid) density or a forward-scattering medium (g >= [`LAYER_G`]), falls outside the
-    /// range at any grid (lbl: such layers came out 8-65% bright; None: no such limit).
+    /// thinnest) of a soft (grid) density at most this many reduced mean free paths thick at its
+    /// densest, or of a forward-scattering (g >= [`LAYER_G`]) hard-edged medium at any
+    /// thickness, falls outside the range at any grid (lbl: such layers came out 7-65% bright;
+    /// None: no such limit).
     pub thin_layer: Option<f32>,
+    /// Whether hard-edged media of the shapes [`ShapeLimit`] names fall outside the range at any
+    /// grid (lbl: its boundary treatment, calibrated on cubes and wide slabs, leaves rods and thin
+    /// bright layers 5-9% dark at every default; dom: no such limit).
+    pub shape_limits: bool,
     /// What the solver gave at (voxels across, optical depth per voxel) on the slabs: the
     /// smallest and largest energy over the sweep's cases there, as (across, depth, lo, hi).
     pub measured: &'static [(f32, f32, f32, f32)],
@@ -119,6 +124,7 @@ pub const DOM_GRID: GridRule = GridRule {
     reduced: false,
     max_voxels: 64 * 64 * 64,
     thin_layer: None,
+    shape_limits: false,
     measured: &[
         (0.64, 3.1, 0.829, 0.829),
         (2.0, 1.0, 0.945, 1.027),
@@ -151,6 +157,7 @@ pub const LBL_GRID: GridRule = GridRule {
     // across, 1.01-1.30 at 4, 1.02-1.65 at 8. Hard-edged isotropic layers are not caught here
     // (the 2-mfp slabs at g 0: 0.97-1.00 at 4 across): the thin-voxel bound judges them.
     thin_layer: Some(4.0),
+    shape_limits: true,
     measured: &[
         (1.28, 1.56, 2.097, 2.097),
         (2.0, 0.25, 0.899, 1.093),
@@ -172,6 +179,84 @@ pub const LAYER_ASPECT: f32 = 4.0;
 /// The asymmetry from which a medium counts as forward-scattering for [`GridRule::thin_layer`]
 /// (measured at 0.6; below, only soft densities are judged).
 pub const LAYER_G: f32 = 0.5;
+
+/// The albedo from which a hard-edged medium counts as bright for [`ShapeLimit`]: lbl's
+/// darkness there grows with albedo (the 2-mfp cube at 7^3: 0.967 / 0.920 / 0.857 at albedo
+/// 0.3 / 0.6 / 0.9; the 10:1:1 rod at its defaults: 0.97-1.01 at albedo 0.5, 0.94-0.98 at 0.8,
+/// 0.91-0.96 at 0.9-0.99).
+pub const BRIGHT_ALBEDO: f32 = 0.8;
+/// The longest side over the thinnest from which a hard-edged medium that is not a layer
+/// counts as elongated for [`ShapeLimit::Elongated`] (measured at 4 and 10; the cube, 2:1:1 and
+/// 3:3:1 boxes kept within 5% at lbl's defaults).
+pub const ELONGATED_ASPECT: f32 = 4.0;
+/// The reduced optical thickness across the thinnest side below which an elongated bright
+/// hard-edged medium falls outside lbl's range (measured dark at 1-12; within 5% at 20).
+pub const ELONGATED_DEPTH: f32 = 16.0;
+/// The reduced optical thickness below which a hard-edged isotropic bright layer falls
+/// outside lbl's range (slabs 0.5 mean free paths thick: 0.92-0.94 of path's energy at albedo
+/// 0.8-0.99; 1 thick: 0.95-0.97 at 2 voxels across, 1.06-1.09 at 4; 2 thick: 0.99-1.02).
+pub const THIN_HARD_LAYER_DEPTH: f32 = 1.5;
+
+/// A hard-edged medium whose shape lbl's boundary treatment was not validated for, at any grid
+/// ([`GridRule::shape_limits`]; measured on lavapipe against `path` at lbl's fitted defaults,
+/// lit from above and seen from above, docs/lbl.md "Shapes outside the range"). Its escape
+/// weights and drift were calibrated where they meet the light head on (cubes, wide slabs):
+/// the side faces of a rod and the far face of a thin layer lose more of the multiply scattered
+/// light than they should, and no grid in the range wins it back (the rod: 0.88-1.16 from 3.5 to
+/// 32 voxels across, crossing path's value at a grid that moves with the medium).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ShapeLimit {
+    /// A box at least [`ELONGATED_ASPECT`] times longer than its thinnest side and not a layer,
+    /// under [`ELONGATED_DEPTH`] reduced mean free paths across that side (`depth`), of albedo
+    /// at least [`BRIGHT_ALBEDO`].
+    Elongated { aspect: f32, depth: f32, albedo: f32 },
+    /// A layer of isotropic medium under [`THIN_HARD_LAYER_DEPTH`] reduced mean free paths
+    /// thick (`depth`), of albedo at least [`BRIGHT_ALBEDO`].
+    ThinBrightLayer { depth: f32, albedo: f32 },
+}
+
+/// The largest single-scattering albedo over channels, of the medium and of every object's
+/// material.
+fn max_albedo(scene: &Scene) -> f32 {
+    let materials = scene.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
+    materials
+        .iter()
+        .map(|m| m.albedo.max_element())
+        .fold(if scene.object.is_some() { 0.0 } else { scene.medium.albedo.max_element() }, f32::max)
+}
+
+/// Where `rule` limits shapes and `scene`'s medium is a hard-edged one of such a shape
+/// ([`ShapeLimit`]). Layers of soft or forward-scattering media are judged by
+/// [`GridRule::thin_layer`] instead.
+fn shape_limit(scene: &Scene, rule: &GridRule) -> Option<ShapeLimit> {
+    if !rule.shape_limits || !hard_edged(scene) {
+        return None;
+    }
+    let albedo = max_albedo(scene);
+    if albedo < BRIGHT_ALBEDO {
+        return None;
+    }
+    let ext = scene.medium.bounds_max - scene.medium.bounds_min;
+    let mut sides = ext.to_array();
+    sides.sort_by(f32::total_cmp);
+    if sides[0].is_nan() || sides[0] <= 0.0 {
+        return None;
+    }
+    let depth = max_reduced_sigma_t(scene) * sides[0];
+    let layer = sides[1] >= LAYER_ASPECT * sides[0];
+    let aspect = sides[2] / sides[0];
+    if layer {
+        (largest_g(scene) < LAYER_G && depth < THIN_HARD_LAYER_DEPTH)
+            .then_some(ShapeLimit::ThinBrightLayer { depth, albedo })
+    } else {
+        (aspect >= ELONGATED_ASPECT && depth < ELONGATED_DEPTH).then_some(ShapeLimit::Elongated {
+            aspect,
+            depth,
+            albedo,
+        })
+    }
+}
 
 /// The measured point nearest a render's (voxels across, depth per voxel), in log space.
 fn nearest(points: &[(f32, f32, f32, f32)], across: f32, depth: f32) -> Option<(f32, f32, f32, f32)> {
@@ -260,20 +345,31 @@ pub struct GridTrust {
     /// ([`GridRule::thin_layer`]): its reduced optical thickness across the thinnest side at
     /// the densest point (None: not such a layer, or the rule sets no limit).
     pub thin_layer: Option<f32>,
+    /// The medium is hard-edged and of a shape the solver was not validated on
+    /// ([`ShapeLimit`]; None: it is not, or the rule sets no such limit).
+    pub shape: Option<ShapeLimit>,
 }
 
-/// Where `rule` limits thin layers and `scene`'s medium is one: its reduced optical thickness
-/// across the thinnest side at its densest.
+/// Where `rule` limits layers and `scene`'s medium is one it judges ([`GridRule::thin_layer`]):
+/// its reduced optical thickness across the thinnest side at its densest.
 fn thin_layer(scene: &Scene, rule: &GridRule) -> Option<f32> {
     let limit = rule.thin_layer?;
     let ext = scene.medium.bounds_max - scene.medium.bounds_min;
     let mut sides = ext.to_array();
     sides.sort_by(f32::total_cmp);
     let depth = max_reduced_sigma_t(scene) * sides[0];
-    let largest_g =
-        scene.object.as_ref().map_or(scene.medium.g, |o| o.materials.iter().map(|m| m.g).fold(f32::MIN, f32::max));
-    let layer = sides[1] >= LAYER_ASPECT * sides[0] && depth <= limit;
-    (layer && (!hard_edged(scene) || largest_g >= LAYER_G)).then_some(depth)
+    if sides[1] < LAYER_ASPECT * sides[0] {
+        return None;
+    }
+    // Soft layers up to `limit`; forward-scattering hard-edged ones at any thickness (slabs with
+    // g 0.6: 1.07-1.27x path's energy at 5.5-16.8 reduced mean free paths, docs/lbl.md).
+    let judged = if hard_edged(scene) { largest_g(scene) >= LAYER_G } else { depth <= limit };
+    judged.then_some(depth)
+}
+
+/// The largest asymmetry g of the medium, or of an object's materials.
+fn largest_g(scene: &Scene) -> f32 {
+    scene.object.as_ref().map_or(scene.medium.g, |o| o.materials.iter().map(|m| m.g).fold(f32::MIN, f32::max))
 }
 
 /// A medium of constant density (a box or a sphere of it, or mesh objects filled with one):
@@ -309,6 +405,7 @@ impl LatticeGeom {
                 .filter(|_| hard_edged(scene))
                 .map(|m| sat((unit_depth / m + 1e-3).floor())),
             thin_layer: thin_layer(scene, rule),
+            shape: shape_limit(scene, rule),
         }
     }
 }
@@ -341,7 +438,7 @@ impl GridTrust {
     /// medium, which no grid serves. A finer or coarser grid within the range only shows in
     /// the trust line (OUTSIDE).
     pub fn warns(&self) -> bool {
-        self.grid_warns() || self.thin_layer.is_some()
+        self.grid_warns() || self.thin_layer.is_some() || self.shape.is_some()
     }
 
     /// The grid's part of [`GridTrust::warns`]: too few voxels across, voxels past
@@ -353,7 +450,7 @@ impl GridTrust {
 
     /// The grid resolves the medium as the solver was validated.
     pub fn within(&self) -> bool {
-        self.across_within() && self.depth_within() && self.thin_layer.is_none()
+        self.across_within() && self.depth_within() && self.thin_layer.is_none() && self.shape.is_none()
     }
 
     /// The one-line figure for a render's summary.
@@ -398,14 +495,29 @@ impl GridTrust {
                 "{s}: the medium is a layer {depth:.2} reduced mean free paths thick across its thinnest side ({axis}), \
                  of a soft density or forward-scattering (g >= {LAYER_G}): outside what {s} was validated for, bright \
                  at any grid (the cloud squashed to 2 x 0.2 x 2: 1.08-1.27x path's energy at 3-14 voxels across, 0.92 \
-                 at 2; slabs 2 mean free paths thick with g 0.6: up to 1.30x at 4 across); use dom or path"
+                 at 2; slabs with g 0.6: up to 1.30x 2 mean free paths thick, 1.07-1.27x 12-24 thick); use dom or path"
             )
         });
-        let grid = self.grid_warning();
-        match (layer, grid) {
-            (Some(l), Some(g)) => Some(format!("{l}; and {}", g.trim_start_matches(&format!("{s}: ")))),
-            (l, g) => l.or(g),
-        }
+        let shape = self.shape.map(|shape| match shape {
+            ShapeLimit::Elongated { aspect, depth, albedo } => format!(
+                "{s}: the medium is a hard-edged box {aspect:.1} times longer than its thinnest side ({axis}), \
+                 {depth:.2} reduced mean free paths across it, of albedo {albedo:.2}: outside what {s} was validated \
+                 for, dark at its default grids (boxes 10:1:1 1-12 mean free paths across: 0.91-0.97x path's energy \
+                 at albedo 0.9-0.99, 0.94-0.98x at 0.8; 4:1:1 and 4:2:1: 0.94-0.99x) and 0.88-1.25x as the grid \
+                 moves; use dom or path"
+            ),
+            ShapeLimit::ThinBrightLayer { depth, albedo } => format!(
+                "{s}: the medium is a hard-edged layer {depth:.2} reduced mean free paths thick across its thinnest \
+                 side ({axis}), of albedo {albedo:.2}: outside what {s} was validated for, its energy moving with the \
+                 grid (slabs 0.5 mean free paths thick at albedo 0.8-0.99: 0.92-0.94x path's at 2 voxels across, \
+                 1.14-1.51x at 4-8; 1 thick: 0.95-0.97x at 2, 1.06-1.09x at 4); use dom or path"
+            ),
+        });
+        let strip = |w: String| w.trim_start_matches(&format!("{s}: ")).to_string();
+        let parts: Vec<String> = [layer, shape, self.grid_warning()].into_iter().flatten().collect();
+        let mut parts = parts.into_iter();
+        let first = parts.next()?;
+        Some(parts.fold(first, |acc, w| format!("{acc}; and {}", strip(w))))
     }
 
     /// The grid's part of [`GridTrust::warning`].

@@ -7,7 +7,7 @@
 
 pub mod escape;
 mod geom;
-pub use geom::{max_reduced_sigma_t, GridRule, GridTrust, LatticeGeom, DOM_GRID, LBL_GRID};
+pub use geom::{max_reduced_sigma_t, GridRule, GridTrust, LatticeGeom, ShapeLimit, DOM_GRID, LBL_GRID};
 
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
