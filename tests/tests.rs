@@ -44,4 +44,5 @@ mod staged_setup_tests;
 mod timeline_tests;
 mod trust_tests;
 mod vdb_tests;
+mod view_tests;
 mod wavefront_tests;

@@ -32,6 +32,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => super::render::render(a),
         Command::Animate(a) => super::animate::animate(a),
+        Command::View(a) => super::view::view(a),
         Command::Compare(a) => compare(a),
         Command::Export(a) => export(a),
         Command::Devices { gpu, json } => devices(&gpu, json),

@@ -5,6 +5,7 @@ mod animate;
 mod args;
 mod commands;
 mod render;
+mod view;
 
 use std::path::PathBuf;
 
@@ -57,6 +58,43 @@ pub struct GpuArgs {
 }
 
 #[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Scene file (TOML).
+    pub scene: PathBuf,
+    /// The solver shown first (keys 1-9 switch).
+    #[arg(long, value_parser = solver_names(), default_value_t = default_solver())]
+    pub solver: String,
+    /// Override a scene key or set a solver knob, as `render --set`. Repeatable.
+    #[arg(long, value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// The window's size in pixels (default: the scene's render.width x render.height); the
+    /// render follows the window's size when it is resized.
+    #[arg(long, value_name = "WxH")]
+    pub size: Option<String>,
+    /// Samples per pixel a frame adds for solvers that sample pixels (path), up to the scene's
+    /// render.spp.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=65536))]
+    pub batch: u32,
+    /// Replay input events from FILE: one per line, `FRAME ACTION ARGS` (drag-left DX DY,
+    /// drag-right DX DY, wheel LINES, key NAME, resize W H), applied before frame FRAME.
+    #[arg(long, value_name = "FILE")]
+    pub script: Option<PathBuf>,
+    /// Stop after this many frames have been shown.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
+    pub frames: Option<u32>,
+    /// Save the last frame (`--frames`) as this PNG, read back from the image presented, with
+    /// the `--set`s that make `scatterlab render` draw the same view in its text; S in the
+    /// window saves numbered ones beside it.
+    #[arg(long, value_name = "PNG")]
+    pub screenshot: Option<PathBuf>,
+    /// No per-session lines on stderr (the summary on stdout stays).
+    #[arg(long)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub gpu: GpuArgs,
+}
+
+#[derive(Args, Debug)]
 pub struct AnimateArgs {
     /// Scene file (TOML): its first light (point or directional) orbits.
     pub scene: PathBuf,
@@ -98,6 +136,11 @@ pub enum Command {
     /// keep one: the frames and frames.csv (per frame: time, iterations, relL2 and energy ratio
     /// against the same frame iterated to the tolerance).
     Animate(AnimateArgs),
+    /// A live window on the scene (winit, Vulkan presentation): left-drag orbits the camera
+    /// about the medium, the wheel zooms, right- or shift-drag orbits the first light, keys 1-9
+    /// switch solver (registry order), + and - change exposure, R resets, S saves a screenshot,
+    /// Esc quits. path accumulates progressively; the others render again on each change.
+    View(ViewArgs),
     /// Compare two EXR images: relL2 (and without the images' noise where they carry variance
     /// layers), relMSE, RMSE, energy ratio, max error, NaN/Inf count.
     Compare(CompareArgs),

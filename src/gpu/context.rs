@@ -49,6 +49,10 @@ pub struct GpuOptions {
     /// instead of the host (super::specialize: constants frozen, decided branches removed, the
     /// same program; lavapipe builds it 1.5-16x faster). A check on the host pass.
     pub driver_specialization: bool,
+    /// Open for presentation to a window (`scatterlab view`): these instance extensions (the
+    /// surface's: `gpu::surface_extensions`) and the device extension `VK_KHR_swapchain`.
+    /// `None`: headless, as every other command.
+    pub presentation: Option<Vec<&'static std::ffi::CStr>>,
 }
 
 impl Default for GpuOptions {
@@ -72,6 +76,7 @@ impl Default for GpuOptions {
             without_float64: false,
             unmapped_device_memory: false,
             driver_specialization: std::env::var(ENV_SPECIALIZE).is_ok_and(|v| v == "driver"),
+            presentation: None,
         }
     }
 }
@@ -138,6 +143,10 @@ pub(crate) struct Shared {
     pub unmapped_device_memory: bool,
     /// [`GpuOptions::driver_specialization`].
     pub driver_specialization: bool,
+    /// The physical device (surface queries: super::present).
+    pub physical: vk::PhysicalDevice,
+    /// Opened with `VK_KHR_swapchain` ([`GpuOptions::presentation`]).
+    pub presentation: bool,
     pub roles: [RoleQueue; 3],
     pub info: DeviceInfo,
     /// Families of the compute roles (ordinary buffers are shared among these).
@@ -327,6 +336,7 @@ fn create_device(
     pd: vk::PhysicalDevice,
     mapping: &RoleMapping,
     f: &Features,
+    swapchain: bool,
 ) -> Result<ash::Device> {
     // Queues: clamp the count to what the family reports (lavapipe accepts more and only
     // the validation layer complains; vulkan-notes.md).
@@ -351,6 +361,9 @@ fn create_device(
     }
     if f.calibrated {
         ext_names.push(ash::ext::calibrated_timestamps::NAME.as_ptr());
+    }
+    if swapchain {
+        ext_names.push(ash::khr::swapchain::NAME.as_ptr());
     }
     let core = vk::PhysicalDeviceFeatures::default().shader_float64(f.float64);
     let mut f12 =
@@ -506,6 +519,7 @@ type LogBox = Box<Arc<ValidationLog>>;
 fn create_instance(
     entry: &ash::Entry,
     validate: bool,
+    surface: &[&'static CStr],
     log: &Arc<ValidationLog>,
 ) -> Result<(ash::Instance, Option<LogBox>, bool)> {
     let app = vk::ApplicationInfo::default()
@@ -513,7 +527,7 @@ fn create_instance(
         .engine_name(c"scatterlab")
         .api_version(vk::API_VERSION_1_3);
     let mut layers: Vec<*const std::ffi::c_char> = Vec::new();
-    let mut extensions: Vec<*const std::ffi::c_char> = Vec::new();
+    let mut extensions: Vec<*const std::ffi::c_char> = surface.iter().map(|e| e.as_ptr()).collect();
     let mut boxed = None;
     let mut debug = false;
     if validate {
@@ -589,7 +603,7 @@ fn candidates(instance: &ash::Instance) -> Result<Vec<Candidate>> {
 pub fn list_devices() -> Result<Vec<DeviceSummary>> {
     let entry = load_entry()?;
     let log = Arc::new(ValidationLog::default());
-    let (instance, _b, _) = create_instance(&entry, false, &log)?;
+    let (instance, _b, _) = create_instance(&entry, false, &[], &log)?;
     let list = candidates(&instance).map(|c| c.into_iter().map(|c| c.summary).collect());
     unsafe { instance.destroy_instance(None) };
     list
@@ -667,7 +681,8 @@ impl Gpu {
     pub fn new(opts: &GpuOptions) -> Result<Gpu> {
         let entry = load_entry()?;
         let log = Arc::new(ValidationLog::default());
-        let (instance, mut boxed, debug) = create_instance(&entry, opts.validate, &log)?;
+        let surface = opts.presentation.as_deref().unwrap_or(&[]);
+        let (instance, mut boxed, debug) = create_instance(&entry, opts.validate, surface, &log)?;
         // From here on, any early return must destroy the instance, and only then free the
         // messengers' user data: the layer may report through the create-time messenger while
         // the instance is destroyed, and the callback would write through a freed pointer.
@@ -696,7 +711,7 @@ impl Gpu {
         }
 
         let features = Features::of(&instance, pd, opts);
-        let device = create_device(&instance, pd, &mapping, &features)?;
+        let device = create_device(&instance, pd, &mapping, &features, opts.presentation.is_some())?;
         // From here on a failure destroys what was made (the guard's drop), before the caller
         // destroys the instance.
         let mut made = Opening::default();
@@ -746,6 +761,8 @@ impl Gpu {
             host_query_reset: features.host_query_reset,
             unmapped_device_memory: opts.unmapped_device_memory,
             driver_specialization: opts.driver_specialization,
+            physical: pd,
+            presentation: opts.presentation.is_some(),
             _entry: entry,
             instance,
             device,

@@ -21,6 +21,9 @@ pub use self::exr::{read_exr, read_exr_layer, read_exr_metadata, write_exr, writ
 pub use self::image::Image;
 pub use self::metrics::{compare, error_png, Metrics};
 pub use self::pfm::{read_pfm, write_pfm};
-pub use self::png::{read_png_text, write_png_tonemapped, write_png_tonemapped_with_metadata, TONEMAP_DESCRIPTION};
+pub use self::png::{
+    read_png_text, tonemap_rgb8, write_png_tonemapped, write_png_tonemapped_with_metadata, write_rgb8_png,
+    TONEMAP_DESCRIPTION,
+};
 pub use self::provenance::{engine, Provenance};
 pub use self::report::{write_json, write_text};

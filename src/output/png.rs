@@ -31,6 +31,16 @@ pub fn write_png_tonemapped_with_metadata(
     metadata: &[(String, String)],
 ) -> Result<(), OutputError> {
     check_writable(path, image)?;
+    let rgb8 = tonemap_rgb8(image, exposure);
+    let mut text = metadata.to_vec();
+    text.push(("scatterlab.exposure".into(), format!("{exposure}")));
+    text.push(("scatterlab.tonemap".into(), TONEMAP_DESCRIPTION.into()));
+    write_rgb8_with_text(path, image.width, image.height, &rgb8, &text)
+}
+
+/// `image` tone-mapped as [`write_png_tonemapped`] writes it: 8-bit sRGB RGB, rows top-down
+/// (what `scatterlab view` shows).
+pub fn tonemap_rgb8(image: &Image, exposure: f32) -> Vec<u8> {
     let scale = exposure.exp2();
     let mut rgb8 = Vec::with_capacity(3 * image.pixel_count());
     for p in image.pixels() {
@@ -40,10 +50,19 @@ pub fn write_png_tonemapped_with_metadata(
             rgb8.extend(p.iter().map(|&v| to_u8(srgb_oetf(aces_narkowicz(v.max(0.0) * scale)))));
         }
     }
-    let mut text = metadata.to_vec();
-    text.push(("scatterlab.exposure".into(), format!("{exposure}")));
-    text.push(("scatterlab.tonemap".into(), TONEMAP_DESCRIPTION.into()));
-    write_rgb8_with_text(path, image.width, image.height, &rgb8, &text)
+    rgb8
+}
+
+/// 8-bit sRGB RGB pixels (`width` x `height`, rows top-down) as a PNG with text chunks, atomically
+/// (a `scatterlab view` screenshot).
+pub fn write_rgb8_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    rgb8: &[u8],
+    text: &[(String, String)],
+) -> Result<(), OutputError> {
+    write_rgb8_with_text(path, width, height, rgb8, text)
 }
 
 /// 8-bit RGB as PNG with text chunks at `path`, atomically: tEXt where the text is Latin-1
