@@ -8,9 +8,9 @@
 //! deterministic solvers, after camera and light drags too; path accumulates to the scene's
 //! samples; a resize renders at the new size; no display is one line and exit 1.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
 
@@ -22,25 +22,27 @@ struct Xvfb {
 
 impl Xvfb {
     fn start() -> Xvfb {
-        // A display number from the process id, moved on past any that is taken.
-        let mut n = 100 + std::process::id() % 400;
-        while Path::new(&format!("/tmp/.X11-unix/X{n}")).exists() || Path::new(&format!("/tmp/.X{n}-lock")).exists() {
-            n += 1;
-        }
-        let display = format!(":{n}");
-        let child = Command::new("Xvfb")
-            .args([display.as_str(), "-screen", "0", "640x480x24", "-nolisten", "tcp"])
-            .stdout(Stdio::null())
+        // -displayfd: Xvfb picks a free display itself and writes its number once it accepts
+        // connections (the socket file appears earlier: a client then failed in XRandR's query).
+        let mut child = Command::new("Xvfb")
+            .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+            .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
             .unwrap_or_else(|e| panic!("Xvfb cannot start ({e}): install it with tools/setup-deps (Debian: xvfb)"));
-        let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-        let started = Instant::now();
-        while !socket.exists() {
-            assert!(started.elapsed() < Duration::from_secs(20), "Xvfb {display} did not open its socket in 20 s");
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        Xvfb { child, display }
+        let stdout = child.stdout.take().expect("piped");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            let _ = std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line);
+            let _ = tx.send(line);
+        });
+        let line = rx.recv_timeout(Duration::from_secs(30)).unwrap_or_else(|_| {
+            let _ = child.kill();
+            panic!("Xvfb gave no display number in 30 s")
+        });
+        let n: u32 = line.trim().parse().unwrap_or_else(|_| panic!("Xvfb -displayfd wrote {line:?}"));
+        Xvfb { child, display: format!(":{n}") }
     }
 
     /// `scatterlab ARGS` with this display and no other.

@@ -254,7 +254,7 @@ pub fn view(a: ViewArgs) -> Result<()> {
     if let Some(p) = &a.screenshot {
         super::args::check_output_path(p, "--screenshot", &["png"])?;
     }
-    let event_loop = EventLoop::new().map_err(|e| anyhow!("{NO_DISPLAY} ({e})"))?;
+    let event_loop = event_loop()?;
     let mut app = App {
         args: &a,
         base: scene.clone(),
@@ -321,6 +321,30 @@ fn own_knobs(sets: &[(String, String)], solver: &dyn Solver) -> Settings {
     let prefix = format!("{}.", solver.name());
     let own: Vec<(String, String)> = sets.iter().filter(|(k, _)| k.starts_with(&prefix)).cloned().collect();
     Settings::new(&own)
+}
+
+/// winit's event loop, or one line. winit 0.30 panics where the X server answers its first
+/// queries with an I/O error (an X server still starting: "Failed to query XRandR extension");
+/// that panic is caught and said as the display's error, never shown as a panic.
+fn event_loop() -> Result<EventLoop<()>> {
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let made = std::panic::catch_unwind(EventLoop::new);
+    std::panic::set_hook(hook);
+    match made {
+        Ok(Ok(el)) => Ok(el),
+        Ok(Err(e)) => Err(anyhow!("{NO_DISPLAY} ({e})")),
+        Err(p) => {
+            let why = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "the windowing library failed".into());
+            Err(anyhow!(
+                "the display does not answer as a window system should: {why}; check DISPLAY or WAYLAND_DISPLAY"
+            ))
+        }
+    }
 }
 
 /// `WxH` in pixels.
@@ -600,8 +624,12 @@ impl App<'_> {
     }
 
     /// Whether the next frame has work: a stale image, path still accumulating, a script or a
-    /// frame count still to run.
+    /// frame count still to run (and a window that is not minimised).
     fn busy(&self) -> bool {
+        // Minimised: nothing can be drawn until the window is restored (its Resized event).
+        if self.live.as_ref().is_some_and(|l| l.presenter.extent().contains(&0)) {
+            return false;
+        }
         self.dirty
             || (self.solver.samples_pixels() && self.spp < self.base.render.spp.max(1))
             || self.args.frames.is_some()
