@@ -61,7 +61,7 @@ pub struct GpuArgs {
 pub struct ViewArgs {
     /// Scene file (TOML).
     pub scene: PathBuf,
-    /// The solver shown first (keys 1-9 switch).
+    /// The solver shown first (keys 1-8 switch, in registry order).
     #[arg(long, value_parser = solver_names(), default_value_t = default_solver())]
     pub solver: String,
     /// Override a scene key or set a solver knob, as `render --set`. Repeatable.
@@ -137,7 +137,7 @@ pub enum Command {
     /// against the same frame iterated to the tolerance).
     Animate(AnimateArgs),
     /// A live window on the scene (winit, Vulkan presentation): left-drag orbits the camera
-    /// about the medium, the wheel zooms, right- or shift-drag orbits the first light, keys 1-9
+    /// about the medium, the wheel zooms, right- or shift-drag orbits the first light, keys 1-8
     /// switch solver (registry order), + and - change exposure, R resets, S saves a screenshot,
     /// Esc quits. path accumulates progressively; the others render again on each change.
     View(ViewArgs),
