@@ -512,7 +512,7 @@ impl App<'_> {
                 self.solver.name()
             );
         }
-        let u = self.used.entry(self.solver.name()).or_default();
+        let u = self.used.entry(name).or_default();
         u.renders += 1;
         u.wall_ms += started.elapsed().as_secs_f64() * 1e3;
         u.gpu_ms += out.report.gpu_ms;

@@ -237,13 +237,10 @@ fn shape_limit(scene: &Scene, rule: &GridRule) -> Option<ShapeLimit> {
     if albedo < BRIGHT_ALBEDO {
         return None;
     }
-    let ext = scene.medium.bounds_max - scene.medium.bounds_min;
-    let mut sides = ext.to_array();
-    sides.sort_by(f32::total_cmp);
+    let (sides, depth) = sides_and_depth(scene);
     if sides[0].is_nan() || sides[0] <= 0.0 {
         return None;
     }
-    let depth = max_reduced_sigma_t(scene) * sides[0];
     let layer = sides[1] >= LAYER_ASPECT * sides[0];
     let aspect = sides[2] / sides[0];
     if layer {
@@ -354,10 +351,7 @@ pub struct GridTrust {
 /// its reduced optical thickness across the thinnest side at its densest.
 fn thin_layer(scene: &Scene, rule: &GridRule) -> Option<f32> {
     let limit = rule.thin_layer?;
-    let ext = scene.medium.bounds_max - scene.medium.bounds_min;
-    let mut sides = ext.to_array();
-    sides.sort_by(f32::total_cmp);
-    let depth = max_reduced_sigma_t(scene) * sides[0];
+    let (sides, depth) = sides_and_depth(scene);
     if sides[1] < LAYER_ASPECT * sides[0] {
         return None;
     }
@@ -365,6 +359,14 @@ fn thin_layer(scene: &Scene, rule: &GridRule) -> Option<f32> {
     // g 0.6: 1.07-1.27x path's energy at 5.5-16.8 reduced mean free paths, docs/lbl.md).
     let judged = if hard_edged(scene) { largest_g(scene) >= LAYER_G } else { depth <= limit };
     judged.then_some(depth)
+}
+
+/// The medium box's sides, thinnest first, and its reduced optical thickness across the
+/// thinnest at its densest (what the layer and shape rules judge).
+fn sides_and_depth(scene: &Scene) -> ([f32; 3], f32) {
+    let mut sides = (scene.medium.bounds_max - scene.medium.bounds_min).to_array();
+    sides.sort_by(f32::total_cmp);
+    (sides, max_reduced_sigma_t(scene) * sides[0])
 }
 
 /// The largest asymmetry g of the medium, or of an object's materials.
