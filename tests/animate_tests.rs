@@ -83,10 +83,12 @@ fn networks_frames_start_from_the_last_and_more_iterations_come_closer() {
     assert!(mean[1] < 0.5 * mean[0], "8 iterations a frame {} against 1: {}", mean[1], mean[0]);
 }
 
-/// lbl on a small cube (grid 8), the point light outside turning 10 degrees: started from the
+/// lbl on a small cube (grid 12), the point light outside turning 10 degrees: started from the
 /// previous frame's field, the second frame's lattice reaches the tolerance in fewer iterations
-/// than the same frame from zero, and to the same image (both without the geometric tail, so
-/// both stop on the plain change; measured 129 iterations against 152).
+/// than the same frame from zero, and to the same image, both with the geometric tail
+/// extrapolated (the default: the sums of the increments' magnitudes decay from the previous
+/// field too) and without it (both stop on the plain change; measured 129 iterations against
+/// 152).
 #[test]
 fn lbl_frames_start_from_the_previous_lattice() {
     let cube = crate::common::scene(
@@ -96,22 +98,29 @@ fn lbl_frames_start_from_the_previous_lattice() {
          density = { kind = \"constant\" }\n\
          [[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n",
     );
-    let knobs = [("lbl.grid", "12"), ("lbl.extrapolate", "false"), ("lbl.deterministic", "true")];
-    let rows = run(LBL, &cube, &knobs, 2);
-    let gpu = gpu();
-    let second = animate::orbit(&cube, 10.0).unwrap();
-    let kv: Vec<(&str, &str)> = knobs.to_vec();
-    let cold = render(&gpu, &second, LBL, &kv);
-    let cold_iterations = cold.report.stats.convergence.unwrap().iterations;
-    eprintln!("lbl: frame 1 from the last {} iterations, from zero {cold_iterations}", rows[1].iterations);
-    assert!(rows[1].converged, "{:?}", rows[1]);
-    assert!(rows[1].iterations < cold_iterations, "warm {} against cold {cold_iterations}", rows[1].iterations);
-    // Without lbl.iterations_per_frame every frame iterates to the tolerance, so the sequence is
-    // its own reference.
-    assert!(rows[1].rel_l2.unwrap() < 1e-6, "{:?}", rows[1]);
-    let m = scatterlab::output::compare(&render_frame(&gpu, &cube, &knobs, 10.0), &cold.image).unwrap();
-    assert!(m.rel_l2 < 5e-3, "warm and cold frames differ by relL2 {}", m.rel_l2);
-    assert_clean(&gpu);
+    for extrapolate in ["true", "false"] {
+        let knobs = [("lbl.grid", "12"), ("lbl.extrapolate", extrapolate), ("lbl.deterministic", "true")];
+        let rows = run(LBL, &cube, &knobs, 2);
+        let gpu = gpu();
+        let second = animate::orbit(&cube, 10.0).unwrap();
+        let kv: Vec<(&str, &str)> = knobs.to_vec();
+        let cold = render(&gpu, &second, LBL, &kv);
+        let cold_iterations = cold.report.stats.convergence.unwrap().iterations;
+        eprintln!(
+            "lbl (extrapolate {extrapolate}): frame 1 from the last {} iterations, from zero {cold_iterations}",
+            rows[1].iterations
+        );
+        assert!(rows[1].converged, "{:?}", rows[1]);
+        assert!(rows[1].iterations < cold_iterations, "warm {} against cold {cold_iterations}", rows[1].iterations);
+        // Without lbl.iterations_per_frame every frame iterates to the tolerance, so the sequence
+        // is its own reference.
+        assert!(rows[1].rel_l2.unwrap() < 1e-6, "{:?}", rows[1]);
+        let m = scatterlab::output::compare(&render_frame(&gpu, &cube, &knobs, 10.0), &cold.image).unwrap();
+        eprintln!("lbl (extrapolate {extrapolate}): warm against cold frame relL2 {:.2e}", m.rel_l2);
+        assert!(m.rel_l2 < 5e-3, "warm and cold frames differ by relL2 {}", m.rel_l2);
+        assert!((m.energy_ratio - 1.0).abs() < 5e-3, "warm against cold energy {}", m.energy_ratio);
+        assert_clean(&gpu);
+    }
 }
 
 /// Frame `deg`'s image of an lbl sequence started at 0 degrees (two frames).

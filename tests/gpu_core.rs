@@ -257,3 +257,35 @@ fn closing_a_device_with_work_in_flight_frees_nothing_under_it() {
     assert_eq!(errors, 0, "closing the device with work in flight: {messages:#?}");
     assert!(running, "the copies had finished before the device was closed: the test proved nothing");
 }
+
+/// `scatterlab view`'s device tone map (glsl/view/tonemap.comp) against the PNG writer's host
+/// operator (`output::tonemap_rgb8`), over radiances from 1e-6 to 1e5 on a log scale, zero,
+/// negatives, NaN and infinities, at exposures of -3, 0 and +2.5 stops: the same bytes but where
+/// the device's float arithmetic rounds across an 8-bit step (at most 1, in few channels).
+#[test]
+fn the_device_tone_map_is_the_png_writers() {
+    let gpu = gpu();
+    let mut values: Vec<f32> = (0..3000).map(|i| 10f32.powf(-6.0 + 11.0 * i as f32 / 2999.0)).collect();
+    values.extend([0.0, -1.0, -1e-3, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e30, f32::MIN_POSITIVE]);
+    while values.len() % 3 != 0 {
+        values.push(0.5);
+    }
+    let w = (values.len() / 3) as u32;
+    for exposure in [-3.0f32, 0.0, 2.5] {
+        let image = scatterlab::output::Image { width: w, height: 1, data: values.clone() };
+        let host = scatterlab::output::tonemap_rgb8(&image, exposure);
+        let device = scatterlab::gpu::tonemap_on_device(&gpu, &values, exposure).unwrap();
+        assert_eq!(host.len(), device.len());
+        let differ = host.iter().zip(&device).filter(|(a, b)| a != b).count();
+        let worst = host.iter().zip(&device).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
+        eprintln!("exposure {exposure:+}: {differ} of {} channels differ, by at most {worst}", host.len());
+        assert!(worst <= 1, "exposure {exposure}: a channel differs by {worst}");
+        assert!(differ * 100 <= host.len(), "exposure {exposure}: {differ} channels differ");
+        // NaN and the infinities are magenta in both (NON_FINITE_RGB8); negatives black.
+        let px = |i: usize| &device[3 * i..3 * i + 3];
+        let at = |v: f32| values.iter().position(|x| x.to_bits() == v.to_bits()).unwrap() / 3;
+        assert_eq!(px(at(f32::NAN)), scatterlab::output::png::NON_FINITE_RGB8);
+        assert_eq!(px(at(f32::INFINITY)), scatterlab::output::png::NON_FINITE_RGB8);
+    }
+    assert_clean(&gpu);
+}

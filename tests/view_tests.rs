@@ -4,9 +4,11 @@
 //! fails these tests; it never skips them.
 //!
 //! What is asserted: a scripted session's screenshot (read back from the swapchain image that
-//! was presented) equals `scatterlab render --png` of the view it reports, pixel for pixel, for
-//! deterministic solvers, after camera and light drags too; path accumulates to the scene's
-//! samples; a resize renders at the new size; no display is one line and exit 1.
+//! was presented, tone-mapped on the device) equals `scatterlab render --png` of the view it
+//! reports for every deterministic solver (to an 8-bit step; equal bytes on lavapipe), after
+//! camera and light drags too; path accumulates to the scene's samples; a per-frame iteration
+//! budget converges to the render; key D's measure agrees with offline renders; odd resizes and
+//! a close mid-solve leave no Vulkan object and no file; no display is one line and exit 1.
 
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
@@ -109,7 +111,7 @@ fn max_diff(a: &[u8], b: &[u8]) -> u8 {
 }
 
 #[test]
-fn a_session_shows_what_render_writes_for_each_deterministic_solver() {
+fn a_session_shows_what_render_writes_for_every_deterministic_solver() {
     let x = Xvfb::start();
     let dir = tempfile::tempdir().unwrap();
     let scene = repo("scenes/homogeneous-sphere.toml");
@@ -117,7 +119,11 @@ fn a_session_shows_what_render_writes_for_each_deterministic_solver() {
     for (solver, knobs) in [
         ("single", vec![]),
         ("lbl", vec!["--set", "lbl.grid=16"]),
+        ("wavefront", vec!["--set", "wavefront.grid=16", "--set", "wavefront.view_env_dirs=16"]),
+        ("octaves", vec!["--set", "octaves.view_env_dirs=16"]),
         ("dom", vec!["--set", "dom.grid=12", "--set", "dom.directions=s4"]),
+        ("networks", vec!["--set", "networks.particles=256", "--set", "networks.directions=32"]),
+        ("sh-single", vec!["--set", "sh-single.samples=500", "--set", "sh-single.order=4"]),
     ] {
         let shot = dir.path().join(format!("{solver}-view.png"));
         let mut args = vec![
@@ -141,7 +147,10 @@ fn a_session_shows_what_render_writes_for_each_deterministic_solver() {
         assert_eq!((w, h), (40, 32), "{solver}");
         let (rw, rh, rendered) = render_of(&x, &scene, &shot, &dir.path().join(format!("{solver}.png")), &knobs);
         assert_eq!((rw, rh), (40, 32));
-        assert_eq!(max_diff(&shown, &rendered), 0, "{solver}: the window shows other pixels than render --png");
+        // The device's tone map may round a value across an 8-bit step where the host's does not
+        // (gpu_core::the_device_tone_map_is_the_png_writers; none on lavapipe).
+        let d = max_diff(&shown, &rendered);
+        assert!(d <= 1, "{solver}: the window shows other pixels than render --png (by {d})");
         assert!(shown.iter().any(|&v| v > 0), "{solver}: a black screenshot");
     }
 }
@@ -183,7 +192,8 @@ fn a_scripted_camera_and_light_orbit_is_the_render_of_the_view_it_reports() {
     assert!(sets.contains("--set camera.origin=") && sets.contains("--set light.0.direction="), "{sets}");
     let (_, _, shown) = pixels(&shot);
     let (_, _, rendered) = render_of(&x, &scene, &shot, &dir.path().join("render.png"), &["--set", "lbl.grid=16"]);
-    assert_eq!(max_diff(&shown, &rendered), 0, "the moved view differs from its render");
+    let d = max_diff(&shown, &rendered);
+    assert!(d <= 1, "the moved view differs from its render (by {d})");
     // The view moved: the unmoved render differs.
     let still = dir.path().join("still.png");
     let still_s = still.display().to_string();
@@ -263,8 +273,9 @@ fn iterations(stdout: &str, solver: &str) -> (f64, f64, u32) {
 /// A move of the light starts lbl and networks from their last solution (their `animate`
 /// sequences, iterated to the tolerance each frame); a move of the camera starts again from
 /// zero. Measured at 32^2 on the sphere after 2-degree moves: networks 89 iterations from zero,
-/// 28 warm started (0.31); lbl at grid 16 72 from zero, 129 warm started (1.8: its extrapolated
-/// tail speeds the cold start, and a seeded start does not take it; docs/lbl.md).
+/// 28 warm started (0.31); lbl at grid 16 72 from zero, 65 warm started (0.90: the field it
+/// carries is the fluence and flux, a projection of the lattice's links whose error the warm
+/// start first iterates away; before its tail was extrapolated from seeded starts too, 129).
 #[test]
 fn a_light_move_warm_starts_networks_and_lbl_from_their_last_solution() {
     let x = Xvfb::start();
@@ -300,7 +311,187 @@ fn a_light_move_warm_starts_networks_and_lbl_from_their_last_solution() {
     }
     eprintln!("warm / cold iterations: {ratios:?}");
     assert!(ratios[0].1 < 0.5, "networks warm started no faster: {ratios:?}");
-    assert!(ratios[1].1 < 2.5, "lbl warm started slower than measured: {ratios:?}");
+    assert!(ratios[1].1 < 0.95, "lbl warm started no faster: {ratios:?}");
+}
+
+/// `render --exr` of the view a screenshot reports, against the screenshot's EXR: their metrics.
+fn exr_against_render(x: &Xvfb, scene: &str, shot: &Path, exr: &Path, extra: &[&str]) -> scatterlab::output::Metrics {
+    let solver = text(shot, "scatterlab.view.solver");
+    let sets = text(shot, "scatterlab.view.sets");
+    let mut args: Vec<String> =
+        vec!["render".into(), scene.into(), "--solver".into(), solver, "--out".into(), exr.display().to_string()];
+    args.push("--validate".into());
+    args.extend(sets.split(' ').map(String::from));
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+    ok(&x.run(&argv), &format!("render {argv:?}"));
+    let shown = scatterlab::output::read_exr(&shot.with_extension("exr")).unwrap();
+    scatterlab::output::compare(&shown, &scatterlab::output::read_exr(exr).unwrap()).unwrap()
+}
+
+/// With `iterations_per_frame` set, the frame after a light move stops at that budget short of
+/// the tolerance and the frames after it go on from there: the last frame is the converged
+/// render of the view (the screenshot's EXR within 1e-3 relL2 of `render --exr`), and the
+/// summary counts the budgeted stops. lbl goes on to the tolerance in the next frame (its
+/// carried field is a projection; docs/usage.md), networks steps its budget every frame.
+#[test]
+fn a_per_frame_budget_shows_the_image_converging_to_the_render() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().unwrap();
+    let scene = repo("scenes/homogeneous-sphere.toml");
+    let script = dir.path().join("light.txt");
+    std::fs::write(&script, "1 drag-right 20 0\n").unwrap();
+    let script_s = script.display().to_string();
+    for (solver, knobs, frames, stops) in [
+        ("lbl", ["lbl.grid=16", "lbl.iterations_per_frame=8"], "5", 1),
+        ("networks", ["networks.particles=256", "networks.iterations_per_frame=4"], "16", 2),
+    ] {
+        let shot = dir.path().join(format!("{solver}.png"));
+        let shot_s = shot.display().to_string();
+        let mut args = vec![
+            "view",
+            &scene,
+            "--solver",
+            solver,
+            "--size",
+            "32x32",
+            "--frames",
+            frames,
+            "--script",
+            &script_s,
+            "--screenshot",
+            &shot_s,
+            "--validate",
+            "--quiet",
+        ];
+        for k in &knobs {
+            args.extend(["--set", k]);
+        }
+        let stdout = ok(&x.run(&args), solver);
+        let line = stdout.lines().find(|l| l.starts_with(&format!("view: {solver}: "))).expect("summary");
+        let n: u32 = line
+            .split(", ")
+            .find_map(|p| p.trim_end_matches(')').strip_suffix(" stopped at the per-frame budget"))
+            .unwrap_or_else(|| panic!("{solver}: no budgeted stop: {line}"))
+            .parse()
+            .unwrap();
+        assert!(n >= stops, "{solver}: {n} budgeted stops: {line}");
+        let iterations = text(&shot, "scatterlab.view.iterations");
+        assert!(iterations.contains("(converged"), "{solver}: the last frame had not converged: {iterations}");
+        let own: Vec<&str> =
+            knobs.iter().filter(|k| !k.contains("iterations_per_frame")).flat_map(|k| ["--set", k]).collect();
+        let m = exr_against_render(&x, &scene, &shot, &dir.path().join(format!("{solver}-render.exr")), &own);
+        eprintln!(
+            "{solver}: {n} budgeted stops, then converged: relL2 {:.2e} to the render, energy {:.5}",
+            m.rel_l2, m.energy_ratio
+        );
+        assert!(m.rel_l2 < 1e-3, "{solver}: the converged frame against its render: relL2 {}", m.rel_l2);
+    }
+}
+
+/// Key D: a path accumulation beside lbl, measured as it goes. Its energy ratio and its relL2
+/// with the noise removed agree with the same measure of `render` images against path at
+/// 1024 spp, within what path's noise at the comparison's samples allows.
+#[test]
+fn key_d_measures_the_solver_against_a_path_accumulation() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().unwrap();
+    let scene = repo("scenes/homogeneous-sphere.toml");
+    let script = dir.path().join("d.txt");
+    std::fs::write(&script, "0 key d\n").unwrap();
+    let script_s = script.display().to_string();
+    let args = [
+        "view",
+        &scene,
+        "--solver",
+        "lbl",
+        "--size",
+        "32x32",
+        "--frames",
+        "16",
+        "--batch",
+        "16",
+        "--script",
+        &script_s,
+        "--set",
+        "lbl.grid=16",
+        "--validate",
+        "--quiet",
+    ];
+    let stdout = ok(&x.run(&args), "D session");
+    let line = stdout.lines().find(|l| l.contains("against path at")).unwrap_or_else(|| panic!("{stdout}"));
+    let num = |after: &str| -> f64 {
+        let i = line.find(after).unwrap_or_else(|| panic!("{line}")) + after.len();
+        line[i..].split([' ', ')']).next().unwrap().parse().unwrap()
+    };
+    let (corrected, energy, spp) = (num("("), num("energy ratio "), num("against path at "));
+    assert_eq!(spp, 256.0, "16 frames of 16 samples: {line}");
+    let render = |solver: &str, out: &Path, extra: &[&str]| {
+        let out_s = out.display().to_string();
+        let mut a = vec!["render", &scene, "--solver", solver, "--out", &out_s, "--validate"];
+        a.extend(["--set", "render.width=32", "--set", "render.height=32"]);
+        a.extend(extra);
+        ok(&x.run(&a), solver);
+    };
+    let (lbl, path) = (dir.path().join("lbl.exr"), dir.path().join("path.exr"));
+    render("lbl", &lbl, &["--set", "lbl.grid=16"]);
+    render("path", &path, &["--spp", "1024"]);
+    let read = |p: &Path| scatterlab::output::read_exr(p).unwrap();
+    let var = scatterlab::output::read_exr_layer(&path, "variance").unwrap();
+    let m = scatterlab::output::compare(&read(&lbl), &read(&path)).unwrap();
+    let floor = scatterlab::output::metrics::noise_floor(&read(&lbl), &read(&path), None, Some(&var)).unwrap();
+    let want = floor.rel_l2_corrected.unwrap();
+    eprintln!("D: {line}; offline: relL2 {:.4} ({want:.4} less noise), energy {:.4}", m.rel_l2, m.energy_ratio);
+    assert!((energy - m.energy_ratio).abs() < 0.02, "energy ratio {energy} against {}", m.energy_ratio);
+    assert!((corrected - want).abs() < 0.03, "relL2 less noise {corrected} against {want}");
+}
+
+/// Resizes to odd sizes while lbl converges under a budget, then the close button while path
+/// still accumulates: a clean exit, no validation error, no Vulkan object left on the device
+/// (the layer's count at its destruction), and no screenshot: the session ended before its last
+/// frame, so nothing (not even a temporary file) was written.
+#[test]
+fn odd_resizes_and_a_close_mid_solve_leave_nothing_behind() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().unwrap();
+    let scene = repo("scenes/homogeneous-sphere.toml");
+    let script = dir.path().join("close.txt");
+    std::fs::write(&script, "1 drag-right 20 0\n1 resize 37 29\n3 resize 61 45\n4 key 1\n5 resize 23 41\n7 close\n")
+        .unwrap();
+    let shots = dir.path().join("shots");
+    std::fs::create_dir(&shots).unwrap();
+    let shot = shots.join("never.png");
+    let (script_s, shot_s) = (script.display().to_string(), shot.display().to_string());
+    let args = [
+        "view",
+        &scene,
+        "--solver",
+        "lbl",
+        "--size",
+        "32x32",
+        "--frames",
+        "1000",
+        "--script",
+        &script_s,
+        "--screenshot",
+        &shot_s,
+        "--set",
+        "lbl.grid=16",
+        "--set",
+        "lbl.iterations_per_frame=4",
+        "--set",
+        "render.spp=100000",
+        "--batch",
+        "2",
+        "--validate",
+    ];
+    let out = x.run(&args);
+    let stdout = ok(&out, "session closed mid-solve");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("device closed with no Vulkan object left on it"), "{stderr}");
+    assert!(stdout.contains("view: path: 3 frames"), "path drew frames 4-6 then the close came: {stdout}");
+    let left: Vec<_> = std::fs::read_dir(&shots).unwrap().flatten().map(|e| e.path()).collect();
+    assert!(left.is_empty(), "files written by a session closed before its last frame: {left:?}");
 }
 
 #[test]

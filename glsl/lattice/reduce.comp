@@ -7,7 +7,10 @@
 // lattice/check.comp) return at once.
 //
 // Used by the tail extrapolation: the ratio of two chunks' increments is the decay of the
-// slowest mode over a chunk.
+// slowest mode over a chunk. The increments are summed as magnitudes: from zero they are never
+// negative (the sum is the plain one, to the bit), and from a previous frame's field (a seeded
+// start: the residual s + M G - G is signed) their signs cancel in a plain sum, while the sum of
+// magnitudes still decays at the slowest surviving mode's rate.
 
 layout(local_size_x = 256, local_size_y = 1, local_size_z = 1) in;
 
@@ -30,8 +33,8 @@ void main() {
     uint l = gl_LocalInvocationIndex;
     uint v = gl_GlobalInvocationID.x;
     for (uint c = 0u; c < NCH; ++c) {
-        // f32 difference, widened: the host's (a - b) as f64.
-        red[l] = v < pc.voxels ? double(irr[c * pc.voxels + v] - snap[c * pc.voxels + v]) : 0.0lf;
+        // f32 difference, widened: the host's |a - b| as f64.
+        red[l] = v < pc.voxels ? double(abs(irr[c * pc.voxels + v] - snap[c * pc.voxels + v])) : 0.0lf;
         barrier();
         for (uint s = 128u; s > 0u; s >>= 1) {
             if (l < s) red[l] += red[l + s];

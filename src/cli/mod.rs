@@ -76,15 +76,16 @@ pub struct ViewArgs {
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=65536))]
     pub batch: u32,
     /// Replay input events from FILE: one per line, `FRAME ACTION ARGS` (drag-left DX DY,
-    /// drag-right DX DY, wheel LINES, key NAME, resize W H), applied before frame FRAME.
+    /// drag-right DX DY, wheel LINES, key NAME, resize W H, close), applied before frame FRAME.
     #[arg(long, value_name = "FILE")]
     pub script: Option<PathBuf>,
     /// Stop after this many frames have been shown.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
     pub frames: Option<u32>,
-    /// Save the last frame (`--frames`) as this PNG, read back from the image presented, with
-    /// the `--set`s that make `scatterlab render` draw the same view in its text; S in the
-    /// window saves numbered ones beside it.
+    /// Save the last frame (`--frames`) as this PNG, read back from the image presented, and an
+    /// EXR of the linear image beside it (same name, .exr; path's variance as a layer), both
+    /// with the `--set`s that make `scatterlab render` draw the same view; S in the window
+    /// saves numbered pairs beside it.
     #[arg(long, value_name = "PNG")]
     pub screenshot: Option<PathBuf>,
     /// No per-session lines on stderr (the summary on stdout stays).
@@ -139,7 +140,9 @@ pub enum Command {
     /// A live window on the scene (winit, Vulkan presentation): left-drag orbits the camera
     /// about the medium, the wheel zooms, right- or shift-drag orbits the first light, keys 1-8
     /// switch solver (registry order), + and - change exposure, R resets, S saves a screenshot,
-    /// Esc quits. path accumulates progressively; the others render again on each change.
+    /// D measures the solver against a path accumulation beside it, Esc quits. path accumulates
+    /// progressively; lbl and networks start a light move from their last solution (a budget
+    /// `<solver>.iterations_per_frame` converges over frames); the others render again.
     View(ViewArgs),
     /// Compare two EXR images: relL2 (and without the images' noise where they carry variance
     /// layers), relMSE, RMSE, energy ratio, max error, NaN/Inf count.

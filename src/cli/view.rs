@@ -5,12 +5,21 @@
 //! (`--script`, `--frames`, `--screenshot`) replays input without a hand on the mouse, for
 //! tests and demos. Nothing here knows a solver.
 //!
-//! The image is tone-mapped on the host by the PNG writer's operator (`output::tonemap_rgb8`)
-//! and copied into the swapchain image as it stands: the window shows what `render --png`
-//! writes, pixel for pixel, when the window is the render's size.
+//! Solvers that keep a solution (lbl, networks) re-solve from it after a light move; with
+//! their `iterations_per_frame` knob set, a frame runs that many iterations and the frames
+//! after it go on from there until the tolerance, so the window shows the image converging.
+//! Key D runs a `path` accumulation beside the solver shown and measures the solver's image
+//! against it (relL2, with path's noise removed, and the energy ratio) as it converges.
+//!
+//! The linear image is tone-mapped on the device by the PNG writer's operator
+//! (glsl/view/tonemap.comp, `gpu::Presenter::show`) and copied into the swapchain image: the
+//! window shows what `render --png` writes when the window is the render's size (the same bytes
+//! but where the device's float arithmetic rounds a value across an 8-bit step: at most 1).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
@@ -53,10 +62,12 @@ pub enum Scripted {
     DragLight(f32, f32),
     /// `wheel LINES`: zoom (positive: in).
     Wheel(f32),
-    /// `key NAME`: a key press (`1`-`9`, `+`, `-`, `r`, `s`, `escape`).
+    /// `key NAME`: a key press (`1`-`8`, `+`, `-`, `r`, `s`, `d`, `escape`).
     Key(String),
     /// `resize W H`: ask the window for W x H pixels.
     Resize(u32, u32),
+    /// `close`: the window's close button (what the window manager sends).
+    Close,
 }
 
 /// Parse a `--script` file: one event per line, `#` comments and blank lines ignored.
@@ -79,6 +90,7 @@ pub fn parse_script(text: &str, path: &Path) -> Result<Vec<(u32, Scripted)>> {
             Some("drag-right") => Scripted::DragLight(num(2)?, num(3)?),
             Some("wheel") => Scripted::Wheel(num(2)?),
             Some("key") => Scripted::Key(words.get(2).ok_or_else(|| at("key needs a name"))?.to_lowercase()),
+            Some("close") => Scripted::Close,
             Some("resize") => {
                 let (w, h) = (num(2)?, num(3)?);
                 if !(1.0..=16384.0).contains(&w) || !(1.0..=16384.0).contains(&h) {
@@ -86,7 +98,7 @@ pub fn parse_script(text: &str, path: &Path) -> Result<Vec<(u32, Scripted)>> {
                 }
                 Scripted::Resize(w as u32, h as u32)
             }
-            _ => return Err(at("the action is one of drag-left, drag-right, wheel, key, resize")),
+            _ => return Err(at("the action is one of drag-left, drag-right, wheel, key, resize, close")),
         };
         if words.len() > expected_words(&event) {
             return Err(at("too many words"));
@@ -101,6 +113,7 @@ fn expected_words(e: &Scripted) -> usize {
     match e {
         Scripted::DragCamera(..) | Scripted::DragLight(..) | Scripted::Resize(..) => 4,
         Scripted::Wheel(_) | Scripted::Key(_) => 3,
+        Scripted::Close => 2,
     }
 }
 
@@ -168,6 +181,87 @@ struct Used {
     warm: (u32, u64),
     /// Said once: a change the warm start cannot follow.
     restart_said: bool,
+    /// Said once: an iterative solver without a warm start solves every change from zero.
+    cold_said: bool,
+    /// The last measure of its image against the `path` accumulation (key D).
+    vs_path: Option<Measured>,
+    /// The last render's convergence (solvers that iterate).
+    last: Option<solvers::Convergence>,
+    /// Renders that stopped at the per-frame iteration budget short of the tolerance.
+    budget_stops: u32,
+}
+
+/// Samples per pixel at which the comparison's `path` accumulation stops (the measure goes on
+/// against it as the solver's image converges).
+const COMPARE_SPP_MAX: u32 = 65536;
+
+/// Frames a solver under a per-frame iteration budget may take to reach its tolerance after a
+/// change before the view stops asking (and says so).
+const CONVERGING_FRAMES_MAX: u32 = 1000;
+
+/// A progressive accumulation: the mean of `spp` samples per pixel and, where the batches carry
+/// one, the variance of that mean.
+struct Accumulated {
+    image: Image,
+    variance: Option<Image>,
+    spp: u32,
+}
+
+impl Accumulated {
+    /// Fold in a batch's mean of `b` samples per pixel (independent of the samples so far):
+    /// the means weighted by their samples, and the variance of the mean of the union
+    /// (n^2 v_a + b^2 v_b) / (n + b)^2.
+    fn add(&mut self, image: Image, variance: Option<Image>, b: u32) {
+        if self.spp == 0 {
+            (self.image, self.variance, self.spp) = (image, variance, b);
+            return;
+        }
+        let (n, bf) = (self.spp as f64, b as f64);
+        let t = n + bf;
+        for (acc, v) in self.image.data.iter_mut().zip(&image.data) {
+            *acc = ((*acc as f64 * n + *v as f64 * bf) / t) as f32;
+        }
+        self.variance = match (self.variance.take(), variance) {
+            (Some(mut va), Some(vb)) => {
+                for (acc, v) in va.data.iter_mut().zip(&vb.data) {
+                    *acc = ((n * n * *acc as f64 + bf * bf * *v as f64) / (t * t)) as f32;
+                }
+                Some(va)
+            }
+            _ => None,
+        };
+        self.spp += b;
+    }
+}
+
+/// The solver's image against the `path` accumulation beside it.
+#[derive(Clone, Copy, Debug)]
+struct Measured {
+    rel_l2: f64,
+    /// relL2 with both images' noise removed (`output::noise_floor`).
+    corrected: Option<f64>,
+    energy_ratio: f64,
+    spp: u32,
+}
+
+impl Measured {
+    fn line(&self) -> String {
+        format!(
+            "relL2 {:.4}{} and energy ratio {:.4} against path at {} spp",
+            self.rel_l2,
+            self.corrected.map_or(String::new(), |c| format!(" ({c:.4} with the noise removed)")),
+            self.energy_ratio,
+            self.spp
+        )
+    }
+}
+
+/// Key D's `path` accumulation, for the view (camera, lights, size) it was made for.
+struct Comparison {
+    key: String,
+    acc: Option<Accumulated>,
+    /// Said once: D with path itself shown.
+    path_said: bool,
 }
 
 impl Used {
@@ -177,10 +271,15 @@ impl Used {
             (0, 0) => String::new(),
             (_, 0) => format!(", {:.0} iterations from zero", mean(self.cold)),
             _ => format!(
-                ", {:.0} iterations from zero and {:.0} warm started ({} renders)",
+                ", {:.0} iterations from zero and {:.0} warm started ({} renders{})",
                 mean(self.cold),
                 mean(self.warm),
-                self.warm.0
+                self.warm.0,
+                if self.budget_stops > 0 {
+                    format!(", {} stopped at the per-frame budget", self.budget_stops)
+                } else {
+                    String::new()
+                }
             ),
         }
     }
@@ -206,11 +305,18 @@ struct App<'a> {
     live: Option<Live>,
     script: Vec<(u32, Scripted)>,
     frame: u32,
-    /// The linear image shown, and (path) the samples per pixel it averages.
+    /// The linear image shown, (path) the samples per pixel it averages and the variance of
+    /// that mean (where the solver gives one).
     image: Option<Image>,
+    variance: Option<Image>,
     spp: u32,
     /// Something changed since the image was rendered.
     dirty: bool,
+    /// The solver shown stopped at its per-frame iteration budget short of its tolerance: the
+    /// next frames go on from its solution (counted, up to [`CONVERGING_FRAMES_MAX`]).
+    converging: Option<u32>,
+    /// Key D: a `path` accumulation beside the solver, and its measure.
+    compare: Option<Comparison>,
     /// The warm-started sequence of the solver shown (those that keep a solution: lbl,
     /// networks), and the view it was made for (solver, camera, size): a move of the light
     /// renders its next frame from the last solution; any other change starts a new one.
@@ -222,6 +328,8 @@ struct App<'a> {
     modifiers: ModifiersState,
     screenshot_now: bool,
     screenshots: u32,
+    /// Esc or the close button: the loop ends, and no frame after it is drawn.
+    closing: bool,
     used: BTreeMap<&'static str, Used>,
     started: Instant,
     error: Option<anyhow::Error>,
@@ -266,8 +374,11 @@ pub fn view(a: ViewArgs) -> Result<()> {
         script,
         frame: 0,
         image: None,
+        variance: None,
         spp: 0,
         dirty: true,
+        converging: None,
+        compare: None,
         anim: None,
         said: Default::default(),
         drag: None,
@@ -275,6 +386,7 @@ pub fn view(a: ViewArgs) -> Result<()> {
         modifiers: ModifiersState::empty(),
         screenshot_now: false,
         screenshots: 0,
+        closing: false,
         used: BTreeMap::new(),
         started: Instant::now(),
         error: None,
@@ -284,9 +396,29 @@ pub fn view(a: ViewArgs) -> Result<()> {
         // The swapchain and surface go first, so that what the layer says of their destruction
         // is counted; then the device, then the window.
         drop(presenter);
+        app.anim = None;
         check_validation(&gpu)?;
+        let log = gpu.validation_log();
+        let validating = gpu.validation_enabled();
+        let before = log.errors.load(Ordering::SeqCst);
         drop(gpu);
         drop(window);
+        // The device is destroyed with the last handle on it: a handle still held (a buffer, a
+        // pipeline kept past the session) keeps it, and the log's last other holder, alive.
+        if Arc::strong_count(&log) > 1 {
+            bail!("the device outlived the window: a handle on it was never released (a leak; please report it)");
+        }
+        if validating {
+            // The layer names every object left on a device it sees destroyed, one error each.
+            let left = log.errors.load(Ordering::SeqCst) - before;
+            if left > 0 {
+                let first = log.first_errors.lock().map(|v| v.first().cloned().unwrap_or_default()).unwrap_or_default();
+                bail!("{left} Vulkan object(s) were left on the device at exit (a leak; please report it): {first}");
+            }
+            if !a.quiet {
+                eprintln!("view: device closed with no Vulkan object left on it (the validation layer's count)");
+            }
+        }
     }
     if let Some(e) = app.error {
         return Err(e);
@@ -302,6 +434,9 @@ pub fn view(a: ViewArgs) -> Result<()> {
             per(u.gpu_ms),
             u.iterations()
         );
+        if let Some(m) = u.vs_path {
+            println!("view: {name}: {}", m.line());
+        }
     }
     // Quoted for a shell: the arrays' brackets are glob characters.
     let sets: Vec<String> =
@@ -313,6 +448,12 @@ pub fn view(a: ViewArgs) -> Result<()> {
         sets.join(" ")
     );
     Ok(())
+}
+
+/// The seed of the progressive batch that starts at sample `spp`: each batch its own, so that
+/// batches are independent samples of one image.
+fn batch_seed(seed: u64, spp: u32) -> u64 {
+    seed.wrapping_add((spp as u64).wrapping_mul(0x9e37_79b9))
 }
 
 /// The knobs of `sets` that belong to `solver` (`<name>.` keys): the view's `--set`s may name
@@ -396,8 +537,23 @@ impl App<'_> {
         });
         let fps = if self.frame > 0 { self.frame as f64 / self.started.elapsed().as_secs_f64() } else { 0.0 };
         let spp = if self.solver.samples_pixels() { format!(", {} spp", self.spp) } else { String::new() };
+        let iterating = match (u.and_then(|u| u.last), self.converging) {
+            (Some(c), Some(_)) => format!(", {} iterations (change {:.1e}, converging)", c.iterations, c.final_change),
+            (Some(c), None) => format!(", {} iterations (change {:.1e})", c.iterations, c.final_change),
+            (None, _) => String::new(),
+        };
+        let vs = match (&self.compare, u.and_then(|u| u.vs_path)) {
+            (Some(_), Some(m)) => format!(
+                ", vs path {} spp: relL2 {:.3}{}, energy {:.3}",
+                m.spp,
+                m.rel_l2,
+                m.corrected.map_or(String::new(), |c| format!(" ({c:.3} less noise)")),
+                m.energy_ratio
+            ),
+            _ => String::new(),
+        };
         format!(
-            "scatterlab view: {} - {fps:.1} frames/s, {ms:.0} ms a render ({gpu:.1} ms GPU){spp}, exposure {:+.1}",
+            "scatterlab view: {} - {fps:.1} frames/s, {ms:.0} ms a render ({gpu:.1} ms GPU){spp}{iterating}{vs}, exposure {:+.1}",
             self.solver.name(),
             self.exposure
         )
@@ -421,13 +577,20 @@ impl App<'_> {
                 self.scene = zoom_camera(&self.scene, *lines);
                 self.dirty = true;
             }
+            Scripted::Close => {
+                self.closing = true;
+                el.exit();
+            }
             Scripted::Resize(w, h) => {
                 if let Some(l) = &self.live {
                     let _ = l.window.request_inner_size(PhysicalSize::new(*w, *h));
                 }
             }
             Scripted::Key(k) => match k.as_str() {
-                "escape" => el.exit(),
+                "escape" => {
+                    self.closing = true;
+                    el.exit();
+                }
                 "+" | "=" => self.exposure += EXPOSURE_STEP,
                 "-" => self.exposure -= EXPOSURE_STEP,
                 "r" => {
@@ -438,6 +601,15 @@ impl App<'_> {
                     self.dirty = true;
                 }
                 "s" => self.screenshot_now = true,
+                "d" => {
+                    self.compare = match self.compare.take() {
+                        Some(_) => None,
+                        None => Some(Comparison { key: String::new(), acc: None, path_said: false }),
+                    };
+                    for u in self.used.values_mut() {
+                        u.vs_path = None;
+                    }
+                }
                 d if d.len() == 1 && d.as_bytes()[0].is_ascii_digit() => {
                     let i = (d.as_bytes()[0] - b'1') as usize;
                     if let Some(&next) = solvers::SOLVERS.get(i) {
@@ -463,18 +635,27 @@ impl App<'_> {
         self.dirty = true;
     }
 
-    /// Render what the view needs now: a fresh image after a change, or (path) one more batch.
+    /// Render what the view needs now: a fresh image after a change, (path) one more batch, or
+    /// (a solver under a per-frame iteration budget) more iterations from its last solution;
+    /// then the comparison's batch where D is on.
     fn render_step(&mut self, extent: [u32; 2]) -> Result<()> {
+        self.solver_step(extent)?;
+        self.compare_step()
+    }
+
+    fn solver_step(&mut self, extent: [u32; 2]) -> Result<()> {
         let live = self.live.as_ref().expect("open");
         let size_changed = self.image.as_ref().is_some_and(|i| [i.width, i.height] != extent);
         let progressive = self.solver.samples_pixels();
         let target = self.base.render.spp.max(1);
         let more = progressive && self.spp < target;
-        if !(self.dirty || size_changed || more) {
+        if !(self.dirty || size_changed || more || self.converging.is_some()) {
             return Ok(());
         }
-        if self.dirty || size_changed {
+        let changed = self.dirty || size_changed;
+        if changed {
             self.spp = 0;
+            self.converging = None;
         }
         (self.scene.render.width, self.scene.render.height) = (extent[0], extent[1]);
         let mut s = self.scene.clone();
@@ -482,19 +663,23 @@ impl App<'_> {
         if progressive {
             // Each batch its own seed: independent samples, averaged below.
             s.render.spp = batch;
-            s.render.seed = self.base.render.seed.wrapping_add((self.spp as u64).wrapping_mul(0x9e37_79b9));
+            s.render.seed = batch_seed(self.base.render.seed, self.spp);
         }
         let started = Instant::now();
         let settings = own_knobs(&self.knob_sets, self.solver);
         let req = RenderRequest { scene: &s, settings: &settings, force_full: false, progress: &|_| {} };
         let name = self.solver.name();
         let fail = |e: solvers::SolverError| anyhow!("{name}: {e}");
+        // A per-frame iteration budget where the user set the solver's knob for it.
+        let budget_key = format!("{name}.iterations_per_frame");
+        let budgeted = self.knob_sets.iter().any(|(k, _)| *k == budget_key);
         // Warm starts follow the light; the camera, the size and the solver are the sequence's.
         let key = format!("{name}|{:?}|{}x{}", s.camera, s.render.width, s.render.height);
         let warm = self.anim.as_ref().is_some_and(|(k, _)| *k == key);
         if !warm && !progressive {
             let had = self.anim.as_ref().is_some_and(|(k, _)| k.starts_with(&format!("{name}|")));
-            self.anim = self.solver.animation(&req, true).map_err(fail)?.map(|a| (key, a));
+            self.anim = None;
+            self.anim = self.solver.animation(&req, !budgeted).map_err(fail)?.map(|a| (key, a));
             let u = self.used.entry(name).or_default();
             if had && self.anim.is_some() && !u.restart_said && !self.args.quiet {
                 eprintln!("view: {name} starts again from zero when the camera or the size changes (its warm start follows the light)");
@@ -512,28 +697,56 @@ impl App<'_> {
                 self.solver.name()
             );
         }
+        let quiet = self.args.quiet;
+        let has_anim = self.anim.is_some();
         let u = self.used.entry(name).or_default();
         u.renders += 1;
         u.wall_ms += started.elapsed().as_secs_f64() * 1e3;
         u.gpu_ms += out.report.gpu_ms;
         if let Some(c) = out.report.stats.convergence {
+            u.last = Some(c);
             let slot = if warm { &mut u.warm } else { &mut u.cold };
             *slot = (slot.0 + 1, slot.1 + c.iterations);
+            if !has_anim && u.renders > 1 && !u.cold_said && !quiet {
+                eprintln!("view: {name} has no warm start: every change solves again from zero");
+                u.cold_said = true;
+            }
+            // Under a budget, short of the tolerance: the next frames go on from here.
+            if budgeted && has_anim && !c.converged {
+                u.budget_stops += 1;
+            }
+            self.converging = match (budgeted && has_anim && !c.converged, self.converging) {
+                (false, _) => None,
+                (true, Some(n)) if n + 1 >= CONVERGING_FRAMES_MAX => {
+                    eprintln!(
+                        "view: {name} did not reach its tolerance in {CONVERGING_FRAMES_MAX} frames of {budget_key}; \
+                         showing the last (change {:.1e} against {:.1e})",
+                        c.final_change, c.tolerance
+                    );
+                    None
+                }
+                (true, n) => Some(n.map_or(1, |n| n + 1)),
+            };
         }
         if progressive && self.spp > 0 {
-            let img = self.image.as_mut().expect("a batch before");
-            let (n, b) = (self.spp as f32, batch as f32);
-            for (acc, v) in img.data.iter_mut().zip(&out.image.data) {
-                *acc = (*acc * n + v * b) / (n + b);
-            }
+            let mut acc = Accumulated {
+                image: self.image.take().expect("a batch before"),
+                variance: self.variance.take(),
+                spp: self.spp,
+            };
+            acc.add(out.image, out.variance, batch);
+            (self.image, self.variance) = (Some(acc.image), acc.variance);
         } else {
-            for w in &out.report.warnings {
+            // A frame stopped at its iteration budget says so in every warning; the title shows
+            // the convergence instead.
+            let warnings = if budgeted && warm { &[][..] } else { &out.report.warnings[..] };
+            for w in warnings {
                 // Once each: the same render again (a light move) says the same.
                 if self.said.insert(w.clone()) {
                     eprintln!("warning: {w}");
                 }
             }
-            self.image = Some(out.image);
+            (self.image, self.variance) = (Some(out.image), out.variance);
         }
         if progressive {
             self.spp += batch;
@@ -543,11 +756,61 @@ impl App<'_> {
         Ok(())
     }
 
+    /// Key D: one more `path` batch beside the solver shown (started again when the view
+    /// changes), and the solver's image measured against the accumulation.
+    fn compare_step(&mut self) -> Result<()> {
+        let Some(cmp) = self.compare.as_mut() else { return Ok(()) };
+        let Some(image) = self.image.as_ref() else { return Ok(()) };
+        if self.solver.samples_pixels() {
+            if !cmp.path_said && !self.args.quiet {
+                eprintln!("view: D measures the solver shown against path; path is shown (keys 1-8 switch)");
+                cmp.path_said = true;
+            }
+            return Ok(());
+        }
+        let s = &self.scene;
+        let key = format!("{:?}|{:?}|{}x{}", s.camera, s.lights, image.width, image.height);
+        if cmp.key != key {
+            (cmp.key, cmp.acc) = (key, None);
+        }
+        let spp = cmp.acc.as_ref().map_or(0, |a| a.spp);
+        if spp < COMPARE_SPP_MAX {
+            let path = solvers::find("path")?;
+            let mut ps = s.clone();
+            ps.render.spp = self.args.batch.min(COMPARE_SPP_MAX - spp);
+            // Seeds of their own, apart from those of a `path` shown in the window.
+            ps.render.seed = batch_seed(self.base.render.seed ^ 0x5ca7_7e51, spp);
+            let settings = own_knobs(&self.knob_sets, path);
+            let req = RenderRequest { scene: &ps, settings: &settings, force_full: false, progress: &|_| {} };
+            let live = self.live.as_ref().expect("open");
+            let out = path.render(&live.gpu, &req).map_err(|e| anyhow!("path (key D's comparison): {e}"))?;
+            match &mut cmp.acc {
+                Some(acc) => acc.add(out.image, out.variance, ps.render.spp),
+                None => cmp.acc = Some(Accumulated { image: out.image, variance: out.variance, spp: ps.render.spp }),
+            }
+        }
+        let acc = cmp.acc.as_ref().expect("a batch");
+        let m = output::compare(image, &acc.image)?;
+        let floor = output::metrics::noise_floor(image, &acc.image, self.variance.as_ref(), acc.variance.as_ref())?;
+        let measured = Measured {
+            rel_l2: m.rel_l2,
+            corrected: floor.rel_l2_corrected,
+            energy_ratio: m.energy_ratio,
+            spp: acc.spp,
+        };
+        self.used.entry(self.solver.name()).or_default().vs_path = Some(measured);
+        Ok(())
+    }
+
     /// One frame: scripted input, a render step, the image shown, a screenshot if asked.
     fn draw(&mut self, el: &ActiveEventLoop) -> Result<()> {
         let due: Vec<Scripted> = self.script.iter().filter(|(f, _)| *f == self.frame).map(|(_, e)| e.clone()).collect();
         for e in &due {
             self.apply(e, el)?;
+        }
+        if self.closing {
+            // Closed before this frame: nothing more is rendered, shown or saved.
+            return Ok(());
         }
         let extent = self.live.as_ref().expect("open").presenter.extent();
         if extent[0] == 0 || extent[1] == 0 {
@@ -559,11 +822,10 @@ impl App<'_> {
         if [image.width, image.height] != extent {
             return Ok(());
         }
-        let rgb8 = output::tonemap_rgb8(image, self.exposure);
         let last = self.args.frames.is_some_and(|n| self.frame + 1 >= n);
         let read = self.screenshot_now || (last && self.args.screenshot.is_some());
         let live = self.live.as_mut().expect("open");
-        match live.presenter.show(&rgb8, read)? {
+        match live.presenter.show(&image.data, self.exposure, read)? {
             Shown::OutOfDate => {
                 let size = live.window.inner_size();
                 live.presenter.resize([size.width, size.height])?;
@@ -586,6 +848,10 @@ impl App<'_> {
         Ok(())
     }
 
+    /// The frame shown as a PNG (the bytes presented) and beside it an EXR of the linear image
+    /// (with the variance of path's mean as a layer), both carrying the `--set`s that make
+    /// `scatterlab render` draw the same view; staged and then renamed together, so that an
+    /// error leaves neither.
     fn save_screenshot(&mut self, rgb8: &[u8], extent: [u32; 2]) -> Result<()> {
         let path: PathBuf = match (&self.args.screenshot, self.screenshot_now) {
             (Some(p), false) => p.clone(),
@@ -600,18 +866,39 @@ impl App<'_> {
             }
         };
         self.screenshot_now = false;
+        let exr = path.with_extension("exr");
         let sets: Vec<String> =
             view_sets(&self.scene, self.exposure).iter().map(|(k, v)| format!("--set {k}={v}")).collect();
-        let text = vec![
-            ("scatterlab.view.solver".to_string(), self.solver.name().to_string()),
+        let mut text = vec![
+            ("scatterlab.engine".to_string(), output::engine()),
+            ("scatterlab.view.scene".into(), self.args.scene.display().to_string()),
+            ("scatterlab.view.solver".into(), self.solver.name().to_string()),
             ("scatterlab.view.sets".into(), sets.join(" ")),
             ("scatterlab.view.spp".into(), self.spp.to_string()),
             ("scatterlab.tonemap".into(), output::TONEMAP_DESCRIPTION.into()),
         ];
-        output::write_rgb8_png(&path, extent[0], extent[1], rgb8, &text)
-            .map_err(|e| anyhow!("--screenshot {}: {e}", path.display()))?;
+        if let Some(c) = self.used.get(self.solver.name()).and_then(|u| u.last) {
+            text.push((
+                "scatterlab.view.iterations".into(),
+                format!(
+                    "{} ({}, change {:.3e})",
+                    c.iterations,
+                    if c.converged { "converged" } else { "converging" },
+                    c.final_change
+                ),
+            ));
+        }
+        let image = self.image.as_ref().expect("shown");
+        let mut layers: Vec<(&str, &Image)> = vec![("", image)];
+        if let Some(v) = &self.variance {
+            layers.push(("variance", v));
+        }
+        let mut staging = output::Staging::new();
+        staging.stage(&path, |tmp| output::write_rgb8_png(tmp, extent[0], extent[1], rgb8, &text))?;
+        staging.stage(&exr, |tmp| output::write_exr_with_metadata(tmp, &layers, &text))?;
+        staging.commit().map_err(|e| anyhow!("--screenshot {}: {e}", path.display()))?;
         if !self.args.quiet {
-            eprintln!("view: screenshot {}", path.display());
+            eprintln!("view: screenshot {} and {}", path.display(), exr.display());
         }
         Ok(())
     }
@@ -635,6 +922,8 @@ impl App<'_> {
             || self.args.frames.is_some()
             || self.script.iter().any(|(f, _)| *f >= self.frame)
             || self.screenshot_now
+            || self.converging.is_some()
+            || self.compare.as_ref().is_some_and(|c| c.acc.as_ref().map_or(true, |a| a.spp < COMPARE_SPP_MAX))
     }
 }
 
@@ -649,10 +938,7 @@ impl ApplicationHandler for App<'_> {
 
     fn window_event(&mut self, el: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
         let result = match event {
-            WindowEvent::CloseRequested => {
-                el.exit();
-                Ok(())
-            }
+            WindowEvent::CloseRequested => self.apply(&Scripted::Close, el),
             WindowEvent::Resized(size) => match self.live.as_mut() {
                 Some(l) => l.presenter.resize([size.width, size.height]).map_err(anyhow::Error::from),
                 None => Ok(()),

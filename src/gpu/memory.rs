@@ -335,6 +335,19 @@ impl Gpu {
         Ok((b, p.as_ptr() as *mut u8))
     }
 
+    /// A host-visible storage buffer and its mapping: data the host writes each frame and a
+    /// pass reads where it lies (`scatterlab view`'s linear image, read by its tone map).
+    pub(crate) fn mapped_storage(&self, name: &str, size: u64, location: MemoryLocation) -> Result<(Buffer, *mut u8)> {
+        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::STORAGE_BUFFER, location, false)?;
+        let a = b.inner.allocation.as_ref().expect("allocated");
+        let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc {
+            name: name.into(),
+            bytes: size,
+            reason: "the memory is not host-visible".into(),
+        })?;
+        Ok((b, p.as_ptr() as *mut u8))
+    }
+
     /// Zero every byte of `b` (a fill on the device, or a memset where it is host-visible).
     pub fn fill_zero(&self, b: &Buffer) -> Result<()> {
         self.zero(b, true)

@@ -4,9 +4,12 @@
 //! CLI; here are only the Vulkan calls, as everywhere in this module.
 //!
 //! One frame in flight: a frame waits for the previous frame's copy (its fence) before it
-//! writes the staging buffer again. The bytes are tone-mapped and sRGB-encoded on the host by
-//! the PNG writer's operator, so a copy (which never converts) shows them as a PNG viewer
-//! would, into a UNORM or an SRGB swapchain format alike (an SRGB image's bytes are sRGB-encoded).
+//! writes the upload buffer again. The linear image is uploaded as it is and tone-mapped on the
+//! device (glsl/view/tonemap.comp: the PNG writer's operator, sRGB-encoded, packed in the
+//! swapchain's byte order) on the presenting role's queue; the copy into the swapchain image
+//! waits for that pass on the role's timeline semaphore. A copy never converts, so the image
+//! shows the bytes as a PNG viewer would, in a UNORM or an SRGB swapchain format alike (an SRGB
+//! image's bytes are sRGB-encoded).
 
 use std::ffi::CStr;
 
@@ -17,13 +20,52 @@ use raw_window_handle::{RawDisplayHandle, RawWindowHandle};
 use super::context::Gpu;
 use super::error::{GpuError, Result, VkContext};
 use super::memory::Buffer;
+use super::pipeline::{Kernel, Pipeline, ShaderSource};
 use super::queues::QueueRole;
+use super::submit::Pass;
+
+/// The device tone map of a view frame (glsl/view/tonemap.comp).
+pub const TONEMAP: Kernel = Kernel {
+    shader: ShaderSource {
+        name: "view/tonemap",
+        spirv: include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/spirv/view/tonemap.spv")),
+    },
+    push_bytes: std::mem::size_of::<TonemapPush>(),
+    spec: &[],
+};
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TonemapPush {
+    pixels: u32,
+    scale: f32,
+    bgra: u32,
+}
 
 /// The instance extensions a surface on `display` needs (`VK_KHR_surface` and the platform's).
 pub fn surface_extensions(display: RawDisplayHandle) -> Result<Vec<&'static CStr>> {
     let names = ash_window::enumerate_required_extensions(display).vk("vkEnumerateInstanceExtensionProperties")?;
     // Safety: ash-window hands out pointers to its own 'static extension-name constants.
     Ok(names.iter().map(|&p| unsafe { CStr::from_ptr(p) }).collect())
+}
+
+/// The device tone map on its own, without a window: `rgb` (linear, 3 floats a pixel) at
+/// `exposure` stops as the 8-bit RGB bytes [`Presenter::show`] puts on screen, for checking it
+/// against the PNG writer's operator.
+pub fn tonemap_on_device(gpu: &Gpu, rgb: &[f32], exposure: f32) -> Result<Vec<u8>> {
+    let pixels = (rgb.len() / 3) as u32;
+    let linear = gpu.buffer_with("tonemap check: linear", rgb)?;
+    let packed = gpu.buffer("tonemap check: packed", 4 * pixels as u64)?;
+    let pipeline = gpu.pipeline(&TONEMAP, &[])?;
+    let pass = Pass::new("view.tonemap", QueueRole::Trace, &pipeline)
+        .read(0, &linear)
+        .write(1, &packed)
+        .push(&TonemapPush { pixels, scale: exposure.exp2(), bgra: 0 })
+        .cover([pixels, 1, 1]);
+    let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
+    gpu.wait(point)?;
+    let words: Vec<u32> = gpu.read_buffer_as(&packed)?;
+    Ok(words.iter().flat_map(|w| [*w as u8, (*w >> 8) as u8, (*w >> 16) as u8]).collect())
 }
 
 /// A window's surface and swapchain on `gpu`, and what a frame needs to reach it.
@@ -34,6 +76,9 @@ pub struct Presenter {
     surface: vk::SurfaceKHR,
     queue: vk::Queue,
     family: u32,
+    /// The role whose queue presents, where the tone map runs.
+    role: QueueRole,
+    tonemap: Pipeline,
     swapchain: vk::SwapchainKHR,
     images: Vec<vk::Image>,
     format: vk::SurfaceFormatKHR,
@@ -46,7 +91,9 @@ pub struct Presenter {
     /// One per swapchain image: presentation waits on the copy into that image.
     copied: Vec<vk::Semaphore>,
     fence: vk::Fence,
+    /// The linear image uploaded (host-visible storage), and the tone map's packed pixels.
     staging: Option<(Buffer, *mut u8)>,
+    packed: Option<Buffer>,
     readback: Option<(Buffer, *mut u8)>,
 }
 
@@ -89,17 +136,18 @@ impl Presenter {
                 .vk("vkGetPhysicalDeviceSurfaceSupportKHR")
                 .map_err(destroy_surface)?;
             if ok {
-                present = Some((q.queue, q.family));
+                present = Some((q.queue, q.family, role));
                 break;
             }
         }
-        let Some((queue, family)) = present else {
+        let Some((queue, family, role)) = present else {
             return Err(destroy_surface(GpuError::MissingFeature {
                 device: s.info.name.clone(),
                 feature: "a queue that presents to this window".into(),
                 hint: "no family of the queue roles can present here; try --queues shared or another --device".into(),
             }));
         };
+        let tonemap = gpu.pipeline(&TONEMAP, &[]).map_err(destroy_surface)?;
         let swapchain_fn = ash::khr::swapchain::Device::new(&s.instance, &s.device);
         let d = &s.device;
         let pool_info = vk::CommandPoolCreateInfo::default()
@@ -114,6 +162,8 @@ impl Presenter {
             surface,
             queue,
             family,
+            role,
+            tonemap,
             swapchain: vk::SwapchainKHR::null(),
             images: Vec::new(),
             format: vk::SurfaceFormatKHR::default(),
@@ -125,6 +175,7 @@ impl Presenter {
             copied: Vec::new(),
             fence: vk::Fence::null(),
             staging: None,
+            packed: None,
             readback: None,
         };
         // From here `p`'s drop frees whatever was made.
@@ -249,15 +300,16 @@ impl Presenter {
         self.images.clear();
     }
 
-    /// Show `rgb8` (8-bit sRGB RGB, rows top-down, exactly the swapchain's size), reading the
-    /// shown image back when `read` is set (or the uploaded bytes, where the surface forbids
-    /// reading its images: [`Presenter::reads_back`]).
-    pub fn show(&mut self, rgb8: &[u8], read: bool) -> Result<Shown> {
+    /// Show `rgb` (linear RGB, 3 floats a pixel, rows top-down, exactly the swapchain's size)
+    /// tone-mapped on the device at `exposure` stops, reading the shown image back when `read`
+    /// is set (or the tone map's bytes, where the surface forbids reading its images:
+    /// [`Presenter::reads_back`]).
+    pub fn show(&mut self, rgb: &[f32], exposure: f32, read: bool) -> Result<Shown> {
         let [w, h] = self.extent();
         if self.swapchain == vk::SwapchainKHR::null() {
             return Ok(Shown::OutOfDate);
         }
-        assert_eq!(rgb8.len(), (w * h * 3) as usize, "pixels of the swapchain's size");
+        assert_eq!(rgb.len(), (w * h * 3) as usize, "pixels of the swapchain's size");
         let d = self.gpu.shared.device.clone();
         unsafe { d.wait_for_fences(&[self.fence], true, u64::MAX) }.vk("vkWaitForFences")?;
         let index = match unsafe {
@@ -273,21 +325,38 @@ impl Presenter {
             Err(e) => return Err(GpuError::Vk { call: "vkAcquireNextImageKHR", result: e }),
         };
         let bytes = (w * h * 4) as u64;
-        let staging = self.buffer(false, bytes)?;
+        let staging = self.buffer(false, 12 * (w * h) as u64)?;
         let bgra = matches!(self.format.format, vk::Format::B8G8R8A8_UNORM | vk::Format::B8G8R8A8_SRGB);
-        // Safety: the mapping holds `bytes` bytes, and the fence above says no copy reads it.
-        let out = unsafe { std::slice::from_raw_parts_mut(staging.1, bytes as usize) };
-        for (o, p) in out.chunks_exact_mut(4).zip(rgb8.chunks_exact(3)) {
-            let [r, g, b] = [p[0], p[1], p[2]];
-            o.copy_from_slice(&if bgra { [b, g, r, 255] } else { [r, g, b, 255] });
+        // Safety: the mapping holds 12 bytes a pixel, and the fence above says that no pass of
+        // the last frame reads it still (its tone map ran before its copy, which the fence ends).
+        unsafe { std::ptr::copy_nonoverlapping(rgb.as_ptr() as *const u8, staging.1, rgb.len() * 4) };
+        if self.packed.as_ref().map_or(true, |b| b.size() < bytes) {
+            self.packed = None;
+            self.packed = Some(self.gpu.buffer("view tone-mapped", bytes)?);
         }
-        let readback = if read && self.readable { Some(self.buffer(true, bytes)?) } else { None };
+        let packed = self.packed.clone().expect("made above");
+        let pass = Pass::new("view.tonemap", self.role, &self.tonemap)
+            .read(0, &staging.0)
+            .write(1, &packed)
+            .push(&TonemapPush { pixels: w * h, scale: exposure.exp2(), bgra: bgra as u32 })
+            .cover([w * h, 1, 1]);
+        let mapped = self.gpu.submit(self.role, &[pass], &[])?;
+        let readback = if read { Some(self.buffer(true, bytes)?) } else { None };
         let image = self.images[index as usize];
-        self.record(image, staging.0.raw(), readback.as_ref().map(|r| r.0.raw()))?;
+        // Where the image cannot be read, the tone map's bytes are read instead.
+        let read_from = if self.readable { None } else { Some(packed.raw()) };
+        self.record(image, packed.raw(), readback.as_ref().map(|r| r.0.raw()), read_from)?;
         unsafe { d.reset_fences(&[self.fence]) }.vk("vkResetFences")?;
-        let waits = [vk::SemaphoreSubmitInfo::default()
-            .semaphore(self.acquired)
-            .stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)];
+        // The copy waits for the tone map on its role's timeline (same queue or another).
+        let waits = [
+            vk::SemaphoreSubmitInfo::default()
+                .semaphore(self.acquired)
+                .stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER),
+            vk::SemaphoreSubmitInfo::default()
+                .semaphore(self.gpu.shared.role(self.role).timeline)
+                .value(mapped.value)
+                .stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER),
+        ];
         let signals = [vk::SemaphoreSubmitInfo::default()
             .semaphore(self.copied[index as usize])
             .stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)];
@@ -308,7 +377,7 @@ impl Presenter {
         };
         let pixels = if read {
             unsafe { d.wait_for_fences(&[self.fence], true, u64::MAX) }.vk("vkWaitForFences")?;
-            let src = readback.as_ref().map_or(staging.1, |r| r.1);
+            let src = readback.as_ref().expect("asked for").1;
             let shown = unsafe { std::slice::from_raw_parts(src as *const u8, bytes as usize) };
             let mut rgb = Vec::with_capacity((w * h * 3) as usize);
             for p in shown.chunks_exact(4) {
@@ -324,8 +393,8 @@ impl Presenter {
         Ok(Shown::Presented(pixels))
     }
 
-    /// Whether [`Presenter::show`] reads the shown swapchain image back (else the bytes it
-    /// uploaded: a surface whose images cannot be copied from).
+    /// Whether [`Presenter::show`] reads the shown swapchain image back (else the tone map's
+    /// bytes that were copied into it: a surface whose images cannot be copied from).
     pub fn reads_back(&self) -> bool {
         self.readable
     }
@@ -343,26 +412,31 @@ impl Presenter {
         unsafe { d.wait_for_fences(&[self.fence], true, u64::MAX) }.vk("vkWaitForFences")
     }
 
-    /// The mapped staging (`readback` false) or readback buffer of at least `bytes`, kept
-    /// between frames.
+    /// The mapped upload (`readback` false: a storage buffer the tone map reads) or readback
+    /// buffer of at least `bytes`, kept between frames.
     fn buffer(&mut self, readback: bool, bytes: u64) -> Result<(Buffer, *mut u8)> {
         let slot = if readback { &mut self.readback } else { &mut self.staging };
         if slot.as_ref().map_or(true, |(b, _)| b.size() < bytes) {
             *slot = None;
-            let (name, location) = if readback {
-                ("view readback", MemoryLocation::GpuToCpu)
+            *slot = Some(if readback {
+                self.gpu.staging("view readback", bytes, MemoryLocation::GpuToCpu, false)?
             } else {
-                ("view upload", MemoryLocation::CpuToGpu)
-            };
-            *slot = Some(self.gpu.staging(name, bytes, location, false)?);
+                self.gpu.mapped_storage("view upload", bytes, MemoryLocation::CpuToGpu)?
+            });
         }
         let (b, p) = slot.as_ref().expect("made above");
         Ok((b.clone(), *p))
     }
 
-    /// Record: the image to a copy destination, the staging buffer into it, (read back), and
-    /// the image to presentation.
-    fn record(&self, image: vk::Image, src: vk::Buffer, readback: Option<vk::Buffer>) -> Result<()> {
+    /// Record: the image to a copy destination, the tone map's bytes into it, (read back: the
+    /// image, or `read_from` where the image cannot be read), and the image to presentation.
+    fn record(
+        &self,
+        image: vk::Image,
+        src: vk::Buffer,
+        readback: Option<vk::Buffer>,
+        read_from: Option<vk::Buffer>,
+    ) -> Result<()> {
         let d = &self.gpu.shared.device;
         let c = self.cmd;
         let range =
@@ -400,7 +474,16 @@ impl Presenter {
             d.cmd_pipeline_barrier2(c, &vk::DependencyInfo::default().image_memory_barriers(&to_dst));
             d.cmd_copy_buffer_to_image(c, src, image, vk::ImageLayout::TRANSFER_DST_OPTIMAL, &[region]);
             let mut last = vk::ImageLayout::TRANSFER_DST_OPTIMAL;
-            if let Some(dst) = readback {
+            if let (Some(dst), Some(from)) = (readback, read_from) {
+                let size = 4 * self.extent.width as u64 * self.extent.height as u64;
+                d.cmd_copy_buffer(c, from, dst, &[vk::BufferCopy::default().size(size)]);
+                let host = [vk::MemoryBarrier2::default()
+                    .src_stage_mask(t)
+                    .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                    .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+                    .dst_access_mask(vk::AccessFlags2::HOST_READ)];
+                d.cmd_pipeline_barrier2(c, &vk::DependencyInfo::default().memory_barriers(&host));
+            } else if let Some(dst) = readback {
                 let to_src = [barrier(
                     last,
                     vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
@@ -448,6 +531,7 @@ impl Drop for Presenter {
         }
         self.destroy_swapchain();
         self.staging = None;
+        self.packed = None;
         self.readback = None;
         unsafe {
             d.destroy_fence(self.fence, None);

@@ -620,8 +620,9 @@ impl Diffuser {
     }
 
     /// Turn the tail extrapolation off for this lattice (it stays off where its parameters did
-    /// not ask for it): a seeded start's increments are signed, and the ratio of their sums
-    /// is then no decay rate (measured: cloud with the cascadic start, relL2 5e-3 with it).
+    /// not ask for it): for the cascadic and wavefront starts, whose tails extrapolated from
+    /// the signed sums of their increments were measured off (cloud with the cascadic start,
+    /// relL2 5e-3); not measured again since the sums are of magnitudes.
     pub fn plain(&mut self) {
         self.extrapolate = false;
     }
@@ -692,8 +693,10 @@ impl Diffuser {
     /// With [`LatticeParams::extrapolate`]: the lattice is a linear iteration F_n = sum_{t<n}
     /// M^t s, whose increments decay geometrically once the slowest mode dominates the energy
     /// in flight, so the rest of the sum is the last chunk's increment D times r / (1 - r),
-    /// r = rho^chunk the ratio of consecutive chunks' increments (per channel, summed over the
-    /// lattice). The criterion is then the change per iteration of that extrapolated field
+    /// r = rho^chunk the ratio of consecutive chunks' increments (per channel, their magnitudes
+    /// summed over the lattice: from zero the increments are never negative, and from a
+    /// previous frame's field, whose residual is signed, the magnitudes still decay at the
+    /// slowest surviving mode's rate where a signed sum can cancel). The criterion is then the change per iteration of that extrapolated field
     /// F + D r / (1 - r) at the probes: it converges at the rate at which the slower modes
     /// die out relative to the slowest, not at the absorption rate. At convergence the
     /// extrapolation is applied to the whole field (energy and flux). Where the ratio is not
@@ -944,7 +947,7 @@ impl Diffuser {
                     *total = now[c * v..(c + 1) * v]
                         .iter()
                         .zip(&prev[c * v..(c + 1) * v])
-                        .map(|(a, b)| (a - b) as f64)
+                        .map(|(a, b)| (a - b).abs() as f64)
                         .sum();
                 }
                 // The chunk ratio per channel, where both chunks had the same length.
