@@ -494,6 +494,43 @@ fn odd_resizes_and_a_close_mid_solve_leave_nothing_behind() {
     assert!(left.is_empty(), "files written by a session closed before its last frame: {left:?}");
 }
 
+/// Minimised, the view renders and presents nothing, and on restore path's accumulation goes
+/// on where it stopped: 2 frames of 2 samples, 4 frames minimised, 4 frames more.
+#[test]
+fn a_minimised_window_pauses_and_a_restored_one_goes_on() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().unwrap();
+    let scene = repo("scenes/homogeneous-sphere.toml");
+    let script = dir.path().join("min.txt");
+    std::fs::write(&script, "2 minimise\n6 restore\n").unwrap();
+    let shot = dir.path().join("restored.png");
+    let (script_s, shot_s) = (script.display().to_string(), shot.display().to_string());
+    let args = [
+        "view",
+        &scene,
+        "--solver",
+        "path",
+        "--size",
+        "32x32",
+        "--set",
+        "render.spp=1000",
+        "--batch",
+        "2",
+        "--frames",
+        "10",
+        "--script",
+        &script_s,
+        "--screenshot",
+        &shot_s,
+        "--validate",
+    ];
+    let out = x.run(&args);
+    let stdout = ok(&out, "minimised session");
+    assert!(stdout.contains("view: path: 6 frames, 6 renders (12 spp)"), "{stdout}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no Vulkan object left"), "{:?}", out);
+    assert_eq!(text(&shot, "scatterlab.view.spp"), "12");
+}
+
 #[test]
 fn without_a_display_view_says_so_in_one_line() {
     let out = Command::new(BIN)

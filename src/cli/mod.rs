@@ -76,7 +76,8 @@ pub struct ViewArgs {
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=65536))]
     pub batch: u32,
     /// Replay input events from FILE: one per line, `FRAME ACTION ARGS` (drag-left DX DY,
-    /// drag-right DX DY, wheel LINES, key NAME, resize W H, close), applied before frame FRAME.
+    /// drag-right DX DY, wheel LINES, key NAME, resize W H, close, minimise, restore), applied
+    /// before frame FRAME (frames minimised count, without a render).
     #[arg(long, value_name = "FILE")]
     pub script: Option<PathBuf>,
     /// Stop after this many frames have been shown.

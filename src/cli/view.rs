@@ -68,6 +68,9 @@ pub enum Scripted {
     Resize(u32, u32),
     /// `close`: the window's close button (what the window manager sends).
     Close,
+    /// `minimise` / `restore`: the window iconified (and unmapped, which is all an X server
+    /// without a window manager does) and back.
+    Minimise(bool),
 }
 
 /// Parse a `--script` file: one event per line, `#` comments and blank lines ignored.
@@ -91,6 +94,8 @@ pub fn parse_script(text: &str, path: &Path) -> Result<Vec<(u32, Scripted)>> {
             Some("wheel") => Scripted::Wheel(num(2)?),
             Some("key") => Scripted::Key(words.get(2).ok_or_else(|| at("key needs a name"))?.to_lowercase()),
             Some("close") => Scripted::Close,
+            Some("minimise" | "minimize") => Scripted::Minimise(true),
+            Some("restore") => Scripted::Minimise(false),
             Some("resize") => {
                 let (w, h) = (num(2)?, num(3)?);
                 if !(1.0..=16384.0).contains(&w) || !(1.0..=16384.0).contains(&h) {
@@ -98,7 +103,11 @@ pub fn parse_script(text: &str, path: &Path) -> Result<Vec<(u32, Scripted)>> {
                 }
                 Scripted::Resize(w as u32, h as u32)
             }
-            _ => return Err(at("the action is one of drag-left, drag-right, wheel, key, resize, close")),
+            _ => {
+                return Err(at(
+                    "the action is one of drag-left, drag-right, wheel, key, resize, close, minimise, restore",
+                ))
+            }
         };
         if words.len() > expected_words(&event) {
             return Err(at("too many words"));
@@ -113,7 +122,7 @@ fn expected_words(e: &Scripted) -> usize {
     match e {
         Scripted::DragCamera(..) | Scripted::DragLight(..) | Scripted::Resize(..) => 4,
         Scripted::Wheel(_) | Scripted::Key(_) => 3,
-        Scripted::Close => 2,
+        Scripted::Close | Scripted::Minimise(_) => 2,
     }
 }
 
@@ -330,6 +339,9 @@ struct App<'a> {
     screenshots: u32,
     /// Esc or the close button: the loop ends, and no frame after it is drawn.
     closing: bool,
+    /// Minimised or hidden (a script's `minimise`, or the window system saying it is occluded):
+    /// nothing is rendered or presented until it is back.
+    hidden: bool,
     used: BTreeMap<&'static str, Used>,
     started: Instant,
     error: Option<anyhow::Error>,
@@ -387,6 +399,7 @@ pub fn view(a: ViewArgs) -> Result<()> {
         screenshot_now: false,
         screenshots: 0,
         closing: false,
+        hidden: false,
         used: BTreeMap::new(),
         started: Instant::now(),
         error: None,
@@ -580,6 +593,18 @@ impl App<'_> {
             Scripted::Close => {
                 self.closing = true;
                 el.exit();
+            }
+            Scripted::Minimise(m) => {
+                self.hidden = *m;
+                if let Some(l) = &self.live {
+                    if *m {
+                        l.window.set_minimized(true);
+                        l.window.set_visible(false);
+                    } else {
+                        l.window.set_visible(true);
+                        l.window.set_minimized(false);
+                    }
+                }
             }
             Scripted::Resize(w, h) => {
                 if let Some(l) = &self.live {
@@ -812,6 +837,14 @@ impl App<'_> {
             // Closed before this frame: nothing more is rendered, shown or saved.
             return Ok(());
         }
+        if self.hidden {
+            // Minimised: no render and no present. A script's frames go on counting, so that
+            // its `restore` comes; without one the loop waits for the window to come back.
+            if !self.script.is_empty() {
+                self.frame += 1;
+            }
+            return Ok(());
+        }
         let extent = self.live.as_ref().expect("open").presenter.extent();
         if extent[0] == 0 || extent[1] == 0 {
             // Minimised: nothing to draw into.
@@ -917,6 +950,10 @@ impl App<'_> {
         if self.live.as_ref().is_some_and(|l| l.presenter.extent().contains(&0)) {
             return false;
         }
+        if self.hidden {
+            // Only a script's frames tick while hidden (to reach its `restore`).
+            return self.script.iter().any(|(f, _)| *f >= self.frame);
+        }
         self.dirty
             || (self.solver.samples_pixels() && self.spp < self.base.render.spp.max(1))
             || self.args.frames.is_some()
@@ -949,6 +986,10 @@ impl ApplicationHandler for App<'_> {
                 } else {
                     Ok(())
                 }
+            }
+            WindowEvent::Occluded(hidden) => {
+                self.hidden = hidden;
+                Ok(())
             }
             WindowEvent::ModifiersChanged(m) => {
                 self.modifiers = m.state();
@@ -1014,7 +1055,9 @@ mod tests {
     #[test]
     fn a_script_parses_and_names_its_line_when_it_does_not() {
         let p = Path::new("s.txt");
-        let ev = parse_script("# a session\n2 drag-left 10 -5\n0 key 2\n1 wheel 1.5\n3 resize 65 33\n", p).unwrap();
+        let text =
+            "# a session\n2 drag-left 10 -5\n0 key 2\n1 wheel 1.5\n3 resize 65 33\n4 minimise\n5 restore\n6 close\n";
+        let ev = parse_script(text, p).unwrap();
         assert_eq!(
             ev,
             vec![
@@ -1022,9 +1065,12 @@ mod tests {
                 (1, Scripted::Wheel(1.5)),
                 (2, Scripted::DragCamera(10.0, -5.0)),
                 (3, Scripted::Resize(65, 33)),
+                (4, Scripted::Minimise(true)),
+                (5, Scripted::Minimise(false)),
+                (6, Scripted::Close),
             ]
         );
-        for bad in ["x key 1", "1 jump", "1 wheel", "1 wheel nan", "1 resize 0 10", "1 key 1 2"] {
+        for bad in ["x key 1", "1 jump", "1 wheel", "1 wheel nan", "1 resize 0 10", "1 key 1 2", "1 close now"] {
             let e = parse_script(bad, p).unwrap_err().to_string();
             assert!(e.starts_with("s.txt:1: "), "{bad}: {e}");
         }
