@@ -728,14 +728,15 @@ impl App<'_> {
         u.renders += 1;
         u.wall_ms += started.elapsed().as_secs_f64() * 1e3;
         u.gpu_ms += out.report.gpu_ms;
+        if !progressive && !has_anim && u.renders > 1 && !u.cold_said && !quiet {
+            // Once: lbl and networks carry their solution to the next frame, the others do not.
+            eprintln!("view: {name} keeps no solution between frames: every change renders again from scratch");
+            u.cold_said = true;
+        }
         if let Some(c) = out.report.stats.convergence {
             u.last = Some(c);
             let slot = if warm { &mut u.warm } else { &mut u.cold };
             *slot = (slot.0 + 1, slot.1 + c.iterations);
-            if !has_anim && u.renders > 1 && !u.cold_said && !quiet {
-                eprintln!("view: {name} has no warm start: every change solves again from zero");
-                u.cold_said = true;
-            }
             // Under a budget, short of the tolerance: the next frames go on from here.
             if budgeted && has_anim && !c.converged {
                 u.budget_stops += 1;
@@ -800,7 +801,7 @@ impl App<'_> {
         }
         let spp = cmp.acc.as_ref().map_or(0, |a| a.spp);
         if spp < COMPARE_SPP_MAX {
-            let path = solvers::find("path")?;
+            let path = solvers::reference();
             let mut ps = s.clone();
             ps.render.spp = self.args.batch.min(COMPARE_SPP_MAX - spp);
             // Seeds of their own, apart from those of a `path` shown in the window.
@@ -808,7 +809,7 @@ impl App<'_> {
             let settings = own_knobs(&self.knob_sets, path);
             let req = RenderRequest { scene: &ps, settings: &settings, force_full: false, progress: &|_| {} };
             let live = self.live.as_ref().expect("open");
-            let out = path.render(&live.gpu, &req).map_err(|e| anyhow!("path (key D's comparison): {e}"))?;
+            let out = path.render(&live.gpu, &req).map_err(|e| anyhow!("{} (key D's comparison): {e}", path.name()))?;
             match &mut cmp.acc {
                 Some(acc) => acc.add(out.image, out.variance, ps.render.spp),
                 None => cmp.acc = Some(Accumulated { image: out.image, variance: out.variance, spp: ps.render.spp }),

@@ -23,7 +23,7 @@ pub use error::{GpuError, Result};
 pub use host::{HostCost, HostTimes};
 pub use memory::{Buffer, Image3d, VolumeFormat};
 pub use pipeline::{reflect, BindingKind, Kernel, Pipeline, PipelineRecord, Reflection, ShaderSource, Spec, SpecKind};
-pub use present::{surface_extensions, tonemap_on_device, Presenter, Shown};
+pub use present::{surface_extensions, tonemap_on_device, Presenter, Shown, TONEMAP};
 pub use queues::{
     map_roles, map_roles_as, map_roles_named, FamilyInfo, MappingKind, QueueChoice, QueueRole, QueueSlot, RoleMapping,
 };

@@ -77,10 +77,12 @@ pub fn names() -> Vec<&'static str> {
     SOLVERS.iter().map(|s| s.name()).collect()
 }
 
-/// Every kernel of every registered solver and of the test probes, each shader once.
+/// Every kernel of every registered solver, of the test probes and of the view's tone map, each
+/// shader once.
 pub fn kernels() -> Vec<Kernel> {
     let mut out: Vec<Kernel> = Vec::new();
-    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(parts::probes::kernels()) {
+    // The view's tone map is the one kernel outside the solvers and their probes.
+    for k in SOLVERS.iter().flat_map(|s| s.kernels()).chain(parts::probes::kernels()).chain([crate::gpu::TONEMAP]) {
         if !out.iter().any(|o| o.shader.name == k.shader.name) {
             out.push(k);
         }

@@ -352,7 +352,7 @@ impl Lbl {
         k: &Knobs,
         set: &LblSettings,
         progress: &dyn Fn(Progress),
-    ) -> Result<(RenderOutput, Vec<f32>), SolverError> {
+    ) -> Result<(RenderOutput, Carried), SolverError> {
         let mut gs = GpuScene::upload_with(gpu, scene, force_full, crate::solvers::parts::gpu_scene::MAJORANT_CELL)?;
         // Refraction turned off: the marching and view kernels are specialised without it (both
         // read the modelled set), and the report says the boundary was taken as index-matched.
@@ -413,13 +413,17 @@ impl Lbl {
             ];
         }
         report.stats = stats;
-        Ok((RenderOutput { image: view.image, variance: None, report }, lat.irradiance))
+        Ok((RenderOutput { image: view.image, variance: None, report }, (lat.irradiance, lat.source)))
     }
 }
 
 /// Largest `lbl.k` (marching steps per round) with an [[object]]: every step traverses the
 /// BVH (glsl/marching/march.comp), up to a few hundred loop iterations near the surface.
 pub const MESH_MAX_MARCH_K: u32 = 64;
+
+/// What a frame hands the next ([`LblAnimation`]): the lattice's time-integrated field and the
+/// source it injected ([`LatticeResult::source`]).
+type Carried = (Vec<f32>, Option<Vec<f32>>);
 
 /// An `lbl` sequence: every frame marches its light anew; after the first, the lattice starts
 /// from the previous frame's field (the wavefront paper's initial guess, section 1.1, with
@@ -440,7 +444,8 @@ impl Animation for LblAnimation {
     fn frame(&mut self, gpu: &Gpu, scene: &Scene, progress: &dyn Fn(Progress)) -> Result<RenderOutput, SolverError> {
         // The previous field moves into this frame's settings (not copied with them).
         let previous = self.set.previous.take();
-        let mut set = LblSettings { previous, ..self.set.clone() };
+        let previous_source = self.set.previous_source.take();
+        let mut set = LblSettings { previous, previous_source, ..self.set.clone() };
         let moved = self.lights.as_ref() != Some(&scene.lights);
         if set.previous.is_some() {
             // Later frames: no cascade (the previous field is the guess).
@@ -449,8 +454,10 @@ impl Animation for LblAnimation {
                 set.max_iters = k;
             }
         }
-        let (out, field) = Lbl.render_with(gpu, scene, false, &self.knobs, &set, progress)?;
+        set.keep_source = true;
+        let (out, (field, source)) = Lbl.render_with(gpu, scene, false, &self.knobs, &set, progress)?;
         self.set.previous = Some(field);
+        self.set.previous_source = source;
         self.lights = Some(scene.lights.clone());
         Ok(out)
     }
@@ -548,6 +555,11 @@ pub struct LblSettings {
     /// irradiance buffer, [c V + v]) to start from, and the iterations of a frame after the
     /// first (`lbl.iterations_per_frame`; `None`: to the tolerance).
     pub previous: Option<Vec<f32>>,
+    /// The source the previous frame injected (the lattice state its deposits made, links
+    /// [(i NCH + c) V + v]), added to the guess's state at t = 0: see [`start`].
+    pub previous_source: Option<Vec<f32>>,
+    /// Record this frame's injected source for the next frame ([`LatticeResult::source`]).
+    pub keep_source: bool,
     pub iterations_per_frame: Option<u32>,
 }
 
@@ -614,6 +626,8 @@ impl LblSettings {
                 _ => view::FluxUse::None,
             },
             previous: None,
+            previous_source: None,
+            keep_source: false,
             iterations_per_frame: if k.is_set("iterations_per_frame") {
                 Some(k.get("iterations_per_frame")?)
             } else {
@@ -828,6 +842,9 @@ pub struct LblStats {
 /// diffusion itself and for warm starts).
 pub struct LatticeResult {
     pub irradiance: Vec<f32>,
+    /// With [`LblSettings::keep_source`] and a previous frame's field: the state this frame's
+    /// deposits were injected as.
+    pub source: Option<Vec<f32>>,
     /// With [`LblStats::forward`], the forward population's field follows the lattice's
     /// ([`view::MsVolume::forward`]).
     pub irradiance_buffer: crate::gpu::Buffer,
@@ -912,7 +929,7 @@ pub fn run_lattice(
     march_rounds(gpu, gs, set, (&marcher, &injector), &mut lattice, warm, progress)?;
 
     let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
-    let cascade_iterations = start(gpu, (scene, gs, set), (&marcher, &params), &mut lattice, &inject)?;
+    let (cascade_iterations, source) = start(gpu, (scene, gs, set), (&marcher, &params), &mut lattice, &inject)?;
 
     // Iterate to convergence: relative change of the time-integrated energy at sparse probes.
     let density = lattice::read_f32(gpu, &marcher.density)?;
@@ -955,6 +972,7 @@ pub fn run_lattice(
     let near_light = near_light(gpu, scene, &params, &injector, nch)?;
     Ok(LatticeResult {
         irradiance,
+        source,
         irradiance_buffer: irr,
         stats: LblStats {
             lattice: geom,
@@ -1084,15 +1102,24 @@ fn march_rounds(
 
 /// Seed the lattice where the iteration starts from a guess ([`seed`]): a wavefront solve
 /// (lbl.warm_start), the cascadic start (lbl.cascade) or the previous frame's field (animate).
-/// Returns the cascade's iterations per level (empty otherwise).
+/// Returns the cascade's iterations per level (empty otherwise), and with
+/// [`LblSettings::keep_source`] and a previous field, this frame's injected source.
+///
+/// A previous frame's field G seeds the residual r = s + M G - G ([`seed`]). With G the
+/// time-integrated state after the first step only, F_16 = sum_{t>=1} M^t s_old, the residual
+/// is s_new - M s_old (as F_16 = M s_old + M F_16): as large as the deposits. With the previous
+/// frame's injected source in the guess's state at t = 0 too, G = s_old + F_16, it is
+/// s_new - s_old, small after a small move. The source is the injection into a zeroed state,
+/// which the seed then adds after its step in place of the injection.
 fn start(
     gpu: &Gpu,
     (scene, gs, set): (&Scene, &GpuScene, &LblSettings),
     (marcher, params): (&Marcher, &LatticeParams),
     lattice: &mut Diffuser,
     inject: &dyn Fn(&Diffuser) -> crate::gpu::Pass,
-) -> Result<Vec<u32>, SolverError> {
+) -> Result<(Vec<u32>, Option<Vec<f32>>), SolverError> {
     let mut cascade_iterations = Vec::new();
+    let mut source = None;
     let (geom, v, nch) = (set.geom, set.geom.voxels(), params.nch);
     if let Some(ws) = &set.warm_start {
         let vol = wave_volume(gpu, scene, gs, ws, Some(geom))?;
@@ -1122,9 +1149,27 @@ fn start(
         } else {
             g
         };
-        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
+        let mut links = guess.links(nch as usize, v as usize);
+        if let Some(old) = set.previous_source.as_ref().filter(|o| o.len() == links.len()) {
+            for (g, s) in links.iter_mut().zip(old) {
+                *g += s;
+            }
+        }
+        if set.keep_source {
+            // This frame's source alone: its deposits injected into a zeroed state (the
+            // injection clears the sums, so the seed adds it instead of injecting).
+            gpu.write_buffer(lattice.state(), 0, bytemuck::cast_slice(&vec![0f32; links.len()]))?;
+            let point = gpu.submit(QueueRole::Diffuse, &[inject(lattice)], &[])?;
+            gpu.wait(point)?;
+            let mut s: Vec<f32> = gpu.read_buffer_as(lattice.state())?;
+            s.truncate(links.len());
+            seed(gpu, lattice, &links, None, Some(&s))?;
+            source = Some(s);
+        } else {
+            seed(gpu, lattice, &links, Some(inject), None)?;
+        }
     }
-    Ok(cascade_iterations)
+    Ok((cascade_iterations, source))
 }
 
 /// Where a point light sits inside the medium (params.near), the share k of its power the
