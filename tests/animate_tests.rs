@@ -83,6 +83,17 @@ fn networks_frames_start_from_the_last_and_more_iterations_come_closer() {
     assert!(mean[1] < 0.5 * mean[0], "8 iterations a frame {} against 1: {}", mean[1], mean[0]);
 }
 
+/// A dense, bright 1^3 cube lit by a point light outside it, 16^2 pixels.
+fn lit_cube() -> scatterlab::scene::Scene {
+    crate::common::scene(
+        "[render]\nwidth = 16\nheight = 16\nseed = 1\n\
+         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 6.0\nalbedo = 0.95\n\
+         density = { kind = \"constant\" }\n\
+         [[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n",
+    )
+}
+
 /// lbl on a small cube (grid 12), the point light outside turning 10 degrees: started from the
 /// previous frame's field, the second frame's lattice reaches the tolerance in fewer iterations
 /// than the same frame from zero, and to the same image, both with the geometric tail
@@ -91,13 +102,7 @@ fn networks_frames_start_from_the_last_and_more_iterations_come_closer() {
 /// 152).
 #[test]
 fn lbl_frames_start_from_the_previous_lattice() {
-    let cube = crate::common::scene(
-        "[render]\nwidth = 16\nheight = 16\nseed = 1\n\
-         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 6.0\nalbedo = 0.95\n\
-         density = { kind = \"constant\" }\n\
-         [[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n",
-    );
+    let cube = lit_cube();
     for extrapolate in ["true", "false"] {
         let knobs = [("lbl.grid", "12"), ("lbl.extrapolate", extrapolate), ("lbl.deterministic", "true")];
         let rows = run(LBL, &cube, &knobs, 2);
@@ -129,13 +134,7 @@ fn lbl_frames_start_from_the_previous_lattice() {
 /// cold render of its light. Measured on the 12^3 cube, 10 degrees a frame.
 #[test]
 fn lbl_frames_after_the_second_start_from_the_previous_source_too() {
-    let cube = crate::common::scene(
-        "[render]\nwidth = 16\nheight = 16\nseed = 1\n\
-         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 6.0\nalbedo = 0.95\n\
-         density = { kind = \"constant\" }\n\
-         [[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n",
-    );
+    let cube = lit_cube();
     let knobs = [("lbl.grid", "12"), ("lbl.deterministic", "true")];
     let rows = run(LBL, &cube, &knobs, 4);
     let its: Vec<u64> = rows.iter().map(|r| r.iterations).collect();

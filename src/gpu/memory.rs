@@ -325,20 +325,19 @@ impl Gpu {
         location: MemoryLocation,
         transfer: bool,
     ) -> Result<(Buffer, *mut u8)> {
-        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::empty(), location, transfer)?;
-        let a = b.inner.allocation.as_ref().expect("allocated");
-        let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc {
-            name: name.into(),
-            bytes: size,
-            reason: "staging memory is not host-visible".into(),
-        })?;
-        Ok((b, p.as_ptr() as *mut u8))
+        self.mapped(name, size, vk::BufferUsageFlags::empty(), location, transfer)
     }
 
-    /// A host-visible storage buffer and its mapping: data the host writes each frame and a
-    /// pass reads where it lies (`scatterlab view`'s linear image, read by its tone map).
-    pub(crate) fn mapped_storage(&self, name: &str, size: u64, location: MemoryLocation) -> Result<(Buffer, *mut u8)> {
-        let b = self.raw_buffer(name, size.max(4), vk::BufferUsageFlags::STORAGE_BUFFER, location, false)?;
+    /// A host-visible buffer of `usage` (besides copies) and its mapping.
+    fn mapped(
+        &self,
+        name: &str,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        location: MemoryLocation,
+        transfer: bool,
+    ) -> Result<(Buffer, *mut u8)> {
+        let b = self.raw_buffer(name, size.max(4), usage, location, transfer)?;
         let a = b.inner.allocation.as_ref().expect("allocated");
         let p = a.mapped_ptr().ok_or_else(|| GpuError::Alloc {
             name: name.into(),
@@ -346,6 +345,12 @@ impl Gpu {
             reason: "the memory is not host-visible".into(),
         })?;
         Ok((b, p.as_ptr() as *mut u8))
+    }
+
+    /// A host-visible storage buffer and its mapping: data the host writes each frame and a
+    /// pass reads where it lies (`scatterlab view`'s linear image, read by its tone map).
+    pub(crate) fn mapped_storage(&self, name: &str, size: u64, location: MemoryLocation) -> Result<(Buffer, *mut u8)> {
+        self.mapped(name, size, vk::BufferUsageFlags::STORAGE_BUFFER, location, false)
     }
 
     /// Zero every byte of `b` (a fill on the device, or a memset where it is host-visible).

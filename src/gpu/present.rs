@@ -477,12 +477,6 @@ impl Presenter {
             if let (Some(dst), Some(from)) = (readback, read_from) {
                 let size = 4 * self.extent.width as u64 * self.extent.height as u64;
                 d.cmd_copy_buffer(c, from, dst, &[vk::BufferCopy::default().size(size)]);
-                let host = [vk::MemoryBarrier2::default()
-                    .src_stage_mask(t)
-                    .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                    .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-                    .dst_access_mask(vk::AccessFlags2::HOST_READ)];
-                d.cmd_pipeline_barrier2(c, &vk::DependencyInfo::default().memory_barriers(&host));
             } else if let Some(dst) = readback {
                 let to_src = [barrier(
                     last,
@@ -495,6 +489,8 @@ impl Presenter {
                 d.cmd_pipeline_barrier2(c, &vk::DependencyInfo::default().image_memory_barriers(&to_src));
                 d.cmd_copy_image_to_buffer(c, image, vk::ImageLayout::TRANSFER_SRC_OPTIMAL, dst, &[region]);
                 last = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
+            }
+            if readback.is_some() {
                 // The host reads the readback buffer after the fence.
                 let host = [vk::MemoryBarrier2::default()
                     .src_stage_mask(t)
