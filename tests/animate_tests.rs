@@ -130,8 +130,9 @@ fn lbl_frames_start_from_the_previous_lattice() {
 
 /// From the third frame on an lbl frame's guess also holds the source the previous frame
 /// injected (`start` in src/solvers/lbl/mod.rs: the residual is then s_new - s_old, not
-/// s_new - M s_old): frames 2 and 3 take no more iterations than frame 1, and frame 3 is the
-/// cold render of its light. Measured on the 12^3 cube, 10 degrees a frame.
+/// s_new - M s_old), on the links' own time integrals: frames 2 and 3 take no more iterations
+/// than frame 1, and frame 3 is the cold render of its light (relL2 3.5e-5). Measured on the
+/// 12^3 cube, 10 degrees a frame: 72 / 65 / 65 / 57.
 #[test]
 fn lbl_frames_after_the_second_start_from_the_previous_source_too() {
     let cube = lit_cube();

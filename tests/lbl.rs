@@ -163,6 +163,7 @@ fn diffuse_impulse_reflecting(
         near: None,
         directed: false,
         flux: false,
+        links: false,
         extrapolate: false,
     };
     let medium = scatterlab::scene::Material {

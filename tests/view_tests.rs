@@ -273,9 +273,9 @@ fn iterations(stdout: &str, solver: &str) -> (f64, f64, u32) {
 /// A move of the light starts lbl and networks from their last solution (their `animate`
 /// sequences, iterated to the tolerance each frame); a move of the camera starts again from
 /// zero. Measured at 32^2 on the sphere after 2-degree moves: networks 89 iterations from zero,
-/// 28 warm started (0.31); lbl at grid 16 72 from zero, 65 warm started (0.90: the field it
-/// carries is the fluence and flux, a projection of the lattice's links whose error the warm
-/// start first iterates away; before its tail was extrapolated from seeded starts too, 129).
+/// 28 warm started (0.31); lbl at grid 16 72 from zero, 44 warm started (0.61: 65 for the
+/// first warm frame, then 33 with the previous frame's source in the guess; before its tail
+/// was extrapolated from seeded starts and its links carried, 129).
 #[test]
 fn a_light_move_warm_starts_networks_and_lbl_from_their_last_solution() {
     let x = Xvfb::start();
@@ -311,7 +311,7 @@ fn a_light_move_warm_starts_networks_and_lbl_from_their_last_solution() {
     }
     eprintln!("warm / cold iterations: {ratios:?}");
     assert!(ratios[0].1 < 0.5, "networks warm started no faster: {ratios:?}");
-    assert!(ratios[1].1 < 0.95, "lbl warm started no faster: {ratios:?}");
+    assert!(ratios[1].1 < 0.8, "lbl warm started no faster than measured: {ratios:?}");
 }
 
 /// `render --exr` of the view a screenshot reports, against the screenshot's EXR: their metrics.

@@ -51,6 +51,7 @@ layout(push_constant) uniform Push {
     uint snapshot;       // 1: copy the field to Snapshot before adding this dispatch's part
     float drift;         // share of a link's carried light leaving per open face parallel to it (0: off)
     float drift_pair;    // the share leaving through either of two such faces on different axes counted twice
+    uint links;          // 1: integrate every link's outgoing value too (rows after energy and flux)
 } pc;
 
 shared float sh_out[LINKS * B * B * B];
@@ -242,6 +243,11 @@ void main() {
         for (uint k = 0u; k < 18u; ++k) { out_face[k] = 0.0; out_last[k] = 0.0; }
         float absorbed = 0.0, leaked = 0.0, irr_add = 0.0;
         vec3 flux_add = vec3(0.0);
+        // With pc.links: each link's outgoing value summed over the steps, the time integral
+        // of the state after the first step that a later frame starts from exactly
+        // (src/solvers/lbl/mod.rs, `start`).
+        float osum[18];
+        for (uint k = 0u; k < 18u; ++k) osum[k] = 0.0;
 
         // What arrives at the first step (through the state buffer) and the rest. Where nothing
         // arrives anywhere in the block and nothing rests in it, every step gives zeros: such a
@@ -304,6 +310,7 @@ void main() {
             }
             for (uint i = 1u; i <= LINKS; ++i) {
                 float o = outs[i - 1u];
+                osum[i - 1u] += o;
                 ivec3 ql = local + LATTICE_DIR[i];
                 bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
                 if (stays) out_last[i - 1u] = o; else out_face[i - 1u] += o;
@@ -333,6 +340,15 @@ void main() {
                     float f = irr[k];
                     if (pc.snapshot != 0u) snap[k] = f;
                     irr[k] = f + flux_add[a];
+                }
+            }
+            if (pc.links != 0u) {
+                uint base = NCH * (pc.flux != 0u ? 4u : 1u);
+                for (uint i = 1u; i <= LINKS; ++i) {
+                    uint k = (base + LINKS * c + i - 1u) * V + v;
+                    float f = irr[k];
+                    if (pc.snapshot != 0u) snap[k] = f;
+                    irr[k] = f + osum[i - 1u];
                 }
             }
         }

@@ -428,11 +428,13 @@ type Carried = (Vec<f32>, Option<Vec<f32>>);
 /// An `lbl` sequence: every frame marches its light anew; after the first, the lattice starts
 /// from the previous frame's field (the wavefront paper's initial guess, section 1.1, with
 /// the last frame as the guess) and runs `lbl.iterations_per_frame` steps, or to the
-/// tolerance. A frame whose lights are the last frame's (`scatterlab view` going on after a
-/// budgeted frame) runs to the tolerance: the field carried between frames is the fluence and
-/// flux, not the lattice's links in flight, so budgeted frames of one light would stall at that
-/// projection's error (measured on the sphere at grid 16 with 8 iterations a frame: the change
-/// stayed at 2.4e-2 per iteration for 7 frames).
+/// tolerance. The lattice integrates every link's outgoing value as well (`LatticeParams::links`),
+/// so the next frame's guess is its exact time-integrated state, plus (from the third frame)
+/// the source the frame injected. A frame whose lights are the last frame's (`scatterlab view`
+/// going on after a budgeted frame) runs to the tolerance: before the links were carried, the
+/// guess was made from the fluence and flux, and budgeted frames of one light stalled at that
+/// projection's error (the sphere at grid 16, 8 iterations a frame: the change stayed at 2.4e-2
+/// per iteration for 7 frames).
 struct LblAnimation {
     knobs: Knobs,
     set: LblSettings,
@@ -872,6 +874,8 @@ fn lattice_params(scene: &Scene, set: &LblSettings, geom: &LatticeGeom, nch: u32
         // Any medium's g (every object's material counts): the first moment is kept.
         directed: set.directed && scene.features().anisotropic,
         flux: set.flux != view::FluxUse::None && scene.features().anisotropic,
+        // A sequence's frames hand the next the links' own time integrals ([`start`]).
+        links: set.keep_source && set.lattice == Lattice::D3q6,
         extrapolate: set.extrapolate,
     }
 }
@@ -959,7 +963,9 @@ pub fn run_lattice(
     if let Some(fwd) = marcher.forward_field(gpu, nch)? {
         // The forward population's field follows the lattice's for the view pass
         // (view::MsVolume::forward); the lattice's own stays in `irradiance`.
-        let mut both = irradiance.clone();
+        // (The links' integrals, where the lattice keeps them, are not the view's.)
+        let view_floats = (nch as u64 * geom.voxels() * if params.flux { 4 } else { 1 }) as usize;
+        let mut both = irradiance[..view_floats].to_vec();
         both.extend_from_slice(&fwd);
         irr = gpu.buffer_with("lattice and forward field", &both)?;
         forward_field = true;
@@ -1132,24 +1138,42 @@ fn start(
         cascade_iterations = iterations;
         seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
     } else if let Some(previous) = &set.previous {
-        // The previous frame's field, same lattice: its fluence as it is, and its flux where
-        // the lattice integrated one (params.flux), else by Fick's law (the cascade's
-        // prolongation at a factor of 1).
+        // The previous frame's field, same lattice. Where it integrated every link's outgoing
+        // value (params.links: a sequence's frames), the guess's links are those integrals as
+        // they are; else they are made from its fluence and its flux where the lattice
+        // integrated one (params.flux), or by Fick's law (the cascade's prolongation at a
+        // factor of 1).
         let e = nch as usize * v as usize;
-        if previous.len() != e && previous.len() != 4 * e {
+        let flux_rows = if params.flux { 3 * e } else { 0 };
+        let dirs = Lattice::D3q6.dirs().len() - 1;
+        let carried = previous.len() == e + flux_rows + dirs * e;
+        if previous.len() != e && previous.len() != 4 * e && !carried {
             return Err(SolverError::Unsupported(
                 "lbl: the previous frame's lattice has another size or channel count".to_string(),
             ));
         }
-        let (energy, flux) = previous.split_at(e);
-        let g = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: nch as usize };
-        let guess = if flux.is_empty() {
-            let density = lattice::read_f32(gpu, &marcher.density)?;
-            prolong(&g, geom.dims, geom.lambda, geom.dims, geom.lambda, &density, &scene.medium)
-        } else {
+        let mut links = if carried {
+            let (nch, v) = (nch as usize, v as usize);
+            let rows = &previous[e + flux_rows..];
+            let mut g = vec![0f32; (dirs + 1) * e];
+            for c in 0..nch {
+                for i in 1..=dirs {
+                    let from = (dirs * c + i - 1) * v;
+                    g[(i * nch + c) * v..(i * nch + c + 1) * v].copy_from_slice(&rows[from..from + v]);
+                }
+            }
             g
+        } else {
+            let (energy, flux) = previous[..e + flux_rows.min(previous.len() - e)].split_at(e);
+            let g = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: nch as usize };
+            let guess = if flux.is_empty() {
+                let density = lattice::read_f32(gpu, &marcher.density)?;
+                prolong(&g, geom.dims, geom.lambda, geom.dims, geom.lambda, &density, &scene.medium)
+            } else {
+                g
+            };
+            guess.links(nch as usize, v as usize)
         };
-        let mut links = guess.links(nch as usize, v as usize);
         if let Some(old) = set.previous_source.as_ref().filter(|o| o.len() == links.len()) {
             for (g, s) in links.iter_mut().zip(old) {
                 *g += s;
@@ -1305,7 +1329,7 @@ fn cascade(
         let lambda = fine.lambda * f as f32;
         let dens = restrict(&density, fine.dims, 1, f, true);
         let dep = restrict(&deposits, fine.dims, nch, f, false);
-        let params = LatticeParams { dims, lambda, ..*fine };
+        let params = LatticeParams { dims, lambda, links: false, ..*fine };
         let dens_buf = gpu.buffer_with("cascade density", &dens)?;
         // One medium (the settings refuse the cascade with several materials).
         let materials = lattice::LatticeMaterials::new(gpu, &gs.block, lattice_materials(scene, set), None)?;

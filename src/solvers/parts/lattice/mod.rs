@@ -107,6 +107,8 @@ struct DiffusePush {
     drift: f32,
     /// [`CONE_DRIFT_PAIR`] with the drift, else 0.
     drift_pair: f32,
+    /// 1: also integrate every link's outgoing value, after the energy and flux.
+    links: u32,
 }
 
 /// Mean drift toward a face of light in a D3Q6 link parallel to it, per voxel of path:
@@ -454,6 +456,9 @@ pub struct LatticeParams {
     /// Integrate the net flux (vector irradiance) beside the energy (glsl/lattice/diffuse.comp),
     /// for the view pass's two-term expansion. Only for anisotropic media.
     pub flux: bool,
+    /// Integrate every link's outgoing value too (the state's time integral after the first
+    /// step: rows after the energy and flux), which a warm start's guess takes as it is.
+    pub links: bool,
     /// Extrapolate the geometric tail of the iteration ([`Diffuser::iterate`]).
     pub extrapolate: bool,
     /// Deposits within this ball (centre in voxel units from the lattice's min corner, radius
@@ -492,9 +497,11 @@ impl LatticeParams {
             + 16 * cap
     }
     /// Floats of the time-integrated field: energy per channel and voxel, then with `flux` the
-    /// flux (three per channel and voxel).
+    /// flux (three per channel and voxel), then with `links` each link's (links per channel
+    /// and voxel).
     pub fn irradiance_floats(&self) -> u64 {
-        self.nch as u64 * self.voxels() * if self.flux { 4 } else { 1 }
+        let links = if self.links { self.lattice.dirs().len() as u64 - 1 } else { 0 };
+        self.nch as u64 * self.voxels() * (if self.flux { 4 } else { 1 } + links)
     }
     /// Device bytes of an [`Injector`]: its per-workgroup tallies (injected, and near the
     /// light).
@@ -604,6 +611,7 @@ impl Diffuser {
                 // The drift acts only with the escape weights (at the same open faces).
                 drift: if drift_on { CONE_DRIFT } else { 0.0 },
                 drift_pair: if drift_on { CONE_DRIFT_PAIR } else { 0.0 },
+                links: p.links as u32,
             },
             groups,
             block_steps: p.block_steps,
@@ -1008,8 +1016,16 @@ impl Diffuser {
         let (mut added, mut total) = (0f64, 0f64);
         for (k, (f, s)) in field.iter_mut().zip(&snap).enumerate() {
             let row = k / v;
-            // Rows: energy per channel, then the flux's three axes per channel.
-            let c = if row < nch { row } else { (row - nch) / 3 };
+            // Rows: energy per channel, then the flux's three axes per channel, then the links.
+            let flux_rows = if self.push.flux != 0 { 3 * nch } else { 0 };
+            let links = self.lattice.dirs().len() - 1;
+            let c = if row < nch {
+                row
+            } else if row < nch + flux_rows {
+                (row - nch) / 3
+            } else {
+                (row - nch - flux_rows) / links
+            };
             let t = (*f - *s) as f64 * q[c];
             if row < nch {
                 added += t;
