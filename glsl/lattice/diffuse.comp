@@ -310,7 +310,7 @@ void main() {
             }
             for (uint i = 1u; i <= LINKS; ++i) {
                 float o = outs[i - 1u];
-                osum[i - 1u] += o;
+                if (pc.links != 0u) osum[i - 1u] += o;   // uniform: off outside a sequence
                 ivec3 ql = local + LATTICE_DIR[i];
                 bool stays = all(greaterThanEqual(ql, ivec3(0))) && all(lessThan(ql, ivec3(B)));
                 if (stays) out_last[i - 1u] = o; else out_face[i - 1u] += o;

@@ -241,6 +241,14 @@ impl Accumulated {
         };
         self.spp += b;
     }
+
+    /// [`Accumulated::add`] into `slot`, which holds nothing before the first batch.
+    fn fold(slot: &mut Option<Accumulated>, image: Image, variance: Option<Image>, b: u32) {
+        match slot {
+            Some(a) => a.add(image, variance, b),
+            None => *slot = Some(Accumulated { image, variance, spp: b }),
+        }
+    }
 }
 
 /// The solver's image against the `path` accumulation beside it.
@@ -314,11 +322,9 @@ struct App<'a> {
     live: Option<Live>,
     script: Vec<(u32, Scripted)>,
     frame: u32,
-    /// The linear image shown, (path) the samples per pixel it averages and the variance of
-    /// that mean (where the solver gives one).
-    image: Option<Image>,
-    variance: Option<Image>,
-    spp: u32,
+    /// The linear image shown, with the variance of its mean where the solver gives one, and
+    /// (path) the samples per pixel it averages (0 for the other solvers, and after a change).
+    shown: Option<Accumulated>,
     /// Something changed since the image was rendered.
     dirty: bool,
     /// The solver shown stopped at its per-frame iteration budget short of its tolerance: the
@@ -385,9 +391,7 @@ pub fn view(a: ViewArgs) -> Result<()> {
         live: None,
         script,
         frame: 0,
-        image: None,
-        variance: None,
-        spp: 0,
+        shown: None,
         dirty: true,
         converging: None,
         compare: None,
@@ -513,6 +517,11 @@ fn parse_size(s: &str) -> Result<(u32, u32)> {
 }
 
 impl App<'_> {
+    /// Samples per pixel the image shown averages (path).
+    fn spp(&self) -> u32 {
+        self.shown.as_ref().map_or(0, |a| a.spp)
+    }
+
     fn open(&mut self, el: &ActiveEventLoop) -> Result<()> {
         let size = PhysicalSize::new(self.scene.render.width, self.scene.render.height);
         let attrs = Window::default_attributes().with_title(self.title()).with_inner_size(size).with_resizable(true);
@@ -549,7 +558,7 @@ impl App<'_> {
             }
         });
         let fps = if self.frame > 0 { self.frame as f64 / self.started.elapsed().as_secs_f64() } else { 0.0 };
-        let spp = if self.solver.samples_pixels() { format!(", {} spp", self.spp) } else { String::new() };
+        let spp = if self.solver.samples_pixels() { format!(", {} spp", self.spp()) } else { String::new() };
         let iterating = match (u.and_then(|u| u.last), self.converging) {
             (Some(c), Some(_)) => format!(", {} iterations (change {:.1e}, converging)", c.iterations, c.final_change),
             (Some(c), None) => format!(", {} iterations (change {:.1e})", c.iterations, c.final_change),
@@ -670,25 +679,28 @@ impl App<'_> {
 
     fn solver_step(&mut self, extent: [u32; 2]) -> Result<()> {
         let live = self.live.as_ref().expect("open");
-        let size_changed = self.image.as_ref().is_some_and(|i| [i.width, i.height] != extent);
+        let size_changed = self.shown.as_ref().is_some_and(|a| [a.image.width, a.image.height] != extent);
         let progressive = self.solver.samples_pixels();
         let target = self.base.render.spp.max(1);
-        let more = progressive && self.spp < target;
+        let more = progressive && self.spp() < target;
         if !(self.dirty || size_changed || more || self.converging.is_some()) {
             return Ok(());
         }
         let changed = self.dirty || size_changed;
         if changed {
-            self.spp = 0;
+            if let Some(a) = self.shown.as_mut() {
+                a.spp = 0;
+            }
             self.converging = None;
         }
+        let spp = self.spp();
         (self.scene.render.width, self.scene.render.height) = (extent[0], extent[1]);
         let mut s = self.scene.clone();
-        let batch = if progressive { self.args.batch.min(target - self.spp).max(1) } else { 0 };
+        let batch = if progressive { self.args.batch.min(target - spp).max(1) } else { 0 };
         if progressive {
             // Each batch its own seed: independent samples, averaged below.
             s.render.spp = batch;
-            s.render.seed = batch_seed(self.base.render.seed, self.spp);
+            s.render.seed = batch_seed(self.base.render.seed, spp);
         }
         let started = Instant::now();
         let settings = own_knobs(&self.knob_sets, self.solver);
@@ -738,10 +750,11 @@ impl App<'_> {
             let slot = if warm { &mut u.warm } else { &mut u.cold };
             *slot = (slot.0 + 1, slot.1 + c.iterations);
             // Under a budget, short of the tolerance: the next frames go on from here.
-            if budgeted && has_anim && !c.converged {
+            let stopped = budgeted && has_anim && !c.converged;
+            if stopped {
                 u.budget_stops += 1;
             }
-            self.converging = match (budgeted && has_anim && !c.converged, self.converging) {
+            self.converging = match (stopped, self.converging) {
                 (false, _) => None,
                 (true, Some(n)) if n + 1 >= CONVERGING_FRAMES_MAX => {
                     eprintln!(
@@ -754,29 +767,20 @@ impl App<'_> {
                 (true, n) => Some(n.map_or(1, |n| n + 1)),
             };
         }
-        if progressive && self.spp > 0 {
-            let mut acc = Accumulated {
-                image: self.image.take().expect("a batch before"),
-                variance: self.variance.take(),
-                spp: self.spp,
-            };
-            acc.add(out.image, out.variance, batch);
-            (self.image, self.variance) = (Some(acc.image), acc.variance);
-        } else {
-            // A frame stopped at its iteration budget says so in every warning; the title shows
-            // the convergence instead.
-            let warnings = if budgeted && warm { &[][..] } else { &out.report.warnings[..] };
-            for w in warnings {
-                // Once each: the same render again (a light move) says the same.
+        // A fresh image (not a batch added to path's): its warnings, once each (the same render
+        // again, after a light move, says the same). A frame stopped at its iteration budget
+        // says so in every warning; the title shows the convergence instead.
+        if spp == 0 && !(budgeted && warm) {
+            for w in &out.report.warnings {
                 if self.said.insert(w.clone()) {
                     eprintln!("warning: {w}");
                 }
             }
-            (self.image, self.variance) = (Some(out.image), out.variance);
         }
+        // The other solvers' images replace the last (0 samples: `add` keeps none of it).
+        Accumulated::fold(&mut self.shown, out.image, out.variance, batch);
         if progressive {
-            self.spp += batch;
-            u.spp = self.spp;
+            u.spp = spp + batch;
         }
         self.dirty = false;
         Ok(())
@@ -786,7 +790,8 @@ impl App<'_> {
     /// changes), and the solver's image measured against the accumulation.
     fn compare_step(&mut self) -> Result<()> {
         let Some(cmp) = self.compare.as_mut() else { return Ok(()) };
-        let Some(image) = self.image.as_ref() else { return Ok(()) };
+        let Some(shown) = self.shown.as_ref() else { return Ok(()) };
+        let image = &shown.image;
         if self.solver.samples_pixels() {
             if !cmp.path_said && !self.args.quiet {
                 eprintln!("view: D measures the solver shown against path; path is shown (keys 1-8 switch)");
@@ -810,14 +815,11 @@ impl App<'_> {
             let req = RenderRequest { scene: &ps, settings: &settings, force_full: false, progress: &|_| {} };
             let live = self.live.as_ref().expect("open");
             let out = path.render(&live.gpu, &req).map_err(|e| anyhow!("{} (key D's comparison): {e}", path.name()))?;
-            match &mut cmp.acc {
-                Some(acc) => acc.add(out.image, out.variance, ps.render.spp),
-                None => cmp.acc = Some(Accumulated { image: out.image, variance: out.variance, spp: ps.render.spp }),
-            }
+            Accumulated::fold(&mut cmp.acc, out.image, out.variance, ps.render.spp);
         }
         let acc = cmp.acc.as_ref().expect("a batch");
         let m = output::compare(image, &acc.image)?;
-        let floor = output::metrics::noise_floor(image, &acc.image, self.variance.as_ref(), acc.variance.as_ref())?;
+        let floor = output::metrics::noise_floor(image, &acc.image, shown.variance.as_ref(), acc.variance.as_ref())?;
         let measured = Measured {
             rel_l2: m.rel_l2,
             corrected: floor.rel_l2_corrected,
@@ -852,7 +854,7 @@ impl App<'_> {
             return Ok(());
         }
         self.render_step(extent)?;
-        let image = self.image.as_ref().expect("rendered");
+        let image = &self.shown.as_ref().expect("rendered").image;
         if [image.width, image.height] != extent {
             return Ok(());
         }
@@ -908,7 +910,7 @@ impl App<'_> {
             ("scatterlab.view.scene".into(), self.args.scene.display().to_string()),
             ("scatterlab.view.solver".into(), self.solver.name().to_string()),
             ("scatterlab.view.sets".into(), sets.join(" ")),
-            ("scatterlab.view.spp".into(), self.spp.to_string()),
+            ("scatterlab.view.spp".into(), self.spp().to_string()),
             ("scatterlab.tonemap".into(), output::TONEMAP_DESCRIPTION.into()),
         ];
         if let Some(c) = self.used.get(self.solver.name()).and_then(|u| u.last) {
@@ -922,9 +924,9 @@ impl App<'_> {
                 ),
             ));
         }
-        let image = self.image.as_ref().expect("shown");
-        let mut layers: Vec<(&str, &Image)> = vec![("", image)];
-        if let Some(v) = &self.variance {
+        let shown = self.shown.as_ref().expect("shown");
+        let mut layers: Vec<(&str, &Image)> = vec![("", &shown.image)];
+        if let Some(v) = &shown.variance {
             layers.push(("variance", v));
         }
         let mut staging = output::Staging::new();
@@ -956,7 +958,7 @@ impl App<'_> {
             return self.script.iter().any(|(f, _)| *f >= self.frame);
         }
         self.dirty
-            || (self.solver.samples_pixels() && self.spp < self.base.render.spp.max(1))
+            || (self.solver.samples_pixels() && self.spp() < self.base.render.spp.max(1))
             || self.args.frames.is_some()
             || self.script.iter().any(|(f, _)| *f >= self.frame)
             || self.screenshot_now

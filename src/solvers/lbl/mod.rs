@@ -964,7 +964,7 @@ pub fn run_lattice(
         // The forward population's field follows the lattice's for the view pass
         // (view::MsVolume::forward); the lattice's own stays in `irradiance`.
         // (The links' integrals, where the lattice keeps them, are not the view's.)
-        let view_floats = (nch as u64 * geom.voxels() * if params.flux { 4 } else { 1 }) as usize;
+        let view_floats = LatticeParams { links: false, ..params }.irradiance_floats() as usize;
         let mut both = irradiance[..view_floats].to_vec();
         both.extend_from_slice(&fwd);
         irr = gpu.buffer_with("lattice and forward field", &both)?;

@@ -1014,11 +1014,11 @@ impl Diffuser {
         let v: usize = self.dims.iter().map(|d| *d as usize).product();
         let nch = self.nch as usize;
         let (mut added, mut total) = (0f64, 0f64);
+        // Rows: energy per channel, then the flux's three axes per channel, then the links.
+        let flux_rows = if self.push.flux != 0 { 3 * nch } else { 0 };
+        let links = self.lattice.dirs().len() - 1;
         for (k, (f, s)) in field.iter_mut().zip(&snap).enumerate() {
             let row = k / v;
-            // Rows: energy per channel, then the flux's three axes per channel, then the links.
-            let flux_rows = if self.push.flux != 0 { 3 * nch } else { 0 };
-            let links = self.lattice.dirs().len() - 1;
             let c = if row < nch {
                 row
             } else if row < nch + flux_rows {
