@@ -113,7 +113,7 @@ impl Solver for Absorber {
             stats: Stats::new(()),
             warnings: Vec::new(),
         };
-        Ok(RenderOutput { image, variance: None, report })
+        Ok(RenderOutput { image, variance: None, report, estimates: Vec::new() })
     }
     fn memory_estimate(&self, _scene: &Scene, _knobs: &Knobs) -> Result<u64, SolverError> {
         Ok(0)

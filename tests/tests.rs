@@ -16,6 +16,7 @@ mod lbl;
 mod lbl_refraction_tests;
 mod light_tracing_tests;
 mod material_tests;
+mod merge_tests;
 mod mesh_tests;
 mod mitsuba_crosscheck;
 mod mnee_tests;

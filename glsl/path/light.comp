@@ -24,7 +24,7 @@
 // One invocation = one path slot; resumable like path/trace (budget.glsl): a path's state, and
 // a free flight or camera connection in progress, is saved when the loop budget is spent
 // (tracking.glsl) and the host re-dispatches until every slot has traced
-// its paths [0, sample_end).
+// its paths [sample_begin, sample_end).
 // With an index-matched [[object]] (HAS_MESH, not REFRACTIVE: the host refuses light paths
 // through a refractive boundary, where no straight connection reaches the camera), a path
 // starts in the object holding its light, takes on the material of each object it flies into,
@@ -83,6 +83,7 @@ layout(push_constant) uniform Push {
     uint light_traced;    // bit i: light i is traced from here
     uint rr_depth;        // Russian roulette from this many scattering events on
     float rr_threshold;   // ... for throughput below this (survival max(beta) / threshold)
+    uint sample_begin;    // the first path index of every slot (render.first_sample, --samples A..B)
     float inv_quantum;    // fixed-point quanta per unit of splat (W/(m^2 sr) per path)
     float power_sum;      // sum over light-traced lights of their mean intensity (W/sr)
     uint batch_q;         // paths per slot in a batch: spp / batches ...
@@ -100,8 +101,10 @@ const float TWO32 = 4294967296.0;
 uint slice_words = 0u;
 
 // The batch that path index k of a slot belongs to (batch b holds batch_q paths, one more when
-// b < batch_r: the host's split).
+// b < batch_r: the host's split), counted from the range's first path: the batches of a range
+// A..B are those a render of B - A paths would have, shifted by A.
 uint batch_of(uint k) {
+    k -= pc.sample_begin;
     uint big = pc.batch_r * (pc.batch_q + 1u);
     return k < big ? k / (pc.batch_q + 1u) : pc.batch_r + (k - big) / pc.batch_q;
 }
@@ -254,7 +257,8 @@ void main() {
     uint depth = floatBitsToUint(st.d_depth.w);
     vec3 beta = st.beta_key.xyz;
     uvec2 rng = uvec2(floatBitsToUint(st.beta_key.w), st.k_flags.w);
-    uint k = st.k_flags.x;
+    // A slot not yet started holds k = 0: it starts at the range's first path index.
+    uint k = max(st.k_flags.x, pc.sample_begin);
     // A path resumed in flight splats into its batch's slice; a new path sets its own below.
     slice_words = slice_of(k, res);
     bool in_flight = (st.k_flags.y & FLAG_IN_FLIGHT) != 0u;

@@ -11,7 +11,7 @@
 // inside an event where need be (within a free flight, a transmittance or a loop over the
 // lights: one free flight through optical thickness 1e7 can take 1e7 tentative collisions),
 // then saves the path state with the event's progress; the host re-dispatches until every pixel has
-// finished samples [0, sample_end). Every finished sample adds L and L^2 to the pixel's sums
+// finished samples [sample_begin, sample_end). Every finished sample adds L and L^2 to the pixel's sums
 // (mean and variance of the mean on the host), always in sample order: deterministic.
 // Point lights (with pc.equiangular) are also sampled by equiangular sampling along every
 // ray segment (Kulla & Fajardo 2012, "Importance sampling techniques for path tracing in
@@ -99,6 +99,7 @@ layout(push_constant) uniform Push {
     uint light_traced;    // bit i: light i is rendered by light paths (path/light); camera paths skip it
     uint rr_depth;        // Russian roulette from this many scattering events on
     float rr_threshold;   // ... for throughput below this (survival max(beta) / threshold)
+    uint sample_begin;    // the first sample index of every pixel (render.first_sample, --samples A..B)
     uint equiangular;     // bit i: point light i also sampled by equiangular sampling + MIS
     uint mnee;            // bit i: light i is outside the refractive mesh: reached by manifold NEE
 } pc;
@@ -478,7 +479,10 @@ void main() {
     uvec2 rng = uvec2(floatBitsToUint(st.beta_key.w), st.k_flight.w);
     vec3 L = st.L_coll.xyz;
     collisions = floatBitsToUint(st.L_coll.w);
-    uint k = st.k_flight.x;
+    // A pixel not yet started holds k = 0 (the state buffer starts zeroed): it starts at the
+    // range's first sample. The random numbers of sample k depend on (seed, pixel, k) only, so
+    // a range A..B renders exactly the samples A..B-1 of the render 0..B.
+    uint k = max(st.k_flight.x, pc.sample_begin);
     uint flags = st.k_flight.y;
     bool in_flight = (flags & FLAG_IN_FLIGHT) != 0u;
     truncated = (flags & FLAG_TRUNCATED) != 0u;

@@ -33,6 +33,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Render(a) => super::render::render(a),
         Command::Animate(a) => super::animate::animate(a),
         Command::View(a) => super::view::view(a),
+        Command::Merge(a) => super::merge::merge(a),
         Command::Compare(a) => compare(a),
         Command::Export(a) => export(a),
         Command::Devices { gpu, json } => devices(&gpu, json),

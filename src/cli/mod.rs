@@ -4,6 +4,7 @@
 mod animate;
 mod args;
 mod commands;
+mod merge;
 mod render;
 mod view;
 
@@ -145,6 +146,10 @@ pub enum Command {
     /// progressively; lbl and networks start a light move from their last solution (a budget
     /// `<solver>.iterations_per_frame` converges over frames); the others render again.
     View(ViewArgs),
+    /// Merge renders of disjoint sample ranges (`render --samples A..B`) of one scene into the
+    /// render of their union: the sample-weighted mean and the exact pooled variance, checked
+    /// from the inputs' provenance. `--csv`: animation frame ranges' frames.csv, concatenated.
+    Merge(MergeArgs),
     /// Compare two EXR images: relL2 (and without the images' noise where they carry variance
     /// layers), relMSE, RMSE, energy ratio, max error, NaN/Inf count.
     Compare(CompareArgs),
@@ -281,6 +286,12 @@ pub struct RenderArgs {
     /// Samples per pixel of Monte Carlo solvers (the same as `--set render.spp=N`).
     #[arg(long)]
     pub spp: Option<u32>,
+    /// Render sample indices A to B - 1 of every pixel (`--spp N` is `0..N`): the same samples
+    /// as those of a render of 0..B, so renders of disjoint ranges merge into the render of
+    /// their union (`scatterlab merge`). The same as `--set render.first_sample=A --set
+    /// render.spp=B-A`.
+    #[arg(long, value_name = "A..B", conflicts_with = "spp")]
+    pub samples: Option<String>,
     /// Scattering events per path (1 = single scattering): `--set <solver>.max_depth=N`
     /// for a solver with that knob (`path`).
     #[arg(long)]
@@ -356,6 +367,22 @@ pub struct ExportArgs {
     /// `render`. Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+}
+
+#[derive(Args, Debug)]
+pub struct MergeArgs {
+    /// The merged EXR (or CSV with `--csv`); it must not exist as one of the inputs.
+    pub out: PathBuf,
+    /// The renders to merge (EXR from `scatterlab render --out`), or frames.csv files.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Concatenate `animate --frame-range` frames.csv files instead: one header, frames in
+    /// order, none twice and none missing.
+    #[arg(long)]
+    pub csv: bool,
+    /// No summary line.
+    #[arg(short, long)]
+    pub quiet: bool,
 }
 
 #[derive(Args, Debug)]

@@ -63,22 +63,31 @@ type Overrides = Vec<(String, String)>;
 /// the solver's table before any work (a typo costs nothing).
 fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<String>, Overrides, Settings)> {
     let mut sets = parse_sets(&a.set)?;
+    let sampling_only = |flag: &str| -> Result<()> {
+        if solver.samples_pixels() {
+            return Ok(());
+        }
+        let sampling: Vec<&str> = solvers::SOLVERS.iter().filter(|s| s.samples_pixels()).map(|s| s.name()).collect();
+        bail!(
+            "{flag} applies to solvers that sample pixels ({}); --solver {} computes each pixel without samples \
+             (its quality knobs: scatterlab knobs {})",
+            sampling.join(", "),
+            solver.name(),
+            solver.name()
+        )
+    };
     if let Some(spp) = a.spp {
         if spp == 0 {
             bail!("--spp 0: samples per pixel must be at least 1");
         }
-        if !solver.samples_pixels() {
-            let sampling: Vec<&str> =
-                solvers::SOLVERS.iter().filter(|s| s.samples_pixels()).map(|s| s.name()).collect();
-            bail!(
-                "--spp applies to solvers that sample pixels ({}); --solver {} computes each pixel without samples \
-                 (its quality knobs: scatterlab knobs {})",
-                sampling.join(", "),
-                solver.name(),
-                solver.name()
-            );
-        }
+        sampling_only("--spp")?;
         sets.push(("render.spp".into(), spp.to_string()));
+    }
+    if let Some(range) = &a.samples {
+        let (first, end) = output::parse_range(range).map_err(|e| anyhow!("--samples {e}"))?;
+        sampling_only("--samples")?;
+        sets.push(("render.first_sample".into(), first.to_string()));
+        sets.push(("render.spp".into(), (end - first).to_string()));
     }
     if let Some(seed) = a.seed {
         sets.push(("render.seed".into(), seed.to_string()));
@@ -123,6 +132,10 @@ fn provenance(a: &RenderArgs, solver: &dyn Solver, scene: &Scene, overrides: &[S
         solver: solver.name().to_string(),
         seed: scene.render.seed,
         spp: solver.samples_pixels().then_some(scene.render.spp),
+        samples: solver
+            .samples_pixels()
+            .then_some((scene.render.first_sample, scene.render.first_sample + scene.render.spp)),
+        estimators: Vec::new(),
         width: scene.render.width,
         height: scene.render.height,
     })
@@ -290,7 +303,19 @@ fn write_outputs(
 ) -> Result<()> {
     let info = gpu.info();
     let r = &out.report;
+    let mut provenance = provenance.clone();
+    provenance.estimators = out.estimates.iter().map(|e| (e.name.to_string(), e.units)).collect();
+    let provenance = &provenance;
     let header = provenance.header_pairs();
+    // Every pixel of a sampled render holds the range's samples: the count as a layer too, for
+    // tools that weight per pixel (exact in f32 up to 2^24 samples).
+    let count = provenance.samples.map(|(a, b)| {
+        let mut c = output::Image::new(out.image.width, out.image.height);
+        c.data.fill((b - a) as f32);
+        c
+    });
+    let estimate_names: Vec<(String, String)> =
+        out.estimates.iter().map(|e| (e.name.to_string(), format!("{}_variance", e.name))).collect();
     let mut staging = Staging::new();
     if let Some(p) = &a.out {
         match ImageFormat::of(p) {
@@ -298,6 +323,17 @@ fn write_outputs(
                 let mut layers: Vec<(&str, &output::Image)> = vec![("", &out.image)];
                 if let Some(v) = &out.variance {
                     layers.push(("variance", v));
+                }
+                if let Some(c) = &count {
+                    layers.push(("samples", c));
+                }
+                // Where camera and light paths both add to the image, each one's mean and
+                // variance too: a merge combines each estimator's ranges on its own.
+                for (e, (mean, var)) in out.estimates.iter().zip(&estimate_names) {
+                    if let Some((m, v)) = &e.layers {
+                        layers.push((mean, m));
+                        layers.push((var, v));
+                    }
                 }
                 staging.stage(p, |tmp| output::write_exr_with_metadata(tmp, &layers, &header))?;
             }

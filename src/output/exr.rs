@@ -127,6 +127,12 @@ pub fn read_exr(path: &Path) -> Result<Image, OutputError> {
 /// of the EXR file at `path`, from whichever part holds it. Half and u32 channels are
 /// converted to f32.
 pub fn read_exr_layer(path: &Path, name: &str) -> Result<Image, OutputError> {
+    let mut layers = read_exr_layers(path, &[name])?;
+    Ok(layers.remove(0))
+}
+
+/// Read the layers `names` (as [`read_exr_layer`]) from one read of the file.
+pub fn read_exr_layers(path: &Path, names: &[&str]) -> Result<Vec<Image>, OutputError> {
     let exr_image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -136,6 +142,13 @@ pub fn read_exr_layer(path: &Path, name: &str) -> Result<Image, OutputError> {
         .from_file(path)
         .map_err(|source| OutputError::Exr { path: path.to_owned(), action: "read", source })?;
 
+    names.iter().map(|name| find_layer(&exr_image, path, name)).collect()
+}
+
+type AnyExr = ::exr::image::Image<::exr::image::Layers<::exr::image::AnyChannels<FlatSamples>>>;
+
+/// Layer `name` of a read file (any part), or the error listing the channels there are.
+fn find_layer(exr_image: &AnyExr, path: &Path, name: &str) -> Result<Image, OutputError> {
     let wanted = |suffix: &str| -> String {
         if name.is_empty() {
             suffix.to_owned()

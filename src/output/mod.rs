@@ -17,7 +17,7 @@ pub mod report;
 
 pub use self::atomic::{write_atomically, Staging};
 pub use self::error::OutputError;
-pub use self::exr::{read_exr, read_exr_layer, read_exr_metadata, write_exr, write_exr_with_metadata};
+pub use self::exr::{read_exr, read_exr_layer, read_exr_layers, read_exr_metadata, write_exr, write_exr_with_metadata};
 pub use self::image::Image;
 pub use self::metrics::{compare, error_png, Metrics};
 pub use self::pfm::{read_pfm, write_pfm};
@@ -25,5 +25,5 @@ pub use self::png::{
     read_png_text, tonemap_rgb8, write_png_tonemapped, write_png_tonemapped_with_metadata, write_rgb8_png,
     TONEMAP_DESCRIPTION,
 };
-pub use self::provenance::{engine, Provenance};
+pub use self::provenance::{engine, parse_range, Provenance, KEY_PREFIX};
 pub use self::report::{write_json, write_text};

@@ -305,6 +305,12 @@ pub struct RenderSettings {
     pub seed: u64,
     /// Default samples per pixel for `path` (>= 1).
     pub spp: u32,
+    /// The index of the first sample of every pixel (`--samples A..B` is `first_sample = A`,
+    /// `spp = B - A`): a solver that samples pixels renders sample indices
+    /// `first_sample .. first_sample + spp`, whose random numbers depend on (seed, pixel,
+    /// index) only, so renders of disjoint ranges merge into the render of their union
+    /// (`scatterlab merge`). 0 by default; `first_sample + spp` fits in 32 bits.
+    pub first_sample: u32,
     /// Default exposure of tone-mapped outputs, in stops (`--exposure` overrides): a scene
     /// lit far above 1 W/(m^2 sr) (a light inside a cloud) says how it is best seen.
     pub exposure: f32,
@@ -453,7 +459,7 @@ impl Scene {
 }
 
 impl Scene {
-    /// This scene with `render.*` keys overridden (`render.spp`, `render.width`,
+    /// This scene with `render.*` keys overridden (`render.spp`, `render.first_sample`, `render.width`,
     /// `render.height`, `render.seed`), validated as in a scene file: for measurements that
     /// vary them on a loaded scene (a bench ladder's samples per pixel). Other keys change
     /// what the scene is and must go through [`Scene::load`].
@@ -471,6 +477,12 @@ impl Scene {
             };
             match key.as_str() {
                 "render.spp" => out.render.spp = int(u32::MAX as u64)? as u32,
+                "render.first_sample" => {
+                    out.render.first_sample = value
+                        .trim()
+                        .parse()
+                        .map_err(|_| bad(format!("{value:?} must be an integer in 0 ..= {}", u32::MAX)))?
+                }
                 "render.width" => out.render.width = int(MAX_IMAGE_SIZE as u64)? as u32,
                 "render.height" => out.render.height = int(MAX_IMAGE_SIZE as u64)? as u32,
                 "render.seed" => {
@@ -479,11 +491,23 @@ impl Scene {
                 }
                 _ => {
                     return Err(bad(
-                        "only render.spp, render.width, render.height and render.seed can be applied to a loaded scene"
+                        "only render.spp, render.first_sample, render.width, render.height and render.seed can be \
+                         applied to a loaded scene"
                             .into(),
                     ))
                 }
             }
+        }
+        if out.render.first_sample as u64 + out.render.spp as u64 > u32::MAX as u64 {
+            return Err(SceneError::Override {
+                file: self.source.clone(),
+                key: "render.first_sample".into(),
+                message: format!(
+                    "samples {} .. {} end past 2^32; sample indices are 32-bit",
+                    out.render.first_sample,
+                    out.render.first_sample as u64 + out.render.spp as u64
+                ),
+            });
         }
         Ok(out)
     }

@@ -50,6 +50,8 @@ struct RawRender {
     #[serde(default = "default_spp")]
     spp: i64,
     #[serde(default)]
+    first_sample: i64,
+    #[serde(default)]
     exposure: f64,
 }
 
@@ -562,12 +564,26 @@ impl Ctx<'_> {
         let spp = u32::try_from(r.spp).ok().filter(|&s| s >= 1).ok_or_else(|| {
             self.invalid("render.spp", format!("{} samples per pixel is out of range; use 1 ..= {}", r.spp, u32::MAX))
         })?;
+        let first_sample = u32::try_from(r.first_sample)
+            .ok()
+            .filter(|&f| f as u64 + spp as u64 <= u32::MAX as u64)
+            .ok_or_else(|| {
+                self.invalid(
+                    "render.first_sample",
+                    format!(
+                        "{} is out of range; sample indices first_sample .. first_sample + spp ({spp}) are 32-bit: \
+                         use 0 ..= {}",
+                        r.first_sample,
+                        u32::MAX - spp
+                    ),
+                )
+            })?;
         if !r.exposure.is_finite() || r.exposure.abs() > 64.0 {
             return Err(
                 self.invalid("render.exposure", format!("{} stops is out of range; use -64 ..= 64", r.exposure))
             );
         }
-        Ok(RenderSettings { width, height, seed, spp, exposure: r.exposure as f32 })
+        Ok(RenderSettings { width, height, seed, spp, first_sample, exposure: r.exposure as f32 })
     }
 
     fn camera(&self, c: &RawCamera) -> Result<Camera, SceneError> {

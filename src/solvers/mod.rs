@@ -47,9 +47,9 @@ use crate::scene::Scene;
 pub use interface::knobs::{self, Knob, Knobs, Range, Settings};
 pub use interface::modelled::Modelled;
 pub use interface::{
-    materials_unsupported, memory_estimate, meshes_unsupported, Animation, Convergence, Detail, Figure, Headline,
-    PipelineUse, Progress, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver, SolverError, Stats,
-    Variant,
+    materials_unsupported, memory_estimate, meshes_unsupported, Animation, Convergence, Detail, Estimate, Figure,
+    Headline, PipelineUse, Progress, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver, SolverError,
+    Stats, Variant,
 };
 
 /// Every solver this build ships, in the order they are listed and benched. Adding a solver

@@ -1138,7 +1138,7 @@ impl Solver for Dom {
             stages_ms: stages,
         };
         report.stats = dom_stats(ds, &set, &mut report, res.nonfinite_pixels, (upsampled, storage_m));
-        Ok(RenderOutput { image: res.image, variance: None, report })
+        Ok(RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() })
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {

@@ -293,6 +293,27 @@ pub struct RenderOutput {
     pub image: Image,
     pub variance: Option<Image>,
     pub report: RenderReport,
+    /// The independent Monte Carlo estimators whose means and variances add up to `image` and
+    /// `variance` (`path`: its camera paths, its light paths), each with what its variance was
+    /// estimated from, so that renders of disjoint sample ranges merge exactly
+    /// (`scatterlab merge`). Empty for deterministic solvers.
+    pub estimates: Vec<Estimate>,
+}
+
+/// One Monte Carlo estimator of a render: the variance of its mean is M2 / ((units - 1) N),
+/// with N its sample count (the range's length) and M2 the sum, over its `units` independent
+/// units of weight n_u (one sample each for camera paths, a batch of rounds for light
+/// paths), of n_u (m_u - m)^2. Knowing `units` is what lets a merge recover M2 from the
+/// variance layer and combine ranges as one render of their union would (Chan et al. 1979).
+#[derive(Clone, Debug)]
+pub struct Estimate {
+    /// A short name for the layer names (`camera`, `light`).
+    pub name: &'static str,
+    /// Independent units behind the variance (samples, or batches).
+    pub units: u64,
+    /// Its own mean and variance of the mean where the render has more than one estimator
+    /// (they are then summed into the render's image); `None` where it is the only one.
+    pub layers: Option<(Image, Image)>,
 }
 
 impl RenderOutput {

@@ -413,7 +413,10 @@ impl Lbl {
             ];
         }
         report.stats = stats;
-        Ok((RenderOutput { image: view.image, variance: None, report }, (lat.irradiance, lat.source)))
+        Ok((
+            RenderOutput { image: view.image, variance: None, report, estimates: Vec::new() },
+            (lat.irradiance, lat.source),
+        ))
     }
 }
 

@@ -396,7 +396,7 @@ impl Networks {
         report.warnings.extend(trust.warning());
         report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
-        Ok(RenderOutput { image: img.image, variance: None, report })
+        Ok(RenderOutput { image: img.image, variance: None, report, estimates: Vec::new() })
     }
 }
 

@@ -40,7 +40,7 @@ use crate::scene::{CameraKind, Light, Scene};
 
 use crate::solvers::interface::Progress;
 use crate::solvers::interface::{
-    Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
+    Estimate, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
     SolverError, Stats, Variant,
 };
 use crate::solvers::parts::gpu_scene::{self, GpuScene, MESH_SPEC};
@@ -70,6 +70,9 @@ pub struct PathPushHead {
     pub rr_depth: u32,
     /// ... for throughput below this: survival probability max(beta) / rr_threshold.
     pub rr_threshold: f32,
+    /// The first sample (camera) or path (light) index of every pixel or slot
+    /// (`render.first_sample`): a range renders indices [sample_begin, sample_end).
+    pub sample_begin: u32,
 }
 
 /// Push constants of glsl/path/trace.comp.
@@ -700,6 +703,7 @@ impl Solver for Path {
         let (w, h) = (scene.render.width, scene.render.height);
         let pixels = w as u64 * h as u64;
         let spp = scene.render.spp;
+        let first_sample = scene.render.first_sample;
         let max_depth = max_depth(&k)?;
         // Large batches keep every invocation busy: a dispatch runs until each invocation has
         // used its budget or finished the batch's samples, so with few samples per batch most
@@ -747,6 +751,7 @@ impl Solver for Path {
             w,
             h,
             spp,
+            first_sample,
             budget,
             seed,
             max_depth,
@@ -773,6 +778,7 @@ impl Solver for Path {
         warnings.extend(lt_notes);
         let parts = [camera.as_ref().map(|c| &c.0), light.as_ref().map(|l| &l.0)];
         let (image, variance, device_bytes) = sum_parts(w, h, parts.into_iter().flatten(), &mut warnings, gs.bytes);
+        let estimates = estimates(parts.into_iter().flatten());
         let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device_bytes, Stats::new(()));
         let seconds = report.gpu_ms * 1e-3;
         let per_second = |x: f64| if seconds > 0.0 { x / seconds } else { 0.0 };
@@ -797,7 +803,7 @@ impl Solver for Path {
         ];
         report.stats = stats;
         report.warnings = warnings;
-        Ok(RenderOutput { image, variance: Some(variance), report })
+        Ok(RenderOutput { image, variance: Some(variance), report, estimates })
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
@@ -886,6 +892,8 @@ struct Common<'a> {
     w: u32,
     h: u32,
     spp: u32,
+    /// Samples `first_sample .. first_sample + spp` of every pixel.
+    first_sample: u32,
     budget: u32,
     seed: u64,
     max_depth: u32,
@@ -910,6 +918,7 @@ impl Common<'_> {
             light_traced: self.light_mask,
             rr_depth: self.rr_depth,
             rr_threshold: self.rr_threshold,
+            sample_begin: self.first_sample,
         }
     }
 }
@@ -918,6 +927,9 @@ impl Common<'_> {
 struct Part {
     image: Image,
     variance: Image,
+    /// Its name and the independent units its variance comes from ([`Estimate`]).
+    name: &'static str,
+    units: u64,
     warnings: Vec<String>,
     device_bytes: u64,
 }
@@ -1038,6 +1050,19 @@ fn sum_parts<'a>(
     (image, variance, device_bytes)
 }
 
+/// The estimators behind the image: each part with its units, and its own layers where
+/// there are two (camera and light paths), for `scatterlab merge`.
+fn estimates<'a>(parts: impl Iterator<Item = &'a Part> + Clone) -> Vec<Estimate> {
+    let several = parts.clone().count() > 1;
+    parts
+        .map(|p| Estimate {
+            name: p.name,
+            units: p.units,
+            layers: several.then(|| (p.image.clone(), p.variance.clone())),
+        })
+        .collect()
+}
+
 /// Camera paths (glsl/path/trace.comp) for every light not in `c.light_mask`.
 fn camera_paths(
     c: &Common,
@@ -1053,11 +1078,12 @@ fn camera_paths(
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
     let stats = gpu.buffer("path stats", resumable::STATS_WORDS * 4)?;
-    let mut sample_end = 0u32;
+    let end = c.first_sample + c.spp;
+    let mut sample_end = c.first_sample;
     let mut dispatches = 0u64;
     let mut rounds = 1u32; // a batch usually ends in its first dispatch; learnt from the last one
-    while sample_end < c.spp {
-        sample_end = sample_end.saturating_add(batch).min(c.spp);
+    while sample_end < end {
+        sample_end = sample_end.saturating_add(batch).min(end);
         let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut rounds, |slot| {
             let push = PathPush { head: c.head(sample_end, slot), equiangular, mnee };
             gs.bind_mesh(Pass::new("path.trace", role, &pipeline))
@@ -1069,7 +1095,7 @@ fn camera_paths(
                 .cover([w, h, 1])
         })?;
         dispatches += n;
-        progress(sample_end as u64);
+        progress((sample_end - c.first_sample) as u64);
     }
     let st: Vec<u32> = gpu.read_buffer_as(&stats)?;
     let truncated = st[0] as u64;
@@ -1084,8 +1110,15 @@ fn camera_paths(
             c.collision_cap
         ));
     }
-    let part =
-        Part { image, variance, warnings, device_bytes: accum.size() + state.size() + stats.size() + grid.size() };
+    // Every pixel finishes every sample of the range (its sums count them: s[3]).
+    let part = Part {
+        image,
+        variance,
+        name: "camera",
+        units: c.spp as u64,
+        warnings,
+        device_bytes: accum.size() + state.size() + stats.size() + grid.size(),
+    };
     Ok((
         part,
         CameraStats { truncated_paths: truncated, dispatches, max_loop_iterations: st[2], tracking_steps: st[1] },
@@ -1228,7 +1261,7 @@ fn light_paths(
         let mut first = 0u32;
         while first < batches {
             let last = (first + group).min(batches);
-            let sample_end = end_of(last - 1);
+            let sample_end = c.first_sample + end_of(last - 1);
             // A fill, not an upload of zeros: no host buffer, and no staged copy waited for where
             // device memory is not mapped (splats of 24 MB a batch at 1024^2 are past the upload ring's).
             gpu.fill_zero(&splats)?;
@@ -1267,7 +1300,7 @@ fn light_paths(
                 sums
             }));
             first = last;
-            progress(sample_end as u64);
+            progress((sample_end - c.first_sample) as u64);
         }
         Ok(match folding {
             Some(f) => f.join().expect("a batch fold does not panic"),
@@ -1299,8 +1332,14 @@ fn light_paths(
             ls[0]
         ));
     }
-    let part =
-        Part { image, variance, warnings, device_bytes: splats.size() + state.size() + stats.size() + lstats.size() };
+    let part = Part {
+        image,
+        variance,
+        name: "light",
+        units: batches as u64,
+        warnings,
+        device_bytes: splats.size() + state.size() + stats.size() + lstats.size(),
+    };
     Ok((
         part,
         LightStats {

@@ -232,7 +232,7 @@ impl Solver for ShSingle {
         let mut report = RenderReport::finish(gpu, self, &k, modelled, bytes, stats);
         report.warnings.extend(trust_warnings);
         report.warnings.extend(warning);
-        Ok(RenderOutput { image, variance: None, report })
+        Ok(RenderOutput { image, variance: None, report, estimates: Vec::new() })
     }
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {

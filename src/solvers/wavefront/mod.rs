@@ -134,7 +134,7 @@ impl Solver for Wavefront {
         report.warnings.extend(trust.warnings());
         report.warnings.extend(view_trust.warning(self.name()));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
-        Ok(RenderOutput { image: res.image, variance: None, report })
+        Ok(RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() })
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {

@@ -1,0 +1,334 @@
+//! Sample ranges and `scatterlab merge`: renders of disjoint ranges of sample indices merged
+//! equal the render of their union (mean to float summation order, and the variance layer that
+//! render computes, by Chan et al.'s pooled sums of squared deviations, not an average of
+//! variances); a merge that would mix renders of different scenes, knobs or overlapping ranges
+//! is refused with one line and writes nothing. Every render runs with `--validate`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use scatterlab::output::{read_exr_layer, read_exr_metadata, Image};
+
+const BIN: &str = env!("CARGO_BIN_EXE_scatterlab");
+
+fn repo(rel: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel).display().to_string()
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(BIN).args(args).output().expect("the scatterlab binary runs")
+}
+
+fn ok(args: &[&str]) -> Output {
+    let out = run(args);
+    assert!(out.status.success(), "scatterlab {} failed:\n{}", args.join(" "), String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// `render SCENE --samples RANGE` at `size`^2 with `extra`, to `out`.
+fn render(scene: &str, range: &str, size: u32, extra: &[&str], out: &Path) {
+    let (w, h) = (format!("render.width={size}"), format!("render.height={size}"));
+    let mut args = vec!["render", scene, "--validate", "-q", "--samples", range, "--set", &w, "--set", &h];
+    args.extend_from_slice(extra);
+    let o = out.to_str().unwrap();
+    args.extend_from_slice(&["--out", o]);
+    ok(&args);
+}
+
+/// The one line of a refused command, which must exit 1 (not 2: a clap usage error; not 101: a
+/// panic) and leave `dir` as it was.
+fn refused(args: &[&str], dir: &Path) -> String {
+    let before = listing(dir);
+    let out = run(args);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "scatterlab {} exit {:?}: {err}", args.join(" "), out.status.code());
+    assert_eq!(err.trim().lines().count(), 1, "not one line: {err}");
+    assert!(err.starts_with("error: ") && !err.contains("panicked"), "{err}");
+    assert_eq!(listing(dir), before, "a refused merge left files behind: {err}");
+    err
+}
+
+fn listing(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
+    v.sort();
+    v
+}
+
+/// The worst per-value relative difference of `a` from `b`, where b's value is above `floor`
+/// (and the worst absolute difference below it).
+fn worst_relative(a: &Image, b: &Image, floor: f32) -> (f64, f64) {
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    let (mut rel, mut abs) = (0f64, 0f64);
+    for (x, y) in a.data.iter().zip(&b.data) {
+        let d = (x - y).abs() as f64;
+        if y.abs() > floor {
+            rel = rel.max(d / y.abs() as f64);
+        } else {
+            abs = abs.max(d);
+        }
+    }
+    (rel, abs)
+}
+
+/// How far the merged variance of the mean `vm` is from the union render's `vu` (means `mean`,
+/// `n` samples): the worst relative difference over values where it exceeds 1e-5, measured in
+/// units of the precision the union's own estimate has. That render forms the sample variance
+/// from f32 sums of L and L^2 over its n samples (glsl/path/trace.comp, add_samples):
+/// (S2 - n m^2) / (n - 1) loses about 2^-24 sqrt(n) (s^2 + m^2) n / (n - 1) to the rounding of
+/// its sums (a random walk of n roundings, each of half an ulp of values near s^2 + m^2), so
+/// where s^2 << m^2 (a pixel whose samples nearly agree) the union's variance has fewer
+/// digits than 1e-5, and the merge (f64 over shorter sums) can only agree with it that far.
+/// Returns (worst relative difference, worst difference / (8 x that precision)).
+fn variance_agreement(vm: &Image, vu: &Image, mean: &Image, n: f64) -> (f64, f64) {
+    let peak = vu.data.iter().cloned().fold(0f32, f32::max) as f64;
+    assert!(peak > 0.0, "the variance layer is all zero: nothing tested");
+    let (mut worst, mut precision) = (0f64, 0f64);
+    for ((a, b), m) in vm.data.iter().zip(&vu.data).zip(&mean.data) {
+        let (a, b, m) = (*a as f64, *b as f64, *m as f64);
+        let d = (a - b).abs();
+        let rel = if b > 1e-6 * peak { d / b } else { d / (1e-6 * peak) };
+        worst = worst.max(rel);
+        if rel > 1e-5 {
+            let s2 = b * n; // the sample variance
+            let own = 2f64.powi(-24) * n.sqrt() * (s2 + m * m) * n / (n - 1.0) / n;
+            precision = precision.max(d / (8.0 * own));
+        }
+    }
+    (worst, precision)
+}
+
+fn header(p: &Path, key: &str) -> Option<String> {
+    read_exr_metadata(p).unwrap().into_iter().find(|(k, _)| k == &format!("scatterlab.{key}")).map(|(_, v)| v)
+}
+
+/// Four ranges of `scene` merged against one render of their union: the mean within 1e-6 per
+/// value and the variance layer within 1e-5 (relative, where the value is above 1e-6 of the
+/// image's largest; the rest within that floor absolutely), and the same provenance.
+fn four_ranges_merge_exactly(scene: &str, size: u32, ranges: [&str; 4], union: &str, extra: &[&str], tmp: &Path) {
+    let parts: Vec<PathBuf> = (0..4).map(|i| tmp.join(format!("part{i}.exr"))).collect();
+    for (r, p) in ranges.iter().zip(&parts) {
+        render(scene, r, size, extra, p);
+    }
+    let all = tmp.join("all.exr");
+    render(scene, union, size, extra, &all);
+    let merged = tmp.join("merged.exr");
+    // Given out of order: the merge sorts by range.
+    let mut args = vec!["merge", "-q", merged.to_str().unwrap()];
+    args.extend(parts.iter().rev().map(|p| p.to_str().unwrap()));
+    ok(&args);
+    let spp: f32 = {
+        let (a, b) = union.split_once("..").unwrap();
+        (b.parse::<u32>().unwrap() - a.parse::<u32>().unwrap()) as f32
+    };
+    let (m, u) = (read_exr_layer(&merged, "").unwrap(), read_exr_layer(&all, "").unwrap());
+    let peak = u.data.iter().cloned().fold(0f32, f32::max);
+    assert!(peak > 0.0, "{scene}: the image is all zero: nothing tested");
+    let (rel, abs) = worst_relative(&m, &u, 1e-6 * peak);
+    eprintln!("{scene} mean: worst relative {rel:.2e}, below the floor {abs:.2e}");
+    assert!(rel <= 1e-6 && abs <= 1e-6 * peak as f64, "{scene} mean: worst relative {rel:.3e}, abs {abs:.3e}");
+    let (vm, vu) = (read_exr_layer(&merged, "variance").unwrap(), read_exr_layer(&all, "variance").unwrap());
+    let (worst, precision) = variance_agreement(&vm, &vu, &u, spp as f64);
+    eprintln!(
+        "{scene} variance: worst relative {worst:.2e}; worst in units of the union's own f32 precision {precision:.2}"
+    );
+    assert!(worst <= 1e-5 || precision <= 1.0, "{scene} variance: {worst:.3e} relative, {precision:.2} x precision");
+    let n = read_exr_layer(&merged, "samples").unwrap();
+    assert!(n.data.iter().all(|&c| c == spp), "sample count layer is not {spp}");
+    assert_eq!(header(&merged, "samples").as_deref(), Some(union));
+    assert_eq!(header(&merged, "spp"), header(&all, "spp"));
+    assert_eq!(header(&merged, "estimators"), header(&all, "estimators"));
+    assert_eq!(header(&merged, "scene_hash"), header(&all, "scene_hash"));
+    let reproduce = header(&merged, "reproduce").unwrap();
+    assert!(reproduce.contains(&format!("--samples {union}")), "{reproduce}");
+    let listed = header(&merged, "merged").unwrap();
+    assert_eq!(listed.lines().count(), 4, "{listed}");
+}
+
+#[test]
+fn four_sample_ranges_merge_into_the_render_of_their_union_on_the_sphere_and_the_cloud() {
+    let tmp = tempfile::tempdir().unwrap();
+    four_ranges_merge_exactly(
+        &repo("scenes/homogeneous-sphere.toml"),
+        24,
+        ["0..16", "16..32", "32..40", "40..64"],
+        "0..64",
+        &[],
+        tmp.path(),
+    );
+    // The cloud, from a range not starting at 0 (samples 8..40 of a render of 0..40).
+    four_ranges_merge_exactly(
+        &repo("scenes/cloud.toml"),
+        20,
+        ["8..16", "16..24", "24..32", "32..40"],
+        "8..40",
+        &["--set", "path.max_depth=8"],
+        tmp.path(),
+    );
+}
+
+/// Camera paths for the sun and sky, light paths (in batches) for the lightning's core light:
+/// each estimator merges on its own, and with batches of one size the union render with as
+/// many batches has the same batches: the same image and variance.
+#[test]
+fn camera_and_light_paths_merge_each_by_its_own_units() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = repo("scenes/lightning-at-dusk.toml");
+    let parts: Vec<PathBuf> = (0..4).map(|i| tmp.path().join(format!("p{i}.exr"))).collect();
+    for (i, p) in parts.iter().enumerate() {
+        let r = format!("{}..{}", 8 * i, 8 * (i + 1));
+        render(&scene, &r, 16, &["--set", "path.light_batches=2"], p);
+    }
+    assert_eq!(header(&parts[0], "estimators").as_deref(), Some("camera:8 light:2"), "the scene is not mixed");
+    let all = tmp.path().join("all.exr");
+    render(&scene, "0..32", 16, &["--set", "path.light_batches=8"], &all);
+    let merged = tmp.path().join("merged.exr");
+    let mut args = vec!["merge", "-q", merged.to_str().unwrap()];
+    args.extend(parts.iter().map(|p| p.to_str().unwrap()));
+    ok(&args);
+    for (layer, limit) in [("", 1e-6), ("variance", 1e-5), ("camera", 1e-6), ("light", 1e-6), ("light_variance", 1e-5)]
+    {
+        let (m, u) = (read_exr_layer(&merged, layer).unwrap(), read_exr_layer(&all, layer).unwrap());
+        let peak = u.data.iter().cloned().fold(0f32, f32::max);
+        assert!(peak > 0.0, "layer {layer:?} is all zero");
+        let (rel, abs) = worst_relative(&m, &u, 1e-6 * peak);
+        eprintln!("lightning {layer:?}: worst relative {rel:.2e}, abs below floor {abs:.2e}");
+        assert!(rel <= limit && abs <= 1e-6 * peak as f64, "layer {layer:?}: {rel:.3e} / {abs:.3e}");
+    }
+    let reproduce = header(&merged, "reproduce").unwrap();
+    assert!(reproduce.contains("--set path.light_batches=8"), "{reproduce}");
+    assert_eq!(header(&merged, "estimators").as_deref(), Some("camera:32 light:8"));
+}
+
+#[test]
+fn a_merge_of_one_render_is_that_render() {
+    let tmp = tempfile::tempdir().unwrap();
+    let one = tmp.path().join("one.exr");
+    render(&repo("scenes/homogeneous-sphere.toml"), "4..12", 16, &[], &one);
+    let merged = tmp.path().join("merged.exr");
+    ok(&["merge", "-q", merged.to_str().unwrap(), one.to_str().unwrap()]);
+    for layer in ["", "variance", "samples"] {
+        let (a, b) = (read_exr_layer(&merged, layer).unwrap(), read_exr_layer(&one, layer).unwrap());
+        assert_eq!(a.data, b.data, "layer {layer:?} changed");
+    }
+    assert_eq!(header(&merged, "samples").as_deref(), Some("4..12"));
+}
+
+#[test]
+fn merges_that_would_mix_renders_are_refused_with_one_line_and_write_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let sphere = repo("scenes/homogeneous-sphere.toml");
+    let p = |n: &str| d.join(n).display().to_string();
+    render(&sphere, "0..4", 8, &[], &d.join("a.exr"));
+    render(&sphere, "4..8", 8, &[], &d.join("b.exr"));
+    render(&sphere, "2..6", 8, &[], &d.join("overlap.exr"));
+    render(&sphere, "8..12", 8, &["--set", "path.max_depth=2"], &d.join("knob.exr"));
+    render(&sphere, "8..12", 8, &["--set", "medium.albedo=0.5"], &d.join("albedo.exr"));
+    render(&repo("scenes/thick-slab.toml"), "8..12", 8, &[], &d.join("other.exr"));
+    render(&sphere, "8..12", 8, &["--seed", "9"], &d.join("seed.exr"));
+    let out = d.join("single.exr");
+    ok(&[
+        "render",
+        &sphere,
+        "--validate",
+        "-q",
+        "--solver",
+        "single",
+        "--set",
+        "render.width=8",
+        "--set",
+        "render.height=8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    // A truncated copy of a good render.
+    let bytes = std::fs::read(d.join("b.exr")).unwrap();
+    std::fs::write(d.join("truncated.exr"), &bytes[..bytes.len() / 2]).unwrap();
+    let m = p("m.exr");
+    let cases: [(&str, &str, &[&str]); 8] = [
+        ("overlap", "overlap in samples 2..4", &["a.exr", "overlap.exr"]),
+        ("knobs", "differ in overrides", &["a.exr", "knob.exr"]),
+        ("scene override", "differ in overrides", &["a.exr", "albedo.exr"]),
+        ("scene hash", "differ in scene_hash", &["a.exr", "other.exr"]),
+        ("seed", "differ in seed", &["a.exr", "seed.exr"]),
+        ("no samples", "without samples", &["a.exr", "single.exr"]),
+        ("truncated", "truncated.exr", &["a.exr", "truncated.exr"]),
+        ("missing", "no such file", &["a.exr", "missing.exr"]),
+    ];
+    for (what, needle, inputs) in cases {
+        let files: Vec<String> = inputs.iter().map(|i| p(i)).collect();
+        let mut args = vec!["merge", m.as_str()];
+        args.extend(files.iter().map(String::as_str));
+        let err = refused(&args, d);
+        assert!(err.contains(needle), "{what}: {err}");
+        // Names both files where two disagree.
+        if !["truncated", "missing", "no samples"].contains(&what) {
+            assert!(err.contains(&files[0]) && err.contains(&files[1]), "{what} does not name both files: {err}");
+        }
+    }
+    // The output may not be an input.
+    let err = refused(&["merge", &p("a.exr"), &p("a.exr"), &p("b.exr")], d);
+    assert!(err.contains("also an input"), "{err}");
+    // And the good pair merges.
+    ok(&["merge", "-q", &m, &p("a.exr"), &p("b.exr")]);
+}
+
+#[test]
+fn sample_ranges_are_checked_and_recorded() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let sphere = repo("scenes/homogeneous-sphere.toml");
+    let out = d.join("x.exr").display().to_string();
+    let base = ["render", sphere.as_str(), "--validate", "-q", "--set", "render.width=8", "--set", "render.height=8"];
+    for (range, needle) in
+        [("5..5", "is empty"), ("9..3", "is empty"), ("a..4", "not an integer"), ("4", "not a range")]
+    {
+        let args = [&base[..], &["--samples", range, "--out", &out]].concat();
+        let err = refused(&args, d);
+        assert!(err.contains("--samples") && err.contains(needle), "{range}: {err}");
+    }
+    let args = [&base[..], &["--solver", "single", "--samples", "0..4", "--out", &out]].concat();
+    assert!(refused(&args, d).contains("solvers that sample pixels"));
+    // 2^32 - 1 is the last index: a range past it is the scene key's error.
+    let args = [&base[..], &["--samples", "4294967290..4294967295", "--out", &out]].concat();
+    ok(&args);
+    assert_eq!(header(Path::new(&out), "samples").as_deref(), Some("4294967290..4294967295"));
+    assert_eq!(header(Path::new(&out), "spp").as_deref(), Some("5"));
+    let args = [&base[..], &["--set", "render.first_sample=4294967295", "--out", &out]].concat();
+    std::fs::remove_file(&out).unwrap();
+    assert!(refused(&args, d).contains("render.first_sample"));
+    // --spp and --samples are one thing said twice.
+    let conflict = run(&[&base[..], &["--spp", "4", "--samples", "0..4", "--out", &out]].concat());
+    assert_eq!(conflict.status.code(), Some(2), "clap refuses the pair");
+}
+
+/// The samples of a range are those of the union render: 0..8 as two ranges equals 0..8 in
+/// one render, and a range from A differs from one from 0 (different samples).
+#[test]
+fn a_range_renders_its_own_sample_indices() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sphere = repo("scenes/homogeneous-sphere.toml");
+    let (a, b) = (tmp.path().join("a.exr"), tmp.path().join("b.exr"));
+    render(&sphere, "0..8", 12, &[], &a);
+    render(&sphere, "8..16", 12, &[], &b);
+    let (ia, ib) = (read_exr_layer(&a, "").unwrap(), read_exr_layer(&b, "").unwrap());
+    assert_ne!(ia.data, ib.data, "ranges 0..8 and 8..16 gave the same image: the range is ignored");
+    // --spp 8 is --samples 0..8, bit for bit.
+    let c = tmp.path().join("c.exr");
+    ok(&[
+        "render",
+        &sphere,
+        "--validate",
+        "-q",
+        "--spp",
+        "8",
+        "--set",
+        "render.width=12",
+        "--set",
+        "render.height=12",
+        "--out",
+        c.to_str().unwrap(),
+    ]);
+    assert_eq!(read_exr_layer(&c, "").unwrap().data, ia.data);
+    assert_eq!(header(&c, "samples").as_deref(), Some("0..8"));
+}
