@@ -16,7 +16,7 @@ fn sets(pairs: &[(&str, &str)]) -> Settings {
 
 fn run(solver: &dyn Solver, scene: &scatterlab::scene::Scene, knobs: &[(&str, &str)], frames: u32) -> Vec<FrameRow> {
     let gpu = gpu();
-    let o = Orbit { frames, step_deg: 10.0, reference: true };
+    let o = Orbit { first: 0, frames, step_deg: 10.0, reference: true };
     let rows = animate::run(&gpu, solver, scene, &sets(knobs), &o, &|_| {}, &mut |_, _, _| Ok(())).expect("sequence");
     assert_clean(&gpu);
     rows
@@ -170,7 +170,7 @@ fn sequence_frame(
     deg: f64,
     frames: u32,
 ) -> scatterlab::output::Image {
-    let o = Orbit { frames, step_deg: deg, reference: false };
+    let o = Orbit { first: 0, frames, step_deg: deg, reference: false };
     let mut last = None;
     animate::run(gpu, LBL, scene, &sets(knobs), &o, &|_| {}, &mut |img, _, _| {
         last = Some(img.clone());

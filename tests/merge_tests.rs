@@ -332,3 +332,161 @@ fn a_range_renders_its_own_sample_indices() {
     assert_eq!(read_exr_layer(&c, "").unwrap().data, ia.data);
     assert_eq!(header(&c, "samples").as_deref(), Some("0..8"));
 }
+
+/// `--device uuid:` with the device's own UUID (from `scatterlab devices --json`) picks it; an
+/// unknown one is one line listing the devices with their UUIDs.
+#[test]
+fn a_device_is_chosen_by_its_uuid() {
+    let out = ok(&["devices", "--json"]);
+    let list: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let first = &list[0];
+    let (name, uuid) = (first["name"].as_str().unwrap(), first["uuid"].as_str().unwrap());
+    assert!(uuid.starts_with("GPU-") && uuid.len() == 40, "{uuid}");
+    let tmp = tempfile::tempdir().unwrap();
+    let img = tmp.path().join("x.exr");
+    let sphere = repo("scenes/homogeneous-sphere.toml");
+    for wanted in [format!("uuid:{uuid}"), format!("uuid:{}", &uuid[..12].to_uppercase())] {
+        let r = ok(&[
+            "render",
+            &sphere,
+            "--validate",
+            "--device",
+            &wanted,
+            "--spp",
+            "1",
+            "--set",
+            "render.width=4",
+            "--set",
+            "render.height=4",
+            "--out",
+            img.to_str().unwrap(),
+        ]);
+        assert!(
+            String::from_utf8_lossy(&r.stderr).contains(&format!("device: {name}")),
+            "{wanted} did not pick {name}"
+        );
+    }
+    let err = refused(
+        &["render", &sphere, "--device", "uuid:GPU-00000000-dead", "--spp", "1", "--out", img.to_str().unwrap()],
+        tmp.path(),
+    );
+    assert!(err.contains("uuid:GPU-00000000-dead") && err.contains(uuid), "{err}");
+}
+
+/// `--device auto`: SCATTERLAB_DEVICE first, then CUDA_VISIBLE_DEVICES, SLURM_STEP_GPUS and
+/// SLURM_JOB_GPUS (a UUID, or an index among the physical GPUs); a disagreement is named.
+#[test]
+fn auto_follows_the_environment_in_its_documented_order() {
+    use scatterlab::gpu::{auto_device, DeviceSummary};
+    let dev = |index: usize, kind: &str, uuid: &str| DeviceSummary {
+        index,
+        name: format!("device {index}"),
+        uuid: uuid.into(),
+        device_type: kind.into(),
+        api_version: "1.3.0".into(),
+        queue_families: Vec::new(),
+        mapping: None,
+        missing: Vec::new(),
+    };
+    let list = vec![
+        dev(0, "cpu", "GPU-00000000-0000-0000-0000-000000000000"),
+        dev(1, "discrete", "GPU-11111111-1111-1111-1111-111111111111"),
+        dev(2, "discrete", "GPU-22222222-2222-2222-2222-222222222222"),
+    ];
+    let with = |pairs: &'static [(&'static str, &'static str)]| {
+        move |k: &str| pairs.iter().find(|(key, _)| *key == k).map(|(_, v)| v.to_string())
+    };
+    assert_eq!(auto_device(&list, &with(&[])), (None, None));
+    assert_eq!(
+        auto_device(&list, &with(&[("SCATTERLAB_DEVICE", "2"), ("CUDA_VISIBLE_DEVICES", "0")])).0.as_deref(),
+        Some("2")
+    );
+    // Indices count GPUs, not the CPU driver: CUDA's 1 is the second discrete device.
+    assert_eq!(auto_device(&list, &with(&[("CUDA_VISIBLE_DEVICES", "1,0")])).0.as_deref(), Some("2"));
+    assert_eq!(
+        auto_device(&list, &with(&[("CUDA_VISIBLE_DEVICES", "GPU-22222222")])).0.as_deref(),
+        Some("uuid:GPU-22222222")
+    );
+    // Slurm's node-wide index past the GPUs a constrained task sees: its own first GPU.
+    assert_eq!(auto_device(&list, &with(&[("SLURM_STEP_GPUS", "5")])).0.as_deref(), Some("1"));
+    let (w, note) = auto_device(&list, &with(&[("CUDA_VISIBLE_DEVICES", "0"), ("SLURM_STEP_GPUS", "1")]));
+    assert_eq!(w.as_deref(), Some("1"));
+    let note = note.expect("the disagreement is named");
+    assert!(note.contains("CUDA_VISIBLE_DEVICES") && note.contains("SLURM_STEP_GPUS"), "{note}");
+    let (_, agree) = auto_device(&list, &with(&[("CUDA_VISIBLE_DEVICES", "0"), ("SLURM_STEP_GPUS", "0")]));
+    assert_eq!(agree, None);
+}
+
+/// `animate --frame-range`: each range's first frame starts cold, its rows go to
+/// frames-A-B.csv beside the others' in one directory, and `merge --csv` puts them in frame
+/// order, refusing a repeated or a missing frame.
+#[test]
+fn frame_ranges_render_their_own_frames_and_their_csvs_merge_in_order() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let scene = repo("scenes/cloud.toml");
+    let seq = d.join("seq");
+    let animate = |range: &str| {
+        ok(&[
+            "animate",
+            &scene,
+            "--solver",
+            "networks",
+            "--orbit-light",
+            "15",
+            "--frame-range",
+            range,
+            "--out-dir",
+            seq.to_str().unwrap(),
+            "--no-reference",
+            "--validate",
+            "--quiet",
+            "--set",
+            "render.width=12",
+            "--set",
+            "render.height=12",
+            "--set",
+            "networks.particles=128",
+            "--set",
+            "networks.directions=16",
+        ]);
+    };
+    animate("2..4");
+    animate("0..2");
+    for f in
+        ["frame-0000.exr", "frame-0001.exr", "frame-0002.exr", "frame-0003.exr", "frames-0-2.csv", "frames-2-4.csv"]
+    {
+        assert!(seq.join(f).is_file(), "{f} missing");
+    }
+    let csv = |n: &str| seq.join(n).display().to_string();
+    // Frame 2 of its range starts cold: iterations from zero, as frame 0's.
+    let rows = |n: &str| -> Vec<Vec<String>> {
+        std::fs::read_to_string(seq.join(n))
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(String::from).collect())
+            .collect()
+    };
+    let (a, b) = (rows("frames-0-2.csv"), rows("frames-2-4.csv"));
+    assert_eq!((a[0][0].as_str(), b[0][0].as_str()), ("0", "2"));
+    assert_eq!(b[0][1].parse::<f64>().unwrap(), 30.0, "frame 2 is the light at 2 x 15 degrees");
+    let merged = d.join("frames.csv");
+    ok(&["merge", "--csv", "-q", merged.to_str().unwrap(), &csv("frames-2-4.csv"), &csv("frames-0-2.csv")]);
+    let text = std::fs::read_to_string(&merged).unwrap();
+    let frames: Vec<&str> = text.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
+    assert_eq!(frames, ["0", "1", "2", "3"]);
+    assert!(text.starts_with("frame,"));
+    let out = d.join("m.csv").display().to_string();
+    let err = refused(&["merge", "--csv", &out, &csv("frames-0-2.csv"), &csv("frames-0-2.csv")], d);
+    assert!(err.contains("both hold frame 0"), "{err}");
+    std::fs::write(d.join("late.csv"), "frame,angle_deg\n7,105\n").unwrap();
+    let late = d.join("late.csv").display().to_string();
+    let err = refused(&["merge", "--csv", &out, &csv("frames-0-2.csv"), &late], d);
+    assert!(err.contains("differ in their columns"), "{err}");
+    let head = text.lines().next().unwrap();
+    let row = text.lines().nth(1).unwrap().replacen('0', "9", 1);
+    std::fs::write(d.join("gap.csv"), format!("{head}\n{row}\n")).unwrap();
+    let err = refused(&["merge", "--csv", &out, &csv("frames-0-2.csv"), &d.join("gap.csv").display().to_string()], d);
+    assert!(err.contains("gap: frame 2"), "{err}");
+}

@@ -18,6 +18,15 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     if !a.orbit_light.is_finite() {
         bail!("--orbit-light {}: degrees per frame must be a finite number", a.orbit_light);
     }
+    // Frames A..B of the sequence (default all of --frames): frame f is the light turned by f
+    // times --orbit-light, whichever range computes it.
+    let (first, frames) = match &a.frame_range {
+        Some(r) => {
+            let (x, y) = output::parse_range(r).map_err(|e| anyhow!("--frame-range {e}"))?;
+            (x, y - x)
+        }
+        None => (0, a.frames),
+    };
     let sets = parse_sets(&a.set)?;
     let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = sets.into_iter().partition(|(k, _)| is_scene_key(k));
     let settings = Settings::new(&knob_sets);
@@ -53,7 +62,7 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
         let info = gpu.info();
         eprintln!("device: {} ({}), queues: {}", info.name, info.device_type, info.mapping.describe());
     }
-    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(a.frames as u64) };
+    let bar = if a.quiet { ProgressBar::hidden() } else { ProgressBar::new(frames as u64) };
     bar.set_style(
         ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} frames ({elapsed}, eta {eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
@@ -70,7 +79,12 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
         }
     };
     let exposure = scene.render.exposure;
-    let csv_path = a.out_dir.join("frames.csv");
+    // A range's own frames-A-B.csv, so that the tasks of an array can share one directory
+    // (their frame-NNNN files are numbered in the whole sequence and do not collide).
+    let csv_path = match &a.frame_range {
+        Some(_) => a.out_dir.join(format!("frames-{first}-{}.csv", first + frames)),
+        None => a.out_dir.join("frames.csv"),
+    };
     // The files are written on a thread of their own while the next frame computes (a frame
     // of lbl at 1024^2 takes milliseconds of GPU; its EXR as long to write): two frames may
     // wait in the queue, then the sequence waits for the disk. frames.csv is rewritten after
@@ -116,7 +130,7 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
         }
         Ok(())
     };
-    let orbit = Orbit { frames: a.frames, step_deg: a.orbit_light, reference: !a.no_reference };
+    let orbit = Orbit { first, frames, step_deg: a.orbit_light, reference: !a.no_reference };
     let result = animate::run_sequences(&gpu, seq, reference, &scene, &orbit, &progress, &mut on_frame);
     drop(tx);
     let written = writer.join().map_err(|_| anyhow!("the frame writer panicked"))?;

@@ -177,6 +177,7 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
     for d in &list {
         let mark = if Some(d.index) == chosen { "  <- scatterlab would use this one" } else { "" };
         outln!("[{}] {} ({}, Vulkan {}){mark}", d.index, d.name, d.device_type, d.api_version);
+        outln!("    uuid: {} (--device uuid:{})", d.uuid, d.uuid);
         for f in &d.queue_families {
             let mut caps = Vec::new();
             if f.graphics {

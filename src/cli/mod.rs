@@ -38,7 +38,9 @@ pub struct Cli {
 
 #[derive(Args, Debug, Clone)]
 pub struct GpuArgs {
-    /// Device index or name substring (see `scatterlab devices`); env SCATTERLAB_DEVICE.
+    /// Device index, name substring, `uuid:GPU-...` (a unique prefix will do) or `auto`
+    /// (SCATTERLAB_DEVICE, else the GPU in CUDA_VISIBLE_DEVICES, SLURM_STEP_GPUS or
+    /// SLURM_JOB_GPUS: docs/cluster.md); see `scatterlab devices`; env SCATTERLAB_DEVICE.
     #[arg(long, global = true)]
     pub device: Option<String>,
     /// Enable the Khronos validation layer (synchronization validation included); env SCATTERLAB_VALIDATE=1.
@@ -110,6 +112,11 @@ pub struct AnimateArgs {
     /// Frames (the first iterates from zero to the solver's tolerance).
     #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub frames: u32,
+    /// Render frames A to B - 1 of the sequence only (for a job array: one range per task); the
+    /// range's first frame iterates from zero, as frame 0 does. Its frames.csv holds its rows;
+    /// `scatterlab merge --csv` concatenates the ranges' files.
+    #[arg(long, value_name = "A..B", conflicts_with = "frames")]
+    pub frame_range: Option<String>,
     /// Directory for frame-NNNN.exr and frames.csv (created if missing).
     #[arg(long)]
     pub out_dir: PathBuf,

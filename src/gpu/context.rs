@@ -292,6 +292,9 @@ fn type_name(t: vk::PhysicalDeviceType) -> &'static str {
 pub struct DeviceSummary {
     pub index: usize,
     pub name: String,
+    /// VkPhysicalDeviceIDProperties::deviceUUID as `GPU-xxxxxxxx-xxxx-xxxx-xxxx-xxxxxxxxxxxx`,
+    /// the form nvidia-smi and CUDA_VISIBLE_DEVICES give NVIDIA GPUs (`--device uuid:...`).
+    pub uuid: String,
     pub device_type: String,
     pub api_version: String,
     pub queue_families: Vec<FamilyInfo>,
@@ -579,6 +582,10 @@ fn candidates(instance: &ash::Instance) -> Result<Vec<Candidate>> {
         .enumerate()
         .map(|(index, pd)| {
             let props = unsafe { instance.get_physical_device_properties(pd) };
+            let mut id = vk::PhysicalDeviceIDProperties::default();
+            let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut id);
+            unsafe { instance.get_physical_device_properties2(pd, &mut p2) };
+            let uuid = format_uuid(&id.device_uuid);
             let queue_families = families_of(instance, pd);
             let mapping = map_roles(&queue_families);
             let mut missing = missing_features(instance, pd, &props);
@@ -588,6 +595,7 @@ fn candidates(instance: &ash::Instance) -> Result<Vec<Candidate>> {
             let summary = DeviceSummary {
                 index,
                 name: cstr_array(&props.device_name),
+                uuid,
                 device_type: type_name(props.device_type).into(),
                 api_version: version_string(props.api_version),
                 queue_families,
@@ -619,23 +627,95 @@ fn type_rank_name(t: &str) -> u32 {
     }
 }
 
-/// The index of the device `Gpu::new` opens for `wanted` (an index or a case-insensitive name
-/// substring; `None`: the first with everything needed, discrete > integrated > virtual > CPU).
-/// Errors when nothing matches or the match lacks a required feature.
+/// `GPU-` and the 16 bytes in the 8-4-4-4-12 grouping of a UUID, lower-case hex.
+fn format_uuid(b: &[u8; 16]) -> String {
+    let hex: String = b.iter().map(|x| format!("{x:02x}")).collect();
+    format!("GPU-{}-{}-{}-{}-{}", &hex[0..8], &hex[8..12], &hex[12..16], &hex[16..20], &hex[20..32])
+}
+
+/// A UUID as given (`GPU-...` or bare hex, any case, dashes anywhere) in canonical hex digits.
+fn uuid_digits(u: &str) -> String {
+    let u = u.trim();
+    let u = u.strip_prefix("GPU-").or_else(|| u.strip_prefix("gpu-")).unwrap_or(u);
+    u.chars().filter(|c| *c != '-').flat_map(char::to_lowercase).collect()
+}
+
+/// What `--device auto` resolves to, from the environment `env` (a lookup, so tests can give
+/// one): `SCATTERLAB_DEVICE` where set (and not `auto`); else the first GPU in
+/// `CUDA_VISIBLE_DEVICES`, then in `SLURM_STEP_GPUS` (then `SLURM_JOB_GPUS`), where Slurm
+/// or a user put the task's GPUs: a UUID (`GPU-...`) is matched as `uuid:`; an index counts the
+/// physical GPUs (not CPU drivers) in the order Vulkan lists them, and where the index is past
+/// them (Slurm's device cgroup shows a task only its own GPUs, whose node-wide numbers it
+/// keeps) the task's own first GPU is taken. `None`: nothing set, the default choice.
+/// Where two of them are set and name different GPUs, the first in that order wins and the
+/// second is named in the returned note.
+pub fn auto_device(list: &[DeviceSummary], env: &dyn Fn(&str) -> Option<String>) -> (Option<String>, Option<String>) {
+    let get = |k: &str| env(k).map(|v| v.trim().to_string()).filter(|v| !v.is_empty());
+    if let Some(d) = get(ENV_DEVICE).filter(|d| d != "auto") {
+        return (Some(d), None);
+    }
+    let gpus: Vec<&DeviceSummary> = list.iter().filter(|d| d.device_type != "cpu").collect();
+    let resolve = |var: &str| -> Option<(String, String)> {
+        let value = get(var)?;
+        let first = value.split(',').next()?.trim().to_string();
+        if first.starts_with("GPU-") || first.starts_with("MIG-") {
+            return Some((var.to_string(), format!("uuid:{first}")));
+        }
+        let i: usize = first.parse().ok()?;
+        let d = gpus.get(i).or(gpus.first())?;
+        Some((var.to_string(), d.index.to_string()))
+    };
+    let found: Vec<(String, String)> =
+        ["CUDA_VISIBLE_DEVICES", "SLURM_STEP_GPUS", "SLURM_JOB_GPUS"].iter().filter_map(|v| resolve(v)).collect();
+    let Some((var, wanted)) = found.first().cloned() else { return (None, None) };
+    let same = |a: &str, b: &str| choose_device(list, Some(a)).ok() == choose_device(list, Some(b)).ok();
+    let note =
+        found.iter().skip(1).find(|(_, w)| !same(w, &wanted)).map(|(other, w)| {
+            format!("--device auto: {var} names device {wanted} and {other} names {w}; using {var}'s")
+        });
+    (Some(wanted), note)
+}
+
+/// The index of the device `Gpu::new` opens for `wanted` (an index, `uuid:GPU-...` (a unique
+/// prefix will do, as CUDA_VISIBLE_DEVICES takes), `auto` (the environment's choice:
+/// [`auto_device`]) or a case-insensitive name substring; `None`: the first with everything
+/// needed, discrete > integrated > virtual > CPU). Errors when nothing matches or the match
+/// lacks a required feature.
 pub fn choose_device(list: &[DeviceSummary], wanted: Option<&str>) -> Result<Option<usize>> {
     if list.is_empty() {
         return Err(GpuError::NoDevice);
     }
+    if wanted == Some("auto") {
+        let (resolved, note) = auto_device(list, &|k| std::env::var(k).ok());
+        if let Some(n) = note {
+            eprintln!("warning: {n}");
+        }
+        return choose_device(list, resolved.as_deref());
+    }
+    let available =
+        || list.iter().map(|c| format!("{}: {} ({})", c.index, c.name, c.uuid)).collect::<Vec<_>>().join(", ");
     let chosen = match wanted {
+        Some(w) if w.to_ascii_lowercase().starts_with("uuid:") => {
+            let digits = uuid_digits(&w[5..]);
+            let hits: Vec<&DeviceSummary> =
+                list.iter().filter(|c| !digits.is_empty() && uuid_digits(&c.uuid).starts_with(&digits)).collect();
+            match hits.as_slice() {
+                [one] => *one,
+                [] => return Err(GpuError::DeviceNotFound { wanted: w.to_string(), available: available() }),
+                _ => {
+                    return Err(GpuError::DeviceNotFound {
+                        wanted: format!("{w} (a prefix of {} devices' UUIDs: give more digits)", hits.len()),
+                        available: available(),
+                    })
+                }
+            }
+        }
         Some(w) => {
             let by_index = w.parse::<usize>().ok();
             let lw = w.to_lowercase();
-            list.iter().find(|c| Some(c.index) == by_index || c.name.to_lowercase().contains(&lw)).ok_or_else(|| {
-                GpuError::DeviceNotFound {
-                    wanted: w.to_string(),
-                    available: list.iter().map(|c| format!("{}: {}", c.index, c.name)).collect::<Vec<_>>().join(", "),
-                }
-            })?
+            list.iter()
+                .find(|c| Some(c.index) == by_index || c.name.to_lowercase().contains(&lw))
+                .ok_or_else(|| GpuError::DeviceNotFound { wanted: w.to_string(), available: available() })?
         }
         None => list
             .iter()

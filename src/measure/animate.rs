@@ -48,6 +48,9 @@ pub struct FrameRow {
 
 /// What a sequence asks for.
 pub struct Orbit {
+    /// The first frame's number (`animate --frame-range A..B`: A); it starts cold, as frame 0
+    /// does, so a range computes its own frames without the ones before it.
+    pub first: u32,
     pub frames: u32,
     /// Degrees per frame.
     pub step_deg: f64,
@@ -122,7 +125,7 @@ pub fn run_sequences(
     on_frame: &mut dyn FnMut(&Image, &RenderOutput, &FrameRow) -> Result<(), String>,
 ) -> Result<Vec<FrameRow>, String> {
     let mut rows = Vec::with_capacity(o.frames as usize);
-    for f in 0..o.frames {
+    for f in o.first..o.first + o.frames {
         let angle = f as f64 * o.step_deg;
         let s = orbit(scene, angle)?;
         let t = Instant::now();
