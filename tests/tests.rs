@@ -38,6 +38,7 @@ mod sh_tests;
 mod shape_tests;
 mod single_refraction_tests;
 mod slab_reference;
+mod slurm_tests;
 mod solvers;
 mod specialize_tests;
 mod stability_tests;
