@@ -76,10 +76,23 @@ fn sbatch(c: &Cluster, args: &[&str]) -> String {
 fn wait_idle(c: &Cluster, limit: Duration) {
     let t0 = Instant::now();
     loop {
-        let out = c.client("squeue").args(["--noheader", "--format=%i %T"]).output().unwrap();
+        let out = c.client("squeue").args(["--noheader", "--format=%i %T %r"]).output().unwrap();
         assert!(out.status.success(), "squeue: {}\n{}", String::from_utf8_lossy(&out.stderr), c.logs());
-        if String::from_utf8_lossy(&out.stdout).trim().is_empty() {
+        let queue = String::from_utf8_lossy(&out.stdout).to_string();
+        if queue.trim().is_empty() {
             return;
+        }
+        // A pass failed: the merge's afterok can never be met. Say so now, not at the limit.
+        if queue.contains("DependencyNeverSatisfied") {
+            let tasks: String = std::fs::read_dir(c.dir.parent().unwrap())
+                .unwrap()
+                .flatten()
+                .filter(|e| e.path().extension().is_some_and(|x| x == "log"))
+                .map(|e| {
+                    format!("--- {}\n{}", e.path().display(), std::fs::read_to_string(e.path()).unwrap_or_default())
+                })
+                .collect();
+            panic!("a pass failed, so the merge can never run:\n{queue}\n{tasks}\n{}", c.logs());
         }
         assert!(
             t0.elapsed() < limit,
