@@ -47,10 +47,7 @@ pub fn merge(a: MergeArgs) -> Result<()> {
     let mut merged: Vec<Merged> = estimators.iter().map(|_| Merged::new(len)).collect();
     for &i in &order {
         let input = &inputs[i];
-        let names: Vec<(String, String)> = estimators
-            .iter()
-            .map(|e| if several { (e.clone(), format!("{e}_variance")) } else { (String::new(), "variance".into()) })
-            .collect();
+        let names: Vec<(String, String)> = estimators.iter().map(|e| estimator_layers(e, several)).collect();
         let wanted: Vec<&str> = names.iter().flat_map(|(m, v)| [m.as_str(), v.as_str()]).collect();
         let layers = output::read_exr_layers(&input.path, &wanted).map_err(|e| anyhow!("{e}; nothing written"))?;
         for (e, pair) in layers.chunks_exact(2).enumerate() {
@@ -90,7 +87,7 @@ pub fn merge(a: MergeArgs) -> Result<()> {
 
     let header = merged_header(&inputs, &order, &merged)?;
     let mut layers: Vec<(&str, &Image)> = vec![("", &image), ("variance", &variance), ("samples", &count)];
-    let layer_names: Vec<(String, String)> = estimators.iter().map(|e| (e.clone(), format!("{e}_variance"))).collect();
+    let layer_names: Vec<(String, String)> = estimators.iter().map(|e| estimator_layers(e, true)).collect();
     if several {
         for ((m, v), (mn, vn)) in finished.iter().zip(&layer_names) {
             layers.push((mn, m));
@@ -110,6 +107,17 @@ pub fn merge(a: MergeArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The EXR layers (mean, variance of the mean) that hold estimator `name`: its own pair where
+/// the image has `several` estimators, else the image's main layer and `variance`. One naming
+/// for `render --out` and the merge.
+pub(super) fn estimator_layers(name: &str, several: bool) -> (String, String) {
+    if several {
+        (name.to_string(), format!("{name}_variance"))
+    } else {
+        (String::new(), "variance".into())
+    }
 }
 
 /// One input: its file and the provenance read from its header.

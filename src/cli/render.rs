@@ -315,7 +315,7 @@ fn write_outputs(
         c
     });
     let estimate_names: Vec<(String, String)> =
-        out.estimates.iter().map(|e| (e.name.to_string(), format!("{}_variance", e.name))).collect();
+        out.estimates.iter().map(|e| super::merge::estimator_layers(e.name, true)).collect();
     let mut staging = Staging::new();
     if let Some(p) = &a.out {
         match ImageFormat::of(p) {
