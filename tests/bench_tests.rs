@@ -259,6 +259,18 @@ fn bench_and_stability_commands_end_to_end() {
     let (ok, _, stderr) = run(&["bench", "--replot", out.to_str().unwrap()]);
     assert!(ok, "replot failed: {stderr}");
     assert_eq!(std::fs::read_to_string(out.join("tiny.svg")).unwrap(), svg, "the replot differs");
+    // Several runs combine into --out only, never over one of them; each refusal is one line.
+    let o = out.to_str().unwrap();
+    let elsewhere = dir.path().join("elsewhere");
+    for (args, needle) in [
+        (vec!["bench", "--replot", o, o], "--out"),
+        (vec!["bench", "--replot", o, o, "--out", o], "one of the runs combined"),
+        (vec!["bench", "--replot", o, o, "--out", elsewhere.to_str().unwrap()], "both hold scene tiny"),
+    ] {
+        let (ok, _, stderr) = run(&args);
+        assert!(!ok && stderr.lines().count() == 1 && stderr.contains(needle), "{args:?}: {stderr}");
+    }
+    assert!(!elsewhere.exists(), "a refused combination wrote {}", elsewhere.display());
     // A second run finds the reference in the cache.
     let (ok, _, stderr) = run(&args);
     assert!(ok, "{stderr}");
@@ -323,4 +335,56 @@ fn bench_and_stability_announce_the_steps_they_count() {
     assert_eq!(calls.get(), stability::steps(&[SINGLE], false).unwrap());
     assert!(calls.get() > 10, "{}", calls.get());
     assert_clean(&gpu);
+}
+
+/// `bench --replot DIR DIR...`'s combination: scenes' points, references and the rest
+/// concatenated in the order given; runs of another build, device, flags or reference spp, and
+/// a scene in two runs, each refused with the two documents and the field named.
+#[test]
+fn combined_runs_are_concatenated_and_mismatches_refused() {
+    use serde_json::{json, Value};
+    let point = |scene: &str, solver: &str, value: &str| {
+        json!({ "scene": scene, "solver": solver, "knob": "single.step", "value": value, "gpu_ms": 1.5,
+                "wall_ms": 2.0, "metrics": { "rel_l2": 0.1, "rel_mse": 0.01, "rmse": 0.02, "energy_ratio": 0.9,
+                "max_abs_error": 0.3, "nan_inf_count": 0, "pixels": 144 }, "iterations": null, "converged": null,
+                "device_bytes": 10, "pareto": true, "spp": null, "rel_l2_denoised": 0.1, "speedup": null })
+    };
+    let run = |scene: &str| {
+        json!({ "scatterlab": "0.1.0", "build": "abc", "device": { "name": "llvmpipe", "driver_name": "llvmpipe",
+                "driver_info": "Mesa" }, "repeats": 4, "quick": true, "rungs": { "Cheapest": 3 },
+                "references": [{ "scene": scene, "spp": 64, "noise": 0.01 }],
+                "ladders": [{ "solver": "single", "rungs": [] }],
+                "points": [point(scene, "single", "0.1"), point(scene, "single", "0.05")],
+                "throughput": [], "slim_vs_full": [{ "scene": scene }], "skipped": [] })
+    };
+    let docs = vec![("a/bench.json".to_string(), run("cloud")), ("b/bench.json".to_string(), run("sphere"))];
+    let c = bench::combine(&docs).expect("combine");
+    let scenes: Vec<&str> = c["points"].as_array().unwrap().iter().map(|p| p["scene"].as_str().unwrap()).collect();
+    assert_eq!(scenes, ["cloud", "cloud", "sphere", "sphere"]);
+    assert_eq!(c["references"].as_array().unwrap().len(), 2);
+    assert_eq!(c["slim_vs_full"].as_array().unwrap().len(), 2);
+    assert_eq!(c["ladders"].as_array().unwrap().len(), 1);
+    assert_eq!(c["combined_from"], json!(["a/bench.json", "b/bench.json"]));
+    assert_eq!(bench::points_of(&c).unwrap().len(), 4);
+    let plots = bench::replot(&c).unwrap();
+    assert_eq!(plots.iter().map(|p| p.0.as_str()).collect::<Vec<_>>(), ["cloud", "sphere"]);
+
+    let edit = |f: &dyn Fn(&mut Value)| {
+        let mut b = run("sphere");
+        f(&mut b);
+        bench::combine(&[("a/bench.json".into(), run("cloud")), ("b/bench.json".into(), b)]).unwrap_err()
+    };
+    for (e, field) in [
+        (edit(&|b| b["build"] = json!("def")), "build"),
+        (edit(&|b| b["device"]["name"] = json!("NVIDIA H100")), "device/name"),
+        (edit(&|b| b["device"]["driver_info"] = json!("Mesa 24")), "device/driver_info"),
+        (edit(&|b| b["repeats"] = json!(2)), "repeats"),
+        (edit(&|b| b["rungs"] = json!({ "Rungs": [1] })), "rungs"),
+        (edit(&|b| b["references"][0]["spp"] = json!(128)), "spp"),
+        (edit(&|b| b["points"][0]["scene"] = json!("cloud")), "scene cloud"),
+    ] {
+        assert!(e.contains("a/bench.json") && e.contains("b/bench.json") && e.contains(field), "{field}: {e}");
+        assert_eq!(e.lines().count(), 1, "{e}");
+    }
+    assert!(bench::combine(&[]).is_err());
 }

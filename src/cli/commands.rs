@@ -38,10 +38,13 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Export(a) => export(a),
         Command::Devices { gpu, json } => devices(&gpu, json),
         Command::Stability { solvers, slow, out, gpu } => stability(&solvers, slow, &out, &gpu),
-        Command::Bench { replot: Some(dir), .. } => replot(&dir),
+        Command::Bench { replot: dirs, out, .. } if !dirs.is_empty() => replot(&dirs, out.as_deref()),
         Command::Bench {
             scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache, gpu, ..
-        } => bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache }, &gpu),
+        } => {
+            let out = out.unwrap_or_else(|| PathBuf::from("bench"));
+            bench(&BenchArgs { scenes, solvers, out, ref_spp, repeats, quick, points, throughput, set, cache }, &gpu)
+        }
         Command::Scene { command: SceneCommand::Info { scene, set, json } } => scene_info(&scene, &set, json),
         Command::Knobs { solver, markdown } => knobs(solver.as_deref(), markdown),
         Command::Report { out, quick, scenes, compare, gpu } => report(out, quick, scenes, compare, &gpu),
@@ -235,20 +238,64 @@ struct BenchArgs {
     cache: PathBuf,
 }
 
-/// `bench --replot DIR`: the plots of DIR/bench.json drawn again, written beside it.
-fn replot(dir: &Path) -> Result<()> {
-    let json = dir.join("bench.json");
-    let text = std::fs::read_to_string(&json)
-        .map_err(|e| anyhow!("--replot {}: cannot read {}: {e}", dir.display(), json.display()))?;
-    let doc: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| anyhow!("{}: not a bench.json ({e}); give the folder a bench run wrote", json.display()))?;
-    let plots = crate::measure::bench::replot(&doc).map_err(|e| anyhow!("{}: {e}", json.display()))?;
+/// `bench --replot DIR...`: one DIR's plots drawn again from its bench.json (beside it, or in
+/// `out`); several DIRs' runs combined ([`crate::measure::bench::combine`]) into one bench.json,
+/// bench.csv and plots in `out`. Every input is read and checked before anything is written.
+fn replot(dirs: &[PathBuf], out: Option<&Path>) -> Result<()> {
+    use crate::measure::bench as b;
+    let mut docs = Vec::new();
+    for dir in dirs {
+        let json = dir.join("bench.json");
+        let text = std::fs::read_to_string(&json)
+            .map_err(|e| anyhow!("--replot {}: cannot read {}: {e}", dir.display(), json.display()))?;
+        let doc: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| anyhow!("{}: not a bench.json ({e}); give the folder a bench run wrote", json.display()))?;
+        docs.push((json.display().to_string(), doc));
+    }
+    let (doc, out) = match (docs.len(), out) {
+        (1, out) => (docs.pop().map(|(_, d)| d).unwrap_or_default(), out.unwrap_or(&dirs[0]).to_path_buf()),
+        (_, Some(out)) => {
+            let out = out.to_path_buf();
+            // The combination would replace an input's own results.
+            if let Some(d) = dirs.iter().find(|d| same_dir(d, &out)) {
+                bail!(
+                    "--out {}: it is one of the runs combined ({}); write the combination elsewhere",
+                    out.display(),
+                    d.display()
+                );
+            }
+            (b::combine(&docs).map_err(|e| anyhow!("--replot: {e}"))?, out)
+        }
+        (n, None) => bail!("--replot with {n} folders combines their runs: name the folder for the result with --out"),
+    };
+    let plots = b::replot(&doc).map_err(|e| anyhow!("{}: {e}", docs.first().map_or("--replot", |d| d.0.as_str())))?;
+    std::fs::create_dir_all(&out).map_err(|e| anyhow!("--out {}: cannot create the directory: {e}", out.display()))?;
+    if dirs.len() > 1 {
+        let points = b::points_of(&doc).map_err(|e| anyhow!("--replot: {e}"))?;
+        output::write_text(&out.join("bench.csv"), b::csv(&points).map_err(|e| anyhow!(e))?)?;
+        output::write_json(&out.join("bench.json"), &doc)?;
+        eprintln!(
+            "combined {} runs ({} points) into {} and {}",
+            dirs.len(),
+            points.len(),
+            out.join("bench.json").display(),
+            out.join("bench.csv").display()
+        );
+    }
     for (name, svg) in &plots {
-        let p = dir.join(format!("{name}.svg"));
+        let p = out.join(format!("{name}.svg"));
         output::write_text(&p, svg)?;
         eprintln!("wrote {}", p.display());
     }
     Ok(())
+}
+
+/// Whether two paths name one directory (both resolved where they exist).
+fn same_dir(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => a == b,
+    }
 }
 
 fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
@@ -315,9 +362,10 @@ fn bench(a: &BenchArgs, g: &GpuArgs) -> Result<()> {
         .iter()
         .map(|s| json!({ "solver": s.name(), "rungs": scenes.first().map(|x| b::ladder(*s, &x.scene, &points)).unwrap_or_default() }))
         .collect();
+    // `rungs`: the rungs asked for (--quick, --points); `points`: what was measured.
     let doc = json!({
-        "scatterlab": env!("CARGO_PKG_VERSION"), "device": info, "references": result.references, "quick": a.quick,
-        "points": points, "repeats": a.repeats, "ladders": ladders, "points": result.points, "throughput": result.throughput,
+        "scatterlab": env!("CARGO_PKG_VERSION"), "build": crate::BUILD, "device": info, "references": result.references,
+        "quick": a.quick, "rungs": points, "repeats": a.repeats, "ladders": ladders, "points": result.points, "throughput": result.throughput,
         "slim_vs_full": result.slim_vs_full, "skipped": result.skipped,
     });
     output::write_json(&a.out.join("bench.json"), &doc)?;

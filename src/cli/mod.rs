@@ -174,16 +174,20 @@ pub enum Command {
         /// Scene files.
         #[arg(required_unless_present = "replot")]
         scenes: Vec<PathBuf>,
-        /// Redraw the SVG plots of an earlier run from its bench.json in this directory (no
-        /// rendering): for a plot of this version from results measured before.
-        #[arg(long, value_name = "DIR", conflicts_with_all = ["scenes", "quick", "points", "throughput"])]
-        replot: Option<PathBuf>,
+        /// No rendering: redraw the SVG plots of an earlier run from its bench.json in DIR,
+        /// beside it (a plot of this version from results measured before); with several DIRs
+        /// (one Slurm task per scene: tools/slurm/bench.sbatch), combine their runs into one
+        /// bench.json, bench.csv and plots in --out. Runs combined must share the engine build,
+        /// device, --repeats, --quick/--points and --ref-spp, and no scene.
+        #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["scenes", "quick", "points", "throughput"])]
+        replot: Vec<PathBuf>,
         /// Solvers to bench (comma-separated; default: every solver).
         #[arg(long, value_delimiter = ',', value_parser = solver_names())]
         solvers: Vec<String>,
-        /// Output directory (created if missing).
-        #[arg(long, default_value = "bench")]
-        out: PathBuf,
+        /// Output directory (created if missing; default `bench`). With `--replot` of one DIR
+        /// the plots go beside its bench.json unless this is given.
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Samples per pixel of the `path` reference.
         #[arg(long, default_value_t = 4096)]
         ref_spp: u32,

@@ -129,14 +129,7 @@ fn solver_name<'de, D: serde::Deserializer<'de>>(d: D) -> Result<&'static str, D
 /// The plots of a bench run from its JSON document (`bench --replot`): per scene, its points
 /// and its reference's noise floor, titled with the device the run measured.
 pub fn replot(doc: &serde_json::Value) -> Result<Vec<(String, String)>, String> {
-    // Point by point from owned values: a point names its solver as a `&'static str` of the
-    // registry, which ties the derive to a 'static deserializer.
-    let points = doc["points"].as_array().ok_or("it has no points")?;
-    let points: Vec<Point> = points
-        .iter()
-        .map(|v| Point::deserialize(v.clone()))
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("its points do not read back: {e}"))?;
+    let points = points_of(doc)?;
     let device = doc["device"]["name"].as_str().unwrap_or("an unnamed device");
     let mut scenes: Vec<&str> = Vec::new();
     for p in &points {
@@ -725,4 +718,100 @@ pub fn run(
 /// Default cache directory for references.
 pub fn default_cache() -> PathBuf {
     PathBuf::from(".scatterlab-cache")
+}
+
+/// The fields of bench.json that runs combined into one document must share: the same engine
+/// (version and build), the same device and driver, and the same settings, so that every
+/// point of the combination was measured the same way. Paths into the document, `/`-separated.
+const SHARED_FIELDS: &[&str] =
+    &["scatterlab", "build", "device/name", "device/driver_name", "device/driver_info", "repeats", "quick", "rungs"];
+
+/// Several bench runs' documents (bench.json, each named by where it was read from) as one
+/// (`bench --replot DIR DIR...`; one Slurm task per scene, tools/slurm/bench.sbatch). The runs
+/// must share [`SHARED_FIELDS`] and their references' samples per pixel, and no scene may be in
+/// two of them: a scene's points, reference, speed-ups (each computed within its own scene) and
+/// plot are then exactly what one run over every scene would have written. The error names the
+/// two documents and the field.
+pub fn combine(docs: &[(String, serde_json::Value)]) -> Result<serde_json::Value, String> {
+    use serde_json::Value;
+    let (first_name, first) = docs.first().ok_or("no bench runs to combine")?;
+    let field = |doc: &Value, path: &str| -> Value {
+        path.split('/').fold(doc, |v, k| v.get(k).unwrap_or(&Value::Null)).clone()
+    };
+    let ref_spp = |doc: &Value| -> Vec<Value> {
+        let mut v: Vec<Value> =
+            doc["references"].as_array().map(|r| r.iter().map(|r| r["spp"].clone()).collect()).unwrap_or_default();
+        v.dedup();
+        v
+    };
+    let mut scenes: Vec<(String, &str)> = Vec::new();
+    for (name, doc) in docs {
+        let points = doc["points"].as_array().ok_or_else(|| format!("{name}: it has no points"))?;
+        for path in SHARED_FIELDS {
+            let (a, b) = (field(first, path), field(doc, path));
+            if a != b {
+                return Err(format!(
+                    "{first_name} and {name} differ in {path} ({a} against {b}); combine runs of one engine build, \
+                     device and set of bench flags"
+                ));
+            }
+        }
+        let (a, b) = (ref_spp(first), ref_spp(doc));
+        if a.len() > 1 || a != b {
+            return Err(format!(
+                "{first_name} and {name} differ in the references' spp ({} against {}); give every task the same \
+                 --ref-spp",
+                Value::from(a),
+                Value::from(b)
+            ));
+        }
+        let here = points
+            .iter()
+            .chain(doc["references"].as_array().into_iter().flatten())
+            .filter_map(|p| p["scene"].as_str())
+            .fold(Vec::new(), |mut v: Vec<&str>, s| {
+                if !v.contains(&s) {
+                    v.push(s);
+                }
+                v
+            });
+        for s in here {
+            if let Some((other, _)) = scenes.iter().find(|(_, x)| *x == s) {
+                return Err(format!(
+                    "{other} and {name} both hold scene {s}; a scene is benched by one task (scenes are named by \
+                     their file stem: rename one of two files with the same name)"
+                ));
+            }
+            scenes.push((name.clone(), s));
+        }
+    }
+    let concat = |key: &str| -> Value {
+        Value::Array(docs.iter().flat_map(|(_, d)| d[key].as_array().cloned().unwrap_or_default()).collect())
+    };
+    let mut out = first.clone();
+    for key in ["references", "points", "throughput", "slim_vs_full", "skipped"] {
+        out[key] = concat(key);
+    }
+    // Each run's ladders are those of its own first scene: keep every solver's first listing.
+    let mut ladders: Vec<Value> = Vec::new();
+    for l in docs.iter().flat_map(|(_, d)| d["ladders"].as_array().cloned().unwrap_or_default()) {
+        if !ladders.iter().any(|x| x["solver"] == l["solver"]) {
+            ladders.push(l);
+        }
+    }
+    out["ladders"] = Value::Array(ladders);
+    out["combined_from"] = Value::Array(docs.iter().map(|(n, _)| Value::from(n.as_str())).collect());
+    Ok(out)
+}
+
+/// The points of a bench.json document, read back.
+pub fn points_of(doc: &serde_json::Value) -> Result<Vec<Point>, String> {
+    let points = doc["points"].as_array().ok_or("it has no points")?;
+    // Point by point from owned values: a point names its solver as a `&'static str` of the
+    // registry, which ties the derive to a 'static deserializer.
+    points
+        .iter()
+        .map(|v| Point::deserialize(v.clone()))
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("its points do not read back: {e}"))
 }
