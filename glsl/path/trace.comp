@@ -11,8 +11,9 @@
 // inside an event where need be (within a free flight, a transmittance or a loop over the
 // lights: one free flight through optical thickness 1e7 can take 1e7 tentative collisions),
 // then saves the path state with the event's progress; the host re-dispatches until every pixel has
-// finished samples [sample_begin, sample_end). Every finished sample adds L and L^2 to the pixel's sums
-// (mean and variance of the mean on the host), always in sample order: deterministic.
+// finished samples [sample_begin, sample_end). Every finished sample adds to the pixel's sum of L
+// and its sum of squared deviations (add_samples; mean and variance of the mean on the host),
+// always in sample order: deterministic.
 // Point lights (with pc.equiangular) are also sampled by equiangular sampling along every
 // ray segment (Kulla & Fajardo 2012, "Importance sampling techniques for path tracing in
 // participating media"), combined with next-event estimation from the distance-sampled
@@ -39,7 +40,8 @@
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
-// Per pixel: sum of L (xyz) and sample count (w), then sum of L^2 (xyz).
+// Per pixel: sum of L (xyz) and sample count (w), then the sum of squared deviations from the
+// mean, M2 (xyz).
 layout(std430, binding = 3) buffer Accum { vec4 accum[]; };
 // [0] paths truncated by the collision cap, [1] tracking steps (wraps; a throughput figure),
 // [2] most own-counted loop iterations in one invocation (see budget.glsl),
@@ -456,11 +458,18 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     return EVENT_NEXT;
 }
 
-// n finished samples of radiance L each into the pixel's sums (mean and variance of the mean).
-// n = 1 adds L and L^2 exactly (L * 1.0 is L).
+// n finished samples of radiance L each into the pixel's sums: the sum of L (n = 1 adds L
+// exactly: L * 1.0 is L) and the sum of squared deviations from the mean, M2, by Chan et al.'s
+// update for a group of n equal values joining n_old of mean m_old: M2 += (L - m_old)^2 n_old n
+// / (n_old + n) (Welford's (L - m_old)(L - m_new) for n = 1). A sum of L^2, with the variance
+// formed as S2 - n m^2 on the host, lost every digit where a pixel's samples nearly agree
+// (s^2 << m^2 in f32); M2 keeps the variance's own relative precision.
 void add_samples(uint pixel, vec3 L, float n) {
-    accum[2u * pixel] += vec4(L * n, n);
-    accum[2u * pixel + 1u] += vec4(L * L * n, 0.0);
+    vec4 s = accum[2u * pixel];
+    float n_old = s.w;
+    vec3 d = L - (n_old > 0.0 ? s.xyz / n_old : L);
+    accum[2u * pixel] = s + vec4(L * n, n);
+    accum[2u * pixel + 1u] += vec4(d * d * (n_old * n / (n_old + n)), 0.0);
 }
 
 void main() {

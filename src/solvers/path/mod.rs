@@ -48,7 +48,8 @@ use crate::solvers::parts::resumable;
 
 pub struct Path;
 
-/// Per pixel: sum of L and the sample count, then sum of L^2 (two vec4), plus the path state.
+/// Per pixel: sum of L and the sample count, then the sum of squared deviations M2 (two vec4),
+/// plus the path state.
 pub const ACCUM_BYTES_PER_PIXEL: u64 = 32 + STATE_BYTES_PER_PIXEL;
 
 /// The first eight words of both path kernels' push constants (`Push` in glsl/path/trace.comp
@@ -172,18 +173,19 @@ pub const MAX_MAJORANT_CELLS: u32 = 1 << 14;
 /// `u32::MAX` is "unbounded" for `max_depth`.
 pub const UNBOUNDED: u32 = u32::MAX;
 
-/// The mean and the variance of the mean per pixel and channel, from sums of L and L^2.
+/// The mean and the variance of the mean per pixel and channel, from the sum of L and the sum
+/// of squared deviations from the mean, M2 (glsl/path/trace.comp, add_samples).
 pub fn mean_and_variance(sums: &[[f32; 4]], width: u32, height: u32) -> (Image, Image) {
     let mut mean = Image::new(width, height);
     let mut var = Image::new(width, height);
     for p in 0..(width * height) as usize {
         let s = sums[2 * p];
-        let s2 = sums[2 * p + 1];
+        let m2 = sums[2 * p + 1];
         let n = s[3] as f64;
         for c in 0..3 {
             let m = if n > 0.0 { s[c] as f64 / n } else { 0.0 };
-            // Sample variance / n; clamped at 0 against round-off in sum2 - n m^2.
-            let v = if n > 1.0 { ((s2[c] as f64 - n * m * m) / (n - 1.0)).max(0.0) / n } else { 0.0 };
+            // The sample variance M2 / (n - 1), over n: the variance of the mean.
+            let v = if n > 1.0 { (m2[c] as f64 / (n - 1.0)).max(0.0) / n } else { 0.0 };
             mean.data[3 * p + c] = m as f32;
             var.data[3 * p + c] = v as f32;
         }
