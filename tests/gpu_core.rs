@@ -17,9 +17,10 @@ fn scene_kernels_share_a_layout() {
         assert_eq!(r.bindings[&1].0, BindingKind::StorageImage, "{}: binding 1 is the density volume", src.name);
         assert_eq!(r.bindings[&2].0, BindingKind::StorageBuffer, "{}: binding 2 is the majorant grid", src.name);
     }
-    // The scene block header is 13 vec4s in scene.glsl (the 13th: the [[object]]'s ior), then
-    // the material table (MAX_MATERIALS entries of 3 vec4s) and the density fields' (of 5).
-    assert_eq!(std::mem::size_of::<SceneHeader>(), (10 + 8 * scatterlab::scene::MAX_MATERIALS) * 16);
+    // The scene block header is 11 vec4s in scene_block.glsl (the 11th: the emission grid's
+    // size), then the material table (MAX_MATERIALS entries of 4 vec4s: coefficients, ior,
+    // emission) and the density fields' (of 5).
+    assert_eq!(std::mem::size_of::<SceneHeader>(), (11 + 9 * scatterlab::scene::MAX_MATERIALS) * 16);
 }
 
 #[test]

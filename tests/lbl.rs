@@ -172,6 +172,8 @@ fn diffuse_impulse_reflecting(
         g,
         ior: 1.0,
         field: 0,
+        emission: glam::Vec3::ZERO,
+        emission_grid: false,
     };
     scatterlab::solvers::parts::lattice::diffuse_impulse(gpu, &p, (&medium, boundary_r), source, iterations)
 }

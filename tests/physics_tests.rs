@@ -500,3 +500,38 @@ fn quadratures_integrate_the_sphere_moments() {
         assert!(e.contains(bad) && e.contains("s4"), "{bad}: {e}");
     }
 }
+
+/// Blackbody chromaticity against the published CIE 1931 2-degree values (Mitchell Charity,
+/// "Blackbody color datafile", bbr_color.txt, 2-degree observer), within 1e-3; luminance
+/// monotone in temperature; nothing at 0 K; the colour-matching table integrates ybar to the
+/// CIE's 106.857 nm.
+#[test]
+fn blackbody_chromaticity_matches_the_published_planckian_locus() {
+    use scatterlab::physics::blackbody::*;
+    for (t, x, y) in [(1000.0, 0.6528, 0.3444), (3000.0, 0.4369, 0.4041), (6500.0, 0.3135, 0.3237)] {
+        let (cx, cy) = chromaticity(blackbody_xyz(t));
+        assert!((cx - x).abs() < 1e-3 && (cy - y).abs() < 1e-3, "{t} K: ({cx:.4}, {cy:.4}) against ({x}, {y})");
+    }
+    let ybar: f64 = CIE_1931.iter().map(|r| r[1]).sum::<f64>() * CIE_STEP_NM;
+    assert!((ybar - 106.856895).abs() < 0.01, "ybar integrates to {ybar}");
+    let mut last = 0.0;
+    for t in (500..=20000).step_by(250) {
+        let xyz = blackbody_xyz(t as f64);
+        let rgb = blackbody_rgb(t as f64);
+        assert!(xyz.y > last, "{t} K is not brighter than {} K", t - 250);
+        assert!(rgb.min_element() >= 0.0 && rgb.is_finite(), "{t} K: {rgb}");
+        last = xyz.y;
+    }
+    assert_eq!(blackbody_xyz(0.0).length(), 0.0);
+    assert_eq!(planck(550.0, -1.0), 0.0);
+    // Wien's peak radiance, 4.0956e-15 T^5 W/(m^2 sr nm) (the factor docs compare with pbrt-v4).
+    let t = 3000.0;
+    let peak = planck(2.8977721e6 / t, t) * 1e-9;
+    assert!((peak / (4.0956e-15 * t.powi(5)) - 1.0).abs() < 1e-3, "{peak}");
+    // Near 6500 K the sRGB white point's neighbourhood: no channel far from the others.
+    let w = blackbody_rgb(6500.0);
+    assert!(w.max_element() / w.min_element() < 1.15, "{w}");
+    // Red below 2000 K: red above green above blue.
+    let r = blackbody_rgb(1500.0);
+    assert!(r.x > r.y && r.y >= r.z, "{r}");
+}

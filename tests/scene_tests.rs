@@ -701,7 +701,8 @@ fn scene_features_of_shipped_scenes() {
             light_inside: false,
             homogeneous: false,
             has_environment: true,
-            grid_dims: None
+            grid_dims: None,
+            emissive: false
         }
     );
     assert_eq!(
@@ -712,7 +713,8 @@ fn scene_features_of_shipped_scenes() {
             light_inside: false,
             homogeneous: true,
             has_environment: false,
-            grid_dims: None
+            grid_dims: None,
+            emissive: false
         }
     );
     assert_eq!(
@@ -723,7 +725,8 @@ fn scene_features_of_shipped_scenes() {
             light_inside: false,
             homogeneous: false,
             has_environment: true,
-            grid_dims: Some([64, 64, 64])
+            grid_dims: Some([64, 64, 64]),
+            emissive: false
         }
     );
     assert_eq!(
@@ -734,7 +737,8 @@ fn scene_features_of_shipped_scenes() {
             light_inside: true,
             homogeneous: false,
             has_environment: false,
-            grid_dims: Some([64, 64, 64])
+            grid_dims: Some([64, 64, 64]),
+            emissive: false
         }
     );
     assert_eq!(
@@ -745,7 +749,8 @@ fn scene_features_of_shipped_scenes() {
             light_inside: false,
             homogeneous: true,
             has_environment: true,
-            grid_dims: None
+            grid_dims: None,
+            emissive: false
         }
     );
     assert_eq!(
@@ -756,7 +761,8 @@ fn scene_features_of_shipped_scenes() {
             light_inside: false,
             homogeneous: false,
             has_environment: true,
-            grid_dims: Some([64, 64, 64])
+            grid_dims: Some([64, 64, 64]),
+            emissive: false
         }
     );
 }

@@ -9,6 +9,7 @@ mod device_convergence_tests;
 mod docs_tests;
 mod dom_streaming;
 mod dom_tests;
+mod emission_tests;
 mod equiangular_tests;
 mod export_tests;
 mod gpu_core;

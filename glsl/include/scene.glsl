@@ -15,6 +15,13 @@ layout(constant_id = 2) const bool ANISOTROPIC = true;
 // The objects have several density fields (scene.fields): density, support and majorant are
 // looked up per field. False for every scene of one field, whose kernels read the header's.
 layout(constant_id = 12) const bool FIELDS = false;
+// What the medium emits: nothing, a constant Le per material, or Le from the emission grid (a
+// material may still be constant). Kernels that collect emission compile it in only when the
+// scene has it.
+#define EMISSION_NONE 0u
+#define EMISSION_CONSTANT 1u
+#define EMISSION_GRID 2u
+layout(constant_id = 17) const uint EMISSION = 0u;
 
 // The material of the medium a tracked ray is in (an index into scene.materials; mesh.glsl's
 // triangles name theirs): its density field is the one medium_interval, density_at and the
@@ -183,6 +190,49 @@ float medium_density(vec3 p) {
     if (any(lessThan(p, f.bounds_min.xyz)) || any(greaterThan(p, f.bounds_max.xyz))) return 0.0;
     return density_at(p);
 }
+
+#ifdef EMISSION_BINDING
+// The emission grid (src/solvers/parts/gpu_scene.rs, emission planes): one plane of voxels per
+// channel, each spanning the medium's box as the density grid does (voxel centres, trilinear).
+layout(std430, binding = EMISSION_BINDING) readonly buffer EmissionGrid { float emis[]; };
+
+// Voxel (x, y, z) of channel plane c of the emission grid of n voxels.
+float emission_voxel(ivec3 v, ivec3 n, uint c) {
+    return emis[c * uint(n.x * n.y * n.z) + uint(v.x) + uint(n.x) * (uint(v.y) + uint(n.y) * uint(v.z))];
+}
+
+// Trilinear lookup of channel plane c of the emission grid at voxel coordinate g.
+float emission_lookup(vec3 g, ivec3 n, uint c) {
+    ivec3 a, b;
+    vec3 f;
+    grid_corners(g, n, a, b, f);
+    float c00 = mix(emission_voxel(a, n, c), emission_voxel(ivec3(b.x, a.y, a.z), n, c), f.x);
+    float c10 = mix(emission_voxel(ivec3(a.x, b.y, a.z), n, c), emission_voxel(ivec3(b.x, b.y, a.z), n, c), f.x);
+    float c01 = mix(emission_voxel(ivec3(a.x, a.y, b.z), n, c), emission_voxel(ivec3(b.x, a.y, b.z), n, c), f.x);
+    float c11 = mix(emission_voxel(ivec3(a.x, b.y, b.z), n, c), emission_voxel(b, n, c), f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+// Emitted radiance Le at p, W/(m^2 sr) per channel, of medium_mat's material (inside the medium:
+// callers ask where the density is non-zero). The scene's Scene::emission_at on the host.
+vec3 emission_at(vec3 p) {
+    if (EMISSION == EMISSION_NONE) return vec3(0.0);
+    vec4 e = scene.materials[medium_mat].emission;
+    if (EMISSION == EMISSION_CONSTANT || e.w == 0.0) return e.rgb;
+    ivec3 n = ivec3(scene.emission_dims.xyz);
+    vec3 g = box_voxel_coord(p, n);
+    if (scene.emission_dims.w == 1u) return e.rgb * emission_lookup(g, n, 0u);
+    return e.rgb * vec3(emission_lookup(g, n, 0u), emission_lookup(g, n, 1u), emission_lookup(g, n, 2u));
+}
+
+// The transfer equation's emission source at p, sigma_a(p) Le(p) = sigma_t (1 - albedo)
+// density Le (W/(m^3 sr) per channel), for medium_mat at a point of the given density.
+vec3 emission_source(vec3 p, float density) {
+    if (EMISSION == EMISSION_NONE || density <= 0.0) return vec3(0.0);
+    ObjectMaterial m = scene.materials[medium_mat];
+    return m.sigma_t.rgb * (1.0 - m.albedo.rgb) * density * emission_at(p);
+}
+#endif
 
 // Majorant segments along a ray (pbrt-v4's DDAMajorantIterator): piecewise-constant
 // sigma_maj (1/unit, grey: max over channels) over [t_min, t_max]. Constant and sphere media

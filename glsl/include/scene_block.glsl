@@ -15,11 +15,13 @@
 #define LIGHT_DIRECTIONAL 1u
 #define LIGHT_ENVIRONMENT 2u
 
-// One object's material: the medium's coefficients inside it and its refractive index.
+// One object's material: the medium's coefficients inside it, its refractive index and emission.
 struct ObjectMaterial {
     vec4 sigma_t;    // rgb extinction scale, 1/unit; w = max over channels
     vec4 albedo;     // rgb sigma_s / sigma_t; w = g
     vec4 ior;        // x: refractive index inside, relative to the vacuum outside
+    vec4 emission;   // rgb: emitted radiance Le, W/(m^2 sr), or the emission grid's scale;
+                     // w: 1 = Le is rgb times the emission grid (scene.emission_dims)
 };
 
 // One density field (src/solvers/gpu_scene.rs GpuField): a density kind over a box; a grid's
@@ -49,6 +51,7 @@ layout(std430, binding = SCENE_BINDING) readonly buffer SceneBlock {
     vec4 cam_right;      // unit
     vec4 cam_up;         // unit
     uvec4 image;         // width, height, light count, 0
+    uvec4 emission_dims; // emission grid voxels xyz over the medium's box; w: its channels (1 or 3; 0: none)
     ObjectMaterial materials[MAX_MATERIALS];   // the material table; [0] is the medium's in every scene
     DensityField fields[MAX_MATERIALS];        // the materials' density fields (ior.y); [0] the medium's
     Light lights[];

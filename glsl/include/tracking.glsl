@@ -331,6 +331,14 @@ const int FLIGHT_PAUSED = -1;
 const int FLIGHT_ESCAPED = 0;     // left the medium (beta weights the escape) or died (beta 0)
 const int FLIGHT_SCATTERED = 1;   // a real scattering at t_hit
 
+#ifdef EMISSION_BINDING
+// Emission the free flight in progress collected (scatter_run): beta sigma_a Le / sigma_maj at
+// every tentative collision, before its outcome is drawn (pbrt-v4's volumetric path tracer;
+// the expected sum over a flight is the integral of T sigma_a Le along it). The caller adds it
+// to the path's radiance and zeroes it after every scatter_run, paused or not.
+vec3 trk_emitted = vec3(0.0);
+#endif
+
 // Delta/spectral tracking to the next real scattering event along the ray track_start began
 // (with clip false). Sets `t_hit` on a scattering.
 int scatter_run(inout vec3 beta, inout uvec2 rng, out float t_hit) {
@@ -343,7 +351,12 @@ int scatter_run(inout vec3 beta, inout uvec2 rng, out float t_hit) {
         float smaj = trk.smaj;
         collisions++;
         if (collisions > collision_cap) { truncated = true; beta = vec3(0.0); return FLIGHT_ESCAPED; }
-        vec3 st = mat_sigma_t().xyz * density_at(trk.s.org + trk.s.dir * t);
+        vec3 x = trk.s.org + trk.s.dir * t;
+        float dens = density_at(x);
+        vec3 st = mat_sigma_t().xyz * dens;
+#ifdef EMISSION_BINDING
+        if (EMISSION != EMISSION_NONE) trk_emitted += beta * emission_source(x, dens) / smaj;
+#endif
         vec3 ss = st * mat_albedo().xyz;
         vec3 sn = max(vec3(0.0), smaj - st);
         if (!CHROMATIC) {

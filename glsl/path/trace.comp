@@ -14,6 +14,9 @@
 // finished samples [sample_begin, sample_end). Every finished sample adds to the pixel's sum of L
 // and its sum of squared deviations (add_samples; mean and variance of the mean on the host),
 // always in sample order: deterministic.
+// An emissive medium (EMISSION) adds beta sigma_a Le / sigma_maj at every tentative collision of
+// a free flight (tracking.glsl trk_emitted; pbrt-v4's estimator), unbiased, with or without a
+// mesh around it.
 // Point lights (with pc.equiangular) are also sampled by equiangular sampling along every
 // ray segment (Kulla & Fajardo 2012, "Importance sampling techniques for path tracing in
 // participating media"), combined with next-event estimation from the distance-sampled
@@ -31,6 +34,7 @@
 #define MAJORANT_BINDING 2
 #define MESH_NODES_BINDING 6
 #define MESH_TRIS_BINDING 7
+#define EMISSION_BINDING 15
 #include "../include/scene.glsl"
 #include "../include/rng.glsl"
 #include "../include/phase.glsl"
@@ -344,6 +348,10 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         track_start_on(o, d, seg);
         float t_hit;
         int r = scatter_run(beta, rng, t_hit);
+        // The medium's emission along the flight so far (also a paused flight's: L is saved
+        // with the path), reaching the camera after `depth` scatterings.
+        L += trk_emitted;
+        trk_emitted = vec3(0.0);
         if (r == FLIGHT_PAUSED) return EVENT_PAUSED;
         ev_light = 0u;
         ev_sub = 0u;

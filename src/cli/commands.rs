@@ -146,6 +146,9 @@ fn export(a: ExportArgs) -> Result<()> {
         );
     }
     let scene = Scene::load(&a.scene, &sets, &LoadOptions::default())?;
+    if let Some(why) = crate::scene::mitsuba::export_refusal(&scene) {
+        bail!("{}: {why}", a.scene.display());
+    }
     let files = crate::scene::mitsuba::export_mitsuba(&scene, &a.out)?;
     for w in crate::scene::mitsuba::export_warnings(&scene) {
         eprintln!("warning: {w}");
@@ -509,6 +512,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
                 "scene": path.display().to_string(),
                 "anisotropic": f.anisotropic, "chromatic": f.chromatic, "light_inside": f.light_inside,
                 "homogeneous": f.grid_dims.is_none(), "density": density_label(&scene.medium.density), "has_environment": f.has_environment, "grid_dims": f.grid_dims,
+                "emissive": f.emissive, "emission": emission_label(&scene),
                 "object": scene.object.as_ref().map(|o| json!({
                     "mesh": o.describe(), "parts": o.parts.iter().map(|p| json!({"mesh": p.file.display().to_string(), "triangles": p.triangles, "material": p.material})).collect::<Vec<_>>(),
                     "materials": o.materials.iter().map(|x| json!({"sigma_t": x.sigma_t.to_array(), "albedo": x.albedo.to_array(), "g": x.g, "ior": x.ior, "density": density_label(&o.fields[x.field].density)})).collect::<Vec<_>>(), "triangles": o.mesh.triangles.len(), "ior": o.ior,
@@ -578,6 +582,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     }
     outln!("light inside {}", yn(f.light_inside));
     outln!("environment  {}", yn(f.has_environment));
+    outln!("emission     {}", emission_label(&scene));
     outln!(
         "device memory each solver would allocate{}:",
         if knob_sets_empty(&settings) { " (default knobs)" } else { " (default knobs but those set)" }
@@ -589,6 +594,44 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
         outln!("  {:<10} refused: {}", name, why);
     }
     Ok(())
+}
+
+/// What the scene emits, as `scene info` says it: the source sigma_a Le and where Le comes from.
+fn emission_label(scene: &Scene) -> String {
+    use crate::scene::Emission;
+    if !scene.emissive() {
+        return if scene.medium.emission.is_some() {
+            "given, but no channel both absorbs and emits (the source is sigma_a Le): nothing is emitted".into()
+        } else {
+            "no".into()
+        };
+    }
+    let source = "modelled: the source sigma_a Le (the medium emits where it absorbs)";
+    match &scene.medium.emission {
+        Emission::Grid(g) => {
+            let [x, y, z] = g.dims();
+            let peak = g.max_le();
+            match &g.temperature {
+                Some(t) => format!(
+                    "yes, blackbody from the temperature grid {} ({x} x {y} x {z}; T = (value - {}) x {} K, none at or below {} K), Le up to {} W/(m^2 sr) with emission_scale {}; {source}",
+                    g.planes[0].file.display(),
+                    t.offset,
+                    t.scale,
+                    t.cutoff,
+                    fmt_rgb(peak),
+                    fmt_rgb(g.scale)
+                ),
+                None => format!(
+                    "yes, Le from the grid {} ({x} x {y} x {z}) times {}, up to {} W/(m^2 sr); {source}",
+                    g.planes[0].file.display(),
+                    fmt_rgb(g.scale),
+                    fmt_rgb(peak)
+                ),
+            }
+        }
+        Emission::Constant(le) => format!("yes, Le {} W/(m^2 sr); {source}", fmt_rgb(*le)),
+        Emission::None => format!("yes, in the objects' materials; {source}"),
+    }
 }
 
 /// The medium's density as `scene info` names it: "homogeneous" for a constant medium whether

@@ -60,6 +60,15 @@ pub enum OutputError {
         source: ::png::DecodingError,
     },
 
+    /// The file's format cannot express what the scene holds (the message names the field).
+    #[error("cannot write '{}': {message}", path.display())]
+    Unsupported {
+        /// File that would have been written.
+        path: PathBuf,
+        /// What it cannot express, and what to do.
+        message: String,
+    },
+
     /// JSON serialisation failed.
     #[error("cannot write JSON file '{}': {source}; the value holds something JSON cannot represent", path.display())]
     Json {

@@ -6,6 +6,7 @@
 //! results are held to, and production code does not use them.
 
 pub mod angular;
+pub mod blackbody;
 pub mod chandrasekhar;
 pub mod dielectric;
 pub mod geometry;

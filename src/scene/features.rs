@@ -2,7 +2,7 @@
 
 use glam::Vec3;
 
-use super::{Density, Features, FieldRef, Light, Medium, Scene};
+use super::{Density, Emission, Features, FieldRef, Light, Medium, Scene};
 
 impl Scene {
     /// What this scene requires of a solver.
@@ -26,7 +26,66 @@ impl Scene {
                 Density::Grid(grid) => Some(grid.dims),
                 _ => None,
             }),
+            emissive: self.emissive(),
         }
+    }
+
+    /// Whether anything in the scene emits: Le > 0 in a channel where sigma_a > 0 (the source
+    /// is sigma_a Le), in the medium or in an object's material.
+    pub fn emissive(&self) -> bool {
+        let sigma_a = |t: Vec3, a: Vec3| t * (Vec3::ONE - a);
+        let le_max = match &self.medium.emission {
+            Emission::Grid(g) => g.max_le(),
+            e => e.constant_part(),
+        };
+        let medium = self.medium.emission.is_some()
+            && (sigma_a(self.medium.sigma_t, self.medium.albedo) * le_max).max_element() > 0.0;
+        let materials = self.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
+        medium
+            || materials.iter().any(|x| {
+                let le = if x.emission_grid { le_max } else { x.emission };
+                (x.sigma_a() * le).max_element() > 0.0
+            })
+    }
+
+    /// Emitted radiance Le at `p`, W/(m^2 sr) per channel (CPU reference; 0 outside the
+    /// medium's box and in objects' materials without emission). The source the medium adds
+    /// is sigma_a(p) Le(p), sigma_a = sigma_t (1 - albedo) density(p).
+    pub fn emission_at(&self, p: Vec3) -> Vec3 {
+        let m = &self.medium;
+        let grid = |p: Vec3| match &m.emission {
+            Emission::Grid(g) if m.contains(p) => g.le((p - m.bounds_min) / (m.bounds_max - m.bounds_min)),
+            _ => Vec3::ZERO,
+        };
+        match &self.object {
+            Some(o) => match o.material_at(p) {
+                None => Vec3::ZERO,
+                Some(k) if o.materials[k].emission_grid => grid(p),
+                Some(k) => o.materials[k].emission,
+            },
+            None if !m.contains(p) => Vec3::ZERO,
+            None => match &m.emission {
+                Emission::None => Vec3::ZERO,
+                Emission::Constant(le) => *le,
+                Emission::Grid(_) => grid(p),
+            },
+        }
+    }
+
+    /// The emission source sigma_a(p) Le(p) at `p`, W/(m^3 sr) per channel (CPU reference).
+    pub fn emission_source_at(&self, p: Vec3) -> Vec3 {
+        let le = self.emission_at(p);
+        if le == Vec3::ZERO {
+            return le;
+        }
+        let (t, a) = match &self.object {
+            Some(o) => match o.material_at(p) {
+                Some(k) => (o.materials[k].sigma_t, o.materials[k].albedo),
+                None => return Vec3::ZERO,
+            },
+            None => (self.medium.sigma_t, self.medium.albedo),
+        };
+        t * (Vec3::ONE - a) * self.density_at(p) * le
     }
 
     /// True if `p` lies strictly inside the bounds on non-zero density: where a point light

@@ -89,6 +89,10 @@ pub(crate) struct GridRequest<'a> {
     /// `dims` from the scene, if given.
     pub dims: Option<[i64; 3]>,
     pub opts: &'a LoadOptions,
+    /// What its values are, for messages: "density", "emission" or "temperature".
+    pub what: &'static str,
+    /// The scene field that names it (`medium.density`), for hints.
+    pub key: &'a str,
 }
 
 impl GridRequest<'_> {
@@ -97,7 +101,7 @@ impl GridRequest<'_> {
     }
 }
 
-/// Open, check and read a density grid. The size is checked against the memory budget from
+/// Open, check and read a grid (density, emission or temperature). The size is checked against the memory budget from
 /// the header (or `dims`) before any voxel is read.
 pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
     let hint = if req.file_as_written.is_relative() {
@@ -138,9 +142,10 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
                 )));
             }
             if magic == OPENVDB_MAGIC[..3] && is_openvdb(&req.resolved) {
-                return Err(req.err(
-                    "an OpenVDB file; read it with density = { kind = \"vdb\", file = ..., grid = \"density\" }",
-                ));
+                return Err(req.err(format!(
+                    "an OpenVDB file; read it with {} = {{ kind = \"vdb\", file = ..., grid = \"{}\" }}",
+                    req.key, req.what
+                )));
             }
             return Err(req.err(
                 "not a Mitsuba .vol file (no 'VOL' magic) and no dims given; for a raw little-endian f32 grid add \
@@ -205,8 +210,9 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
         let (nx, ny) = (dims[0] as usize, dims[1] as usize);
         let (i, j, k) = (index % nx, (index / nx) % ny, index / (nx * ny));
         return Err(req.err(format!(
-            "voxel ({i}, {j}, {k}) (value #{index}, x fastest) is {value}; densities must be finite and >= 0, fix the \
-                grid"
+            "voxel ({i}, {j}, {k}) (value #{index}, x fastest) is {value}; {} values must be finite and >= 0, fix the \
+                grid",
+            req.what
         )));
     }
 
@@ -237,8 +243,8 @@ fn read_vol_header(req: &GridRequest, reader: &mut impl Read, file_len: u64) -> 
     }
     if channels != 1 {
         return Err(req.err(format!(
-            "bad .vol header: {channels} channels, only 1-channel density grids are supported; export a single \
-                density channel"
+            "bad .vol header: {channels} channels, only 1-channel {} grids are supported; export a single channel",
+            req.what
         )));
     }
     let mut dims = [0u32; 3];

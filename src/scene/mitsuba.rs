@@ -136,6 +136,37 @@ pub fn sphere_fits(medium: &Medium, center: Vec3, radius: f32) -> bool {
     (center - radius).cmpge(medium.bounds_min).all() && (center + radius).cmple(medium.bounds_max).all()
 }
 
+/// Why `scene` cannot be exported, naming its field, or None: an emissive medium (Mitsuba 3
+/// has no emissive media: its pull request for them has not been merged), which the export
+/// would silently drop with all of its light.
+pub fn export_refusal(scene: &Scene) -> Option<String> {
+    if !scene.emissive() {
+        return None;
+    }
+    let medium_field = |e: &super::Emission| match e {
+        super::Emission::Grid(g) if g.temperature.is_some() => "temperature",
+        _ => "emission",
+    };
+    let field = match &scene.object {
+        None => format!("medium.{}", medium_field(&scene.medium.emission)),
+        Some(o) => {
+            let part = o
+                .parts
+                .iter()
+                .position(|p| {
+                    let x = &o.materials[p.material];
+                    (x.sigma_a() * x.emission).max_element() > 0.0
+                })
+                .unwrap_or(0);
+            format!("object[{part}].medium.{}", medium_field(&scene.medium.emission))
+        }
+    };
+    Some(format!(
+        "{field}: Mitsuba 3 has no emissive media, so the export would drop this medium's emission and all the light \
+            it gives; cross-check emission against scatterlab's path, or export the scene without {field}"
+    ))
+}
+
 /// What the export approximates or changes for `scene` (empty when it is exact): one line
 /// each, for the CLI to print as warnings.
 pub fn export_warnings(scene: &Scene) -> Vec<String> {
@@ -177,6 +208,9 @@ pub fn export_warnings(scene: &Scene) -> Vec<String> {
 /// sphere, `vol_path_for(xml_path)`). Returns the files written, the XML first. On error
 /// nothing is left behind.
 pub fn export_mitsuba(scene: &Scene, xml_path: &Path) -> Result<Vec<PathBuf>, OutputError> {
+    if let Some(why) = export_refusal(scene) {
+        return Err(OutputError::Unsupported { path: xml_path.to_path_buf(), message: why });
+    }
     // The media: the scene's one, or one per material of its objects (each its coefficients
     // over its density field), each with its plan.
     let media: Vec<Medium> = match &scene.object {

@@ -40,7 +40,7 @@ pub struct Scene {
     /// index, joined into one [`Object`] (they share the medium and the index). `None` for a
     /// v1 scene, whose medium's boundary is its box (and sphere) with index 1.
     pub object: Option<Object>,
-    /// At least one.
+    /// At least one, unless the medium emits (a scene lit by its own emission needs none).
     pub lights: Vec<Light>,
 }
 
@@ -112,12 +112,30 @@ pub struct Material {
     pub ior: f32,
     /// Its density field ([`Object::fields`]).
     pub field: usize,
+    /// Emitted radiance Le, W/(m^2 sr) per channel ([`Emission::constant_part`]): the
+    /// constant, or the scale of the scene's emission grid where `emission_grid` is set.
+    pub emission: Vec3,
+    /// Its emission is `emission` times the scene's emission grid ([`Emission::Grid`]).
+    pub emission_grid: bool,
 }
 
 impl Material {
     /// The coefficients of `m` with index `ior` and density field `field`.
     pub fn of(m: &Medium, ior: f32, field: usize) -> Material {
-        Material { sigma_t: m.sigma_t, albedo: m.albedo, g: m.g, ior, field }
+        Material {
+            sigma_t: m.sigma_t,
+            albedo: m.albedo,
+            g: m.g,
+            ior,
+            field,
+            emission: m.emission.constant_part(),
+            emission_grid: matches!(m.emission, Emission::Grid(_)),
+        }
+    }
+
+    /// Absorption scale sigma_a = sigma_t (1 - albedo), 1/unit per channel.
+    pub fn sigma_a(&self) -> Vec3 {
+        self.sigma_t * (Vec3::ONE - self.albedo)
     }
 }
 
@@ -158,6 +176,7 @@ impl DensityField {
             albedo,
             g,
             density: self.density.clone(),
+            emission: Emission::None,
         }
     }
 }
@@ -215,7 +234,12 @@ impl Object {
     /// density and box.
     pub fn material_medium(&self, k: usize) -> Medium {
         let x = &self.materials[k];
-        self.fields[x.field].medium_with(x.sigma_t, x.albedo, x.g)
+        let mut m = self.fields[x.field].medium_with(x.sigma_t, x.albedo, x.g);
+        // A grid's emission is the scene's medium's (one material only: the loader checks).
+        if !x.emission_grid && x.emission.max_element() > 0.0 {
+            m.emission = Emission::Constant(x.emission);
+        }
+        m
     }
 
     /// The material of `part`.
@@ -363,6 +387,101 @@ pub struct Medium {
     /// Henyey-Greenstein mean cosine in (-1, 1); g > 0 scatters forward.
     pub g: f32,
     pub density: Density,
+    /// What the medium emits ([`Emission`]).
+    pub emission: Emission,
+}
+
+/// What a medium emits: its emitted radiance Le(x), W/(m^2 sr) per channel. The transfer
+/// equation's source is sigma_a(x) Le(x) (pbrt-v4's convention): the medium emits where it
+/// absorbs, so an optically thick absorbing emitter glows with radiance Le, and a medium of
+/// albedo 1 emits nothing.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum Emission {
+    /// No emission (the default).
+    #[default]
+    None,
+    /// The same Le everywhere in the medium.
+    Constant(Vec3),
+    /// Le from a grid spanning the medium's bounds (voxel centres, trilinear, as the density).
+    Grid(EmissionGrid),
+}
+
+/// An emission grid: `emission = { kind = "grid" | "vdb", ... }` (one channel, times
+/// `emission_scale`), or a temperature field turned into blackbody radiance at its voxel
+/// centres (three channels: linear sRGB of Planck's law, `physics::blackbody`, times
+/// `emission_scale`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EmissionGrid {
+    /// One grid per channel: one (grey, times `scale`) or three (r, g, b, times `scale`), of
+    /// equal dims.
+    pub planes: Vec<Grid>,
+    /// `emission_scale`, per channel.
+    pub scale: Vec3,
+    /// Where the planes came from a temperature field, its mapping to kelvin.
+    pub temperature: Option<TemperatureMap>,
+}
+
+/// How a temperature grid's values become kelvin (pbrt-v4's GridMedium and NanoVDBMedium):
+/// T = (value - offset) * scale, and voxels at or below `cutoff` kelvin emit nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TemperatureMap {
+    pub scale: f32,
+    pub offset: f32,
+    /// Kelvin; pbrt-v4 fixes it at 100.
+    pub cutoff: f32,
+}
+
+impl Emission {
+    /// Whether the medium emits anything (some Le > 0).
+    pub fn is_some(&self) -> bool {
+        match self {
+            Emission::None => false,
+            Emission::Constant(le) => le.max_element() > 0.0,
+            Emission::Grid(g) => g.scale.max_element() > 0.0 && g.planes.iter().any(|p| p.max_value() > 0.0),
+        }
+    }
+
+    /// The constant Le, or the grid's per-channel scale: what the material table carries.
+    pub fn constant_part(&self) -> Vec3 {
+        match self {
+            Emission::None => Vec3::ZERO,
+            Emission::Constant(le) => *le,
+            Emission::Grid(g) => g.scale,
+        }
+    }
+
+    /// The grid, if Le varies over the medium.
+    pub fn grid(&self) -> Option<&EmissionGrid> {
+        match self {
+            Emission::Grid(g) => Some(g),
+            _ => None,
+        }
+    }
+}
+
+impl EmissionGrid {
+    /// Voxels per axis.
+    pub fn dims(&self) -> [u32; 3] {
+        self.planes[0].dims
+    }
+
+    /// Le at `u`, the position in the medium's box scaled to [0, 1]^3 (CPU reference;
+    /// glsl/include/scene.glsl `emission_at`).
+    pub fn le(&self, u: Vec3) -> Vec3 {
+        let v = |c: usize| self.planes[c.min(self.planes.len() - 1)].sample(u);
+        self.scale * Vec3::new(v(0), v(1), v(2))
+    }
+
+    /// Largest Le per channel over the voxels.
+    pub fn max_le(&self) -> Vec3 {
+        let m = |c: usize| self.planes[c.min(self.planes.len() - 1)].max_value();
+        self.scale * Vec3::new(m(0), m(1), m(2))
+    }
+
+    /// Bytes of its planes as f32.
+    pub fn bytes(&self) -> u64 {
+        self.planes.iter().map(|p| p.data.len() as u64 * 4).sum()
+    }
 }
 
 /// Density multiplier inside the medium bounds.
@@ -426,6 +545,8 @@ pub struct Features {
     pub has_environment: bool,
     /// Grid resolution when the density is a grid.
     pub grid_dims: Option<[u32; 3]>,
+    /// The medium (or an object's material) emits: some Le > 0 where sigma_a > 0.
+    pub emissive: bool,
 }
 
 impl Scene {
@@ -523,6 +644,11 @@ pub fn content_hash(text: &str, scene: &Scene) -> String {
     h.update(text.as_bytes());
     if let Density::Grid(g) = &scene.medium.density {
         h.update(bytemuck::cast_slice::<f32, u8>(&g.data));
+    }
+    if let Emission::Grid(e) = &scene.medium.emission {
+        for p in &e.planes {
+            h.update(bytemuck::cast_slice::<f32, u8>(&p.data));
+        }
     }
     if let Some(object) = &scene.object {
         h.update(bytemuck::cast_slice::<Vec3, u8>(&object.mesh.positions));

@@ -15,8 +15,8 @@ use super::grid::{load_grid, GridRequest};
 use super::mesh::{load_obj, MeshTransform, TriangleMesh};
 use super::vdb::{load_vdb, VdbRequest};
 use super::{
-    Camera, CameraKind, Density, DensityField, Light, LoadOptions, Material, Medium, Object, ObjectPart,
-    RenderSettings, Scene, SceneError, MAX_IMAGE_SIZE, MAX_IOR, MAX_MATERIALS,
+    Camera, CameraKind, Density, DensityField, Emission, EmissionGrid, Grid, Light, LoadOptions, Material, Medium,
+    Object, ObjectPart, RenderSettings, Scene, SceneError, TemperatureMap, MAX_IMAGE_SIZE, MAX_IOR, MAX_MATERIALS,
 };
 
 // ---------------------------------------------------------------------------------------
@@ -97,6 +97,26 @@ struct RawMedium {
     g: f32,
     #[serde(default = "default_density")]
     density: RawDensity,
+    /// Emitted radiance Le, W/(m^2 sr): a number, `[r, g, b]`, or a grid table
+    /// ([`RawGridFile`]); read by hand so each form gets its own message.
+    emission: Option<toml::Value>,
+    /// Multiplies `emission` or the blackbody radiance of `temperature` (number or RGB).
+    emission_scale: Option<Rgb>,
+    /// A temperature grid, kelvin after `temperature_scale` and `temperature_offset`: blackbody
+    /// emission (physics::blackbody).
+    temperature: Option<RawGridFile>,
+    temperature_scale: Option<f64>,
+    temperature_offset: Option<f64>,
+    temperature_cutoff: Option<f64>,
+}
+
+/// A grid file an emission or temperature is read from (`{ kind = "grid", file, dims }` or
+/// `{ kind = "vdb", file, grid }`), as the density's.
+#[derive(Deserialize, PartialEq, Clone)]
+#[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+enum RawGridFile {
+    Grid { file: String, dims: Option<[i64; 3]> },
+    Vdb { file: String, grid: Option<String> },
 }
 
 fn default_density() -> RawDensity {
@@ -154,7 +174,7 @@ enum RawLight {
 }
 
 /// A colour: a scalar (splat) or `[r, g, b]`.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq)]
 struct Rgb([f64; 3]);
 
 impl<'de> Deserialize<'de> for Rgb {
@@ -291,7 +311,16 @@ impl Ctx<'_> {
                 (medium, Some(object))
             }
         };
-        Ok(Scene { source: self.file.to_path_buf(), render, camera, medium, object, lights })
+        let scene = Scene { source: self.file.to_path_buf(), render, camera, medium, object, lights };
+        // A scene lit by its own emission needs no light; anything else would render black.
+        if scene.lights.is_empty() && !scene.emissive() {
+            return Err(self.invalid(
+                "light",
+                "the scene has no lights and its medium emits nothing; add at least one [[light]] table with kind = \
+                    \"point\", \"directional\" or \"environment\", or give the medium an emission",
+            ));
+        }
+        Ok(scene)
     }
 
     /// The `[[object]]` entries' meshes, transforms and materials joined into one [`Object`],
@@ -499,6 +528,7 @@ impl Ctx<'_> {
                 ),
             ));
         }
+        let mut vdb_region = None;
         let density = match &m.density {
             RawDensity::Constant {} => Density::Constant,
             RawDensity::Sphere { center, radius } => {
@@ -530,22 +560,203 @@ impl Ctx<'_> {
                     resolved,
                     dims: *dims,
                     opts,
+                    what: "density",
+                    key: &key("density"),
                 })?;
                 Density::Grid(grid)
             }
             RawDensity::Vdb { file, grid } => {
                 let written = PathBuf::from(file);
                 let resolved = if written.is_absolute() { written.clone() } else { base_dir.join(&written) };
-                Density::Grid(load_vdb(&VdbRequest {
+                let (grid, lo) = load_vdb(&VdbRequest {
                     scene_file: self.file,
                     resolved,
                     file_as_written: &written,
                     grid: grid.as_deref().unwrap_or("density"),
                     opts,
-                })?)
+                    what: "density",
+                    key: &key("density"),
+                    region: None,
+                })?;
+                vdb_region = Some((lo, grid.dims));
+                Density::Grid(grid)
             }
         };
-        Ok(Medium { bounds_min, bounds_max, sigma_t, albedo, g: m.g, density })
+        let emission = self.emission(at, m, &density, vdb_region, albedo, base_dir, opts)?;
+        Ok(Medium { bounds_min, bounds_max, sigma_t, albedo, g: m.g, density, emission })
+    }
+
+    /// A medium's emission (`emission`, `emission_scale`, `temperature` and its mapping), every
+    /// value checked; `density` and `vdb_region` (its OpenVDB box) are the medium's, whose grid
+    /// an emission grid must match voxel for voxel.
+    #[allow(clippy::too_many_arguments)]
+    fn emission(
+        &self,
+        at: &str,
+        m: &RawMedium,
+        density: &Density,
+        vdb_region: Option<([i64; 3], [u32; 3])>,
+        albedo: Vec3,
+        base_dir: &Path,
+        opts: &LoadOptions,
+    ) -> Result<Emission, SceneError> {
+        let key = |name: &str| format!("{at}.{name}");
+        for (name, given) in [
+            ("temperature_scale", m.temperature_scale.is_some()),
+            ("temperature_offset", m.temperature_offset.is_some()),
+            ("temperature_cutoff", m.temperature_cutoff.is_some()),
+        ] {
+            if given && m.temperature.is_none() {
+                return Err(self.invalid(
+                    &key(name),
+                    format!("{name} maps a temperature grid to kelvin, and {at} has no temperature; add temperature = {{ kind = \"grid\" | \"vdb\", ... }} or remove {name}"),
+                ));
+            }
+        }
+        if m.emission_scale.is_some() && m.emission.is_none() && m.temperature.is_none() {
+            return Err(self.invalid(
+                &key("emission_scale"),
+                format!("scales an emission or a temperature, and {at} has neither; add emission = ... or remove emission_scale"),
+            ));
+        }
+        let scale = match m.emission_scale {
+            Some(rgb) => self.rgb_non_negative(&key("emission_scale"), rgb, "an emission scale")?,
+            None => Vec3::ONE,
+        };
+        let emission = match (&m.emission, &m.temperature) {
+            (None, None) => return Ok(Emission::None),
+            (Some(_), Some(_)) => {
+                return Err(self.invalid(
+                    &key("temperature"),
+                    format!(
+                    "{at} has both emission and temperature; give one: emission (radiance) or temperature (blackbody)"
+                ),
+                ))
+            }
+            (Some(toml::Value::Table(t)), None) => {
+                let file: RawGridFile =
+                    toml::Value::Table(t.clone()).try_into().map_err(|e| self.serde_error(&key("emission"), &e))?;
+                let grid = self.aux_grid(&key("emission"), "emission", &file, density, vdb_region, base_dir, opts)?;
+                Emission::Grid(EmissionGrid { planes: vec![grid], scale, temperature: None })
+            }
+            (Some(v), None) => {
+                let rgb: Rgb = v.clone().try_into().map_err(|e| self.serde_error(&key("emission"), &e))?;
+                let le = self.rgb_non_negative(&key("emission"), rgb, "emitted radiance")?;
+                Emission::Constant(le * scale)
+            }
+            (None, Some(file)) => {
+                let number = |name: &str, v: Option<f64>, default: f64, ok: fn(f64) -> bool, rule: &str| {
+                    let v = v.unwrap_or(default);
+                    if v.is_finite() && (v as f32).is_finite() && ok(v) {
+                        Ok(v as f32)
+                    } else {
+                        Err(self.invalid(&key(name), format!("{name} = {} must be {rule}", num(v))))
+                    }
+                };
+                let map = TemperatureMap {
+                    scale: number("temperature_scale", m.temperature_scale, 1.0, |v| v > 0.0, "a finite number > 0")?,
+                    offset: number("temperature_offset", m.temperature_offset, 0.0, |_| true, "a finite number")?,
+                    cutoff: number(
+                        "temperature_cutoff",
+                        m.temperature_cutoff,
+                        100.0,
+                        |v| v >= 0.0,
+                        "a finite number of kelvin >= 0",
+                    )?,
+                };
+                let grid =
+                    self.aux_grid(&key("temperature"), "temperature", file, density, vdb_region, base_dir, opts)?;
+                // Three planes of f32 besides the temperature: the budget counts them.
+                let needed = grid.data.len() as u64 * 4 * 3;
+                if needed > opts.memory_budget_bytes {
+                    return Err(SceneError::GridTooLarge {
+                        file: self.file.to_path_buf(),
+                        grid: grid.file.clone(),
+                        dims: grid.dims.map(u64::from),
+                        needed_bytes: needed,
+                        budget_bytes: opts.memory_budget_bytes,
+                    });
+                }
+                Emission::Grid(EmissionGrid { planes: blackbody_planes(&grid, &map), scale, temperature: Some(map) })
+            }
+        };
+        if !emission.is_some() {
+            return Ok(Emission::None);
+        }
+        if albedo.cmpge(Vec3::ONE).all() {
+            return Err(self.invalid(
+                &key("emission"),
+                format!(
+                    "{at} has albedo 1 in every channel: it absorbs nothing, so it emits nothing (the source is \
+                        sigma_a Le); lower albedo, or remove the emission"
+                ),
+            ));
+        }
+        Ok(emission)
+    }
+
+    /// An emission or temperature grid (`key`, holding `what`) over the medium's bounds, of the
+    /// density grid's voxels where the density is a grid.
+    #[allow(clippy::too_many_arguments)]
+    fn aux_grid(
+        &self,
+        key: &str,
+        what: &'static str,
+        file: &RawGridFile,
+        density: &Density,
+        vdb_region: Option<([i64; 3], [u32; 3])>,
+        base_dir: &Path,
+        opts: &LoadOptions,
+    ) -> Result<Grid, SceneError> {
+        let resolve = |f: &str| {
+            let written = PathBuf::from(f);
+            let resolved = if written.is_absolute() { written.clone() } else { base_dir.join(&written) };
+            (written, resolved)
+        };
+        let grid = match file {
+            RawGridFile::Grid { file, dims } => {
+                let (written, resolved) = resolve(file);
+                load_grid(&GridRequest {
+                    scene_file: self.file,
+                    file_as_written: &written,
+                    resolved,
+                    dims: *dims,
+                    opts,
+                    what,
+                    key,
+                })?
+            }
+            RawGridFile::Vdb { file, grid } => {
+                let (written, resolved) = resolve(file);
+                load_vdb(&VdbRequest {
+                    scene_file: self.file,
+                    resolved,
+                    file_as_written: &written,
+                    grid: grid.as_deref().unwrap_or(what),
+                    opts,
+                    what,
+                    key,
+                    // Over the density's box, voxel for voxel, when both come from OpenVDB.
+                    region: vdb_region,
+                })?
+                .0
+            }
+        };
+        if let Density::Grid(d) = density {
+            if d.dims != grid.dims {
+                let [a, b, c] = grid.dims;
+                let [x, y, z] = d.dims;
+                return Err(self.invalid(
+                    key,
+                    format!(
+                        "the {what} grid {} is {a} x {b} x {c} voxels and the density grid {x} x {y} x {z}; a medium's \
+                            grids share its voxels: resample one to the other's size",
+                        grid.file.display()
+                    ),
+                ));
+            }
+        }
+        Ok(grid)
     }
 
     // -------------------------------------------------------------------- sections
@@ -701,12 +912,6 @@ impl Ctx<'_> {
     }
 
     fn lights(&self, raw: &[RawLight]) -> Result<Vec<Light>, SceneError> {
-        if raw.is_empty() {
-            return Err(self.invalid(
-                "light",
-                "the scene has no lights; add at least one [[light]] table with kind = \"point\", \"directional\" or \"environment\"",
-            ));
-        }
         raw.iter()
             .enumerate()
             .map(|(i, light)| {
@@ -1208,4 +1413,32 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
         }
     }
     Ok(())
+}
+
+/// A temperature grid's blackbody radiance per channel at its voxel centres (linear sRGB,
+/// physics::blackbody, times nothing: `emission_scale` is applied with the planes): T = (value -
+/// offset) * scale kelvin, 0 at or below the cutoff. Voxels are converted, then interpolated:
+/// where the temperature changes steeply within a voxel this differs from converting the
+/// interpolated temperature (pbrt-v4), by the curvature of the blackbody over that step.
+fn blackbody_planes(t: &Grid, map: &TemperatureMap) -> Vec<Grid> {
+    use std::collections::HashMap;
+    let mut planes: Vec<Grid> =
+        (0..3).map(|_| Grid { dims: t.dims, data: Vec::with_capacity(t.data.len()), file: t.file.clone() }).collect();
+    // Simulation grids repeat values (a background, quantised fields): each distinct value is
+    // integrated once.
+    let mut seen: HashMap<u32, Vec3> = HashMap::new();
+    for &v in &t.data {
+        let rgb = *seen.entry(v.to_bits()).or_insert_with(|| {
+            let kelvin = (v as f64 - map.offset as f64) * map.scale as f64;
+            if kelvin <= map.cutoff as f64 {
+                Vec3::ZERO
+            } else {
+                crate::physics::blackbody::blackbody_rgb(kelvin)
+            }
+        });
+        for (c, p) in planes.iter_mut().enumerate() {
+            p.data.push(rgb[c]);
+        }
+    }
+    planes
 }

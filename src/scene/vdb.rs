@@ -26,6 +26,15 @@ pub(crate) struct VdbRequest<'a> {
     /// The grid's name in the file.
     pub grid: &'a str,
     pub opts: &'a LoadOptions,
+    /// What its values are, for messages: "density", "emission" or "temperature".
+    pub what: &'static str,
+    /// The scene field that names it (`medium.density`), for hints.
+    pub key: &'a str,
+    /// The index-space box the dense grid spans: its first voxel and size. None: the grid's own
+    /// active voxels' bounding box. A medium's emission or temperature grid from an OpenVDB file
+    /// is read over its density grid's box, so their voxels coincide (voxels outside it, where
+    /// nothing absorbs, are dropped).
+    pub region: Option<([i64; 3], [u32; 3])>,
 }
 
 impl VdbRequest<'_> {
@@ -52,8 +61,9 @@ struct Active {
     value: f32,
 }
 
-/// Read float grid `req.grid` of an OpenVDB file into a dense [`Grid`].
-pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
+/// Read float grid `req.grid` of an OpenVDB file into a dense [`Grid`], and the index of its
+/// first voxel.
+pub(crate) fn load_vdb(req: &VdbRequest) -> Result<(Grid, [i64; 3]), SceneError> {
     let hint = if req.file_as_written.is_relative() {
         "; relative paths are resolved against the scene file's folder"
     } else {
@@ -63,6 +73,7 @@ pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
     // vdb-rs indexes its node maps without checking them: a damaged file must be an error, not
     // a panic, so the parse runs behind catch_unwind (its panic message is kept for the line).
     let name = req.grid.to_owned();
+    let (what, key) = (req.what, req.key.to_owned());
     let parsed = std::panic::catch_unwind(move || -> Result<Result<Vec<Active>, String>, String> {
         let mut reader = vdb_rs::VdbReader::new(BufReader::new(file))
             .map_err(|e| format!("not a readable OpenVDB file ({})", why(&e)))?;
@@ -70,13 +81,13 @@ pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
             let mut names = reader.available_grids();
             names.sort();
             return Ok(Err(format!(
-                "has no grid named {name:?}; its grids are {}; set density.grid to one of them",
+                "has no grid named {name:?}; its grids are {}; set {key}.grid to one of them",
                 names.iter().map(|n| format!("{n:?}")).collect::<Vec<_>>().join(", ")
             )));
         };
         if !descriptor.grid_type.contains("float") {
             return Ok(Err(format!(
-                "grid {name:?} holds {} values, not float: a density grid is a FloatGrid",
+                "grid {name:?} holds {} values, not float: a {what} grid is a FloatGrid",
                 descriptor.grid_type
             )));
         }
@@ -102,23 +113,31 @@ pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
             return Err(req.err(format!("a damaged or unsupported OpenVDB file (the reader failed: {why})")));
         }
     };
-    if active.is_empty() {
+    if active.is_empty() && req.region.is_none() {
         return Err(req.err(format!("grid {:?} has no active voxels: the medium would be empty", req.grid)));
     }
     for a in &active {
         if !(a.value.is_finite() && a.value >= 0.0) {
             return Err(req.err(format!(
-                "grid {:?} has the value {} at voxel ({}, {}, {}); densities must be finite and >= 0",
-                req.grid, a.value, a.min[0], a.min[1], a.min[2]
+                "grid {:?} has the value {} at voxel ({}, {}, {}); {} values must be finite and >= 0",
+                req.grid, a.value, a.min[0], a.min[1], a.min[2], req.what
             )));
         }
     }
     let mut lo = [i64::MAX; 3];
     let mut hi = [i64::MIN; 3];
-    for a in &active {
-        for axis in 0..3 {
-            lo[axis] = lo[axis].min(a.min[axis]);
-            hi[axis] = hi[axis].max(a.min[axis] + a.edge - 1);
+    match req.region {
+        Some((first, dims)) => {
+            lo = first;
+            hi = [0, 1, 2].map(|a| first[a] + dims[a] as i64 - 1);
+        }
+        None => {
+            for a in &active {
+                for axis in 0..3 {
+                    lo[axis] = lo[axis].min(a.min[axis]);
+                    hi[axis] = hi[axis].max(a.min[axis] + a.edge - 1);
+                }
+            }
         }
     }
     let dims_wide = [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1];
@@ -140,13 +159,19 @@ pub(crate) fn load_vdb(req: &VdbRequest) -> Result<Grid, SceneError> {
     let (nx, ny) = (dims_wide[0] as usize, dims_wide[1] as usize);
     let mut data = vec![0f32; voxels as usize];
     for a in &active {
-        for k in a.min[2]..a.min[2] + a.edge {
-            for j in a.min[1]..a.min[1] + a.edge {
+        // Clipped to the box (only a given region can cut a voxel or tile off).
+        let from = [0, 1, 2].map(|x| a.min[x].max(lo[x]));
+        let to = [0, 1, 2].map(|x| (a.min[x] + a.edge - 1).min(hi[x]));
+        if (0..3).any(|x| from[x] > to[x]) {
+            continue;
+        }
+        for k in from[2]..=to[2] {
+            for j in from[1]..=to[1] {
                 let row = ((k - lo[2]) as usize * ny + (j - lo[1]) as usize) * nx;
-                let x0 = (a.min[0] - lo[0]) as usize;
-                data[row + x0..row + x0 + a.edge as usize].fill(a.value);
+                let (x0, x1) = ((from[0] - lo[0]) as usize, (to[0] - lo[0]) as usize);
+                data[row + x0..=row + x1].fill(a.value);
             }
         }
     }
-    Ok(Grid { dims, data, file: req.resolved.clone() })
+    Ok((Grid { dims, data, file: req.resolved.clone() }, lo))
 }

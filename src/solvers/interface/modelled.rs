@@ -24,12 +24,16 @@ pub const SPEC_REFRACTIVE: u32 = 11;
 /// glsl/include/view.glsl's (and glsl/path/trace.comp's): the scene has an environment light.
 pub const SPEC_ENVIRONMENT: u32 = 16;
 
+/// scene.glsl's: what the medium emits (0 nothing, 1 a constant Le per material, 2 a grid).
+pub const SPEC_EMISSION: u32 = 17;
+
 /// The specialisation constants of [`Modelled::spec`], as a kernel declares them.
 pub const SCENE_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_DENSITY_KIND, SpecKind::U32),
     (SPEC_CHROMATIC, SpecKind::Bool),
     (SPEC_ANISOTROPIC, SpecKind::Bool),
     (SPEC_FIELDS, SpecKind::Bool),
+    (SPEC_EMISSION, SpecKind::U32),
 ];
 
 /// [`SCENE_SPEC`] and view.glsl's environment, for kernels whose light units it counts
@@ -39,6 +43,7 @@ pub const VIEW_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_CHROMATIC, SpecKind::Bool),
     (SPEC_ANISOTROPIC, SpecKind::Bool),
     (SPEC_FIELDS, SpecKind::Bool),
+    (SPEC_EMISSION, SpecKind::U32),
     (SPEC_ENVIRONMENT, SpecKind::Bool),
 ];
 
@@ -49,6 +54,7 @@ pub const MESH_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_CHROMATIC, SpecKind::Bool),
     (SPEC_ANISOTROPIC, SpecKind::Bool),
     (SPEC_FIELDS, SpecKind::Bool),
+    (SPEC_EMISSION, SpecKind::U32),
     (SPEC_HAS_MESH, SpecKind::Bool),
     (SPEC_REFRACTIVE, SpecKind::Bool),
 ];
@@ -75,6 +81,7 @@ pub const SPEC_NAMES: &[(u32, &str)] = &[
     (14, "MNEE"),
     (15, "EQUIANGULAR"),
     (SPEC_ENVIRONMENT, "ENVIRONMENT"),
+    (SPEC_EMISSION, "EMISSION"),
 ];
 
 /// The name of specialisation constant `id` ([`SPEC_NAMES`]).
@@ -98,6 +105,10 @@ pub struct Modelled {
     /// The scene has an environment light: kernels that include view.glsl compile in its
     /// quadrature ([`SPEC_ENVIRONMENT`]).
     pub environment: bool,
+    /// What the medium emits: "none", "constant" (a Le per material) or "grid"
+    /// ([`SPEC_EMISSION`]); kernels that collect emission compile it in only when it is not
+    /// "none".
+    pub emission: &'static str,
 }
 
 impl Modelled {
@@ -114,14 +125,22 @@ impl Modelled {
         } else if !self.refractive {
             skipped.push("Fresnel and refraction (ior 1)");
         }
+        if self.emission == "none" {
+            skipped.push("emission (the medium emits nothing)");
+        }
         let skipped = if skipped.is_empty() { "nothing".to_string() } else { skipped.join(", ") };
         let mesh = match (self.mesh_triangles, self.refractive) {
             (0, _) => String::new(),
             (n, false) => format!(", a mesh of {n} triangles (index-matched)"),
             (n, true) => format!(", a mesh of {n} triangles with a dielectric boundary"),
         };
+        let emission = match self.emission {
+            "constant" => ", constant emission",
+            "grid" => ", emission from a grid",
+            _ => "",
+        };
         format!(
-            "modelled: {} density, {} tracking, {} phase{mesh}{}; skipped: {}",
+            "modelled: {} density, {} tracking, {} phase{mesh}{emission}{}; skipped: {}",
             self.density,
             if self.chromatic { "chromatic" } else { "grey" },
             if self.anisotropic { "Henyey-Greenstein" } else { "isotropic" },
@@ -141,7 +160,17 @@ impl Modelled {
             (SPEC_CHROMATIC, Spec::Bool(self.chromatic)),
             (SPEC_ANISOTROPIC, Spec::Bool(self.anisotropic)),
             (SPEC_FIELDS, Spec::Bool(self.fields > 1)),
+            (SPEC_EMISSION, Spec::U32(self.emission_kind())),
         ]
+    }
+
+    /// [`SPEC_EMISSION`]'s value: 0 none, 1 constant, 2 grid.
+    pub fn emission_kind(&self) -> u32 {
+        match self.emission {
+            "constant" => 1,
+            "grid" => 2,
+            _ => 0,
+        }
     }
 
     /// [`Modelled::spec`] and the mesh's, as [`MESH_SPEC`] declares them.
@@ -184,5 +213,11 @@ pub fn modelled(scene: &Scene, force_full: bool) -> Modelled {
         refractive: scene.object.as_ref().is_some_and(|o| o.refractive()),
         fields: fields.len(),
         environment: force_full || scene.lights.iter().any(|l| matches!(l, crate::scene::Light::Environment { .. })),
+        // --model-all compiles the emission code in (at the materials' Le, zero where none).
+        emission: match (&scene.medium.emission, f.emissive || force_full) {
+            (_, false) => "none",
+            (crate::scene::Emission::Grid(_), true) => "grid",
+            (_, true) => "constant",
+        },
     }
 }

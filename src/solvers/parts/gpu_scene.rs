@@ -6,7 +6,7 @@ use glam::Vec3;
 
 use crate::gpu::{Buffer, Gpu, Image3d, Pass, VolumeFormat};
 use crate::scene::bvh::{BvhNode, GpuTriangle};
-use crate::scene::{CameraKind, Density, Light, Material, Scene, MAX_MATERIALS};
+use crate::scene::{CameraKind, Density, Emission, Light, Material, Scene, MAX_MATERIALS};
 
 use crate::solvers::interface::SolverError;
 // The specialisation ids and what a render models are the interface's; kernels name them here,
@@ -27,6 +27,9 @@ pub struct SceneHeader {
     pub cam_right: [f32; 4],
     pub cam_up: [f32; 4],
     pub image: [u32; 4],
+    /// The emission grid's voxels xyz over the medium's box, w its channels (1 or 3; 0: the
+    /// scene has no emission grid): [`emission_planes`].
+    pub emission_dims: [u32; 4],
     /// The material table, the one route by which a medium's coefficients reach a kernel
     /// (glsl/include/scene_block.glsl): the objects' materials
     /// ([`crate::scene::Object::materials`]; a triangle's `v0[3]` names its own), the medium's
@@ -64,6 +67,9 @@ pub struct GpuMaterial {
     pub albedo: [f32; 4],
     /// x = ior inside relative to the vacuum outside; y = its density field (u32 bits).
     pub ior: [f32; 4],
+    /// rgb: emitted radiance Le, W/(m^2 sr), or the emission grid's scale; w: 1 = times the
+    /// emission grid.
+    pub emission: [f32; 4],
 }
 
 #[repr(C)]
@@ -76,6 +82,10 @@ pub struct GpuLight {
 pub const LIGHT_POINT: f32 = 0.0;
 pub const LIGHT_DIRECTIONAL: f32 = 1.0;
 pub const LIGHT_ENVIRONMENT: f32 = 2.0;
+
+/// The binding of the emission grid (glsl/include/scene.glsl `emis`) in kernels that define
+/// EMISSION_BINDING: past every kernel's own bindings.
+pub const EMISSION_BINDING: u32 = 15;
 
 /// Bindings of the mesh's BVH nodes and triangles in kernels that include mesh.glsl.
 pub const MESH_NODES_BINDING: u32 = 6;
@@ -90,6 +100,9 @@ pub struct GpuScene {
     /// placeholders without a mesh, bound because mesh.glsl's layout declares them.
     pub mesh_nodes: Buffer,
     pub mesh_tris: Buffer,
+    /// The emission grid's planes ([`emission_planes`]); a one-float placeholder without one,
+    /// bound because kernels that collect emission declare it.
+    pub emission: Buffer,
     pub modelled: Modelled,
     pub bytes: u64,
 }
@@ -192,6 +205,13 @@ pub fn scene_block_with(scene: &Scene, cell: u32) -> (SceneHeader, Vec<GpuLight>
         cam_right: v4(right, 0.0),
         cam_up: v4(up, 0.0),
         image: [scene.render.width, scene.render.height, lights.len() as u32, 0],
+        emission_dims: match &m.emission {
+            Emission::Grid(e) => {
+                let d = e.dims();
+                [d[0], d[1], d[2], e.planes.len() as u32]
+            }
+            _ => [0; 4],
+        },
         materials: gpu_materials(scene),
         fields: atlas.fields,
     };
@@ -221,6 +241,16 @@ fn gpu_material(x: &Material) -> GpuMaterial {
         sigma_t: v4(x.sigma_t, x.sigma_t.max_element()),
         albedo: v4(x.albedo, x.g),
         ior: [x.ior, f32::from_bits(x.field as u32), 0.0, 0.0],
+        emission: v4(x.emission, if x.emission_grid { 1.0 } else { 0.0 }),
+    }
+}
+
+/// The emission grid on the device: its planes one after the other (one per channel, x
+/// fastest), or nothing when Le does not vary.
+pub fn emission_planes(scene: &Scene) -> Vec<f32> {
+    match &scene.medium.emission {
+        Emission::Grid(e) => e.planes.iter().flat_map(|p| p.data.iter().copied()).collect(),
+        _ => Vec::new(),
     }
 }
 
@@ -346,7 +376,9 @@ pub fn scene_bytes_with(scene: &Scene, cell: u32) -> u64 {
     // Without an object: the one-element placeholders `upload_with` binds.
     let placeholders = (std::mem::size_of::<BvhNode>() + std::mem::size_of::<GpuTriangle>()) as u64;
     let mesh = scene.object.as_ref().map_or(placeholders, |o| o.bvh.bytes());
-    let block = block + mesh;
+    // The emission grid, or its one-float placeholder.
+    let emission = scene.medium.emission.grid().map_or(4, |e| e.bytes());
+    let block = block + mesh + emission;
     let atlas = density_atlas(scene, cell, false);
     if atlas.majorant_cells == 0 {
         block + 4 + 4
@@ -360,6 +392,11 @@ impl GpuScene {
     /// kernel that includes scene.glsl declares them.
     pub fn bind(&self, pass: Pass) -> Pass {
         pass.read(0, &self.block).read(1, &self.density).read(2, &self.majorant)
+    }
+
+    /// The emission grid at [`EMISSION_BINDING`], for kernels that collect emission.
+    pub fn bind_emission(&self, pass: Pass) -> Pass {
+        pass.read(EMISSION_BINDING, &self.emission)
     }
 
     /// [`GpuScene::bind`] and the mesh's BVH at [`MESH_NODES_BINDING`], [`MESH_TRIS_BINDING`].
@@ -425,12 +462,19 @@ impl GpuScene {
                 gpu.buffer_with("mesh triangles (unused)", &[GpuTriangle::zeroed()])?,
             ),
         };
+        let planes = emission_planes(scene);
+        let emission = if planes.is_empty() {
+            gpu.buffer_with("emission grid (unused)", &[0f32])?
+        } else {
+            gpu.buffer_with("emission grid", &planes)?
+        };
         Ok(GpuScene {
             block,
             density,
             majorant,
             mesh_nodes,
             mesh_tris,
+            emission,
             modelled: modelled(scene, force_full),
             bytes: scene_bytes_with(scene, cell),
         })

@@ -163,6 +163,7 @@ pub const MARCH: Kernel = Kernel {
         (super::gpu_scene::SPEC_CHROMATIC, SpecKind::Bool),
         (super::gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
         (super::gpu_scene::SPEC_FIELDS, SpecKind::Bool),
+        (super::gpu_scene::SPEC_EMISSION, SpecKind::U32),
         (SPEC_OCTAVES, SpecKind::U32),
         (SPEC_STEP_FIT, SpecKind::Bool),
         (super::gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),

@@ -117,6 +117,7 @@ const TRACE_SPEC: &[(u32, SpecKind)] = &[
     (crate::solvers::parts::gpu_scene::SPEC_CHROMATIC, SpecKind::Bool),
     (crate::solvers::parts::gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
     (crate::solvers::parts::gpu_scene::SPEC_FIELDS, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_EMISSION, SpecKind::U32),
     (crate::solvers::parts::gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
     (crate::solvers::parts::gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
     (SPEC_MNEE, SpecKind::Bool),
@@ -1088,7 +1089,7 @@ fn camera_paths(
         sample_end = sample_end.saturating_add(batch).min(end);
         let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut rounds, |slot| {
             let push = PathPush { head: c.head(sample_end, slot), equiangular, mnee };
-            gs.bind_mesh(Pass::new("path.trace", role, &pipeline))
+            gs.bind_emission(gs.bind_mesh(Pass::new("path.trace", role, &pipeline)))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
                 .read_write(5, &state)

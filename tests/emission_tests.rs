@@ -1,0 +1,186 @@
+//! Emissive media (issue 47): the source sigma_a Le of the transfer equation, in every solver
+//! that carries it, against exact answers: a purely absorbing emitter's closed form
+//! Le (1 - exp(-sigma_a chord)), an emitting scattering slab against the double-precision 1D
+//! reference (tests/slab_reference.rs, `slab_emission`), and the equilibrium radiance Le deep
+//! inside a large uniform emitter of any albedo.
+
+use glam::Vec3;
+use scatterlab::output::Image;
+use scatterlab::physics::reference::sphere_chord_at_impact;
+
+use crate::common::{assert_clean, gpu, mean_and_stderr, render, scene, PATH};
+use crate::slab_reference::slab_emission;
+
+/// A sphere of radius 0.5 (sigma_t per channel, albedo 0) emitting `le`, seen by an
+/// orthographic camera 1.2 units wide at `size`^2, no light.
+fn glowing_sphere(sigma_t: &str, le: &str, size: u32, spp: u32) -> scatterlab::scene::Scene {
+    scene(&format!(
+        "[render]\nwidth = {size}\nheight = {size}\nspp = {spp}\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 1.2\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = {sigma_t}\nalbedo = 0.0\nemission = {le}\n\
+         density = {{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 0.5 }}\n"
+    ))
+}
+
+/// The closed form of an absorbing emitting sphere (radius 0.5) through pixel `i`'s area:
+/// Le (1 - exp(-sigma_t chord)) averaged over 64 x 64 points of the pixel (the box filter; the
+/// sphere's rim crosses pixels, where 8 x 8 points missed 0.7% of an area), for the
+/// orthographic camera of [`glowing_sphere`].
+fn sphere_exact(size: u32, sigma_t: Vec3, le: Vec3) -> Vec<f64> {
+    const N: usize = 64;
+    let px = 1.2 / size as f64;
+    let mut out = Vec::with_capacity((size * size * 3) as usize);
+    for row in 0..size {
+        for col in 0..size {
+            let mut acc = [0.0f64; 3];
+            for sy in 0..N {
+                for sx in 0..N {
+                    let x = -0.6 + (col as f64 + (sx as f64 + 0.5) / N as f64) * px;
+                    let y = 0.6 - (row as f64 + (sy as f64 + 0.5) / N as f64) * px;
+                    let chord = sphere_chord_at_impact(0.5, (x * x + y * y).sqrt());
+                    for c in 0..3 {
+                        acc[c] += le[c] as f64 * (1.0 - (-(sigma_t[c] as f64) * chord).exp()) / (N * N) as f64;
+                    }
+                }
+            }
+            out.extend_from_slice(&acc);
+        }
+    }
+    out
+}
+
+/// The image mean against the exact mean within 4 standard errors, and every value within 5 of
+/// its exact standard error: with albedo 0 a sample is Le or 0 (it meets the emitter or not), so
+/// a pixel whose exact mean is m Le has per-sample variance Le^2 m (1 - m). (The sample variance
+/// is no judge here: a thin pixel's 256 samples are often all 0.)
+fn assert_exact(what: &str, img: &Image, var: &Image, exact: &[f64], le: Vec3, spp: u32) {
+    let (mean, se) = mean_and_stderr(img, var);
+    let want = exact.iter().sum::<f64>() / exact.len() as f64;
+    eprintln!("{what}: mean {mean:.5} +- {se:.5}, exact {want:.5}, energy {:.4}", mean / want);
+    assert!((mean - want).abs() < 4.0 * se + 1e-5 * want, "{what}: mean {mean} against {want} (stderr {se})");
+    let mut worst = (0.0f64, 0usize);
+    for (i, (&x, &e)) in img.data.iter().zip(exact).enumerate() {
+        let l = le[i % 3] as f64;
+        let m = e / l;
+        let sd = l * (m * (1.0 - m) / spp as f64).sqrt() + 1e-6 * l;
+        let z = (x as f64 - e).abs() / sd;
+        if z > worst.0 {
+            worst = (z, i);
+        }
+    }
+    let (z, at) = worst;
+    assert!(z < 5.5, "{what}: value {at} is {} against {} (z = {z:.2})", img.data[at], exact[at]);
+}
+
+/// `path` on a purely absorbing emitter (grey and chromatic extinction, chromatic Le): every
+/// pixel is Le (1 - exp(-sigma_a chord)) averaged over the pixel, within its noise, from a thin
+/// sphere (optical diameter 0.2) to a thick one (40).
+#[test]
+fn path_absorbing_emitter_is_the_closed_form() {
+    let gpu = gpu();
+    let size = 16;
+    for (sigma_t, st) in [
+        ("0.2", Vec3::splat(0.2)),
+        ("3.0", Vec3::splat(3.0)),
+        ("40.0", Vec3::splat(40.0)),
+        ("[0.5, 2.0, 8.0]", Vec3::new(0.5, 2.0, 8.0)),
+    ] {
+        let le = Vec3::new(1.0, 0.5, 0.25);
+        let s = glowing_sphere(sigma_t, "[1.0, 0.5, 0.25]", size, 1024);
+        let out = render(&gpu, &s, PATH, &[]);
+        let exact = sphere_exact(size, st, le);
+        assert_exact(&format!("sigma_t {sigma_t}"), &out.image, out.variance.as_ref().unwrap(), &exact, le, 1024);
+    }
+    assert_clean(&gpu);
+}
+
+/// A slab [-20, 20]^2 x [0, 1] of optical thickness `tau`, lit by nothing but its emission Le =
+/// 1, seen from above along the normal by an orthographic camera 1 unit wide at its centre
+/// (20 units from the sides: many diffusion lengths at every case below).
+fn emitting_slab(tau: f64, albedo: f64, g: f64, spp: u32) -> scatterlab::scene::Scene {
+    scene(&format!(
+        "[render]\nwidth = 8\nheight = 8\nspp = {spp}\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 5.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 1.0\n\
+         [medium]\nbounds = [[-20.0, -20.0, 0.0], [20.0, 20.0, 1.0]]\nsigma_t = {tau}\nalbedo = {albedo}\ng = {g}\n\
+         emission = 1.0\ndensity = {{ kind = \"constant\" }}\n"
+    ))
+}
+
+/// The cases of the emitting slab: thin to optical thickness 20, albedo 0 to 0.99, g -0.5 to 0.9.
+const SLAB_CASES: &[(f64, f64, f64)] = &[
+    (0.1, 0.5, 0.0),
+    (2.0, 0.0, 0.0),
+    (2.0, 0.5, 0.0),
+    (2.0, 0.9, 0.0),
+    (2.0, 0.5, 0.6),
+    (2.0, 0.9, 0.6),
+    (2.0, 0.9, -0.5),
+    (20.0, 0.99, 0.9),
+];
+
+/// `path` on the emitting slab against the 1D reference: the mean radiance along the normal
+/// within 4 standard errors plus 0.2% (the reference's layers and the slab's finite width).
+#[test]
+fn path_emitting_slab_matches_the_slab_reference() {
+    let gpu = gpu();
+    for &(tau, albedo, g) in SLAB_CASES {
+        let (want, _) = slab_emission(tau, albedo, g, 16, 4000);
+        let out = render(&gpu, &emitting_slab(tau, albedo, g, 512), PATH, &[]);
+        let (mean, se) = mean_and_stderr(&out.image, out.variance.as_ref().unwrap());
+        eprintln!("slab tau {tau}, albedo {albedo}, g {g}: path {mean:.5} +- {se:.5}, reference {want:.5}");
+        assert!(
+            (mean - want).abs() < 4.0 * se + 2e-3 * want,
+            "slab tau {tau}, albedo {albedo}, g {g}: path {mean} +- {se} against the reference {want}"
+        );
+    }
+    assert_clean(&gpu);
+}
+
+/// Deep inside a large uniform emitter the radiance is Le in every direction whatever the
+/// albedo (sigma_a Le emitted balances sigma_a L absorbed): a camera at the centre of a box 40
+/// units wide (sigma_t 10, 200 mean free paths to the walls), chromatic albedo 0, 0.5, 0.99 and
+/// g 0 and 0.9, sees Le per channel: each channel's image mean within 4 standard errors. (At
+/// albedo 0.99 a sample's sum of (1 - albedo) Le over its ~100 collisions is heavy-tailed: per
+/// value, the sample variance of 1024 samples is no judge; a channel's 64 x 1024 samples are.)
+#[test]
+fn path_deep_inside_a_uniform_emitter_sees_le() {
+    let gpu = gpu();
+    for g in [0.0, 0.9] {
+        let s = scene(&format!(
+            "[render]\nwidth = 8\nheight = 8\nspp = 1024\n\
+             [camera]\norigin = [0.0, 0.0, 0.0]\ntarget = [1.0, 0.2, 0.1]\nfov = 60.0\n\
+             [medium]\nbounds = [[-20.0, -20.0, -20.0], [20.0, 20.0, 20.0]]\nsigma_t = 10.0\n\
+             albedo = [0.0, 0.5, 0.99]\ng = {g}\nemission = [2.0, 1.0, 0.5]\ndensity = {{ kind = \"constant\" }}\n"
+        ));
+        let out = render(&gpu, &s, PATH, &[]);
+        let var = out.variance.as_ref().unwrap();
+        let le = [2.0, 1.0, 0.5];
+        for (c, want) in le.iter().enumerate() {
+            let values = || out.image.data.iter().skip(c).step_by(3).map(|v| *v as f64);
+            let n = values().count() as f64;
+            let mean = values().sum::<f64>() / n;
+            let se = var.data.iter().skip(c).step_by(3).map(|v| *v as f64).sum::<f64>().sqrt() / n;
+            eprintln!("deep emitter g {g}, channel {c}: {mean:.5} +- {se:.5} against {want}");
+            assert!((mean - want).abs() < 4.0 * se + 1e-5, "g {g}, channel {c}: {mean} +- {se} against {want}");
+        }
+    }
+    assert_clean(&gpu);
+}
+
+/// What a solver models of emission is said in its `modelled` line, and a scene without
+/// emission compiles none in.
+#[test]
+fn emission_is_modelled_only_where_the_scene_has_it() {
+    let gpu = gpu();
+    let glow = glowing_sphere("2.0", "1.0", 8, 4);
+    let out = render(&gpu, &glow, PATH, &[]);
+    assert!(out.report.modelled.describe().contains("constant emission"), "{}", out.report.modelled.describe());
+    assert_eq!(out.report.modelled.emission, "constant");
+    let lit = crate::common::issue_cube("0.0");
+    let out = render(&gpu, &lit, PATH, &[("render.spp", "4")]);
+    assert_eq!(out.report.modelled.emission, "none");
+    assert!(
+        out.report.modelled.describe().contains("skipped: ") && out.report.modelled.describe().contains("emission")
+    );
+    assert_clean(&gpu);
+}
