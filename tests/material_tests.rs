@@ -268,7 +268,7 @@ fn every_mesh_solver_renders_several_materials_and_export_writes_each() {
     let s = scene(&side_lit_pair(dir.path(), &a, &b, "", 4));
     // path, single and lbl (since the lattice's per-voxel materials) all take the scene.
     for solver in [PATH, SINGLE, LBL] {
-        assert!(solver.mesh_refusal(&s).is_none(), "{}", solver.name());
+        assert!(solver.scene_refusal(&s).is_none(), "{}", solver.name());
     }
     // lbl's guesses that hold one medium are refused, naming the knob.
     for (knob, value) in [("lbl.cascade", "2"), ("lbl.warm_start", "wavefront")] {
@@ -425,7 +425,7 @@ fn each_object_has_its_own_density_field() {
         );
         assert!(worst < 1e-3, "{what}: single's worst relative error {worst}");
         // lbl takes per-object fields too (lbl_gives_each_voxel_its_objects_material).
-        assert!(LBL.mesh_refusal(&s).is_none());
+        assert!(LBL.scene_refusal(&s).is_none());
     }
     assert_clean(&gpu);
 }

@@ -32,7 +32,7 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     let settings = Settings::new(&knob_sets);
     solvers::check_settings(&settings, &[solver])?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions::default())?;
-    if let Some(why) = solver.mesh_refusal(&scene) {
+    if let Some(why) = solver.scene_refusal(&scene) {
         bail!("{}: {why}", a.scene.display());
     }
     animate::orbit(&scene, 0.0).map_err(|e| anyhow!("{}: {e}", a.scene.display()))?;

@@ -498,7 +498,7 @@ fn scene_info(path: &Path, sets: &[String], as_json: bool) -> Result<()> {
     // Solvers that cannot render the scene at all (an [[object]] for those without meshes) are
     // listed with the reason instead of a memory figure for a render that would be refused.
     let refused: Vec<(&str, String)> =
-        solvers::SOLVERS.iter().filter_map(|s| s.mesh_refusal(&scene).map(|why| (s.name(), why))).collect();
+        solvers::SOLVERS.iter().filter_map(|s| s.scene_refusal(&scene).map(|why| (s.name(), why))).collect();
     let memory: Vec<_> = solvers::memory_table(&scene, solvers::SOLVERS, &settings)?
         .into_iter()
         .filter(|(name, _)| !refused.iter().any(|(r, _)| r == name))

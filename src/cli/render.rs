@@ -24,7 +24,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     check_outputs(&a)?;
     let budget = parse_bytes(&a.memory_budget)?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions { memory_budget_bytes: budget })?;
-    if let Some(why) = solver.mesh_refusal(&scene) {
+    if let Some(why) = solver.scene_refusal(&scene) {
         bail!("{}: {why}", a.scene.display());
     }
     // What the discretisation is known to miss, said before any work (the render's report

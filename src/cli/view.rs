@@ -367,7 +367,7 @@ pub fn view(a: ViewArgs) -> Result<()> {
         let (w, h) = parse_size(size)?;
         (scene.render.width, scene.render.height) = (w, h);
     }
-    if let Some(why) = solver.mesh_refusal(&scene) {
+    if let Some(why) = solver.scene_refusal(&scene) {
         bail!("{}: {why}", a.scene.display());
     }
     let script = match &a.script {
@@ -661,7 +661,7 @@ impl App<'_> {
         if next.name() == self.solver.name() {
             return;
         }
-        if let Some(why) = next.mesh_refusal(&self.scene) {
+        if let Some(why) = next.scene_refusal(&self.scene) {
             eprintln!("view: {}: {why}; staying with {}", next.name(), self.solver.name());
             return;
         }

@@ -71,7 +71,7 @@ pub trait Solver: Sync {
     /// Why the method does not apply to this scene, if it does not (`bench` skips it there
     /// and says why, rather than plotting another solver's result under its name).
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
-        self.mesh_refusal(scene)
+        self.scene_refusal(scene)
     }
     /// Whether it renders scene format v2 [[object]] meshes (only `path` so far).
     fn renders_meshes(&self) -> bool {
@@ -82,16 +82,31 @@ pub trait Solver: Sync {
     fn renders_materials(&self) -> bool {
         false
     }
-    /// Why it refuses `scene`: an [[object]] it cannot trace, or objects of several materials
-    /// where it holds one medium (checked before any device work).
-    fn mesh_refusal(&self, scene: &Scene) -> Option<String> {
+    /// Whether it carries a medium's emission (the source sigma_a Le), as its docs say it does.
+    fn renders_emission(&self) -> bool {
+        false
+    }
+    /// Why it refuses `scene`: an [[object]] it cannot trace, objects of several materials
+    /// where it holds one medium, or an emissive medium it would render as if dark (checked
+    /// before any device work).
+    fn scene_refusal(&self, scene: &Scene) -> Option<String> {
         if !self.renders_meshes() {
-            meshes_unsupported(self.name(), scene)
+            if let Some(why) = meshes_unsupported(self.name(), scene) {
+                return Some(why);
+            }
         } else if !self.renders_materials() {
-            materials_unsupported(self.name(), scene)
-        } else {
-            None
+            if let Some(why) = materials_unsupported(self.name(), scene) {
+                return Some(why);
+            }
         }
+        if !self.renders_emission() && scene.emissive() {
+            return Some(format!(
+                "{} does not carry a medium's emission (the scene's medium emits); use --solver {}",
+                self.name(),
+                solvers_that(|s| s.renders_emission())
+            ));
+        }
+        None
     }
     /// The seed paper's headline workload for `scatterlab report` (at CI size with `quick`),
     /// if the solver has one: each solver adds its own.

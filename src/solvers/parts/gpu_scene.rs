@@ -406,7 +406,7 @@ impl GpuScene {
 
     /// Upload for a solver that does not trace meshes: a scene with an [[object]] is refused
     /// in one line, never rendered as if its medium filled the box. The command line refuses
-    /// such scenes earlier, before opening the device (`Solver::mesh_refusal`); this is the
+    /// such scenes earlier, before opening the device (`Solver::scene_refusal`); this is the
     /// library's guard for callers that go straight to `Solver::render`.
     pub fn upload(gpu: &Gpu, scene: &Scene, force_full: bool) -> Result<GpuScene, SolverError> {
         if let Some(o) = &scene.object {

@@ -832,6 +832,10 @@ impl Solver for Path {
     }
 
     /// path traces [[object]] meshes (glsl/include/mesh.glsl).
+    fn renders_emission(&self) -> bool {
+        true
+    }
+
     fn renders_meshes(&self) -> bool {
         true
     }

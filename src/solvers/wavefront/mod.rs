@@ -204,7 +204,7 @@ impl Solver for Wavefront {
     }
 
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
-        if let Some(why) = self.mesh_refusal(scene) {
+        if let Some(why) = self.scene_refusal(scene) {
             return Some(why);
         }
         wave_field::traced_lights(scene).is_empty().then(|| {
