@@ -22,11 +22,17 @@
 //   sum_{i < N} b^i p(cos; g c^i) T_shadow^(a^i),   T^(a^i) = exp(-a^i tau_light),
 // octave 0 being exact single scattering. With OCTAVES = 1 (every other solver) the code is
 // the single-scattering term unchanged.
+//
+// An emissive medium (EMISSION) adds its emission along the camera ray by the step rule below:
+// the zero-scattering term. The light it emits and the medium scatters comes from the
+// solver's volume where it has one (lbl, dom, networks), and is left out where it has none
+// (single, octaves).
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
 #define MAJORANT_BINDING 2
+#define EMISSION_BINDING 15
 #include "../include/scene.glsl"
 #include "../include/rng.glsl"
 #include "../include/phase.glsl"
@@ -728,6 +734,12 @@ void main() {
         vec3 st_ = scene.materials[seg_mat].sigma_t.xyz * density_at(p);
         vec3 seg_T = exp(-st_ * dt);
         L += T * scene.materials[seg_mat].albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p, d, scene.materials[seg_mat].albedo.w));
+        // The medium's emission along the step, by the same rule: the integral of T(s) sigma_a
+        // Le ds with sigma_t and Le held at the step's point is (1 - albedo) (1 - e^{-sigma_t
+        // dt}) Le, so a thick step never emits more than Le (its equilibrium). Once per ray: a
+        // later slab of an out-of-core volume (ms_only) adds its volume's light alone.
+        if (EMISSION != EMISSION_NONE && pc.ms_only == 0u)
+            L += T * (vec3(1.0) - scene.materials[seg_mat].albedo.xyz) * (vec3(1.0) - seg_T) * emission_at(p);
         T *= seg_T;
         S = vec3(0.0);
         j = 0u;

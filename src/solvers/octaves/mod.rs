@@ -48,6 +48,12 @@ impl OctavesSolver {
 }
 
 impl Solver for OctavesSolver {
+    /// Emission along the camera ray (the zero-scattering term, glsl/view/march.comp); its
+    /// octaves scatter the lights' light only, so emitted light that scatters is left out.
+    fn renders_emission(&self) -> bool {
+        true
+    }
+
     fn name(&self) -> &'static str {
         "octaves"
     }

@@ -510,7 +510,7 @@ pub fn march(
             shadow_dims,
             ms_window,
         };
-        gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline))
+        gs.bind_emission(gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline)))
             .write(3, &out)
             .read_write(4, &stats)
             .read_write(5, &state)

@@ -76,6 +76,12 @@ impl Solver for Single {
     }
 
     /// single traces [[object]] meshes (glsl/view/march.comp's chain, glsl/include/mesh.glsl).
+    /// Emission along the camera ray (the zero-scattering term, glsl/view/march.comp); the
+    /// emitted light the medium scatters is not single scattering of a light and is left out.
+    fn renders_emission(&self) -> bool {
+        true
+    }
+
     fn renders_meshes(&self) -> bool {
         true
     }
