@@ -20,11 +20,14 @@
 // ray's chain reflects inside (F at each exit, all of it under total internal reflection), as
 // `single`'s view march does, and crosses index-matched surfaces straight, up to MAX_EVENTS.
 // Left out: light reaching a sample along a refracted path (as `single`).
+// An emissive medium adds its emission along each inside segment (segment_emission), the
+// zero-scattering term, with the surfaces' terms; the emitted light it scatters is left out.
 #extension GL_GOOGLE_include_directive : require
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
 #define MAJORANT_BINDING 2
+#define EMISSION_BINDING 15
 #include "../include/scene.glsl"
 #include "../include/budget.glsl"
 #define MESH_NODES_BINDING 6
@@ -361,6 +364,29 @@ vec3 segment_light(vec3 x, vec3 d, float t1, uint mat, out vec3 tau_total, out v
 // reflections end sooner, when their weight falls below 1e-4, as the view march's).
 const uint MAX_EVENTS = 32u;
 
+// The medium's emission along an inside segment [0, t1] from x toward the camera (material
+// mat), as the view march adds it: steps of at most pc.step (one for a constant density and
+// Le, whose step rule is then exact), each adding T (1 - albedo) (1 - e^{-sigma_t dt}) Le at its
+// midpoint, so a thick step never emits more than Le. Emitted light the medium scatters is not
+// single scattering of a light, and is left out.
+vec3 segment_emission(vec3 x, vec3 d, float t1, uint mat) {
+    medium_mat = mat;
+    vec3 st = scene.materials[mat].sigma_t.xyz;
+    vec3 k = vec3(1.0) - scene.materials[mat].albedo.xyz;
+    bool uniform_le = DENSITY_KIND == DENSITY_CONSTANT && (EMISSION == EMISSION_CONSTANT || scene.materials[mat].emission.w == 0.0);
+    uint n = uniform_le ? 1u : max(1u, uint(ceil(t1 / pc.step)));
+    float dt = t1 / float(n);
+    vec3 T = vec3(1.0), L = vec3(0.0);
+    for (uint i = 0u; i < n; ++i) {
+        iters++;
+        vec3 p = x + d * ((float(i) + 0.5) * dt);
+        vec3 seg_T = exp(-st * density_at(p) * dt);
+        L += T * k * (vec3(1.0) - seg_T) * emission_at(p);
+        T *= seg_T;
+    }
+    return L;
+}
+
 void main() {
     uvec2 px = gl_GlobalInvocationID.xy;
     uvec2 res = scene.image.xy;
@@ -393,6 +419,8 @@ void main() {
         uint mat = triangle_material(tri);
         if (!entering) {
             vec3 tau, cv, ex;
+            // The segment's own emission (once: with the surfaces' terms of the first chunk).
+            if (EMISSION != EMISSION_NONE && first_chunk) L += w * segment_emission(x, d, t, mat);
             scat += w * segment_light(x, d, t, mat, tau, cv, ex);
             cover += w * cv;
             exact += w * ex;

@@ -86,6 +86,11 @@ pub trait Solver: Sync {
     fn renders_emission(&self) -> bool {
         false
     }
+    /// Why its method cannot carry emission, where that is the method's nature rather than work
+    /// not done yet: said in the refusal.
+    fn emission_refused_because(&self) -> Option<&'static str> {
+        None
+    }
     /// Why it refuses `scene`: an [[object]] it cannot trace, objects of several materials
     /// where it holds one medium, or an emissive medium it would render as if dark (checked
     /// before any device work).
@@ -100,8 +105,9 @@ pub trait Solver: Sync {
             }
         }
         if !self.renders_emission() && scene.emissive() {
+            let why = self.emission_refused_because().map(|w| format!(": {w}")).unwrap_or_default();
             return Some(format!(
-                "{} does not carry a medium's emission (the scene's medium emits); use --solver {}",
+                "{} does not carry a medium's emission (the scene's medium emits){why}; use --solver {}",
                 self.name(),
                 solvers_that(|s| s.renders_emission())
             ));

@@ -271,6 +271,13 @@ impl Solver for ShSingle {
         vec![Variant::new("", &[("sh-single.samples", "500"), ("sh-single.order", "4")])]
     }
 
+    /// Emission along the camera ray's inside segments (the zero-scattering term,
+    /// glsl/sh_single/render.comp `segment_emission`); the emitted light the medium scatters is
+    /// not single scattering of a light, and is left out.
+    fn renders_emission(&self) -> bool {
+        true
+    }
+
     /// Samples inside any [[object]] (a v1 medium as its box).
     fn renders_meshes(&self) -> bool {
         true

@@ -628,7 +628,7 @@ fn render_pass(
             let count = (n - first).min(chunk);
             let (bl, bh) = chunk_box(centres, reach, first as usize, count as usize);
             passes.push(
-                gs.bind_mesh(Pass::new("sh_single.render", QueueRole::Trace, &pipeline))
+                gs.bind_emission(gs.bind_mesh(Pass::new("sh_single.render", QueueRole::Trace, &pipeline)))
                     .read(3, &up.sample)
                     .read(4, &up.coeff)
                     .read(5, &up.light)

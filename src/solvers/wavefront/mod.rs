@@ -203,6 +203,13 @@ impl Solver for Wavefront {
         Ok(w)
     }
 
+    fn emission_refused_because(&self) -> Option<&'static str> {
+        Some(
+            "its spherical layers are centred on a point light and march that light's wavefronts outward; a source \
+             spread through the volume has no centre to march from",
+        )
+    }
+
     fn inapplicable(&self, scene: &Scene) -> Option<String> {
         if let Some(why) = self.scene_refusal(scene) {
             return Some(why);
