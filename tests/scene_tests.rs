@@ -648,7 +648,9 @@ fn scene_never_panics_on_odd_input() {
 
 // ---------------------------------------------------------------------------- shipped scenes
 
-const SHIPPED: [&str; 13] = [
+const SHIPPED: [&str; 15] = [
+    "campfire.toml",
+    "explosion.toml",
     "homogeneous-sphere.toml",
     "cloud-layer.toml",
     "anisotropic-cube.toml",
@@ -891,4 +893,149 @@ fn scene_mutated_inputs_never_panic_and_errors_stay_one_line() {
             }
         }
     }
+}
+
+// ---------------------------------------------------------------------------- emission
+
+/// A unit box of medium seen from +z, with `medium` keys appended and `lights` after it.
+fn emissive(medium: &str, lights: &str) -> String {
+    format!(
+        "[render]\nwidth = 8\nheight = 8\n[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 30.0\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 2.0\nalbedo = 0.5\n{medium}\n{lights}"
+    )
+}
+
+/// Emission in every form it takes: a number, RGB, a grid times emission_scale, a temperature
+/// grid (blackbody at the voxels, cut off at or below the cutoff), and a light-less scene that
+/// its emission lights.
+#[test]
+fn scene_emission_forms_load() {
+    use scatterlab::scene::Emission;
+    let s = parse(&emissive("emission = 2.0", "")).expect("a light-less emitter loads");
+    assert!(s.lights.is_empty() && s.emissive() && s.features().emissive);
+    assert_eq!(s.medium.emission, Emission::Constant(Vec3::splat(2.0)));
+    assert_eq!(s.emission_at(Vec3::ZERO), Vec3::splat(2.0));
+    // sigma_a Le = 2 (1 - 0.5) * 2.
+    assert_eq!(s.emission_source_at(Vec3::ZERO), Vec3::splat(2.0));
+    assert_eq!(s.emission_at(Vec3::splat(2.0)), Vec3::ZERO, "nothing outside the box");
+    let s = parse(&emissive("emission = [1.0, 0.5, 0.0]\nemission_scale = 3.0", "")).unwrap();
+    assert_eq!(s.medium.emission, Emission::Constant(Vec3::new(3.0, 1.5, 0.0)));
+    let dir = tempfile::tempdir().unwrap();
+    // A 2 x 1 x 1 grid: voxel 0 is 0, voxel 1 is 4; temperatures 50 K and 3000 K.
+    write(dir.path(), "e.f32", &f32_bytes(&[0.0, 4.0]));
+    write(dir.path(), "t.f32", &f32_bytes(&[50.0, 3000.0]));
+    let load = |medium: &str| parse_in(&emissive(medium, ""), dir.path(), &[], &LoadOptions::default());
+    let s =
+        load("emission = { kind = \"grid\", file = \"e.f32\", dims = [2, 1, 1] }\nemission_scale = [1.0, 0.5, 0.25]")
+            .unwrap();
+    let g = s.medium.emission.grid().expect("a grid");
+    assert_eq!((g.planes.len(), g.dims()), (1, [2, 1, 1]));
+    // At the second voxel's centre (x = 0.25): Le = 4 x scale.
+    assert_eq!(s.emission_at(Vec3::new(0.25, 0.0, 0.0)), Vec3::new(4.0, 2.0, 1.0));
+    assert_eq!(s.emission_at(Vec3::new(-0.25, 0.0, 0.0)), Vec3::ZERO);
+    let s =
+        load("temperature = { kind = \"grid\", file = \"t.f32\", dims = [2, 1, 1] }\nemission_scale = 1e-4").unwrap();
+    let g = s.medium.emission.grid().unwrap();
+    assert_eq!(g.planes.len(), 3);
+    let hot = scatterlab::physics::blackbody::blackbody_rgb(3000.0) * 1e-4;
+    assert!((s.emission_at(Vec3::new(0.25, 0.0, 0.0)) - hot).abs().max_element() < 1e-6 * hot.max_element());
+    assert_eq!(s.emission_at(Vec3::new(-0.25, 0.0, 0.0)), Vec3::ZERO, "50 K is below the default 100 K cutoff");
+    // (value - offset) * scale: (3000 - 1000) * 2 = 4000 K; 50 K maps below the cutoff.
+    let s = load(
+        "temperature = { kind = \"grid\", file = \"t.f32\", dims = [2, 1, 1] }\ntemperature_offset = 1000.0\n\
+         temperature_scale = 2.0\ntemperature_cutoff = 0.0",
+    )
+    .unwrap();
+    let want = scatterlab::physics::blackbody::blackbody_rgb(4000.0);
+    assert!((s.emission_at(Vec3::new(0.25, 0.0, 0.0)) - want).abs().max_element() < 1e-6 * want.max_element());
+    assert_eq!(s.emission_at(Vec3::new(-0.25, 0.0, 0.0)), Vec3::ZERO);
+    // A scene with lights and no emission has none.
+    let s = parse(&base()).unwrap();
+    assert!(!s.emissive() && s.medium.emission == Emission::None);
+}
+
+/// Bad emission values and combinations: one line each, naming the field.
+#[test]
+fn scene_emission_errors_are_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "e.f32", &f32_bytes(&[0.0, 4.0]));
+    write(dir.path(), "bad.f32", &f32_bytes(&[1.0, -2.0]));
+    write(dir.path(), "d.f32", &f32_bytes(&[1.0; 8]));
+    let light = "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 1.0\n";
+    let cases: &[(&str, &str, &[&str])] = &[
+        ("emission = -1.0", light, &["medium.emission", "emitted radiance", ">= 0"]),
+        ("emission = [1.0, nan, 1.0]", light, &["medium.emission", "green"]),
+        ("emission = \"hot\"", light, &["medium.emission"]),
+        ("emission = { kind = \"sphere\", file = \"e.f32\" }", light, &["medium.emission.kind", "sphere"]),
+        ("emission = { kind = \"grid\", file = \"bad.f32\", dims = [2, 1, 1] }", light, &["emission values", ">= 0"]),
+        ("emission = { kind = \"grid\", file = \"missing.f32\", dims = [2, 1, 1] }", light, &["missing.f32"]),
+        ("emission = 1.0\nemission_scale = -2.0", light, &["medium.emission_scale"]),
+        ("emission_scale = 2.0", light, &["medium.emission_scale", "neither"]),
+        ("temperature_scale = 2.0", light, &["medium.temperature_scale", "no temperature"]),
+        (
+            "emission = 1.0\ntemperature = { kind = \"grid\", file = \"e.f32\", dims = [2, 1, 1] }",
+            light,
+            &["medium.temperature", "both"],
+        ),
+        (
+            "temperature = { kind = \"grid\", file = \"e.f32\", dims = [2, 1, 1] }\ntemperature_scale = 0.0",
+            light,
+            &["medium.temperature_scale", "> 0"],
+        ),
+        (
+            "temperature = { kind = \"grid\", file = \"e.f32\", dims = [2, 1, 1] }\ntemperature_cutoff = -5.0",
+            light,
+            &["medium.temperature_cutoff"],
+        ),
+        ("emission = 0.0", "", &["no lights", "emits nothing"]),
+        ("", "", &["light", "no lights"]),
+    ];
+    for (medium, lights, words) in cases {
+        let text = emissive(medium, lights);
+        let msg = message(parse_in(&text, dir.path(), &[], &LoadOptions::default()));
+        assert_mentions(&msg, words);
+    }
+    // Albedo 1 absorbs nothing, so it cannot emit.
+    let text = emissive("emission = 1.0", light).replace("albedo = 0.5", "albedo = 1.0");
+    assert_mentions(&message(parse(&text)), &["medium.emission", "albedo 1", "sigma_a Le"]);
+    // A temperature grid of another size than the density grid.
+    let text = emissive(
+        "density = { kind = \"grid\", file = \"d.f32\", dims = [2, 2, 2] }\n\
+         temperature = { kind = \"grid\", file = \"e.f32\", dims = [2, 1, 1] }",
+        light,
+    );
+    assert_mentions(
+        &message(parse_in(&text, dir.path(), &[], &LoadOptions::default())),
+        &["medium.temperature", "2 x 1 x 1", "2 x 2 x 2"],
+    );
+}
+
+/// The shipped emissive scenes: the campfire's grids come from tools/make-campfire byte for
+/// byte, its temperature field emits only in the flame (hot voxels above the cutoff), and its
+/// Le peaks where the flame is hottest.
+#[test]
+fn scene_campfire_is_what_it_says() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let status = std::process::Command::new("python3")
+        .arg(root.join("tools/make-campfire"))
+        .arg(dir.path())
+        .stdout(std::process::Stdio::null())
+        .status()
+        .expect("python3 runs tools/make-campfire");
+    assert!(status.success());
+    for f in ["campfire-density.vol", "campfire-temperature.vol"] {
+        let made = std::fs::read(dir.path().join(f)).unwrap();
+        assert!(made == std::fs::read(root.join("scenes").join(f)).unwrap(), "tools/make-campfire no longer makes {f}");
+    }
+    let s = load_shipped("campfire.toml");
+    assert!(s.lights.iter().all(|l| matches!(l, scatterlab::scene::Light::Environment { .. })));
+    let g = s.medium.emission.grid().expect("a temperature grid");
+    let t = g.temperature.expect("from a temperature");
+    assert_eq!(t.cutoff, 600.0);
+    let peak = g.max_le();
+    // 1889 K at most: red above green, blue clipped (below ~1900 K the blackbody is outside sRGB).
+    assert!(peak.x > 20.0 && peak.x < 30.0 && peak.y < peak.x && peak.z >= 0.0, "{peak}");
+    let emitting = g.planes[0].data.iter().filter(|v| **v > 0.0).count();
+    assert!((300..=900).contains(&emitting), "{emitting} voxels emit");
 }

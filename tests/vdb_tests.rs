@@ -106,3 +106,29 @@ fn vdb_renders_as_the_same_grid_given_as_a_vol() {
     assert!(a.image.data == b.image.data, "the .vdb and the .vol of the same values render differently");
     assert_clean(&gpu);
 }
+
+/// scenes/explosion.vdb (tools/make-explosion, OpenVDB's own writer): its temperature grid's
+/// active box is the hot core only, smaller than the density's and offset from it; read over
+/// the density's voxels, every hot voxel holds the blackbody of 1000 + 1500 density at the
+/// same voxel (the tool's formula), and the others emit nothing.
+#[test]
+fn vdb_temperature_lands_on_the_density_voxels() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/explosion.toml");
+    let s = Scene::load(&path, &[], &LoadOptions::default()).unwrap();
+    let Density::Grid(d) = &s.medium.density else { panic!("a grid density") };
+    let g = s.medium.emission.grid().expect("a temperature grid");
+    assert_eq!(g.dims(), d.dims);
+    assert_eq!(d.dims, [28, 25, 27]);
+    let mut hot = 0;
+    for (v, &density) in d.data.iter().enumerate() {
+        let rgb = Vec3::new(g.planes[0].data[v], g.planes[1].data[v], g.planes[2].data[v]);
+        if rgb == Vec3::ZERO {
+            continue;
+        }
+        hot += 1;
+        let want = scatterlab::physics::blackbody::blackbody_rgb(1000.0 + 1500.0 * density as f64);
+        assert!((rgb - want).abs().max_element() <= 1e-5 * want.max_element(), "voxel {v}: {rgb} against {want}");
+    }
+    // Every active temperature voxel (1732, tools/make-explosion) is above the 100 K cutoff.
+    assert_eq!(hot, 1732);
+}
