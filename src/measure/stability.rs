@@ -10,7 +10,10 @@
 //!   exactly (the error against it is reported);
 //! - with a point light, output must be finite and non-negative, and its total not brighter
 //!   than the total of the same case with albedo 1 (the lossless bound, by `path`) beyond the
-//!   statistical error of both.
+//!   statistical error of both;
+//! - an emitter (Le = 1) lit by nothing else: no pixel may exceed Le, the equilibrium radiance
+//!   (energy is never created beyond the source), and a pure absorber's every pixel is exactly
+//!   1 - exp(-tau). Only the solvers that carry emission run these (the others refuse them).
 //!
 //! Monte Carlo solvers (`path`) are judged with its variance image (a pixel fails only beyond 5 standard errors plus
 //! a small absolute floor). Cases marked `slow` are run by the command, not by the test suite.
@@ -37,6 +40,10 @@ pub struct Case {
     pub shape: Shape,
     /// Too slow for the test suite on a CPU device (run by the command only).
     pub slow: bool,
+    /// The medium emits Le = 1 and nothing else lights it (no light at all): no pixel may
+    /// exceed Le (the equilibrium radiance: energy is never created beyond the source), and
+    /// the pure absorber is exactly 1 - exp(-tau).
+    pub emission: bool,
 }
 
 /// The medium of a case, seen face on along -z by the orthographic camera (0.6 wide), so every
@@ -103,9 +110,12 @@ const GRID: u32 = 8;
 fn scene_text(c: &Case) -> String {
     let sigma_t = c.tau / c.shape.depth();
     let (lo, hi) = c.shape.bounds();
-    let light = match c.light {
-        None => "[[light]]\nkind = \"environment\"\nradiance = 1.0\n".to_string(),
-        Some(p) => format!("[[light]]\nkind = \"point\"\nposition = [{}, {}, {}]\nintensity = 1.0\n", p[0], p[1], p[2]),
+    let light = match (c.light, c.emission) {
+        (_, true) => "emission = 1.0\n".to_string(),
+        (None, false) => "[[light]]\nkind = \"environment\"\nradiance = 1.0\n".to_string(),
+        (Some(p), false) => {
+            format!("[[light]]\nkind = \"point\"\nposition = [{}, {}, {}]\nintensity = 1.0\n", p[0], p[1], p[2])
+        }
     };
     format!(
         "[render]\nwidth = {RES}\nheight = {RES}\nseed = 9\nspp = 64\n\
@@ -128,6 +138,7 @@ pub fn cases() -> Vec<Case> {
         light,
         shape: Shape::Cube,
         slow,
+        emission: false,
     };
     for a in [0.0f32, 0.5, 0.9, 0.99, 0.999, 1.0] {
         v.push(mk(format!("albedo {a}"), "albedo", a, 4.0, 0.0, None, false));
@@ -174,7 +185,35 @@ pub fn cases() -> Vec<Case> {
         c.shape = Shape::Slab;
         v.push(c);
     }
+    // An emitter lit by nothing else (issue 47), from a pure absorber (exact: 1 - exp(-tau)) to
+    // nearly lossless, optically thin to very thick: no pixel above the source's Le = 1. (Albedo
+    // 1 absorbs, and so emits, nothing: the scene loader refuses it.) Thick near-lossless cases
+    // take `path` long: slow.
+    for a in [0.0f32, 0.5, 0.9, 0.99, 0.999] {
+        let mut c = mk(format!("emitter, albedo {a}"), "emission", a, 4.0, 0.0, None, false);
+        c.emission = true;
+        v.push(c);
+    }
+    for tau in [1e-3f32, 1e-1, 10.0, 1e3, 1e4] {
+        let mut c = mk(format!("emitter, tau {tau:e}"), "emission", 0.9, tau, 0.0, None, tau >= 1e3);
+        c.emission = true;
+        v.push(c);
+    }
+    for g in [-0.9f32, 0.9] {
+        let mut c = mk(format!("emitter, g {g}"), "emission", 0.9, 4.0, g, None, false);
+        c.emission = true;
+        v.push(c);
+    }
     v
+}
+
+/// The variants of `solver` that run on `scene`: none where the solver refuses the scene (an
+/// emission it does not carry would render dark and pass every bound for nothing).
+fn variants_on(solver: &dyn Solver, scene: &Scene) -> Vec<solvers::Variant> {
+    if solver.scene_refusal(scene).is_some() {
+        return Vec::new();
+    }
+    solver.stability().into_iter().filter(|v| (v.applies)(scene)).collect()
 }
 
 fn render(
@@ -194,7 +233,7 @@ pub fn steps(solvers_: &[&dyn Solver], include_slow: bool) -> Result<usize, Stri
         let scene =
             Scene::from_str(&scene_text(&case), &case.name, std::path::Path::new("."), &[], &LoadOptions::default())
                 .map_err(|e| e.to_string())?;
-        n += solvers_.iter().map(|s| s.stability().into_iter().filter(|v| (v.applies)(&scene)).count()).sum::<usize>();
+        n += solvers_.iter().map(|s| variants_on(*s, &scene).len()).sum::<usize>();
     }
     Ok(n)
 }
@@ -229,10 +268,12 @@ pub fn run(
         };
         // Exact answers under the environment: the pure absorber (every camera ray crosses one
         // unit: L exp(-sigma_t)) and the furnace (albedo 1: L everywhere).
-        let exact_value = match (case.light, case.albedo) {
+        let exact_value = match (case.light, case.albedo, case.emission) {
             // tau is the optical depth along the camera's axis whatever the shape.
-            (None, 0.0) => Some((-(case.tau as f64)).exp() as f32),
-            (None, 1.0) => Some(1.0),
+            (None, 0.0, false) => Some((-(case.tau as f64)).exp() as f32),
+            (None, 1.0, false) => Some(1.0),
+            // What a pure absorber emits toward the camera: Le (1 - exp(-tau)).
+            (None, 0.0, true) => Some(-(-(case.tau as f64)).exp_m1() as f32),
             _ => None,
         };
         let exact = exact_value.map(|x| {
@@ -241,7 +282,7 @@ pub fn run(
             e
         });
         for &solver in solvers_ {
-            for variant in solver.stability().into_iter().filter(|v| (v.applies)(&scene)) {
+            for variant in variants_on(solver, &scene) {
                 progress(&format!("{} / {}", case.name, solver.name()));
                 // Shapes other than the cube are measured at the fitted default grids, with the
                 // default light rays to fill them (a variant's few rays, sized to the cube's
