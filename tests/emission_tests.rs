@@ -8,7 +8,7 @@ use glam::Vec3;
 use scatterlab::output::Image;
 use scatterlab::physics::reference::sphere_chord_at_impact;
 
-use crate::common::{assert_clean, gpu, mean_and_stderr, render, scene, PATH};
+use crate::common::{assert_clean, gpu, mean_and_stderr, render, scene, PATH, SH_SINGLE, SINGLE};
 use crate::slab_reference::slab_emission;
 
 /// A sphere of radius 0.5 (sigma_t per channel, albedo 0) emitting `le`, seen by an
@@ -27,7 +27,14 @@ fn glowing_sphere(sigma_t: &str, le: &str, size: u32, spp: u32) -> scatterlab::s
 /// sphere's rim crosses pixels, where 8 x 8 points missed 0.7% of an area), for the
 /// orthographic camera of [`glowing_sphere`].
 fn sphere_exact(size: u32, sigma_t: Vec3, le: Vec3) -> Vec<f64> {
-    const N: usize = 64;
+    sphere_exact_sampled(size, sigma_t, le, 64)
+}
+
+/// [`sphere_exact`] averaged over N x N points of each pixel (1: its centre, where a solver
+/// casts one ray).
+fn sphere_exact_sampled(size: u32, sigma_t: Vec3, le: Vec3, n: usize) -> Vec<f64> {
+    #[allow(non_snake_case)]
+    let N = n;
     let px = 1.2 / size as f64;
     let mut out = Vec::with_capacity((size * size * 3) as usize);
     for row in 0..size {
@@ -182,5 +189,57 @@ fn emission_is_modelled_only_where_the_scene_has_it() {
     assert!(
         out.report.modelled.describe().contains("skipped: ") && out.report.modelled.describe().contains("emission")
     );
+    assert_clean(&gpu);
+}
+
+/// `single`, `octaves` and `sh-single` carry emission along the camera ray only: the
+/// zero-scattering term, exact for a uniform medium. On the emitting slab that is (1 - albedo)
+/// (1 - exp(-tau)) Le along the normal, to float precision (1e-5), at every albedo and g; what they
+/// leave out (the scattered emitted light) is the rest of the 1D reference, reported. On the
+/// absorbing emitter (nothing scatters) they are the closed form at each pixel's centre up to
+/// the camera-ray steps at the sphere's rim (sh-single: its object's inside segments).
+#[test]
+fn camera_ray_solvers_carry_the_unscattered_emission_exactly() {
+    let gpu = gpu();
+    let octaves: &dyn scatterlab::solvers::Solver = &scatterlab::solvers::octaves::OctavesSolver;
+    for &(tau, albedo, g) in SLAB_CASES {
+        let (full, _) = slab_emission(tau, albedo, g, 16, 4000);
+        let unscattered = (1.0 - albedo) * -(-tau).exp_m1();
+        for solver in [SINGLE, octaves] {
+            let out = render(&gpu, &emitting_slab(tau, albedo, g, 1), solver, &[]);
+            let mean = out.image.data.iter().map(|v| *v as f64).sum::<f64>() / out.image.data.len() as f64;
+            eprintln!(
+                "{} slab tau {tau}, albedo {albedo}, g {g}: {mean:.6}, unscattered {unscattered:.6}, of the full {full:.5}: {:.3}",
+                solver.name(),
+                mean / full
+            );
+            assert!(
+                (mean - unscattered).abs() <= 1e-5 * unscattered.max(1e-3),
+                "{}: {mean} against {unscattered}",
+                solver.name()
+            );
+        }
+    }
+    let size = 16;
+    let le = Vec3::new(1.0, 0.5, 0.25);
+    // Both cast one ray through each pixel's centre.
+    let exact = sphere_exact_sampled(size, Vec3::splat(3.0), le, 1);
+    let want = exact.iter().sum::<f64>() / exact.len() as f64;
+    for solver in [SINGLE, SH_SINGLE] {
+        let out = render(&gpu, &glowing_sphere("3.0", "[1.0, 0.5, 0.25]", size, 1), solver, &[]);
+        let m = scatterlab::output::compare(
+            &out.image,
+            &Image { width: size, height: size, data: exact.iter().map(|v| *v as f32).collect() },
+        )
+        .unwrap();
+        eprintln!(
+            "{} absorbing emitter: relL2 {:.4}, energy {:.4} (mean {want:.5})",
+            solver.name(),
+            m.rel_l2,
+            m.energy_ratio
+        );
+        // Measured: single relL2 < 1e-4, sh-single 0.0047 (energy 0.9979: its chord steps).
+        assert!(m.rel_l2 < 0.01 && (m.energy_ratio - 1.0).abs() < 0.005, "{}: {m:?}", solver.name());
+    }
     assert_clean(&gpu);
 }
