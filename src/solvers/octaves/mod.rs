@@ -115,7 +115,8 @@ impl Solver for OctavesSolver {
     /// The view march's trust warning, before the device opens ([`view::ViewTrust`]).
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let v = Self::parse(knobs, scene)?;
-        Ok(view::ViewTrust::of(scene, &v).warning(self.name()).into_iter().collect())
+        let trust = view::ViewTrust::of(scene, &v).warning(self.name());
+        Ok(trust.into_iter().chain(view::unscattered_emission_warning(self.name(), scene)).collect())
     }
 
     fn summary(&self, report: &crate::solvers::interface::RenderReport) -> Vec<String> {

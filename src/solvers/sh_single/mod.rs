@@ -231,6 +231,7 @@ impl Solver for ShSingle {
         stats.faults = faults;
         let mut report = RenderReport::finish(gpu, self, &k, modelled, bytes, stats);
         report.warnings.extend(trust_warnings);
+        report.warnings.extend(crate::solvers::parts::view::unscattered_emission_warning(self.name(), req.scene));
         report.warnings.extend(warning);
         Ok(RenderOutput { image, variance: None, report, estimates: Vec::new() })
     }
@@ -239,7 +240,9 @@ impl Solver for ShSingle {
         let set = ShSettings::parse(knobs, scene)?;
         let os = object_scene(scene);
         let object = os.object.as_ref().expect("object scene");
-        Ok(SampleTrust::of(&os, object, set.samples, set.seed).warnings())
+        let mut w = SampleTrust::of(&os, object, set.samples, set.seed).warnings();
+        w.extend(crate::solvers::parts::view::unscattered_emission_warning(self.name(), scene));
+        Ok(w)
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
