@@ -11,7 +11,9 @@
 //! gathered from the lattice's time-integrated field (thesis 4.6.2). The deposits are the
 //! power scattered out of the light beams (the once-scattered source); what they send straight
 //! to the camera is the single-scattering term, and the lattice carries the rest, so no energy
-//! is counted twice.
+//! is counted twice. An emitting medium's emission enters the lattice too, as an isotropic
+//! volume source beside the deposits ([`lattice::emission`]), while the view pass adds what it
+//! emits along the camera ray: the lattice carries only the emitted light that scatters.
 //!
 //! Built from shared parts (`crate::solvers::parts`): [`marching`] (raymaps, marching,
 //! transfer), [`lattice`] (the lattice, injection, convergence), [`view`] (the view pass) and,
@@ -195,6 +197,19 @@ impl Solver for Lbl {
     /// (glsl/include/lattice.glsl MATS); the marching and the view march follow each ray into
     /// each object with its material.
     fn renders_materials(&self) -> bool {
+        true
+    }
+
+    /// An emitting medium: the view march adds the emission along the camera ray (the
+    /// zero-scattering term, glsl/view/march.comp), and the lattice carries the emitted light
+    /// the medium scatters. Each voxel's emission enters the lattice as an isotropic volume
+    /// source beside the once-scattered deposits, 4 pi Le lambda^2 kappa_a / l per voxel (the
+    /// power 4 pi sigma_a Le lambda^3 in the form that balances the lattice's own absorption:
+    /// src/solvers/parts/lattice/emission.rs), so its fluence holds the emitted light,
+    /// uncollided and scattered, and the view march's sigma_s phi / 4 pi gathers it once per
+    /// scattering toward the camera. A scene lit by its emission alone marches no light rays.
+    /// The lattice's limits apply to it as to the lights' light (docs/lbl.md, "Emission").
+    fn renders_emission(&self) -> bool {
         true
     }
 
@@ -615,7 +630,9 @@ impl LblSettings {
             escape: k.get("escape")?,
             drift: k.get("drift")?,
             near_light: 0.0,
+            // (No light, no forward population: nothing scatters forward out of a beam.)
             forward: scene.features().anisotropic
+                && !scene.lights.is_empty()
                 && match k.get::<String>("inject")?.as_str() {
                     "auto" => forward_auto,
                     mode => mode == "forward",
@@ -667,13 +684,14 @@ impl LblSettings {
         // whose image the lumped light scales (the scaling would scale any other light's too).
         // A seeded start (lbl.cascade, lbl.warm_start) guesses the field of every deposit, the
         // near ones too, and would start far from the lattice's fixed point without them.
-        let lumpable = scene.lights.len() == 1 && light_inside && !out.seeded();
+        // (An emitting medium's image is not the light's alone: the scaling would scale its glow too.)
+        let lumpable = scene.lights.len() == 1 && light_inside && !out.seeded() && !scene.emissive();
         out.near_light = k.get_or("near_light", if lumpable { near_light_default(scene, &geom) } else { 0.0 })?;
         if out.near_light > 0.0 && !lumpable {
             return Err(k.invalid(
                 "near_light",
                 "the near ball lumps once-scattered light into the scene's only light, which must be a point light \
-                 inside the medium, without lbl.cascade or lbl.warm_start; set lbl.near_light=0",
+                 inside a medium that does not emit, without lbl.cascade or lbl.warm_start; set lbl.near_light=0",
             ));
         }
         // Each level halves the grid; the coarsest keeps at least 4 voxels along its longest side.
@@ -682,6 +700,13 @@ impl LblSettings {
             return Err(k.invalid(
                 "warm_start",
                 "the wavefront warm start is built for the d3q6 lattice; use lbl.lattice=d3q6",
+            ));
+        }
+        if out.warm_start.is_some() && scene.lights.is_empty() {
+            return Err(k.invalid(
+                "warm_start",
+                "the wavefront warm start guesses the lights' field, and the scene is lit by its emission alone; use \
+                 lbl.warm_start=none",
             ));
         }
         if out.warm_start.is_some() && scene.object.is_some() {
@@ -712,9 +737,14 @@ impl LblSettings {
         self.warm_start.is_some() || self.cascade > 0 || self.previous.is_some()
     }
 
-    /// Channels the lattice carries ([`gpu_scene::channels`]).
+    /// Channels the lattice carries ([`gpu_scene::channels`]), three also where the medium's
+    /// emission differs between channels (its source then does).
     pub fn channels(scene: &Scene, chromatic: bool) -> u32 {
-        gpu_scene::channels(scene, chromatic)
+        if lattice::emission::chromatic_emission(scene) && scene.emissive() {
+            3
+        } else {
+            gpu_scene::channels(scene, chromatic)
+        }
     }
 }
 
@@ -918,7 +948,7 @@ pub fn run_lattice(
     let fixed = set.deterministic || !info.float_atomics;
     let params = lattice_params(scene, set, &geom, nch);
     let mut marcher = Marcher::new(gpu, scene, gs, geom, &set.march, nch, fixed, params.directed, true)?;
-    if set.forward {
+    if set.forward && marcher.ray_count > 0 {
         marcher.enable_forward(gpu, nch)?;
     }
     // Objects of several materials: each voxel names its material (the marcher's voxelisation).
@@ -928,18 +958,27 @@ pub fn run_lattice(
     let mut lattice = Diffuser::new(gpu, marcher.density.clone(), &params, &materials)?;
     let injector = Injector::new(gpu, &params, fixed, marcher.scale, &materials)?;
     let rounds = marcher.rounds;
+    let density = lattice::read_f32(gpu, &marcher.density)?;
+    // An emitting medium's source per voxel (lattice::emission): isotropic, into the rest
+    // distribution beside the once-scattered deposits, once (the lattice's time integral is
+    // the steady field of a constant source).
+    let emission = lattice::emission::emission_source(scene, &geom, set.lattice, &density, voxels, nch);
 
     // A warm or cascadic start needs the whole deposit s before the iteration starts from the
     // guess, so the rounds only march and transfer (the sums accumulate until one injection).
     let warm = set.seeded();
+    if let (Some(e), false) = (&emission, warm) {
+        // Cold: the lattice is zero, and the rounds' injections add their deposits to this.
+        gpu.write_buffer(lattice.state(), 0, bytemuck::cast_slice(e))?;
+    }
     progress(Progress::work("setup: pipelines, raymaps, lattice", 1, 1));
     march_rounds(gpu, gs, set, (&marcher, &injector), &mut lattice, warm, progress)?;
 
     let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
-    let (cascade_iterations, source) = start(gpu, (scene, gs, set), (&marcher, &params), &mut lattice, &inject)?;
+    let (cascade_iterations, source) =
+        start(gpu, (scene, gs, set), (&marcher, &params), &mut lattice, (&inject, emission.as_deref()))?;
 
     // Iterate to convergence: relative change of the time-integrated energy at sparse probes.
-    let density = lattice::read_f32(gpu, &marcher.density)?;
     // The wavefront guess and the cascade iterate plainly (their tails extrapolated gave
     // relL2 5e-3 on the cloud); a previous frame's field extrapolates its tail like a cold start
     // (the increments' magnitudes decay geometrically from it too): a plain stop there took
@@ -953,6 +992,11 @@ pub fn run_lattice(
     // Energy bookkeeping: injected = absorbed + leaked + what is still moving in the lattice.
     let mut book = lattice.book(gpu)?;
     book.injected = injector.injected(gpu)?;
+    if let Some(e) = &emission {
+        for (b, p) in book.injected.iter_mut().zip(lattice::emission::source_power(e, nch)) {
+            *b += p;
+        }
+    }
     if nch == 1 {
         for b in [&mut book.injected, &mut book.absorbed, &mut book.leaked, &mut book.remaining] {
             b[1] = b[0];
@@ -1109,6 +1153,9 @@ fn march_rounds(
     Ok(())
 }
 
+/// The pass that injects the marching's summed deposits into a lattice's current state.
+type InjectPass<'a> = &'a dyn Fn(&Diffuser) -> crate::gpu::Pass;
+
 /// Seed the lattice where the iteration starts from a guess ([`seed`]): a wavefront solve
 /// (lbl.warm_start), the cascadic start (lbl.cascade) or the previous frame's field (animate).
 /// Returns the cascade's iterations per level (empty otherwise), and with
@@ -1120,12 +1167,15 @@ fn march_rounds(
 /// frame's injected source in the guess's state at t = 0 too, G = s_old + F_16, it is
 /// s_new - s_old, small after a small move. The source is the injection into a zeroed state,
 /// which the seed then adds after its step in place of the injection.
+///
+/// `emission`: an emitting medium's source per channel and voxel (lattice::emission), part of
+/// s beside the deposits `inject` adds: added to the rest after the seed's step.
 fn start(
     gpu: &Gpu,
     (scene, gs, set): (&Scene, &GpuScene, &LblSettings),
     (marcher, params): (&Marcher, &LatticeParams),
     lattice: &mut Diffuser,
-    inject: &dyn Fn(&Diffuser) -> crate::gpu::Pass,
+    (inject, emission): (InjectPass<'_>, Option<&[f32]>),
 ) -> Result<(Vec<u32>, Option<Vec<f32>>), SolverError> {
     let mut cascade_iterations = Vec::new();
     let mut source = None;
@@ -1135,11 +1185,11 @@ fn start(
         let wf: Vec<f32> = gpu.read_buffer_as(&vol.energy)?;
         let (energy, flux) = wf.split_at(vol.channels as usize * v as usize);
         let guess = Guess { energy: energy.to_vec(), flux: flux.to_vec(), channels: vol.channels as usize };
-        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
+        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), emission)?;
     } else if set.cascade > 0 {
-        let (guess, iterations) = cascade(gpu, (scene, gs, set), marcher, params)?;
+        let (guess, iterations) = cascade(gpu, (scene, gs, set), marcher, params, emission)?;
         cascade_iterations = iterations;
-        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), None)?;
+        seed(gpu, lattice, &guess.links(nch as usize, v as usize), Some(inject), emission)?;
     } else if let Some(previous) = &set.previous {
         // The previous frame's field, same lattice. Where it integrated every link's outgoing
         // value (params.links: a sequence's frames), the guess's links are those integrals as
@@ -1190,10 +1240,14 @@ fn start(
             gpu.wait(point)?;
             let mut s: Vec<f32> = gpu.read_buffer_as(lattice.state())?;
             s.truncate(links.len());
+            // The emission is part of the frame's source (in the rest, with the deposits).
+            for (a, e) in s.iter_mut().zip(emission.unwrap_or(&[])) {
+                *a += e;
+            }
             seed(gpu, lattice, &links, None, Some(&s))?;
             source = Some(s);
         } else {
-            seed(gpu, lattice, &links, Some(inject), None)?;
+            seed(gpu, lattice, &links, Some(inject), emission)?;
         }
     }
     Ok((cascade_iterations, source))
@@ -1307,20 +1361,25 @@ fn seed(
 /// run to convergence. Returns the guess for the fine lattice and each level's iterations.
 /// A coarse lattice's absorption per step is larger (its steps are longer), so it converges
 /// in fewer, cheaper steps, and the fine lattice starts with only the error the coarse grid
-/// could not resolve.
+/// could not resolve. An emitting medium's source (`emission`, per fine voxel) joins the
+/// deposits, summed over each coarse voxel's children like them.
 fn cascade(
     gpu: &Gpu,
     (scene, gs, set): (&Scene, &GpuScene, &LblSettings),
     marcher: &Marcher,
     fine: &LatticeParams,
+    emission: Option<&[f32]>,
 ) -> Result<(Guess, Vec<u32>), SolverError> {
     let nch = fine.nch as usize;
     let raw: Vec<u32> = gpu.read_buffer_as(&marcher.sums)?;
-    let deposits: Vec<f32> = if marcher.fixed {
+    let mut deposits: Vec<f32> = if marcher.fixed {
         raw.iter().map(|q| *q as f32 / marcher.scale).collect()
     } else {
         raw.iter().map(|b| f32::from_bits(*b)).collect()
     };
+    for (d, e) in deposits.iter_mut().zip(emission.unwrap_or(&[])) {
+        *d += e;
+    }
     let density = lattice::read_f32(gpu, &marcher.density)?;
     // Levels coarsest first: dims and data restricted from the fine grid by 2^l.
     let levels: Vec<u32> = (1..=set.cascade).rev().collect();

@@ -386,7 +386,8 @@ pub struct Marcher {
     /// The beam (raymap) of each ray, and the beams ([`beams`]).
     pub ray_beam: Vec<u32>,
     pub beams: Vec<Beam>,
-    /// Rounds of `k` steps until every ray has crossed the grid's diagonal.
+    /// Rounds of `k` steps until every ray has crossed the grid's diagonal (0 without rays:
+    /// a scene lit by its emission alone).
     pub rounds: u32,
     pub fixed: bool,
     /// Fixed-point quanta per W: a voxel's sum within a round never exceeds the total power.
@@ -468,12 +469,18 @@ impl Marcher {
             }
         }
         let ray_count = rays.len() as u32;
-        if ray_count == 0 {
+        // A scene lit by its emission alone (no light, or none that reaches the box) marches no
+        // ray: no rounds, and one-element stand-ins for the ray buffers.
+        if ray_count == 0 && !scene.emissive() {
             return Err(SolverError::Unsupported("no light ray reaches the medium's box; check the lights".into()));
         }
         let total_power: f64 = (0..3).map(|c| rays.iter().map(|r| r.power[c] as f64).sum::<f64>()).fold(0.0, f64::max);
-        let ray_buf = gpu.buffer_with("marching rays", &rays)?;
-        let history = gpu.buffer("marching ray history", ray_count as u64 * set.k as u64 * 16)?;
+        let ray_buf = if ray_count == 0 {
+            gpu.buffer_with("marching rays (none)", &[RayInit::zeroed()])?
+        } else {
+            gpu.buffer_with("marching rays", &rays)?
+        };
+        let history = gpu.buffer("marching ray history", ray_count.max(1) as u64 * set.k as u64 * 16)?;
         let sums = if sums {
             gpu.buffer("marching deposit sums", sum_slots(nch, directed) * v * 4)?
         } else {
@@ -481,7 +488,7 @@ impl Marcher {
         };
         let diag = (geom.max() - geom.min()).length();
         let max_steps = (diag / set.step).ceil() as u32 + 2;
-        let rounds = max_steps.div_ceil(set.k);
+        let rounds = if ray_count == 0 { 0 } else { max_steps.div_ceil(set.k) };
         let scale = if total_power > 0.0 { ((1u64 << 30) as f64 / total_power) as f32 } else { 1.0 };
         Ok(Marcher {
             geom,
@@ -561,7 +568,7 @@ impl Marcher {
     /// Carry anisotropic media's forward-scattered light along each ray and sum its fluence and
     /// flux per voxel (glsl/marching/march.comp); `nch` channels.
     pub fn enable_forward(&mut self, gpu: &Gpu, nch: u32) -> Result<(), SolverError> {
-        let slots = self.ray_count as u64 * self.set.k as u64;
+        let slots = self.ray_count.max(1) as u64 * self.set.k as u64;
         self.fwd_history = gpu.buffer("marching forward history", slots * 16)?;
         self.fwd_sums = gpu.buffer("marching forward sums", nch as u64 * 4 * self.geom.voxels() * 4)?;
         self.forward = true;

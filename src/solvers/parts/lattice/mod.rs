@@ -5,6 +5,7 @@
 //! summed deposits into its rest distribution (glsl/lattice/inject.comp), and
 //! [`Diffuser::iterate`] runs it to convergence. Used by `lbl`.
 
+pub mod emission;
 pub mod escape;
 mod geom;
 pub use geom::{max_reduced_sigma_t, GridRule, GridTrust, LatticeGeom, ShapeLimit, DOM_GRID, LBL_GRID};
