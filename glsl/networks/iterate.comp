@@ -9,8 +9,21 @@
 // Henyey-Greenstein phase function (1/sr), P the paper's Monte Carlo quadrature of it,
 // 4 pi / D p(w_d . w_i), balanced on the host so that every row and column sums to 1
 // (src/solvers/networks.rs, `phase_matrix`: scattering conserves energy on the directions);
-// and the sky's radiance where no particle is upstream. Every particle has the same opacity (each holds the same share of the extinction,
-// src/solvers/networks.rs) and the medium's albedo and g. Ping-pong: reads I, writes I'.
+// and the sky's radiance where no particle is upstream. Every particle has the same opacity
+// (each holds the same share of the extinction, src/solvers/networks.rs) and the medium's
+// albedo and g. Ping-pong: reads I, writes I'.
+//
+// An emissive medium (issue 47; compiled in only where EMISSION is not 0) is a source beside
+// the lights, by pc.emission (`networks.emission`):
+// - EMIT_MARCHED (the default): J[vp][d], the emission arriving unscattered at vp along d
+//   (networks/arrive.comp, marched through the medium itself as the direct term is toward the
+//   lights), scattered with the rest of vp's incoming light: E[vp][i] = sum_d J[vp][d] P[d][i]
+//   (the same quadrature, summed once per render by arrive.comp) joins the in-scattering sum.
+//   The network carries the emitted light from its first scattering on.
+// - EMIT_PARTICLES (the paper's E_p = Le ds, 2.1): + alpha (1 - albedo) Le(vp), what vp stops
+//   of a column given back by its absorbing share as Le in every direction (the source
+//   sigma_a Le over the particle's extinction; an opaque absorbing particle glows at Le),
+//   carried by the columns like all other light.
 // Deterministic: fixed order; the one atomic is a max (order-free).
 //
 // Convergence is judged on the device: each workgroup reduces, in shared memory, the largest
@@ -31,6 +44,10 @@
 // The medium's albedo and g: the scene block's material table, entry 0.
 #define SCENE_BINDING 7
 #include "../include/scene_block.glsl"
+// scene.glsl's specialisation of what the medium emits (SPEC_EMISSION: 0 none, 1 constant, 2
+// grid); this kernel reads the block alone, so it declares the constant itself (checked
+// against the Rust side's id and name by the kernel and registry tests).
+layout(constant_id = 17) const uint EMISSION = 0u;
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
@@ -43,6 +60,12 @@ layout(std430, binding = 5) readonly buffer Phase { float phase[]; };        // 
 // [0] verdict that stopped the batch (0: none, 1 converged, 2 fault), [1] dispatches that ran,
 // [2 + 2 slot], [3 + 2 slot]: the slot's max change and max I'.
 layout(std430, binding = 6) buffer Stats { uint stats[]; };
+// [p]: rgb (1 - albedo) Le at particle p, W/(m^2 sr) (src/solvers/networks/particles.rs,
+// `Network::emitted`); a placeholder, never read, where EMISSION is 0.
+layout(std430, binding = 8) readonly buffer Emitted { vec4 emitted[]; };
+// [p][i]: rgb E, the emission arriving unscattered at p scattered into direction i
+// (networks/arrive.comp); a placeholder, never read, unless pc.emission is EMIT_MARCHED.
+layout(std430, binding = 9) readonly buffer Scattered { vec4 scattered_emission[]; };
 
 layout(push_constant) uniform Push {
     vec4 alpha;      // rgb opacity of a particle
@@ -53,7 +76,14 @@ layout(push_constant) uniform Push {
     uint slot;       // where this iteration's change and peak go in `stats`
     uint check;      // 1: first judge slot - 1 against tol, and stop where it converged or faulted
     float tol;       // largest change per iteration, relative to the largest I'
+    uint emission;   // with EMISSION: EMIT_PARTICLES or EMIT_MARCHED
 } pc;
+
+// How the medium's emission enters (`networks.emission`): each upstream particle's own
+// alpha (1 - albedo) Le, carried by the columns from there (the paper's E_p), or the emission
+// arriving unscattered at vp (J, marched through the medium itself), scattered at vp with the
+// rest of its incoming light.
+const uint EMIT_PARTICLES = 1u, EMIT_MARCHED = 2u;
 
 const uint NONE = 0xffffffffu;
 
@@ -74,8 +104,13 @@ vec3 step_one(uint p, uint i) {
     }
     vec3 scattered = vec3(0.0);
     for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];
+    if (EMISSION != 0u && pc.emission == EMIT_MARCHED) scattered += scattered_emission[vp * D + i].rgb;
     vec3 a = pc.alpha.rgb;
-    return (1.0 - a) * current[vp * D + i].rgb + a * scene.materials[0].albedo.rgb * (lit + scattered);
+    vec3 r = (1.0 - a) * current[vp * D + i].rgb + a * scene.materials[0].albedo.rgb * (lit + scattered);
+    // vp's emission, alpha (1 - albedo) Le: light that has not scattered yet, which the next
+    // iterations scatter on as they do the direct light.
+    if (EMISSION != 0u && pc.emission == EMIT_PARTICLES) r += a * emitted[vp].rgb;
+    return r;
 }
 
 const uint GO_ON = 0u, CONVERGED = 1u, FAULT = 2u;

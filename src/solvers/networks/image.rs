@@ -48,11 +48,14 @@ impl Illumination {
                 .read(5, &self.direct)
                 .read(6, &self.field[self.current])
                 .write(7, &colour)
+                .read(8, self.emitted())
+                .read(9, self.arriving())
                 .push(&GatherPush {
                     particles: n,
                     directions: self.push.directions,
                     units: self.push.units,
                     direct: (self.env_dirs == 0) as u32,
+                    emission: self.emission.code(),
                 })
                 .cover([n, 1, 1]),
             gs.bind(Pass::new("networks.splat", QueueRole::Trace, &splat))

@@ -59,6 +59,15 @@ pub struct Illumination {
     pub(super) visible: Buffer,
     pub(super) phase: Buffer,
     pub(super) direct: Buffer,
+    /// Each particle's (1 - albedo) Le ([`Network::emitted`]) where the kernels model emission
+    /// (glsl/networks/iterate.comp, gather.comp); None where they do not (bound: the scene's
+    /// emission placeholder, never read).
+    pub(super) emitted: Option<Buffer>,
+    /// J[p][i], the emission arriving unscattered, and E[p][i], J scattered into each
+    /// direction ([`EmissionModel::Marched`]: glsl/networks/arrive.comp), where the kernels
+    /// model emission; None otherwise.
+    pub(super) arriving: Option<(Buffer, Buffer)>,
+    pub(super) emission: EmissionModel,
     pub(super) field: [Buffer; 2],
     /// Per iteration of a submission: the largest change of I and the largest I (f32 bits),
     /// after the verdict and the count of iterations run (a device record and its host copy).
@@ -101,7 +110,8 @@ impl Illumination {
     /// scene feature (the kernels' specialisation), as `--force-full` asks. `env_dirs` > 0: the
     /// environments are direct units of that many directions each and the sky is 0, so the
     /// network carries scattered light only (`networks.single = view`); 0: the environments
-    /// are the sky (the paper's).
+    /// are the sky (the paper's). An emissive medium's emission enters as
+    /// [`EmissionModel::Marched`] (the default; [`Illumination::with_emission`] chooses).
     pub fn new(
         gpu: &Gpu,
         net: &Network,
@@ -109,6 +119,19 @@ impl Illumination {
         step: f32,
         force_full: bool,
         env_dirs: u32,
+    ) -> Result<Illumination, SolverError> {
+        Self::with_emission(gpu, net, scene, step, force_full, env_dirs, EmissionModel::Marched)
+    }
+
+    /// [`Illumination::new`] with the emission entering by `emission`.
+    pub fn with_emission(
+        gpu: &Gpu,
+        net: &Network,
+        scene: &Scene,
+        step: f32,
+        force_full: bool,
+        env_dirs: u32,
+        emission: EmissionModel,
     ) -> Result<Illumination, SolverError> {
         let n = net.particles.positions.len() as u32;
         let d = net.directions.len() as u32;
@@ -120,8 +143,22 @@ impl Illumination {
         net.direct(gpu, scene, &gs, &positions, step, env_dirs, &direct)?;
         let alpha = m.sigma_t.as_dvec3().map(|s| net.alpha(s)).as_vec3();
         let sky = if env_dirs > 0 { Vec3::ZERO } else { sky(scene) };
+        let kind = gs.modelled.emission_kind();
+        let emitted = if kind != 0 {
+            let e: Vec<[f32; 4]> = net.emitted(scene).iter().map(|e| [e.x, e.y, e.z, 0.0]).collect();
+            Some(gpu.buffer_with("networks emission", &e)?)
+        } else {
+            None
+        };
+        let phase = gpu.buffer_with("networks phase", &phase_matrix(&net.directions, m.g as f64).0)?;
+        let arriving = if kind != 0 && emission == EmissionModel::Marched {
+            Some(net.arriving(gpu, scene, &gs, &positions, &dirs, &phase, step)?)
+        } else {
+            None
+        };
+        let spec = [(crate::solvers::parts::gpu_scene::SPEC_EMISSION, crate::gpu::Spec::U32(kind))];
         Ok(Illumination {
-            phase: gpu.buffer_with("networks phase", &phase_matrix(&net.directions, m.g as f64).0)?,
+            phase,
             field: [
                 gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
                 gpu.buffer("networks radiance b", 16 * n as u64 * d as u64)?,
@@ -129,7 +166,7 @@ impl Illumination {
             stats: crate::solvers::parts::feedback::Feedback::new(gpu, "networks iteration stats", 4 * STATS_WORDS)?,
             batch: BATCH,
             current: 0,
-            pipeline: gpu.pipeline(&ITERATE, &[])?,
+            pipeline: gpu.pipeline(&ITERATE, &spec)?,
             push: IteratePush {
                 alpha: [alpha.x, alpha.y, alpha.z, 0.0],
                 sky: [sky.x, sky.y, sky.z, 0.0],
@@ -139,6 +176,7 @@ impl Illumination {
                 slot: 0,
                 check: 0,
                 tol: 0.0,
+                emission: emission.code(),
             },
             env_dirs,
             step,
@@ -159,7 +197,26 @@ impl Illumination {
             dirs,
             visible,
             direct,
+            emitted,
+            arriving,
+            emission,
         })
+    }
+
+    /// The particles' emission as the kernels bind it: the scene's emission placeholder where
+    /// they do not model emission (EMISSION 0: never read).
+    pub(super) fn emitted(&self) -> &Buffer {
+        self.emitted.as_ref().unwrap_or(&self.gs.emission)
+    }
+
+    /// J as the gather binds it: the scene's emission placeholder without it (never read).
+    pub(super) fn arriving(&self) -> &Buffer {
+        self.arriving.as_ref().map_or(&self.gs.emission, |a| &a.0)
+    }
+
+    /// E, J scattered into each direction, as the iteration binds it (a placeholder without).
+    pub(super) fn scattered_emission(&self) -> &Buffer {
+        self.arriving.as_ref().map_or(&self.gs.emission, |a| &a.1)
     }
 
     /// The most device bytes an [`Illumination`] and its image hold at once: the scene,
@@ -167,10 +224,26 @@ impl Illumination {
     /// construction's buckets (freed once the network is built) and the iteration's state with
     /// the image's buffers.
     /// `view`: the view pass's bytes, where it runs after the splats (`networks.single =
-    /// view`; 0 otherwise).
-    pub fn device_bytes(net: &Network, scene: &Scene, env_dirs: u32, view: u64) -> u64 {
+    /// view`; 0 otherwise). `force_full`: the kernels model every feature, emission included
+    /// (its per-particle array then, though the scene emits nothing).
+    /// `emission`: how an emissive medium's emission enters (J and E, 32 N D bytes, where
+    /// marched).
+    pub fn device_bytes(
+        net: &Network,
+        scene: &Scene,
+        force_full: bool,
+        emission: EmissionModel,
+        env_dirs: u32,
+        view: u64,
+    ) -> u64 {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
-        let base = crate::solvers::parts::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d;
+        let emitting = crate::solvers::parts::gpu_scene::modelled(scene, force_full).emission_kind() != 0;
+        let emission_bytes = match (emitting, emission) {
+            (false, _) => 0,
+            (true, EmissionModel::Particles) => 16 * n,
+            (true, EmissionModel::Marched) => 16 * n + 32 * n * d,
+        };
+        let base = crate::solvers::parts::gpu_scene::scene_bytes(scene) + 16 * n + 48 * d + 4 * n * d + emission_bytes;
         let state = 4 * d * d
             + net.direct_bytes(scene, env_dirs)
             + 2 * 16 * n * d
@@ -240,6 +313,8 @@ impl Illumination {
                 .read(5, &self.phase)
                 .read_write(6, self.stats.record())
                 .read(7, &self.gs.block)
+                .read(8, self.emitted())
+                .read(9, self.scattered_emission())
                 .push(&push)
                 .cover([self.push.particles, d, 1])
         }));

@@ -29,6 +29,13 @@
 //! offsets, fill the buckets (fill.comp), sort each bucket by (depth, index) and link each
 //! particle to its predecessor (link.comp). [`Network::visibility_cpu`] is the same
 //! construction on the host, operation for operation, which the tests compare bit for bit.
+//!
+//! **Emission (issue 47; 2.1's E_p).** An emissive medium is a source beside the lights,
+//! compiled in only where the scene emits (EMISSION): by default (`networks.emission = march`)
+//! the emission arriving unscattered at each particle along each direction, J, is marched
+//! through the medium (glsl/networks/arrive.comp) and scattered by the iteration like the
+//! direct light; `particles` is the paper's, alpha (1 - albedo) Le at each particle carried by
+//! the columns ([`Network::emitted`]). docs/networks.md, "Emission", has the measurements.
 
 use std::time::Instant;
 
@@ -67,11 +74,20 @@ pub const DIRECT: Kernel = Kernel {
     push_bytes: std::mem::size_of::<DirectPush>(),
     spec: crate::solvers::parts::gpu_scene::VIEW_SPEC,
 };
-pub const ITERATE: Kernel =
-    Kernel { shader: shader!("networks/iterate"), push_bytes: std::mem::size_of::<IteratePush>(), spec: &[] };
+/// iterate.comp reads the scene block alone and declares scene.glsl's emission constant itself.
+pub const ITERATE: Kernel = Kernel {
+    shader: shader!("networks/iterate"),
+    push_bytes: std::mem::size_of::<IteratePush>(),
+    spec: &[(crate::solvers::parts::gpu_scene::SPEC_EMISSION, crate::gpu::SpecKind::U32)],
+};
 pub const GATHER: Kernel = Kernel {
     shader: shader!("networks/gather"),
     push_bytes: std::mem::size_of::<GatherPush>(),
+    spec: crate::solvers::parts::gpu_scene::SCENE_SPEC,
+};
+pub const ARRIVE: Kernel = Kernel {
+    shader: shader!("networks/arrive"),
+    push_bytes: std::mem::size_of::<ArrivePush>(),
     spec: crate::solvers::parts::gpu_scene::SCENE_SPEC,
 };
 pub const SPLAT: Kernel = Kernel {
@@ -82,7 +98,7 @@ pub const SPLAT: Kernel = Kernel {
 
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
-    vec![COUNT, FILL, LINK, DIRECT, ITERATE, GATHER, SPLAT]
+    vec![COUNT, FILL, LINK, DIRECT, ARRIVE, ITERATE, GATHER, SPLAT]
 }
 
 #[repr(C)]
@@ -92,6 +108,18 @@ struct GatherPush {
     directions: u32,
     units: u32,
     direct: u32,
+    /// [`EmissionModel::code`] (read only where the kernels model emission).
+    emission: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct ArrivePush {
+    step: f32,
+    particles: u32,
+    directions: u32,
+    /// 0: march J; 1: scatter it into E (glsl/networks/arrive.comp).
+    mode: u32,
 }
 
 #[repr(C)]
@@ -130,6 +158,32 @@ struct IteratePush {
     /// 1: judge the previous slot against `tol` first (glsl/networks/iterate.comp).
     check: u32,
     tol: f32,
+    /// [`EmissionModel::code`] (read only where the kernels model emission).
+    emission: u32,
+}
+
+/// How the medium's emission enters the network (`networks.emission`, issue 47).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EmissionModel {
+    /// The emission arriving unscattered at each particle along each direction, J[p][i],
+    /// marched through the medium itself (glsl/networks/arrive.comp) as the direct term is
+    /// toward the lights: the network carries the emitted light from its first scattering on
+    /// (the default: the particles' columns let light through more easily than the medium where
+    /// they are partly empty, and emitted light's first flight is most of what it scatters).
+    Marched,
+    /// Each particle's own alpha (1 - albedo) Le in the paper's E array (2.1, E_p = Le ds),
+    /// carried by the columns like every other radiance.
+    Particles,
+}
+
+impl EmissionModel {
+    /// The kernels' code for it (glsl/networks/iterate.comp's EMIT_PARTICLES, EMIT_MARCHED).
+    pub fn code(self) -> u32 {
+        match self {
+            EmissionModel::Particles => 1,
+            EmissionModel::Marched => 2,
+        }
+    }
 }
 
 /// The lights the direct term takes (point and directional; environments reach the particles
@@ -239,6 +293,8 @@ pub struct NetworksSettings {
     /// the particles carry the light scattered at least twice; `None`: the particles carry
     /// everything (the paper's image).
     pub view: Option<crate::solvers::parts::view::ViewSettings>,
+    /// How an emissive medium's emission enters the network.
+    pub emission: EmissionModel,
 }
 
 impl NetworksSettings {
@@ -263,6 +319,11 @@ impl NetworksSettings {
             step,
             footprint: k.get("footprint")?,
             medium_transmittance: k.get::<String>("transmittance")? == "medium",
+            emission: if k.get::<String>("emission")? == "particles" {
+                EmissionModel::Particles
+            } else {
+                EmissionModel::Marched
+            },
             view: if k.get::<String>("single")? == "view" {
                 Some(crate::solvers::parts::view::ViewSettings::parse(k, "view_", scene)?)
             } else {
@@ -359,7 +420,8 @@ impl Networks {
         });
         stats.faults = st.faults + img.nonfinite as u64 + view_nonfinite as u64;
         let modelled = crate::solvers::parts::gpu_scene::modelled(scene, force_full);
-        let bytes = Illumination::device_bytes(net, scene, set.env_dirs(), set.view_bytes(scene));
+        let bytes =
+            Illumination::device_bytes(net, scene, force_full, set.emission, set.env_dirs(), set.view_bytes(scene));
         let mut report = RenderReport::finish(gpu, self, k, modelled, bytes, stats);
         let iterate_gpu_ms: f64 =
             report.passes.iter().filter(|p| p.name == "networks.iterate").map(|p| p.duration_ms()).sum();
@@ -421,9 +483,15 @@ impl crate::solvers::interface::Animation for NetworksAnimation {
                 st.set_lights(gpu, &self.net, scene)?;
                 st
             }
-            None => {
-                self.state.insert(Illumination::new(gpu, &self.net, scene, set.step, self.force_full, set.env_dirs())?)
-            }
+            None => self.state.insert(Illumination::with_emission(
+                gpu,
+                &self.net,
+                scene,
+                set.step,
+                self.force_full,
+                set.env_dirs(),
+                set.emission,
+            )?),
         };
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
@@ -519,6 +587,15 @@ impl Solver for Networks {
                  transmittance); splats: the splats' own opacity (the paper's)",
             ),
             Knob::fixed(
+                "emission",
+                "march",
+                Range::Choice(&["march", "particles"]),
+                "an emissive medium's emission: march, the emission arriving unscattered at each particle along each \
+                 direction marched through the medium (as the direct light is), the network carrying it from its first \
+                 scattering on; particles, each particle's own alpha (1 - albedo) Le carried by the columns (the \
+                 paper's E)",
+            ),
+            Knob::fixed(
                 "single",
                 "view",
                 Range::Choice(&["view", "particles"]),
@@ -531,6 +608,18 @@ impl Solver for Networks {
             crate::solvers::parts::view::knobs().into_iter().map(|k| k.prefixed("view_").only_with("single=view")),
         );
         k
+    }
+
+    /// Emission (issue 47) as a source of the network beside the lights: by default
+    /// (`networks.emission = march`) the emission arriving unscattered at each particle along
+    /// each direction is marched through the medium (glsl/networks/arrive.comp), as the direct
+    /// term is toward the lights, and the network scatters it on; with `particles` each particle
+    /// of opacity alpha emits alpha (1 - albedo) Le in every direction (the paper's E_p), carried
+    /// by its columns. The image: with `networks.single = view` the view pass adds the emission
+    /// along the camera ray exactly and the splats the emitted light scattered at least once;
+    /// with `particles` the splats carry both. A scene lit by its emission alone needs no light.
+    fn renders_emission(&self) -> bool {
+        true
     }
 
     fn kernels(&self) -> Vec<Kernel> {
@@ -551,7 +640,8 @@ impl Solver for Networks {
         let t = Instant::now();
         (req.progress)(Progress::work("network", 0, 1));
         let net = set.network(scene)?;
-        let mut st = Illumination::new(gpu, &net, scene, set.step, req.force_full, set.env_dirs())?;
+        let mut st =
+            Illumination::with_emission(gpu, &net, scene, set.step, req.force_full, set.env_dirs(), set.emission)?;
         (req.progress)(Progress::work("network", 1, 1));
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
@@ -574,7 +664,8 @@ impl Solver for Networks {
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
         let set = NetworksSettings::parse(knobs, scene)?;
-        Ok(Illumination::device_bytes(&set.network(scene)?, scene, set.env_dirs(), set.view_bytes(scene)))
+        let net = set.network(scene)?;
+        Ok(Illumination::device_bytes(&net, scene, false, set.emission, set.env_dirs(), set.view_bytes(scene)))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {

@@ -631,6 +631,91 @@ impl Network {
         Ok(())
     }
 
+    /// Each particle's emission per unit of its opacity, (1 - albedo) Le(x_p), W/(m^2 sr) rgb
+    /// (issue 47; 0 where the medium emits nothing). A particle stands for its share of the
+    /// medium's extinction, sigma_t m; of what it stops the share 1 - albedo is absorbed, and
+    /// there the medium emits: the transfer equation's source sigma_a Le = sigma_t (1 - albedo)
+    /// density Le integrated over the particle is (1 - albedo) Le times its optical depth, so a
+    /// particle of opacity alpha (the optical depth it holds across a window pixel, linear
+    /// opacity) adds alpha (1 - albedo) Le to the radiance crossing it, in every direction: the
+    /// emission term of the paper's E array. With the exponential opacity it is the step rule
+    /// of the view march (1 - albedo) (1 - e^-c) Le: a thick absorbing particle glows at Le.
+    pub fn emitted(&self, scene: &Scene) -> Vec<Vec3> {
+        let absorbed = Vec3::ONE - scene.medium.albedo;
+        self.particles.positions.iter().map(|x| absorbed * scene.emission_at(*x)).collect()
+    }
+
+    /// The emission arriving unscattered at each particle along each direction of travel,
+    /// J[p][i] (rgb, W/(m^2 sr); w: the march's loop count), on the device
+    /// (glsl/networks/arrive.comp): the integral of T sigma_a Le over the medium upstream, by
+    /// the view march's step rule in steps of at most `step` (scene units); and E[p][i] =
+    /// sum_d J[p][d] P[d][i], J scattered into each direction by `phase` (the iteration's
+    /// balanced quadrature). Over uploaded positions and directions ([`Network::upload`]).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn arriving(
+        &self,
+        gpu: &Gpu,
+        scene: &Scene,
+        gs: &GpuScene,
+        positions: &Buffer,
+        dirs: &Buffer,
+        phase: &Buffer,
+        step: f32,
+    ) -> Result<(Buffer, Buffer), SolverError> {
+        let (n, d) = (self.particles.positions.len() as u32, self.directions.len() as u32);
+        // The march's steps: at most the bounds' diagonal over `step`, under the loop guard.
+        let diagonal = (scene.medium.bounds_max - scene.medium.bounds_min).length();
+        let steps = (diagonal / step).ceil() as u64 + 1;
+        if steps > LOOP_GUARD as u64 {
+            return Err(SolverError::Unsupported(format!(
+                "networks: the emission's march step {step} takes {steps} steps across the medium; at most {LOOP_GUARD}"
+            )));
+        }
+        let j = gpu.buffer("networks arriving emission", 16 * n as u64 * d as u64)?;
+        let e = gpu.buffer("networks scattered emission", 16 * n as u64 * d as u64)?;
+        let pipeline = gpu.pipeline(&ARRIVE, &gs.modelled.spec())?;
+        let pass = |name, mode| {
+            gs.bind_emission(gs.bind(Pass::new(name, QueueRole::Trace, &pipeline)))
+                .read(3, positions)
+                .read(4, dirs)
+                .read_write(5, &j)
+                .read(6, phase)
+                .write(7, &e)
+                .push(&ArrivePush { step, particles: n, directions: d, mode })
+                .cover([n, d, 1])
+        };
+        let point =
+            gpu.submit(QueueRole::Trace, &[pass("networks.arrive", 0), pass("networks.arrive_scatter", 1)], &[])?;
+        gpu.wait(point)?;
+        Ok((j, e))
+    }
+
+    /// [`Network::arriving`] on the host in double precision ([p][i], rgb): its oracle.
+    pub fn arriving_cpu(&self, scene: &Scene, step: f64) -> Vec<[f64; 3]> {
+        let m = &scene.medium;
+        let sigma = m.sigma_t.as_dvec3();
+        let absorbed = glam::DVec3::ONE - m.albedo.as_dvec3();
+        let mut out = Vec::with_capacity(self.particles.positions.len() * self.directions.len());
+        for x in &self.particles.positions {
+            for f in &self.directions.frames {
+                let (x, w) = (x.as_dvec3(), -f[2].as_dvec3());
+                let (mut l, mut t) = (glam::DVec3::ZERO, glam::DVec3::ONE);
+                if let Some((a, b)) = medium_interval(scene, x, w) {
+                    let k = ((b - a) / step).ceil().max(1.0);
+                    let dt = (b - a) / k;
+                    for i in 0..k as u64 {
+                        let q = (x + w * (a + (i as f64 + 0.5) * dt)).as_vec3();
+                        let seg = (-sigma * scene.density_at(q) as f64 * dt).exp();
+                        l += t * absorbed * (glam::DVec3::ONE - seg) * scene.emission_at(q).as_dvec3();
+                        t *= seg;
+                    }
+                }
+                out.push(l.to_array());
+            }
+        }
+        out
+    }
+
     /// Bytes of the direct light buffer: two vec4 per particle and light unit.
     pub fn direct_bytes(&self, scene: &Scene, env_dirs: u32) -> u64 {
         32 * self.particles.positions.len().max(1) as u64 * unit_count(scene, env_dirs).max(1) as u64
@@ -675,13 +760,42 @@ impl Network {
         state.radiance(gpu)
     }
 
+    /// `iterations` steps on the device with the emission entering by `emission`.
+    pub fn iterate_with(
+        &self,
+        gpu: &Gpu,
+        scene: &Scene,
+        iterations: u32,
+        step: f32,
+        emission: EmissionModel,
+    ) -> Result<Vec<[f32; 4]>, SolverError> {
+        let mut state = Illumination::with_emission(gpu, self, scene, step, true, 0, emission)?;
+        state.step(gpu, iterations)?;
+        state.radiance(gpu)
+    }
+
     /// The same iteration on the host in double precision: the oracle of
-    /// [`Network::iterate`].
+    /// [`Network::iterate`] where the medium does not emit (an emitting one's is
+    /// [`Network::iterate_cpu_with`]: the device marches the emission's first flight).
     pub fn iterate_cpu(
         &self,
         scene: &Scene,
         visible: &[u32],
         direct: &[DirectLight],
+        iterations: u32,
+    ) -> Vec<[f64; 3]> {
+        self.iterate_cpu_with(scene, visible, direct, None, iterations)
+    }
+
+    /// The host's iteration with the emission entering as the particles' own
+    /// ([`Network::emitted`]; `arriving` None) or as J, the emission arriving unscattered
+    /// ([`Network::arriving_cpu`]): the oracle of [`Network::iterate_with`].
+    pub fn iterate_cpu_with(
+        &self,
+        scene: &Scene,
+        visible: &[u32],
+        direct: &[DirectLight],
+        arriving: Option<&[[f64; 3]]>,
         iterations: u32,
     ) -> Vec<[f64; 3]> {
         let n = self.particles.positions.len();
@@ -694,6 +808,12 @@ impl Network {
         let sky = sky(scene).as_dvec3();
         let w: Vec<glam::DVec3> = self.directions.frames.iter().map(|f| f[2].as_dvec3()).collect();
         let phase = phase_matrix(&self.directions, g).0;
+        // The particles' own emission enters only where J does not carry it.
+        let emitted: Vec<glam::DVec3> = match arriving {
+            None => self.emitted(scene).iter().map(|e| e.as_dvec3()).collect(),
+            Some(_) => vec![glam::DVec3::ZERO; n],
+        };
+        let arrive = |p: usize, k: usize| arriving.map_or(glam::DVec3::ZERO, |j| glam::DVec3::from_array(j[p * d + k]));
         let mut cur = vec![glam::DVec3::ZERO; n * d];
         for _ in 0..iterations {
             let mut next = vec![glam::DVec3::ZERO; n * d];
@@ -712,9 +832,10 @@ impl Network {
                     }
                     let mut scattered = glam::DVec3::ZERO;
                     for k in 0..d {
-                        scattered += cur[vp * d + k] * phase[k * d + i] as f64;
+                        scattered += (cur[vp * d + k] + arrive(vp, k)) * phase[k * d + i] as f64;
                     }
-                    next[p * d + i] = (1.0 - alpha) * cur[vp * d + i] + alpha * albedo * (lit + scattered);
+                    next[p * d + i] =
+                        (1.0 - alpha) * cur[vp * d + i] + alpha * albedo * (lit + scattered) + alpha * emitted[vp];
                 }
             }
             cur = next;
@@ -726,16 +847,8 @@ impl Network {
 /// The density's integral from `x` along `w` over [0, t_far] inside the medium's support, by
 /// the midpoint rule in steps of at most `step` (glsl/include/view.glsl's density_depth).
 pub(super) fn density_depth(scene: &Scene, x: glam::DVec3, w: glam::DVec3, t_far: f64, step: f64) -> f64 {
-    let m = &scene.medium;
-    let (xf, wf) = (x.as_vec3(), w.as_vec3());
-    // The support: the box, and the sphere for sphere density (view.glsl's medium_interval).
-    let Some((mut a, mut b)) = ray_box(xf, wf, m.bounds_min, m.bounds_max) else { return 0.0 };
-    if let crate::scene::Density::Sphere { center, radius } = m.density {
-        let Some((s0, s1)) = ray_sphere(xf, wf, center, radius) else { return 0.0 };
-        (a, b) = (a.max(s0), b.min(s1));
-    }
-    let (a, b) = (a as f64, b as f64);
-    let (a, b) = (a.max(0.0), b.min(t_far));
+    let Some((a, b)) = medium_interval(scene, x, w) else { return 0.0 };
+    let b = b.min(t_far);
     if a >= b {
         return 0.0;
     }
@@ -743,4 +856,18 @@ pub(super) fn density_depth(scene: &Scene, x: glam::DVec3, w: glam::DVec3, t_far
     let k = (len / step).ceil().max(1.0);
     let dt = len / k;
     (0..k as u64).map(|i| scene.density_at((x + w * (a + (i as f64 + 0.5) * dt)).as_vec3()) as f64).sum::<f64>() * dt
+}
+
+/// Where the ray from `x` along `w` (t >= 0) is inside the medium's support: the box, and the
+/// sphere for sphere density (view.glsl's medium_interval); None where it misses.
+fn medium_interval(scene: &Scene, x: glam::DVec3, w: glam::DVec3) -> Option<(f64, f64)> {
+    let m = &scene.medium;
+    let (xf, wf) = (x.as_vec3(), w.as_vec3());
+    let (mut a, mut b) = ray_box(xf, wf, m.bounds_min, m.bounds_max)?;
+    if let crate::scene::Density::Sphere { center, radius } = m.density {
+        let (s0, s1) = ray_sphere(xf, wf, center, radius)?;
+        (a, b) = (a.max(s0), b.min(s1));
+    }
+    let (a, b) = ((a as f64).max(0.0), b as f64);
+    (a < b).then_some((a, b))
 }
