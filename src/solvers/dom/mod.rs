@@ -22,6 +22,14 @@
 //!    light, plus the swept field (the light scattered once and more) scattered toward the
 //!    camera by the phase function at each voxel (scatter.comp), trilinear between voxel
 //!    centres; nothing is counted twice.
+//! 4. **Emission (issue 47).** An emissive medium's source sigma_a Le (W/(m^3 sr), the units of
+//!    the first-scattering source: per unit volume and sr, the sweep's Q per unit length) is
+//!    isotropic, so it is the same at every storage direction; glsl/ordinates/emit.comp adds it
+//!    to the first sweep's source (sigma_a from the voxel's own resampled density, Le at its
+//!    centre). The swept field then holds the emitted light uncollided and, bounce by bounce,
+//!    scattered; the view scatters it toward the camera like the rest of the field, and adds the
+//!    unscattered emission along the camera ray itself. A scene lit by its emission alone
+//!    marches nothing. docs/dom.md, "Emission".
 //!
 
 pub mod blocks;
@@ -33,7 +41,7 @@ use serde::Serialize;
 use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
 use crate::physics::ordinates::Scheme;
 use crate::physics::quadrature::Quadrature;
-use crate::scene::{CameraKind, Medium, Scene};
+use crate::scene::{is_grey, CameraKind, Emission, Medium, Scene};
 
 use self::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MAX_BLOCK};
 use self::directions::DirectionsTrust;
@@ -268,6 +276,19 @@ fn plane(s: &Option<Sweeper>) -> &Sweeper {
     s.as_ref().expect("plane sweeps keep their sweeper")
 }
 
+/// Channels dom's grids carry: one where the medium, every light and the emission are grey
+/// (`gpu_scene::channels`, which counts the medium and the lights), else three: a grey medium
+/// under white light still needs three when its Le is coloured (a blackbody grid always is).
+fn channels(scene: &Scene, chromatic: bool) -> u32 {
+    let grey_le = !scene.emissive()
+        || match &scene.medium.emission {
+            Emission::None => true,
+            Emission::Constant(le) => is_grey(*le),
+            Emission::Grid(g) => g.planes.len() == 1 && is_grey(g.scale),
+        };
+    gpu_scene::channels(scene, chromatic).max(if grey_le { 1 } else { 3 })
+}
+
 /// sigma_t and sigma_s (1/m) per voxel and channel, channel after channel, from the density.
 fn extinction(m: &Medium, nch: u32, density: &[f32]) -> (Vec<f32>, Vec<f32>) {
     let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
@@ -427,28 +448,50 @@ struct DirectSource {
     groups: u32,
 }
 
+/// The marched light's part of the direct source: the marcher, its beams in groups, and the
+/// buffers the deposits are summed and binned through (the sums per beam of a group, each ray's
+/// beam, the beam table).
+struct Marched<'a> {
+    marcher: &'a Marcher,
+    groups: Vec<BeamGroup>,
+    sums: Buffer,
+    ray_beam: Buffer,
+    table: Buffer,
+}
+
 /// The first-scattering source (thesis 5.2): the light marched, each voxel's deposits summed per
 /// beam, slab by slab and group by group of beams, each ray marching from its start once per
 /// slab in its group's pass (the same steps: each voxel's integer sum is the same whatever the
 /// cut, and the groups are binned in beam order, so the source is the same bits). With blocks
 /// the density is resampled slab by slab into `density` and the source read back per slab.
+/// An emissive medium (`emit`, [`ordinates::EMIT`]'s pipeline) adds its own source sigma_a Le
+/// to each slab's once all its beams are binned (glsl/ordinates/emit.comp): the first sweep
+/// carries the emitted light beside the once-scattered direct light. A scene lit by its emission
+/// alone has no marcher (no light, no beam): its source is the emission alone.
 #[allow(clippy::too_many_arguments)]
 fn direct_source(
     gpu: &Gpu,
     (gs, resampler, geom): (&GpuScene, &Pipeline, &LatticeGeom),
-    marcher: Marcher,
+    marcher: Option<Marcher>,
+    emit: Option<&Pipeline>,
     sweeper: &Sweeper,
     (cut, block, nch, g): (SourceCut, u32, u32, f64),
     density: &mut [f32],
     progress: &dyn Fn(Progress),
 ) -> Result<DirectSource, SolverError> {
     let v = geom.voxels() as usize;
-    let beams = marcher.beams.len();
     let layers = cut.layers;
-    let groups = BeamGroup::split(&marcher.ray_beam, beams as u32, cut.group);
-    let sums = sweeper.deposit_sums(gpu, cut.group as usize)?;
-    let ray_beam = gpu.buffer_with("dom ray beams", &marcher.ray_beam)?;
-    let table = gpu.buffer_with("dom beams", &sweeper.beam_table(g, &marcher.beams))?;
+    let lit = match &marcher {
+        Some(m) => Some(Marched {
+            marcher: m,
+            groups: BeamGroup::split(&m.ray_beam, m.beams.len() as u32, cut.group),
+            sums: sweeper.deposit_sums(gpu, cut.group as usize)?,
+            ray_beam: gpu.buffer_with("dom ray beams", &m.ray_beam)?,
+            table: gpu.buffer_with("dom beams", &sweeper.beam_table(g, &m.beams))?,
+        }),
+        None => None,
+    };
+    let groups = lit.as_ref().map_or(0, |l| l.groups.len());
     let layer = geom.dims[0] * geom.dims[1];
     let slabs: Vec<Slab> = (0..geom.dims[2])
         .step_by(layers as usize)
@@ -456,52 +499,74 @@ fn direct_source(
         .collect();
     let storage_m = sweeper.storage.len();
     let mut first = if block > 0 { vec![0f32; nch as usize * storage_m * v] } else { Vec::new() };
-    let runs: Vec<(Slab, &BeamGroup)> = slabs.iter().flat_map(|s| groups.iter().map(move |g| (*s, g))).collect();
-    let work = (marcher.rounds as usize * runs.len()) as u64;
+    let rounds = lit.as_ref().map_or(0, |l| l.marcher.rounds);
+    let work = (rounds as usize * slabs.len() * groups) as u64;
     let mut density_bytes = 0;
-    for (i, (slab, group)) in runs.iter().enumerate() {
-        let (slab, first_group) = (*slab, group.beams.start == 0);
-        if i > 0 {
-            if first_group {
-                marcher.reset(gpu)?;
-            }
-            gpu.fill_zero(&sums)?;
-        }
-        if block > 0 && first_group {
+    // Plane sweeps' emission reads the whole grid's density (resampled once, kept on the host).
+    let whole_density = match emit {
+        Some(_) if block == 0 => Some(gpu.buffer_with("dom density (emission)", density)?),
+        _ => None,
+    };
+    for (si, slab) in slabs.iter().enumerate() {
+        let slab = *slab;
+        let slab_density = if block > 0 {
             let d = marching::resample(gpu, gs, geom, resampler, slab.z0, slab.layers)?;
             density_bytes = density_bytes.max(d.size());
             let base = slab.base() as usize;
             density[base..base + slab.voxels() as usize].copy_from_slice(&gpu.read_buffer_as::<f32>(&d)?);
-        }
-        // The rounds in submissions of ROUNDS_PER_SUBMIT (march, deposit) pairs: one wait per
-        // batch rather than per round (the passes' hazards put the barriers between them).
-        let k = marcher.history_slots();
-        let mut round = 0;
-        while round < marcher.rounds {
-            let done = (i * marcher.rounds as usize + round as usize) as u64;
-            progress(Progress::work("marching the direct source", done, work));
-            let batch = ROUNDS_PER_SUBMIT.min(marcher.rounds - round);
-            round += batch;
-            if group.rays.is_empty() {
-                continue;
+            Some(d)
+        } else {
+            None
+        };
+        if let Some(Marched { marcher, groups, sums, ray_beam, table }) = &lit {
+            for (gi, group) in groups.iter().enumerate() {
+                let i = si * groups.len() + gi;
+                if i > 0 {
+                    if gi == 0 {
+                        marcher.reset(gpu)?;
+                    }
+                    gpu.fill_zero(sums)?;
+                }
+                // The rounds in submissions of ROUNDS_PER_SUBMIT (march, deposit) pairs: one wait
+                // per batch rather than per round (the passes' hazards put the barriers between
+                // them).
+                let k = marcher.history_slots();
+                let mut round = 0;
+                while round < marcher.rounds {
+                    let done = (i * marcher.rounds as usize + round as usize) as u64;
+                    progress(Progress::work("marching the direct source", done, work));
+                    let batch = ROUNDS_PER_SUBMIT.min(marcher.rounds - round);
+                    round += batch;
+                    if group.rays.is_empty() {
+                        continue;
+                    }
+                    let passes: Vec<Pass> = (0..batch)
+                        .flat_map(|_| {
+                            [
+                                marcher.march_pass(gs, group.rays.clone()),
+                                sweeper.deposit_pass(&marcher.history, ray_beam, k, group, marcher.scale, sums, slab),
+                            ]
+                        })
+                        .collect();
+                    let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+                    gpu.wait(point)?;
+                }
+                // Each voxel's once-scattered power per beam, shared among the storage
+                // directions: the first-scattering source (per unit volume and sr).
+                let bin = sweeper.bin_pass(sums, table, group, marcher.scale, slab);
+                let point = gpu.submit(QueueRole::Diffuse, &[bin], &[])?;
+                gpu.wait(point)?;
             }
-            let passes: Vec<Pass> = (0..batch)
-                .flat_map(|_| {
-                    [
-                        marcher.march_pass(gs, group.rays.clone()),
-                        sweeper.deposit_pass(&marcher.history, &ray_beam, k, group, marcher.scale, &sums, slab),
-                    ]
-                })
-                .collect();
-            let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
+        }
+        // The medium's own source sigma_a Le, isotropic, in the same units (issue 47); it starts
+        // the source where no beam was binned.
+        if let Some(emit) = emit {
+            let d = slab_density.as_ref().or(whole_density.as_ref()).expect("a density for the emission");
+            let pass = sweeper.emit_pass(emit, gs, d, slab, groups == 0);
+            let point = gpu.submit(QueueRole::Diffuse, &[pass], &[])?;
             gpu.wait(point)?;
         }
-        // Each voxel's once-scattered power per beam, shared among the storage directions:
-        // the first-scattering source (per unit volume and sr).
-        let bin = sweeper.bin_pass(&sums, &table, group, marcher.scale, slab);
-        let point = gpu.submit(QueueRole::Diffuse, &[bin], &[])?;
-        gpu.wait(point)?;
-        if block > 0 && group.beams.end == beams as u32 {
+        if block > 0 {
             let part = sweeper.read_first(gpu, slab)?;
             let (sv, base) = (slab.voxels() as usize, slab.base() as usize);
             for (cm, chunk) in part.chunks_exact(sv).enumerate() {
@@ -515,10 +580,12 @@ fn direct_source(
     }
     // Device bytes while the direct source is made: the marcher, the binning and the slab's
     // sums and density (with plane sweeps the sweeper is all of the grid's buffers).
-    let budgeted = sweeper.device_bytes() + sums.size() + table.size() + density_bytes;
-    let source_bytes = budgeted + marcher.device_bytes() + ray_beam.size();
-    drop((sums, ray_beam, table, marcher));
-    Ok(DirectSource { first, budgeted, source_bytes, slabs: slabs.len() as u32, layers, groups: groups.len() as u32 })
+    let lit_bytes = lit.as_ref().map_or(0, |l| l.sums.size() + l.table.size());
+    let budgeted = sweeper.device_bytes() + lit_bytes + density_bytes;
+    let source_bytes = budgeted + lit.as_ref().map_or(0, |l| l.marcher.device_bytes() + l.ray_beam.size());
+    drop(lit);
+    drop(marcher);
+    Ok(DirectSource { first, budgeted, source_bytes, slabs: slabs.len() as u32, layers, groups: groups as u32 })
 }
 
 /// The view pass over the light each voxel scatters toward the camera (as the energy per voxel
@@ -1014,6 +1081,16 @@ impl Solver for Dom {
         k
     }
 
+    /// The medium's emission sigma_a Le whole: an isotropic source added at every storage
+    /// direction to the first sweep's (glsl/ordinates/emit.comp, per unit volume and sr like the
+    /// binned first-scattering source), so the swept field carries the emitted light uncollided
+    /// and, over the scattering iterations, every bounce of it; the view gathers what the medium
+    /// scatters of it toward the camera, and adds the unscattered emission along the camera ray
+    /// itself. A scene lit by its emission alone (no light) marches nothing.
+    fn renders_emission(&self) -> bool {
+        true
+    }
+
     fn kernels(&self) -> Vec<Kernel> {
         let mut k = marching::kernels();
         k.extend(ordinates::kernels());
@@ -1034,10 +1111,21 @@ impl Solver for Dom {
             t = std::time::Instant::now();
         };
         let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-        // One channel when the medium and every light are grey (as lbl's lattice).
-        let nch = gpu_scene::channels(scene, gs.modelled.chromatic);
+        // One channel when the medium, every light and the emission are grey (as lbl's lattice).
+        let nch = channels(scene, gs.modelled.chromatic);
         let geom = set.geom;
-        let marcher = Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false, false)?;
+        // A scene lit by its emission alone has no light to march (issue 47): no light, or none
+        // whose rays reach the medium's box.
+        let marcher = match scene.lights.is_empty() {
+            true => None,
+            false => Some(Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false, false)?),
+        }
+        .filter(|m| !m.ray_beam.is_empty());
+        // The emission source's kernel, built only for an emissive medium (specialised on it).
+        let emit = match scene.emissive() {
+            true => Some(gpu.pipeline(&ordinates::EMIT, &gs.modelled.spec())?),
+            false => None,
+        };
         let resampler = marching::resampler(gpu, &gs)?;
         let m = &scene.medium;
         let eye = match scene.camera.kind {
@@ -1049,7 +1137,7 @@ impl Solver for Dom {
         // their buffers. Block sweeps make it slab by slab within dom.budget (and one binding),
         // the density resampled and the source read back per slab: nothing grid-sized stays on
         // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
-        let plan = SourcePlan::new(&set, &geom, nch, marcher.beams.len() as u64);
+        let plan = SourcePlan::new(&set, &geom, nch, marcher.as_ref().map_or(0, |m| m.beams.len() as u64));
         let (mut density, plane_extinction, sweeper, cut) =
             source_sweeper(gpu, (&gs, &resampler), &set, &plan, (m, nch, eye), block)?;
         stage("setup");
@@ -1058,6 +1146,7 @@ impl Solver for Dom {
             gpu,
             (&gs, &resampler, &geom),
             marcher,
+            emit.as_ref(),
             &sweeper,
             (cut, block, nch, m.g as f64),
             &mut density,
@@ -1148,7 +1237,7 @@ impl Solver for Dom {
         let (rays, _, beams) = marching::beams(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed);
         let (rays, beams) = (rays.len() as u64, beams.len() as u64);
         let v = geom.voxels();
-        let nch = gpu_scene::channels(scene, gpu_scene::modelled(scene, false).chromatic) as u64;
+        let nch = channels(scene, gpu_scene::modelled(scene, false).chromatic) as u64;
         // Block sweeps: the pool (the whole grid, or what dom.budget allows) and tables; then the
         // light toward the camera handed to the view pass (whole, or its largest slab).
         // (auto counts as plane sweeps: the binding limit is the device's)
@@ -1190,11 +1279,15 @@ impl Solver for Dom {
         // Making the direct source: the marcher, the sweeper's buffers (all of them with plane
         // sweeps, the binning's and one slab's sources with blocks), the slab's deposit sums per
         // beam of a group and density, each ray's beam and the beam table. Then the sweeps and the view.
-        let source = m.device_bytes(&geom, rays, nch as u32, false, false)
+        // A scene lit by its emission alone marches nothing; an emissive one with plane sweeps
+        // holds the whole grid's density for the emission pass (blocks hold the slab's anyway).
+        let marching = match scene.lights.is_empty() {
+            true => 0,
+            false => m.device_bytes(&geom, rays, nch as u32, false, false) + nch * group * source_voxels * 4 + rays * 4,
+        };
+        let source = marching
             + Sweeper::bytes(v, nch, &set.quadrature, &set.storage, set.scheme, block == 0, source_voxels)
-            + nch * group * source_voxels * 4
             + source_voxels * 4
-            + rays * 4
             + beams * 32;
         Ok(gpu_scene::scene_bytes(scene)
             + match sweeps {

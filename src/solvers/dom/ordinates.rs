@@ -18,6 +18,7 @@ use crate::gpu::{Buffer, Gpu, Kernel, Pass, Pipeline, QueueRole};
 use crate::physics::angular::StorageMap;
 use crate::physics::ordinates::{characteristic_geometry, Scheme};
 use crate::physics::quadrature::Quadrature;
+use crate::solvers::parts::gpu_scene::GpuScene;
 use crate::solvers::parts::marching::Beam;
 
 use crate::solvers::interface::SolverError;
@@ -30,6 +31,13 @@ pub const DEPOSIT: Kernel =
     Kernel { shader: shader!("ordinates/deposit"), push_bytes: std::mem::size_of::<DepositPush>(), spec: &[] };
 pub const BIN: Kernel =
     Kernel { shader: shader!("ordinates/bin"), push_bytes: std::mem::size_of::<BinPush>(), spec: &[] };
+/// An emissive medium's source sigma_a Le, added to the first sweep's (glsl/ordinates/emit.comp;
+/// specialised on the scene: it reads the material table and the emission grid).
+pub const EMIT: Kernel = Kernel {
+    shader: shader!("ordinates/emit"),
+    push_bytes: std::mem::size_of::<EmitPush>(),
+    spec: crate::solvers::parts::gpu_scene::SCENE_SPEC,
+};
 
 /// dom's convergence test on the device (glsl/ordinates/converge.comp).
 pub const CONVERGE: Kernel =
@@ -37,7 +45,7 @@ pub const CONVERGE: Kernel =
 
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
-    vec![SWEEP, SCATTER, DEPOSIT, BIN, CONVERGE]
+    vec![SWEEP, SCATTER, DEPOSIT, BIN, EMIT, CONVERGE]
 }
 
 #[repr(C)]
@@ -150,6 +158,19 @@ struct BinPush {
     /// The group's first beam (`beams` is its size).
     beam0: u32,
     pad: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct EmitPush {
+    dims: [u32; 4],
+    grid: [f32; 4],
+    storage: u32,
+    channels: u32,
+    /// The slab's first voxel (dims.w is its size).
+    base: u32,
+    /// 1: no beam was binned into the source: the pass writes it rather than adds to it.
+    start: u32,
 }
 
 /// Where the camera is, for the light each voxel scatters toward it.
@@ -644,6 +665,29 @@ impl Sweeper {
                 base: slab.base(),
                 beam0: group.beams.start,
                 pad: 0,
+            })
+            .cover([v, 1, 1])
+    }
+
+    /// Add the medium's emission source sigma_a Le (isotropic: the same at every storage
+    /// direction, per unit volume and sr, as the binned source) to the source on `slab`
+    /// (emit.comp, `pipeline` built from [`EMIT`] on the scene's specialisation), from the slab's
+    /// resampled `density` (sigma_a = sigma_t (1 - albedo) density, the voxel's own). With
+    /// `start` the source holds nothing yet (no beam was binned) and the pass writes it.
+    pub fn emit_pass(&self, pipeline: &Pipeline, gs: &GpuScene, density: &Buffer, slab: Slab, start: bool) -> Pass {
+        let [nx, ny, nz] = self.dims;
+        let v = slab.voxels();
+        assert!(v <= self.source_voxels, "a slab the sources hold");
+        gs.bind_emission(gs.bind(Pass::new("ordinates.emit", QueueRole::Diffuse, pipeline)))
+            .read(3, density)
+            .read_write(4, &self.source)
+            .push(&EmitPush {
+                dims: [nx, ny, nz, v],
+                grid: self.grid,
+                storage: self.storage.len() as u32,
+                channels: self.channels,
+                base: slab.base(),
+                start: start as u32,
             })
             .cover([v, 1, 1])
     }
