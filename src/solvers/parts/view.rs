@@ -608,8 +608,8 @@ pub fn unscattered_emission_warning(solver: &str, scene: &Scene) -> Option<Strin
         format!(
             "{solver}: the medium emits and scatters (albedo up to {albedo}), and {solver} carries its emission along \
              the camera ray only: the emitted light the medium scatters is left out (an emitting slab of optical \
-             thickness 2 renders at 62% of its radiance at albedo 0.5, 31% at 0.9); render with path, or a solver \
-             that scatters emission (docs/solvers.md, \"Emission\")"
+             thickness 2 renders at 62% of its radiance at albedo 0.5, 31% at 0.9); path, lbl, dom and networks \
+             carry it (docs/solvers.md, \"Emission\")"
         )
     })
 }
