@@ -30,6 +30,17 @@ impl Scene {
         }
     }
 
+    /// Whether anything in the scene scatters: sigma_s = albedo sigma_t > 0 in some channel, in
+    /// the medium or in an object's material. Where nothing does, a solver's image is the
+    /// camera ray's transmittance and emission alone, exact in every solver: the trust lines of
+    /// the fields that carry scattered light (a lattice's voxels, the particles' spacing) do not
+    /// apply, and are not given.
+    pub fn scatters(&self) -> bool {
+        let sigma_s = |t: Vec3, a: Vec3| (t * a).max_element() > 0.0;
+        let materials = self.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
+        sigma_s(self.medium.sigma_t, self.medium.albedo) || materials.iter().any(|x| sigma_s(x.sigma_t, x.albedo))
+    }
+
     /// Whether anything in the scene emits: Le > 0 in a channel where sigma_a > 0 (the source
     /// is sigma_a Le), in the medium or in an object's material.
     pub fn emissive(&self) -> bool {

@@ -389,6 +389,7 @@ fn dom_stats(
     report: &mut RenderReport,
     nonfinite: u32,
     (upsampled, storage_m): (bool, usize),
+    scatters: bool,
 ) -> Stats {
     let (iterations, converged, change) = (ds.iterations, ds.converged, ds.final_change);
     let sweeps = report.passes.iter().filter(|p| p.name == "ordinates.sweep" || p.name == "dom.block_sweep");
@@ -400,8 +401,10 @@ fn dom_stats(
             set.tol
         ));
     }
-    report.warnings.extend(ds.trust.warning());
-    report.warnings.extend(ds.directions_trust.warning());
+    // Where nothing scatters the sweeps carry nothing: the grid's and directions' trust does not
+    // apply (Scene::scatters).
+    report.warnings.extend(ds.trust.warning().filter(|_| scatters));
+    report.warnings.extend(ds.directions_trust.warning().filter(|_| scatters));
     report.warnings.extend(ds.view_trust.warning("dom"));
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
@@ -1226,7 +1229,7 @@ impl Solver for Dom {
             source_device_bytes: budgeted,
             stages_ms: stages,
         };
-        report.stats = dom_stats(ds, &set, &mut report, res.nonfinite_pixels, (upsampled, storage_m));
+        report.stats = dom_stats(ds, &set, &mut report, res.nonfinite_pixels, (upsampled, storage_m), scene.scatters());
         Ok(RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() })
     }
 
@@ -1334,10 +1337,16 @@ impl Solver for Dom {
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let set = DomSettings::parse(knobs, scene)?;
-        let grid = set.geom.trust(scene, set.grid, &DOM_GRID).warning();
+        // Where nothing scatters the sweeps carry nothing: the grid's and directions' trust does
+        // not apply.
+        let grid = set.geom.trust(scene, set.grid, &DOM_GRID).warning().filter(|_| scene.scatters());
         Ok(grid
             .into_iter()
-            .chain(DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage).warning())
+            .chain(
+                DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage)
+                    .warning()
+                    .filter(|_| scene.scatters()),
+            )
             .chain(view::ViewTrust::of(scene, &set.view).warning(self.name()))
             .collect())
     }

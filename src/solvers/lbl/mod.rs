@@ -250,7 +250,8 @@ impl Solver for Lbl {
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         let set = LblSettings::parse(knobs, scene)?;
-        let grid = set.geom.trust(scene, set.grid, &lattice::LBL_GRID).warning();
+        // Where nothing scatters the lattice carries nothing: its grid's trust does not apply.
+        let grid = set.geom.trust(scene, set.grid, &lattice::LBL_GRID).warning().filter(|_| scene.scatters());
         Ok(grid.into_iter().chain(view::ViewTrust::of(scene, &set.view).warning(self.name())).collect())
     }
 
@@ -406,7 +407,7 @@ impl Lbl {
                 ls.iterations, ls.final_change, set.tol
             ));
         }
-        report.warnings.extend(ls.trust.warning());
+        report.warnings.extend(ls.trust.warning().filter(|_| scene.scatters()));
         report.warnings.extend(ls.view_trust.warning(self.name()));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         let mut stats = Stats::new(ls.clone());

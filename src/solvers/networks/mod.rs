@@ -455,7 +455,7 @@ impl Networks {
                 img.dropped
             ));
         }
-        report.warnings.extend(trust.warning());
+        report.warnings.extend(trust.warning().filter(|_| scene.scatters()));
         report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report, estimates: Vec::new() })
@@ -700,7 +700,8 @@ impl Solver for Networks {
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         // The density's lattice alone: the particles themselves are drawn by the render.
-        let particles = ParticleTrust::of(scene, knobs.get("particles")?).warning();
+        // Where nothing scatters the network carries nothing: the particles' trust does not apply.
+        let particles = ParticleTrust::of(scene, knobs.get("particles")?).warning().filter(|_| scene.scatters());
         let set = NetworksSettings::parse(knobs, scene)?;
         let view =
             set.view.as_ref().and_then(|v| crate::solvers::parts::view::ViewTrust::of(scene, v).warning(self.name()));
