@@ -133,7 +133,7 @@ fn stability_sweep_wavefront_both_integrators() {
 /// image, `single = particles`, keeps the furnace at 1 to 1e-4: networks_tests); the
 /// point-light cases 35-60% under the lossless bound. On the thin slab (16:16:1, 2 mean free
 /// paths deep, 2.0 mean free paths a particle spacing at 256 particles: outside its range, and
-/// warned) networks creates energy: pixels over the environment's radiance at albedo 0.99 (by
+/// warned where it scatters) networks creates energy: pixels over the environment's radiance at albedo 0.99 (by
 /// 0.17 at 256 particles; the mean 1.056 at 1024, 0.967 at 4096 against path's 0.964), a bug
 /// found by the sweep and not fixed (docs/networks.md): those cases fail the sweep, and this
 /// test holds them to that (finite, non-negative, converged, over the bound by less than 0.3,
@@ -148,7 +148,10 @@ fn stability_sweep_networks_passes() {
         assert_eq!(o.converged, Some(true), "{}: {:?}", o.case, o);
         if o.group == "shape" {
             assert!(o.finite && o.non_negative && o.max_over_bound < 0.3, "{}: {:?}", o.case, o);
-            assert!(o.notes.iter().any(|n| n.contains("particle spacing")), "{}: the trust warning: {:?}", o.case, o);
+            // Warned where the slab scatters; at albedo 0 the particles make none of the image
+            // (the view pass's march, exact): no warning.
+            let warned = o.notes.iter().any(|n| n.contains("particle spacing"));
+            assert_eq!(warned, !o.case.contains("albedo 0,"), "{}: the trust warning: {:?}", o.case, o);
             eprintln!("{}: passed {}, over the bound by {:.3}", o.case, o.passed, o.max_over_bound);
         } else {
             assert!(o.passed, "{}: {:?}", o.case, o);

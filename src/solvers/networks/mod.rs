@@ -455,7 +455,7 @@ impl Networks {
                 img.dropped
             ));
         }
-        report.warnings.extend(trust.warning().filter(|_| scene.scatters()));
+        report.warnings.extend(trust.warning().filter(|_| particles_matter(scene, set)));
         report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report, estimates: Vec::new() })
@@ -700,9 +700,9 @@ impl Solver for Networks {
 
     fn preflight(&self, scene: &Scene, knobs: &Knobs) -> Result<Vec<String>, SolverError> {
         // The density's lattice alone: the particles themselves are drawn by the render.
-        // Where nothing scatters the network carries nothing: the particles' trust does not apply.
-        let particles = ParticleTrust::of(scene, knobs.get("particles")?).warning().filter(|_| scene.scatters());
         let set = NetworksSettings::parse(knobs, scene)?;
+        let particles =
+            ParticleTrust::of(scene, knobs.get("particles")?).warning().filter(|_| particles_matter(scene, &set));
         let view =
             set.view.as_ref().and_then(|v| crate::solvers::parts::view::ViewTrust::of(scene, v).warning(self.name()));
         Ok(particles.into_iter().chain(view).collect())
@@ -733,4 +733,13 @@ impl Solver for Networks {
         lines.extend(view);
         lines
     }
+}
+
+/// Whether the particles make any of the image, so that their trust line applies: where
+/// something scatters (the network carries it), or where the particles' splats make the image
+/// (`networks.single = particles`: they composite the emission and the transmittance). With the
+/// view pass and nothing scattering (`Scene::scatters`) the image is the camera ray's march,
+/// exact, and the particles' spacing says nothing of it.
+fn particles_matter(scene: &Scene, set: &NetworksSettings) -> bool {
+    scene.scatters() || set.view.is_none()
 }
