@@ -967,8 +967,21 @@ fn scene_emission_errors_are_one_line() {
         ("emission = [1.0, nan, 1.0]", light, &["medium.emission", "green"]),
         ("emission = \"hot\"", light, &["medium.emission"]),
         ("emission = { kind = \"sphere\", file = \"e.f32\" }", light, &["medium.emission.kind", "sphere"]),
-        ("emission = { kind = \"grid\", file = \"bad.f32\", dims = [2, 1, 1] }", light, &["emission values", ">= 0"]),
-        ("emission = { kind = \"grid\", file = \"missing.f32\", dims = [2, 1, 1] }", light, &["missing.f32"]),
+        (
+            "emission = { kind = \"grid\", file = \"bad.f32\", dims = [2, 1, 1] }",
+            light,
+            &["medium.emission.file", "emission values", ">= 0"],
+        ),
+        (
+            "emission = { kind = \"grid\", file = \"missing.f32\", dims = [2, 1, 1] }",
+            light,
+            &["medium.emission.file", "missing.f32"],
+        ),
+        (
+            "temperature = { kind = \"grid\", file = \"missing.f32\", dims = [2, 1, 1] }",
+            light,
+            &["medium.temperature.file", "missing.f32", "cannot open"],
+        ),
         ("emission = 1.0\nemission_scale = -2.0", light, &["medium.emission_scale"]),
         ("emission_scale = 2.0", light, &["medium.emission_scale", "neither"]),
         ("temperature_scale = 2.0", light, &["medium.temperature_scale", "no temperature"]),
@@ -994,7 +1007,16 @@ fn scene_emission_errors_are_one_line() {
         let text = emissive(medium, lights);
         let msg = message(parse_in(&text, dir.path(), &[], &LoadOptions::default()));
         assert_mentions(&msg, words);
+        // An emission or temperature grid's error names its own field, not the density's.
+        assert!(!msg.contains("density"), "{msg}");
     }
+    // Past the memory budget: the temperature grid's field (its three RGB planes counted).
+    let text = emissive("temperature = { kind = \"grid\", file = \"e.f32\", dims = [2, 1, 1] }", light);
+    let small = LoadOptions { memory_budget_bytes: 16 };
+    assert_mentions(
+        &message(parse_in(&text, dir.path(), &[], &small)),
+        &["medium.temperature.file", "memory budget", "--memory-budget"],
+    );
     // Albedo 1 absorbs nothing, so it cannot emit.
     let text = emissive("emission = 1.0", light).replace("albedo = 0.5", "albedo = 1.0");
     assert_mentions(&message(parse(&text)), &["medium.emission", "albedo 1", "sigma_a Le"]);

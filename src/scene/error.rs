@@ -44,15 +44,17 @@ pub enum SceneError {
     #[error("{}: override `{key}`: {message}", .file.display())]
     Override { file: PathBuf, key: String, message: String },
 
-    /// The density grid file is missing, truncated, or holds something we cannot use.
-    #[error("{}: medium.density.file `{}`: {message}", .file.display(), .grid.display())]
-    Grid { file: PathBuf, grid: PathBuf, message: String },
+    /// A grid file (density, emission or temperature) is missing, truncated, or holds
+    /// something we cannot use. `field`: the scene key naming it (`medium.emission.file`).
+    #[error("{}: {field} `{}`: {message}", .file.display(), .grid.display())]
+    Grid { file: PathBuf, field: String, grid: PathBuf, message: String },
 
-    /// The density grid would not fit the memory budget (checked before reading it).
-    #[error("{}: medium.density.file `{}`: grid {}x{}x{} needs {} of f32 data but the memory budget is {}; resample \
+    /// A grid would not fit the memory budget (checked before reading it). `field`: the scene
+    /// key naming it.
+    #[error("{}: {field} `{}`: grid {}x{}x{} needs {} of f32 data but the memory budget is {}; resample \
         the grid or raise --memory-budget",
         .file.display(), .grid.display(), .dims[0], .dims[1], .dims[2], human_bytes(*.needed_bytes), human_bytes(*.budget_bytes))]
-    GridTooLarge { file: PathBuf, grid: PathBuf, dims: [u64; 3], needed_bytes: u64, budget_bytes: u64 },
+    GridTooLarge { file: PathBuf, field: String, grid: PathBuf, dims: [u64; 3], needed_bytes: u64, budget_bytes: u64 },
 }
 
 impl SceneError {
@@ -63,7 +65,7 @@ impl SceneError {
             | SceneError::MissingKey { key, .. }
             | SceneError::Override { key, .. } => Some(key),
             SceneError::Invalid { field, .. } => Some(field),
-            SceneError::Grid { .. } | SceneError::GridTooLarge { .. } => Some("medium.density.file"),
+            SceneError::Grid { field, .. } | SceneError::GridTooLarge { field, .. } => Some(field),
             SceneError::Read { .. } | SceneError::Syntax { .. } => None,
         }
     }

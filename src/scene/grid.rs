@@ -97,7 +97,12 @@ pub(crate) struct GridRequest<'a> {
 
 impl GridRequest<'_> {
     fn err(&self, message: impl Into<String>) -> SceneError {
-        SceneError::Grid { file: self.scene_file.to_path_buf(), grid: self.resolved.clone(), message: message.into() }
+        SceneError::Grid {
+            file: self.scene_file.to_path_buf(),
+            field: format!("{}.file", self.key),
+            grid: self.resolved.clone(),
+            message: message.into(),
+        }
     }
 }
 
@@ -168,6 +173,7 @@ pub(crate) fn load_grid(req: &GridRequest) -> Result<Grid, SceneError> {
     if needed > req.opts.memory_budget_bytes {
         return Err(SceneError::GridTooLarge {
             file: req.scene_file.to_path_buf(),
+            field: format!("{}.file", req.key),
             grid: req.resolved.clone(),
             dims: dims.map(u64::from),
             needed_bytes: needed,

@@ -521,7 +521,8 @@ pub enum Light {
 /// Limits applied while loading.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LoadOptions {
-    /// Largest density grid accepted, in bytes of f32 data (checked before reading it).
+    /// Largest grid accepted (density, emission or temperature), in bytes of f32 data as held
+    /// in memory (checked before reading it).
     pub memory_budget_bytes: u64,
 }
 

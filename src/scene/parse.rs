@@ -671,6 +671,7 @@ impl Ctx<'_> {
                 if needed > opts.memory_budget_bytes {
                     return Err(SceneError::GridTooLarge {
                         file: self.file.to_path_buf(),
+                        field: format!("{}.file", key("temperature")),
                         grid: grid.file.clone(),
                         dims: grid.dims.map(u64::from),
                         needed_bytes: needed,

@@ -39,7 +39,12 @@ pub(crate) struct VdbRequest<'a> {
 
 impl VdbRequest<'_> {
     fn err(&self, message: impl Into<String>) -> SceneError {
-        SceneError::Grid { file: self.scene_file.to_path_buf(), grid: self.resolved.clone(), message: message.into() }
+        SceneError::Grid {
+            file: self.scene_file.to_path_buf(),
+            field: format!("{}.file", self.key),
+            grid: self.resolved.clone(),
+            message: message.into(),
+        }
     }
 }
 
