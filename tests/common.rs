@@ -484,7 +484,8 @@ pub fn reference_identity(gpu: &Gpu) -> String {
 /// A render is a function of the scene, its seed, the device and the code it runs (the
 /// Determinism rule), so the key is exactly those: [`reference_identity`] (the code, the
 /// device), then the scene as loaded (every field, grid data included, through its `Debug`
-/// form, which prints floats exactly) and the sets. Found first among the committed references
+/// form, which prints floats exactly, its paths relative to the checkout) and the sets
+/// ([`reference_key`]). Found first among the committed references
 /// (a clean checkout renders none that `tools/path-references keep` stored for its code), then
 /// among this machine's kept ones; a fresh render is checked as `render` checks it (finite,
 /// non-negative, no warning) before it is kept; a file that cannot be read is rendered again.
@@ -494,14 +495,44 @@ pub fn path_reference(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> Refere
     path_reference_from(gpu, scene, sets).0
 }
 
-/// [`path_reference`], and where it came from.
-pub fn path_reference_from(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> (Reference, ReferenceSource) {
+/// `text` (a scene's `Debug` form) without where this checkout and the tests' temporary folders
+/// lie: the scene's source and its grid files are absolute paths, under the repository
+/// (`repo_scene`) or a `tempfile` folder (`/tmp/.tmpXXXXXX`, random per run), and a reference's
+/// key must be the same in any checkout (CI's is not this machine's) and every run. The grid
+/// data itself stays in the key.
+fn without_checkout_paths(text: &str) -> String {
+    let text = text.replace(env!("CARGO_MANIFEST_DIR"), "<repo>");
+    let tmp = std::env::temp_dir().join(".tmp");
+    let tmp = tmp.to_string_lossy();
+    let (mut out, mut rest) = (String::with_capacity(text.len()), text.as_str());
+    while let Some(i) = rest.find(&*tmp) {
+        out.push_str(&rest[..i]);
+        out.push_str("<tmp>");
+        rest = &rest[i + tmp.len()..];
+        rest = rest.trim_start_matches(|c: char| c.is_ascii_alphanumeric());
+    }
+    out.push_str(rest);
+    out
+}
+
+/// A reference's key: the scene as loaded (its `Debug` form, without the folder of its file,
+/// the checkout's and the temporary folders' paths) and the sets.
+pub fn reference_key(scene: &Scene, sets: &[(&str, &str)]) -> String {
     use sha2::{Digest, Sha256};
     let mut h = Sha256::new();
-    h.update(format!("{scene:?}").as_bytes());
+    let mut text = format!("{scene:?}");
+    // The scene's own folder first: its grid files are found there.
+    if let Some(dir) = scene.source.parent().filter(|d| d.is_absolute()) {
+        text = text.replace(&*dir.to_string_lossy(), "<scene>");
+    }
+    h.update(without_checkout_paths(&text).as_bytes());
     h.update(format!("|{sets:?}|").as_bytes());
-    let key: String = h.finalize().iter().take(10).map(|b| format!("{b:02x}")).collect();
-    let name = format!("{}-{key}.exr", reference_identity(gpu));
+    h.finalize().iter().take(10).map(|b| format!("{b:02x}")).collect()
+}
+
+/// [`path_reference`], and where it came from.
+pub fn path_reference_from(gpu: &Gpu, scene: &Scene, sets: &[(&str, &str)]) -> (Reference, ReferenceSource) {
+    let name = format!("{}-{}.exr", reference_identity(gpu), reference_key(scene, sets));
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("path-references");
     std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
     {

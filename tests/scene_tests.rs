@@ -1061,3 +1061,32 @@ fn scene_campfire_is_what_it_says() {
     let emitting = g.planes[0].data.iter().filter(|v| **v > 0.0).count();
     assert!((300..=900).contains(&emitting), "{emitting} voxels emit");
 }
+
+/// A `path` reference's key (tests/common.rs, `reference_key`) does not depend on where the
+/// checkout lies: the campfire (a scene file and two grid files) loaded from the repository and
+/// from a copy in a temporary folder has one key, so the references committed here serve CI's
+/// checkout wherever it is; its grid data is in the key (another grid, another key).
+#[test]
+fn a_reference_key_is_the_same_in_any_checkout() {
+    use crate::common::{reference_key, repo_scene};
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    for f in ["campfire.toml", "campfire-density.vol", "campfire-temperature.vol"] {
+        std::fs::copy(root.join(f), dir.path().join(f)).unwrap();
+    }
+    let sets = [("render.width", "24")];
+    let here = repo_scene("scenes/campfire.toml", &sets);
+    let owned: Vec<(String, String)> = sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    let load = |d: &Path| Scene::load(&d.join("campfire.toml"), &owned, &LoadOptions::default()).unwrap();
+    let there = load(dir.path());
+    assert_ne!(here.source, there.source);
+    assert_eq!(reference_key(&here, &[("render.spp", "64")]), reference_key(&there, &[("render.spp", "64")]));
+    assert_ne!(reference_key(&here, &[("render.spp", "64")]), reference_key(&here, &[("render.spp", "65")]));
+    // Another temperature grid (one voxel changed) is another key.
+    let t = dir.path().join("campfire-temperature.vol");
+    let mut bytes = std::fs::read(&t).unwrap();
+    let n = bytes.len();
+    bytes[n - 4..].copy_from_slice(&2000.0f32.to_le_bytes());
+    std::fs::write(&t, bytes).unwrap();
+    assert_ne!(reference_key(&here, &[]), reference_key(&load(dir.path()), &[]));
+}
