@@ -31,8 +31,8 @@ fn mean(out: &RenderOutput) -> f64 {
 /// A slab [-4, 4]^2 x [0, 1] of optical thickness `tau` lit by nothing but its emission Le = 1,
 /// seen from above along the normal by an orthographic camera 1 unit wide at its centre. (Half
 /// as wide, the lateral leak took 2.5% off the normal radiance at albedo 0.9; 1.5 times as wide,
-/// 0.05% more than at this width.)
-fn emitting_slab(tau: f64, albedo: f64, g: f64) -> Scene {
+/// 0.05% more than at this width.) networks' slab test uses it too.
+pub(crate) fn emitting_slab(tau: f64, albedo: f64, g: f64) -> Scene {
     scene(&format!(
         "[render]\nwidth = 8\nheight = 8\nspp = 1\n\
          [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 5.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 1.0\n\

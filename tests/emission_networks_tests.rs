@@ -458,12 +458,7 @@ fn networks_emitting_slab_matches_the_slab_reference() {
     let gpu = gpu();
     for (albedo, g) in [(0.5, 0.0), (0.9, 0.0), (0.5, 0.6), (0.9, 0.6)] {
         let (want, _) = crate::slab_reference::slab_emission(2.0, albedo, g, 16, 4000);
-        let s = scene(&format!(
-            "[render]\nwidth = 8\nheight = 8\nspp = 1\n\
-             [camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 5.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 1.0\n\
-             [medium]\nbounds = [[-4.0, -4.0, 0.0], [4.0, 4.0, 1.0]]\nsigma_t = 2.0\nalbedo = {albedo}\ng = {g}\n\
-             emission = 1.0\ndensity = {{ kind = \"constant\" }}\n"
-        ));
+        let s = crate::emission_dom_tests::emitting_slab(2.0, albedo, g);
         let out = render(&gpu, &s, NETWORKS, &[("networks.particles", "2400"), ("networks.directions", "64")]);
         let c = out.report.stats.convergence.expect("networks reports its convergence");
         let got = out.image.data.iter().map(|v| *v as f64).sum::<f64>() / out.image.data.len() as f64;
