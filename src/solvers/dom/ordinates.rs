@@ -356,16 +356,31 @@ pub(crate) fn to_vec4(q: &Quadrature) -> Vec<[f32; 4]> {
     q.directions.iter().zip(&q.weights).map(|(d, w)| [d[0] as f32, d[1] as f32, d[2] as f32, *w as f32]).collect()
 }
 
+/// The storage directions and how the sweep reads them, for the swept set `swept` (the
+/// quadrature in octant order).
+fn storage_of(quadrature: &Quadrature, storage: &Quadrature, swept: &Quadrature) -> (Quadrature, Storage) {
+    if storage.len() == 1 {
+        (storage.clone(), Storage::Isotropic)
+    } else if storage.name == quadrature.name {
+        (swept.clone(), Storage::Swept)
+    } else {
+        (storage.clone(), Storage::Upsampled)
+    }
+}
+
+/// The mean cosine the quadrature's normalised scattering carries for HG(`g`) (the
+/// [`Tables::quadrature_g`] a sweeper reports), without building a sweeper: for a render that
+/// sweeps nothing (dom where nothing scatters).
+pub fn quadrature_g(quadrature: &Quadrature, storage: &Quadrature, g: f64) -> f64 {
+    let (swept, _, _) = quadrature.by_octant();
+    let (storage, _) = storage_of(quadrature, storage, &swept);
+    StorageMap::new(&swept, &storage).scattering(&swept, g).1
+}
+
 impl Tables {
     pub(crate) fn new(s: &SweepSetup) -> Result<Tables, SolverError> {
         let (swept, first_dir, count) = s.quadrature.by_octant();
-        let (storage, mode) = if s.storage.len() == 1 {
-            (s.storage.clone(), Storage::Isotropic)
-        } else if s.storage.name == s.quadrature.name {
-            (swept.clone(), Storage::Swept)
-        } else {
-            (s.storage.clone(), Storage::Upsampled)
-        };
+        let (storage, mode) = storage_of(s.quadrature, s.storage, &swept);
         if swept.len() >= 1 << 16 {
             return Err(SolverError::Unsupported(format!("{} has more than 65535 directions", swept.name)));
         }
