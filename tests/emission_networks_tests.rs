@@ -84,6 +84,9 @@ fn networks_absorbing_emitter_is_the_closed_form() {
             } else {
                 render(&gpu, &s, NETWORKS, &sets)
             };
+            // The network is built only where its splats make the image.
+            let stats = out.report.detail::<scatterlab::solvers::networks::NetworksStats>().unwrap();
+            assert_eq!(stats.network, single == "particles", "single = {single}");
             let worst = out
                 .image
                 .data
