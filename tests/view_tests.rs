@@ -270,14 +270,15 @@ fn iterations(stdout: &str, solver: &str) -> (f64, f64, u32) {
     (cold, words[i - 1].parse().unwrap(), words[i + 2].parse().unwrap())
 }
 
-/// A move of the light starts lbl and networks from their last solution (their `animate`
+/// A move of the light starts lbl, networks and dom from their last solution (their `animate`
 /// sequences, iterated to the tolerance each frame); a move of the camera starts again from
 /// zero. Measured at 32^2 on the sphere after 2-degree moves: networks 89 iterations from zero,
 /// 28 warm started (0.31); lbl at grid 16 72 from zero, 44 warm started (0.61: 65 for the
 /// first warm frame, then 33 with the previous frame's source in the guess; before its tail
-/// was extrapolated from seeded starts and its links carried, 129).
+/// was extrapolated from seeded starts and its links carried, 129); dom at grid 16 0.50 (its
+/// carried state is exact: the series of the source's change and its pending bounce).
 #[test]
-fn a_light_move_warm_starts_networks_and_lbl_from_their_last_solution() {
+fn a_light_move_warm_starts_networks_lbl_and_dom_from_their_last_solution() {
     let x = Xvfb::start();
     let dir = tempfile::tempdir().unwrap();
     let scene = repo("scenes/homogeneous-sphere.toml");
@@ -285,7 +286,7 @@ fn a_light_move_warm_starts_networks_and_lbl_from_their_last_solution() {
     std::fs::write(&script, "1 drag-right 4 0\n2 drag-right 4 0\n3 drag-right 4 0\n4 drag-left 10 0\n").unwrap();
     let script_s = script.display().to_string();
     let mut ratios = Vec::new();
-    for (solver, knob) in [("networks", "networks.particles=1024"), ("lbl", "lbl.grid=16")] {
+    for (solver, knob) in [("networks", "networks.particles=1024"), ("lbl", "lbl.grid=16"), ("dom", "dom.grid=16")] {
         let args = [
             "view",
             &scene,
@@ -312,6 +313,7 @@ fn a_light_move_warm_starts_networks_and_lbl_from_their_last_solution() {
     eprintln!("warm / cold iterations: {ratios:?}");
     assert!(ratios[0].1 < 0.5, "networks warm started no faster: {ratios:?}");
     assert!(ratios[1].1 < 0.8, "lbl warm started no faster than measured: {ratios:?}");
+    assert!(ratios[2].1 < 0.8, "dom warm started no faster than measured: {ratios:?}");
 }
 
 /// `render --exr` of the view a screenshot reports, against the screenshot's EXR: their metrics.
@@ -333,7 +335,8 @@ fn exr_against_render(x: &Xvfb, scene: &str, shot: &Path, exr: &Path, extra: &[&
 /// the tolerance and the frames after it go on from there: the last frame is the converged
 /// render of the view (the screenshot's EXR within 1e-3 relL2 of `render --exr`), and the
 /// summary counts the budgeted stops. lbl goes on to the tolerance in the next frame (its
-/// carried field is a projection; docs/usage.md), networks steps its budget every frame.
+/// carried field is a projection; docs/usage.md), networks and dom step their budget every
+/// frame. Measured: dom 4 budgeted stops, then converged at relL2 6.2e-5 to the render.
 #[test]
 fn a_per_frame_budget_shows_the_image_converging_to_the_render() {
     let x = Xvfb::start();
@@ -345,6 +348,7 @@ fn a_per_frame_budget_shows_the_image_converging_to_the_render() {
     for (solver, knobs, frames, stops) in [
         ("lbl", ["lbl.grid=16", "lbl.iterations_per_frame=8"], "5", 1),
         ("networks", ["networks.particles=256", "networks.iterations_per_frame=4"], "16", 2),
+        ("dom", ["dom.grid=16", "dom.iterations_per_frame=4"], "10", 2),
     ] {
         let shot = dir.path().join(format!("{solver}.png"));
         let shot_s = shot.display().to_string();

@@ -117,7 +117,9 @@ void main() {
             accum[k] = t;
             bounce[cur * NV + k] = b;
             sb = double(b);
-            mb = max(0.0lf, double(b));
+            // |b|: a warm-started frame's bounces are signed (src/solvers/dom/mod.rs, DomCarry);
+            // a cold start's are never negative, where this is b.
+            mb = abs(double(b));
             mt = max(0.0lf, double(t));
             st = double(t);
             if (pc.extrapolate != 0u) {

@@ -108,10 +108,18 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
         }
         Ok(written.iter().filter_map(|r| r.write_ms).collect())
     });
-    let mut on_frame = |image: &output::Image, _: &solvers::RenderOutput, row: &animate::FrameRow| {
+    // Each frame's warnings (a discretisation past what the solver was validated at, a frame that
+    // keeps no state), each said once: a sequence says the same of every frame.
+    let mut said = std::collections::HashSet::new();
+    let mut on_frame = |image: &output::Image, out: &solvers::RenderOutput, row: &animate::FrameRow| {
         // A closed channel: the writer stopped on an error, reported after the join.
         tx.send((image.clone(), row.clone())).map_err(|_| "the frame writer stopped".to_string())?;
         bar.inc(1);
+        for w in &out.report.warnings {
+            if said.insert(w.clone()) {
+                bar.suspend(|| eprintln!("warning: {w}"));
+            }
+        }
         if !a.quiet {
             bar.suspend(|| {
                 eprintln!(

@@ -150,7 +150,7 @@ pub enum Command {
     /// about the medium, the wheel zooms, right- or shift-drag orbits the first light, keys 1-8
     /// switch solver (registry order), + and - change exposure, R resets, S saves a screenshot,
     /// D measures the solver against a path accumulation beside it, Esc quits. path accumulates
-    /// progressively; lbl and networks start a light move from their last solution (a budget
+    /// progressively; lbl, networks and dom start a light move from their last solution (a budget
     /// `<solver>.iterations_per_frame` converges over frames); the others render again.
     View(ViewArgs),
     /// Merge renders of disjoint sample ranges (`render --samples A..B`) of one scene into the

@@ -741,7 +741,7 @@ impl App<'_> {
         u.wall_ms += started.elapsed().as_secs_f64() * 1e3;
         u.gpu_ms += out.report.gpu_ms;
         if !progressive && !has_anim && u.renders > 1 && !u.cold_said && !quiet {
-            // Once: lbl and networks carry their solution to the next frame, the others do not.
+            // Once: lbl, networks and dom carry their solution to the next frame, the others do not.
             eprintln!("view: {name} keeps no solution between frames: every change renders again from scratch");
             u.cold_said = true;
         }

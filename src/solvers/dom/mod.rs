@@ -47,8 +47,8 @@ use self::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MA
 use self::directions::DirectionsTrust;
 use self::ordinates::{BeamGroup, Eye, Slab, SweepSetup, Sweeper};
 use crate::solvers::interface::{
-    Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest, Rung,
-    Solver, SolverError, Stats, Variant,
+    Animation, Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest,
+    Rung, Solver, SolverError, Stats, Variant,
 };
 use crate::solvers::parts::gpu_scene::{self, GpuScene};
 use crate::solvers::parts::lattice::{GridTrust, LatticeGeom, DOM_GRID};
@@ -96,6 +96,9 @@ pub struct DomStats {
     /// field toward the camera by sigma_s, so there it would carry nothing: the image is the
     /// view's camera-ray march alone, exactly as with the field.
     pub field: bool,
+    /// A sequence's frame that went on from the last frame's state (`DomCarry`): its
+    /// iterations are those after the change.
+    pub warm_start: bool,
     pub iterations: u32,
     pub converged: bool,
     pub final_change: f64,
@@ -127,6 +130,7 @@ pub struct DomStats {
     pub stages_ms: Vec<(&'static str, f64)>,
 }
 
+#[derive(Clone)]
 struct DomSettings {
     /// The voxel grid of the sweeps, the marching and the view's volume for `grid`, built once.
     geom: LatticeGeom,
@@ -137,6 +141,11 @@ struct DomSettings {
     scheme: Scheme,
     tol: f64,
     max_iterations: u32,
+    /// `dom.iterations_per_frame`: scattering iterations of each frame of a sequence after the
+    /// first (None: to the tolerance).
+    iterations_per_frame: Option<u32>,
+    /// This frame stops at its budget by design (a sequence's): no "did not converge" warning.
+    budgeted: bool,
     extrapolate: bool,
     /// Block edge (0: whole-grid plane sweeps; None: auto, decided by the device's binding
     /// limit), the device budget in bytes and the store.
@@ -187,6 +196,11 @@ impl DomSettings {
             scheme: if scheme == "step" { Scheme::Step } else { Scheme::Characteristics },
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
+            iterations_per_frame: match k.is_set("iterations_per_frame") {
+                true => Some(k.get("iterations_per_frame")?),
+                false => None,
+            },
+            budgeted: false,
             extrapolate: k.get("extrapolate")?,
             block: match block.as_str() {
                 "auto" if streams => Some(16),
@@ -375,11 +389,78 @@ fn block_sweeper(
 /// The light toward the camera with the extrapolated tail: the last pair increment of the
 /// gathered light times rho^2 / (1 - rho^2), added to the light the last iteration read (with a
 /// tail, the iteration extrapolated, so it read it: no second readback or gather).
-fn with_tail(t: &Tail, cameras: &mut Vec<Vec<f32>>) -> Vec<f32> {
+/// A warm-started frame's bounces are signed (`DomCarry`: where the light left, the light
+/// toward the camera falls bounce by bounce): its tail is signed too, the sum kept non-negative.
+fn with_tail(t: &Tail, cameras: &mut Vec<Vec<f32>>, signed: bool) -> Vec<f32> {
     let mut camera = cameras.pop().expect("an extrapolating iteration reads the light toward the camera");
     let f = (t.camera_ratio2 / (1.0 - t.camera_ratio2)) as f32;
-    camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c += (*c - p).max(0.0) * f);
+    match signed {
+        false => camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c += (*c - p).max(0.0) * f),
+        true => camera.iter_mut().zip(&t.camera_before2).for_each(|(c, p)| *c = (*c + (*c - p) * f).max(0.0)),
+    }
     camera
+}
+
+/// What a frame of a sequence hands the next ([`DomAnimation`]): the state of its scattering
+/// iterations. The transport equation is linear in its source: with L = T(q + K L) (T the
+/// sweep, K the scattering, q the first-scattering and emitted source), the last frame left
+/// C = its bounces summed and S = its pending source (what the next sweep would have propagated,
+/// the series not yet summed), so this frame's solution is C plus the bounce series of the source
+/// (q' - q) + S, q' this frame's own. A light move makes q' - q small where the light barely
+/// moved: the series starts at the change, not at the whole light, and needs fewer bounces to
+/// the tolerance. Its bounces are signed (where the light left they take light away): the
+/// convergence test takes |bounce| (glsl/ordinates/converge.comp), the tail is signed, and the
+/// light toward the camera is kept non-negative. Valid for the same grid, channels, storage
+/// directions and eye (the light toward the camera is the eye's); a change of those starts from
+/// zero.
+struct DomCarry {
+    shape: ([u32; 3], u32, usize, [f32; 4]),
+    /// S - q ([c][m][v]): the source its next sweep would have propagated less the
+    /// first-scattering source it swept first, so the next frame sweeps q' + (S - q) first (one
+    /// grid of sources kept on the host, not two; where the light did not move the difference
+    /// costs S a rounding of q's size, 1e-7 of q, against S of the tolerance's).
+    offset: Vec<f32>,
+    /// Its bounces' fluence summed, and their light toward the camera ([c][v]).
+    accum: Vec<f32>,
+    camera: Vec<f32>,
+}
+
+/// A `dom` sequence (`animate`, `view`): every frame marches its light anew and goes on from the
+/// last frame's state ([`DomCarry`]), to the tolerance or `dom.iterations_per_frame` iterations
+/// after the first frame. Block sweeps and a device without double precision (the test on the
+/// host) keep no state: there every frame starts from zero, said once.
+struct DomAnimation {
+    knobs: Knobs,
+    set: DomSettings,
+    converge: bool,
+    force_full: bool,
+    carry: Option<DomCarry>,
+    said: bool,
+}
+
+impl Animation for DomAnimation {
+    fn frame(&mut self, gpu: &Gpu, scene: &Scene, progress: &dyn Fn(Progress)) -> Result<RenderOutput, SolverError> {
+        if !scene.scatters() {
+            return Dom.render_unscattered(gpu, scene, self.force_full, &self.knobs, &self.set);
+        }
+        let mut set = self.set.clone();
+        if let (false, Some(k), Some(_)) = (self.converge, set.iterations_per_frame, &self.carry) {
+            set.max_iterations = k;
+            set.budgeted = true;
+        }
+        let last = self.carry.take();
+        let (mut out, carry) = Dom.render_with(gpu, scene, self.force_full, &self.knobs, &set, progress, Some(last))?;
+        if carry.is_none() && !self.said {
+            out.report.warnings.push(
+                "dom: block sweeps (dom.block) or a device without double precision keep no state between frames: \
+                 every frame starts from zero"
+                    .into(),
+            );
+            self.said = true;
+        }
+        self.carry = carry;
+        Ok(out)
+    }
 }
 
 /// dom's stats (its own, with the sweeps' time from the report's passes), the convergence and its
@@ -399,7 +480,7 @@ fn dom_stats(
     let (iterations, converged, change) = (ds.iterations, ds.converged, ds.final_change);
     let sweeps = report.passes.iter().filter(|p| p.name == "ordinates.sweep" || p.name == "dom.block_sweep");
     ds.sweep_ms = sweeps.map(|p| p.duration_ms()).sum();
-    if !converged {
+    if !converged && !set.budgeted {
         report.warnings.push(format!(
             "dom: the scattering iterations did not converge in {iterations} iterations (change {change:.2e}, tolerance \
              {:.1e}); raise dom.max_iterations or dom.tol",
@@ -977,6 +1058,175 @@ impl SourcePlan {
 }
 
 impl Dom {
+    /// A render with parsed settings. `carry`: a sequence's frame (`DomAnimation`), with the last
+    /// frame's state where there is one; the frame's own state is returned for the next (None
+    /// where the sweeps cannot carry one: blocks, or the test on the host).
+    #[allow(clippy::too_many_arguments)]
+    fn render_with(
+        &self,
+        gpu: &Gpu,
+        scene: &Scene,
+        force_full: bool,
+        k: &Knobs,
+        set: &DomSettings,
+        progress: &dyn Fn(Progress),
+        carry: Option<Option<DomCarry>>,
+    ) -> Result<(RenderOutput, Option<DomCarry>), SolverError> {
+        let mut stages: Vec<(&'static str, f64)> = Vec::new();
+
+        let mut t = std::time::Instant::now();
+        let mut stage = |name: &'static str| {
+            stages.push((name, t.elapsed().as_secs_f64() * 1e3));
+            t = std::time::Instant::now();
+        };
+        let gs = GpuScene::upload(gpu, scene, force_full)?;
+        // One channel when the medium, every light and the emission are grey (as lbl's lattice).
+        let nch = channels(scene, gs.modelled.chromatic);
+        let geom = set.geom;
+        // A scene lit by its emission alone has no light to march (issue 47): no light, or none
+        // whose rays reach the medium's box.
+        let marcher = match scene.lights.is_empty() {
+            true => None,
+            false => Some(Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false, false)?),
+        }
+        .filter(|m| !m.ray_beam.is_empty());
+        // The emission source's kernel, built only for an emissive medium (specialised on it).
+        let emit = match scene.emissive() {
+            true => Some(gpu.pipeline(&ordinates::EMIT, &gs.modelled.spec())?),
+            false => None,
+        };
+        let resampler = marching::resampler(gpu, &gs)?;
+        let m = &scene.medium;
+        let eye = match scene.camera.kind {
+            CameraKind::Perspective { .. } => Eye::Point(scene.camera.origin.to_array()),
+            CameraKind::Orthographic { .. } => Eye::Toward((-scene.camera.basis().2).to_array()),
+        };
+        let block = set.block.unwrap_or_else(|| auto_block(gpu, set));
+        // Plane sweeps hold the whole grid: the direct source is one slab, binned straight into
+        // their buffers. Block sweeps make it slab by slab within dom.budget (and one binding),
+        // the density resampled and the source read back per slab: nothing grid-sized stays on
+        // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
+        let plan = SourcePlan::new(set, &geom, nch, marcher.as_ref().map_or(0, |m| m.beams.len() as u64));
+        let (mut density, plane_extinction, sweeper, cut) =
+            source_sweeper(gpu, (&gs, &resampler), set, &plan, (m, nch, eye), block)?;
+        stage("setup");
+        let (quadrature_g, upsampled, storage_m) = (sweeper.quadrature_g, sweeper.upsampled(), sweeper.storage.len());
+        let source = direct_source(
+            gpu,
+            (&gs, &resampler, &geom),
+            marcher,
+            emit.as_ref(),
+            &sweeper,
+            (cut, block, nch, m.g as f64),
+            &mut density,
+            progress,
+        )?;
+        let DirectSource { first, budgeted, source_bytes, .. } = source;
+        stage("direct source");
+        let (sigma_t, sigma_s) = plane_extinction.unwrap_or_else(|| extinction(m, nch, &density));
+        drop(density);
+        let setup = sweep_setup(set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s);
+        let (mut blocked, sweeper) = if block > 0 {
+            // The direct source's buffers go before the pool comes: dom.budget bounds each phase.
+            drop(sweeper);
+            let b = block_sweeper(gpu, set, &setup, block, first)?;
+            stage("block store");
+            (Some(b), None)
+        } else {
+            (None, Some(sweeper))
+        };
+
+        // 5.3.3-5.3.4: the progressive scattering iterations (see iterate_on_device).
+        let on_device = blocked.is_none() && plane(&sweeper).tests_on_device();
+        // A sequence's frame goes on from the last frame's state (DomCarry) where the sweeps keep
+        // it on the device: plane sweeps with the test there.
+        let shape = (geom.dims, nch, storage_m, eye.packed());
+        let mut warm = false;
+        let first_now = match (&carry, on_device) {
+            (Some(last), true) => {
+                let sw = plane(&sweeper);
+                let first = sw.read_first(gpu, sw.whole())?;
+                if let Some(c) = last.as_ref().filter(|c| c.shape == shape) {
+                    let source: Vec<f32> = first.iter().zip(&c.offset).map(|(now, o)| now + o).collect();
+                    sw.set_state(gpu, &source, &c.accum, &c.camera)?;
+                    warm = true;
+                }
+                Some(first)
+            }
+            _ => None,
+        };
+        let (iterations, converged, change, tail, mut cameras) = if on_device {
+            iterate_on_device(gpu, plane(&sweeper), set, progress)?
+        } else {
+            let v = geom.voxels() as usize;
+            iterate_on_host(gpu, &mut blocked, &sweeper, set, nch as usize * v, progress)?
+        };
+        // The state as the iterations left it, before any tail is added: the next frame's start.
+        let carried = match first_now {
+            Some(first) => {
+                let (mut offset, accum, camera) = plane(&sweeper).read_state(gpu)?;
+                offset.iter_mut().zip(&first).for_each(|(o, q)| *o -= q);
+                Some(DomCarry { shape, offset, accum, camera })
+            }
+            None => None,
+        };
+        let tail_stats = tail.as_ref().map(|t| (t.ratio, t.share));
+        let camera_with_tail = tail.map(|t| with_tail(&t, &mut cameras, warm));
+        if let (Some(camera), None) = (&camera_with_tail, &blocked) {
+            gpu.write_buffer(&plane(&sweeper).camera, 0, bytemuck::cast_slice(camera))?;
+        }
+        stage("iterations");
+        // The light each voxel scatters toward the camera, as the energy per voxel that the view
+        // pass scatters isotropically (fluence = energy / lambda^2, as lbl's lattice). With
+        // blocks the pool goes before the view, which takes the volume in slabs of whole layers
+        // where it does not fit dom.budget (or one binding): one view run per slab, the images
+        // added (view::MsWindow).
+        let (res, sweeps, streaming, sweep_device_bytes, view_slabs) =
+            view_step(gpu, scene, &gs, set, &plan, nch, blocked, &sweeper, camera_with_tail)?;
+        stage("view");
+        // The largest of the phases: making the direct source, sweeping, viewing (plane sweeps
+        // keep their sweeper through the view; blocks hand the view their camera volume).
+        let device = gs.bytes
+            + if block > 0 {
+                source_bytes.max(sweeps).max(res.device_bytes)
+            } else {
+                source_bytes.max(sweeps + res.device_bytes)
+            };
+        let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), device, Stats::new(()));
+        let ds = DomStats {
+            grid: geom,
+            trust: geom.trust(scene, set.grid, &DOM_GRID),
+            directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
+            view_trust: view::ViewTrust::of(scene, &set.view),
+            quadrature: set.quadrature.name.clone(),
+            directions: set.quadrature.len(),
+            storage: set.storage.name.clone(),
+            storage_directions: set.storage.len(),
+            scheme: set.scheme,
+            channels: nch,
+            quadrature_g: (quadrature_g * 1e6).round() / 1e6 + 0.0,
+            field: true,
+            warm_start: warm,
+            iterations,
+            converged,
+            final_change: change,
+            tail_ratio: tail_stats.map(|t| t.0),
+            tail_share: tail_stats.map(|t| t.1),
+            sweep_ms: 0.0,
+            block,
+            streaming,
+            sweep_device_bytes,
+            view_slabs,
+            source_slabs: source.slabs,
+            source_layers: source.layers,
+            source_groups: source.groups,
+            source_device_bytes: budgeted,
+            stages_ms: stages,
+        };
+        report.stats = dom_stats(ds, set, &mut report, res.nonfinite_pixels, (upsampled, storage_m), scene.scatters());
+        Ok((RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() }, carried))
+    }
+
     /// dom where nothing scatters (sigma_s 0 in every channel and material): no light marched,
     /// no emission binned, nothing swept. The view scatters the swept field toward the camera by
     /// sigma_s and the direct light by sigma_s too, so with the field the image is the view's
@@ -986,13 +1236,13 @@ impl Dom {
     fn render_unscattered(
         &self,
         gpu: &Gpu,
-        req: &RenderRequest,
+        scene: &Scene,
+        force_full: bool,
         k: &Knobs,
         set: &DomSettings,
     ) -> Result<RenderOutput, SolverError> {
-        let scene = req.scene;
         let t = std::time::Instant::now();
-        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
+        let gs = GpuScene::upload(gpu, scene, force_full)?;
         let setup_ms = t.elapsed().as_secs_f64() * 1e3;
         let res = view::march(gpu, scene, &gs, &set.view, None)?;
         let view_ms = t.elapsed().as_secs_f64() * 1e3 - setup_ms;
@@ -1013,6 +1263,7 @@ impl Dom {
             channels: channels(scene, gs.modelled.chromatic),
             quadrature_g: (ordinates::quadrature_g(&set.quadrature, &set.storage, g) * 1e6).round() / 1e6 + 0.0,
             field: false,
+            warm_start: false,
             iterations: 0,
             converged: true,
             final_change: 0.0,
@@ -1073,6 +1324,13 @@ impl Solver for Dom {
                 "2000",
                 Range::int(1, 1_000_000),
                 "scattering iterations (bounces swept) at most",
+            ),
+            Knob::derived(
+                "iterations_per_frame",
+                "to the tolerance (dom.tol)",
+                Range::int(1, 1_000_000),
+                "scatterlab animate and view: scattering iterations of each frame after the first, going on from the \
+                 previous frame's state (plane sweeps)",
             ),
             Knob::fixed(
                 "extrapolate",
@@ -1172,133 +1430,16 @@ impl Solver for Dom {
         let set = DomSettings::parse(&k, scene)?;
         k.finish()?;
         if !scene.scatters() {
-            return self.render_unscattered(gpu, req, &k, &set);
+            return self.render_unscattered(gpu, scene, req.force_full, &k, &set);
         }
-        let mut stages: Vec<(&'static str, f64)> = Vec::new();
-        let mut t = std::time::Instant::now();
-        let mut stage = |name: &'static str| {
-            stages.push((name, t.elapsed().as_secs_f64() * 1e3));
-            t = std::time::Instant::now();
-        };
-        let gs = GpuScene::upload(gpu, scene, req.force_full)?;
-        // One channel when the medium, every light and the emission are grey (as lbl's lattice).
-        let nch = channels(scene, gs.modelled.chromatic);
-        let geom = set.geom;
-        // A scene lit by its emission alone has no light to march (issue 47): no light, or none
-        // whose rays reach the medium's box.
-        let marcher = match scene.lights.is_empty() {
-            true => None,
-            false => Some(Marcher::new(gpu, scene, &gs, geom, &set.march, nch, true, false, false)?),
-        }
-        .filter(|m| !m.ray_beam.is_empty());
-        // The emission source's kernel, built only for an emissive medium (specialised on it).
-        let emit = match scene.emissive() {
-            true => Some(gpu.pipeline(&ordinates::EMIT, &gs.modelled.spec())?),
-            false => None,
-        };
-        let resampler = marching::resampler(gpu, &gs)?;
-        let m = &scene.medium;
-        let eye = match scene.camera.kind {
-            CameraKind::Perspective { .. } => Eye::Point(scene.camera.origin.to_array()),
-            CameraKind::Orthographic { .. } => Eye::Toward((-scene.camera.basis().2).to_array()),
-        };
-        let block = set.block.unwrap_or_else(|| auto_block(gpu, &set));
-        // Plane sweeps hold the whole grid: the direct source is one slab, binned straight into
-        // their buffers. Block sweeps make it slab by slab within dom.budget (and one binding),
-        // the density resampled and the source read back per slab: nothing grid-sized stays on
-        // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
-        let plan = SourcePlan::new(&set, &geom, nch, marcher.as_ref().map_or(0, |m| m.beams.len() as u64));
-        let (mut density, plane_extinction, sweeper, cut) =
-            source_sweeper(gpu, (&gs, &resampler), &set, &plan, (m, nch, eye), block)?;
-        stage("setup");
-        let (quadrature_g, upsampled, storage_m) = (sweeper.quadrature_g, sweeper.upsampled(), sweeper.storage.len());
-        let source = direct_source(
-            gpu,
-            (&gs, &resampler, &geom),
-            marcher,
-            emit.as_ref(),
-            &sweeper,
-            (cut, block, nch, m.g as f64),
-            &mut density,
-            req.progress,
-        )?;
-        let DirectSource { first, budgeted, source_bytes, .. } = source;
-        stage("direct source");
-        let (sigma_t, sigma_s) = plane_extinction.unwrap_or_else(|| extinction(m, nch, &density));
-        drop(density);
-        let setup = sweep_setup(&set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s);
-        let (mut blocked, sweeper) = if block > 0 {
-            // The direct source's buffers go before the pool comes: dom.budget bounds each phase.
-            drop(sweeper);
-            let b = block_sweeper(gpu, &set, &setup, block, first)?;
-            stage("block store");
-            (Some(b), None)
-        } else {
-            (None, Some(sweeper))
-        };
+        Ok(self.render_with(gpu, scene, req.force_full, &k, &set, req.progress, None)?.0)
+    }
 
-        // 5.3.3-5.3.4: the progressive scattering iterations (see iterate_on_device).
-        let on_device = blocked.is_none() && plane(&sweeper).tests_on_device();
-        let (iterations, converged, change, tail, mut cameras) = if on_device {
-            iterate_on_device(gpu, plane(&sweeper), &set, req.progress)?
-        } else {
-            let v = geom.voxels() as usize;
-            iterate_on_host(gpu, &mut blocked, &sweeper, &set, nch as usize * v, req.progress)?
-        };
-        let tail_stats = tail.as_ref().map(|t| (t.ratio, t.share));
-        let camera_with_tail = tail.map(|t| with_tail(&t, &mut cameras));
-        if let (Some(camera), None) = (&camera_with_tail, &blocked) {
-            gpu.write_buffer(&plane(&sweeper).camera, 0, bytemuck::cast_slice(camera))?;
-        }
-        stage("iterations");
-        // The light each voxel scatters toward the camera, as the energy per voxel that the view
-        // pass scatters isotropically (fluence = energy / lambda^2, as lbl's lattice). With
-        // blocks the pool goes before the view, which takes the volume in slabs of whole layers
-        // where it does not fit dom.budget (or one binding): one view run per slab, the images
-        // added (view::MsWindow).
-        let (res, sweeps, streaming, sweep_device_bytes, view_slabs) =
-            view_step(gpu, scene, &gs, &set, &plan, nch, blocked, &sweeper, camera_with_tail)?;
-        stage("view");
-        // The largest of the phases: making the direct source, sweeping, viewing (plane sweeps
-        // keep their sweeper through the view; blocks hand the view their camera volume).
-        let device = gs.bytes
-            + if block > 0 {
-                source_bytes.max(sweeps).max(res.device_bytes)
-            } else {
-                source_bytes.max(sweeps + res.device_bytes)
-            };
-        let mut report = RenderReport::finish(gpu, self, &k, gs.modelled.clone(), device, Stats::new(()));
-        let ds = DomStats {
-            grid: geom,
-            trust: geom.trust(scene, set.grid, &DOM_GRID),
-            directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
-            view_trust: view::ViewTrust::of(scene, &set.view),
-            quadrature: set.quadrature.name.clone(),
-            directions: set.quadrature.len(),
-            storage: set.storage.name.clone(),
-            storage_directions: set.storage.len(),
-            scheme: set.scheme,
-            channels: nch,
-            quadrature_g: (quadrature_g * 1e6).round() / 1e6 + 0.0,
-            field: true,
-            iterations,
-            converged,
-            final_change: change,
-            tail_ratio: tail_stats.map(|t| t.0),
-            tail_share: tail_stats.map(|t| t.1),
-            sweep_ms: 0.0,
-            block,
-            streaming,
-            sweep_device_bytes,
-            view_slabs,
-            source_slabs: source.slabs,
-            source_layers: source.layers,
-            source_groups: source.groups,
-            source_device_bytes: budgeted,
-            stages_ms: stages,
-        };
-        report.stats = dom_stats(ds, &set, &mut report, res.nonfinite_pixels, (upsampled, storage_m), scene.scatters());
-        Ok(RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() })
+    fn animation(&self, req: &RenderRequest, converge: bool) -> Result<Option<Box<dyn Animation>>, SolverError> {
+        let knobs = req.knobs(self)?;
+        let set = DomSettings::parse(&knobs, req.scene)?;
+        knobs.finish()?;
+        Ok(Some(Box::new(DomAnimation { knobs, set, converge, force_full: req.force_full, carry: None, said: false })))
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {

@@ -217,6 +217,10 @@ pub struct SweepSetup<'a> {
     pub scheme: Scheme,
 }
 
+/// A sweeper's iteration state ([`Sweeper::read_state`]): the pending source, the fluence
+/// summed, the light toward the camera.
+pub type IterationState = (Vec<f32>, Vec<f32>, Vec<f32>);
+
 /// How the sweep reads the stored source: one direction, the swept set itself, or upsampled.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Storage {
@@ -719,6 +723,23 @@ impl Sweeper {
     pub fn set_first(&self, gpu: &Gpu, first: &[f32]) -> Result<(), SolverError> {
         gpu.write_buffer(&self.source, 0, bytemuck::cast_slice(first))?;
         gpu.fill_zero(&self.camera)?;
+        Ok(())
+    }
+
+    /// The iteration's state as it stands (dom's warm start, `dom::DomCarry`): the source the
+    /// next sweep would propagate ([c][m][v]: the bounce not yet swept), the bounces' fluence
+    /// summed ([c][v]) and the light they scattered toward the camera ([c][v]).
+    pub fn read_state(&self, gpu: &Gpu) -> Result<IterationState, SolverError> {
+        let source = self.read_first(gpu, self.whole())?;
+        Ok((source, gpu.read_buffer_as(&self.accum)?, gpu.read_buffer_as(&self.camera)?))
+    }
+
+    /// Go on from a state ([`Sweeper::read_state`]'s three): the first sweep propagates `source`,
+    /// and the fluence summed and the light toward the camera start from `accum` and `camera`.
+    pub fn set_state(&self, gpu: &Gpu, source: &[f32], accum: &[f32], camera: &[f32]) -> Result<(), SolverError> {
+        gpu.write_buffer(&self.source, 0, bytemuck::cast_slice(source))?;
+        gpu.write_buffer(&self.accum, 0, bytemuck::cast_slice(accum))?;
+        gpu.write_buffer(&self.camera, 0, bytemuck::cast_slice(camera))?;
         Ok(())
     }
 

@@ -474,7 +474,8 @@ impl Lbl {
         let mut ls = lat.stats;
         ls.diffuse_ms = report.passes.iter().filter(|p| p.name == "lattice.diffuse").map(|p| p.duration_ms()).sum();
         ls.view_dispatches = view.dispatches;
-        if !ls.converged {
+        // A sequence's frame stopped at its budget stops short by design.
+        if !ls.converged && !set.budgeted {
             report.warnings.push(format!(
                 "lbl: the lattice did not converge in {} iterations (relative change {:.2e} per iteration, tolerance \
                     {:.1e}); raise lbl.max_iters or lbl.tol",
@@ -547,6 +548,7 @@ impl Animation for LblAnimation {
             set.cascade = 0;
             if let (false, Some(k), true) = (self.converge, set.iterations_per_frame, moved) {
                 set.max_iters = k;
+                set.budgeted = true;
             }
         }
         set.keep_source = true;
@@ -657,6 +659,9 @@ pub struct LblSettings {
     /// Record this frame's injected source for the next frame ([`LatticeResult::source`]).
     pub keep_source: bool,
     pub iterations_per_frame: Option<u32>,
+    /// This frame stops at `iterations_per_frame` by design (a sequence's): no "did not
+    /// converge" warning.
+    pub budgeted: bool,
 }
 
 impl LblSettings {
@@ -731,6 +736,7 @@ impl LblSettings {
             } else {
                 None
             },
+            budgeted: false,
         };
         let lattice = out.lattice;
         let mut out = LblSettings { cascade: k.get("cascade")?, ..out };
