@@ -495,7 +495,7 @@ impl LatticeParams {
         super::feedback::Feedback::bytes(std::mem::size_of::<Control>() as u64)
             + self.voxels().div_ceil(REDUCE_WG) * self.nch as u64 * 8
             + 4 * cap
-            + 16 * cap
+            + 16 * self.nch as u64 * cap
     }
     /// Floats of the time-integrated field: energy per channel and voxel, then with `flux` the
     /// flux (three per channel and voxel), then with `links` each link's (links per channel
@@ -598,7 +598,8 @@ impl Diffuser {
             )?,
             partials: gpu.buffer("lattice increment sums", v.div_ceil(REDUCE_WG) * p.nch as u64 * 8)?,
             probes: gpu.buffer("lattice probes", 4 * cap)?,
-            probe_state: gpu.buffer("lattice probe state", 16 * cap)?,
+            // Per channel and probe, two doubles: the field and its extrapolation at the last check.
+            probe_state: gpu.buffer("lattice probe state", 16 * p.nch as u64 * cap)?,
             reduce,
             check,
             chunks: CHUNKS_MIN,
@@ -891,18 +892,16 @@ impl Diffuser {
         let v = self.voxels() as usize;
         let probes: Vec<usize> = probe_voxels(self.dims, density).into_iter().map(|p| p as usize).collect();
         let nch = self.nch as usize;
-        // Per probe, summed over channels: the field extrapolated by q[c] from its value
-        // `before` (with q = 0, the field itself).
+        // Per channel and probe ([c P + i]): the field extrapolated by q[c] from its value
+        // `before` (with q = 0, the field itself). Each channel is judged on its own: summed, a
+        // slow channel holding little of the sum stopped early (glsl/lattice/check.comp).
         let probe_extrapolated = |irr: &[f32], before: &[f32], q: &[f64; 3]| -> Vec<f64> {
-            probes
-                .iter()
-                .map(|p| {
-                    (0..nch)
-                        .map(|c| {
-                            let (now, was) = (irr[c * v + p] as f64, before[c * v + p] as f64);
-                            now + (now - was) * q[c]
-                        })
-                        .sum()
+            (0..nch)
+                .flat_map(|c| {
+                    probes.iter().map(move |p| {
+                        let (now, was) = (irr[c * v + p] as f64, before[c * v + p] as f64);
+                        now + (now - was) * q[c]
+                    })
                 })
                 .collect()
         };
