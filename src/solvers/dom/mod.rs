@@ -130,6 +130,45 @@ pub struct DomStats {
     pub stages_ms: Vec<(&'static str, f64)>,
 }
 
+impl DomStats {
+    /// What the settings decide before anything runs (the grid and its trust, the directions,
+    /// the storage, the scheme, the channels, the quadrature's g rounded to 1e-6), with nothing
+    /// made: no field, no iteration, no sweep, one view. A render fills in what it did.
+    fn of_settings(scene: &Scene, set: &DomSettings, nch: u32, quadrature_g: f64) -> DomStats {
+        let geom = set.geom;
+        DomStats {
+            grid: geom,
+            trust: geom.trust(scene, set.grid, &DOM_GRID),
+            directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
+            view_trust: view::ViewTrust::of(scene, &set.view),
+            quadrature: set.quadrature.name.clone(),
+            directions: set.quadrature.len(),
+            storage: set.storage.name.clone(),
+            storage_directions: set.storage.len(),
+            scheme: set.scheme,
+            channels: nch,
+            quadrature_g: (quadrature_g * 1e6).round() / 1e6 + 0.0,
+            field: false,
+            warm_start: false,
+            iterations: 0,
+            converged: true,
+            final_change: 0.0,
+            tail_ratio: None,
+            tail_share: None,
+            sweep_ms: 0.0,
+            block: 0,
+            streaming: None,
+            sweep_device_bytes: 0,
+            view_slabs: 1,
+            source_slabs: 0,
+            source_layers: 0,
+            source_groups: 0,
+            source_device_bytes: 0,
+            stages_ms: Vec::new(),
+        }
+    }
+}
+
 #[derive(Clone)]
 struct DomSettings {
     /// The voxel grid of the sweeps, the marching and the view's volume for `grid`, built once.
@@ -1194,17 +1233,6 @@ impl Dom {
             };
         let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), device, Stats::new(()));
         let ds = DomStats {
-            grid: geom,
-            trust: geom.trust(scene, set.grid, &DOM_GRID),
-            directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
-            view_trust: view::ViewTrust::of(scene, &set.view),
-            quadrature: set.quadrature.name.clone(),
-            directions: set.quadrature.len(),
-            storage: set.storage.name.clone(),
-            storage_directions: set.storage.len(),
-            scheme: set.scheme,
-            channels: nch,
-            quadrature_g: (quadrature_g * 1e6).round() / 1e6 + 0.0,
             field: true,
             warm_start: warm,
             iterations,
@@ -1222,6 +1250,7 @@ impl Dom {
             source_groups: source.groups,
             source_device_bytes: budgeted,
             stages_ms: stages,
+            ..DomStats::of_settings(scene, set, nch, quadrature_g)
         };
         report.stats = dom_stats(ds, set, &mut report, res.nonfinite_pixels, (upsampled, storage_m), scene.scatters());
         Ok((RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() }, carried))
@@ -1248,37 +1277,11 @@ impl Dom {
         let view_ms = t.elapsed().as_secs_f64() * 1e3 - setup_ms;
         let device = gs.bytes + res.device_bytes;
         let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), device, Stats::new(()));
-        let geom = set.geom;
-        let g = scene.medium.g as f64;
+        let quadrature_g = ordinates::quadrature_g(&set.quadrature, &set.storage, scene.medium.g as f64);
+        let nch = channels(scene, gs.modelled.chromatic);
         let ds = DomStats {
-            grid: geom,
-            trust: geom.trust(scene, set.grid, &DOM_GRID),
-            directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
-            view_trust: view::ViewTrust::of(scene, &set.view),
-            quadrature: set.quadrature.name.clone(),
-            directions: set.quadrature.len(),
-            storage: set.storage.name.clone(),
-            storage_directions: set.storage.len(),
-            scheme: set.scheme,
-            channels: channels(scene, gs.modelled.chromatic),
-            quadrature_g: (ordinates::quadrature_g(&set.quadrature, &set.storage, g) * 1e6).round() / 1e6 + 0.0,
-            field: false,
-            warm_start: false,
-            iterations: 0,
-            converged: true,
-            final_change: 0.0,
-            tail_ratio: None,
-            tail_share: None,
-            sweep_ms: 0.0,
-            block: 0,
-            streaming: None,
-            sweep_device_bytes: 0,
-            view_slabs: 1,
-            source_slabs: 0,
-            source_layers: 0,
-            source_groups: 0,
-            source_device_bytes: 0,
             stages_ms: vec![("setup", setup_ms), ("view", view_ms)],
+            ..DomStats::of_settings(scene, set, nch, quadrature_g)
         };
         let upsampled = set.storage.len() > 1 && set.storage.name != set.quadrature.name;
         report.stats = dom_stats(ds, set, &mut report, res.nonfinite_pixels, (upsampled, set.storage.len()), false);
