@@ -291,15 +291,15 @@ fn sequence_of(
 /// of the first-scattering source plus the last frame's pending bounce, by linearity), the light
 /// turning 10 degrees a frame. Across the range: a thin backward-scattering medium (optical
 /// size 1, albedo 0.3, g -0.5), the bright cube (6, 0.95, a point light), a thick near-lossless
-/// one (8, 0.99) and a chromatic forward-scattering one (2-4, albedo 0.5-0.9, g 0.8, the sun and
-/// a sky). Every frame after the first takes fewer iterations than the same light from zero
-/// (the cold render), and the last frame equals that cold render within the tolerance's reach,
-/// energy included. Measured (lavapipe, grid 12-16, 16^2), iterations of frames 0 / 1 / 2 and
-/// frame 2's light from zero: 5 / 4 / 4 and 5, 21 / 17 / 17 and 21, 26 / 20 / 19 and 26,
-/// 9 / 7 / 8 and 9 (dom's extrapolated tail already stops a cold start early: 10 degrees a frame
-/// saves 10-27%); relL2 of frame 2 to its cold render 8.2e-7, 1.6e-4, 1.9e-4, 8.0e-6. With
-/// `dom.iterations_per_frame` a frame stops at its budget (tests/view_tests.rs has the frames
-/// after it converging to the render).
+/// sphere (8, 0.999), a chromatic forward-scattering one (2-4, albedo 0.5-0.9, g 0.8, the sun
+/// and a sky) and a deep near-lossless cube (50, 0.999, 30 degrees a frame). Every frame after
+/// the first takes fewer iterations than the same light from zero (the cold render), and the
+/// last frame equals that cold render within the tolerance's reach, energy included. Measured
+/// (lavapipe, grid 12-16, 16^2), iterations of frames 0 / 1 / 2 and frame 2's light from zero:
+/// 5 / 4 / 4 and 5, 21 / 13 / 14 and 21, 27 / 16 / 13 and 27, 9 / 7 / 7 and 9, 218 / 105 / 87
+/// and 210; relL2 of frame 2 to its cold render 8.2e-7, 2.5e-4, 2.0e-4, 1.2e-5 (the deep cube
+/// against the converged solution below). With `dom.iterations_per_frame` a frame stops at its
+/// budget (tests/view_tests.rs has the frames after it converging to the render).
 #[test]
 fn dom_frames_go_on_from_the_last_state() {
     let dom: &dyn Solver = &scatterlab::solvers::dom::Dom;
@@ -314,17 +314,41 @@ fn dom_frames_go_on_from_the_last_state() {
     let point = "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n";
     let sun = "[[light]]\nkind = \"directional\"\ndirection = [0.5, -0.7, 0.5]\nirradiance = 3.0\n\
                [[light]]\nkind = \"environment\"\nradiance = [0.03, 0.05, 0.09]\n";
-    let cases = [
-        ("thin, backward", medium("1.0", "0.3", "-0.5", point), "12"),
-        ("bright cube", lit_cube(), "12"),
-        ("thick, near lossless", medium("8.0", "0.99", "0.0", point), "16"),
-        ("chromatic, forward", medium("[2.0, 3.0, 4.0]", "[0.9, 0.8, 0.5]", "0.8", sun), "12"),
+    // A deep near-lossless cube (optical size 50, albedo 0.999, voxels of 4 mean free paths:
+    // warned), its sun turned 30 degrees a frame: the signed bounces' sum cancels there, and a
+    // decay taken from it (not from their magnitudes) put the frames 0.5% above the cold render.
+    let deep = crate::common::scene(
+        "[render]\nwidth = 16\nheight = 16\n\
+         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 50.0\nalbedo = 0.999\n\
+         density = { kind = \"constant\" }\n\
+         [[light]]\nkind = \"directional\"\ndirection = [-0.57735, -0.57735, -0.57735]\nirradiance = 3.0\n",
+    );
+    let deep_knobs = [("dom.grid", "12"), ("dom.directions", "s4"), ("dom.max_iterations", "4000")];
+    // (name, scene, knobs, the warnings its cold render gives, degrees a frame)
+    type Case<'a> = (&'a str, scatterlab::scene::Scene, &'a [(&'a str, &'a str)], &'a [&'a str], f64);
+    let cases: [Case; 5] = [
+        ("thin, backward", medium("1.0", "0.3", "-0.5", point), &[("dom.grid", "12")], &[], 10.0),
+        ("bright cube", lit_cube(), &[("dom.grid", "12")], &[], 10.0),
+        ("thick, near lossless", medium("8.0", "0.999", "0.0", point), &[("dom.grid", "16")], &[], 10.0),
+        (
+            "chromatic, forward",
+            medium("[2.0, 3.0, 4.0]", "[0.9, 0.8, 0.5]", "0.8", sun),
+            &[("dom.grid", "12")],
+            &[],
+            10.0,
+        ),
+        ("deep, near lossless", deep, &deep_knobs, &["mean free paths thick"], 30.0),
     ];
     let gpu = gpu();
-    for (name, scene, grid) in &cases {
-        let knobs = [("dom.grid", *grid)];
-        let (image, rows) = sequence_of(&gpu, dom, scene, &knobs, 10.0, 3);
-        let cold = render(&gpu, &animate::orbit(scene, 20.0).unwrap(), dom, &knobs);
+    for (name, scene, knobs, warned, deg) in &cases {
+        let (image, rows) = sequence_of(&gpu, dom, scene, knobs, *deg, 3);
+        let last = animate::orbit(scene, 2.0 * deg).unwrap();
+        let cold = if warned.is_empty() {
+            render(&gpu, &last, dom, knobs)
+        } else {
+            crate::common::render_warned(&gpu, &last, dom, knobs, warned)
+        };
         let cold_iterations = cold.report.stats.convergence.unwrap().iterations;
         let m = scatterlab::output::compare(&image, &cold.image).unwrap();
         let its: Vec<u64> = rows.iter().map(|r| r.iterations).collect();
@@ -335,14 +359,29 @@ fn dom_frames_go_on_from_the_last_state() {
         );
         assert!(rows.iter().all(|r| r.converged), "{name}: {rows:?}");
         assert!(its[1..].iter().all(|i| *i < cold_iterations), "{name}: {its:?} against {cold_iterations} from zero");
-        assert!(m.rel_l2 < 2e-3, "{name}: the last frame against its cold render: relL2 {}", m.rel_l2);
-        assert!((m.energy_ratio - 1.0).abs() < 2e-3, "{name}: energy {}", m.energy_ratio);
         assert!(image.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{name}: a negative or non-finite pixel");
+        if warned.is_empty() {
+            assert!(m.rel_l2 < 2e-3, "{name}: the last frame against its cold render: relL2 {}", m.rel_l2);
+            assert!((m.energy_ratio - 1.0).abs() < 2e-3, "{name}: energy {}", m.energy_ratio);
+            continue;
+        }
+        // The deep cube's cold render is itself 2.5e-3 off the converged solution (its tail at
+        // albedo 0.999): both are judged against the plain iteration to 1e-9 (warm 1.2e-3,
+        // energy 0.9985; cold 2.5e-3, 0.9988; the signed-sum decay had the warm frame 0.45% over).
+        let mut tight = knobs.to_vec();
+        tight.extend([("dom.tol", "1e-9"), ("dom.extrapolate", "false"), ("dom.max_iterations", "100000")]);
+        let truth = crate::common::render_warned(&gpu, &last, dom, &tight, warned);
+        for (what, img) in [("warm", &image), ("cold", &cold.image)] {
+            let m = scatterlab::output::compare(img, &truth.image).unwrap();
+            eprintln!("dom {name}: {what} against converged relL2 {:.2e}, energy {:.6}", m.rel_l2, m.energy_ratio);
+            assert!(m.rel_l2 < 3e-3, "{name}, {what}: against converged relL2 {}", m.rel_l2);
+            assert!((m.energy_ratio - 1.0).abs() < 3e-3, "{name}, {what}: energy {}", m.energy_ratio);
+        }
     }
     // A budget of 3 iterations a frame: the frames after the first stop at it, short of the
     // tolerance.
-    let (_, scene, grid) = &cases[1];
-    let knobs = [("dom.grid", *grid), ("dom.iterations_per_frame", "3")];
+    let scene = &cases[1].1;
+    let knobs = [("dom.grid", "12"), ("dom.iterations_per_frame", "3")];
     let (_, rows) = sequence_of(&gpu, dom, scene, &knobs, 10.0, 3);
     assert!(rows[1..].iter().all(|r| r.iterations == 3 && !r.converged), "{rows:?}");
     assert_clean(&gpu);

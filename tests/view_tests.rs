@@ -275,7 +275,7 @@ fn iterations(stdout: &str, solver: &str) -> (f64, f64, u32) {
 /// zero. Measured at 32^2 on the sphere after 2-degree moves: networks 89 iterations from zero,
 /// 28 warm started (0.31); lbl at grid 16 72 from zero, 44 warm started (0.61: 65 for the
 /// first warm frame, then 33 with the previous frame's source in the guess; before its tail
-/// was extrapolated from seeded starts and its links carried, 129); dom at grid 16 0.50 (its
+/// was extrapolated from seeded starts and its links carried, 129); dom at grid 16 0.41 (its
 /// carried state is exact: the series of the source's change and its pending bounce).
 #[test]
 fn a_light_move_warm_starts_networks_lbl_and_dom_from_their_last_solution() {

@@ -116,7 +116,11 @@ void main() {
             precise float t = accum[k] + b;
             accum[k] = t;
             bounce[cur * NV + k] = b;
-            sb = double(b);
+            // Magnitudes, as lbl's chunk increments: a warm start's signed bounces can cancel in
+            // a signed sum (a light turned about a symmetric medium moves little energy in total)
+            // and then their ratio is not the decay; the magnitudes still decay at the slowest
+            // surviving mode's rate. A cold start's are never negative: the same sums.
+            sb = abs(double(b));
             // |b|: a warm-started frame's bounces are signed (src/solvers/dom/mod.rs, DomCarry);
             // a cold start's are never negative, where this is b.
             mb = abs(double(b));
@@ -124,7 +128,7 @@ void main() {
             st = double(t);
             if (pc.extrapolate != 0u) {
                 float cam = camera[k];
-                if (pc.n >= 3u) cd = double(cam) - double(cam_hist[((pc.n - 2u) % 3u) * NV + k]);
+                if (pc.n >= 3u) cd = abs(double(cam) - double(cam_hist[((pc.n - 2u) % 3u) * NV + k]));
                 cam_hist[(pc.n % 3u) * NV + k] = cam;
             }
         }
