@@ -306,13 +306,7 @@ fn the_emission_on_the_device_matches_the_host() {
         for (model, arriving) in [(EmissionModel::Marched, Some(&j[..])), (EmissionModel::Particles, None)] {
             let host = net.iterate_cpu_with(&s, &visible, &direct, arriving, 12);
             let device = net.iterate_with(&gpu, &s, 12, step, model).expect("device iteration");
-            let scale = host.iter().flat_map(|x| x.iter().copied()).fold(0.0f64, f64::max);
-            let worst = device
-                .iter()
-                .zip(&host)
-                .flat_map(|(a, b)| (0..3).map(move |c| (a[c] as f64 - b[c]).abs()))
-                .fold(0.0f64, f64::max)
-                / scale;
+            let (worst, scale) = crate::networks_tests::device_against_host(&device, &host);
             eprintln!("{what}, {model:?}: largest difference {worst:.2e} of the largest I ({scale:.4})");
             assert!(scale > 0.05, "{what}, {model:?}: the emission lights the network");
             assert!(worst < 2e-5, "{what}, {model:?}: device against host {worst:e}");

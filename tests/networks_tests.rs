@@ -157,14 +157,8 @@ fn direct_light_and_iteration_on_the_device_match_the_host() {
         let host_direct = net.direct_cpu(&s, step as f64);
         let host = net.iterate_cpu(&s, &v, &host_direct, 12);
         let device = net.iterate(&gpu, &s, 12, step).expect("device iteration");
-        let scale = host.iter().flat_map(|x| x.iter().copied()).fold(0.0f64, f64::max);
+        let (worst, scale) = device_against_host(&device, &host);
         assert!(scale > 0.0, "{scene}: some light");
-        let worst = device
-            .iter()
-            .zip(&host)
-            .flat_map(|(a, b)| (0..3).map(move |c| (a[c] as f64 - b[c]).abs()))
-            .fold(0.0f64, f64::max)
-            / scale;
         eprintln!("{scene}: N {n}, D {d}, M {}: largest difference {worst:.2e} of the largest I", net.window.m);
         assert!(worst < 2e-5, "{scene}: device against host {worst:e}");
         assert!(device.iter().all(|x| x[..3].iter().all(|c| c.is_finite() && *c >= 0.0)), "{scene}");
@@ -432,4 +426,16 @@ fn sixteen_thousand_particles_splat_in_order() {
     }
     assert!((energy[1] / energy[0] - 1.0).abs() < 0.05, "{energy:?}");
     assert_clean(&gpu);
+}
+
+/// The network's radiance on the device against the host's (per particle and direction, rgb):
+/// the largest difference over the largest host value, and that value.
+pub fn device_against_host(device: &[[f32; 4]], host: &[[f64; 3]]) -> (f64, f64) {
+    let scale = host.iter().flat_map(|x| x.iter().copied()).fold(0.0f64, f64::max);
+    let worst = device
+        .iter()
+        .zip(host)
+        .flat_map(|(a, b)| (0..3).map(move |c| (a[c] as f64 - b[c]).abs()))
+        .fold(0.0f64, f64::max);
+    (worst / scale, scale)
 }
