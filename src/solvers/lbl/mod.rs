@@ -391,33 +391,9 @@ impl Lbl {
         let nch = LblSettings::channels(scene, gs.modelled.chromatic);
         let params = lattice_params(scene, set, &geom, nch);
         let ls = LblStats {
-            lattice: geom,
-            trust: geom.trust(scene, set.grid, &lattice::LBL_GRID),
-            view_trust: view::ViewTrust::of(scene, &set.view),
-            lattice_kind: set.lattice,
-            field: false,
-            block: set.block,
-            block_steps: set.block_steps,
-            channels: nch,
-            rays: 0,
-            rounds: 0,
-            iterations: 0,
-            converged: true,
-            final_change: 0.0,
-            tail: None,
-            energy: EnergyBook::default(),
-            schedule: set.schedule,
             deterministic: set.deterministic || !gpu.info().float_atomics,
-            device_bytes: 0,
-            diffuse_ms: 0.0,
-            warm_start: false,
-            cascade_iterations: Vec::new(),
             view_dispatches: view.dispatches,
-            directed: params.directed,
-            forward: false,
-            forward_book: None,
-            near_light: None,
-            flux: false,
+            ..LblStats::of_settings(scene, set, nch, params.directed)
         };
         report.warnings.extend(ls.view_trust.warning(self.name()));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
@@ -959,6 +935,44 @@ pub struct LblStats {
     pub flux: bool,
 }
 
+impl LblStats {
+    /// What the settings decide before anything runs (the lattice and its trust, the view's,
+    /// the kind, the block, the channels, the schedule, whether the injection is directed), with
+    /// nothing made: no lattice run, no ray, no iteration. A render fills in what it did.
+    fn of_settings(scene: &Scene, set: &LblSettings, nch: u32, directed: bool) -> LblStats {
+        let geom = set.geom;
+        LblStats {
+            lattice: geom,
+            trust: geom.trust(scene, set.grid, &lattice::LBL_GRID),
+            view_trust: view::ViewTrust::of(scene, &set.view),
+            lattice_kind: set.lattice,
+            field: false,
+            block: set.block,
+            block_steps: set.block_steps,
+            channels: nch,
+            rays: 0,
+            rounds: 0,
+            iterations: 0,
+            converged: true,
+            final_change: 0.0,
+            tail: None,
+            energy: EnergyBook::default(),
+            schedule: set.schedule,
+            deterministic: set.deterministic,
+            device_bytes: 0,
+            diffuse_ms: 0.0,
+            warm_start: false,
+            cascade_iterations: Vec::new(),
+            view_dispatches: 0,
+            directed,
+            forward: false,
+            forward_book: None,
+            near_light: None,
+            flux: false,
+        }
+    }
+}
+
 /// The lattice's time-integrated energy and stats, without the view pass (for tests of the
 /// diffusion itself and for warm starts).
 pub struct LatticeResult {
@@ -1114,14 +1128,7 @@ pub fn run_lattice(
         source,
         irradiance_buffer: irr,
         stats: LblStats {
-            lattice: geom,
-            trust: geom.trust(scene, set.grid, &lattice::LBL_GRID),
-            view_trust: view::ViewTrust::of(scene, &set.view),
-            lattice_kind: set.lattice,
             field: true,
-            block: set.block,
-            block_steps: set.block_steps,
-            channels: nch,
             rays: marcher.ray_count,
             rounds,
             iterations: lattice.iterations,
@@ -1129,18 +1136,15 @@ pub fn run_lattice(
             final_change: it.change,
             tail: it.tail,
             energy: book,
-            schedule: set.schedule,
             deterministic: fixed,
             device_bytes,
-            diffuse_ms: 0.0,
             warm_start: set.warm_start.is_some(),
             cascade_iterations,
-            view_dispatches: 0,
-            directed: params.directed,
             forward: forward_field,
             forward_book,
             flux: params.flux,
             near_light,
+            ..LblStats::of_settings(scene, set, nch, params.directed)
         },
     })
 }
