@@ -8,9 +8,10 @@
 //
 // Plain: converged when the largest relative change per step of the field at the probe voxels
 // falls under tol, channel by channel (a slow channel holding little of the sum is judged on its
-// own: summed over channels, a chromatic emitter's albedo-0.99 channel stopped at 0.988 of Le). Extrapolated (pc.extrapolate): the chunks'
-// increments per channel D_n (lattice/reduce.comp) give r = D_n / D_(n-1) where both chunks
-// had the same length and 0 < r < 1 in every channel that moves; then the probes' field
+// own: summed over channels, a chromatic emitter's albedo-0.99 channel stopped at 0.988 of Le).
+// Extrapolated (pc.extrapolate): the chunks' increments per channel D_n (lattice/reduce.comp)
+// give r = D_n / D_(n-1) where both chunks had the same length and 0 < r < 1 in every channel
+// that moves; then the probes' field (per channel)
 // extrapolated to the end of the geometric tail, F + D r / (1 - r), is tested the same way
 // against its value a chunk before, and at convergence the host adds the tail to the whole
 // field (Diffuser::extrapolate_tail) with the q = r / (1 - r) recorded here.

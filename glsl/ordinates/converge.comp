@@ -116,13 +116,12 @@ void main() {
             precise float t = accum[k] + b;
             accum[k] = t;
             bounce[cur * NV + k] = b;
-            // Magnitudes, as lbl's chunk increments: a warm start's signed bounces can cancel in
-            // a signed sum (a light turned about a symmetric medium moves little energy in total)
-            // and then their ratio is not the decay; the magnitudes still decay at the slowest
-            // surviving mode's rate. A cold start's are never negative: the same sums.
+            // Magnitudes: a warm-started frame's bounces are signed (src/solvers/dom/mod.rs,
+            // DomCarry). Summed signed they can cancel (a light turned about a symmetric medium
+            // moves little energy in total) and their ratio is not the decay; the magnitudes, as
+            // lbl's chunk increments, still decay at the slowest surviving mode's rate. A cold
+            // start's bounces are never negative: the same numbers.
             sb = abs(double(b));
-            // |b|: a warm-started frame's bounces are signed (src/solvers/dom/mod.rs, DomCarry);
-            // a cold start's are never negative, where this is b.
             mb = abs(double(b));
             mt = max(0.0lf, double(t));
             st = double(t);

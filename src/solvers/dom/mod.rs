@@ -514,7 +514,6 @@ fn dom_stats(
     report: &mut RenderReport,
     nonfinite: u32,
     (upsampled, storage_m): (bool, usize),
-    scatters: bool,
 ) -> Stats {
     let (iterations, converged, change) = (ds.iterations, ds.converged, ds.final_change);
     let sweeps = report.passes.iter().filter(|p| p.name == "ordinates.sweep" || p.name == "dom.block_sweep");
@@ -526,10 +525,9 @@ fn dom_stats(
             set.tol
         ));
     }
-    // Where nothing scatters the sweeps carry nothing: the grid's and directions' trust does not
-    // apply (Scene::scatters).
-    report.warnings.extend(ds.trust.warning().filter(|_| scatters));
-    report.warnings.extend(ds.directions_trust.warning().filter(|_| scatters));
+    // Where nothing scatters no field is made: the grid's and directions' trust does not apply.
+    report.warnings.extend(ds.trust.warning().filter(|_| ds.field));
+    report.warnings.extend(ds.directions_trust.warning().filter(|_| ds.field));
     report.warnings.extend(ds.view_trust.warning("dom"));
     report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
@@ -1252,7 +1250,7 @@ impl Dom {
             stages_ms: stages,
             ..DomStats::of_settings(scene, set, nch, quadrature_g)
         };
-        report.stats = dom_stats(ds, set, &mut report, res.nonfinite_pixels, (upsampled, storage_m), scene.scatters());
+        report.stats = dom_stats(ds, set, &mut report, res.nonfinite_pixels, (upsampled, storage_m));
         Ok((RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() }, carried))
     }
 
@@ -1277,14 +1275,14 @@ impl Dom {
         let view_ms = t.elapsed().as_secs_f64() * 1e3 - setup_ms;
         let device = gs.bytes + res.device_bytes;
         let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), device, Stats::new(()));
-        let quadrature_g = ordinates::quadrature_g(&set.quadrature, &set.storage, scene.medium.g as f64);
+        let (quadrature_g, upsampled) =
+            ordinates::unswept_figures(&set.quadrature, &set.storage, scene.medium.g as f64);
         let nch = channels(scene, gs.modelled.chromatic);
         let ds = DomStats {
             stages_ms: vec![("setup", setup_ms), ("view", view_ms)],
             ..DomStats::of_settings(scene, set, nch, quadrature_g)
         };
-        let upsampled = set.storage.len() > 1 && set.storage.name != set.quadrature.name;
-        report.stats = dom_stats(ds, set, &mut report, res.nonfinite_pixels, (upsampled, set.storage.len()), false);
+        report.stats = dom_stats(ds, set, &mut report, res.nonfinite_pixels, (upsampled, set.storage.len()));
         Ok(RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() })
     }
 }

@@ -372,13 +372,14 @@ fn storage_of(quadrature: &Quadrature, storage: &Quadrature, swept: &Quadrature)
     }
 }
 
-/// The mean cosine the quadrature's normalised scattering carries for HG(`g`) (the
-/// [`Tables::quadrature_g`] a sweeper reports), without building a sweeper: for a render that
-/// sweeps nothing (dom where nothing scatters).
-pub fn quadrature_g(quadrature: &Quadrature, storage: &Quadrature, g: f64) -> f64 {
+/// What a sweeper would report of its tables without building one, for a render that sweeps
+/// nothing (dom where nothing scatters): the mean cosine the quadrature's normalised scattering
+/// carries for HG(`g`) ([`Tables::quadrature_g`]), and whether the source is upsampled
+/// ([`Sweeper::upsampled`]).
+pub fn unswept_figures(quadrature: &Quadrature, storage: &Quadrature, g: f64) -> (f64, bool) {
     let (swept, _, _) = quadrature.by_octant();
-    let (storage, _) = storage_of(quadrature, storage, &swept);
-    StorageMap::new(&swept, &storage).scattering(&swept, g).1
+    let (storage, mode) = storage_of(quadrature, storage, &swept);
+    (StorageMap::new(&swept, &storage).scattering(&swept, g).1, mode == Storage::Upsampled)
 }
 
 impl Tables {

@@ -458,7 +458,7 @@ impl Lbl {
                 ls.iterations, ls.final_change, set.tol
             ));
         }
-        report.warnings.extend(ls.trust.warning().filter(|_| scene.scatters()));
+        report.warnings.extend(ls.trust.warning());
         report.warnings.extend(ls.view_trust.warning(self.name()));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         let mut stats = Stats::new(ls.clone());

@@ -277,6 +277,32 @@ pub struct NetworksStats {
     pub image_ms: f64,
 }
 
+impl NetworksStats {
+    /// What the settings and the particle model decide (counts, windows, opacity, the particles'
+    /// and the view's trust, the radius), with nothing run: no network built, no iteration, no
+    /// splat. A render fills in what it did.
+    fn of_network(scene: &Scene, set: &NetworksSettings, net: &Network) -> NetworksStats {
+        NetworksStats {
+            particles: set.particles,
+            directions: set.directions,
+            window: net.window.m,
+            opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
+            trust: ParticleTrust::new(scene, &net.particles, set.particles),
+            view_trust: set.view.as_ref().map(|v| crate::solvers::parts::view::ViewTrust::of(scene, v)),
+            particle_radius: net.particle_radius(),
+            network: false,
+            iterations: 0,
+            converged: true,
+            final_change: 0.0,
+            splats_dropped: 0,
+            nonfinite_pixels: 0,
+            build_ms: 0.0,
+            iterate_ms: 0.0,
+            image_ms: 0.0,
+        }
+    }
+}
+
 /// `networks`' knob values, checked.
 #[derive(Clone, Copy, Debug)]
 pub struct NetworksSettings {
@@ -393,31 +419,14 @@ impl Networks {
         let gs = crate::solvers::parts::gpu_scene::GpuScene::upload(gpu, scene, force_full)?;
         let view = crate::solvers::parts::view::march(gpu, scene, &gs, v, None)?;
         let image_ms = t.elapsed().as_secs_f64() * 1e3;
-        let view_trust = crate::solvers::parts::view::ViewTrust::of(scene, v);
-        let detail = NetworksStats {
-            particles: set.particles,
-            directions: set.directions,
-            window: net.window.m,
-            opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
-            trust: ParticleTrust::new(scene, &net.particles, set.particles),
-            view_trust: Some(view_trust),
-            particle_radius: net.particle_radius(),
-            network: false,
-            iterations: 0,
-            converged: true,
-            final_change: 0.0,
-            splats_dropped: 0,
-            nonfinite_pixels: 0,
-            build_ms: 0.0,
-            iterate_ms: 0.0,
-            image_ms,
-        };
+        let detail = NetworksStats { image_ms, ..NetworksStats::of_network(scene, set, net) };
+        let view_trust = detail.view_trust;
         let mut stats = Stats::new(detail);
         stats.convergence = Some(Convergence { iterations: 0, converged: true, final_change: 0.0, tolerance: set.tol });
         stats.faults = view.nonfinite_pixels as u64;
         let bytes = gs.bytes + view.device_bytes;
         let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), bytes, stats);
-        report.warnings.extend(view_trust.warning(self.name()));
+        report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
         Ok(RenderOutput { image: view.image, variance: None, report, estimates: Vec::new() })
     }
@@ -449,16 +458,7 @@ impl Networks {
             }
         }
         let image_ms = t.elapsed().as_secs_f64() * 1e3;
-        let trust = ParticleTrust::new(scene, &net.particles, set.particles);
-        let view_trust = set.view.as_ref().map(|v| crate::solvers::parts::view::ViewTrust::of(scene, v));
         let detail = NetworksStats {
-            particles: set.particles,
-            directions: set.directions,
-            window: net.window.m,
-            opacity: scene.medium.sigma_t.as_dvec3().map(|s| net.alpha(s)).to_array(),
-            trust,
-            view_trust,
-            particle_radius: net.particle_radius(),
             network: true,
             iterations: c.iterations,
             converged: c.converged,
@@ -468,7 +468,9 @@ impl Networks {
             build_ms,
             iterate_ms,
             image_ms,
+            ..NetworksStats::of_network(scene, set, net)
         };
+        let (trust, view_trust) = (detail.trust, detail.view_trust);
         let mut stats = Stats::new(detail);
         stats.convergence = Some(Convergence {
             iterations: c.iterations as u64,
@@ -513,7 +515,7 @@ impl Networks {
                 img.dropped
             ));
         }
-        report.warnings.extend(trust.warning().filter(|_| particles_matter(scene, set)));
+        report.warnings.extend(trust.warning());
         report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
         report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
         Ok(RenderOutput { image: img.image, variance: None, report, estimates: Vec::new() })
