@@ -252,7 +252,11 @@ impl Solver for ShSingle {
         // render draws it.
         let object = os.object.as_ref().expect("object scene");
         // (in the sampler's order: the grid index's size does not depend on it)
-        let samples = poisson_draw(object, set.samples, set.seed, set.heuristic, set.placement).0;
+        let samples = if scene.scatters() {
+            poisson_draw(object, set.samples, set.seed, set.heuristic, set.placement).0
+        } else {
+            Vec::new() // (none drawn where nothing scatters: render.rs, `render`)
+        };
         Ok(device_bytes(&os, &samples, &set))
     }
 
@@ -294,6 +298,13 @@ impl Solver for ShSingle {
 
     fn summary(&self, report: &RenderReport) -> Vec<String> {
         let Some(s) = report.detail::<ShStats>() else { return Vec::new() };
+        if s.samples == 0 {
+            return vec![format!(
+                "sh-single: nothing scatters: no samples drawn, the image is the camera ray's transmittance, emission \
+                 and environment (exact); render {:.2} s",
+                s.render_s
+            )];
+        }
         vec![
             format!(
                 "sh-single: {} samples ({} requested, {} heuristic), order {} ({} coefficients per channel), {} \

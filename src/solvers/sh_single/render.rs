@@ -92,7 +92,7 @@ pub(super) fn device_bytes(os: &Scene, samples: &[Sample], set: &ShSettings) -> 
     let order = set.order;
     // The grid index's two buffers, or two 16-byte stand-ins.
     let index = match set.index {
-        SampleIndex::Grid => {
+        SampleIndex::Grid if n > 0 => {
             let centres: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
             GaussianIndex::build(&centres, &sample_reach(samples, set.width_scale)).bytes()
         }
@@ -102,11 +102,11 @@ pub(super) fn device_bytes(os: &Scene, samples: &[Sample], set: &ShSettings) -> 
     let env_set = env_coefficients(os);
     let dirs = projection_quadrature(set.directions).directions.len();
     let b = |bytes: usize| (bytes as u64).max(4);
+    // (no depth pass without samples, and a one-word sample buffer: `upload_samples`)
+    let depth_pass = if n == 0 { 0 } else { b(n * 16) + b(dirs * 16) + b(n.min(depth_chunk(dirs)) * dirs * 16) };
     gpu_scene::scene_bytes(os)
-        + b(n * 16)
-        + b(dirs * 16)
-        + b(n.min(depth_chunk(dirs)) * dirs * 16)
-        + b(SAMPLE_WORDS * n * 16)
+        + depth_pass
+        + (SAMPLE_WORDS * n * 16).max(16) as u64
         + b(n * 3 * sh::coefficients(order) * 4 * if env_set { 2 } else { 1 })
         + b((LIGHT_WORDS * n * lights.len()).max(1) * 16)
         + os.render.width as u64 * os.render.height as u64 * 64
@@ -557,16 +557,21 @@ fn upload_samples(
         coeffs.extend(c);
         lterms.extend(lt);
     }
+    // (no sample where nothing scatters: one zero word each, a buffer cannot be empty)
     if lterms.is_empty() {
         lterms.push([0.0; 4]);
+    }
+    if sample_words.is_empty() {
+        sample_words.push([0.0; 4]);
+        coeffs.push(0.0);
     }
     let sample_buf = gpu.buffer_with("sh-single samples", &sample_words)?;
     let coeff_buf = gpu.buffer_with("sh-single coefficients", &coeffs)?;
     let light_buf = gpu.buffer_with("sh-single light terms", &lterms)?;
     let centres: Vec<Vec3> = samples.iter().map(|s| s.position).collect();
     let reach = sample_reach(samples, set.width_scale);
-    let index = (set.index == SampleIndex::Grid).then(|| GaussianIndex::build(&centres, &reach));
-    let boxes = set.index != SampleIndex::None;
+    let index = (set.index == SampleIndex::Grid && !samples.is_empty()).then(|| GaussianIndex::build(&centres, &reach));
+    let boxes = set.index != SampleIndex::None && !samples.is_empty();
     let (starts_buf, items_buf) = match &index {
         Some(ix) => (
             gpu.buffer_with("sh-single index cells", &ix.starts)?,
@@ -692,7 +697,13 @@ pub fn render(
     let object = os.object.as_ref().expect("object_scene gives an object");
     let clock = std::time::Instant::now();
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 0, 3));
-    let mut samples = poisson_draw(object, set.samples, set.seed, set.heuristic, set.placement).0;
+    // Where nothing scatters the samples' in-scattering is zero: the image is the camera ray's
+    // transmittance, emission and environment alone (the surfaces' terms of the render pass,
+    // exact), so no sample is drawn, no optical depth marched and the pass runs once with none
+    // (7.0 s -> 0.2 s on the default scene at albedo 0, 128^2).
+    let scatters = scene.scatters();
+    let mut samples =
+        if scatters { poisson_draw(object, set.samples, set.seed, set.heuristic, set.placement).0 } else { Vec::new() };
     let (lo, hi) = object.mesh.bounds();
     sort_spatially(&mut samples, lo, hi);
     let sampling_s = clock.elapsed().as_secs_f64();
@@ -700,7 +711,11 @@ pub fn render(
     let gs = GpuScene::upload_with(gpu, &os, force_full, gpu_scene::MAJORANT_CELL)?;
     let q = projection_quadrature(set.directions);
     let step = density_step(object);
-    let (params, depth_bytes) = device_params(gpu, &gs, object, &samples, set.order, &q, set.width_scale, step)?;
+    let (params, depth_bytes) = if samples.is_empty() {
+        (Vec::new(), 0)
+    } else {
+        device_params(gpu, &gs, object, &samples, set.order, &q, set.width_scale, step)?
+    };
     let depths_s = clock.elapsed().as_secs_f64() - sampling_s;
     progress(Progress::work("preprocessing: samples, optical depths, light terms", 2, 3));
     let (lights, env) = split_lights(&os);
