@@ -466,8 +466,8 @@ struct DomCarry {
 
 /// A `dom` sequence (`animate`, `view`): every frame marches its light anew and goes on from the
 /// last frame's state ([`DomCarry`]), to the tolerance or `dom.iterations_per_frame` iterations
-/// after the first frame. Block sweeps and a device without double precision (the test on the
-/// host) keep no state: there every frame starts from zero, said once.
+/// after the first frame. Block sweeps keep no state (their sweeps' state streams through host
+/// memory or a file): there every frame starts from zero, said once.
 struct DomAnimation {
     knobs: Knobs,
     set: DomSettings,
@@ -491,9 +491,7 @@ impl Animation for DomAnimation {
         let (mut out, carry) = Dom.render_with(gpu, scene, self.force_full, &self.knobs, &set, progress, Some(last))?;
         if carry.is_none() && !self.said {
             out.report.warnings.push(
-                "dom: block sweeps (dom.block) or a device without double precision keep no state between frames: \
-                 every frame starts from zero"
-                    .into(),
+                "dom: block sweeps (dom.block) keep no state between frames: every frame starts from zero".into(),
             );
             self.said = true;
         }
@@ -793,12 +791,14 @@ fn show_iteration(
 /// The scattering iterations tested on the host (block streaming, or a device without double
 /// precision): a wait and a readback of the fluence (and of the light toward the camera) per
 /// iteration; the tail as [`iterate_on_device`] takes it (see `Dom::render`).
+/// `fluence` ([c][v]) holds the bounces summed before (zeros from a cold start, a sequence's
+/// carried sum where it goes on: `DomCarry`) and is left holding the sum after.
 fn iterate_on_host(
     gpu: &Gpu,
     blocked: &mut Option<BlockSweeper>,
     sweeper: &Option<Sweeper>,
     set: &DomSettings,
-    values: usize,
+    fluence: &mut [f32],
     progress: &dyn Fn(Progress),
 ) -> Result<IterationEnd, SolverError> {
     let read_camera = |blocked: &Option<BlockSweeper>, sweeper: &Option<Sweeper>| -> Result<Vec<f32>, SolverError> {
@@ -807,8 +807,13 @@ fn iterate_on_host(
             None => gpu.read_buffer_as(&plane(sweeper).camera)?,
         })
     };
-    let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| *x as f64 - *y as f64).sum() };
+    // Magnitudes, as glsl/ordinates/converge.comp takes them: a warm-started frame's bounces and
+    // camera increments are signed (DomCarry), and summed signed they cancel; a cold start's are
+    // never negative, so there these are the plain sums.
+    let diff_sum = |a: &[f32], b: &[f32]| -> f64 { a.iter().zip(b).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum() };
+    let abs_sum = |a: &[f32]| -> f64 { a.iter().map(|x| (*x as f64).abs()).sum() };
     let sum = |a: &[f32]| -> f64 { a.iter().map(|x| *x as f64).sum() };
+    let abs_peak = |a: &[f32]| -> f64 { a.iter().fold(0.0f64, |m, x| m.max((*x as f64).abs())) };
     let max_diff = |a: &[f32], b: &[f32]| -> f64 {
         a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((*x as f64 - *y as f64).abs()))
     };
@@ -822,8 +827,7 @@ fn iterate_on_host(
     };
     // The fluence summed over the bounces, the last bounce's, and the light toward the camera
     // (summed on the device) after the last two iterations (newest last).
-    let mut fluence = vec![0.0f32; values];
-    let mut last_bounce = fluence.clone();
+    let mut last_bounce = vec![0.0f32; fluence.len()];
     let mut cameras: Vec<Vec<f32>> = Vec::new();
     let (mut pair_sums, mut camera_pair_sums) = (Vec::<f64>::new(), Vec::<f64>::new());
     let mut previous_extrapolated = None::<Vec<f32>>;
@@ -837,9 +841,9 @@ fn iterate_on_host(
         };
         iterations += 1;
         fluence.iter_mut().zip(&bounce).for_each(|(f, b)| *f += b);
-        let scale = peak(&fluence);
+        let scale = peak(fluence);
         // What this bounce added, against the summed fluence's largest value.
-        change = peak(&bounce) / if scale > 0.0 { scale } else { 1.0 };
+        change = abs_peak(&bounce) / if scale > 0.0 { scale } else { 1.0 };
         let mut extrapolated_change = None;
         let mut ratio = None;
         // The light toward the camera two iterations back.
@@ -853,7 +857,7 @@ fn iterate_on_host(
             }
             cameras.push(camera);
             if iterations >= 2 {
-                pair_sums.push(sum(&bounce) + sum(&last_bounce));
+                pair_sums.push(abs_sum(&bounce) + abs_sum(&last_bounce));
             }
             ratio = decay2(&pair_sums);
             match ratio {
@@ -879,7 +883,7 @@ fn iterate_on_host(
                 change = e;
                 // The pair the decay was taken from (pushed above), not summed again.
                 let pair = *pair_sums.last().expect("a decay needs pairs");
-                let total = sum(&fluence);
+                let total = sum(fluence);
                 let added = pair * r2 / (1.0 - r2);
                 tail = Some(Tail {
                     ratio: r2.sqrt(),
@@ -1097,7 +1101,7 @@ impl SourcePlan {
 impl Dom {
     /// A render with parsed settings. `carry`: a sequence's frame (`DomAnimation`), with the last
     /// frame's state where there is one; the frame's own state is returned for the next (None
-    /// where the sweeps cannot carry one: blocks, or the test on the host).
+    /// where the sweeps cannot carry one: block sweeps).
     #[allow(clippy::too_many_arguments)]
     fn render_with(
         &self,
@@ -1176,16 +1180,20 @@ impl Dom {
         // 5.3.3-5.3.4: the progressive scattering iterations (see iterate_on_device).
         let on_device = blocked.is_none() && plane(&sweeper).tests_on_device();
         // A sequence's frame goes on from the last frame's state (DomCarry) where the sweeps keep
-        // it on the device: plane sweeps with the test there.
+        // it on the device: plane sweeps, with the test there or on the host (which keeps the
+        // summed fluence itself: the device's sum is converge.comp's).
         let shape = (geom.dims, nch, storage_m, eye.packed());
         let mut warm = false;
-        let first_now = match (&carry, on_device) {
-            (Some(last), true) => {
-                let sw = plane(&sweeper);
+        let mut host_fluence = vec![0.0f32; if on_device { 0 } else { nch as usize * geom.voxels() as usize }];
+        let first_now = match (&carry, &sweeper) {
+            (Some(last), Some(sw)) => {
                 let first = sw.read_first(gpu, sw.whole())?;
                 if let Some(c) = last.as_ref().filter(|c| c.shape == shape) {
                     let source: Vec<f32> = first.iter().zip(&c.offset).map(|(now, o)| now + o).collect();
                     sw.set_state(gpu, &source, &c.accum, &c.camera)?;
+                    if !on_device {
+                        host_fluence.copy_from_slice(&c.accum);
+                    }
                     warm = true;
                 }
                 Some(first)
@@ -1195,14 +1203,14 @@ impl Dom {
         let (iterations, converged, change, tail, mut cameras) = if on_device {
             iterate_on_device(gpu, plane(&sweeper), set, progress)?
         } else {
-            let v = geom.voxels() as usize;
-            iterate_on_host(gpu, &mut blocked, &sweeper, set, nch as usize * v, progress)?
+            iterate_on_host(gpu, &mut blocked, &sweeper, set, &mut host_fluence, progress)?
         };
         // The state as the iterations left it, before any tail is added: the next frame's start.
         let carried = match first_now {
             Some(first) => {
                 let (mut offset, accum, camera) = plane(&sweeper).read_state(gpu)?;
                 offset.iter_mut().zip(&first).for_each(|(o, q)| *o -= q);
+                let accum = if on_device { accum } else { host_fluence };
                 Some(DomCarry { shape, offset, accum, camera })
             }
             None => None,
