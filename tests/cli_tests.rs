@@ -514,6 +514,18 @@ fn render_rejects_bad_grid_files() {
         )
         .file("huge.vol", header),
     );
+    // A damaged OpenVDB file: the reader panics inside (caught), and its panic message must not
+    // reach stderr before the one error line (one byte of the shipped explosion changed).
+    let mut vdb = fs::read(repo("scenes/explosion.vdb")).expect("explosion.vdb");
+    vdb[217] = 0xa7;
+    rows.push(
+        fails(
+            "grid_vdb_damaged",
+            base().density("{ kind = \"vdb\", file = \"bad.vdb\" }"),
+            &["scene.toml", "medium.density.file", "bad.vdb", "damaged or unsupported OpenVDB"],
+        )
+        .file("bad.vdb", vdb),
+    );
     check_all(rows);
 }
 
@@ -548,6 +560,25 @@ fn render_rejects_bad_scene_values() {
             &["scene.toml", "medium.sigma_t", "finite and >= 0"],
         ));
     }
+    // Each value finite and in range, their products past what 32-bit floats hold: refused at
+    // load naming the value (six solvers wrote images of NaN pixels set to 0 and exited 0).
+    let huge = write_vol([2, 2, 2], &[3e38; 8], glam::Vec3::splat(-0.5), glam::Vec3::splat(0.5));
+    rows.extend([
+        fails("magnitude/sigma_t", base().set("medium.sigma_t", "3e38"), &["medium.sigma_t", "optical thickness"]),
+        fails("magnitude/density grid", base().grid("huge.vol"), &["medium.sigma_t", "3e38", "optical thickness"])
+            .file("huge.vol", huge),
+        fails(
+            "magnitude/emission x scale",
+            base().insert_after("medium.g", "emission = 1e30\nemission_scale = 1e30"),
+            &["medium.emission", "emitted radiance"],
+        ),
+        fails("magnitude/light", base().set("light.intensity", "3e38"), &["light[0].intensity", "3e38", "past 1e15"]),
+        fails(
+            "magnitude/coordinates",
+            base().set("camera.origin", "[0.0, 0.0, 1e30]"),
+            &["camera.origin", "1e30", "larger units"],
+        ),
+    ]);
     rows.extend([
         fails(
             "negative_light_intensity",
@@ -624,6 +655,19 @@ fn render_rejects_bad_flags() {
     check_all(vec![
         fails("memory_budget_syntax/lots", base(), &["--memory-budget", "lots"]).and_args(&["--memory-budget", "lots"]),
         fails("memory_budget_syntax/0", base(), &["--memory-budget", "positive"]).and_args(&["--memory-budget", "0"]),
+        // A photon-marching step finer than a thousandth of a voxel (1e-9 marched for minutes).
+        fails("march_step_too_fine/lbl", base(), &["lbl.step", "thousandth of a voxel"]).and_args(&[
+            "--solver",
+            "lbl",
+            "--set",
+            "lbl.step=1e-9",
+        ]),
+        fails("march_step_too_fine/dom", base(), &["dom.step", "thousandth of a voxel"]).and_args(&[
+            "--solver",
+            "dom",
+            "--set",
+            "dom.step=1e-9",
+        ]),
         // The last needle is the did-you-mean.
         fails("unknown_set_keys/medium.albdo", base(), &["scene.toml", "medium.albdo", "unknown key", "albedo"])
             .and_args(&["--set", "medium.albdo=1"]),
@@ -1324,6 +1368,9 @@ fn usage_errors_exit_nonzero_without_panic() {
         &["render", "x.toml", "--solver", "nope"],
         &["frobnicate"],
         &["render", "x.toml", "--spp", "-1"],
+        // An exposure past render.exposure's range (NaN wrote a black PNG with exit 0).
+        &["render", "x.toml", "--png", "x.png", "--exposure", "nan"],
+        &["render", "x.toml", "--png", "x.png", "--exposure", "1e9"],
         &[],
     ] {
         let out = c.run(args);

@@ -1045,3 +1045,22 @@ fn near_light_ball_removes_the_plus_around_a_light_inside() {
     assert!(err.contains("lbl.near_light"), "{err}");
     assert_clean(&gpu);
 }
+
+/// lbl.max_iters bounds the lattice's steps in all, the marching rounds' included: the sphere's
+/// 9 rounds of 8 steps ran 72 at max_iters 1 (and a million a round ran on for minutes). At a
+/// budget the rounds use up, the render stops there and says no convergence test ran.
+#[test]
+fn max_iters_bounds_the_rounds_steps_too() {
+    let gpu = gpu();
+    let s =
+        crate::common::repo_scene("scenes/homogeneous-sphere.toml", &[("render.width", "16"), ("render.height", "16")]);
+    for max in ["1", "5"] {
+        let out = crate::common::try_render(&gpu, &s, LBL, &[("lbl.grid", "16"), ("lbl.max_iters", max)], false)
+            .expect("render");
+        let st = out.report.detail::<LblStats>().expect("lbl stats");
+        assert_eq!(st.iterations.to_string(), max, "{:?}", out.report.warnings);
+        assert!(!st.converged);
+        assert!(out.report.warnings.iter().any(|w| w.contains("none tested")), "{:?}", out.report.warnings);
+    }
+    assert_clean(&gpu);
+}

@@ -59,9 +59,22 @@ fn chosen_solvers(names: &[String]) -> Result<Vec<&'static dyn Solver>> {
     Ok(names.iter().map(|n| solvers::find(n)).collect::<Result<Vec<_>, _>>()?)
 }
 
+fn is_pfm(p: &Path) -> bool {
+    p.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
+}
+
+/// An image `render` writes: PFM by its extension, else EXR.
+fn read_linear_image(p: &Path) -> Result<output::Image, output::OutputError> {
+    if is_pfm(p) {
+        output::read_pfm(p)
+    } else {
+        output::read_exr(p)
+    }
+}
+
 fn compare(a: CompareArgs) -> Result<()> {
-    let x = output::read_exr(&a.a)?;
-    let r = output::read_exr(&a.b)?;
+    let x = read_linear_image(&a.a)?;
+    let r = read_linear_image(&a.b)?;
     if (x.width, x.height) != (r.width, r.height) {
         bail!(
             "{} is {}x{} but the reference {} is {}x{}; render both at the same resolution",
@@ -73,13 +86,28 @@ fn compare(a: CompareArgs) -> Result<()> {
             r.height
         );
     }
+    // Against a black reference relL2 and the energy ratio divide by zero: say so, not "inf".
+    if r.data.iter().all(|v| *v == 0.0) {
+        if x.data.iter().all(|v| *v == 0.0) {
+            outln!("both images are black (every pixel 0): identical");
+            return Ok(());
+        }
+        bail!(
+            "the reference {} is black (every pixel 0): relL2 and the energy ratio are undefined against it; \
+             compare against a lit render",
+            a.b.display()
+        );
+    }
     let m = output::compare(&x, &r)?;
     // The variance layers `path` writes (the variance of each pixel's mean): absent is not
     // an error (a deterministic solver has none), a broken one is.
-    let variance = |p: &Path| match output::read_exr_layer(p, "variance") {
-        Ok(v) => Ok(Some(v)),
-        Err(output::OutputError::MissingLayer { .. }) => Ok(None),
-        Err(e) => Err(e),
+    let variance = |p: &Path| match is_pfm(p) {
+        true => Ok(None), // (a PFM has no layers)
+        false => match output::read_exr_layer(p, "variance") {
+            Ok(v) => Ok(Some(v)),
+            Err(output::OutputError::MissingLayer { .. }) => Ok(None),
+            Err(e) => Err(e),
+        },
     };
     let (var_a, var_r) = (variance(&a.a)?, variance(&a.b)?);
     let noise = output::metrics::noise_floor(&x, &r, var_a.as_ref(), var_r.as_ref())?;

@@ -21,6 +21,15 @@ fn solver_names() -> PossibleValuesParser {
 }
 
 /// `--solver`'s default: the registry's reference solver (the ground truth).
+/// `--exposure`: the range `render.exposure` takes (a NaN wrote a black PNG with exit 0).
+fn exposure_stops(text: &str) -> Result<f32, String> {
+    match text.trim().parse::<f32>() {
+        Ok(e) if e.is_finite() && e.abs() <= 64.0 => Ok(e),
+        Ok(_) => Err("out of range; use -64 ..= 64 stops".into()),
+        Err(e) => Err(format!("{e}; give stops as a number, -64 ..= 64")),
+    }
+}
+
 fn default_solver() -> String {
     solvers::reference().name().into()
 }
@@ -323,8 +332,8 @@ pub struct RenderArgs {
     /// Also a tone-mapped 8-bit PNG (provenance in its text chunks).
     #[arg(long)]
     pub png: Option<PathBuf>,
-    /// PNG exposure in stops (default: the scene's render.exposure, else 0).
-    #[arg(long, allow_negative_numbers = true)]
+    /// PNG exposure in stops (default: the scene's render.exposure, else 0), -64 to 64.
+    #[arg(long, allow_negative_numbers = true, value_parser = exposure_stops)]
     pub exposure: Option<f32>,
     /// Metrics and provenance as JSON (device, driver, queue mapping, settings, pass times).
     #[arg(long)]

@@ -41,10 +41,14 @@ pub fn render(a: RenderArgs) -> Result<()> {
     if let (Some(w), _) = gpu.save_pipeline_cache() {
         eprintln!("warning: {w}");
     }
-    let nonfinite = out.image.nan_inf_count();
+    // A pixel that overflowed is a wrong image whether it reached the image as NaN/Inf or was
+    // set to 0 on the way (the solvers' guard): nothing is written either way.
+    let nonfinite = out.image.nan_inf_count() + out.report.nonfinite_pixels as u64;
     if nonfinite > 0 {
         bail!(
-            "solver {} produced {nonfinite} NaN/Inf values; nothing written (this is a bug: please report the scene)",
+            "solver {} produced {nonfinite} NaN/Inf values; nothing written (a scene value past what 32-bit floats \
+             hold, such as sigma_t x density, emission x emission_scale or a light's power near 3.4e38, gives this; \
+             otherwise it is a bug: please report the scene)",
             solver.name()
         );
     }

@@ -312,6 +312,7 @@ impl Ctx<'_> {
             }
         };
         let scene = Scene { source: self.file.to_path_buf(), render, camera, medium, object, lights };
+        self.magnitudes(&scene)?;
         // A scene lit by its own emission needs no light; anything else would render black.
         if scene.lights.is_empty() && !scene.emissive() {
             return Err(self.invalid(
@@ -1023,7 +1024,91 @@ impl Ctx<'_> {
         if !v.is_finite() {
             return Err(self.invalid(field, format!("{} has a non-finite component; use finite numbers", fmt3(v))));
         }
+        if v.abs().max_element() > COORDINATE_MAX {
+            return Err(self.coordinate_too_large(field, v.abs().max_element()));
+        }
         Ok(v)
+    }
+
+    fn coordinate_too_large(&self, field: &str, value: f32) -> SceneError {
+        self.invalid(
+            field,
+            format!(
+                "a component of {} is past +-{}: the solvers step through the scene in 32-bit floats, whose steps \
+                 vanish against coordinates that large; express the scene in larger units",
+                num32(value),
+                num32(COORDINATE_MAX)
+            ),
+        )
+    }
+
+    /// Values within range one by one whose products would not be: every solver forms optical
+    /// depths (sigma_t x density x length), sources (sigma_a x Le) and sums of them in 32-bit
+    /// floats, which overflow past 3.4e38 (a density grid of 3e38 times sigma_t 10 gave NaN
+    /// pixels in six solvers, set to 0 with exit 0; Le 1e30 times emission_scale 1e30 likewise).
+    /// Each magnitude is held to [`MAGNITUDE_MAX`], so products of two or three stay finite.
+    fn magnitudes(&self, scene: &Scene) -> Result<(), SceneError> {
+        let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
+        if lo.abs().max(hi.abs()).max_element() > COORDINATE_MAX {
+            // (an object's mesh after its transform: each key was in range, their product not)
+            return Err(
+                self.coordinate_too_large("object (its meshes transformed)", lo.abs().max(hi.abs()).max_element())
+            );
+        }
+        let materials = scene.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
+        let sigma =
+            materials.iter().map(|m| m.sigma_t.max_element()).fold(scene.medium.sigma_t.max_element(), f32::max);
+        let tau = sigma as f64 * scene.max_density() as f64 * (hi - lo).length() as f64;
+        if tau.is_nan() || tau > MAGNITUDE_MAX {
+            return Err(self.invalid(
+                if scene.object.is_some() { "object.sigma_t" } else { "medium.sigma_t" },
+                format!(
+                    "sigma_t {} times the density's largest value {} across the medium ({} long) is an optical \
+                     thickness of {}, past {}: the solvers' 32-bit optical depths and sums overflow; scale the \
+                     density grid or sigma_t down",
+                    num32(sigma),
+                    num32(scene.max_density()),
+                    num32((hi - lo).length()),
+                    short(tau),
+                    num(MAGNITUDE_MAX)
+                ),
+            ));
+        }
+        let le = match &scene.medium.emission {
+            Emission::Grid(g) => g.max_le().max_element(),
+            e => e.constant_part().max_element(),
+        };
+        let le = materials.iter().map(|m| m.emission.max_element()).fold(le, f32::max);
+        if le.is_nan() || le as f64 > MAGNITUDE_MAX {
+            return Err(self.invalid(
+                "medium.emission",
+                format!(
+                    "the emitted radiance Le reaches {} W/(m^2 sr) (emission x emission_scale, or a temperature's \
+                     blackbody), past {}: the solvers' 32-bit sources overflow; lower emission_scale or the grid",
+                    num32(le),
+                    num(MAGNITUDE_MAX)
+                ),
+            ));
+        }
+        for (i, l) in scene.lights.iter().enumerate() {
+            let (key, v) = match l {
+                Light::Point { intensity, .. } => ("intensity", intensity),
+                Light::Directional { irradiance, .. } => ("irradiance", irradiance),
+                Light::Environment { radiance } => ("radiance", radiance),
+            };
+            if v.is_nan() || v.max_element() as f64 > MAGNITUDE_MAX {
+                return Err(self.invalid(
+                    &format!("light[{i}].{key}"),
+                    format!(
+                        "{} is past {}: the solvers' 32-bit sums of light overflow; express the light in larger \
+                         units (the image scales with it)",
+                        num32(v.max_element()),
+                        num(MAGNITUDE_MAX)
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     fn rgb_non_negative(&self, field: &str, rgb: Rgb, what: &str) -> Result<Vec3, SceneError> {
@@ -1135,6 +1220,23 @@ impl Ctx<'_> {
 const CHANNELS: [&str; 3] = ["red (0)", "green (1)", "blue (2)"];
 
 /// `[1, 2.5, 3]`.
+/// A magnitude in three significant figures (`num` gives every digit an f64 has).
+fn short(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.2e}")
+    } else {
+        "inf".into()
+    }
+}
+
+/// The largest coordinate a scene may use (any position, bound or translation), scene units.
+const COORDINATE_MAX: f32 = 1e9;
+
+/// The largest optical thickness across the medium, emitted radiance and light value a scene
+/// may have (`Ctx::magnitudes`): far past any physical scene (the sun's radiance is
+/// 2e7 W/(m^2 sr)), far enough below f32's 3.4e38 that the solvers' products stay finite.
+const MAGNITUDE_MAX: f64 = 1e15;
+
 fn fmt3(v: Vec3) -> String {
     format!("[{}, {}, {}]", num32(v.x), num32(v.y), num32(v.z))
 }

@@ -59,6 +59,32 @@ fn why(e: &vdb_rs::ParseError) -> String {
     }
 }
 
+thread_local! {
+    /// Set while [`quietly`] runs a parse on this thread: its panics are caught and reported as
+    /// the one error line, so the panic hook prints nothing for them.
+    static QUIET: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// `f` behind `catch_unwind`, its panic message kept from stderr (a damaged file gave the
+/// reader's "thread 'main' panicked at ..." before our error line). The hook is wrapped once
+/// for the process, and stays silent only on this thread while `f` runs: other threads' panics
+/// print as before.
+fn quietly<R>(f: impl FnOnce() -> R + std::panic::UnwindSafe) -> std::thread::Result<R> {
+    static WRAP: std::sync::Once = std::sync::Once::new();
+    WRAP.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET.with(|q| q.get()) {
+                previous(info)
+            }
+        }));
+    });
+    QUIET.with(|q| q.set(true));
+    let result = std::panic::catch_unwind(f);
+    QUIET.with(|q| q.set(false));
+    result
+}
+
 /// One active value: a voxel, or a tile of `edge`^3 voxels from its `min` corner.
 struct Active {
     min: [i64; 3],
@@ -79,7 +105,7 @@ pub(crate) fn load_vdb(req: &VdbRequest) -> Result<(Grid, [i64; 3]), SceneError>
     // a panic, so the parse runs behind catch_unwind (its panic message is kept for the line).
     let name = req.grid.to_owned();
     let (what, key) = (req.what, req.key.to_owned());
-    let parsed = std::panic::catch_unwind(move || -> Result<Result<Vec<Active>, String>, String> {
+    let parsed = quietly(move || -> Result<Result<Vec<Active>, String>, String> {
         let mut reader = vdb_rs::VdbReader::new(BufReader::new(file))
             .map_err(|e| format!("not a readable OpenVDB file ({})", why(&e)))?;
         let Some(descriptor) = reader.grid_descriptors.get(&name) else {

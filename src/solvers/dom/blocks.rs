@@ -215,10 +215,44 @@ enum Store {
     File(memmap2::MmapMut, #[allow(dead_code)] std::fs::File),
 }
 
+fn store_too_big(bytes: u64, available: &str) -> SolverError {
+    SolverError::Unsupported(format!(
+        "dom: the block store needs {} MiB of host memory and {available}; set dom.store=file:DIR (a memory-mapped \
+         file) or lower dom.grid",
+        bytes >> 20
+    ))
+}
+
+/// A block store of `bytes` in host memory fits what the host has free now (checked before the
+/// direct source is made: at grid 512 that took minutes before the store was asked for).
+pub fn check_host_store(bytes: u64) -> Result<(), SolverError> {
+    match host_available_bytes().filter(|a| bytes > *a) {
+        Some(available) => Err(store_too_big(bytes, &format!("{} MiB is available", available >> 20))),
+        None => Ok(()),
+    }
+}
+
+/// The host memory free for use now (Linux's MemAvailable), where the system says.
+fn host_available_bytes() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
 impl Store {
     fn new(kind: &StoreKind, floats: u64) -> Result<Store, SolverError> {
         match kind {
-            StoreKind::Memory => Ok(Store::Memory(vec![0.0; floats as usize])),
+            StoreKind::Memory => {
+                // Past the host's free memory the store is refused before it is touched (Linux
+                // commits it lazily: a grid of 512 asked 116 GiB and the process would be killed
+                // part way, not told).
+                check_host_store(floats * 4)?;
+                let mut v = Vec::new();
+                v.try_reserve_exact(floats as usize).map_err(|_| store_too_big(floats * 4, "the allocation failed"))?;
+                v.resize(floats as usize, 0.0);
+                Ok(Store::Memory(v))
+            }
             StoreKind::File(dir) => {
                 let bad = |e: std::io::Error| {
                     SolverError::Unsupported(format!(

@@ -527,7 +527,7 @@ fn dom_stats(
     report.warnings.extend(ds.trust.warning().filter(|_| ds.field));
     report.warnings.extend(ds.directions_trust.warning().filter(|_| ds.field));
     report.warnings.extend(ds.view_trust.warning("dom"));
-    report.warnings.extend(crate::solvers::interface::nonfinite_warning(nonfinite));
+    report.zeroed_nonfinite(nonfinite);
     let updates = ds.grid.voxels() as f64 * set.quadrature.len() as f64 * ds.channels as f64 * iterations as f64;
     let sweep_ms = ds.sweep_ms;
     let mut stats = Stats::new(ds);
@@ -1114,6 +1114,18 @@ impl Dom {
         carry: Option<Option<DomCarry>>,
     ) -> Result<(RenderOutput, Option<DomCarry>), SolverError> {
         let mut stages: Vec<(&'static str, f64)> = Vec::new();
+        // Block sweeps keep every block in host memory: refused before any work where the host
+        // has not that much free (the marching and the direct source at grid 512 ran for
+        // minutes before the store of 116 GiB was asked for).
+        if set.store == StoreKind::Memory {
+            let block = set.block.unwrap_or_else(|| auto_block(gpu, set));
+            if block > 0 {
+                let nch = channels(scene, gpu_scene::modelled(scene, force_full).chromatic);
+                let (q, storage) = (&set.quadrature, &set.storage);
+                let (layout, _) = BlockSweeper::plan(set.geom.dims, nch, q, storage, set.scheme, block.min(MAX_BLOCK));
+                blocks::check_host_store(layout.blocks() as u64 * layout.record() * 4)?;
+            }
+        }
 
         let mut t = std::time::Instant::now();
         let mut stage = |name: &'static str| {

@@ -365,6 +365,9 @@ pub struct RenderReport {
     pub pipelines: Vec<PipelineUse>,
     pub stats: Stats,
     pub warnings: Vec<String>,
+    /// Pixels that came out NaN or infinite and were set to 0 before the image was returned
+    /// ([`RenderReport::zeroed_nonfinite`]): `scatterlab render` writes nothing then.
+    pub nonfinite_pixels: u32,
 }
 
 /// A pipeline a render used: its shader, the specialisation constants it was built with (by
@@ -415,7 +418,14 @@ impl RenderReport {
             passes,
             stats,
             warnings: Vec::new(),
+            nonfinite_pixels: 0,
         }
+    }
+
+    /// `pixels` of the image were NaN or infinite and were set to 0: counted, and warned of.
+    pub fn zeroed_nonfinite(&mut self, pixels: u32) {
+        self.nonfinite_pixels += pixels;
+        self.warnings.extend(nonfinite_warning(pixels));
     }
 
     /// The solver's own stats, typed (`report.detail::<lbl::LblStats>()`).

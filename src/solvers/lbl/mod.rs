@@ -396,7 +396,7 @@ impl Lbl {
             ..LblStats::of_settings(scene, set, nch, params.directed)
         };
         report.warnings.extend(ls.view_trust.warning(self.name()));
-        report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
+        report.zeroed_nonfinite(view.nonfinite_pixels);
         let mut stats = Stats::new(ls);
         stats.convergence =
             Some(Convergence { iterations: 0, converged: true, final_change: 0.0, tolerance: set.tol as f64 });
@@ -452,15 +452,22 @@ impl Lbl {
         ls.view_dispatches = view.dispatches;
         // A sequence's frame stopped at its budget stops short by design.
         if !ls.converged && !set.budgeted {
+            // Where the marching rounds' lattice steps took every one lbl.max_iters allows, no
+            // convergence test ran: there is no change to give.
+            let change = if ls.final_change > 0.0 {
+                format!("relative change {:.2e} per iteration", ls.final_change)
+            } else {
+                "the marching rounds' steps (lbl.iters_per_round) used them all, none tested".to_string()
+            };
             report.warnings.push(format!(
-                "lbl: the lattice did not converge in {} iterations (relative change {:.2e} per iteration, tolerance \
-                    {:.1e}); raise lbl.max_iters or lbl.tol",
-                ls.iterations, ls.final_change, set.tol
+                "lbl: the lattice did not converge in {} iterations ({change}, tolerance {:.1e}); raise lbl.max_iters \
+                 or lbl.tol",
+                ls.iterations, set.tol
             ));
         }
         report.warnings.extend(ls.trust.warning());
         report.warnings.extend(ls.view_trust.warning(self.name()));
-        report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
+        report.zeroed_nonfinite(view.nonfinite_pixels);
         let mut stats = Stats::new(ls.clone());
         stats.convergence = Some(Convergence {
             iterations: ls.iterations as u64,
@@ -1202,7 +1209,10 @@ fn march_rounds(
     let mut reached = 0;
     for st in &steps {
         let waits: Vec<SyncPoint> = st.waits.iter().map(|w| points[*w]).collect();
-        if warm && matches!(st.step, Step::Diffuse(_)) {
+        // lbl.max_iters bounds the lattice's steps in all, the rounds' included (1048576 steps
+        // a round ran on past it for minutes, and max_iters = 1 stepped 72 times).
+        let budget = set.iters_per_round.min(set.max_iters.saturating_sub(lattice.iterations));
+        if (warm || budget == 0) && matches!(st.step, Step::Diffuse(_)) {
             // Nothing waits on a diffusion step: keep the plan's indices with a stand-in.
             points.push(*points.last().expect("a diffusion step follows a transfer"));
             continue;
@@ -1216,7 +1226,7 @@ fn march_rounds(
                 }
                 p
             }
-            Step::Diffuse(_) => lattice.passes(set.iters_per_round),
+            Step::Diffuse(_) => lattice.passes(budget),
         };
         let point = gpu.submit(st.role, &passes, &waits)?;
         points.push(point);

@@ -427,7 +427,7 @@ impl Networks {
         let bytes = gs.bytes + view.device_bytes;
         let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), bytes, stats);
         report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
-        report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
+        report.zeroed_nonfinite(view.nonfinite_pixels);
         Ok(RenderOutput { image: view.image, variance: None, report, estimates: Vec::new() })
     }
 
@@ -517,7 +517,7 @@ impl Networks {
         }
         report.warnings.extend(trust.warning());
         report.warnings.extend(view_trust.and_then(|v| v.warning(self.name())));
-        report.warnings.extend(crate::solvers::interface::nonfinite_warning(img.nonfinite + view_nonfinite));
+        report.zeroed_nonfinite(img.nonfinite + view_nonfinite);
         Ok(RenderOutput { image: img.image, variance: None, report, estimates: Vec::new() })
     }
 }

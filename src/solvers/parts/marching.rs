@@ -153,6 +153,14 @@ impl MarchSettings {
         if out.step > 4.0 * lambda {
             return Err(k.invalid("step", format!("{} must be at most 4 voxels ({})", out.step, 4.0 * lambda)));
         }
+        // The march deposits per voxel: steps finer than a thousandth of one add nothing but
+        // time (1e-9 marched for minutes without a word).
+        if out.step.is_nan() || out.step < 1e-3 * lambda {
+            return Err(k.invalid(
+                "step",
+                format!("{} is under a thousandth of a voxel ({}); use at least that", out.step, 1e-3 * lambda),
+            ));
+        }
         Ok(out)
     }
 

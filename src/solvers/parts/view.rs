@@ -591,7 +591,7 @@ pub fn render_alone(
     let mut report = RenderReport::finish(gpu, solver, k, gs.modelled.clone(), gs.bytes + view.device_bytes, stats);
     report.warnings.extend(trust.warning(solver.name()));
     report.warnings.extend(unscattered_emission_warning(solver.name(), scene));
-    report.warnings.extend(crate::solvers::interface::nonfinite_warning(view.nonfinite_pixels));
+    report.zeroed_nonfinite(view.nonfinite_pixels);
     Ok(RenderOutput { image: view.image, variance: None, report, estimates: Vec::new() })
 }
 

@@ -224,15 +224,14 @@ impl Solver for ShSingle {
         let set = ShSettings::parse(&k, req.scene)?;
         k.finish()?;
         let (image, st, bytes, modelled) = render(gpu, req.scene, &set, req.force_full, req.progress)?;
-        let faults = st.nonfinite_pixels as u64;
-        let warning = crate::solvers::interface::nonfinite_warning(st.nonfinite_pixels);
+        let (faults, nonfinite) = (st.nonfinite_pixels as u64, st.nonfinite_pixels);
         let trust_warnings = st.trust.warnings();
         let mut stats = Stats::new(st);
         stats.faults = faults;
         let mut report = RenderReport::finish(gpu, self, &k, modelled, bytes, stats);
         report.warnings.extend(trust_warnings);
         report.warnings.extend(crate::solvers::parts::view::unscattered_emission_warning(self.name(), req.scene));
-        report.warnings.extend(warning);
+        report.zeroed_nonfinite(nonfinite);
         Ok(RenderOutput { image, variance: None, report, estimates: Vec::new() })
     }
 

@@ -174,8 +174,15 @@ pub fn partition_weights(object: &Object, samples: &[Sample], params: &[SamplePa
     let extent = (hi - lo).max(Vec3::splat(1e-6));
     let volume = object.mesh.volume().max(1e-30);
     let points = (PARTITION_POINTS_PER_SAMPLE * n).min(PARTITION_POINTS_MAX) as f64;
-    let h = (volume / points).cbrt() as f32;
-    let dims = [0, 1, 2].map(|k| ((extent[k] / h).ceil() as usize).max(1));
+    let mut h = (volume / points).cbrt() as f32;
+    let dims_of = |h: f32| [0, 1, 2].map(|k| ((extent[k] / h).ceil() as usize).max(1));
+    // The spacing from the volume fits a medium about as thick as it is wide; where one side is
+    // far thinner than the spacing (a slab of thickness 1e-7 across a unit square asked for 2e8
+    // columns, 30 GB), the box's other sides set the count: coarsen until it is within 2x.
+    while dims_of(h).iter().map(|d| *d as f64).product::<f64>() > 2.0 * points {
+        h *= 1.25;
+    }
+    let dims = dims_of(h);
     let step = Vec3::new(extent.x / dims[0] as f32, extent.y / dims[1] as f32, extent.z / dims[2] as f32);
     let at = |x: usize, y: usize, z: usize| lo + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) * step;
     let index = |x: usize, y: usize, z: usize| (z * dims[1] + y) * dims[0] + x;

@@ -133,7 +133,7 @@ impl Solver for Wavefront {
         report.warnings = warnings(scene, &set, &vol);
         report.warnings.extend(trust.warnings());
         report.warnings.extend(view_trust.warning(self.name()));
-        report.warnings.extend(crate::solvers::interface::nonfinite_warning(res.nonfinite_pixels));
+        report.zeroed_nonfinite(res.nonfinite_pixels);
         Ok(RenderOutput { image: res.image, variance: None, report, estimates: Vec::new() })
     }
 
