@@ -112,6 +112,7 @@ impl Solver for Absorber {
             pipelines: Vec::new(),
             stats: Stats::new(()),
             warnings: Vec::new(),
+            nonfinite_pixels: 0,
         };
         Ok(RenderOutput { image, variance: None, report, estimates: Vec::new() })
     }
