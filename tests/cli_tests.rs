@@ -655,6 +655,14 @@ fn render_rejects_bad_flags() {
     check_all(vec![
         fails("memory_budget_syntax/lots", base(), &["--memory-budget", "lots"]).and_args(&["--memory-budget", "lots"]),
         fails("memory_budget_syntax/0", base(), &["--memory-budget", "positive"]).and_args(&["--memory-budget", "0"]),
+        // A camera-ray step whose shadow rays (their step defaults to it) would take too many:
+        // the step is named, not a shadow_step nobody set.
+        fails("view_step_too_fine/single", base(), &["single.step", "shadow rays"]).and_args(&[
+            "--solver",
+            "single",
+            "--set",
+            "single.step=1e-6",
+        ]),
         // A photon-marching step finer than a thousandth of a voxel (1e-9 marched for minutes).
         fails("march_step_too_fine/lbl", base(), &["lbl.step", "thousandth of a voxel"]).and_args(&[
             "--solver",

@@ -259,7 +259,10 @@ fn knob_settings_are_checked_against_the_table() {
     let e = bad(&[("lbl.grid", "1")], lbl);
     assert!(e.contains("lbl.grid") && e.contains("2..=512"), "{e}");
     let e = bad(&[("lbl.tol", "1")], lbl);
-    assert!(e.contains("lbl.tol") && e.contains("(0, 1)"), "{e}");
+    assert!(e.contains("lbl.tol") && e.contains(", 1)"), "{e}");
+    // Under 1e-12 (f32's test would hold 1e-300 as 0).
+    let e = bad(&[("lbl.tol", "1e-300")], lbl);
+    assert!(e.contains("lbl.tol") && e.contains("1e-300"), "{e}");
     let e = bad(&[("lbl.lattice", "d3q19")], lbl);
     assert!(e.contains("d3q6, d3q18"), "{e}");
     let e = bad(&[("path.spp", "64")], PATH);

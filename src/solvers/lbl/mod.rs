@@ -88,7 +88,9 @@ impl Solver for Lbl {
             Knob::fixed(
                 "tol",
                 "1e-4",
-                Range::open_unit(),
+                // At least 1e-12: the test runs in f32, where 1e-300 was 0 (20000 iterations, then
+                // "did not converge, tolerance 0.0e0"); f32's step at 1 is 1.2e-7 anyway.
+                Range::Real { min: 1e-12, max: 1.0, min_open: false, max_open: true },
                 "convergence: largest relative change per iteration at the probe voxels (of the extrapolated field \
                  with lbl.extrapolate)",
             ),

@@ -199,9 +199,19 @@ impl Particles {
         let (lo, size) = (m.bounds_min, m.bounds_max - m.bounds_min);
         let (integral, occupied, density_23, density_max) = measure(scene);
         let max = scene.max_density();
-        if integral.is_nan() || integral <= 0.0 || max.is_nan() || max <= 0.0 {
+        if max.is_nan() || max <= 0.0 {
             return Err(SolverError::Unsupported(
-                "networks: the medium has no density to place particles in".to_string(),
+                "networks: the medium's density (medium.density) is 0 everywhere: no particle can be placed and the \
+                 image would be the background alone; check the density grid's values"
+                    .to_string(),
+            ));
+        }
+        if integral.is_nan() || integral <= 0.0 {
+            return Err(SolverError::Unsupported(
+                "networks: the medium's density (medium.density) is 0 at every point of the 96^3 lattice that places \
+                 the particles: its features are thinner than a 96th of the medium's bounds; tighten medium.bounds \
+                 about them or use path"
+                    .to_string(),
             ));
         }
         let mut rng = Pcg32::new(seed, 0x6e65_7477);

@@ -314,9 +314,16 @@ impl ViewSettings {
             // length is bounded; camera-ray steps are resumable and only bounded for sanity.
             let max_steps = if name == "shadow_step" { MAX_SHADOW_STEPS } else { 1e7 };
             if diag / x > max_steps {
+                // The shadow step defaults to the step: where it was not set, the step is the
+                // knob to name (single.step=1e-6 had blamed a shadow_step nobody set).
+                let derived = name == "shadow_step" && !k.is_set(&key(name));
+                let (name, whose) =
+                    if derived { ("step", " for the shadow rays (their step defaults to it)") } else { (name, "") };
                 return Err(k.invalid(
                     &key(name),
-                    format!("{x} gives over {max_steps} steps across the medium's diagonal {diag}; use a larger step"),
+                    format!(
+                        "{x} gives over {max_steps} steps{whose} across the medium's diagonal {diag}; use a larger step"
+                    ),
                 ));
             }
         }
