@@ -663,6 +663,12 @@ fn render_rejects_bad_flags() {
             "--set",
             "single.step=1e-6",
         ]),
+        // Knobs that size one binding past the device's largest: the knob is named with the
+        // largest value that fits (the buffer's own line named neither).
+        fails("binding_too_large/networks.window", base(), &["networks.window=", "or less", "largest binding"])
+            .and_args(&["--solver", "networks", "--set", "networks.window=2048", "--set", "networks.particles=64"]),
+        fails("binding_too_large/wavefront.grid", base(), &["wavefront.grid=", "or less", "largest binding"])
+            .and_args(&["--solver", "wavefront", "--set", "wavefront.grid=1024"]),
         // A photon-marching step finer than a thousandth of a voxel (1e-9 marched for minutes).
         fails("march_step_too_fine/lbl", base(), &["lbl.step", "thousandth of a voxel"]).and_args(&[
             "--solver",

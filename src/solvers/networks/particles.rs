@@ -514,6 +514,20 @@ impl Network {
             particles: n,
             directions: d,
         };
+        // One count per window pixel and direction in one binding: past the device's largest,
+        // the knobs that size it are named (the buffer's own error named neither).
+        let range = gpu.info().max_storage_buffer_range;
+        if buckets * 4 > range {
+            let most = ((range / 4 / d.max(1) as u64) as f64).sqrt().floor() as u64;
+            return Err(SolverError::Unsupported(format!(
+                "networks: a window of {m} x {m} pixels for each of {d} directions needs {} MiB of bucket counts, past \
+                 this device's largest binding ({} MiB); set networks.window={most} or less, or fewer \
+                 networks.directions",
+                (buckets * 4) >> 20,
+                range >> 20,
+                m = self.window.m
+            )));
+        }
         let counts = gpu.buffer("networks bucket counts", buckets * 4)?;
         let offsets = gpu.buffer("networks bucket offsets", buckets * 4)?;
         let cursor = gpu.buffer("networks bucket cursors", buckets * 4)?;

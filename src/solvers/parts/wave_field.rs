@@ -434,11 +434,29 @@ pub fn wave_volume(
     set: &WaveSettings,
     geom: Option<LatticeGeom>,
 ) -> Result<WaveVolume, SolverError> {
+    // The grid's knob: wavefront's own (lbl's warm start gathers onto its lattice, lbl.grid).
+    let knob = if geom.is_some() { "lbl.grid" } else { "wavefront.grid" };
     let geom = geom.unwrap_or_else(|| LatticeGeom::new(scene, set.grid));
     let v = geom.voxels();
     let lights = traced_lights(scene);
     let channels = volume_channels(&lights, gs.modelled.chromatic);
-    let energy = gpu.buffer("wave field volume", v * 4 * channels as u64 * 4)?;
+    let bytes = v * 4 * channels as u64 * 4;
+    let range = gpu.info().max_storage_buffer_range;
+    if bytes > range {
+        // (16 bytes a voxel and channel in one binding: the grid scales as its cube)
+        let most = geom.dims.iter().copied().max().unwrap_or(1) as f64 * (range as f64 / bytes as f64).cbrt();
+        return Err(SolverError::Unsupported(format!(
+            "wavefront: the wave field's volume ({} x {} x {} voxels, {channels} channel(s)) needs {} MiB, past this \
+             device's largest binding ({} MiB); set {knob}={} or less",
+            geom.dims[0],
+            geom.dims[1],
+            geom.dims[2],
+            bytes >> 20,
+            range >> 20,
+            most.floor() as u64
+        )));
+    }
+    let energy = gpu.buffer("wave field volume", bytes)?;
     // Gather stats (word 0: non-finite voxels), then the march's (words 0-2 of the second).
     let stats = gpu.buffer("wave field gather stats", 16)?;
     let march_stats = gpu.buffer("wave field stats", 16)?;
