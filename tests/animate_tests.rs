@@ -287,6 +287,37 @@ fn sequence_of(
     (last.unwrap(), rows)
 }
 
+/// A sphere of radius 0.48 in the unit box (16^2, seed 1) with `sigma_t`, `albedo`, `g` and
+/// the light tables `lights`: the media of dom's warm-start tests.
+fn sphere(sigma_t: &str, albedo: &str, g: &str, lights: &str) -> scatterlab::scene::Scene {
+    crate::common::scene(&format!(
+        "[render]\nwidth = 16\nheight = 16\nseed = 1\n\
+         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = {g}\n\
+         density = {{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 0.48 }}\n{lights}"
+    ))
+}
+
+/// A sun and a blue sky.
+const SUN_AND_SKY: &str = "[[light]]\nkind = \"directional\"\ndirection = [0.5, -0.7, 0.5]\nirradiance = 3.0\n\
+     [[light]]\nkind = \"environment\"\nradiance = [0.03, 0.05, 0.09]\n";
+
+/// A deep near-lossless cube (optical size 50, albedo 0.999, voxels of 4 mean free paths:
+/// warned), lit by a sun: turned 30 degrees a frame, the signed bounces' sum cancels there, and
+/// a decay taken from it (not from their magnitudes) put the frames 0.5% above the cold render.
+fn deep_cube() -> scatterlab::scene::Scene {
+    crate::common::scene(
+        "[render]\nwidth = 16\nheight = 16\n\
+         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 50.0\nalbedo = 0.999\n\
+         density = { kind = \"constant\" }\n\
+         [[light]]\nkind = \"directional\"\ndirection = [-0.57735, -0.57735, -0.57735]\nirradiance = 3.0\n",
+    )
+}
+
+/// The deep cube's knobs: a coarse grid, s4, iterations enough for albedo 0.999.
+const DEEP_KNOBS: [(&str, &str); 3] = [("dom.grid", "12"), ("dom.directions", "s4"), ("dom.max_iterations", "4000")];
+
 /// dom's warm start with the convergence test on the host (a device without double precision,
 /// as `--without-float64` opens it): the host keeps the bounces' summed fluence, the device its
 /// pending source and light toward the camera, and the test takes the same magnitudes as
@@ -299,35 +330,18 @@ fn sequence_of(
 fn dom_frames_go_on_without_double_precision() {
     let dom: &dyn Solver = &scatterlab::solvers::dom::Dom;
     let device = gpu();
-    let host = scatterlab::gpu::Gpu::new(&scatterlab::gpu::GpuOptions {
-        validate: true,
-        without_float64: true,
-        ..scatterlab::gpu::GpuOptions::default()
-    })
-    .expect("a validated device");
+    let host = crate::common::gpu_without_float64();
     assert!(device.info().float64 && !host.info().float64);
-    let chromatic = crate::common::scene(
-        "[render]\nwidth = 16\nheight = 16\nseed = 1\n\
-         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = [2.0, 3.0, 4.0]\n\
-         albedo = [0.9, 0.8, 0.5]\ng = 0.8\n\
-         density = { kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 0.48 }\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.5, -0.7, 0.5]\nirradiance = 3.0\n\
-         [[light]]\nkind = \"environment\"\nradiance = [0.03, 0.05, 0.09]\n",
-    );
-    let deep = crate::common::scene(
-        "[render]\nwidth = 16\nheight = 16\n\
-         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 50.0\nalbedo = 0.999\n\
-         density = { kind = \"constant\" }\n\
-         [[light]]\nkind = \"directional\"\ndirection = [-0.57735, -0.57735, -0.57735]\nirradiance = 3.0\n",
-    );
-    let deep_knobs = [("dom.grid", "12"), ("dom.directions", "s4"), ("dom.max_iterations", "4000")];
     type Case<'a> = (&'a str, scatterlab::scene::Scene, &'a [(&'a str, &'a str)], f64);
     let cases: [Case; 3] = [
         ("bright cube", lit_cube(), &[("dom.grid", "12")], 10.0),
-        ("chromatic, forward", chromatic, &[("dom.grid", "12")], 10.0),
-        ("deep, near lossless", deep, &deep_knobs, 30.0),
+        (
+            "chromatic, forward",
+            sphere("[2.0, 3.0, 4.0]", "[0.9, 0.8, 0.5]", "0.8", SUN_AND_SKY),
+            &[("dom.grid", "12")],
+            10.0,
+        ),
+        ("deep, near lossless", deep_cube(), &DEEP_KNOBS, 30.0),
     ];
     for (name, scene, knobs, deg) in &cases {
         let mut runs = Vec::new();
@@ -374,37 +388,17 @@ fn dom_frames_go_on_without_double_precision() {
 #[test]
 fn dom_frames_go_on_from_the_last_state() {
     let dom: &dyn Solver = &scatterlab::solvers::dom::Dom;
-    let medium = |sigma_t: &str, albedo: &str, g: &str, lights: &str| {
-        crate::common::scene(&format!(
-            "[render]\nwidth = 16\nheight = 16\nseed = 1\n\
-             [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-             [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = {sigma_t}\nalbedo = {albedo}\ng = {g}\n\
-             density = {{ kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 0.48 }}\n{lights}"
-        ))
-    };
     let point = "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, 1.0]\nintensity = 10.0\n";
-    let sun = "[[light]]\nkind = \"directional\"\ndirection = [0.5, -0.7, 0.5]\nirradiance = 3.0\n\
-               [[light]]\nkind = \"environment\"\nradiance = [0.03, 0.05, 0.09]\n";
-    // A deep near-lossless cube (optical size 50, albedo 0.999, voxels of 4 mean free paths:
-    // warned), its sun turned 30 degrees a frame: the signed bounces' sum cancels there, and a
-    // decay taken from it (not from their magnitudes) put the frames 0.5% above the cold render.
-    let deep = crate::common::scene(
-        "[render]\nwidth = 16\nheight = 16\n\
-         [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov = 20.0\n\
-         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 50.0\nalbedo = 0.999\n\
-         density = { kind = \"constant\" }\n\
-         [[light]]\nkind = \"directional\"\ndirection = [-0.57735, -0.57735, -0.57735]\nirradiance = 3.0\n",
-    );
-    let deep_knobs = [("dom.grid", "12"), ("dom.directions", "s4"), ("dom.max_iterations", "4000")];
+    let (deep, deep_knobs) = (deep_cube(), DEEP_KNOBS);
     // (name, scene, knobs, the warnings its cold render gives, degrees a frame)
     type Case<'a> = (&'a str, scatterlab::scene::Scene, &'a [(&'a str, &'a str)], &'a [&'a str], f64);
     let cases: [Case; 5] = [
-        ("thin, backward", medium("1.0", "0.3", "-0.5", point), &[("dom.grid", "12")], &[], 10.0),
+        ("thin, backward", sphere("1.0", "0.3", "-0.5", point), &[("dom.grid", "12")], &[], 10.0),
         ("bright cube", lit_cube(), &[("dom.grid", "12")], &[], 10.0),
-        ("thick, near lossless", medium("8.0", "0.999", "0.0", point), &[("dom.grid", "16")], &[], 10.0),
+        ("thick, near lossless", sphere("8.0", "0.999", "0.0", point), &[("dom.grid", "16")], &[], 10.0),
         (
             "chromatic, forward",
-            medium("[2.0, 3.0, 4.0]", "[0.9, 0.8, 0.5]", "0.8", sun),
+            sphere("[2.0, 3.0, 4.0]", "[0.9, 0.8, 0.5]", "0.8", SUN_AND_SKY),
             &[("dom.grid", "12")],
             &[],
             10.0,

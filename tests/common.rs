@@ -18,7 +18,16 @@ pub const SH_SINGLE: &dyn Solver = &scatterlab::solvers::sh_single::ShSingle;
 /// The device every GPU test uses, validation layer on. A missing device or layer fails the
 /// test: a test never passes for want of a device.
 pub fn gpu() -> Gpu {
-    let opts = GpuOptions { validate: true, ..GpuOptions::default() };
+    gpu_with(GpuOptions { validate: true, ..GpuOptions::default() })
+}
+
+/// [`gpu`] opened as a device without double precision (`--without-float64`): the solvers'
+/// convergence tests then run on the host.
+pub fn gpu_without_float64() -> Gpu {
+    gpu_with(GpuOptions { validate: true, without_float64: true, ..GpuOptions::default() })
+}
+
+fn gpu_with(opts: GpuOptions) -> Gpu {
     match Gpu::new(&opts) {
         Ok(g) => g,
         Err(e) => panic!("GPU tests need a Vulkan device with the validation layer (run tools/setup-deps): {e}"),

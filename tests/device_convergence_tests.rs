@@ -4,7 +4,7 @@
 //! stop at the same iteration with the same image: each scene renders both ways (the second
 //! device opened as if it lacked `shaderFloat64`).
 
-use scatterlab::gpu::{Gpu, GpuOptions};
+use scatterlab::gpu::Gpu;
 use scatterlab::output::compare;
 use scatterlab::scene::Scene;
 use scatterlab::solvers::dom::Dom;
@@ -106,8 +106,7 @@ fn path_light_batches_wait_once_per_group_with_the_same_bits() {
 #[test]
 fn the_device_test_stops_where_the_host_test_did() {
     let device = gpu();
-    let host = Gpu::new(&GpuOptions { validate: true, without_float64: true, ..GpuOptions::default() })
-        .expect("a validated device");
+    let host = crate::common::gpu_without_float64();
     assert!(device.info().float64 && !host.info().float64);
     let size = [("render.width", "16"), ("render.height", "16")];
     let scenes = [

@@ -121,6 +121,10 @@ impl BlockLayout {
     pub fn blocks(&self) -> u32 {
         self.nb.iter().product()
     }
+    /// Floats of the host store: every block's record.
+    pub fn store_floats(&self) -> u64 {
+        self.blocks() as u64 * self.record()
+    }
     fn off_sigma_t(&self, c: u32) -> u64 {
         c as u64 * self.bv()
     }
@@ -524,7 +528,7 @@ impl BlockSweeper {
         } else {
             pool_slots
         };
-        let mut store = Store::new(&opts.store, blocks as u64 * layout.record())?;
+        let mut store = Store::new(&opts.store, layout.store_floats())?;
         {
             let v = s.dims.iter().map(|d| *d as usize).product::<usize>();
             let (sigma_t, sigma_s) = (s.sigma_t, s.sigma_s);

@@ -1117,14 +1117,12 @@ impl Dom {
         // Block sweeps keep every block in host memory: refused before any work where the host
         // has not that much free (the marching and the direct source at grid 512 ran for
         // minutes before the store of 116 GiB was asked for).
-        if set.store == StoreKind::Memory {
-            let block = set.block.unwrap_or_else(|| auto_block(gpu, set));
-            if block > 0 {
-                let nch = channels(scene, gpu_scene::modelled(scene, force_full).chromatic);
-                let (q, storage) = (&set.quadrature, &set.storage);
-                let (layout, _) = BlockSweeper::plan(set.geom.dims, nch, q, storage, set.scheme, block.min(MAX_BLOCK));
-                blocks::check_host_store(layout.blocks() as u64 * layout.record() * 4)?;
-            }
+        let block = set.block.unwrap_or_else(|| auto_block(gpu, set));
+        if set.store == StoreKind::Memory && block > 0 {
+            let nch = channels(scene, gpu_scene::modelled(scene, force_full).chromatic);
+            let (q, storage) = (&set.quadrature, &set.storage);
+            let (layout, _) = BlockSweeper::plan(set.geom.dims, nch, q, storage, set.scheme, block.min(MAX_BLOCK));
+            blocks::check_host_store(layout.store_floats() * 4)?;
         }
 
         let mut t = std::time::Instant::now();
@@ -1154,7 +1152,6 @@ impl Dom {
             CameraKind::Perspective { .. } => Eye::Point(scene.camera.origin.to_array()),
             CameraKind::Orthographic { .. } => Eye::Toward((-scene.camera.basis().2).to_array()),
         };
-        let block = set.block.unwrap_or_else(|| auto_block(gpu, set));
         // Plane sweeps hold the whole grid: the direct source is one slab, binned straight into
         // their buffers. Block sweeps make it slab by slab within dom.budget (and one binding),
         // the density resampled and the source read back per slab: nothing grid-sized stays on
@@ -1489,9 +1486,7 @@ impl Solver for Dom {
                 block.min(MAX_BLOCK),
             );
             let all = fixed
-                + (layout.blocks() as u64 * layout.record()
-                    + layout.blocks().min(layout.widest_plane()) as u64 * layout.scratch())
-                    * 4;
+                + (layout.store_floats() + layout.blocks().min(layout.widest_plane()) as u64 * layout.scratch()) * 4;
             let plan = SourcePlan::new(&set, &geom, nch as u32, beams);
             let cut = plan.cut(&set, u64::MAX, block)?;
             // Each view run: its slab of the light toward the camera and the view's buffers, the
