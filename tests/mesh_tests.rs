@@ -605,6 +605,15 @@ fn mesh_errors_are_one_line_and_name_the_problem() {
     assert_mentions(&msg, &["vertex 3", "not finite", "NaN"]);
     let inf = cube_text(&CUBE_FACES).replace("v 0 1 1\n", "v 0 1 1e39\n");
     assert_mentions(&error_of(load_text(dir.path(), &inf)), &["vertex 8", "not finite", "inf"]);
+    // A finite vertex past the coordinates a scene may use is said to be that, not called a
+    // degenerate face (its faces' areas made every other face's look like nothing).
+    let far = cube_text(&CUBE_FACES).replace("v 0 1 1\n", "v 0 1 1e30\n");
+    let msg = error_of(load_text(dir.path(), &far));
+    assert_mentions(&msg, &["vertex 8", "past +-1e9", "larger units"]);
+    assert!(!msg.contains("degenerate"), "{msg}");
+    let scaled = MeshTransform { scale: 1e10, ..identity };
+    let msg = error_of(load_obj(&mesh_path("icosphere.obj"), &scaled));
+    assert_mentions(&msg, &["past +-1e9", "after the transform"]);
 
     // Vertex 9 halfway along the edge 1-2: face 13 is a sliver of no area.
     let degenerate = cube_text(&CUBE_FACES) + "v 0.5 0 0\nf 1 9 2\n";
@@ -649,7 +658,7 @@ fn mesh_errors_are_one_line_and_name_the_problem() {
     assert_mentions(&msg, &["invalid transform", "scale", "positive"]);
     let far = MeshTransform { translate: Vec3::new(3e38, 0.0, 0.0), scale: 1e38, ..identity };
     let msg = error_of(load_obj(&path, &far));
-    assert_mentions(&msg, &["after the transform", "smaller scale"]);
+    assert_mentions(&msg, &["after the transform", "past +-1e9", "smaller scale"]);
 
     // None of them names a file: the caller prefixes the scene file and key.
     assert!(!msg.contains("icosphere"));

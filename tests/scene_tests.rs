@@ -210,9 +210,11 @@ fn scene_error_albedo_each_channel() {
 
 #[test]
 fn scene_error_g_out_of_range() {
-    for g in ["1.0", "-1.0", "1.5", "nan"] {
+    for (g, hint) in
+        [("1.0", "0.99 for very forward"), ("-1.0", "-0.99 for very backward"), ("1.5", "0.99"), ("nan", "0.99")]
+    {
         let msg = err_of(&base().set("medium.g", g));
-        assert_mentions(&msg, &["medium.g", "(-1, 1)"]);
+        assert_mentions(&msg, &["medium.g", "(-1, 1)", hint]);
     }
 }
 
@@ -597,6 +599,29 @@ fn scene_override_errors() {
     assert_mentions(&msg, &["empty key segment"]);
     let msg = message(with_overrides(&[("medium.albedo", "0.5\nrender = 1")]));
     assert_mentions(&msg, &["override `medium.albedo`"]);
+    // The override named is the one applied: the last of a repeated key.
+    let msg = message(with_overrides(&[("render.width", "16"), ("render.width", "\"wide\"")]));
+    assert_mentions(&msg, &["render.width", "(value from override render.width=\"wide\")"]);
+    // An array indexed by a word: say it is an array, how many entries, and how to index it.
+    for index in ["x", "-1", "1e3"] {
+        let msg = message(with_overrides(&[(&format!("light.{index}.intensity"), "1")]));
+        assert_mentions(
+            &msg,
+            &["`light` is an array (there is 1 entry)", &format!("not `{index}`"), "light.0.intensity"],
+        );
+    }
+    // serde's own type names (RawLight, RawMedium, ...) never reach the user.
+    for (key, value, expected) in [
+        ("light.0", "5", "expected a table with a `kind` key"),
+        ("medium.density", "3", "expected a table with a `kind` key"),
+        ("medium", "4", "expected a table"),
+        ("camera", "3", "expected a table"),
+        ("render", "2", "expected a table"),
+    ] {
+        let msg = message(with_overrides(&[(key, value)]));
+        assert_mentions(&msg, &[expected, &format!("override {key}={value}")]);
+        assert!(!msg.contains("Raw") && !msg.contains("struct") && !msg.contains("enum"), "{msg}");
+    }
 }
 
 #[test]

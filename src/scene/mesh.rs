@@ -140,6 +140,12 @@ pub enum MeshError {
     #[error("vertex {vertex} is not finite after the transform {}; use a smaller scale or translation", fmt_vec(*.position))]
     TransformOverflow { vertex: usize, position: Vec3 },
 
+    /// A vertex past the coordinates a scene may use (docs/scene-format.md, "Magnitudes"),
+    /// as read or after the transform: checked before the faces, whose areas it would make
+    /// every other face's look like nothing.
+    #[error("vertex {vertex} at {} is past +-{max:e} (after the transform): the solvers step through the scene in 32-bit floats, whose steps vanish against coordinates that large; use a smaller scale or translation, or express the mesh in larger units", fmt_vec(*.position))]
+    VertexTooFar { vertex: usize, position: Vec3, max: f32 },
+
     /// A triangle without area: its vertices coincide or lie on a line.
     #[error("face {face} (vertices {}, {}, {}) is degenerate: its vertices coincide or lie on a line (area {}); remove it and reconnect its neighbours", .vertices[0], .vertices[1], .vertices[2], fmt_num(*.area))]
     Degenerate { face: usize, vertices: [usize; 3], area: f64 },
@@ -264,6 +270,9 @@ pub fn load_obj(path: &Path, transform: &MeshTransform) -> Result<TriangleMesh, 
         *p = matrix.transform_point3(*p);
         if !p.is_finite() {
             return Err(MeshError::TransformOverflow { vertex: k + 1, position: *p });
+        }
+        if p.abs().max_element() > super::parse::COORDINATE_MAX {
+            return Err(MeshError::VertexTooFar { vertex: k + 1, position: *p, max: super::parse::COORDINATE_MAX });
         }
     }
     let mesh = TriangleMesh { positions, triangles, file: path.to_owned() };

@@ -524,8 +524,9 @@ impl Ctx<'_> {
             return Err(self.invalid(
                 &key("g"),
                 format!(
-                    "g = {} must lie strictly inside (-1, 1) (Henyey-Greenstein mean cosine); use e.g. 0.99 for very forward scattering",
-                    num32(m.g)
+                    "g = {} must lie strictly inside (-1, 1) (Henyey-Greenstein mean cosine); use e.g. {}",
+                    num32(m.g),
+                    if m.g < 0.0 { "-0.99 for very backward scattering" } else { "0.99 for very forward scattering" }
                 ),
             ));
         }
@@ -1175,7 +1176,7 @@ impl Ctx<'_> {
             };
         }
         // serde names Rust types; say what the file needs instead.
-        let mut message = message
+        let mut message = plain_types(&message)
             .replace("expected i64", "expected an integer")
             .replace("expected f32", "expected a number")
             .replace("expected a string", "expected a quoted string")
@@ -1189,8 +1190,9 @@ impl Ctx<'_> {
     /// An error caused by a `--set` value should say so: unknown keys become override
     /// errors, and invalid values name the override they came from.
     fn attribute_to_override(&self, err: SceneError) -> SceneError {
+        // The last override of a key is the one applied (`--set a=1 --set a=2` sets 2).
         let origin = |field: &str| {
-            self.overrides.iter().find(|(key, _)| {
+            self.overrides.iter().rev().find(|(key, _)| {
                 let key = normalise_key(key);
                 related(&key, field)
             })
@@ -1217,6 +1219,24 @@ impl Ctx<'_> {
     }
 }
 
+/// serde's "expected struct RawCamera" / "expected internally tagged enum RawLight" in the
+/// words of the file: a table, and a table whose `kind` picks its form.
+fn plain_types(message: &str) -> String {
+    let mut out = message.to_owned();
+    for (prefix, plain) in [
+        ("internally tagged enum Raw", "a table with a `kind` key"),
+        ("struct Raw", "a table"),
+        ("enum Raw", "a table"),
+    ] {
+        while let Some(at) = out.find(prefix) {
+            let rest = &out[at + prefix.len()..];
+            let end = rest.find(|c: char| !c.is_ascii_alphanumeric()).unwrap_or(rest.len());
+            out = format!("{}{plain}{}", &out[..at], &rest[end..]);
+        }
+    }
+    out
+}
+
 const CHANNELS: [&str; 3] = ["red (0)", "green (1)", "blue (2)"];
 
 /// `[1, 2.5, 3]`.
@@ -1230,7 +1250,7 @@ fn short(v: f64) -> String {
 }
 
 /// The largest coordinate a scene may use (any position, bound or translation), scene units.
-const COORDINATE_MAX: f32 = 1e9;
+pub(super) const COORDINATE_MAX: f32 = 1e9;
 
 /// The largest optical thickness across the medium, emitted radiance and light value a scene
 /// may have (`Ctx::magnitudes`): far past any physical scene (the sun's radiance is
@@ -1475,11 +1495,29 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
     };
     let mut current = root;
     let mut walked = String::new();
-    for segment in parents {
+    for (i, segment) in parents.iter().enumerate() {
         current = match segment {
             Segment::Key(name) => {
                 let here = join_path(&walked, name);
-                let table = current.as_table_mut().ok_or_else(|| format!("`{walked}` is not a table"))?;
+                let table = match current {
+                    toml::Value::Table(t) => t,
+                    // `light.x.intensity`: the segment after an array is its index.
+                    toml::Value::Array(a) => {
+                        return Err(format!(
+                            "`{walked}` is an array ({}), indexed by a number from 0, not `{name}`: e.g. {walked}.0.{}",
+                            count(a.len()),
+                            segments[i + 1..]
+                                .iter()
+                                .map(|s| match s {
+                                    Segment::Key(k) => k.clone(),
+                                    Segment::Index(j) => j.to_string(),
+                                })
+                                .collect::<Vec<_>>()
+                                .join(".")
+                        ))
+                    }
+                    _ => return Err(format!("`{walked}` is not a table, so it has no key `{name}`")),
+                };
                 walked = here;
                 table.get_mut(name).ok_or_else(|| {
                     if walked.contains('.') {

@@ -254,7 +254,11 @@ impl Solver for Lbl {
         let set = LblSettings::parse(knobs, scene)?;
         // Where nothing scatters the lattice carries nothing: its grid's trust does not apply.
         let grid = set.geom.trust(scene, set.grid, &lattice::LBL_GRID).warning().filter(|_| scene.scatters());
-        Ok(grid.into_iter().chain(view::ViewTrust::of(scene, &set.view).warning(self.name())).collect())
+        Ok(grid
+            .into_iter()
+            .chain(view::ViewTrust::of(scene, &set.view).warning(self.name()))
+            .chain(near_light_trust(scene, &set))
+            .collect())
     }
 
     fn memory_estimate(&self, scene: &Scene, knobs: &Knobs) -> Result<u64, SolverError> {
@@ -469,6 +473,7 @@ impl Lbl {
         }
         report.warnings.extend(ls.trust.warning());
         report.warnings.extend(ls.view_trust.warning(self.name()));
+        report.warnings.extend(near_light_trust(scene, set));
         report.zeroed_nonfinite(view.nonfinite_pixels);
         let mut stats = Stats::new(ls.clone());
         stats.convergence = Some(Convergence {
@@ -868,6 +873,26 @@ fn near_light_default(scene: &Scene, geom: &LatticeGeom) -> f32 {
     } else {
         NEAR_LIGHT_VOXELS
     }
+}
+
+/// A near ball past twice its default radius for the scene ([`near_light_default`]) moves
+/// the light's first scattering too far and lumps a share k so large that 1 / (1 - k) scales
+/// the image wrong: the radii measured best were 2-4 voxels (docs/lbl.md, issue 11), and on
+/// point-light-in-cloud at 64^2 (grid 32, against path at 256 spp) relL2 was 0.125 / 0.119 at
+/// 1 / 3 voxels (k 0.28 / 0.51), 0.99 at 10 (k 0.80) and 1.02 at 30 or 1e30.
+fn near_light_trust(scene: &Scene, set: &LblSettings) -> Option<String> {
+    let default = near_light_default(scene, &set.geom);
+    (set.near_light > 2.0 * default).then(|| {
+        format!(
+            "lbl: the near ball (lbl.near_light = {} voxels) is past twice its default here ({default:.3} voxels: {} or \
+             {} mean free paths at the light, whichever is fewer): it lumps too much of the light's first \
+             scattering into the light and the image goes wrong (point-light-in-cloud: relL2 against path 0.12 at 3 \
+             voxels, 0.99 at 10); lower lbl.near_light",
+            if set.near_light < 1e7 { set.near_light.to_string() } else { format!("{:e}", set.near_light) },
+            NEAR_LIGHT_VOXELS,
+            NEAR_LIGHT_MFP
+        )
+    })
 }
 
 /// The once-scattered light about a point light inside the medium, lumped into the light
