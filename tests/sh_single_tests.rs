@@ -706,3 +706,34 @@ fn sh_single_never_creates_energy_on_a_thick_slab_with_few_samples() {
     }
     assert_clean(&gpu);
 }
+
+/// Gaussians narrower than a Poisson radius (sh-single.width_scale < 1) stop overlapping and
+/// the image breaks into spots: such a render says so, before the device opens and in its
+/// report, and the claim holds (its relL2 against single is well past the default width's).
+/// The default and wider widths say nothing.
+#[test]
+fn a_width_scale_below_one_poisson_radius_is_named_and_is_wrong() {
+    let gpu = gpu();
+    let s =
+        crate::common::repo_scene("scenes/homogeneous-sphere.toml", &[("render.width", "32"), ("render.height", "32")]);
+    let reference = crate::common::render(&gpu, &s, crate::common::SINGLE, &[]);
+    let solver = crate::common::SH_SINGLE;
+    let mut errors = Vec::new();
+    for (width, warned) in [("1.5", false), ("1", false), ("0.3", true), ("1e-30", true)] {
+        let sets = [("sh-single.samples", "1500"), ("sh-single.width_scale", width)];
+        let out = crate::common::try_render(&gpu, &s, solver, &sets, false).expect("render");
+        let w: Vec<&String> = out.report.warnings.iter().filter(|w| w.contains("width_scale")).collect();
+        assert_eq!(w.len(), warned as usize, "width {width}: {:?}", out.report.warnings);
+        assert!(!warned || w[0].contains("set sh-single.width_scale=1.5"), "{w:?}");
+        let owned: Vec<(String, String)> = sets.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        let knobs = scatterlab::solvers::Settings::new(&owned).knobs(solver.name(), solver.knobs()).expect("knobs");
+        let early = solver.preflight(&s, &knobs).expect("preflight");
+        assert_eq!(early.iter().filter(|e| e.contains("width_scale")).count(), warned as usize, "{early:?}");
+        assert!(out.image.data.iter().all(|v| v.is_finite() && *v >= 0.0), "width {width}: finite");
+        let m = scatterlab::output::compare(&out.image, &reference.image).unwrap();
+        eprintln!("width_scale {width}: relL2 {:.3}, energy {:.3}", m.rel_l2, m.energy_ratio);
+        errors.push(m.rel_l2);
+    }
+    assert!(errors[2] > 2.0 * errors[0] && errors[3] > 2.0 * errors[0], "the narrow widths are wrong: {errors:?}");
+    assert_clean(&gpu);
+}
