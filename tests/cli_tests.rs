@@ -799,6 +799,63 @@ fn output_directory_missing() {
     );
 }
 
+/// The environment variables the GPU options read: a value one cannot take is one line naming
+/// the variable (set long ago and forgotten, it is not the flag the user did not type), before
+/// any work, and nothing is written. SCATTERLAB_VALIDATE=banana used to turn validation on,
+/// SCATTERLAB_QUEUES=bogus and SCATTERLAB_DEVICE=bogus were reported as `--queues` and
+/// `--device`, and a loader that finds no driver gave vkCreateInstance's code without advice.
+#[test]
+fn environment_values_are_checked_and_named() {
+    let c = Case::new();
+    let s = c.scene(&base());
+    let with_env = |var: &str, value: &str, args: Vec<String>| {
+        Command::new(BIN)
+            .args(args)
+            .current_dir(c.dir.path())
+            .env_remove("SCATTERLAB_DEVICE")
+            .env_remove("SCATTERLAB_VALIDATE")
+            .env_remove("SCATTERLAB_QUEUES")
+            .env(var, value)
+            .env("NO_COLOR", "1")
+            .output()
+            .expect("run scatterlab")
+    };
+    for (var, value, needles) in [
+        ("SCATTERLAB_VALIDATE", "banana", &["SCATTERLAB_VALIDATE=banana", "expected 1", "unset"][..]),
+        ("SCATTERLAB_QUEUES", "bogus", &["SCATTERLAB_QUEUES=bogus", "not a queue mapping", "separate-families"]),
+        ("SCATTERLAB_DEVICE", "bogus", &["no Vulkan device matches SCATTERLAB_DEVICE=bogus", "available: 0: "]),
+        ("SCATTERLAB_GPU_TIMEOUT", "5m", &["SCATTERLAB_GPU_TIMEOUT=5m", "positive number of seconds"]),
+        ("SCATTERLAB_SPECIALIZE", "drvier", &["SCATTERLAB_SPECIALIZE=drvier", "driver or host"]),
+        (
+            "VK_DRIVER_FILES",
+            "/nonexistent/icd.json",
+            &["no Vulkan driver found", "VK_DRIVER_FILES=/nonexistent/icd.json", "mesa-vulkan-drivers"],
+        ),
+    ] {
+        let line = c.fails_with(|| with_env(var, value, c.render_args(&s, &TINY)), needles, Cause::Once);
+        assert!(!line.contains("--queues") && !line.contains("--device"), "{var}: {line}");
+    }
+    // `devices` names the variable too.
+    let out = with_env("SCATTERLAB_DEVICE", "bogus", vec!["devices".into()]);
+    error_line(&out, &["no Vulkan device matches SCATTERLAB_DEVICE=bogus"], Cause::Once);
+    // A mapping the device cannot give, asked for by the variable, names the variable.
+    let gpu = crate::common::gpu();
+    let fams = gpu.info().queue_families.clone();
+    for choice in ["same-family", "separate-families"] {
+        if scatterlab::gpu::map_roles_as(&fams, scatterlab::gpu::QueueChoice::parse(choice).unwrap()).is_err() {
+            c.fails_with(
+                || with_env("SCATTERLAB_QUEUES", choice, c.render_args(&s, &TINY)),
+                &[&format!("SCATTERLAB_QUEUES={choice}: device"), "cannot"],
+                Cause::Once,
+            );
+        }
+    }
+    // The values it takes still run: 0 and `true` (any case) for validation.
+    for value in ["0", "TRUE"] {
+        succeeded(&with_env("SCATTERLAB_VALIDATE", value, c.render_args(&s, &TINY)));
+    }
+}
+
 /// `--queues`: a mapping the device cannot give is one line naming the flag, the device and
 /// its families, and nothing is written; one it can give is used and reported.
 #[test]

@@ -42,14 +42,46 @@ pub(super) fn gpu_options(a: &GpuArgs) -> GpuOptions {
     }
     if a.device.is_some() {
         o.device = a.device.clone();
+        o.device_from = "--device";
     }
     if a.queues.is_some() {
         o.queues = a.queues.clone();
+        o.queues_from = "--queues";
     }
     if a.no_cache {
         o.cache_dir = None;
     }
     o
+}
+
+/// The environment variables the GPU options read, checked before any command runs: a value
+/// one cannot take is an error naming the variable (set long ago and forgotten, or misspelt),
+/// never silently read as something else (SCATTERLAB_VALIDATE=banana turned validation on,
+/// SCATTERLAB_GPU_TIMEOUT=5m gave 300 s, SCATTERLAB_SPECIALIZE=drvier specialised on the host).
+pub(super) fn check_environment() -> Result<()> {
+    use crate::gpu::{QueueChoice, ENV_QUEUES, ENV_SPECIALIZE, ENV_TIMEOUT, ENV_VALIDATE};
+    let get = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
+    if let Some(v) = get(ENV_VALIDATE) {
+        if crate::gpu::validate_from_env(&v).is_none() {
+            bail!("{ENV_VALIDATE}={v}: expected 1 (validation layer on) or 0 (off); fix or unset it");
+        }
+    }
+    if let Some(v) = get(ENV_QUEUES) {
+        if QueueChoice::parse(&v).is_none() {
+            bail!("{ENV_QUEUES}={v}: not a queue mapping; one of {}; fix or unset it", QueueChoice::NAMES.join(", "));
+        }
+    }
+    if let Some(v) = get(ENV_TIMEOUT) {
+        if !v.parse::<f64>().is_ok_and(|s| s.is_finite() && s > 0.0) {
+            bail!("{ENV_TIMEOUT}={v}: expected a positive number of seconds (the default is 300); fix or unset it");
+        }
+    }
+    if let Some(v) = get(ENV_SPECIALIZE) {
+        if v != "driver" && v != "host" {
+            bail!("{ENV_SPECIALIZE}={v}: expected driver or host (the default); fix or unset it");
+        }
+    }
+    Ok(())
 }
 
 /// Fail when the validation layer reported errors: a clean run is the contract of every test.

@@ -29,6 +29,7 @@ macro_rules! outln {
 }
 
 pub fn run(cli: Cli) -> Result<()> {
+    super::args::check_environment()?;
     match cli.command {
         Command::Render(a) => super::render::render(a),
         Command::Animate(a) => super::animate::animate(a),
@@ -204,10 +205,8 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
         outln!("{}", serde_json::to_string_pretty(&list)?);
         return Ok(());
     }
-    let chosen = pick_device(
-        &list,
-        gpu.device.as_deref().or(std::env::var(crate::gpu::ENV_DEVICE).ok().as_deref()).filter(|s| !s.is_empty()),
-    )?;
+    let opts = gpu_options(gpu);
+    let chosen = pick_device(&list, opts.device.as_deref(), opts.device_from)?;
     for d in &list {
         let mark = if Some(d.index) == chosen { "  <- scatterlab would use this one" } else { "" };
         outln!("[{}] {} ({}, Vulkan {}){mark}", d.index, d.name, d.device_type, d.api_version);
@@ -252,8 +251,8 @@ fn devices(gpu: &GpuArgs, as_json: bool) -> Result<()> {
 }
 
 /// The device `Gpu::new` would open for `wanted` (same rule), or an error if none matches.
-fn pick_device(list: &[crate::gpu::DeviceSummary], wanted: Option<&str>) -> Result<Option<usize>> {
-    Ok(crate::gpu::choose_device(list, wanted)?)
+fn pick_device(list: &[crate::gpu::DeviceSummary], wanted: Option<&str>, from: &'static str) -> Result<Option<usize>> {
+    Ok(crate::gpu::choose_device(list, wanted).map_err(|e| e.named_by(from))?)
 }
 
 struct BenchArgs {

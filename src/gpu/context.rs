@@ -30,6 +30,10 @@ pub struct GpuOptions {
     pub validate: bool,
     /// Device index or case-insensitive name substring; `None` picks the best device.
     pub device: Option<String>,
+    /// Where `device` and `queues` came from, for messages: the flag (`--device`, `--queues`)
+    /// or the environment variable ([`ENV_DEVICE`], [`ENV_QUEUES`]), the default's source.
+    pub device_from: &'static str,
+    pub queues_from: &'static str,
     /// Limit on every host wait; a wait that runs past it fails loudly instead of hanging.
     pub timeout: Duration,
     /// The queue mapping asked for (`auto`, `shared`, `same-family`, `separate-families`);
@@ -61,7 +65,8 @@ impl Default for GpuOptions {
     /// pipeline cache directory from `SCATTERLAB_CACHE_DIR` or the user's cache directory,
     /// driver specialization from `SCATTERLAB_SPECIALIZE=driver`.
     fn default() -> Self {
-        let validate = std::env::var(ENV_VALIDATE).map(|v| v != "0" && !v.is_empty()).unwrap_or(false);
+        // A value it cannot take (the CLI refuses it first) turns validation on: the safer side.
+        let validate = std::env::var(ENV_VALIDATE).is_ok_and(|v| !v.is_empty() && validate_from_env(&v) != Some(false));
         let device = std::env::var(ENV_DEVICE).ok().filter(|s| !s.is_empty());
         let secs =
             std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
@@ -70,6 +75,8 @@ impl Default for GpuOptions {
         GpuOptions {
             validate,
             device,
+            device_from: ENV_DEVICE,
+            queues_from: ENV_QUEUES,
             timeout: Duration::from_secs_f64(secs),
             queues,
             cache_dir,
@@ -81,12 +88,26 @@ impl Default for GpuOptions {
     }
 }
 
+/// `SCATTERLAB_VALIDATE`'s value: 1/true/yes/on or 0/false/no/off (any case); `None` for
+/// anything else.
+pub fn validate_from_env(v: &str) -> Option<bool> {
+    match v.trim().to_ascii_lowercase().as_str() {
+        "1" | "true" | "yes" | "on" => Some(true),
+        "0" | "false" | "no" | "off" => Some(false),
+        _ => None,
+    }
+}
+
 /// Counts validation messages; error-severity messages fail a test run.
 #[derive(Default)]
 pub struct ValidationLog {
     pub errors: AtomicU64,
     pub warnings: AtomicU64,
     pub first_errors: Mutex<Vec<String>>,
+    /// While `Some`, messages are held here instead of printed: those vkCreateInstance gives
+    /// are printed once it succeeds, and dropped where it fails (the loader's "Found no
+    /// drivers!" lines would stand above the one error line that says what to do).
+    pub held: Mutex<Option<Vec<String>>>,
 }
 
 /// What a result file records about the device.
@@ -257,9 +278,13 @@ unsafe extern "system" fn debug_callback(
     } else {
         CStr::from_ptr((*data).p_message).to_string_lossy().into_owned()
     };
+    let print = |line: String| match log.held.lock().as_deref_mut() {
+        Ok(Some(held)) => held.push(line),
+        _ => eprintln!("{line}"),
+    };
     if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
         log.errors.fetch_add(1, Ordering::SeqCst);
-        eprintln!("[vulkan validation error] {msg}");
+        print(format!("[vulkan validation error] {msg}"));
         if let Ok(mut v) = log.first_errors.lock() {
             if v.len() < 16 {
                 v.push(msg);
@@ -267,7 +292,7 @@ unsafe extern "system" fn debug_callback(
         }
     } else if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING) {
         log.warnings.fetch_add(1, Ordering::SeqCst);
-        eprintln!("[vulkan validation warning] {msg}");
+        print(format!("[vulkan validation warning] {msg}"));
     }
     vk::FALSE
 }
@@ -556,7 +581,27 @@ fn create_instance(
     if debug {
         info = info.push_next(&mut features).push_next(&mut messenger_info);
     }
-    let instance = unsafe { entry.create_instance(&info, None) }.vk("vkCreateInstance")?;
+    if let Ok(mut held) = log.held.lock() {
+        *held = Some(Vec::new());
+    }
+    let created = unsafe { entry.create_instance(&info, None) };
+    let held = log.held.lock().ok().and_then(|mut h| h.take()).unwrap_or_default();
+    if created.is_ok() {
+        for line in held {
+            eprintln!("{line}");
+        }
+    }
+    let instance = created.map_err(|result| match result {
+        // The loader found no driver (ICD) to create the instance on: say what to install.
+        vk::Result::ERROR_INCOMPATIBLE_DRIVER => GpuError::NoDriver {
+            listed: ["VK_DRIVER_FILES", "VK_ICD_FILENAMES"]
+                .iter()
+                .find_map(|v| std::env::var(v).ok().filter(|s| !s.is_empty()).map(|s| format!("{v}={s}")))
+                .map(|v| format!("; {v} is set and may name no usable driver: unset it"))
+                .unwrap_or_default(),
+        },
+        result => GpuError::Vk { call: "vkCreateInstance", result },
+    })?;
     Ok((instance, boxed, debug))
 }
 
@@ -701,11 +746,18 @@ pub fn choose_device(list: &[DeviceSummary], wanted: Option<&str>) -> Result<Opt
                 list.iter().filter(|c| !digits.is_empty() && uuid_digits(&c.uuid).starts_with(&digits)).collect();
             match hits.as_slice() {
                 [one] => *one,
-                [] => return Err(GpuError::DeviceNotFound { wanted: w.to_string(), available: available() }),
+                [] => {
+                    return Err(GpuError::DeviceNotFound {
+                        wanted: w.to_string(),
+                        available: available(),
+                        from: "--device",
+                    })
+                }
                 _ => {
                     return Err(GpuError::DeviceNotFound {
                         wanted: format!("{w} (a prefix of {} devices' UUIDs: give more digits)", hits.len()),
                         available: available(),
+                        from: "--device",
                     })
                 }
             }
@@ -713,9 +765,9 @@ pub fn choose_device(list: &[DeviceSummary], wanted: Option<&str>) -> Result<Opt
         Some(w) => {
             let by_index = w.parse::<usize>().ok();
             let lw = w.to_lowercase();
-            list.iter()
-                .find(|c| Some(c.index) == by_index || c.name.to_lowercase().contains(&lw))
-                .ok_or_else(|| GpuError::DeviceNotFound { wanted: w.to_string(), available: available() })?
+            list.iter().find(|c| Some(c.index) == by_index || c.name.to_lowercase().contains(&lw)).ok_or_else(|| {
+                GpuError::DeviceNotFound { wanted: w.to_string(), available: available(), from: "--device" }
+            })?
         }
         None => list
             .iter()
@@ -782,12 +834,19 @@ impl Gpu {
         log: Arc<ValidationLog>,
         opts: &GpuOptions,
     ) -> Result<Gpu> {
-        let chosen = choose(candidates(&instance)?, opts.device.as_deref())?;
+        // Say where the name came from: the flag, or an environment variable set long ago.
+        let chosen =
+            choose(candidates(&instance)?, opts.device.as_deref()).map_err(|e| e.named_by(opts.device_from))?;
         let pd = chosen.physical;
         let mut mapping = chosen.summary.mapping.expect("checked by missing_features");
         if let Some(q) = opts.queues.as_deref() {
-            mapping = super::queues::map_roles_named(&chosen.summary.queue_families, q)
-                .map_err(|reason| GpuError::Queues { choice: q.into(), device: chosen.summary.name.clone(), reason })?;
+            mapping = super::queues::map_roles_named(&chosen.summary.queue_families, q).map_err(|reason| {
+                GpuError::Queues {
+                    choice: super::error::naming(opts.queues_from, q),
+                    device: chosen.summary.name.clone(),
+                    reason,
+                }
+            })?;
         }
 
         let features = Features::of(&instance, pd, opts);

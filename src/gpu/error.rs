@@ -15,8 +15,14 @@ pub enum GpuError {
         `tools/setup-deps`"
     )]
     NoDevice,
-    #[error("no Vulkan device matches --device {wanted:?}; available: {available}")]
-    DeviceNotFound { wanted: String, available: String },
+    #[error(
+        "no Vulkan driver found (vkCreateInstance: ERROR_INCOMPATIBLE_DRIVER){listed}; install one (CPU fallback: \
+        apt-get install mesa-vulkan-drivers) or run `tools/setup-deps`"
+    )]
+    NoDriver { listed: String },
+    /// `from`: the flag (`--device`) or environment variable (`SCATTERLAB_DEVICE`) that named it.
+    #[error("no Vulkan device matches {}; available: {available}", naming(from, wanted))]
+    DeviceNotFound { wanted: String, available: String, from: &'static str },
     #[error("device {device:?} lacks required feature {feature}; {hint}")]
     MissingFeature { device: String, feature: String, hint: String },
     #[error(
@@ -57,10 +63,35 @@ pub enum GpuError {
         shader fault)"
     )]
     DeviceLost { passes: String },
-    #[error("--queues {choice}: device {device:?} cannot: {reason}; use --queues auto or shared")]
+    /// `choice` as named: `--queues X` or `SCATTERLAB_QUEUES=X` ([`naming`]).
+    #[error("{choice}: device {device:?} cannot: {reason}; use --queues auto or shared")]
     Queues { choice: String, device: String, reason: String },
     #[error("buffer {name:?}: read of {wanted} bytes at offset {offset} is outside its {size} bytes")]
     OutOfRange { name: String, offset: u64, wanted: u64, size: u64 },
+}
+
+/// A value as the user gave it: `--device x` (quoted where it has spaces) for a flag, `SCATTERLAB_DEVICE=x` for an
+/// environment variable (which a user may have set long ago and forgotten).
+pub fn naming(from: &str, value: &str) -> String {
+    if from.starts_with("--") {
+        if value.is_empty() || value.contains(char::is_whitespace) {
+            format!("{from} {value:?}")
+        } else {
+            format!("{from} {value}")
+        }
+    } else {
+        format!("{from}={value}")
+    }
+}
+
+impl GpuError {
+    /// A device not found, said as named by `from` (`--device` or `SCATTERLAB_DEVICE`).
+    pub fn named_by(self, from: &'static str) -> GpuError {
+        match self {
+            GpuError::DeviceNotFound { wanted, available, .. } => GpuError::DeviceNotFound { wanted, available, from },
+            e => e,
+        }
+    }
 }
 
 pub type Result<T, E = GpuError> = std::result::Result<T, E>;
