@@ -414,18 +414,18 @@ fn frame_ranges_render_their_own_frames_and_their_csvs_merge_in_order() {
     let d = tmp.path();
     let scene = repo("scenes/cloud.toml");
     let seq = d.join("seq");
-    let animate = |range: &str| {
+    let animate_into = |range: &str, degrees: &str, dir: &std::path::Path| {
         ok(&[
             "animate",
             &scene,
             "--solver",
             "networks",
             "--orbit-light",
-            "15",
+            degrees,
             "--frame-range",
             range,
             "--out-dir",
-            seq.to_str().unwrap(),
+            dir.to_str().unwrap(),
             "--no-reference",
             "--validate",
             "--quiet",
@@ -439,6 +439,7 @@ fn frame_ranges_render_their_own_frames_and_their_csvs_merge_in_order() {
             "networks.directions=16",
         ]);
     };
+    let animate = |range: &str| animate_into(range, "15", &seq);
     animate("2..4");
     animate("0..2");
     for f in
@@ -477,4 +478,38 @@ fn frame_ranges_render_their_own_frames_and_their_csvs_merge_in_order() {
     std::fs::write(d.join("gap.csv"), format!("{head}\n{row}\n")).unwrap();
     let err = refused(&["merge", "--csv", &out, &csv("frames-0-2.csv"), &d.join("gap.csv").display().to_string()], d);
     assert!(err.contains("gap: frame 2"), "{err}");
+
+    // Frames of another sequence share the columns but not the `sequence` column: the same
+    // solver with the light turning 20 degrees a frame, and (the file edited) another solver.
+    let (solver_at, sequence_at) = {
+        let cols: Vec<&str> = head.split(',').collect();
+        (cols.iter().position(|c| *c == "solver").unwrap(), cols.iter().position(|c| *c == "sequence").unwrap())
+    };
+    let sequences: Vec<String> = [a.clone(), b.clone()].concat().iter().map(|r| r[sequence_at].clone()).collect();
+    assert!(sequences.iter().all(|x| x.len() == 12 && *x == sequences[0]), "one sequence: {sequences:?}");
+    assert!(a.iter().all(|r| r[solver_at] == "networks"));
+    let other = d.join("other");
+    animate_into("2..3", "20", &other);
+    let err = refused(
+        &["merge", "--csv", &out, &csv("frames-0-2.csv"), &other.join("frames-2-3.csv").display().to_string()],
+        d,
+    );
+    assert!(err.contains("frames of different sequences") && err.contains("both networks"), "{err}");
+    let edited: String = std::fs::read_to_string(seq.join("frames-2-4.csv"))
+        .unwrap()
+        .lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i == 0 {
+                return format!("{l}\n");
+            }
+            let mut cells: Vec<String> = l.split(',').map(String::from).collect();
+            cells[solver_at] = "dom".into();
+            cells[sequence_at] = "0123456789ab".into();
+            cells.join(",") + "\n"
+        })
+        .collect();
+    std::fs::write(d.join("dom.csv"), edited).unwrap();
+    let err = refused(&["merge", "--csv", &out, &csv("frames-0-2.csv"), &d.join("dom.csv").display().to_string()], d);
+    assert!(err.contains("solver networks against dom") && err.contains("0123456789ab"), "{err}");
 }

@@ -32,6 +32,14 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     let settings = Settings::new(&knob_sets);
     solvers::check_settings(&settings, &[solver])?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions::default())?;
+    let text = std::fs::read_to_string(&a.scene).map_err(|e| anyhow!("{}: {e}", a.scene.display()))?;
+    let sequence = animate::sequence_id(
+        solver.name(),
+        &crate::scene::content_hash(&text, &scene),
+        &a.set,
+        a.orbit_light,
+        !a.no_reference,
+    );
     if let Some(why) = solver.scene_refusal(&scene) {
         bail!("{}: {why}", a.scene.display());
     }
@@ -113,7 +121,9 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     let mut said = std::collections::HashSet::new();
     let mut on_frame = |image: &output::Image, out: &solvers::RenderOutput, row: &animate::FrameRow| {
         // A closed channel: the writer stopped on an error, reported after the join.
-        tx.send((image.clone(), row.clone())).map_err(|_| "the frame writer stopped".to_string())?;
+        let labelled =
+            animate::FrameRow { solver: solver.name().to_string(), sequence: sequence.clone(), ..row.clone() };
+        tx.send((image.clone(), labelled)).map_err(|_| "the frame writer stopped".to_string())?;
         bar.inc(1);
         for w in &out.report.warnings {
             if said.insert(w.clone()) {

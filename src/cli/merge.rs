@@ -344,13 +344,15 @@ fn reproduce(prov: &Provenance, contiguous: bool, merged: &[Merged]) -> String {
 }
 
 /// `merge --csv OUT.csv IN.csv...`: animation frame ranges' frames.csv, concatenated in frame
-/// order after checking that they share one header and that their frames neither overlap nor
-/// leave a gap.
+/// order after checking that they share one header, are of one sequence (their `sequence`
+/// column), and that their frames neither overlap nor leave a gap.
 fn merge_csv(a: &MergeArgs) -> Result<()> {
     check_output_path(&a.out, "merge output", &["csv"])?;
     check_not_an_input(&a.out, &a.inputs)?;
     let mut header: Option<(PathBuf, String)> = None;
     let mut frames: BTreeMap<u64, (PathBuf, String)> = BTreeMap::new();
+    // The first row's file, solver and sequence digest: every row must be of that sequence.
+    let mut sequence: Option<(PathBuf, String, String)> = None;
     for p in &a.inputs {
         let text = std::fs::read_to_string(p).map_err(|e| anyhow!("{}: {e}; nothing written", p.display()))?;
         let mut lines = text.lines();
@@ -369,7 +371,31 @@ fn merge_csv(a: &MergeArgs) -> Result<()> {
             ),
             Some(_) => {}
         }
+        let column = |name: &str| head.split(',').position(|c| c == name);
+        let (solver_at, sequence_at) = (column("solver"), column("sequence"));
         for (n, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+            // Frames of another solver, scene, --set or --orbit-light share the columns but not
+            // the sequence: joined, they would read as one sequence's figures.
+            if let Some(at) = sequence_at {
+                let cells: Vec<&str> = line.split(',').collect();
+                let cell = |i: Option<usize>| i.and_then(|i| cells.get(i)).map_or("", |c| c.trim()).to_string();
+                let (solver, digest) = (cell(solver_at), cell(Some(at)));
+                match &sequence {
+                    None => sequence = Some((p.clone(), solver, digest)),
+                    Some((first, first_solver, first_digest)) if *first_digest != digest => bail!(
+                        "{} and {} are frames of different sequences ({}; the sequence column {first_digest} against \
+                         {digest}: another solver, scene, --set, --orbit-light or engine build); nothing written",
+                        first.display(),
+                        p.display(),
+                        if *first_solver != solver {
+                            format!("solver {first_solver} against {solver}")
+                        } else {
+                            format!("both {solver}")
+                        }
+                    ),
+                    Some(_) => {}
+                }
+            }
             let frame: u64 = line
                 .split(',')
                 .next()

@@ -44,6 +44,12 @@ pub struct FrameRow {
     /// Host time writing the frame's files, ms (`scatterlab animate` writes them on a thread of
     /// their own while the next frame computes; empty where nothing was written).
     pub write_ms: Option<f64>,
+    /// The solver, and what the sequence is: a digest of the engine, solver, scene (its content:
+    /// [`crate::scene::content_hash`]), `--set` values, `--orbit-light` and reference choice,
+    /// the same for every frame range of one sequence (`merge --csv` refuses to join frames
+    /// of different ones). Empty where the caller gave none.
+    pub solver: String,
+    pub sequence: String,
 }
 
 /// What a sequence asks for.
@@ -147,6 +153,8 @@ pub fn run_sequences(
             energy_ratio: None,
             reference_iterations: None,
             write_ms: None,
+            solver: String::new(),
+            sequence: String::new(),
         };
         if let Some(r) = &mut reference {
             let truth = r.frame(gpu, &s, &|_| {}).map_err(|e| e.to_string())?;
@@ -161,6 +169,26 @@ pub fn run_sequences(
         rows.push(row);
     }
     Ok(rows)
+}
+
+/// What identifies a sequence across its frame ranges ([`FrameRow::sequence`]): 12 hex
+/// digits of SHA-256 over the engine, solver, scene digest, the `--set` values as given (in
+/// order), the degrees per frame and whether frames are measured against converged ones.
+pub fn sequence_id(solver: &str, scene_hash: &str, sets: &[String], step_deg: f64, reference: bool) -> String {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    for part in [crate::output::engine().as_str(), solver, scene_hash] {
+        h.update((part.len() as u64).to_le_bytes());
+        h.update(part.as_bytes());
+    }
+    h.update((sets.len() as u64).to_le_bytes());
+    for s in sets {
+        h.update((s.len() as u64).to_le_bytes());
+        h.update(s.as_bytes());
+    }
+    h.update(step_deg.to_le_bytes());
+    h.update([reference as u8]);
+    h.finalize().iter().take(6).map(|b| format!("{b:02x}")).collect()
 }
 
 /// `frames.csv`: one row per frame.
