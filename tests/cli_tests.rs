@@ -856,6 +856,35 @@ fn environment_values_are_checked_and_named() {
     }
 }
 
+/// Where stderr is not a terminal (here: a pipe) no progress bar is drawn: plain progress lines
+/// at most every `--progress-every` seconds (0: every update) keep a long render from being
+/// silent in a CI log or a batch job's file; the default (30 s) prints none on a quick render,
+/// and `-q` none at all.
+#[test]
+fn progress_lines_where_stderr_is_not_a_terminal() {
+    let c = Case::new();
+    let s = c.scene(&base());
+    let args = |extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = c.render_args(&s, &TINY).into_iter().filter(|a| a != "-q").collect();
+        v.extend(["--solver", "dom", "--set", "dom.grid=16"].iter().map(|x| x.to_string()));
+        v.extend(extra.iter().map(|x| x.to_string()));
+        v
+    };
+    let (_, stderr) = succeeded(&c.run(args(&["--progress-every", "0"])));
+    let lines: Vec<&str> = stderr.lines().filter(|l| l.starts_with("progress: dom ")).collect();
+    assert!(lines.len() >= 2, "{stderr}");
+    assert!(lines.iter().any(|l| l.contains("scattering iterations") && l.contains("tolerance")), "{stderr}");
+    assert!(lines.iter().all(|l| l.ends_with(" s)")), "{stderr}");
+    let (_, stderr) = succeeded(&c.run(args(&[])));
+    assert!(!stderr.contains("progress:"), "a quick render within 30 s: {stderr}");
+    let (_, stderr) = succeeded(&c.run(args(&["--progress-every", "0", "-q"])));
+    assert!(!stderr.contains("progress:"), "{stderr}");
+    let out = c.run(args(&["--progress-every", "nan"]));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "a usage error: {stderr}");
+    assert!(stderr.contains("--progress-every") && stderr.contains("seconds >= 0"), "{stderr}");
+}
+
 /// `--queues`: a mapping the device cannot give is one line naming the flag, the device and
 /// its families, and nothing is written; one it can give is used and reported.
 #[test]

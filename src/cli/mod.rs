@@ -296,6 +296,13 @@ pub enum SceneCommand {
     },
 }
 
+fn non_negative_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a number of seconds >= 0")),
+    }
+}
+
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// Scene file (TOML, format v1: docs/scene-format.md).
@@ -367,6 +374,11 @@ pub struct RenderArgs {
     /// No progress bar or summary.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Where stderr is not a terminal (a CI log, a batch job's output file), where no progress
+    /// bar is drawn: a plain progress line at most every SECONDS (the first after SECONDS), so
+    /// a long render is not silent there. 0: every update.
+    #[arg(long, value_name = "SECONDS", default_value_t = 30.0, value_parser = non_negative_seconds)]
+    pub progress_every: f64,
     #[command(flatten)]
     pub gpu: GpuArgs,
 }

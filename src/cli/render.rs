@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Result};
+use std::io::IsTerminal;
+
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
@@ -262,8 +264,22 @@ fn run(
     bar.set_message(name.clone());
     bar.enable_steady_tick(std::time::Duration::from_millis(150));
     let stage_now = std::cell::Cell::new("");
+    // Where stderr is not a terminal indicatif draws nothing: a plain line at most every
+    // --progress-every seconds there, so a render of minutes is not silent in a CI log or a
+    // batch job's file (dom at g 0.999 ran 2 minutes on a 32^2 render without a line).
+    let plain = !a.quiet && !std::io::stderr().is_terminal();
+    let started = std::time::Instant::now();
+    let last_line = std::cell::Cell::new(started);
+    let every = std::time::Duration::from_secs_f64(a.progress_every);
+    let line = |text: &dyn Fn() -> String| {
+        if plain && last_line.get().elapsed() >= every {
+            last_line.set(std::time::Instant::now());
+            eprintln!("progress: {} ({:.1} s)", text(), started.elapsed().as_secs_f64());
+        }
+    };
     let progress = |p: Progress| match p {
         Progress::Work { stage, done, total } => {
+            line(&|| format!("{name}: {stage} {done}/{total}"));
             if stage_now.replace(stage) != stage {
                 // A new stage: its own rate, so the ETA is not one of the last stage's.
                 bar.reset();
@@ -278,7 +294,9 @@ fn run(
                 bar.set_style(spin_style.clone());
             }
             let left = remaining.map(|r| format!(", about {r} more at the measured decay")).unwrap_or_default();
-            bar.set_message(format!("{name}: {stage} {iteration}, change {change:.1e} (tolerance {tol:.0e}){left}"));
+            let text = format!("{name}: {stage} {iteration}, change {change:.1e} (tolerance {tol:.0e}){left}");
+            line(&|| text.clone());
+            bar.set_message(text);
             bar.tick();
         }
     };
