@@ -737,3 +737,32 @@ fn a_width_scale_below_one_poisson_radius_is_named_and_is_wrong() {
     assert!(errors[2] > 2.0 * errors[0] && errors[3] > 2.0 * errors[0], "the narrow widths are wrong: {errors:?}");
     assert_clean(&gpu);
 }
+
+/// The sampler draws the requested count within 10% however thin the medium: where the
+/// samples' disks are wider than the slab is thick the count goes as r0^-2, not r0^-3, and
+/// rescaling r0 by the cube root of the count's ratio left a slab 1e-7 thick with 65261
+/// samples for 4000 (16x: 31 MB of sample set, 4.9 s of preprocessing); the rescaling now
+/// measures the exponent from its last two draws.
+#[test]
+fn poisson_draws_the_requested_count_on_thin_slabs() {
+    let dir = tempfile::tempdir().unwrap();
+    for thickness in [1e-7f32, 1e-5, 1e-3, 0.1, 1.0] {
+        let s = box_object(
+            dir.path(),
+            Vec3::new(-0.5, -0.5, -0.5),
+            Vec3::new(0.5, 0.5, -0.5 + thickness),
+            "sigma_t = 10.0\nalbedo = 0.9",
+        );
+        let o = s.object.as_ref().unwrap();
+        for heuristic in [Heuristic::Depth, Heuristic::Divergence] {
+            let (samples, _) = poisson_draw(o, 4000, 1, heuristic, Placement::Volume);
+            let ratio = samples.len() as f64 / 4000.0;
+            eprintln!("thickness {thickness:e}, {heuristic:?}: {} samples", samples.len());
+            assert!(
+                (ratio - 1.0).abs() < 0.1,
+                "thickness {thickness:e}, {heuristic:?}: {} samples for 4000",
+                samples.len()
+            );
+        }
+    }
+}
