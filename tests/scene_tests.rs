@@ -610,6 +610,8 @@ fn scene_override_errors() {
             &["`light` is an array (there is 1 entry)", &format!("not `{index}`"), "light.0.intensity"],
         );
     }
+    let msg = message(with_overrides(&[("light.x", "{ kind = \"point\" }")]));
+    assert_mentions(&msg, &["`light` is an array (there is 1 entry)", "not `x`", "e.g. light.0"]);
     // serde's own type names (RawLight, RawMedium, ...) never reach the user.
     for (key, value, expected) in [
         ("light.0", "5", "expected a table with a `kind` key"),

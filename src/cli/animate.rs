@@ -28,6 +28,15 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
         None => (0, a.frames),
     };
     let sets = parse_sets(&a.set)?;
+    // What the --set values make, for the sequence's identity: the last value of each key (the
+    // one applied), in key order, so ranges given the same values in another order agree.
+    let effective: Vec<String> = sets
+        .iter()
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect::<std::collections::BTreeMap<String, String>>()
+        .into_iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect();
     let (scene_sets, knob_sets): (Vec<_>, Vec<_>) = sets.into_iter().partition(|(k, _)| is_scene_key(k));
     let settings = Settings::new(&knob_sets);
     solvers::check_settings(&settings, &[solver])?;
@@ -36,7 +45,7 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     let sequence = animate::sequence_id(
         solver.name(),
         &crate::scene::content_hash(&text, &scene),
-        &a.set,
+        &effective,
         a.orbit_light,
         !a.no_reference,
     );

@@ -45,7 +45,7 @@ pub struct FrameRow {
     /// their own while the next frame computes; empty where nothing was written).
     pub write_ms: Option<f64>,
     /// The solver, and what the sequence is: a digest of the engine, solver, scene (its content:
-    /// [`crate::scene::content_hash`]), `--set` values, `--orbit-light` and reference choice,
+    /// [`crate::scene::content_hash`]), `--set` values in effect, `--orbit-light` and reference choice,
     /// the same for every frame range of one sequence (`merge --csv` refuses to join frames
     /// of different ones). Empty where the caller gave none.
     pub solver: String,
@@ -172,8 +172,9 @@ pub fn run_sequences(
 }
 
 /// What identifies a sequence across its frame ranges ([`FrameRow::sequence`]): 12 hex
-/// digits of SHA-256 over the engine, solver, scene digest, the `--set` values as given (in
-/// order), the degrees per frame and whether frames are measured against converged ones.
+/// digits of SHA-256 over the engine, solver, scene digest, the `--set` values in effect
+/// (`key=value`, the caller's order), the degrees per frame and whether frames are measured
+/// against converged ones.
 pub fn sequence_id(solver: &str, scene_hash: &str, sets: &[String], step_deg: f64, reference: bool) -> String {
     use sha2::{Digest, Sha256};
     let mut h = Sha256::new();

@@ -1541,9 +1541,17 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
     }
     match last {
         Segment::Key(name) => {
-            let table = current
-                .as_table_mut()
-                .ok_or_else(|| format!("`{walked}` is not a table, so it has no key `{name}`"))?;
+            let table = match current {
+                toml::Value::Table(t) => t,
+                // `light.x=...`: an array's entries are set by index.
+                toml::Value::Array(a) => {
+                    return Err(format!(
+                        "`{walked}` is an array ({}), indexed by a number from 0, not `{name}`: e.g. {walked}.0",
+                        count(a.len())
+                    ))
+                }
+                _ => return Err(format!("`{walked}` is not a table, so it has no key `{name}`")),
+            };
             table.insert(name.clone(), value);
         }
         Segment::Index(i) => {
