@@ -877,6 +877,23 @@ fn progress_lines_where_stderr_is_not_a_terminal() {
     assert!(lines.iter().all(|l| l.ends_with(" s)")), "{stderr}");
     let (_, stderr) = succeeded(&c.run(args(&[])));
     assert!(!stderr.contains("progress:"), "a quick render within 30 s: {stderr}");
+    // `single` is one resumable pass: its lines count the pixels finished, submission by
+    // submission (a budget of 16 loop iterations a dispatch takes several).
+    let mut single: Vec<String> = c.render_args(&s, &TINY).into_iter().filter(|a| a != "-q").collect();
+    single.extend(["--solver", "single", "--set", "single.budget=16", "--progress-every", "0"].map(String::from));
+    let (_, stderr) = succeeded(&c.run(single));
+    let counts: Vec<(u64, u64)> = stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix("progress: single "))
+        .filter_map(|l| l.split("view pass: pixels ").nth(1))
+        .filter_map(|l| l.split(' ').next())
+        .filter_map(|f| f.split_once('/'))
+        .map(|(a, b)| (a.parse().unwrap(), b.parse().unwrap()))
+        .collect();
+    assert!(counts.iter().all(|(_, n)| *n == 256), "{stderr}");
+    assert!(counts.windows(2).all(|w| w[0].0 <= w[1].0), "pixels done never fall: {counts:?}");
+    assert!(counts.iter().any(|(k, n)| *k > 0 && k < n), "a line between the start and the end: {stderr}");
+    assert_eq!(counts.last(), Some(&(256, 256)), "{stderr}");
     let (_, stderr) = succeeded(&c.run(args(&["--progress-every", "0", "-q"])));
     assert!(!stderr.contains("progress:"), "{stderr}");
     let out = c.run(args(&["--progress-every", "nan"]));

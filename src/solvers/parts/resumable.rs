@@ -71,6 +71,20 @@ pub fn run_until_done(
     rounds: &mut u32,
     make_pass: impl Fn(u32) -> Pass,
 ) -> Result<(u64, Vec<u32>), SolverError> {
+    run_until_done_reporting(gpu, role, solver, stats, rounds, make_pass, &|_| {})
+}
+
+/// [`run_until_done`], telling `left` after each submission that leaves work: the invocations
+/// with work left after its last dispatch (a progress line for a long pass).
+pub fn run_until_done_reporting(
+    gpu: &Gpu,
+    role: QueueRole,
+    solver: &str,
+    stats: &Buffer,
+    rounds: &mut u32,
+    make_pass: impl Fn(u32) -> Pass,
+    left: &dyn Fn(u64),
+) -> Result<(u64, Vec<u32>), SolverError> {
     let mut dispatches = 0u64;
     let mut n = (*rounds).clamp(1, ROUNDS_PER_SUBMIT);
     loop {
@@ -97,6 +111,7 @@ pub fn run_until_done(
             return Ok((dispatches + n as u64, st));
         }
         dispatches += n as u64;
+        left(st[3 + n as usize - 1] as u64);
         n = ROUNDS_PER_SUBMIT;
     }
 }

@@ -429,6 +429,20 @@ pub fn march(
     v: &ViewSettings,
     ms: Option<&MsVolume>,
 ) -> Result<ViewResult, SolverError> {
+    march_reporting(gpu, scene, gs, v, ms, &|_| {})
+}
+
+/// [`march`], reporting the pixels done after each submission of its resumable march (stage
+/// "view pass: pixels"): a `single` render with heavy knobs (supersampling, many environment
+/// directions, a shadow march) spends minutes in this one pass.
+pub fn march_reporting(
+    gpu: &Gpu,
+    scene: &Scene,
+    gs: &GpuScene,
+    v: &ViewSettings,
+    ms: Option<&MsVolume>,
+    progress: &dyn Fn(Progress),
+) -> Result<ViewResult, SolverError> {
     let (w, h) = (scene.render.width, scene.render.height);
     // The mesh's constants from what the scene modelled (render_alone has taken
     // `refraction=false` into it).
@@ -497,37 +511,46 @@ pub fn march(
     let shadow_ref = shadow_buf.as_ref().or(unused.as_ref()).expect("made when there is no shadow volume");
     let seed = scene.render.seed;
     let mut rounds = resumable::ROUNDS_PER_SUBMIT; // one run: nothing to learn from
-    let (dispatches, st) = resumable::run_until_done(gpu, QueueRole::Trace, "view", &stats, &mut rounds, |slot| {
-        let push = ViewPush {
-            step: v.step,
-            shadow_step: v.shadow_step,
-            env_dirs: v.env_dirs,
-            jitter: v.jitter,
-            seed_lo: seed as u32,
-            seed_hi: (seed >> 32) as u32,
-            supersample: v.supersample,
-            budget: v.budget,
-            slot,
-            ms_flux,
-            ms_only: !direct as u32,
-            ms_forward,
-            ms_dims,
-            ms_origin,
-            octave: [o.a, o.b, o.c, if o.bounded { 1.0 } else { 0.0 }],
-            shadow_dims,
-            ms_window,
-        };
-        gs.bind_emission(gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline)))
-            .write(3, &out)
-            .read_write(4, &stats)
-            .read_write(5, &state)
-            .read(6, ms_buf)
-            .read(7, shadow_ref)
-            .read(VIEW_MESH_NODES_BINDING, &gs.mesh_nodes)
-            .read(VIEW_MESH_TRIS_BINDING, &gs.mesh_tris)
-            .push(&push)
-            .cover([w, h, 1])
-    })?;
+    let left = |n: u64| progress(Progress::work(VIEW_STAGE, pixels.saturating_sub(n), pixels));
+    let (dispatches, st) = resumable::run_until_done_reporting(
+        gpu,
+        QueueRole::Trace,
+        "view",
+        &stats,
+        &mut rounds,
+        |slot| {
+            let push = ViewPush {
+                step: v.step,
+                shadow_step: v.shadow_step,
+                env_dirs: v.env_dirs,
+                jitter: v.jitter,
+                seed_lo: seed as u32,
+                seed_hi: (seed >> 32) as u32,
+                supersample: v.supersample,
+                budget: v.budget,
+                slot,
+                ms_flux,
+                ms_only: !direct as u32,
+                ms_forward,
+                ms_dims,
+                ms_origin,
+                octave: [o.a, o.b, o.c, if o.bounded { 1.0 } else { 0.0 }],
+                shadow_dims,
+                ms_window,
+            };
+            gs.bind_emission(gs.bind(Pass::new("view.march", QueueRole::Trace, &pipeline)))
+                .write(3, &out)
+                .read_write(4, &stats)
+                .read_write(5, &state)
+                .read(6, ms_buf)
+                .read(7, shadow_ref)
+                .read(VIEW_MESH_NODES_BINDING, &gs.mesh_nodes)
+                .read(VIEW_MESH_TRIS_BINDING, &gs.mesh_tris)
+                .push(&push)
+                .cover([w, h, 1])
+        },
+        &left,
+    )?;
     let px: Vec<[f32; 4]> = gpu.read_buffer_as(&out)?;
     let mut image = Image::new(w, h);
     for (i, p) in px.iter().enumerate() {
@@ -559,6 +582,9 @@ pub fn trust_summary(solver: &str, report: &RenderReport) -> Vec<String> {
     report.detail::<ViewStats>().map(|s| vec![format!("{solver}: {}", s.trust.line())]).unwrap_or_default()
 }
 
+/// The progress stage of the view pass (its unit: pixels finished).
+const VIEW_STAGE: &str = "view pass: pixels";
+
 /// A render that is the view pass alone, with settings `v` read from `k` (`single`,
 /// `octaves`): upload the scene, march, report.
 pub fn render_alone(
@@ -583,9 +609,10 @@ pub fn render_alone(
     // Refraction turned off: the march's kernel is specialised without it (march reads the
     // modelled set), and the report says the boundary was taken as index-matched.
     gs.modelled.refractive &= v.refraction;
-    (req.progress)(Progress::work("view pass", 0, 1));
-    let view = march(gpu, scene, &gs, v, None)?;
-    (req.progress)(Progress::work("view pass", 1, 1));
+    let pixels = scene.render.width as u64 * scene.render.height as u64;
+    (req.progress)(Progress::work(VIEW_STAGE, 0, pixels));
+    let view = march_reporting(gpu, scene, &gs, v, None, req.progress)?;
+    (req.progress)(Progress::work(VIEW_STAGE, pixels, pixels));
     let trust = ViewTrust::of(scene, v);
     let mut stats = Stats::new(ViewStats {
         octaves: v.octaves.n,
