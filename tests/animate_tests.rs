@@ -224,6 +224,8 @@ fn animate_writes_frames_and_a_csv_and_refuses_in_one_line() {
     );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(0), "{stderr}");
+    // stderr is a pipe: no progress bar, and no plain progress line within 30 s (the default).
+    assert!(!stderr.contains("progress:"), "{stderr}");
     for f in ["frame-0000.exr", "frame-0001.exr", "frame-0000.png", "frame-0001.png", "frames.csv"] {
         assert!(dir.path().join("seq").join(f).is_file(), "{f} missing; stderr:\n{stderr}");
     }
@@ -237,6 +239,42 @@ fn animate_writes_frames_and_a_csv_and_refuses_in_one_line() {
     assert!(rows[1][col("rel_l2")].parse::<f64>().unwrap() > 0.0);
     let img = scatterlab::output::read_exr(&dir.path().join("seq/frame-0001.exr")).unwrap();
     assert_eq!((img.width, img.height), (16, 16));
+
+    // With --progress-every 0 the iterations within a frame show where no terminal is.
+    let out = bin(
+        dir.path(),
+        &[
+            "animate",
+            scene,
+            "--solver",
+            "networks",
+            "--orbit-light",
+            "15",
+            "--frames",
+            "1",
+            "--no-reference",
+            "--out-dir",
+            "seq-progress",
+            "--progress-every",
+            "0",
+            "--set",
+            "render.width=16",
+            "--set",
+            "render.height=16",
+            "--set",
+            "networks.particles=128",
+            "--set",
+            "networks.directions=16",
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert!(
+        stderr
+            .lines()
+            .any(|l| l.starts_with("progress: networks ") && l.contains("iteration") && l.contains("tolerance")),
+        "{stderr}"
+    );
 
     let sky = dir.path().join("sky.toml");
     std::fs::write(

@@ -86,13 +86,17 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     );
     bar.set_message(format!("{} {}", solver.name(), a.scene.display()));
     bar.enable_steady_tick(std::time::Duration::from_millis(150));
+    // A cold first frame can take minutes: plain lines where there is no terminal, as render's.
+    let plain = super::args::PlainProgress::new(a.quiet, a.progress_every);
     let progress = |p: Progress| {
         if let Progress::Converging { iteration, change, tol, .. } = p {
-            bar.set_message(format!(
+            let text = format!(
                 "{} {}: iteration {iteration}, change {change:.1e} (tolerance {tol:.0e})",
                 solver.name(),
                 a.scene.display()
-            ));
+            );
+            plain.line(&|| text.clone());
+            bar.set_message(text);
         }
     };
     let exposure = scene.render.exposure;

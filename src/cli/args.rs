@@ -54,6 +54,37 @@ pub(super) fn gpu_options(a: &GpuArgs) -> GpuOptions {
     o
 }
 
+/// Plain progress lines where stderr is not a terminal (a CI log, a batch job's file), where
+/// indicatif draws nothing: at most one every `every`, the first after `every`, so a long run
+/// is not silent there. Inactive with `quiet` or on a terminal (the bar shows progress there).
+pub(super) struct PlainProgress {
+    active: bool,
+    every: std::time::Duration,
+    started: std::time::Instant,
+    last: std::cell::Cell<std::time::Instant>,
+}
+
+impl PlainProgress {
+    pub(super) fn new(quiet: bool, every_s: f64) -> PlainProgress {
+        use std::io::IsTerminal;
+        let started = std::time::Instant::now();
+        PlainProgress {
+            active: !quiet && !std::io::stderr().is_terminal(),
+            every: std::time::Duration::from_secs_f64(every_s),
+            started,
+            last: std::cell::Cell::new(started),
+        }
+    }
+
+    /// Print `text()` as a `progress:` line with the time since the start, if one is due.
+    pub(super) fn line(&self, text: &dyn Fn() -> String) {
+        if self.active && self.last.get().elapsed() >= self.every {
+            self.last.set(std::time::Instant::now());
+            eprintln!("progress: {} ({:.1} s)", text(), self.started.elapsed().as_secs_f64());
+        }
+    }
+}
+
 /// The environment variables the GPU options read, checked before any command runs: a value
 /// one cannot take is an error naming the variable (set long ago and forgotten, or misspelt),
 /// never silently read as something else (SCATTERLAB_VALIDATE=banana turned validation on,

@@ -142,6 +142,11 @@ pub struct AnimateArgs {
     /// No progress bar and no per-frame lines.
     #[arg(long)]
     pub quiet: bool,
+    /// Where stderr is not a terminal (a CI log, a batch job's output file): a plain progress
+    /// line within a frame at most every SECONDS (the first after SECONDS; the per-frame lines
+    /// come regardless). 0: every update.
+    #[arg(long, value_name = "SECONDS", default_value_t = 30.0, value_parser = non_negative_seconds)]
+    pub progress_every: f64,
     #[command(flatten)]
     pub gpu: GpuArgs,
 }

@@ -6,8 +6,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Result};
-use std::io::IsTerminal;
-
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
@@ -267,16 +265,8 @@ fn run(
     // Where stderr is not a terminal indicatif draws nothing: a plain line at most every
     // --progress-every seconds there, so a render of minutes is not silent in a CI log or a
     // batch job's file (dom at g 0.999 ran 2 minutes on a 32^2 render without a line).
-    let plain = !a.quiet && !std::io::stderr().is_terminal();
-    let started = std::time::Instant::now();
-    let last_line = std::cell::Cell::new(started);
-    let every = std::time::Duration::from_secs_f64(a.progress_every);
-    let line = |text: &dyn Fn() -> String| {
-        if plain && last_line.get().elapsed() >= every {
-            last_line.set(std::time::Instant::now());
-            eprintln!("progress: {} ({:.1} s)", text(), started.elapsed().as_secs_f64());
-        }
-    };
+    let plain = super::args::PlainProgress::new(a.quiet, a.progress_every);
+    let line = |text: &dyn Fn() -> String| plain.line(text);
     let progress = |p: Progress| match p {
         Progress::Work { stage, done, total } => {
             line(&|| format!("{name}: {stage} {done}/{total}"));
