@@ -103,7 +103,7 @@ pub(super) fn check_environment() -> Result<()> {
         }
     }
     if let Some(v) = get(ENV_TIMEOUT) {
-        if !v.parse::<f64>().is_ok_and(|s| s.is_finite() && s > 0.0) {
+        if crate::gpu::timeout_from_env(&v).is_none() {
             bail!("{ENV_TIMEOUT}={v}: expected a positive number of seconds (the default is 300); fix or unset it");
         }
     }

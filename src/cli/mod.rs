@@ -20,7 +20,6 @@ fn solver_names() -> PossibleValuesParser {
     PossibleValuesParser::new(solvers::SOLVERS.iter().map(|s| PossibleValue::new(s.name()).help(s.about())))
 }
 
-/// `--solver`'s default: the registry's reference solver (the ground truth).
 /// `--exposure`: the range `render.exposure` takes (a NaN wrote a black PNG with exit 0).
 fn exposure_stops(text: &str) -> Result<f32, String> {
     match text.trim().parse::<f32>() {
@@ -30,6 +29,7 @@ fn exposure_stops(text: &str) -> Result<f32, String> {
     }
 }
 
+/// `--solver`'s default: the registry's reference solver (the ground truth).
 fn default_solver() -> String {
     solvers::reference().name().into()
 }

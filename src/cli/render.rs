@@ -266,10 +266,9 @@ fn run(
     // --progress-every seconds there, so a render of minutes is not silent in a CI log or a
     // batch job's file (dom at g 0.999 ran 2 minutes on a 32^2 render without a line).
     let plain = super::args::PlainProgress::new(a.quiet, a.progress_every);
-    let line = |text: &dyn Fn() -> String| plain.line(text);
     let progress = |p: Progress| match p {
         Progress::Work { stage, done, total } => {
-            line(&|| format!("{name}: {stage} {done}/{total}"));
+            plain.line(&|| format!("{name}: {stage} {done}/{total}"));
             if stage_now.replace(stage) != stage {
                 // A new stage: its own rate, so the ETA is not one of the last stage's.
                 bar.reset();
@@ -285,7 +284,7 @@ fn run(
             }
             let left = remaining.map(|r| format!(", about {r} more at the measured decay")).unwrap_or_default();
             let text = format!("{name}: {stage} {iteration}, change {change:.1e} (tolerance {tol:.0e}){left}");
-            line(&|| text.clone());
+            plain.line(&|| text.clone());
             bar.set_message(text);
             bar.tick();
         }

@@ -68,8 +68,7 @@ impl Default for GpuOptions {
         // A value it cannot take (the CLI refuses it first) turns validation on: the safer side.
         let validate = std::env::var(ENV_VALIDATE).is_ok_and(|v| !v.is_empty() && validate_from_env(&v) != Some(false));
         let device = std::env::var(ENV_DEVICE).ok().filter(|s| !s.is_empty());
-        let secs =
-            std::env::var(ENV_TIMEOUT).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(300.0);
+        let secs = std::env::var(ENV_TIMEOUT).ok().and_then(|s| timeout_from_env(&s)).unwrap_or(300.0);
         let queues = std::env::var(ENV_QUEUES).ok().filter(|s| !s.is_empty());
         let cache_dir = super::cache::default_cache_dir();
         GpuOptions {
@@ -96,6 +95,12 @@ pub fn validate_from_env(v: &str) -> Option<bool> {
         "0" | "false" | "no" | "off" => Some(false),
         _ => None,
     }
+}
+
+/// `SCATTERLAB_GPU_TIMEOUT`'s value: a finite number of seconds > 0; `None` for anything else
+/// (`inf` too, which `Duration::from_secs_f64` cannot hold).
+pub fn timeout_from_env(v: &str) -> Option<f64> {
+    v.trim().parse::<f64>().ok().filter(|s| s.is_finite() && *s > 0.0)
 }
 
 /// Counts validation messages; error-severity messages fail a test run.

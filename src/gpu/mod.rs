@@ -16,8 +16,8 @@ mod submit;
 
 pub use cache::{default_cache_dir, PipelineCacheStatus, ENV_CACHE_DIR};
 pub use context::{
-    auto_device, choose_device, list_devices, validate_from_env, DeviceInfo, DeviceSummary, Gpu, GpuOptions,
-    ENV_DEVICE, ENV_QUEUES, ENV_SPECIALIZE, ENV_TIMEOUT, ENV_VALIDATE,
+    auto_device, choose_device, list_devices, timeout_from_env, validate_from_env, DeviceInfo, DeviceSummary, Gpu,
+    GpuOptions, ENV_DEVICE, ENV_QUEUES, ENV_SPECIALIZE, ENV_TIMEOUT, ENV_VALIDATE,
 };
 pub use error::{GpuError, Result};
 pub use host::{HostCost, HostTimes};

@@ -1050,11 +1050,10 @@ impl Ctx<'_> {
     /// Each magnitude is held to [`MAGNITUDE_MAX`], so products of two or three stay finite.
     fn magnitudes(&self, scene: &Scene) -> Result<(), SceneError> {
         let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
-        if lo.abs().max(hi.abs()).max_element() > COORDINATE_MAX {
+        let farthest = lo.abs().max(hi.abs()).max_element();
+        if farthest > COORDINATE_MAX {
             // (an object's mesh after its transform: each key was in range, their product not)
-            return Err(
-                self.coordinate_too_large("object (its meshes transformed)", lo.abs().max(hi.abs()).max_element())
-            );
+            return Err(self.coordinate_too_large("object (its meshes transformed)", farthest));
         }
         let materials = scene.object.as_ref().map_or(&[][..], |o| &o.materials[..]);
         let sigma =
@@ -1485,6 +1484,22 @@ fn parse_value(text: &str) -> Result<toml::Value, String> {
     }
 }
 
+/// An array (`walked`, `len` entries) given the word `name` where its index goes, `rest` the
+/// key's segments after it: `light.x.intensity` -> "e.g. light.0.intensity".
+fn indexed_by_word(walked: &str, len: usize, name: &str, rest: &[Segment]) -> String {
+    let example: String = rest
+        .iter()
+        .map(|s| match s {
+            Segment::Key(k) => format!(".{k}"),
+            Segment::Index(j) => format!(".{j}"),
+        })
+        .collect();
+    format!(
+        "`{walked}` is an array ({}), indexed by a number from 0, not `{name}`: e.g. {walked}.0{example}",
+        count(len)
+    )
+}
+
 /// Set `key` (dotted, with `[i]` or `.i` array indices) in the tree. Intermediate tables
 /// must exist; the last key may be new (serde then rejects it if the format lacks it).
 fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result<(), String> {
@@ -1502,20 +1517,7 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
                 let table = match current {
                     toml::Value::Table(t) => t,
                     // `light.x.intensity`: the segment after an array is its index.
-                    toml::Value::Array(a) => {
-                        return Err(format!(
-                            "`{walked}` is an array ({}), indexed by a number from 0, not `{name}`: e.g. {walked}.0.{}",
-                            count(a.len()),
-                            segments[i + 1..]
-                                .iter()
-                                .map(|s| match s {
-                                    Segment::Key(k) => k.clone(),
-                                    Segment::Index(j) => j.to_string(),
-                                })
-                                .collect::<Vec<_>>()
-                                .join(".")
-                        ))
-                    }
+                    toml::Value::Array(a) => return Err(indexed_by_word(&walked, a.len(), name, &segments[i + 1..])),
                     _ => return Err(format!("`{walked}` is not a table, so it has no key `{name}`")),
                 };
                 walked = here;
@@ -1544,12 +1546,7 @@ fn apply_override(root: &mut toml::Value, key: &str, value_text: &str) -> Result
             let table = match current {
                 toml::Value::Table(t) => t,
                 // `light.x=...`: an array's entries are set by index.
-                toml::Value::Array(a) => {
-                    return Err(format!(
-                        "`{walked}` is an array ({}), indexed by a number from 0, not `{name}`: e.g. {walked}.0",
-                        count(a.len())
-                    ))
-                }
+                toml::Value::Array(a) => return Err(indexed_by_word(&walked, a.len(), name, &[])),
                 _ => return Err(format!("`{walked}` is not a table, so it has no key `{name}`")),
             };
             table.insert(name.clone(), value);
