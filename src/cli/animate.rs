@@ -41,10 +41,9 @@ pub fn animate(a: AnimateArgs) -> Result<()> {
     let settings = Settings::new(&knob_sets);
     solvers::check_settings(&settings, &[solver])?;
     let scene = Scene::load(&a.scene, &scene_sets, &LoadOptions::default())?;
-    let text = std::fs::read_to_string(&a.scene).map_err(|e| anyhow!("{}: {e}", a.scene.display()))?;
     let sequence = animate::sequence_id(
         solver.name(),
-        &crate::scene::content_hash(&text, &scene),
+        &super::args::scene_digest(&a.scene, &scene)?,
         &effective,
         a.orbit_light,
         !a.no_reference,

@@ -54,6 +54,13 @@ pub(super) fn gpu_options(a: &GpuArgs) -> GpuOptions {
     o
 }
 
+/// The digest of the scene file `path` as loaded into `scene` ([`crate::scene::content_hash`]):
+/// the file is read again, since `Scene` keeps its values, not its text.
+pub(super) fn scene_digest(path: &Path, scene: &crate::scene::Scene) -> Result<String> {
+    let text = std::fs::read_to_string(path).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    Ok(crate::scene::content_hash(&text, scene))
+}
+
 /// Plain progress lines where stderr is not a terminal (a CI log, a batch job's file), where
 /// indicatif draws nothing: at most one every `every`, the first after `every`, so a long run
 /// is not silent there. Inactive with `quiet` or on a terminal (the bar shows progress there).

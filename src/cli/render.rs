@@ -14,7 +14,7 @@ use super::RenderArgs;
 use crate::gpu::{DeviceInfo, Gpu};
 use crate::measure::timeline::{self, ScheduleComparison, TimelineSummary};
 use crate::output::{self, Staging};
-use crate::scene::{content_hash, is_scene_key, LoadOptions, Scene};
+use crate::scene::{is_scene_key, LoadOptions, Scene};
 use crate::solvers::{self, Progress, RenderOutput, RenderRequest, Settings, Solver};
 
 pub fn render(a: RenderArgs) -> Result<()> {
@@ -125,13 +125,12 @@ fn settings_from_flags(a: &RenderArgs, solver: &dyn Solver) -> Result<(Vec<Strin
 }
 
 /// What made this image ([`output::Provenance`]): the scene's content digest is taken from
-/// the file as loaded (read again: `Scene` keeps its values, not its text).
+/// the file as loaded ([`super::args::scene_digest`]).
 fn provenance(a: &RenderArgs, solver: &dyn Solver, scene: &Scene, overrides: &[String]) -> Result<output::Provenance> {
-    let text = std::fs::read_to_string(&a.scene).map_err(|e| anyhow!("{}: {e}", a.scene.display()))?;
     Ok(output::Provenance {
         engine: output::engine(),
         scene: a.scene.display().to_string(),
-        scene_hash: content_hash(&text, scene),
+        scene_hash: super::args::scene_digest(&a.scene, scene)?,
         overrides: overrides.to_vec(),
         solver: solver.name().to_string(),
         seed: scene.render.seed,
