@@ -43,6 +43,7 @@ fn setup<'a>(c: &'a Case, q: &'a Quadrature, storage: &'a Quadrature, g: f64, sc
         quadrature: q,
         storage,
         g,
+        scatter_g: g,
         eye: Eye::Point([0.3, 0.2, 2.0]),
         scheme,
     }

@@ -491,6 +491,7 @@ fn device_sweep_matches_the_cpu_oracle() {
             quadrature: &q,
             storage: &iso,
             g: 0.0,
+            scatter_g: 0.0,
             eye: Eye::Point([0.0, 0.0, 5.0]),
             scheme,
         };
@@ -613,11 +614,18 @@ fn device_anisotropic_iteration_matches_the_cpu_oracle() {
         periodic_xy: false,
         scheme: Scheme::Step,
     };
-    let q = Quadrature::named("s4").unwrap();
     let to32 = |v: &[f64]| v.iter().map(|x| *x as f32).collect::<Vec<f32>>();
     let sigma_s: Vec<f64> = sigma_t.iter().zip(&albedo).map(|(t, a)| t * a).collect();
     let (st32, ss32) = (to32(&sigma_t), to32(&sigma_s));
-    for (stored, g, scheme) in [("s4", 0.7, Scheme::Characteristics), ("s2", -0.5, Scheme::Step)] {
+    for (swept, stored, g, scheme) in [
+        ("s4", "s4", 0.7, Scheme::Characteristics),
+        ("s4", "s2", -0.5, Scheme::Step),
+        // More than llvmpipe's 65535 loop iterations if one invocation scattered a voxel into
+        // every storage direction (N M = 65536 and 262144): scatter.comp splits them.
+        ("product-16x16", "product-16x16", 0.9, Scheme::Characteristics),
+        ("product-16x32", "product-16x32", 0.9, Scheme::Characteristics),
+    ] {
+        let q = Quadrature::named(swept).unwrap();
         let grid = OrdinatesGrid { scheme, ..grid.clone() };
         let storage = Quadrature::named(stored).unwrap();
         let setup = SweepSetup {
@@ -630,6 +638,7 @@ fn device_anisotropic_iteration_matches_the_cpu_oracle() {
             quadrature: &q,
             storage: &storage,
             g,
+            scatter_g: g,
             eye: Eye::Point([0.3, 0.2, 2.0]),
             scheme,
         };
@@ -651,7 +660,7 @@ fn device_anisotropic_iteration_matches_the_cpu_oracle() {
         assert_eq!(host.iterations, 30);
         let scale = host.fluence.iter().fold(0.0f64, |a, x| a.max(*x));
         let worst = device.iter().zip(&host.fluence).map(|(d, h)| (d - h).abs() / scale).fold(0.0, f64::max);
-        assert!(worst < 2e-6, "stored at {stored}, g {g}: largest difference {worst:e} of the largest fluence");
+        assert!(worst < 2e-6, "{} stored at {stored}, g {g}: largest difference {worst:e} of the largest fluence", q.name);
     }
     assert_clean(&gpu);
 }

@@ -16,7 +16,13 @@
 //     energy per voxel), added to what the bounces before gathered. The normalisation makes an
 //     isotropic field gather to its own fluence. G itself is needed only for this view, so
 //     the view's sum is kept (one float per voxel and channel) instead of the M of G.
-// One invocation per voxel, directions in a fixed order: deterministic.
+// One invocation per voxel and chunk of storage directions (y: chunk, `pc.chunk` directions each),
+// directions in a fixed order: deterministic. The chunks keep an invocation's loop iterations
+// (N + chunk (N + 9)) under glsl/include/budget.glsl's LOOP_GUARD: one invocation scattering a
+// voxel into all M directions ran N M of them, and past 65535 llvmpipe ended its loops silently
+// (product-16x16 stored at itself, N M = 65536: the second bounce's fluence 1.3x the CPU
+// oracle's; product-16x32, 262144: 12.6x, the stale first source swept again each iteration).
+// The first chunk also gathers the light toward the camera.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -45,6 +51,9 @@ layout(push_constant) uniform Push {
     uvec4 octants[2]; // per octant: first direction | count << 16
     vec4 grid;       // xyz the grid's lower corner, w lambda (voxel edge)
     vec4 eye;        // xyz the camera's position (w = 0) or the direction toward it (w = 1)
+    uint chunk;      // storage directions per invocation (dispatch y covers ceil(M / chunk))
+    uint directions; // N
+    uint pad0, pad1;
 } pc;
 
 void main() {
@@ -53,39 +62,45 @@ void main() {
     uint V = pc.dims.w;
     if (v >= V) return;
     uint M = pc.storage;
+    uint N = pc.directions;
     uint c = pc.channel;
-    ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
-    vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
-    vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+    uint m0 = gl_GlobalInvocationID.y * pc.chunk;
+    if (m0 >= M) return;
+    uint m1 = min(M, m0 + pc.chunk);
+    bool first_chunk = m0 == 0u;
+    bool local = N <= MAX_LOCAL;
     float sigma = sigma_s[c * V + v];
     // The voxel's field, read once (in direction order) when it fits the local array.
     float local_field[MAX_LOCAL];
-    uint N = 0u;
-    float gathered = 0.0, norm = 0.0;
-    for (uint o = 0u; o < 8u; ++o) {
-        uint packed = pc.octants[o / 4u][o % 4u];
-        uint first_dir = packed & 0xffffu, count = packed >> 16;
-        for (uint k = 0u; k < count; ++k) {
-            vec4 d = dirs[first_dir + k];
-            float radiance = field[(o * pc.slots + k) * V + v];
-            if (first_dir + k < MAX_LOCAL) local_field[first_dir + k] = radiance;
-            float w = d.w * hg_eval(pc.g, dot(d.xyz, to_eye));
-            gathered += w * radiance;
-            norm += w;
+    if (first_chunk || (local && sigma > 0.0)) {
+        ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
+        vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
+        vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+        float gathered = 0.0, norm = 0.0;
+        for (uint o = 0u; o < 8u; ++o) {
+            uint packed = pc.octants[o / 4u][o % 4u];
+            uint first_dir = packed & 0xffffu, count = packed >> 16;
+            for (uint k = 0u; k < count; ++k) {
+                vec4 d = dirs[first_dir + k];
+                float radiance = field[(o * pc.slots + k) * V + v];
+                if (local) local_field[first_dir + k] = radiance;
+                float w = d.w * hg_eval(pc.g, dot(d.xyz, to_eye));
+                gathered += w * radiance;
+                norm += w;
+            }
         }
-        N = max(N, first_dir + count);
+        // The gathered light is kept where nothing scatters too: the view pass interpolates
+        // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
+        if (first_chunk && norm > 0.0) camera[c * V + v] += 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w;
     }
-    // The gathered light is kept where nothing scatters too: the view pass interpolates
-    // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
-    if (norm > 0.0) camera[c * V + v] += 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w;
     if (sigma <= 0.0) {
         // Nothing scatters here: no source for the next bounce.
-        for (uint m = 0u; m < M; ++m) source[(c * M + m) * V + v] = 0.0;
+        for (uint m = m0; m < m1; ++m) source[(c * M + m) * V + v] = 0.0;
         return;
     }
-    for (uint m = 0u; m < M; ++m) {
+    for (uint m = m0; m < m1; ++m) {
         float scattered = 0.0;
-        if (N <= MAX_LOCAL) {
+        if (local) {
             for (uint s = 0u; s < N; ++s) scattered += scatter[s * M + m] * local_field[s];
         } else {
             for (uint o = 0u; o < 8u; ++o) {

@@ -91,6 +91,8 @@ pub struct DomStats {
     /// The mean cosine the quadrature's normalised scattering carries (the medium's g on a
     /// fine set; a coarse one smears it toward 0).
     pub quadrature_g: f64,
+    /// The forward peak truncated from the sweeps' scattering (`dom.delta_m`; f 0: none).
+    pub truncation: Truncation,
     /// Whether the field was made (the direct source marched, the scattering iterations swept):
     /// false where nothing in the scene scatters (`Scene::scatters`). The view scatters the
     /// field toward the camera by sigma_s, so there it would carry nothing: the image is the
@@ -148,6 +150,7 @@ impl DomStats {
             scheme: set.scheme,
             channels: nch,
             quadrature_g: (quadrature_g * 1e6).round() / 1e6 + 0.0,
+            truncation: set.truncation,
             field: false,
             warm_start: false,
             iterations: 0,
@@ -169,6 +172,46 @@ impl DomStats {
     }
 }
 
+/// `dom.delta_m=auto` truncates the forward peak from this g up (docs/dom.md, "The forward peak
+/// truncated").
+pub const DELTA_M_FROM: f32 = 0.9;
+
+/// The forward peak truncated from the scattering between sweeps (`dom.delta_m`): HG(g) taken
+/// as f delta(forward) + (1 - f) HG(g_rest), with f = g^2 and g_rest = g / (1 + g), the
+/// delta-M split of Wiscombe (J. Atmos. Sci. 34, 1977) at M = 2 (Joseph, Wiscombe & Weinman's
+/// delta-Eddington, J. Atmos. Sci. 33, 1976) with the rest kept a Henyey-Greenstein lobe. It keeps
+/// the first moment, f + (1 - f) g_rest = g, and the similarity relation
+/// sigma_s (1 - f) (1 - g_rest) = sigma_s (1 - g) (Wyman, Patterson & Buckner 1989) that fixes
+/// the diffusion of multiply scattered light. The peak's share is exact transmission, so the
+/// sweeps' sigma_t and sigma_s lose f sigma_s ([`extinction`]): the bounce series decays by
+/// albedo (1 - f) / (1 - f albedo) instead of albedo (0.17 instead of 0.99 at g 0.999, albedo
+/// 0.99), and the directions resolve a lobe of g_rest < 0.5 instead of g. The direct source is
+/// binned with the medium's own phase function and the view gathers the swept field with it:
+/// the truncation is only in what the sweeps scatter.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Truncation {
+    /// The share of the scattering in the forward peak (0: none).
+    pub f: f64,
+    /// The asymmetry of the rest (the medium's g where nothing is truncated).
+    pub g_rest: f64,
+}
+
+impl Truncation {
+    /// Nothing truncated: the sweeps scatter by HG(g) whole.
+    pub fn none(g: f64) -> Truncation {
+        Truncation { f: 0.0, g_rest: g }
+    }
+
+    /// The delta-M split for HG(g). Only a forward peak is truncated: a backward one (g < 0) is
+    /// no transmission, so there nothing is.
+    pub fn delta_m(g: f64) -> Truncation {
+        if g <= 0.0 {
+            return Truncation::none(g);
+        }
+        Truncation { f: g * g, g_rest: g / (1.0 + g) }
+    }
+}
+
 #[derive(Clone)]
 struct DomSettings {
     /// The voxel grid of the sweeps, the marching and the view's volume for `grid`, built once.
@@ -177,6 +220,8 @@ struct DomSettings {
     grid: u32,
     quadrature: Quadrature,
     storage: Quadrature,
+    /// `dom.delta_m`: the forward peak truncated from the scattering between sweeps (f 0: off).
+    truncation: Truncation,
     scheme: Scheme,
     tol: f64,
     max_iterations: u32,
@@ -219,6 +264,11 @@ impl DomSettings {
             other => Quadrature::named(other).map_err(|e| k.invalid("storage", e))?,
         };
         let geom = LatticeGeom::new(scene, grid);
+        let truncation = match k.get::<String>("delta_m")?.as_str() {
+            "on" => Truncation::delta_m(scene.medium.g as f64),
+            "auto" if scene.medium.g >= DELTA_M_FROM => Truncation::delta_m(scene.medium.g as f64),
+            _ => Truncation::none(scene.medium.g as f64),
+        };
         let scheme: String = k.get("scheme")?;
         let block: String = k.get("block")?;
         let budget: f64 = k.get("budget")?;
@@ -232,6 +282,7 @@ impl DomSettings {
             grid,
             quadrature,
             storage,
+            truncation,
             scheme: if scheme == "step" { Scheme::Step } else { Scheme::Characteristics },
             tol: k.get("tol")?,
             max_iterations: k.get("max_iterations")?,
@@ -285,6 +336,7 @@ fn sweep_setup<'a>(
         quadrature: &set.quadrature,
         storage: &set.storage,
         g,
+        scatter_g: set.truncation.g_rest,
         eye,
         scheme: set.scheme,
     }
@@ -347,12 +399,17 @@ fn channels(scene: &Scene, chromatic: bool) -> u32 {
     gpu_scene::channels(scene, chromatic).max(if grey_le { 1 } else { 3 })
 }
 
-/// sigma_t and sigma_s (1/m) per voxel and channel, channel after channel, from the density.
-fn extinction(m: &Medium, nch: u32, density: &[f32]) -> (Vec<f32>, Vec<f32>) {
+/// sigma_t and sigma_s (1/m) per voxel and channel, channel after channel, from the density, as
+/// the sweeps take them: with a truncated forward peak (`t.f` > 0) the delta-M ones,
+/// sigma_t (1 - f albedo) and sigma_s (1 - f) (Wiscombe 1977, eq. 7: the peak's share of the
+/// scattering goes on as if unscattered), so sigma_a is unchanged and no energy is made.
+fn extinction(m: &Medium, nch: u32, density: &[f32], t: Truncation) -> (Vec<f32>, Vec<f32>) {
     let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
     for c in 0..nch as usize {
-        sigma_t.extend(density.iter().map(|d| m.sigma_t[c] * d));
-        sigma_s.extend(density.iter().map(|d| m.albedo[c] * m.sigma_t[c] * d));
+        let f = t.f as f32;
+        let (st, a) = (m.sigma_t[c], m.albedo[c]);
+        sigma_t.extend(density.iter().map(|d| st * d * (1.0 - f * a)));
+        sigma_s.extend(density.iter().map(|d| a * st * d * (1.0 - f)));
     }
     (sigma_t, sigma_s)
 }
@@ -388,7 +445,7 @@ fn source_sweeper(
     if block == 0 {
         let d = marching::resample(gpu, gs, geom, resampler, 0, geom.dims[2])?;
         let density: Vec<f32> = gpu.read_buffer_as(&d)?;
-        let (sigma_t, sigma_s) = extinction(m, nch, &density);
+        let (sigma_t, sigma_s) = extinction(m, nch, &density, set.truncation);
         let sweeper = Sweeper::new(gpu, &sweep_setup(set, geom, nch, g, eye, &sigma_t, &sigma_s))?;
         let cut = SourceCut { layers: geom.dims[2], group: (plan.beams as usize).max(1) as u32 };
         Ok((density, Some((sigma_t, sigma_s)), sweeper, cut))
@@ -1173,7 +1230,7 @@ impl Dom {
         )?;
         let DirectSource { first, budgeted, source_bytes, .. } = source;
         stage("direct source");
-        let (sigma_t, sigma_s) = plane_extinction.unwrap_or_else(|| extinction(m, nch, &density));
+        let (sigma_t, sigma_s) = plane_extinction.unwrap_or_else(|| extinction(m, nch, &density, set.truncation));
         drop(density);
         let setup = sweep_setup(set, &geom, nch, m.g as f64, eye, &sigma_t, &sigma_s);
         let (mut blocked, sweeper) = if block > 0 {
@@ -1293,7 +1350,7 @@ impl Dom {
         let device = gs.bytes + res.device_bytes;
         let mut report = RenderReport::finish(gpu, self, k, gs.modelled.clone(), device, Stats::new(()));
         let (quadrature_g, upsampled) =
-            ordinates::unswept_figures(&set.quadrature, &set.storage, scene.medium.g as f64);
+            ordinates::unswept_figures(&set.quadrature, &set.storage, set.truncation.g_rest);
         let nch = channels(scene, gs.modelled.chromatic);
         let ds = DomStats {
             stages_ms: vec![("setup", setup_ms), ("view", view_ms)],
@@ -1330,6 +1387,15 @@ impl Solver for Dom {
                 "the quadrature swept: level-symmetric s4 (24 directions, the thesis's), s6 (48), s8 (80), or a \
                  Gauss-Legendre x Chebyshev product set (product-PxA: P polar x A azimuthal); auto: s6, \
                  product-8x16 (128) where |g| >= 0.8, product-16x32 (512) where |g| >= 0.95",
+            ),
+            Knob::fixed(
+                "delta_m",
+                "off",
+                Range::Choice(&["auto", "on", "off"]),
+                "truncate the forward peak from the scattering between sweeps (delta-M: a share g^2 goes on \
+                 unscattered, the rest is HG(g / (1 + g))): the bounce series decays far faster and the directions \
+                 need resolve only the rest; the direct source and the view keep the medium's phase function. auto: \
+                 on where g >= 0.9; nothing is truncated where g <= 0 (docs/dom.md)",
             ),
             Knob::fixed(
                 "tol",
@@ -1647,6 +1713,13 @@ impl Solver for Dom {
             },
             s.sweep_ms
         )];
+        if s.truncation.f > 0.0 {
+            lines.push(format!(
+                "dom: forward peak truncated (dom.delta_m): {:.4} of the scattering between sweeps goes on unscattered, \
+                 the rest scatters by HG({:.4}) (g {:.3} on the quadrature)",
+                s.truncation.f, s.truncation.g_rest, s.quadrature_g
+            ));
+        }
         lines.push(format!("dom: {}", s.trust.line()));
         lines.push(format!("dom: {}", s.directions_trust.line()));
         lines.push(format!("dom: {}", s.view_trust.line()));

@@ -20,6 +20,7 @@ use crate::physics::ordinates::{characteristic_geometry, Scheme};
 use crate::physics::quadrature::Quadrature;
 use crate::solvers::parts::gpu_scene::GpuScene;
 use crate::solvers::parts::marching::Beam;
+use crate::solvers::parts::resumable::LOOP_GUARD;
 
 use crate::solvers::interface::SolverError;
 
@@ -124,6 +125,16 @@ struct ScatterPush {
     octants: [u32; 8],
     grid: [f32; 4],
     eye: [f32; 4],
+    chunk: u32,
+    directions: u32,
+    pad: [u32; 2],
+}
+
+/// Storage directions one scatter.comp invocation scatters a voxel into: as many as keep its
+/// loop iterations (the gather's N + 8, then N + 9 per storage direction) within `LOOP_GUARD`
+/// (glsl/include/budget.glsl: past 65535 llvmpipe ends every loop of an invocation silently).
+pub(crate) fn scatter_chunk(n: u32, m: u32) -> u32 {
+    (LOOP_GUARD.saturating_sub(n + 16) / (n + 10)).clamp(1, m.max(1))
 }
 
 #[repr(C)]
@@ -210,8 +221,13 @@ pub struct SweepSetup<'a> {
     pub quadrature: &'a Quadrature,
     /// The M storage directions; the quadrature itself (same name) stores at the swept ones.
     pub storage: &'a Quadrature,
-    /// Henyey-Greenstein asymmetry of the scattering.
+    /// Henyey-Greenstein asymmetry of the medium's scattering: the direct source's binning and
+    /// the light gathered toward the camera scatter by it.
     pub g: f64,
+    /// The asymmetry the scattering between sweeps uses (the matrix A[s][m] of scatter.comp): `g`
+    /// itself, or with `dom.delta_m` the asymmetry of the part left outside the truncated forward
+    /// peak (`super::Truncation`), sigma_t and sigma_s then being the truncated ones.
+    pub scatter_g: f64,
     pub eye: Eye,
     /// The voxel update.
     pub scheme: Scheme,
@@ -386,15 +402,22 @@ impl Tables {
     pub(crate) fn new(s: &SweepSetup) -> Result<Tables, SolverError> {
         let (swept, first_dir, count) = s.quadrature.by_octant();
         let (storage, mode) = storage_of(s.quadrature, s.storage, &swept);
-        if swept.len() >= 1 << 16 {
-            return Err(SolverError::Unsupported(format!("{} has more than 65535 directions", swept.name)));
+        // scatter.comp gathers a voxel's N directions and scatters them into at least one
+        // storage direction per invocation: 2 N + 17 loop iterations within LOOP_GUARD.
+        if 2 * swept.len() + 17 > LOOP_GUARD as usize {
+            return Err(SolverError::Unsupported(format!(
+                "{} has {} directions; dom sweeps at most {}",
+                swept.name,
+                swept.len(),
+                (LOOP_GUARD as usize - 17) / 2
+            )));
         }
         let to32 = |x: Vec<f64>| x.into_iter().map(|y| y as f32).collect::<Vec<f32>>();
         let map = StorageMap::new(&swept, &storage);
         let footprint: Vec<[f32; 4]> =
             map.footprint.iter().map(|f| [f[0] as f32, f[1] as f32, f[2] as f32, 0.0]).collect();
         let upsample = if mode == Storage::Upsampled { to32(map.upsample.clone()) } else { vec![0.0f32] };
-        let (scatter, quadrature_g) = map.scattering(&swept, s.g);
+        let (scatter, quadrature_g) = map.scattering(&swept, s.scatter_g);
         let scatter = to32(scatter);
         let geometry: Vec<f32> = if s.scheme == Scheme::Characteristics {
             swept
@@ -802,8 +825,21 @@ impl Sweeper {
                 octants,
                 grid: self.grid,
                 eye: self.eye,
+                chunk: self.scatter_chunk(),
+                directions: self.swept_len(),
+                pad: [0; 2],
             })
-            .cover([v, 1, 1])
+            .cover([v, self.storage.len().div_ceil(self.scatter_chunk() as usize) as u32, 1])
+    }
+
+    /// N, the directions swept.
+    fn swept_len(&self) -> u32 {
+        self.count.iter().sum()
+    }
+
+    /// Storage directions per scatter.comp invocation ([`scatter_chunk`]).
+    fn scatter_chunk(&self) -> u32 {
+        scatter_chunk(self.swept_len(), self.storage.len() as u32)
     }
 
     /// The fluence per channel and voxel ([c][v]): the octants' slices added in a fixed order.
