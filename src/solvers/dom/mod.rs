@@ -234,6 +234,9 @@ struct DomSettings {
     /// Block edge (0: whole-grid plane sweeps; None: auto, decided by the device's binding
     /// limit), the device budget in bytes and the store.
     block: Option<u32>,
+    /// dom.block was set to a number (not auto): past the device's loop limit it is refused,
+    /// where auto's choice is lowered.
+    block_set: bool,
     budget: Option<u64>,
     store: StoreKind,
     /// The queue role the streaming copies run on.
@@ -292,6 +295,7 @@ impl DomSettings {
             },
             budgeted: false,
             extrapolate: k.get("extrapolate")?,
+            block_set: block != "auto",
             block: match block.as_str() {
                 "auto" if streams => Some(16),
                 "auto" => None,
@@ -423,6 +427,31 @@ fn auto_block(gpu: &Gpu, set: &DomSettings) -> u32 {
         0
     } else {
         16
+    }
+}
+
+/// The block edge the sweeps can run on this device: on llvmpipe, where an invocation's loops end
+/// silently past 65535 iterations, at most [`blocks::max_block`] for the directions: auto's
+/// choice lowered to it, a set dom.block beyond it refused in one line naming the knob.
+fn fit_block(gpu: &Gpu, k: &Knobs, set: &DomSettings, block: u32) -> Result<u32, SolverError> {
+    if block == 0 || !blocks::loop_limited(gpu) {
+        return Ok(block);
+    }
+    let max = blocks::max_block(&set.quadrature, &set.storage, set.scheme);
+    match (block <= max, set.block_set) {
+        (true, _) => Ok(block),
+        (false, false) => Ok(max),
+        (false, true) => Err(k.invalid(
+            "block",
+            format!(
+                "a block of {block}^3 at {} stored at {} runs {} loop iterations in one invocation of the block \
+                 sweep, past the 65535 after which llvmpipe ends its loops silently: set dom.block={max} or less \
+                 (or auto)",
+                set.quadrature.name,
+                set.storage.name,
+                blocks::loop_iterations(block.min(MAX_BLOCK), &set.quadrature, &set.storage, set.scheme)
+            ),
+        )),
     }
 }
 
@@ -665,8 +694,8 @@ fn direct_source(
     let lit = match &marcher {
         Some(m) => Some(Marched {
             marcher: m,
-            groups: BeamGroup::split(&m.ray_beam, m.beams.len() as u32, cut.group),
-            sums: sweeper.deposit_sums(gpu, cut.group as usize)?,
+            groups: BeamGroup::split(&m.ray_beam, m.beams.len() as u32, cut.group.min(sweeper.bin_group(&m.beams))),
+            sums: sweeper.deposit_sums(gpu, cut.group.min(sweeper.bin_group(&m.beams)) as usize)?,
             ray_beam: gpu.buffer_with("dom ray beams", &m.ray_beam)?,
             table: gpu.buffer_with("dom beams", &sweeper.beam_table(g, &m.beams))?,
         }),
@@ -1174,7 +1203,7 @@ impl Dom {
         // Block sweeps keep every block in host memory: refused before any work where the host
         // has not that much free (the marching and the direct source at grid 512 ran for
         // minutes before the store of 116 GiB was asked for).
-        let block = set.block.unwrap_or_else(|| auto_block(gpu, set));
+        let block = fit_block(gpu, k, set, set.block.unwrap_or_else(|| auto_block(gpu, set)))?;
         if set.store == StoreKind::Memory && block > 0 {
             let nch = channels(scene, gpu_scene::modelled(scene, force_full).chromatic);
             let (q, storage) = (&set.quadrature, &set.storage);
