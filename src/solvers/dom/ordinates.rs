@@ -127,7 +127,39 @@ struct ScatterPush {
     eye: [f32; 4],
     chunk: u32,
     directions: u32,
-    pad: [u32; 2],
+    /// HG(g)'s mass within the cone of `peak_cos` about the camera's direction, which gathers
+    /// the field interpolated there (0: the gather by HG(g) over every direction).
+    peak_share: f32,
+    peak_cos: f32,
+    pad_f: f32,
+    pad: [u32; 3],
+}
+
+/// Henyey-Greenstein's mass within angle acos(`c0`) of its axis: the integral of
+/// (1 - g^2) / (4 pi (1 + g^2 - 2 g mu)^(3/2)) over mu in [c0, 1], which is
+/// (1 - g^2) / (2 g) (1 / (1 - g) - 1 / sqrt(1 + g^2 - 2 g c0)); (1 - c0) / 2 at g = 0.
+pub(crate) fn hg_mass_within(g: f64, c0: f64) -> f64 {
+    if g.abs() < 1e-6 {
+        return (1.0 - c0) / 2.0;
+    }
+    ((1.0 - g * g) / (2.0 * g) * (1.0 / (1.0 - g) - 1.0 / (1.0 + g * g - 2.0 * g * c0).sqrt())).clamp(0.0, 1.0)
+}
+
+/// The cosine of the largest angle between any direction and the nearest of `q`'s (its covering
+/// radius, sampled at 4096 Fibonacci points, widened by a tenth): every direction has a swept one
+/// within it, so the truncated peak's gather (scatter.comp) always finds the field.
+fn covering_cos(q: &Quadrature) -> f64 {
+    let n = 4096;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let worst = (0..n)
+        .map(|i| {
+            let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let p = [r * (golden * i as f64).cos(), r * (golden * i as f64).sin(), z];
+            q.directions.iter().map(|d| d[0] * p[0] + d[1] * p[1] + d[2] * p[2]).fold(-1.0, f64::max)
+        })
+        .fold(1.0, f64::min);
+    (worst.clamp(-1.0, 1.0).acos() * 1.1).min(std::f64::consts::PI).cos()
 }
 
 /// Storage directions one scatter.comp invocation scatters a voxel into: as many as keep its
@@ -278,6 +310,9 @@ pub struct Sweeper {
     footprint: Buffer,
     upsample: Buffer,
     scatter_matrix: Buffer,
+    /// The gather's split toward the camera (`dom.delta_m`): HG(g)'s mass within the cone (0:
+    /// no split) and the cone's cosine ([`covering_cos`]).
+    gather_split: [f32; 2],
     field: Buffer,
     /// Step characteristics: each direction's geometry (20 floats) and its outgoing face
     /// radiances across x, y, z (4-byte stand-ins for the step scheme).
@@ -532,6 +567,14 @@ impl Sweeper {
             footprint: gpu.buffer_with("ordinates storage footprints", &footprint)?,
             upsample: gpu.buffer_with("ordinates upsampling", &upsample)?,
             scatter_matrix: gpu.buffer_with("ordinates scattering", &scatter)?,
+            gather_split: match s.scatter_g != s.g {
+                // A truncated peak (dom.delta_m): the gather splits at the set's covering radius.
+                true => {
+                    let c0 = covering_cos(&swept);
+                    [hg_mass_within(s.g, c0) as f32, c0 as f32]
+                }
+                false => [0.0, 1.0],
+            },
             field: gpu.buffer("ordinates field", 8 * slots as u64 * sv * 4)?,
             geometry: gpu.buffer_with("ordinates characteristics geometry", &geometry)?,
             faces: [
@@ -845,7 +888,10 @@ impl Sweeper {
                 eye: self.eye,
                 chunk: self.scatter_chunk(),
                 directions: self.swept_len(),
-                pad: [0; 2],
+                peak_share: self.gather_split[0],
+                peak_cos: self.gather_split[1],
+                pad_f: 0.0,
+                pad: [0; 3],
             })
             .cover([v, self.storage.len().div_ceil(self.scatter_chunk() as usize) as u32, 1])
     }
