@@ -660,7 +660,11 @@ fn device_anisotropic_iteration_matches_the_cpu_oracle() {
         assert_eq!(host.iterations, 30);
         let scale = host.fluence.iter().fold(0.0f64, |a, x| a.max(*x));
         let worst = device.iter().zip(&host.fluence).map(|(d, h)| (d - h).abs() / scale).fold(0.0, f64::max);
-        assert!(worst < 2e-6, "{} stored at {stored}, g {g}: largest difference {worst:e} of the largest fluence", q.name);
+        assert!(
+            worst < 2e-6,
+            "{} stored at {stored}, g {g}: largest difference {worst:e} of the largest fluence",
+            q.name
+        );
     }
     assert_clean(&gpu);
 }

@@ -458,9 +458,8 @@ pub fn loop_iterations(block: u32, q: &Quadrature, storage: &Quadrature, scheme:
     let mut total = 1u64;
     for w in 0..(3 * b - 2) {
         let (a_lo, a_hi) = ((w - 2 * (b - 1)).max(0), (b - 1).min(w));
-        let rows: Vec<i64> = (a_lo..=a_hi)
-            .map(|la| ((b - 1).min(w - la) - (w - la - (b - 1)).max(0) + 1).max(0))
-            .collect();
+        let rows: Vec<i64> =
+            (a_lo..=a_hi).map(|la| ((b - 1).min(w - la) - (w - la - (b - 1)).max(0) + 1).max(0)).collect();
         let mut idx = 0i64;
         loop {
             // The row search for voxel `idx` of the plane, then the voxel itself.
@@ -494,10 +493,7 @@ pub fn loop_limited(gpu: &Gpu) -> bool {
 /// The largest block edge (1..=[`MAX_BLOCK`]) whose sweep stays within `LOOP_GUARD` loop
 /// iterations per invocation ([`loop_iterations`]) for these directions.
 pub fn max_block(q: &Quadrature, storage: &Quadrature, scheme: Scheme) -> u32 {
-    (1..=MAX_BLOCK)
-        .take_while(|b| loop_iterations(*b, q, storage, scheme) <= LOOP_GUARD as u64)
-        .last()
-        .unwrap_or(1)
+    (1..=MAX_BLOCK).take_while(|b| loop_iterations(*b, q, storage, scheme) <= LOOP_GUARD as u64).last().unwrap_or(1)
 }
 
 impl BlockSweeper {
