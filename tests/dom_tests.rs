@@ -281,11 +281,12 @@ fn dom_bins_many_beams_at_many_storage_directions_within_the_loop_budget() {
 }
 
 /// The truncated forward peak (dom.delta_m, auto from g 0.95) against the full sweeps and path
-/// on the back-lit cube at g 0.99 (product-16x32, grid 12), thin and thick: the full sweeps' normalised
-/// HG(0.99), unresolved by 512 directions, overweights the far field (1.5-2.5x path's energy at
-/// grid 16); truncated, the energy is nearer path's, the image closer, in fewer iterations.
-/// Measured at 48 x 48 against path at 8192 spp, grid 16 (docs/dom.md): energy 1.90 -> 1.49
-/// (sigma_t 1, albedo 0.5), 2.51 -> 1.82 (albedo 0.99), 1.48 -> 1.10 (sigma_t 20, albedo
+/// on the back-lit cube at g 0.99 (product-16x32, grid 12), thin and thick: the full sweeps'
+/// normalised HG(0.99), unresolved by 512 directions, overweights the far field in the direct
+/// source's shares and the camera's gather (1.5-2.5x path's energy at grid 16, and warned);
+/// truncated and split, the energy is near path's, the image closer, in fewer iterations.
+/// Measured at 48 x 48 against path at 8192 spp, grid 16 (docs/dom.md): energy 1.90 -> 1.05
+/// (sigma_t 1, albedo 0.5), 2.51 -> 1.10 (albedo 0.99), 1.48 -> 0.94 (sigma_t 20, albedo
 /// 0.99), iterations 6-46 -> 3-6.
 #[test]
 fn delta_m_brings_dom_nearer_path_at_g_099_in_fewer_iterations() {
@@ -299,15 +300,20 @@ fn delta_m_brings_dom_nearer_path_at_g_099_in_fewer_iterations() {
             &[&size[..], &[("medium.sigma_t", sigma_t), ("medium.albedo", albedo), ("medium.g", "0.99")]].concat(),
         );
         let reference = crate::common::path_reference(&gpu, &s, &[("render.spp", "2048")]);
-        // g 0.99 is past what dom matches path at, and says so; at sigma_t 20 a voxel of grid 12
-        // is 1.7 mean free paths thick, warned too.
+        // The full sweeps at g 0.99 are warned; at sigma_t 20 a voxel of grid 12 is 1.7 mean
+        // free paths thick, warned for both.
         let past = "past the forward peaks dom matches path at";
-        let warned: &[&str] = if sigma_t == "20" { &[past, THICK_VOXELS] } else { &[past] };
-        let run = |extra: &[(&'static str, &'static str)]| {
-            render_warned(&gpu, &s, dom(), &[&sets[..], extra].concat(), warned)
+        let thick: &[&str] = if sigma_t == "20" { &[THICK_VOXELS] } else { &[] };
+        let run = |extra: &[(&'static str, &'static str)], warned: &[&str]| {
+            let all = [&sets[..], extra].concat();
+            if warned.is_empty() {
+                render(&gpu, &s, dom(), &all)
+            } else {
+                render_warned(&gpu, &s, dom(), &all, warned)
+            }
         };
-        let on = run(&[]);
-        let off = run(&[("dom.delta_m", "off")]);
+        let on = run(&[], thick);
+        let off = run(&[("dom.delta_m", "off")], &[&[past][..], thick].concat());
         let stats = |o: &RenderOutput| o.report.detail::<solvers::dom::DomStats>().unwrap().clone();
         let (son, soff) = (stats(&on), stats(&off));
         assert!(son.truncation.f > 0.98 && soff.truncation.f == 0.0, "{case}: auto truncates at g 0.99");
@@ -317,7 +323,10 @@ fn delta_m_brings_dom_nearer_path_at_g_099_in_fewer_iterations() {
             "{case}: truncated energy {e_on:.3} relL2 {rel_on:.3} in {} iterations; full {e_off:.3} {rel_off:.3} in {}",
             son.iterations, soff.iterations
         );
-        assert!((e_on - 1.0).abs() < 0.8 * (e_off - 1.0).abs(), "{case}: energy {e_on} vs {e_off}");
+        assert!(
+            (e_on - 1.0).abs() < 0.5 * (e_off - 1.0).abs() && (e_on - 1.0).abs() < 0.15,
+            "{case}: energy {e_on} vs {e_off}"
+        );
         assert!(rel_on < 0.8 * rel_off, "{case}: relL2 {rel_on} vs {rel_off}");
         assert!(son.iterations < soff.iterations && son.converged && soff.converged, "{case}");
     }

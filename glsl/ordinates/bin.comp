@@ -33,7 +33,9 @@ layout(push_constant) uniform Push {
     float g;         // the medium's asymmetry
     uint base;       // the slab's first voxel
     uint beam0;      // the group's first beam (0: the first group, which starts the sums)
-    uint pad;
+    float peak_share; // dom.delta_m: HG(g)'s mass within the cone of peak_cos (0: no split)
+    float peak_cos;   // the storage set's covering radius, as a cosine
+    uint pad0, pad1, pad2;
 } pc;
 
 const float G_LIMIT = 0.9999;
@@ -85,6 +87,29 @@ void main() {
         // A point light at the voxel centre lights it from every side: isotropic shares.
         bool at_light = a.w != 0.0 && dot(away, away) < 1e-12 * pc.grid.w * pc.grid.w;
         vec3 d = a.w == 0.0 ? a.xyz : (at_light ? vec3(0.0, 0.0, 1.0) : normalize(away));
+        if (pc.peak_share > 0.0 && !at_light) {
+            // With dom.delta_m the shares split HG(g) at a cone about d of the storage set's
+            // covering radius, as scatter.comp's gather does: HG's mass inside the cone goes to
+            // the directions inside it (weighted by their closeness), the rest by HG(g) itself,
+            // normalised to the rest of the mass. The mean-cosine match below spreads a peak the
+            // set does not resolve by lowering g', and so thickens the tail that the light
+            // scattered back toward a back-lit camera comes from.
+            float pn = 0.0, tn = 0.0;
+            for (uint m = 0u; m < M; ++m) {
+                float cm = dot(d, storage_dirs[m].xyz);
+                if (cm > pc.peak_cos) pn += storage_dirs[m].w * (cm - pc.peak_cos);
+                else tn += storage_dirs[m].w * hg_eval(pc.g, cm);
+            }
+            float ps = tn > 0.0 ? pc.peak_share : 1.0;
+            if (pn > 0.0) {
+                for (uint m = 0u; m < M; ++m) {
+                    float cm = dot(d, storage_dirs[m].xyz);
+                    float per_sr = cm > pc.peak_cos ? ps * (cm - pc.peak_cos) / pn : (1.0 - ps) * hg_eval(pc.g, cm) / tn;
+                    for (uint c = 0u; c < pc.channels; ++c) source[(c * M + m) * V + v] += e[c] * per_sr;
+                }
+                continue;
+            }
+        }
         float g = a.w == 0.0 ? beams[2u * (pc.beam0 + b) + 1u].x : (at_light ? 0.0 : matched_g(d));
         float norm = 0.0;
         for (uint m = 0u; m < M; ++m) norm += storage_dirs[m].w * hg_eval(g, dot(d, storage_dirs[m].xyz));

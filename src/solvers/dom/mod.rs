@@ -141,7 +141,12 @@ impl DomStats {
         DomStats {
             grid: geom,
             trust: geom.trust(scene, set.grid, &DOM_GRID),
-            directions_trust: DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage),
+            directions_trust: DirectionsTrust::new(
+                scene.medium.g,
+                &set.quadrature,
+                &set.storage,
+                set.truncation.f > 0.0,
+            ),
             view_trust: view::ViewTrust::of(scene, &set.view),
             quadrature: set.quadrature.name.clone(),
             directions: set.quadrature.len(),
@@ -174,7 +179,7 @@ impl DomStats {
 
 /// `dom.delta_m=auto` truncates the forward peak from this g up (docs/dom.md, "The forward peak
 /// truncated"): where `dom.directions=auto` sweeps product-16x32 and the untruncated sweeps gave
-/// 1.5-2.5x path's energy on the cube (truncated: 1.1-1.8x, in a third to a quarter of the
+/// 1.5-2.5x path's energy on the cube (truncated: 0.93-1.10x, in a quarter to a half of the
 /// time). At g 0.9 it is better on thin media and worse on thick bright ones (0.86x path's energy
 /// at sigma_t 20, albedo 0.99, where the full sweeps gave 0.98x), so there it stays off.
 pub const DELTA_M_FROM: f32 = 0.95;
@@ -1449,11 +1454,11 @@ impl Solver for Dom {
                 "auto",
                 Range::Choice(&["auto", "on", "off"]),
                 "truncate the forward peak from the scattering between sweeps (delta-M: a share g^2 goes on \
-                 unscattered, the rest is HG(g / (1 + g))) and gather the field toward the camera split at the \
-                 directions' spacing (the peak interpolated, the rest by HG(g)): the bounce series decays far faster \
-                 and an unresolved peak no longer overweights the far field (at g 0.99 on the cube: 1.1-1.8x path's \
-                 energy instead of 1.5-2.5x, 1.5-4x faster). auto: on where g >= 0.95 with plane sweeps; nothing is \
-                 truncated where g <= 0; block sweeps refuse on (docs/dom.md)",
+                 unscattered, the rest is HG(g / (1 + g))), and share the direct source and gather the field toward \
+                 the camera split at the directions' spacing (the peak interpolated, the rest by HG(g)): the bounce \
+                 series decays far faster and an unresolved peak no longer overweights the far field (at g 0.99 on \
+                 the cube: 0.93-1.10x path's energy instead of 1.5-2.5x, 1.5-8x faster). auto: on where g >= 0.95 with \
+                 plane sweeps; nothing is truncated where g <= 0; block sweeps refuse on (docs/dom.md)",
             ),
             Knob::fixed(
                 "tol",
@@ -1696,7 +1701,7 @@ impl Solver for Dom {
         Ok(grid
             .into_iter()
             .chain(
-                DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage)
+                DirectionsTrust::new(scene.medium.g, &set.quadrature, &set.storage, set.truncation.f > 0.0)
                     .warning()
                     .filter(|_| scene.scatters()),
             )

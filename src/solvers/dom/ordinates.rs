@@ -202,7 +202,11 @@ struct BinPush {
     base: u32,
     /// The group's first beam (`beams` is its size).
     beam0: u32,
-    pad: u32,
+    /// dom.delta_m: HG(g)'s mass within the storage set's covering radius (0: the matched
+    /// mean cosine instead), and that radius as a cosine.
+    peak_share: f32,
+    peak_cos: f32,
+    pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -313,6 +317,8 @@ pub struct Sweeper {
     /// The gather's split toward the camera (`dom.delta_m`): HG(g)'s mass within the cone (0:
     /// no split) and the cone's cosine ([`covering_cos`]).
     gather_split: [f32; 2],
+    /// The bin's split of the first-scattering shares (the same, at the storage set's radius).
+    bin_split: [f32; 2],
     field: Buffer,
     /// Step characteristics: each direction's geometry (20 floats) and its outgoing face
     /// radiances across x, y, z (4-byte stand-ins for the step scheme).
@@ -575,6 +581,13 @@ impl Sweeper {
                 }
                 false => [0.0, 1.0],
             },
+            bin_split: match s.scatter_g != s.g {
+                true => {
+                    let c0 = covering_cos(&storage);
+                    [hg_mass_within(s.g, c0) as f32, c0 as f32]
+                }
+                false => [0.0, 1.0],
+            },
             field: gpu.buffer("ordinates field", 8 * slots as u64 * sv * 4)?,
             geometry: gpu.buffer_with("ordinates characteristics geometry", &geometry)?,
             faces: [
@@ -768,7 +781,9 @@ impl Sweeper {
                 g: self.g,
                 base: slab.base(),
                 beam0: group.beams.start,
-                pad: 0,
+                peak_share: self.bin_split[0],
+                peak_cos: self.bin_split[1],
+                pad: [0; 3],
             })
             .cover([v, 1, 1])
     }
