@@ -180,7 +180,7 @@ impl DomStats {
 /// `dom.delta_m=auto` truncates the forward peak from this g up (docs/dom.md, "The forward peak
 /// truncated"): where `dom.directions=auto` sweeps product-16x32 and the untruncated sweeps gave
 /// 1.5-2.5x path's energy on the cube (truncated: 0.93-1.10x, in a quarter to a half of the
-/// time). At g 0.9 it is better on thin media and worse on thick bright ones (0.86x path's energy
+/// time). At g 0.9 it is mixed on thin media and worse on thick bright ones (0.85x path's energy
 /// at sigma_t 20, albedo 0.99, where the full sweeps gave 0.98x), so there it stays off.
 pub const DELTA_M_FROM: f32 = 0.95;
 
@@ -193,9 +193,10 @@ pub const DELTA_M_FROM: f32 = 0.95;
 /// the diffusion of multiply scattered light. The peak's share is exact transmission, so the
 /// sweeps' sigma_t and sigma_s lose f sigma_s ([`extinction`]): the bounce series decays by
 /// albedo (1 - f) / (1 - f albedo) instead of albedo (0.17 instead of 0.99 at g 0.999, albedo
-/// 0.99), and the directions resolve a lobe of g_rest < 0.5 instead of g. The direct source is
-/// binned with the medium's own phase function and the view gathers the swept field with it:
-/// the truncation is only in what the sweeps scatter.
+/// 0.99), and the bounce-to-bounce scattering is a lobe of g_rest < 0.5 the directions resolve.
+/// The direct source's shares (bin.comp) and the gather toward the camera (scatter.comp) keep the
+/// medium's HG(g), split at the set's covering radius (peak interpolated, rest weighed by HG(g)):
+/// normalised whole on a set that does not resolve it, HG(g) overweighted the far field.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Truncation {
     /// The share of the scattering in the forward peak (0: none).
@@ -418,7 +419,7 @@ fn channels(scene: &Scene, chromatic: bool) -> u32 {
 
 /// sigma_t and sigma_s (1/m) per voxel and channel, channel after channel, from the density, as
 /// the sweeps take them: with a truncated forward peak (`t.f` > 0) the delta-M ones,
-/// sigma_t (1 - f albedo) and sigma_s (1 - f) (Wiscombe 1977, eq. 7: the peak's share of the
+/// sigma_t (1 - f albedo) and sigma_s (1 - f) (Wiscombe 1977: the peak's share of the
 /// scattering goes on as if unscattered), so sigma_a is unchanged and no energy is made.
 fn extinction(m: &Medium, nch: u32, density: &[f32], t: Truncation) -> (Vec<f32>, Vec<f32>) {
     let (mut sigma_t, mut sigma_s) = (Vec::new(), Vec::new());
