@@ -192,26 +192,27 @@ fn a_budget_below_the_working_set_names_the_smallest() {
     assert_clean(&gpu);
 }
 
+/// `scatterlab render` of the anisotropic cube with dom into `dir/out` (and its report beside it
+/// as `out.json`), with `base` and then `sets` as `--set` values.
+fn cube_cli(dir: &std::path::Path, base: &[&str], sets: &[&str], out: &str) -> std::process::Output {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/anisotropic-cube.toml");
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_scatterlab"));
+    cmd.args(["render", scene, "--solver", "dom", "--out"]).arg(dir.join(out));
+    cmd.arg("--json").arg(dir.join(format!("{out}.json")));
+    for s in base.iter().chain(sets) {
+        cmd.args(["--set", s]);
+    }
+    cmd.output().unwrap()
+}
+
 /// From the command line: a budget too small is one line on stderr naming the knob and the
 /// smallest budget, a non-zero exit and no image; a streamed render's image equals the in-core
 /// one bit for bit, and its report gives the pool within the budget.
 #[test]
 fn streamed_render_from_the_command_line_matches_in_core() {
-    let bin = env!("CARGO_BIN_EXE_scatterlab");
     let dir = tempfile::tempdir().unwrap();
-    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/anisotropic-cube.toml");
-    let render = |sets: &[&str], out: &str| {
-        let mut cmd = std::process::Command::new(bin);
-        cmd.args(["render", scene, "--solver", "dom", "--out"]).arg(dir.path().join(out));
-        cmd.arg("--json").arg(dir.path().join(format!("{out}.json")));
-        for s in ["render.width=24", "render.height=24", "dom.grid=12", "dom.rays=4096", "dom.view_env_dirs=8"]
-            .iter()
-            .chain(sets)
-        {
-            cmd.args(["--set", s]);
-        }
-        cmd.output().unwrap()
-    };
+    let base = ["render.width=24", "render.height=24", "dom.grid=12", "dom.rays=4096", "dom.view_env_dirs=8"];
+    let render = |sets: &[&str], out: &str| cube_cli(dir.path(), &base, sets, out);
     let small = render(&["dom.block=4", "dom.budget=0.01"], "small.exr");
     assert!(!small.status.success());
     let err = String::from_utf8_lossy(&small.stderr);
@@ -443,21 +444,9 @@ fn overlap_eviction_frees_the_copies_from_the_sweep_before_them() {
 /// blocked image is the plane sweeps' to float rounding (the two sum in different orders).
 #[test]
 fn block_sweeps_stay_within_the_loop_budget() {
-    let bin = env!("CARGO_BIN_EXE_scatterlab");
     let dir = tempfile::tempdir().unwrap();
-    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/anisotropic-cube.toml");
-    let render = |sets: &[&str], out: &str| {
-        let mut cmd = std::process::Command::new(bin);
-        cmd.args(["render", scene, "--solver", "dom", "--out"]).arg(dir.path().join(out));
-        cmd.arg("--json").arg(dir.path().join(format!("{out}.json")));
-        for s in ["render.width=16", "render.height=16", "dom.grid=16", "dom.directions=s8", "dom.max_iterations=2"]
-            .iter()
-            .chain(sets)
-        {
-            cmd.args(["--set", s]);
-        }
-        cmd.output().unwrap()
-    };
+    let base = ["render.width=16", "render.height=16", "dom.grid=16", "dom.directions=s8", "dom.max_iterations=2"];
+    let render = |sets: &[&str], out: &str| cube_cli(dir.path(), &base, sets, out);
     let large = render(&["dom.block=16"], "large.exr");
     let err = String::from_utf8_lossy(&large.stderr);
     let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error")).collect();

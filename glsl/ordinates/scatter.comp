@@ -17,8 +17,9 @@
 //     isotropic field gather to its own fluence. G itself is needed only for this view, so
 //     the view's sum is kept (one float per voxel and channel) instead of the M of G.
 // One invocation per voxel and chunk of storage directions (y: chunk, `pc.chunk` directions each),
-// directions in a fixed order: deterministic. The chunks keep an invocation's loop iterations
-// (N + chunk (N + 9)) under glsl/include/budget.glsl's LOOP_GUARD: one invocation scattering a
+// directions in a fixed order: deterministic. The chunks keep an invocation's loop back-edges
+// (about N + chunk (N + 19): src/solvers/dom/ordinates.rs, scatter_chunk) under
+// glsl/include/budget.glsl's LOOP_GUARD: one invocation scattering a
 // voxel into all M directions ran N M of them, and past 65535 llvmpipe ended its loops silently
 // (product-16x16 stored at itself, N M = 65536: the second bounce's fluence 1.3x the CPU
 // oracle's; product-16x32, 262144: 12.6x, the stale first source swept again each iteration).

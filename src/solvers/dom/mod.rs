@@ -280,11 +280,13 @@ impl DomSettings {
         };
         let geom = LatticeGeom::new(scene, grid);
         let delta_m: String = k.get("delta_m")?;
-        let truncation = match delta_m.as_str() {
-            "on" => Truncation::delta_m(scene.medium.g as f64),
-            "auto" if scene.medium.g >= DELTA_M_FROM => Truncation::delta_m(scene.medium.g as f64),
-            _ => Truncation::none(scene.medium.g as f64),
+        let truncate = match delta_m.as_str() {
+            "on" => true,
+            "auto" => scene.medium.g >= DELTA_M_FROM,
+            _ => false,
         };
+        let g = scene.medium.g as f64;
+        let truncation = if truncate { Truncation::delta_m(g) } else { Truncation::none(g) };
         let scheme: String = k.get("scheme")?;
         let block: String = k.get("block")?;
         let budget: f64 = k.get("budget")?;
@@ -705,11 +707,13 @@ fn direct_source(
 ) -> Result<DirectSource, SolverError> {
     let v = geom.voxels() as usize;
     let layers = cut.layers;
+    // The plan's group, within what one bin pass can share (Sweeper::bin_group).
+    let group = |m: &Marcher| cut.group.min(sweeper.bin_group(&m.beams));
     let lit = match &marcher {
         Some(m) => Some(Marched {
             marcher: m,
-            groups: BeamGroup::split(&m.ray_beam, m.beams.len() as u32, cut.group.min(sweeper.bin_group(&m.beams))),
-            sums: sweeper.deposit_sums(gpu, cut.group.min(sweeper.bin_group(&m.beams)) as usize)?,
+            groups: BeamGroup::split(&m.ray_beam, m.beams.len() as u32, group(m)),
+            sums: sweeper.deposit_sums(gpu, group(m) as usize)?,
             ray_beam: gpu.buffer_with("dom ray beams", &m.ray_beam)?,
             table: gpu.buffer_with("dom beams", &sweeper.beam_table(g, &m.beams))?,
         }),

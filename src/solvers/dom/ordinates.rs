@@ -518,6 +518,20 @@ impl Sweeper {
         } = Tables::new(s)?;
         let m = storage.len() as u64;
         let slots = count.iter().copied().max().unwrap_or(1).max(1);
+        // A truncated peak (dom.delta_m): the gather splits at the swept set's covering radius,
+        // the bin at the storage set's (the same set, and so the same split, unless upsampled).
+        let split = |q: &Quadrature| {
+            let c0 = covering_cos(q);
+            [hg_mass_within(s.g, c0) as f32, c0 as f32]
+        };
+        let (gather_split, bin_split) = match (s.scatter_g != s.g, mode) {
+            (false, _) => ([0.0, 1.0], [0.0, 1.0]),
+            (true, Storage::Swept) => {
+                let both = split(&swept);
+                (both, both)
+            }
+            (true, _) => (split(&swept), split(&storage)),
+        };
         let nch = s.channels as u64;
         let characteristics = s.scheme == Scheme::Characteristics;
         let face_bytes = if characteristics { 8 * slots as u64 * sv * 4 } else { 4 };
@@ -573,21 +587,8 @@ impl Sweeper {
             footprint: gpu.buffer_with("ordinates storage footprints", &footprint)?,
             upsample: gpu.buffer_with("ordinates upsampling", &upsample)?,
             scatter_matrix: gpu.buffer_with("ordinates scattering", &scatter)?,
-            gather_split: match s.scatter_g != s.g {
-                // A truncated peak (dom.delta_m): the gather splits at the set's covering radius.
-                true => {
-                    let c0 = covering_cos(&swept);
-                    [hg_mass_within(s.g, c0) as f32, c0 as f32]
-                }
-                false => [0.0, 1.0],
-            },
-            bin_split: match s.scatter_g != s.g {
-                true => {
-                    let c0 = covering_cos(&storage);
-                    [hg_mass_within(s.g, c0) as f32, c0 as f32]
-                }
-                false => [0.0, 1.0],
-            },
+            gather_split,
+            bin_split,
             field: gpu.buffer("ordinates field", 8 * slots as u64 * sv * 4)?,
             geometry: gpu.buffer_with("ordinates characteristics geometry", &geometry)?,
             faces: [
