@@ -257,3 +257,49 @@ fn stability_sweep_sh_single_passes() {
     assert!(thin > -0.1, "thin medium, light inside: {thin} under the lossless bound");
     assert_clean(&gpu);
 }
+
+/// A unit cube of constant density seen by an 8 x 8 orthographic camera, lit by `lights` point
+/// lights in a ring outside it.
+fn many_lights(lights: usize) -> scatterlab::scene::Scene {
+    let mut text = String::from(
+        "[render]\nwidth = 8\nheight = 8\nspp = 1\n[camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\n\
+         target = [0.0, 0.0, 0.0]\nextent = 2.0\n[medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\n\
+         sigma_t = 2.0\nalbedo = 0.5\ndensity = { kind = \"constant\" }\n",
+    );
+    for i in 0..lights {
+        let a = i as f64 * std::f64::consts::TAU / lights as f64;
+        text += &format!(
+            "[[light]]\nkind = \"point\"\nposition = [{:.6}, {:.6}, 1.0]\nintensity = 1e-4\n",
+            2.0 * a.cos(),
+            2.0 * a.sin()
+        );
+    }
+    crate::common::scene(&text)
+}
+
+#[test]
+fn light_loops_that_cannot_pause_are_refused_past_the_loop_guard_by_name() {
+    // A shadow invocation (glsl/view/shadow.comp) and a networks direct-light invocation
+    // (glsl/networks/direct.comp) each loop over every light and march the medium in loops
+    // that cannot pause; on llvmpipe n iterations take n + 1 of the 65535 back-edges, past
+    // which every loop ends silently. Before these checks, networks counted steps + lights
+    // (15001 lights at 30000 steps passed as 45001) and the shadow pass nothing.
+    let gpu = gpu();
+    let diag = 3f64.sqrt();
+    // single: the unit cube's diagonal in 16384 shadow steps (the most allowed) takes
+    // 2 x 16384 back-edges both ways, plus lights + 1: 27300 lights pass 60000.
+    let step = format!("{}", diag / 16384.0 * 1.0001);
+    let sets = [("single.shadow_step", step.as_str()), ("single.shadow", "march")];
+    let err = crate::common::try_render(&gpu, &many_lights(27300), SINGLE, &sets, false).err().expect("refused");
+    let err = err.to_string();
+    assert!(err.contains("single.shadow_step") && err.contains("27300 lights") && !err.contains('\n'), "{err}");
+    let ok = crate::common::try_render(&gpu, &many_lights(2), SINGLE, &sets, false).expect("two lights render");
+    assert!(ok.image.data.iter().all(|v| v.is_finite()) && ok.image.mean()[0] > 0.0);
+    // networks: 28998 steps and 15600 lights: 28999 + 2 x 15601 = 60201.
+    let step = format!("{}", diag / 29000.0 * 1.0001);
+    let sets = [("networks.step", step.as_str()), ("networks.particles", "64")];
+    let err = crate::common::try_render(&gpu, &many_lights(15600), NETWORKS, &sets, false).err().expect("refused");
+    let err = err.to_string();
+    assert!(err.contains("networks.step") && err.contains("15600 lights") && !err.contains('\n'), "{err}");
+    assert_clean(&gpu);
+}

@@ -108,6 +108,9 @@ layout(push_constant) uniform Push {
     uint sample_begin;    // the first sample index of every pixel (render.first_sample, --samples A..B)
     uint equiangular;     // bit i: point light i also sampled by equiangular sampling + MIS
     uint mnee;            // bit i: light i is outside the refractive mesh: reached by manifold NEE
+    float env_r;          // what a camera ray that misses the medium sees: the environment
+    float env_g;          // lights' radiance summed in scene order by the host (a loop over
+    float env_b;          // every light here could not pause within the budget on llvmpipe)
 } pc;
 
 // What the scene needs, set by the host (src/solvers/path.rs, `trace_spec`): code for a feature
@@ -524,9 +527,7 @@ void main() {
     uint segs = 0u;
     // Only a pixel between samples can be one no ray of which meets the medium.
     bool pixel_misses = !in_flight && pixel_misses_medium(px);
-    vec3 env_seen = vec3(0.0);   // what a camera ray that misses the medium sees
-    for (uint i = 0u; ENVIRONMENT && i < scene.image.z; i++)
-        if (uint(scene.lights[i].pos_kind.w) == LIGHT_ENVIRONMENT) env_seen += scene.lights[i].value.rgb;
+    vec3 env_seen = vec3(pc.env_r, pc.env_g, pc.env_b);   // what a camera ray that misses the medium sees
 
     while (iters < pc.budget) {
         if (!in_flight) {

@@ -486,8 +486,7 @@ pub fn loop_iterations(block: u32, q: &Quadrature, storage: &Quadrature, scheme:
 /// its loops end silently (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS; glsl/include/budget.glsl).
 /// Real GPUs have no such limit, and there a larger block is the faster sweep.
 pub fn loop_limited(gpu: &Gpu) -> bool {
-    let info = gpu.info();
-    info.name.starts_with("llvmpipe") || info.driver_name == "llvmpipe"
+    crate::solvers::parts::resumable::loop_limited(gpu)
 }
 
 /// The largest block edge (1..=[`MAX_BLOCK`]) whose sweep stays within `LOOP_GUARD` loop

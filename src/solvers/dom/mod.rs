@@ -45,14 +45,14 @@ use crate::scene::{is_grey, CameraKind, Emission, Medium, Scene};
 
 use self::blocks::{BlockOptions, BlockSweeper, Evict, StoreKind, StreamStats, MAX_BLOCK};
 use self::directions::DirectionsTrust;
-use self::ordinates::{BeamGroup, Eye, Slab, SweepSetup, Sweeper};
+use self::ordinates::{bin_group, BeamGroup, Eye, Slab, SweepSetup, Sweeper};
 use crate::solvers::interface::{
     Animation, Convergence, Figure, Headline, Knob, Knobs, Progress, Range, RenderOutput, RenderReport, RenderRequest,
     Rung, Solver, SolverError, Stats, Variant,
 };
 use crate::solvers::parts::gpu_scene::{self, GpuScene};
 use crate::solvers::parts::lattice::{GridTrust, LatticeGeom, DOM_GRID};
-use crate::solvers::parts::marching::{self, MarchSettings, Marcher};
+use crate::solvers::parts::marching::{self, Beam, MarchSettings, Marcher};
 use crate::solvers::parts::view::{self, FluxUse, MsVolume, MsWindow, ViewSettings};
 
 pub struct Dom;
@@ -492,7 +492,7 @@ fn source_sweeper(
         let density: Vec<f32> = gpu.read_buffer_as(&d)?;
         let (sigma_t, sigma_s) = extinction(m, nch, &density, set.truncation);
         let sweeper = Sweeper::new(gpu, &sweep_setup(set, geom, nch, g, eye, &sigma_t, &sigma_s))?;
-        let cut = SourceCut { layers: geom.dims[2], group: (plan.beams as usize).max(1) as u32 };
+        let cut = SourceCut { layers: geom.dims[2], group: plan.max_group() };
         Ok((density, Some((sigma_t, sigma_s)), sweeper, cut))
     } else {
         let cut = plan.cut(set, gpu.info().max_storage_buffer_range, block)?;
@@ -707,8 +707,11 @@ fn direct_source(
 ) -> Result<DirectSource, SolverError> {
     let v = geom.voxels() as usize;
     let layers = cut.layers;
-    // The plan's group, within what one bin pass can share (Sweeper::bin_group).
-    let group = |m: &Marcher| cut.group.min(sweeper.bin_group(&m.beams));
+    // The plan's group is within what one bin pass can share (SourcePlan::max_group).
+    if let Some(m) = &marcher {
+        debug_assert!(cut.group <= sweeper.bin_group(&m.beams));
+    }
+    let group = |_: &Marcher| cut.group;
     let lit = match &marcher {
         Some(m) => Some(Marched {
             marcher: m,
@@ -1101,6 +1104,8 @@ struct SourcePlan {
     /// The binning tables and the beam table.
     fixed: u64,
     channels: u32,
+    /// The most beams one bin pass can share (`ordinates::bin_group`: bin.comp's loops).
+    bin_group: u32,
 }
 
 /// How the direct source is made: slabs of at most `layers` layers, groups of at most `group`
@@ -1112,7 +1117,9 @@ struct SourceCut {
 }
 
 impl SourcePlan {
-    fn new(set: &DomSettings, geom: &LatticeGeom, nch: u32, beams: u64) -> SourcePlan {
+    fn new(set: &DomSettings, geom: &LatticeGeom, nch: u32, beams: &[Beam]) -> SourcePlan {
+        let point = beams.iter().any(|b| matches!(b, Beam::FromPoint(_)));
+        let beams = beams.len() as u64;
         let layer = geom.dims[0] as u64 * geom.dims[1] as u64;
         let (nch64, m) = (nch as u64, set.storage.len() as u64);
         SourcePlan {
@@ -1124,7 +1131,13 @@ impl SourcePlan {
             fixed: Sweeper::bytes(geom.voxels(), nch64, &set.quadrature, &set.storage, set.scheme, false, 0)
                 + beams * 32,
             channels: nch,
+            bin_group: bin_group(m, nch64, point),
         }
+    }
+
+    /// The largest group of beams one bin pass takes: all of them where the loops allow.
+    fn max_group(&self) -> u32 {
+        (self.beams.max(1) as u32).min(self.bin_group)
     }
 
     /// Bytes of one layer of the light toward the camera (all channels) that the view reads.
@@ -1149,7 +1162,7 @@ impl SourcePlan {
     /// holds them all.
     fn cut(&self, set: &DomSettings, max_binding: u64, block: u32) -> Result<SourceCut, SolverError> {
         let nz = self.dims[2];
-        let beams = self.beams.max(1) as u32;
+        let beams = self.max_group();
         if let Some(budget) = set.budget {
             let (layout, fixed) = BlockSweeper::plan(
                 self.dims,
@@ -1279,7 +1292,7 @@ impl Dom {
         // their buffers. Block sweeps make it slab by slab within dom.budget (and one binding),
         // the density resampled and the source read back per slab: nothing grid-sized stays on
         // the device but the sweeps' pool (5.2.2's blocks, here as runs of whole layers).
-        let plan = SourcePlan::new(set, &geom, nch, marcher.as_ref().map_or(0, |m| m.beams.len() as u64));
+        let plan = SourcePlan::new(set, &geom, nch, marcher.as_ref().map_or(&[][..], |m| &m.beams[..]));
         let (mut density, plane_extinction, sweeper, cut) =
             source_sweeper(gpu, (&gs, &resampler), set, &plan, (m, nch, eye), block)?;
         stage("setup");
@@ -1602,8 +1615,8 @@ impl Solver for Dom {
         }
         let geom = set.geom;
         let m = &set.march;
-        let (rays, _, beams) = marching::beams(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed);
-        let (rays, beams) = (rays.len() as u64, beams.len() as u64);
+        let (rays, _, beam_list) = marching::beams(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed);
+        let (rays, beams) = (rays.len() as u64, beam_list.len() as u64);
         let v = geom.voxels();
         let nch = channels(scene, gpu_scene::modelled(scene, false).chromatic) as u64;
         // Block sweeps: the pool (the whole grid, or what dom.budget allows) and tables; then the
@@ -1621,7 +1634,7 @@ impl Solver for Dom {
             );
             let all = fixed
                 + (layout.store_floats() + layout.blocks().min(layout.widest_plane()) as u64 * layout.scratch()) * 4;
-            let plan = SourcePlan::new(&set, &geom, nch as u32, beams);
+            let plan = SourcePlan::new(&set, &geom, nch as u32, &beam_list);
             let cut = plan.cut(&set, u64::MAX, block)?;
             // Each view run: its slab of the light toward the camera and the view's buffers, the
             // shadow volume in the run that adds the direct light only.
@@ -1640,7 +1653,8 @@ impl Solver for Dom {
                 cut.group as u64,
             )
         } else {
-            (None, v, beams.max(1))
+            let plan = SourcePlan::new(&set, &geom, nch as u32, &beam_list);
+            (None, v, plan.max_group() as u64)
         };
         // Making the direct source: the marcher, the sweeper's buffers (all of them with plane
         // sweeps, the binning's and one slab's sources with blocks), the slab's deposit sums per

@@ -738,11 +738,11 @@ impl Sweeper {
     /// without the exits and so kept in one group, left the isotropic medium's image 1.3% short of
     /// the same render stored at one direction; in groups of 28 it is exact.
     pub fn bin_group(&self, beams: &[Beam]) -> u32 {
-        let (m, ch) = (self.storage.len() as u64, self.channels as u64);
-        let point = beams.iter().any(|b| matches!(b, Beam::FromPoint(_)));
-        let per_beam = (ch + 1) + 2 * (m + 1) + m * (ch + 1) + 1 + if point { 34 * (m + 1) + 33 } else { 0 };
-        let fixed = (ch + 1) + ch * (m + 1) + 1;
-        ((LOOP_GUARD as u64).saturating_sub(fixed) / per_beam).clamp(1, u32::MAX as u64) as u32
+        bin_group(
+            self.storage.len() as u64,
+            self.channels as u64,
+            beams.iter().any(|b| matches!(b, Beam::FromPoint(_))),
+        )
     }
 
     /// The beams as the bin pass reads them: two vec4 each, (direction or position, 0 parallel
@@ -1044,4 +1044,14 @@ impl Sweeper {
         let slot = (n % 3) as usize;
         Ok(Some(all[slot * e..(slot + 1) * e].to_vec()))
     }
+}
+
+/// The most beams one bin pass shares among `m` storage directions in `channels` channels
+/// (`point`: some beam leaves a point light): [`Sweeper::bin_group`]'s count, which the direct
+/// source's plan (`SourcePlan::cut`) takes its groups within.
+pub fn bin_group(m: u64, channels: u64, point: bool) -> u32 {
+    let ch = channels;
+    let per_beam = (ch + 1) + 2 * (m + 1) + m * (ch + 1) + 1 + if point { 34 * (m + 1) + 33 } else { 0 };
+    let fixed = (ch + 1) + ch * (m + 1) + 1;
+    ((LOOP_GUARD as u64).saturating_sub(fixed) / per_beam).clamp(1, u32::MAX as u64) as u32
 }

@@ -633,13 +633,19 @@ impl Network {
         let n = self.particles.positions.len() as u32;
         let units = unit_count(scene, env_dirs);
         if units > 0 {
-            // The march's steps: at most the bounds' diagonal over `step`, kept under the
-            // per-invocation loop guard (glsl/include/budget.glsl).
+            // An invocation's loops (glsl/networks/direct.comp), counted as llvmpipe counts them
+            // (n iterations take n + 1 back-edges): the march, at most the bounds' diagonal over
+            // `step`, and two loops over the lights (the unit's light, the environments'), all
+            // kept under the per-invocation loop guard (glsl/include/budget.glsl).
             let diagonal = (scene.medium.bounds_max - scene.medium.bounds_min).length();
-            let steps = (diagonal / step).ceil() as u64 + scene.lights.len() as u64;
-            if steps > LOOP_GUARD as u64 {
+            let steps = (diagonal / step).ceil() as u64;
+            let lights = scene.lights.len() as u64;
+            let iterations = steps + 1 + 2 * (lights + 1);
+            if iterations > LOOP_GUARD as u64 {
                 return Err(SolverError::Unsupported(format!(
-                    "networks: the transmittance step {step} takes {steps} steps across the medium; at most {LOOP_GUARD}"
+                    "networks.step = {step} takes {steps} steps across the medium, and with {lights} \
+                     lights one invocation runs {iterations} loop iterations; at most {LOOP_GUARD} (raise \
+                     networks.step or merge lights)"
                 )));
             }
             let pipeline = gpu.pipeline(&DIRECT, &gs.modelled.view_spec())?;

@@ -36,6 +36,39 @@ pub fn check_mesh_budget(k: &Knobs, name: &str, budget: u32, has_mesh: bool) -> 
     Ok(())
 }
 
+/// Largest `path.budget` on a device whose loops end past 65535 back-edges ([`loop_limited`]),
+/// whatever the scene. A path kernel's lanes diverge (one in a free flight, its neighbour in a
+/// shadow ray), and llvmpipe counts the back-edges of the SIMD batch of 8 together, not each
+/// lane's, while the kernels' guard reads each lane's own count: budgets of 16 to 8000 gave the
+/// cloud (scenes/cloud.toml, 16 x 16, 512 spp) the same image bit for bit, 9000 wrong pixels
+/// (27 of 256), 10000-15000 70-80 of 256, up to 6.9% each, with no lane past 12612 and so no
+/// error. The mesh scenes' measured limit ([`MESH_MAX_BUDGET`]) holds there too.
+pub const LIMITED_PATH_BUDGET: u32 = MESH_MAX_BUDGET;
+
+/// Whether this device ends an invocation's loops after 65535 back-edges in all: llvmpipe
+/// (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS; glsl/include/budget.glsl). Real GPUs have no such
+/// limit.
+pub fn loop_limited(gpu: &Gpu) -> bool {
+    let info = gpu.info();
+    info.name.starts_with("llvmpipe") || info.driver_name == "llvmpipe"
+}
+
+/// Refuse `path.budget` past [`LIMITED_PATH_BUDGET`] on a [`loop_limited`] device: its
+/// divergent lanes' loops add up in one SIMD batch.
+pub fn check_path_budget(gpu: &Gpu, k: &Knobs, name: &str, budget: u32) -> Result<(), SolverError> {
+    if loop_limited(gpu) && budget > LIMITED_PATH_BUDGET {
+        return Err(k.invalid(
+            name,
+            format!(
+                "{budget} on llvmpipe: its loop limiter counts the 8 lanes of a SIMD batch together, and path's \
+                 lanes run different loops, so above {LIMITED_PATH_BUDGET} their loops could end silently \
+                 (measured: wrong pixels from 9000 on scenes/cloud.toml); use at most {LIMITED_PATH_BUDGET}"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Dispatches per submission; each reports its unfinished invocations in its own counter.
 pub const ROUNDS_PER_SUBMIT: u32 = 4;
 /// Words in a resumable kernel's stats buffer.
@@ -49,7 +82,8 @@ pub fn budget_knob() -> Knob {
         "budget",
         "4096",
         Range::int(16, (LOOP_GUARD / 4) as u64),
-        "loop iterations per invocation per dispatch of a resumable kernel (llvmpipe ends loops past 65535)",
+        "loop iterations per invocation per dispatch of a resumable kernel (llvmpipe ends loops past 65535 in a SIMD \
+         batch: there path takes at most 4096)",
     )
 }
 

@@ -327,6 +327,23 @@ impl ViewSettings {
                 ));
             }
         }
+        // One shadow invocation (glsl/view/shadow.comp) finds its light among all of them, then
+        // marches both sides in one loop each, none of which can pause: with n iterations
+        // taking n + 1 back-edges on llvmpipe, kept under the loop guard (glsl/include/budget.glsl).
+        let shadow_steps = (diag / v.shadow_step).ceil() as u64;
+        let lights = scene.lights.len() as u64;
+        let iterations = lights + 1 + 2 * (shadow_steps + 1);
+        if iterations > resumable::LOOP_GUARD as u64 {
+            return Err(k.invalid(
+                &key("shadow_step"),
+                format!(
+                    "{} gives {shadow_steps} steps across the medium's diagonal {diag}, and with {lights} lights one \
+                     shadow invocation runs {iterations} loop iterations, past {}; use a larger step or merge lights",
+                    v.shadow_step,
+                    resumable::LOOP_GUARD
+                ),
+            ));
+        }
         Ok(v)
     }
 

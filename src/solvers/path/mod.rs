@@ -86,6 +86,11 @@ pub struct PathPush {
     /// Bit i: light i (point or directional) lies outside the refractive object and reaches
     /// its inside by manifold next-event estimation through its facets ([`refractive_lights`]).
     pub mnee: u32,
+    /// What a camera ray that misses the medium sees: the environment lights' radiance summed
+    /// in scene order (W m^-2 sr^-1 per channel), as the kernel once summed it itself, bit for
+    /// bit. Summed here because the kernel's loop over every light could not pause: on
+    /// llvmpipe it ran outside the dispatch's budget (glsl/include/budget.glsl).
+    pub env_seen: [f32; 3],
 }
 
 /// Push constants of glsl/path/light.comp.
@@ -717,6 +722,7 @@ impl Solver for Path {
         let batch: u32 = k.get_or("batch", default_batch)?;
         let budget: u32 = k.get("budget")?;
         crate::solvers::parts::resumable::check_mesh_budget(&k, "budget", budget, scene.object.is_some())?;
+        crate::solvers::parts::resumable::check_path_budget(gpu, &k, "budget", budget)?;
         let collision_cap: u32 = k.get("collision_cap")?;
         let eq_mode: String = k.get("equiangular")?;
         let equiangular = equiangular_lights(scene, &eq_mode);
@@ -763,6 +769,7 @@ impl Solver for Path {
             rr_depth,
             rr_threshold,
             mnee_grid: &mnee_grid,
+            env_seen: env_seen(scene),
         };
         let needs_camera = camera_lights > 0 || traced.is_empty();
         let batches = light_batches.min(spp);
@@ -910,6 +917,8 @@ struct Common<'a> {
     rr_threshold: f32,
     /// The facet lists of manifold NEE (src/solvers/path/mnee.rs).
     mnee_grid: &'a [u32],
+    /// [`PathPush::env_seen`].
+    env_seen: [f32; 3],
 }
 
 impl Common<'_> {
@@ -939,6 +948,20 @@ struct Part {
     units: u64,
     warnings: Vec<String>,
     device_bytes: u64,
+}
+
+/// [`PathPush::env_seen`]: the environment lights' radiance, summed in scene order in f32 as
+/// the kernel summed it.
+fn env_seen(scene: &Scene) -> [f32; 3] {
+    let mut sum = [0f32; 3];
+    for l in &scene.lights {
+        if let Light::Environment { radiance } = l {
+            for (s, r) in sum.iter_mut().zip(radiance.to_array()) {
+                *s += r;
+            }
+        }
+    }
+    sum
 }
 
 /// The path kernels' limits: lights indexed in 20 bits, majorant cells counted in 10 along y
@@ -1092,7 +1115,7 @@ fn camera_paths(
     while sample_end < end {
         sample_end = sample_end.saturating_add(batch).min(end);
         let (n, _) = resumable::run_until_done(gpu, role, "path", &stats, &mut rounds, |slot| {
-            let push = PathPush { head: c.head(sample_end, slot), equiangular, mnee };
+            let push = PathPush { head: c.head(sample_end, slot), equiangular, mnee, env_seen: c.env_seen };
             gs.bind_emission(gs.bind_mesh(Pass::new("path.trace", role, &pipeline)))
                 .read_write(3, &accum)
                 .read_write(4, &stats)
