@@ -303,3 +303,54 @@ fn light_loops_that_cannot_pause_are_refused_past_the_loop_guard_by_name() {
     assert!(err.contains("networks.step") && err.contains("15600 lights") && !err.contains('\n'), "{err}");
     assert_clean(&gpu);
 }
+
+#[test]
+fn light_rays_past_one_binding_are_refused_by_name_before_they_are_made() {
+    // lbl and dom march `rays` rays per light: with many lights the rays and their history
+    // pass one device binding. Counted before they are made, the render is one line naming the
+    // knob (it was a binding error naming a buffer, after the host had built every ray: 2000
+    // lights at 65536 rays each, 12.6 GB).
+    let gpu = gpu();
+    let per_ray = 16 * 16; // the history at the default k = 16 is the widest buffer
+                           // (twice the lights whose every ray would fill one binding: some rays miss the box)
+    let lights = 2 * (gpu.info().max_storage_buffer_range / (65536 * per_ray)) as usize + 2;
+    let s = many_lights(lights);
+    let dom: &dyn scatterlab::solvers::Solver = &scatterlab::solvers::dom::Dom;
+    for (solver, key) in [(LBL, "lbl.rays"), (dom, "dom.rays")] {
+        let err = crate::common::try_render(&gpu, &s, solver, &[], false).err().expect("refused").to_string();
+        assert!(err.contains(key) && err.contains(&format!("{lights} lights")) && !err.contains('\n'), "{err}");
+    }
+    assert_clean(&gpu);
+}
+
+#[test]
+fn a_line_of_work_past_65535_groups_folds_into_rows_and_sums_the_same() {
+    // lbl's transfer adds every ray's history (rays x k entries, one invocation each, 64 to a
+    // group): the rays of 10^6 that reach the cube at k = 16 make more than 65535 groups along
+    // x, past what lavapipe dispatches; folded into rows (Pass::cover_linear) they must sum
+    // what k = 8 (one row) sums. Fixed-point transfer: exact sums in any
+    // order; k moves where the rounds fall against the lattice's iterations (1.2e-5 at 3 x 10^5
+    // rays). A second row lost would lose its entries (percents of them), one run twice add as
+    // much: the tolerance tells them apart.
+    let gpu = gpu();
+    let s = crate::common::scene(
+        "[render]\nwidth = 8\nheight = 8\nspp = 1\n[camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\n\
+         target = [0.0, 0.0, 0.0]\nextent = 2.0\n[medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\n\
+         sigma_t = 2.0\nalbedo = 0.5\ndensity = { kind = \"constant\" }\n[[light]]\nkind = \"directional\"\n\
+         direction = [0.3, -1.0, 0.2]\nirradiance = 1.0\n",
+    );
+    let common = [("lbl.rays", "1000000"), ("lbl.grid", "16"), ("lbl.deterministic", "true")];
+    // The rays that reach the box (the beam's square is wider than the cube's shadow).
+    let geom = scatterlab::solvers::parts::lattice::LatticeGeom::new(&s, 16);
+    let (rays, _) = scatterlab::solvers::parts::marching::ray_count(&s, &geom, 1_000_000, 1, 0.01, s.render.seed);
+    let groups = |k: u64| (rays * k).div_ceil(64);
+    assert!(groups(16) > 65535 && groups(8) <= 65535, "{rays} rays: {} and {} groups", groups(16), groups(8));
+    let run = |k: &str| {
+        let sets: Vec<(&str, &str)> = common.iter().copied().chain([("lbl.k", k)]).collect();
+        crate::common::try_render(&gpu, &s, LBL, &sets, false).expect("lbl renders")
+    };
+    let (folded, one_row) = (run("16"), run("8"));
+    let (a, b) = (folded.image.mean()[0], one_row.image.mean()[0]);
+    assert!(a > 0.0 && ((a - b) / b).abs() < 1e-3, "folded {a} vs one row {b}");
+    assert_clean(&gpu);
+}

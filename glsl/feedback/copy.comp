@@ -5,7 +5,11 @@
 // own atomics and every pass's read of its stop word stay in device memory; only these few
 // words cross the bus.
 
+#extension GL_GOOGLE_include_directive : require
+
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 
 layout(std430, binding = 0) buffer Record { uint record[]; };       // device-local
 layout(std430, binding = 1) writeonly buffer Host { uint host[]; }; // host-visible
@@ -16,7 +20,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    uint i = gl_GlobalInvocationID.x;
+    uint i = linear_id();
     if (i >= pc.words) return;
     if (pc.clear != 0u) {
         record[i] = 0u;

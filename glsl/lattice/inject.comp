@@ -34,6 +34,8 @@
 #include "../include/lattice.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 layout(constant_id = 6) const bool FIXED = false;
 
 // [c V + v] energies, then with pc.directed [NCH V + (3 c + a) V + v] fluxes: float bits, or
@@ -62,7 +64,7 @@ float take(uint i, bool signed_) {
 }
 
 void main() {
-    uint v = gl_GlobalInvocationID.x;
+    uint v = linear_id();
     uint li = gl_LocalInvocationID.x;
     uint V = pc.dims.w;
     uvec3 n = pc.dims.xyz;
@@ -111,9 +113,10 @@ void main() {
             }
         barrier();
     }
-    if (li == 0u) {
+    // The last row of a folded line has groups past the voxels (linear.glsl): no slot of theirs.
+    if (li == 0u && linear_group() * 64u < V) {
         for (uint c = 0u; c < NCH; ++c) {
-            uint k = gl_WorkGroupID.x * NCH + c;
+            uint k = linear_group() * NCH + c;
             vec2 t = tally[k];
             kahan_add(t.x, t.y, sh[c * 64u]);
             tally[k] = t;

@@ -55,6 +55,8 @@
 #include "../include/phase.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 
 struct Ray {
     vec4 pos_steps;   // position (scene units), steps taken (float)
@@ -111,8 +113,8 @@ float lobe_reflectance(vec3 d, vec3 n_out, float g, float ior) {
 }
 
 void main() {
-    if (gl_GlobalInvocationID.x >= pc.dims.w) return;
-    uint r = pc.first_ray + gl_GlobalInvocationID.x;
+    if (linear_id() >= pc.dims.w) return;
+    uint r = pc.first_ray + linear_id();
     Ray ray = rays[r];
     vec3 x = ray.pos_steps.xyz;
     float steps = ray.pos_steps.w;

@@ -8,11 +8,13 @@
 #include "../include/transfer.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 // [c V + v] deposits; with pc.directed then [NCH V + (3 c + a) V + v] fluxes (lattice/inject).
 layout(std430, binding = 1) buffer Accum { uint acc[]; };
 
 void main() {
-    uint e = gl_GlobalInvocationID.x;
+    uint e = linear_id();
     if (e >= pc.entries) return;
     uvec4 s = rhb[e];
     if (s.x == 0xffffffffu) return;

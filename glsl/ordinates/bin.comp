@@ -17,6 +17,8 @@
 #include "../include/phase.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 layout(std430, binding = 0) readonly buffer Accum { uint acc[]; };          // [c][beam][voxel], fixed point
 layout(std430, binding = 1) readonly buffer Beams { vec4 beams[]; };        // 2 per beam: (xyz, 0 parallel / 1 point), (g', -, -, -)
 layout(std430, binding = 2) readonly buffer Storage { vec4 storage_dirs[]; }; // xyz, w weight (sr)
@@ -63,7 +65,7 @@ float matched_g(vec3 d) {
 }
 
 void main() {
-    uint v = gl_GlobalInvocationID.x;
+    uint v = linear_id();
     uint V = pc.dims.w;
     if (v >= V) return;
     uint M = pc.storage;

@@ -12,7 +12,11 @@
 // (z outermost: contiguous), and deposits elsewhere wait for their slab's pass; each voxel's sum
 // is the same integer whichever slab plan it is made in.
 
+#extension GL_GOOGLE_include_directive : require
+
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 layout(std430, binding = 0) readonly buffer History { uvec4 rhb[]; };
 layout(std430, binding = 1) buffer Accum { uint acc[]; };               // [c][beam][voxel]
 layout(std430, binding = 2) readonly buffer RayBeam { uint ray_beam[]; }; // per ray
@@ -32,8 +36,8 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    if (gl_GlobalInvocationID.x >= pc.entries) return;
-    uint e = pc.first_entry + gl_GlobalInvocationID.x;
+    if (linear_id() >= pc.entries) return;
+    uint e = pc.first_entry + linear_id();
     uvec4 s = rhb[e];
     if (s.x == 0xffffffffu || s.x < pc.base || s.x - pc.base >= pc.voxels) return;
     vec3 dep = uintBitsToFloat(s.yzw);

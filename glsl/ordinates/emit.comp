@@ -24,6 +24,8 @@
 #include "../include/scene.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 layout(std430, binding = 3) readonly buffer Resampled { float density[]; }; // the slab's, from its voxel 0
 layout(std430, binding = 4) buffer Source { float source[]; };              // [c][m][voxel], per unit volume and sr
 
@@ -37,7 +39,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    uint v = gl_GlobalInvocationID.x;
+    uint v = linear_id();
     uint V = pc.dims.w;
     if (v >= V) return;
     uint M = pc.storage;

@@ -28,6 +28,8 @@
 #include "../include/phase.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 
 // Directions whose field a voxel keeps in a local array (s8 has 80).
 const uint MAX_LOCAL = 96u;
@@ -62,7 +64,7 @@ layout(push_constant) uniform Push {
 
 void main() {
     if (ctrl_stopped != 0u) return;
-    uint v = gl_GlobalInvocationID.x;
+    uint v = linear_id_z();
     uint V = pc.dims.w;
     if (v >= V) return;
     uint M = pc.storage;

@@ -17,6 +17,8 @@
 #include "../include/view.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 
 // [(S j + s) V + v] for S = pc.sides: s = 0 toward the light, 1 away from it (only when the
 // bounded octaves need the whole chord).
@@ -30,7 +32,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    uint v = gl_GlobalInvocationID.x;
+    uint v = linear_id_z();
     uint j = gl_GlobalInvocationID.y;
     uvec3 n = scene.grid_dims.xyz;
     uint V = n.x * n.y * n.z;

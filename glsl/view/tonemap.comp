@@ -5,7 +5,11 @@
 // RGBA, alpha 255) for a copy into its image (src/gpu/present.rs). A non-finite value shows as
 // NON_FINITE_RGB8 (magenta), as in the PNG.
 
+#extension GL_GOOGLE_include_directive : require
+
 layout(local_size_x = 256, local_size_y = 1, local_size_z = 1) in;
+// After the work group size: linear.glsl reads gl_WorkGroupSize.
+#include "../include/linear.glsl"
 
 layout(std430, binding = 0) readonly buffer Linear { float rgb[]; };  // 3 per pixel, rows top-down
 layout(std430, binding = 1) writeonly buffer Packed { uint px[]; };   // one 8-bit pixel per word
@@ -32,7 +36,7 @@ uint to_u8(float v) {
 }
 
 void main() {
-    uint i = gl_GlobalInvocationID.x;
+    uint i = linear_id();
     if (i >= pc.pixels) return;
     vec3 v = vec3(rgb[3u * i], rgb[3u * i + 1u], rgb[3u * i + 2u]);
     uvec3 c;

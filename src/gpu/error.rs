@@ -46,6 +46,11 @@ pub enum GpuError {
     Shader { shader: String, reason: String },
     #[error("pass {pass:?}, binding {binding}: {reason}")]
     Binding { pass: String, binding: u32, reason: String },
+    #[error(
+        "pass {pass:?} dispatches {groups:?} work groups, past this device's maxComputeWorkGroupCount {max:?}; \
+        lower the work per pass (a bug where the solver should have split it: please report the scene)"
+    )]
+    TooManyGroups { pass: String, groups: [u32; 3], max: [u32; 3] },
     #[error("pass {pass:?}: push constants are {given} bytes but the shader declares {expected}")]
     PushConstants { pass: String, given: usize, expected: usize },
     #[error(

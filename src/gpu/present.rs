@@ -61,7 +61,7 @@ pub fn tonemap_on_device(gpu: &Gpu, rgb: &[f32], exposure: f32) -> Result<Vec<u8
         .read(0, &linear)
         .write(1, &packed)
         .push(&TonemapPush { pixels, scale: exposure.exp2(), bgra: 0 })
-        .cover([pixels, 1, 1]);
+        .cover_linear(pixels);
     let point = gpu.submit(QueueRole::Trace, &[pass], &[])?;
     gpu.wait(point)?;
     let words: Vec<u32> = gpu.read_buffer_as(&packed)?;
@@ -339,7 +339,7 @@ impl Presenter {
             .read(0, &staging.0)
             .write(1, &packed)
             .push(&TonemapPush { pixels: w * h, scale: exposure.exp2(), bgra: bgra as u32 })
-            .cover([w * h, 1, 1]);
+            .cover_linear(w * h);
         let mapped = self.gpu.submit(self.role, &[pass], &[])?;
         let readback = if read { Some(self.buffer(true, bytes)?) } else { None };
         let image = self.images[index as usize];

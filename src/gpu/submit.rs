@@ -97,6 +97,11 @@ pub struct Copy {
     pub size: u64,
 }
 
+/// Work groups along x that every Vulkan device dispatches (the spec's minimum
+/// maxComputeWorkGroupCount, and lavapipe's limit): [`Pass::cover_linear`] folds past it, in
+/// rows of exactly this many (glsl/include/linear.glsl's LINEAR_ROW).
+pub const MAX_GROUPS_X: u32 = 65535;
+
 /// One compute dispatch, described as data.
 #[derive(Clone)]
 pub struct Pass {
@@ -140,6 +145,33 @@ impl Pass {
         self.groups = self.pipeline.groups_for(n);
         self
     }
+    /// Cover a line of `n` invocations for a kernel that indexes it by `linear_id()`
+    /// (glsl/include/linear.glsl): at most [`MAX_GROUPS_X`] groups along x, further rows of them
+    /// along y. A line of more than 65535 groups is common (the march's history at 7 lights of
+    /// 65536 rays, dom's voxels past 162^3, a 2048^2 frame) and past lavapipe's limit.
+    pub fn cover_linear(self, n: u32) -> Pass {
+        let (x, rows) = self.fold(n);
+        self.groups([x, rows, 1])
+    }
+
+    /// [`Pass::cover_linear`] for a kernel whose y indexes something else (`rows` of it) and
+    /// whose line folds along z (`linear_id_z()`).
+    pub fn cover_linear_z(self, [n, rows]: [u32; 2]) -> Pass {
+        let (x, folds) = self.fold(n);
+        let y = self.pipeline.groups_for([1, rows, 1])[1];
+        self.groups([x, y, folds])
+    }
+
+    /// Groups along x and the rows of them that cover `n` invocations.
+    fn fold(&self, n: u32) -> (u32, u32) {
+        let groups = self.pipeline.groups_for([n, 1, 1])[0];
+        if groups <= MAX_GROUPS_X {
+            (groups, 1)
+        } else {
+            (MAX_GROUPS_X, groups.div_ceil(MAX_GROUPS_X))
+        }
+    }
+
     pub fn groups(mut self, g: [u32; 3]) -> Pass {
         self.groups = g;
         self
@@ -346,8 +378,14 @@ impl Gpu {
     /// signal the role's next timeline value, which is returned.
     pub fn submit(&self, role: QueueRole, passes: &[Pass], waits: &[SyncPoint]) -> Result<SyncPoint> {
         self.submit.lock().expect("submit lock").first_submit.get_or_insert_with(Instant::now);
+        let max = self.shared.info.max_compute_workgroup_count;
         for p in passes {
             p.check()?;
+            // Past the limit the validation layer reports it and a driver may run anything
+            // (lavapipe: 65535 per dimension; lbl's march at 7 lights of 65536 rays asked 104192).
+            if p.groups.iter().zip(&max).any(|(g, m)| g > m) {
+                return Err(GpuError::TooManyGroups { pass: p.name.clone(), groups: p.groups, max });
+            }
             if p.role != role {
                 return Err(GpuError::Binding {
                     pass: p.name.clone(),

@@ -331,7 +331,7 @@ impl DomSettings {
                 "overlap" => Some(Evict::Overlap),
                 _ => None,
             },
-            march: MarchSettings::parse(k, geom.lambda)?,
+            march: MarchSettings::parse(k, "dom", geom.lambda)?,
             view: ViewSettings::parse(k, "view_", scene)?,
         })
     }
@@ -1615,8 +1615,8 @@ impl Solver for Dom {
         }
         let geom = set.geom;
         let m = &set.march;
-        let (rays, _, beam_list) = marching::beams(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed);
-        let (rays, beams) = (rays.len() as u64, beam_list.len() as u64);
+        let (rays, beam_list) = marching::ray_count(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed);
+        let beams = beam_list.len() as u64;
         let v = geom.voxels();
         let nch = channels(scene, gpu_scene::modelled(scene, false).chromatic) as u64;
         // Block sweeps: the pool (the whole grid, or what dom.budget allows) and tables; then the

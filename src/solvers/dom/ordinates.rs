@@ -726,7 +726,7 @@ impl Sweeper {
                 beam0: group.beams.start,
                 pad: [0; 2],
             })
-            .cover([entries, 1, 1])
+            .cover_linear(entries)
     }
 
     /// The most beams one bin pass shares among the storage directions: bin.comp's invocation
@@ -786,7 +786,7 @@ impl Sweeper {
                 peak_cos: self.bin_split[1],
                 pad: [0; 3],
             })
-            .cover([v, 1, 1])
+            .cover_linear(v)
     }
 
     /// Add the medium's emission source sigma_a Le (isotropic: the same at every storage
@@ -809,7 +809,7 @@ impl Sweeper {
                 base: slab.base(),
                 start: start as u32,
             })
-            .cover([v, 1, 1])
+            .cover_linear(v)
     }
 
     /// The first-scattering source the bin pass stored for `slab` ([c][m][v] over its voxels,
@@ -909,7 +909,7 @@ impl Sweeper {
                 pad_f: 0.0,
                 pad: [0; 3],
             })
-            .cover([v, self.storage.len().div_ceil(self.scatter_chunk() as usize) as u32, 1])
+            .cover_linear_z([v, self.storage.len().div_ceil(self.scatter_chunk() as usize) as u32])
     }
 
     /// N, the directions swept.

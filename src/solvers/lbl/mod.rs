@@ -272,7 +272,7 @@ impl Solver for Lbl {
         let p = lattice_params(scene, &set, &geom, LblSettings::channels(scene, chromatic));
         // The raymaps are cheap on the host: count the rays exactly (misses are dropped).
         let m = &set.march;
-        let rays = marching::raymaps(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed).len() as u64;
+        let rays = marching::ray_count(scene, &geom, m.rays, m.env_lights, m.step, scene.render.seed).0;
         // A warm start's wave field lives only while the lattice is seeded; it counts at peak.
         let warm = set.warm_start.map_or(0, |w| w.device_bytes(scene, chromatic, &geom));
         // The forward population: its history beside the rays', its sums, and the view's copy
@@ -680,7 +680,7 @@ impl LblSettings {
         let out = LblSettings {
             grid,
             geom,
-            march: MarchSettings::parse(k, geom.lambda)?,
+            march: MarchSettings::parse(k, "lbl", geom.lambda)?,
             lattice: k.get("lattice")?,
             block,
             block_steps: k.get_or("block_steps", block)?,

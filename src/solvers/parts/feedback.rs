@@ -50,7 +50,7 @@ impl Feedback {
             .read_write(0, &self.device)
             .write(1, &self.host)
             .push(&CopyPush { words: self.words, clear: clear as u32 })
-            .cover([self.words, 1, 1])
+            .cover_linear(self.words)
     }
 
     /// Zero the record (before the first batch of a run of iterations).

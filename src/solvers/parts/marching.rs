@@ -133,6 +133,8 @@ pub fn knobs() -> Vec<Knob> {
 /// Marching's knobs, parsed.
 #[derive(Clone, Copy, Debug)]
 pub struct MarchSettings {
+    /// The solver whose knobs these are (`lbl`, `dom`): what an error names.
+    pub solver: &'static str,
     pub rays: u32,
     pub k: u32,
     pub step: f32,
@@ -142,8 +144,9 @@ pub struct MarchSettings {
 
 impl MarchSettings {
     /// Read the knobs for a grid of voxel edge `lambda` (the step's default and bound).
-    pub fn parse(k: &Knobs, lambda: f32) -> Result<MarchSettings, SolverError> {
+    pub fn parse(k: &Knobs, solver: &'static str, lambda: f32) -> Result<MarchSettings, SolverError> {
         let out = MarchSettings {
+            solver,
             rays: k.get("rays")?,
             k: k.get("k")?,
             step: k.get_or("step", lambda * 0.5)?,
@@ -203,18 +206,50 @@ pub fn beams(
     step: f32,
     seed: u64,
 ) -> (Vec<RayInit>, Vec<u32>, Vec<Beam>) {
+    let (mut out, mut ray_beam) = (Vec::new(), Vec::new());
+    let beams = each_ray(scene, geom, rays, env_lights, step, seed, &mut |beam, r| {
+        out.push(r);
+        ray_beam.push(beam);
+    });
+    (out, ray_beam, beams)
+}
+
+/// How many rays [`raymaps`] makes (those that reach the grid), and the beams, without holding
+/// the rays: the memory estimates' and the size check's count. Rays per light times lights can
+/// be far more than memory holds (2000 point lights at lbl's 65536 rays each: 131 million rays,
+/// 12.6 GB, which `scatterlab scene info` once built to count them).
+pub fn ray_count(
+    scene: &Scene,
+    geom: &LatticeGeom,
+    rays: u32,
+    env_lights: u32,
+    step: f32,
+    seed: u64,
+) -> (u64, Vec<Beam>) {
+    let mut n = 0u64;
+    let beams = each_ray(scene, geom, rays, env_lights, step, seed, &mut |_, _| n += 1);
+    (n, beams)
+}
+
+/// Every ray of [`beams`] in order, handed to `emit` with its beam; returns the beams.
+fn each_ray(
+    scene: &Scene,
+    geom: &LatticeGeom,
+    rays: u32,
+    env_lights: u32,
+    step: f32,
+    seed: u64,
+    emit: &mut dyn FnMut(u32, RayInit),
+) -> Vec<Beam> {
     let (lo, hi) = (geom.min(), geom.max());
     let centre = 0.5 * (lo + hi);
     let radius = 0.5 * (hi - lo).length();
     let mut rng = Pcg32::new(seed, 0x1b1);
     let m = (rays as f32).sqrt().ceil().max(1.0) as u32;
-    let mut out = Vec::new();
-    let mut ray_beam: Vec<u32> = Vec::new();
     let mut beams: Vec<Beam> = Vec::new();
     // Start a ray where it enters the grid (or at its origin from inside), backed off by a
     // random fraction of a step.
-    let push = |out: &mut Vec<RayInit>,
-                ray_beam: &mut Vec<u32>,
+    let push = |emit: &mut dyn FnMut(u32, RayInit),
                 beam: u32,
                 o: Vec3,
                 d: Vec3,
@@ -228,38 +263,35 @@ pub fn beams(
         };
         if let Some(s) = start {
             let s = s - d * (rng.next_f32() * step);
-            out.push(RayInit {
-                pos_steps: [s.x, s.y, s.z, 0.0],
-                dir_alive: [d.x, d.y, d.z, 1.0],
-                power: [power.x, power.y, power.z, power.max_element()],
-                fwd: [0.0; 4],
-                fwd_absorbed: [0.0; 4],
-                fwd_out: [0.0; 4],
-            });
-            ray_beam.push(beam);
+            emit(
+                beam,
+                RayInit {
+                    pos_steps: [s.x, s.y, s.z, 0.0],
+                    dir_alive: [d.x, d.y, d.z, 1.0],
+                    power: [power.x, power.y, power.z, power.max_element()],
+                    fwd: [0.0; 4],
+                    fwd_absorbed: [0.0; 4],
+                    fwd_out: [0.0; 4],
+                },
+            );
         }
     };
-    let directional = |out: &mut Vec<RayInit>,
-                       ray_beam: &mut Vec<u32>,
-                       beams: &mut Vec<Beam>,
-                       dir: Vec3,
-                       e: Vec3,
-                       n: u32,
-                       rng: &mut Pcg32| {
-        let beam = beams.len() as u32;
-        beams.push(Beam::Parallel(dir));
-        let (b1, b2) = orthonormal_basis(dir);
-        let side = 2.0 * radius;
-        let per = e * (side * side / (n * n) as f32);
-        for i in 0..n {
-            for j in 0..n {
-                let u = (i as f32 + rng.next_f32()) / n as f32 - 0.5;
-                let v = (j as f32 + rng.next_f32()) / n as f32 - 0.5;
-                let o = centre - dir * (radius * 1.01) + b1 * (u * side) + b2 * (v * side);
-                push(out, ray_beam, beam, o, dir, per, false, rng);
+    let directional =
+        |emit: &mut dyn FnMut(u32, RayInit), beams: &mut Vec<Beam>, dir: Vec3, e: Vec3, n: u32, rng: &mut Pcg32| {
+            let beam = beams.len() as u32;
+            beams.push(Beam::Parallel(dir));
+            let (b1, b2) = orthonormal_basis(dir);
+            let side = 2.0 * radius;
+            let per = e * (side * side / (n * n) as f32);
+            for i in 0..n {
+                for j in 0..n {
+                    let u = (i as f32 + rng.next_f32()) / n as f32 - 0.5;
+                    let v = (j as f32 + rng.next_f32()) / n as f32 - 0.5;
+                    let o = centre - dir * (radius * 1.01) + b1 * (u * side) + b2 * (v * side);
+                    push(emit, beam, o, dir, per, false, rng);
+                }
             }
-        }
-    };
+        };
     for light in &scene.lights {
         match light {
             Light::Point { position, intensity } => {
@@ -284,12 +316,12 @@ pub fn beams(
                         let st = (1.0 - ct * ct).max(0.0).sqrt();
                         let phi = 2.0 * std::f32::consts::PI * v;
                         let d = (b1 * (st * phi.cos()) + b2 * (st * phi.sin()) + axis * ct).normalize();
-                        push(&mut out, &mut ray_beam, beam, *position, d, per, from_inside, &mut rng);
+                        push(emit, beam, *position, d, per, from_inside, &mut rng);
                     }
                 }
             }
             Light::Directional { direction, irradiance } => {
-                directional(&mut out, &mut ray_beam, &mut beams, direction.normalize(), *irradiance, m, &mut rng)
+                directional(emit, &mut beams, direction.normalize(), *irradiance, m, &mut rng)
             }
             Light::Environment { radiance } => {
                 let k = env_lights.max(1);
@@ -300,12 +332,12 @@ pub fn beams(
                     let phi = 2.399_963_2 * i as f32;
                     let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
                     let e = *radiance * (4.0 * std::f32::consts::PI / k as f32);
-                    directional(&mut out, &mut ray_beam, &mut beams, d, e, n, &mut rng);
+                    directional(emit, &mut beams, d, e, n, &mut rng);
                 }
             }
         }
     }
-    (out, ray_beam, beams)
+    beams
 }
 
 /// Floats per voxel of the deposit sums: one per channel, and with `directed` the deposit's flux
@@ -465,6 +497,26 @@ impl Marcher {
             density
         };
 
+        // Rays per light times lights: counted before they are made, so a count past one binding
+        // (or the host's memory) is one line naming the knob, not an allocation that fails or
+        // takes the machine's memory.
+        let (count, _) = ray_count(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
+        let widest = RAY_BYTES.max(set.k as u64 * 16);
+        let max_binding = gpu.info().max_storage_buffer_range;
+        if count * widest > max_binding {
+            return Err(SolverError::Setting {
+                key: format!("{}.rays", set.solver),
+                reason: format!(
+                    "{} with {} lights makes {count} light rays, whose {} MiB exceed this device's largest binding \
+                     ({} MiB): use at most {} rays per light",
+                    set.rays,
+                    scene.lights.len(),
+                    (count * widest) >> 20,
+                    max_binding >> 20,
+                    (set.rays as u64 * max_binding / (count * widest)).max(1)
+                ),
+            });
+        }
         let (mut rays, ray_beam, beam_list) =
             beams(scene, &geom, set.rays, set.env_lights, set.step, scene.render.seed);
         if let Some(o) = &scene.object {
@@ -548,7 +600,7 @@ impl Marcher {
                 forward: self.forward as u32,
                 pad: [0; 2],
             })
-            .cover([count, 1, 1])
+            .cover_linear(count)
     }
 
     /// Add the last round's history into the sums, on queue role `role`.
@@ -570,7 +622,7 @@ impl Marcher {
                 forward: self.forward as u32,
                 pad: [0; 2],
             })
-            .cover([entries, 1, 1])
+            .cover_linear(entries)
     }
 
     /// Carry anisotropic media's forward-scattered light along each ray and sum its fluence and
@@ -627,5 +679,62 @@ impl Marcher {
             + self.history.size()
             + self.sums.size()
             + if self.forward { self.fwd_history.size() + self.fwd_sums.size() } else { 0 }
+    }
+}
+
+#[cfg(test)]
+mod count_tests {
+    use super::*;
+    use crate::scene::Scene;
+
+    #[test]
+    fn ray_count_counts_what_beams_makes_without_holding_it() {
+        // A point light outside (its cone's corners miss the box: dropped), one inside, a
+        // directional light and an environment: the count and the beams are [`beams`]'s.
+        let text = r#"
+[render]
+width = 4
+height = 4
+[camera]
+kind = "orthographic"
+origin = [0.0, 0.0, 3.0]
+target = [0.0, 0.0, 0.0]
+extent = 2.0
+[medium]
+bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+sigma_t = 2.0
+albedo = 0.5
+density = { kind = "constant" }
+[[light]]
+kind = "point"
+position = [1.5, 0.7, 0.9]
+intensity = 1.0
+[[light]]
+kind = "point"
+position = [0.1, 0.0, 0.0]
+intensity = 1.0
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, 0.2]
+irradiance = 1.0
+[[light]]
+kind = "environment"
+radiance = 0.5
+"#;
+        let scene = Scene::from_str(text, "t.toml", std::path::Path::new("."), &[], &Default::default()).unwrap();
+        let geom = LatticeGeom::new(&scene, 16);
+        for (rays, env) in [(1u32, 1u32), (1000, 4), (4096, 16)] {
+            let (made, ray_beam, beams_made) = beams(&scene, &geom, rays, env, 0.02, 7);
+            let (n, beams_counted) = ray_count(&scene, &geom, rays, env, 0.02, 7);
+            assert_eq!(n, made.len() as u64, "rays {rays}");
+            assert_eq!(ray_beam.len(), made.len());
+            assert_eq!(beams_counted, beams_made);
+            // Made: m^2 per point or directional light, n_e^2 per environment direction; some
+            // of the outside light's and the parallel beams' rays miss the box and are dropped.
+            let m = (rays as f32).sqrt().ceil() as u64;
+            let n_e = ((m * m / env as u64) as f32).sqrt().ceil().max(8.0) as u64;
+            let made_all = 3 * m * m + env as u64 * n_e * n_e;
+            assert!(n <= made_all && (rays < 1000 || n < made_all), "rays {rays}: {n} of {made_all}");
+        }
     }
 }

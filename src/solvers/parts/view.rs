@@ -490,7 +490,7 @@ pub fn march_reporting(
                 .bind(Pass::new("view.shadow", QueueRole::Trace, &sp))
                 .write(3, &buf)
                 .push(&ShadowPush { shadow_step: v.shadow_step, env_dirs: v.env_dirs, units, sides: shadow_sides(v) })
-                .cover([voxels as u32, units, 1]);
+                .cover_linear_z([voxels as u32, units]);
             let point = gpu.submit(QueueRole::Trace, &[p], &[])?;
             gpu.wait(point)?;
             (Some(buf), [g.dims[0], g.dims[1], g.dims[2], shadow_sides(v)])

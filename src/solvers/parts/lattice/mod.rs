@@ -1107,7 +1107,7 @@ impl Injector {
             .read(4, &self.materials)
             .read(5, &self.scene)
             .push(&self.push)
-            .cover([self.push.dims[3], 1, 1])
+            .cover_linear(self.push.dims[3])
     }
 
     /// Energy injected so far, per channel.
