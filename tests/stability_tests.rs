@@ -258,14 +258,14 @@ fn stability_sweep_sh_single_passes() {
     assert_clean(&gpu);
 }
 
-/// A unit cube of constant density seen by an 8 x 8 orthographic camera, lit by `lights` point
-/// lights in a ring outside it.
+/// A unit cube of constant density seen by an 8 x 8 orthographic camera, its lights' TOML after it.
+const CUBE: &str = "[render]\nwidth = 8\nheight = 8\nspp = 1\n[camera]\nkind = \"orthographic\"\n\
+     origin = [0.0, 0.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nextent = 2.0\n[medium]\n\
+     bounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 2.0\nalbedo = 0.5\ndensity = { kind = \"constant\" }\n";
+
+/// [`CUBE`] lit by `lights` point lights in a ring outside it.
 fn many_lights(lights: usize) -> scatterlab::scene::Scene {
-    let mut text = String::from(
-        "[render]\nwidth = 8\nheight = 8\nspp = 1\n[camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\n\
-         target = [0.0, 0.0, 0.0]\nextent = 2.0\n[medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\n\
-         sigma_t = 2.0\nalbedo = 0.5\ndensity = { kind = \"constant\" }\n",
-    );
+    let mut text = String::from(CUBE);
     for i in 0..lights {
         let a = i as f64 * std::f64::consts::TAU / lights as f64;
         text += &format!(
@@ -333,12 +333,9 @@ fn a_line_of_work_past_65535_groups_folds_into_rows_and_sums_the_same() {
     // rays). A second row lost would lose its entries (percents of them), one run twice add as
     // much: the tolerance tells them apart.
     let gpu = gpu();
-    let s = crate::common::scene(
-        "[render]\nwidth = 8\nheight = 8\nspp = 1\n[camera]\nkind = \"orthographic\"\norigin = [0.0, 0.0, 3.0]\n\
-         target = [0.0, 0.0, 0.0]\nextent = 2.0\n[medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\n\
-         sigma_t = 2.0\nalbedo = 0.5\ndensity = { kind = \"constant\" }\n[[light]]\nkind = \"directional\"\n\
-         direction = [0.3, -1.0, 0.2]\nirradiance = 1.0\n",
-    );
+    let s = crate::common::scene(&format!(
+        "{CUBE}[[light]]\nkind = \"directional\"\ndirection = [0.3, -1.0, 0.2]\nirradiance = 1.0\n"
+    ));
     let common = [("lbl.rays", "1000000"), ("lbl.grid", "16"), ("lbl.deterministic", "true")];
     // The rays that reach the box (the beam's square is wider than the cube's shadow).
     let geom = scatterlab::solvers::parts::lattice::LatticeGeom::new(&s, 16);

@@ -5,6 +5,19 @@ use glam::Vec3;
 use super::{Density, Emission, Features, FieldRef, Light, Medium, Scene};
 
 impl Scene {
+    /// The environment lights' radiance summed in scene order (W/(m^2 sr) per channel): what a
+    /// ray that leaves the medium sees. The same bits wherever it is used (path's camera rays
+    /// that miss the medium, networks' sky).
+    pub fn environment_radiance(&self) -> Vec3 {
+        self.lights
+            .iter()
+            .map(|l| match l {
+                Light::Environment { radiance } => *radiance,
+                _ => Vec3::ZERO,
+            })
+            .sum()
+    }
+
     /// What this scene requires of a solver.
     pub fn features(&self) -> Features {
         let m = &self.medium;

@@ -482,13 +482,6 @@ pub fn loop_iterations(block: u32, q: &Quadrature, storage: &Quadrature, scheme:
     total + (block as u64).pow(3).div_ceil(64) * (n + m + 3) + 1
 }
 
-/// llvmpipe (lavapipe): every shader invocation gets 65535 loop iterations in all, after which
-/// its loops end silently (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS; glsl/include/budget.glsl).
-/// Real GPUs have no such limit, and there a larger block is the faster sweep.
-pub fn loop_limited(gpu: &Gpu) -> bool {
-    crate::solvers::parts::resumable::loop_limited(gpu)
-}
-
 /// The largest block edge (1..=[`MAX_BLOCK`]) whose sweep stays within `LOOP_GUARD` loop
 /// iterations per invocation ([`loop_iterations`]) for these directions.
 pub fn max_block(q: &Quadrature, storage: &Quadrature, scheme: Scheme) -> u32 {

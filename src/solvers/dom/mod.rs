@@ -450,7 +450,8 @@ fn auto_block(gpu: &Gpu, set: &DomSettings) -> u32 {
 /// silently past 65535 iterations, at most [`blocks::max_block`] for the directions: auto's
 /// choice lowered to it, a set dom.block beyond it refused in one line naming the knob.
 fn fit_block(gpu: &Gpu, k: &Knobs, set: &DomSettings, block: u32) -> Result<u32, SolverError> {
-    if block == 0 || !blocks::loop_limited(gpu) {
+    // Real GPUs have no loop limiter, and there a larger block is the faster sweep.
+    if block == 0 || !crate::solvers::parts::resumable::loop_limited(gpu) {
         return Ok(block);
     }
     let max = blocks::max_block(&set.quadrature, &set.storage, set.scheme);
@@ -711,12 +712,12 @@ fn direct_source(
     if let Some(m) = &marcher {
         debug_assert!(cut.group <= sweeper.bin_group(&m.beams));
     }
-    let group = |_: &Marcher| cut.group;
+    let group = cut.group;
     let lit = match &marcher {
         Some(m) => Some(Marched {
             marcher: m,
-            groups: BeamGroup::split(&m.ray_beam, m.beams.len() as u32, group(m)),
-            sums: sweeper.deposit_sums(gpu, group(m) as usize)?,
+            groups: BeamGroup::split(&m.ray_beam, m.beams.len() as u32, group),
+            sums: sweeper.deposit_sums(gpu, group as usize)?,
             ray_beam: gpu.buffer_with("dom ray beams", &m.ray_beam)?,
             table: gpu.buffer_with("dom beams", &sweeper.beam_table(g, &m.beams))?,
         }),
@@ -1623,6 +1624,7 @@ impl Solver for Dom {
         // light toward the camera handed to the view pass (whole, or its largest slab).
         // (auto counts as plane sweeps: the binding limit is the device's)
         let block = set.block.unwrap_or(0);
+        let plan = SourcePlan::new(&set, &geom, nch as u32, &beam_list);
         let (sweeps, source_voxels, group) = if block > 0 {
             let (layout, fixed) = BlockSweeper::plan(
                 geom.dims,
@@ -1634,7 +1636,6 @@ impl Solver for Dom {
             );
             let all = fixed
                 + (layout.store_floats() + layout.blocks().min(layout.widest_plane()) as u64 * layout.scratch()) * 4;
-            let plan = SourcePlan::new(&set, &geom, nch as u32, &beam_list);
             let cut = plan.cut(&set, u64::MAX, block)?;
             // Each view run: its slab of the light toward the camera and the view's buffers, the
             // shadow volume in the run that adds the direct light only.
@@ -1653,7 +1654,6 @@ impl Solver for Dom {
                 cut.group as u64,
             )
         } else {
-            let plan = SourcePlan::new(&set, &geom, nch as u32, &beam_list);
             (None, v, plan.max_group() as u64)
         };
         // Making the direct source: the marcher, the sweeper's buffers (all of them with plane

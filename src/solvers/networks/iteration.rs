@@ -142,7 +142,7 @@ impl Illumination {
         let direct = gpu.buffer("networks direct light", net.direct_bytes(scene, env_dirs))?;
         net.direct(gpu, scene, &gs, &positions, step, env_dirs, &direct)?;
         let alpha = m.sigma_t.as_dvec3().map(|s| net.alpha(s)).as_vec3();
-        let sky = if env_dirs > 0 { Vec3::ZERO } else { sky(scene) };
+        let sky = if env_dirs > 0 { Vec3::ZERO } else { scene.environment_radiance() };
         let kind = gs.modelled.emission_kind();
         let emitted = if kind != 0 {
             let e: Vec<[f32; 4]> = net.emitted(scene).iter().map(|e| [e.x, e.y, e.z, 0.0]).collect();
@@ -264,7 +264,7 @@ impl Illumination {
         }
         gpu.write_buffer(&self.gs.block, 0, &bytes)?;
         net.direct(gpu, scene, &self.gs, &self.positions, self.step, self.env_dirs, &self.direct)?;
-        let sky = if self.env_dirs > 0 { Vec3::ZERO } else { sky(scene) };
+        let sky = if self.env_dirs > 0 { Vec3::ZERO } else { scene.environment_radiance() };
         self.push.sky = [sky.x, sky.y, sky.z, 0.0];
         self.iterations = 0;
         self.change = f64::INFINITY;

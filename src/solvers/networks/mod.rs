@@ -199,18 +199,6 @@ pub fn unit_count(scene: &Scene, env_dirs: u32) -> u32 {
     crate::solvers::parts::view::light_units(scene, env_dirs)
 }
 
-/// The sky's radiance: the environments' summed (W/(m^2 sr)).
-pub fn sky(scene: &Scene) -> Vec3 {
-    scene
-        .lights
-        .iter()
-        .map(|l| match l {
-            Light::Environment { radiance } => *radiance,
-            _ => Vec3::ZERO,
-        })
-        .sum()
-}
-
 /// The paper's quadrature of the phase function on the directions, P[d][i] ~ 4 pi / D
 /// p(w_d . w_i) ([d * D + i]), scaled symmetrically (P' = S P S, S diagonal: Sinkhorn's
 /// balancing of a symmetric matrix) until every row and column sums to 1 within 1e-7. As

@@ -835,7 +835,7 @@ impl Network {
         let alpha = m.sigma_t.as_dvec3().map(|s| self.alpha(s));
         let albedo = m.albedo.as_dvec3();
         let g = m.g as f64;
-        let sky = sky(scene).as_dvec3();
+        let sky = scene.environment_radiance().as_dvec3();
         let w: Vec<glam::DVec3> = self.directions.frames.iter().map(|f| f[2].as_dvec3()).collect();
         let phase = phase_matrix(&self.directions, g).0;
         // The particles' own emission enters only where J does not carry it.

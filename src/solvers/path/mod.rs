@@ -769,7 +769,7 @@ impl Solver for Path {
             rr_depth,
             rr_threshold,
             mnee_grid: &mnee_grid,
-            env_seen: env_seen(scene),
+            env_seen: scene.environment_radiance().to_array(),
         };
         let needs_camera = camera_lights > 0 || traced.is_empty();
         let batches = light_batches.min(spp);
@@ -948,20 +948,6 @@ struct Part {
     units: u64,
     warnings: Vec<String>,
     device_bytes: u64,
-}
-
-/// [`PathPush::env_seen`]: the environment lights' radiance, summed in scene order in f32 as
-/// the kernel summed it.
-fn env_seen(scene: &Scene) -> [f32; 3] {
-    let mut sum = [0f32; 3];
-    for l in &scene.lights {
-        if let Light::Environment { radiance } = l {
-            for (s, r) in sum.iter_mut().zip(radiance.to_array()) {
-                *s += r;
-            }
-        }
-    }
-    sum
 }
 
 /// The path kernels' limits: lights indexed in 20 bits, majorant cells counted in 10 along y
