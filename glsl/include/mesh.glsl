@@ -2,8 +2,8 @@
 // boundary. The BVH is built on the host (src/scene/bvh.rs, binned SAH, depth <= 64); its
 // layout and traversal here mirror `Bvh::intersect`, which the host tests against brute force.
 // Needs budget.glsl: the traversal counts every iteration of each of its three loops (nodes,
-// a leaf's triangles, popping the stack) into `iters`, since llvmpipe's loop limiter counts
-// every loop back-edge of an invocation's SIMD batch together, and a loop left uncounted let
+// a leaf's triangles, popping the stack) into `iters` (LOOP_EDGE: and the batch's where the
+// kernel counts it), since llvmpipe's loop limiter counts every loop back-edge of an invocation's SIMD batch together, and a loop left uncounted let
 // the path kernel's batches reach it at the default budget (silently wrong images, caught by
 // rendering at several budgets: tests/refraction_tests.rs) and MESH_NODES_BINDING,
 // MESH_TRIS_BINDING defined first.
@@ -95,13 +95,15 @@ bool mesh_hit_tri(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out
     int sp = 0;
     if (node_entry(nodes[0], o, inv_d, t_min, t_hit) == INF) return false;
     uint node = 0u;
+    LOOP_ENTRY();
     while (true) {
-        iters++;
+        LOOP_EDGE();
         BvhNode nd = nodes[node];
         bool descend = false;
         if (nd.count > 0u) {
+            LOOP_ENTRY();
             for (uint i = nd.left_or_first; i < nd.left_or_first + nd.count; i++) {
-                iters++;
+                LOOP_EDGE();
                 float t = triangle_t(tris[i], o, d);
                 if (t > t_min && t < t_hit) { t_hit = t; tri = i; }
             }
@@ -119,8 +121,9 @@ bool mesh_hit_tri(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out
         if (descend) continue;
         // Nothing below this node: the nearest deferred child still in front of the closest hit.
         bool next = false;
+        LOOP_ENTRY();
         while (sp > 0) {
-            iters++;
+            LOOP_EDGE();
             sp--;
             if (stack_t[sp] < t_hit) { node = stack_node[sp]; next = true; break; }
         }
@@ -209,8 +212,9 @@ bool facet_refraction(uint j, vec3 x, vec3 light, bool point, float ior, out vec
         // from > 0 to < 0 over [0, 1].
         float D = sqrt(len2);
         float lo = 0.0, hi = 1.0;
+        LOOP_ENTRY();
         for (uint k = 0u; k < 32u; k++) {
-            iters++;
+            LOOP_EDGE();
             float t = 0.5 * (lo + hi);
             float a = (1.0 - t) * D, b = t * D;
             float f = a / sqrt(a * a + h * h) - ior * b / sqrt(b * b + dx * dx);

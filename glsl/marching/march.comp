@@ -43,6 +43,10 @@
 // the triangle's), and its extinction, albedo, density field and index are that material's. A
 // scene of one material reads materials[0], the medium's, as before.
 #extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+// Count the SIMD batch's loop back-edges as llvmpipe does (budget.glsl, Loops below).
+#define SCATTERLAB_BATCH_LOOPS
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
@@ -72,6 +76,13 @@ layout(std430, binding = 4) writeonly buffer History { uvec4 rhb[]; };
 // With pc.forward, per slot: the forward population's path-integrated power over the step (W
 // times voxels travelled), rgb, beside the slot's voxel.
 layout(std430, binding = 5) writeonly buffer FwdHistory { vec4 fwh[]; };
+// The most loop back-edges any SIMD batch (subgroup) took in one dispatch, as llvmpipe counts
+// them (glsl/include/budget.glsl's batch_iters): its k steps' BVH traversals and surface
+// crossings are bounded by the mesh, not by k alone, and past LOOP_GUARD llvmpipe's loop
+// limiter may have ended them silently; the host reads it after the rounds and fails loudly
+// (Marcher::check_loops).
+// And the most one step took (what k can be at most: the host's suggestion).
+layout(std430, binding = 8) buffer Loops { uint loops_max; uint step_max; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;          // lattice voxels xyz, w = rays this dispatch marches
@@ -96,12 +107,16 @@ float lobe_reflectance(vec3 d, vec3 n_out, float g, float ior) {
     vec3 t = normalize(abs(n_out.x) < 0.9 ? cross(n_out, vec3(1.0, 0.0, 0.0)) : cross(n_out, vec3(0.0, 1.0, 0.0)));
     vec3 b = cross(n_out, t);
     float num = 0.0, den = 0.0;
+    LOOP_ENTRY();
     for (uint i = 0u; i < 16u; ++i) {
+        LOOP_EDGE();
         float mu = (float(i) + 0.5) / 16.0;
         float s = sqrt(1.0 - mu * mu);
         float ct;
         float F = fresnel_dielectric(mu, ior, ct);
+        LOOP_ENTRY();
         for (uint j = 0u; j < 32u; ++j) {
+            LOOP_EDGE();
             float phi = (float(j) + 0.5) * (2.0 * PI / 32.0);
             vec3 w = mu * n_out + s * (cos(phi) * t + sin(phi) * b);
             float wt = hg_eval(g, dot(w, d)) * mu;
@@ -127,7 +142,11 @@ void main() {
     vec3 q_absorbed = ray.fwd_absorbed.rgb, q_out = ray.fwd_out.rgb;
     uvec3 n = pc.dims.xyz;
     float lambda = pc.origin.w;
+    uint step_most = 0u;
+    LOOP_ENTRY();
     for (uint j = 0u; j < pc.k; ++j) {
+        uint before = batch_iters;
+        LOOP_EDGE();
         uvec4 slot = uvec4(0xffffffffu, 0u, 0u, 0u);
         vec3 q_len = vec3(0.0);
         if (alive) {
@@ -159,8 +178,11 @@ void main() {
                     vec3 q_T = exp(-stp * len);
                     // Q's path integral over the step, exact for its exponential decay.
                     vec3 path = vec3(len);
-                    for (int c = 0; c < 3; ++c)
+                    LOOP_ENTRY();
+                    for (int c = 0; c < 3; ++c) {
+                        LOOP_EDGE();
                         if (stp[c] * len > 1e-4) path[c] = (1.0 - q_T[c]) / stp[c];
+                    }
                     q_len = q0 * path / lambda;
                     vec3 q_col = q0 * (vec3(1.0) - q_T);
                     vec3 q_dep = q_col * a * (1.0 - g) / red;
@@ -208,6 +230,15 @@ void main() {
         }
         rhb[r * pc.k + j] = slot;
         if (pc.forward != 0u) fwh[r * pc.k + j] = vec4(q_len, 0.0);
+        // The batch's back-edges in this step (every lane of it is here, k being uniform).
+        step_most = max(step_most, subgroupAdd(batch_iters - before));
+    }
+    // Every lane of the batch is here (those past the end of the rays returned at the start
+    // and took no back-edge): one elected lane keeps the batch's sum.
+    uint batch = subgroupAdd(batch_iters);
+    if (subgroupElect()) {
+        atomicMax(loops_max, batch);
+        atomicMax(step_max, step_most);
     }
     rays[r] = Ray(vec4(x, steps), vec4(d, alive ? (inside && HAS_MESH ? 2.0 + float(mat) : 1.0) : 0.0), vec4(P, ray.power.w), vec4(Q, 0.0), vec4(q_absorbed, 0.0), vec4(q_out, 0.0));
 }

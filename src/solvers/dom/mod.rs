@@ -807,6 +807,11 @@ fn direct_source(
         }
     }
     progress(Progress::work("marching the direct source", work, work));
+    if let Some(l) = &lit {
+        // (dom marches no mesh: a round's cost is k steps and is far within the limiter;
+        // read as lbl's is, so a change that broke that would be caught.)
+        l.marcher.check_loops(gpu)?;
+    }
     if block == 0 {
         density_bytes = geom.voxels() * 4;
     }

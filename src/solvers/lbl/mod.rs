@@ -501,10 +501,6 @@ impl Lbl {
     }
 }
 
-/// Largest `lbl.k` (marching steps per round) with an [[object]]: every step traverses the
-/// BVH (glsl/marching/march.comp), up to a few hundred loop iterations near the surface.
-pub const MESH_MAX_MARCH_K: u32 = 64;
-
 /// What a frame hands the next ([`LblAnimation`]): the lattice's time-integrated field and the
 /// source it injected ([`LatticeResult::source`]).
 type Carried = (Vec<f32>, Option<Vec<f32>>);
@@ -789,17 +785,6 @@ impl LblSettings {
             ));
         }
         out.view.refraction = k.get("refraction")?;
-        if scene.object.is_some() && out.march.k > MESH_MAX_MARCH_K {
-            // Each marching step traverses the BVH over its length, inside one invocation's
-            // k steps: bounded so the traversals stay far below lavapipe's loop limiter.
-            return Err(k.invalid(
-                "k",
-                format!(
-                    "with an [[object]] every marching step traverses the mesh's BVH, and a round of over \
-                     {MESH_MAX_MARCH_K} steps could reach the device's loop limit; use lbl.k <= {MESH_MAX_MARCH_K}"
-                ),
-            ));
-        }
         Ok(out)
     }
 
@@ -1107,6 +1092,8 @@ pub fn run_lattice(
     }
     progress(Progress::work("setup: pipelines, raymaps, lattice", 1, 1));
     march_rounds(gpu, gs, set, (&marcher, &injector), &mut lattice, warm, progress)?;
+    // A mesh sets what a round of k steps costs (its BVH traversals): measured, not assumed.
+    marcher.check_loops(gpu)?;
 
     let inject = |l: &Diffuser| injector.pass(&marcher.sums, l);
     let (cascade_iterations, source) =

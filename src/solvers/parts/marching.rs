@@ -19,6 +19,7 @@ use crate::scene::{voxelise, Light, Scene};
 
 use super::gpu_scene::{GpuScene, MESH_SPEC, SCENE_SPEC};
 use super::lattice::{LatticeGeom, LATTICE_SPEC, SPEC_LINKS, SPEC_NCH};
+use super::resumable::{self, LOOP_GUARD};
 use crate::solvers::interface::{Knob, Knobs, Range, SolverError};
 
 #[repr(C)]
@@ -405,6 +406,31 @@ fn material_voxels(o: &crate::scene::Object, geom: &LatticeGeom) -> (Vec<f32>, V
         .unzip()
 }
 
+/// Why `<solver>.k` = `k` is refused on a device with llvmpipe's loop limiter, where the march's
+/// SIMD batches took up to `n` loop back-edges in a round and `step` in one step; `None` within
+/// `LOOP_GUARD`. A step's count is measured before the limiter can have cut it short (a round's
+/// first steps), unlike a round's past it, so the most steps that fit come from it.
+pub fn loop_refusal(solver: &str, k: u32, n: u32, step: u32) -> Option<String> {
+    if n <= LOOP_GUARD {
+        return None;
+    }
+    let fit = (LOOP_GUARD - 1) / step.max(1);
+    Some(if fit == 0 {
+        format!(
+            "{k}: one marching step through the [[object]]'s mesh took {step} loop iterations (its BVH \
+             traversal), past llvmpipe's loop limiter ({LOOP_GUARD}) even at {solver}.k = 1: the mesh's \
+             triangles' boxes overlap too much along the rays (long thin triangles fanned about one vertex \
+             are the usual cause); re-triangulate the mesh, or use a device without the limit"
+        )
+    } else {
+        format!(
+            "{k}: a light ray's {k} marching steps took {n} loop iterations in a round (the mesh's BVH \
+             traversals and surface crossings, up to {step} a step), past llvmpipe's loop limiter \
+             ({LOOP_GUARD}), so rays may have stopped short silently; use {solver}.k <= {fit}"
+        )
+    })
+}
+
 pub struct Marcher {
     pub geom: LatticeGeom,
     /// The medium's density at every voxel centre (0 outside the medium); a 4-byte stand-in
@@ -441,6 +467,9 @@ pub struct Marcher {
     fwd_sums: Buffer,
     max_steps: u32,
     march: Pipeline,
+    /// The most loop back-edges one march invocation counted in a round (one u32, glsl's
+    /// `loops_max`): [`Marcher::check_loops`].
+    loops: Buffer,
     /// The transfer kernel, where the marcher keeps grid sums.
     transfer: Option<Pipeline>,
 }
@@ -571,6 +600,7 @@ impl Marcher {
             fwd_sums: gpu.buffer("marching forward sums (none)", 16)?,
             max_steps,
             march,
+            loops: gpu.buffer_with("marching loop counts", &[0u32; 2])?,
             transfer,
         })
     }
@@ -589,6 +619,7 @@ impl Marcher {
             .read_write(3, &self.rays)
             .write(4, &self.history)
             .write(5, &self.fwd_history)
+            .read_write(8, &self.loops)
             .push(&MarchPush {
                 dims: [g.dims[0], g.dims[1], g.dims[2], count],
                 origin: g.origin4(),
@@ -668,6 +699,32 @@ impl Marcher {
         Ok(Some(book))
     }
 
+    /// The most loop back-edges one SIMD batch of the march took in a round, and in one step,
+    /// in any round so far (glsl/marching/march.comp's `Loops`, counted as llvmpipe counts them).
+    pub fn loops(&self, gpu: &Gpu) -> Result<(u32, u32), SolverError> {
+        let n: Vec<u32> = gpu.read_buffer_as(&self.loops)?;
+        Ok((n[0], n[1]))
+    }
+
+    /// Fail loudly where llvmpipe's loop limiter may have ended a march batch's loops
+    /// ([`resumable::loop_limited`]), once the rounds have run (their passes waited for). A
+    /// round's k steps each traverse the mesh's BVH to the step's end and may cross a surface,
+    /// at a cost the mesh sets, not k: a cone whose sides are a fan of 8192 triangles about its
+    /// apex puts thousands of boxes across every ray near its axis (the tests' case), and its
+    /// batches took 25614 back-edges at k = 1 and past the limiter from k = 3 (images wrong by
+    /// 1.6e-3 relL2 at k = 6, 15% at 64, from the same marching). The batch's count, not a
+    /// lane's: there lanes counted 36721 at k = 64. Real GPUs have no limiter, so there the
+    /// count is only read.
+    pub fn check_loops(&self, gpu: &Gpu) -> Result<(), SolverError> {
+        let (n, step) = self.loops(gpu)?;
+        match loop_refusal(self.set.solver, self.set.k, n, step) {
+            Some(reason) if resumable::loop_limited(gpu) => {
+                Err(SolverError::Setting { key: format!("{}.k", self.set.solver), reason })
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// Ray History Buffer slots per ray and round (`k`): entry e belongs to ray e / k.
     pub fn history_slots(&self) -> u32 {
         self.set.k
@@ -686,6 +743,19 @@ impl Marcher {
 mod count_tests {
     use super::*;
     use crate::scene::Scene;
+
+    #[test]
+    fn loop_refusal_names_the_knob_and_the_steps_that_fit() {
+        assert_eq!(loop_refusal("lbl", 64, LOOP_GUARD, 900), None);
+        // The cone of 8192 fan triangles at lbl.k 4: 71623 in a round, 25613 a step.
+        let m = loop_refusal("lbl", 4, 71623, 25613).expect("past the guard");
+        assert!(m.starts_with("4: ") && m.ends_with("use lbl.k <= 2") && !m.contains('\n'), "{m}");
+        // One step past the guard on its own: no k fits, and the message says what to change.
+        let m = loop_refusal("lbl", 1, 70000, 70000).expect("past the guard");
+        assert!(m.contains("even at lbl.k = 1") && m.contains("re-triangulate"), "{m}");
+        assert!(loop_refusal("lbl", 1, 70000, LOOP_GUARD).unwrap().contains("even at lbl.k = 1"));
+        assert!(loop_refusal("lbl", 2, 70000, LOOP_GUARD - 1).unwrap().ends_with("use lbl.k <= 1"));
+    }
 
     #[test]
     fn ray_count_counts_what_beams_makes_without_holding_it() {
