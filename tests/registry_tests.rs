@@ -843,3 +843,43 @@ fn the_reference_build_keeps_every_part_path_imports() {
         );
     }
 }
+
+/// Every kernel that counts its SIMD batches' loop back-edges (defines SCATTERLAB_BATCH_LOOPS,
+/// glsl/include/batch.glsl) charges each loop reachable from main exactly the loop constructs
+/// llvmpipe runs per body run, and prepays main's: tools/glsl-loop-counts derives them from
+/// the preprocessed source and exits 1 on a weight that does not match (a loop added to the
+/// BVH query without raising MESH_HIT_LOOPS would undercount every step of lbl's march).
+#[test]
+fn batch_counting_kernels_charge_what_llvmpipe_runs() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut kernels = Vec::new();
+    let mut dirs = vec![root.join("glsl")];
+    while let Some(dir) = dirs.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                dirs.push(p);
+            } else if p.extension().is_some_and(|x| x == "comp")
+                && std::fs::read_to_string(&p).unwrap().contains("#define SCATTERLAB_BATCH_LOOPS")
+            {
+                kernels.push(p);
+            }
+        }
+    }
+    kernels.sort();
+    assert!(kernels.iter().any(|k| k.ends_with("marching/march.comp")), "{kernels:?}");
+    for k in &kernels {
+        let out = std::process::Command::new(root.join("tools/glsl-loop-counts"))
+            .arg("--check")
+            .arg(k)
+            .output()
+            .expect("tools/glsl-loop-counts runs (python3, glslangValidator: tools/setup-deps)");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{}: {}{}", k.display(), text, String::from_utf8_lossy(&out.stderr));
+        // The step loop of the march: itself, the BVH query's 3, lobe_reflectance's 2 and the
+        // forward population's channel loop.
+        if k.ends_with("marching/march.comp") {
+            assert!(text.lines().any(|l| l.starts_with("loop main:") && l.ends_with("S=7 charged=7")), "{text}");
+        }
+    }
+}

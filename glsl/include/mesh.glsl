@@ -82,6 +82,9 @@ vec3 triangle_normal(uint tri) { return normalize(cross(tris[tri].e1.xyz, tris[t
 // triangle carries its object's in v0.w as uint bits (src/scene/bvh.rs build_tagged).
 uint triangle_material(uint tri) { return min(floatBitsToUint(tris[tri].v0.w), uint(MAX_MATERIALS - 1)); }
 
+// The loop constructs of one mesh_hit_tri (batch.glsl's S): its traversal loop and the two in it.
+const uint MESH_HIT_LOOPS = 3u;
+
 // Closest crossing of the ray o + t d with t in (t_min, t_max), from either side: the
 // traversal of bvh.rs `Bvh::intersect` (explicit stack, nearer child first, the farther one
 // deferred with its entry distance and skipped once a closer hit is known). Returns false on
@@ -95,15 +98,13 @@ bool mesh_hit_tri(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out
     int sp = 0;
     if (node_entry(nodes[0], o, inv_d, t_min, t_hit) == INF) return false;
     uint node = 0u;
-    LOOP_ENTRY();
     while (true) {
-        LOOP_EDGE();
+        LOOP_EDGE(3u);   // itself and its two nested loops (batch.glsl; MESH_HIT_LOOPS)
         BvhNode nd = nodes[node];
         bool descend = false;
         if (nd.count > 0u) {
-            LOOP_ENTRY();
             for (uint i = nd.left_or_first; i < nd.left_or_first + nd.count; i++) {
-                LOOP_EDGE();
+                LOOP_EDGE(1u);
                 float t = triangle_t(tris[i], o, d);
                 if (t > t_min && t < t_hit) { t_hit = t; tri = i; }
             }
@@ -121,9 +122,8 @@ bool mesh_hit_tri(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out
         if (descend) continue;
         // Nothing below this node: the nearest deferred child still in front of the closest hit.
         bool next = false;
-        LOOP_ENTRY();
         while (sp > 0) {
-            LOOP_EDGE();
+            LOOP_EDGE(1u);
             sp--;
             if (stack_t[sp] < t_hit) { node = stack_node[sp]; next = true; break; }
         }
@@ -212,9 +212,8 @@ bool facet_refraction(uint j, vec3 x, vec3 light, bool point, float ior, out vec
         // from > 0 to < 0 over [0, 1].
         float D = sqrt(len2);
         float lo = 0.0, hi = 1.0;
-        LOOP_ENTRY();
         for (uint k = 0u; k < 32u; k++) {
-            LOOP_EDGE();
+            LOOP_EDGE(1u);
             float t = 0.5 * (lo + hi);
             float a = (1.0 - t) * D, b = t * D;
             float f = a / sqrt(a * a + h * h) - ior * b / sqrt(b * b + dx * dx);

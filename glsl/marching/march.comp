@@ -45,7 +45,7 @@
 #extension GL_GOOGLE_include_directive : require
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_arithmetic : require
-// Count the SIMD batch's loop back-edges as llvmpipe does (budget.glsl, Loops below).
+// Count the SIMD batch's loop back-edges as llvmpipe does (batch.glsl, Loops below).
 #define SCATTERLAB_BATCH_LOOPS
 
 #define SCENE_BINDING 0
@@ -77,10 +77,10 @@ layout(std430, binding = 4) writeonly buffer History { uvec4 rhb[]; };
 // times voxels travelled), rgb, beside the slot's voxel.
 layout(std430, binding = 5) writeonly buffer FwdHistory { vec4 fwh[]; };
 // The most loop back-edges any SIMD batch (subgroup) took in one dispatch, as llvmpipe counts
-// them (glsl/include/budget.glsl's batch_iters): its k steps' BVH traversals and surface
-// crossings are bounded by the mesh, not by k alone, and past LOOP_GUARD llvmpipe's loop
-// limiter may have ended them silently; the host reads it after the rounds and fails loudly
-// (Marcher::check_loops).
+// them (glsl/include/batch.glsl; 0 where the host leaves LOOP_LIMITED off): its k steps' BVH
+// traversals and surface crossings are bounded by the mesh, not by k alone, and past
+// LOOP_GUARD llvmpipe's loop limiter may have ended them silently; the host reads it after the
+// rounds and fails loudly (Marcher::check_loops).
 // And the most one step took (what k can be at most: the host's suggestion).
 layout(std430, binding = 8) buffer Loops { uint loops_max; uint step_max; };
 
@@ -103,20 +103,20 @@ layout(push_constant) uniform Push {
 // more meets the surface beyond the critical angle than of the ray. Fresnel's reflectance
 // from inside (index ior to 1) averaged over the outgoing hemisphere about n_out, weighted by
 // the lobe and the cosine (the flux through the surface); a 16 x 32 product rule in (mu, phi).
+// The loop constructs of one lobe_reflectance (batch.glsl's S): its rows and the loop in each.
+const uint LOBE_LOOPS = 2u;
 float lobe_reflectance(vec3 d, vec3 n_out, float g, float ior) {
     vec3 t = normalize(abs(n_out.x) < 0.9 ? cross(n_out, vec3(1.0, 0.0, 0.0)) : cross(n_out, vec3(0.0, 1.0, 0.0)));
     vec3 b = cross(n_out, t);
     float num = 0.0, den = 0.0;
-    LOOP_ENTRY();
     for (uint i = 0u; i < 16u; ++i) {
-        LOOP_EDGE();
+        LOOP_EDGE(2u);   // itself and the loop in it (LOBE_LOOPS)
         float mu = (float(i) + 0.5) / 16.0;
         float s = sqrt(1.0 - mu * mu);
         float ct;
         float F = fresnel_dielectric(mu, ior, ct);
-        LOOP_ENTRY();
         for (uint j = 0u; j < 32u; ++j) {
-            LOOP_EDGE();
+            LOOP_EDGE(1u);
             float phi = (float(j) + 0.5) * (2.0 * PI / 32.0);
             vec3 w = mu * n_out + s * (cos(phi) * t + sin(phi) * b);
             float wt = hg_eval(g, dot(w, d)) * mu;
@@ -126,6 +126,10 @@ float lobe_reflectance(vec3 d, vec3 n_out, float g, float ior) {
     }
     return den > 0.0 ? num / den : 1.0;
 }
+
+// The step loop's weight (batch.glsl): itself, the BVH query, lobe_reflectance and the forward
+// population's channel loop; llvmpipe runs every one of them each step, whichever lanes enter.
+const uint STEP_LOOPS = 1u + MESH_HIT_LOOPS + LOBE_LOOPS + 1u;
 
 void main() {
     if (linear_id() >= pc.dims.w) return;
@@ -143,10 +147,11 @@ void main() {
     uvec3 n = pc.dims.xyz;
     float lambda = pc.origin.w;
     uint step_most = 0u;
-    LOOP_ENTRY();
+    // The step loop's first run, prepaid (batch.glsl): it and every loop construct in it.
+    BATCH_EDGE(STEP_LOOPS);
+    uint before = batch_iters;   // the first step's count holds the prepayment too
     for (uint j = 0u; j < pc.k; ++j) {
-        uint before = batch_iters;
-        LOOP_EDGE();
+        LOOP_EDGE(STEP_LOOPS);
         uvec4 slot = uvec4(0xffffffffu, 0u, 0u, 0u);
         vec3 q_len = vec3(0.0);
         if (alive) {
@@ -178,9 +183,8 @@ void main() {
                     vec3 q_T = exp(-stp * len);
                     // Q's path integral over the step, exact for its exponential decay.
                     vec3 path = vec3(len);
-                    LOOP_ENTRY();
                     for (int c = 0; c < 3; ++c) {
-                        LOOP_EDGE();
+                        LOOP_EDGE(1u);
                         if (stp[c] * len > 1e-4) path[c] = (1.0 - q_T[c]) / stp[c];
                     }
                     q_len = q0 * path / lambda;
@@ -231,11 +235,12 @@ void main() {
         rhb[r * pc.k + j] = slot;
         if (pc.forward != 0u) fwh[r * pc.k + j] = vec4(q_len, 0.0);
         // The batch's back-edges in this step (every lane of it is here, k being uniform).
-        step_most = max(step_most, subgroupAdd(batch_iters - before));
+        if (LOOP_LIMITED) step_most = max(step_most, subgroupAdd(batch_iters - before));
+        before = batch_iters;
     }
     // Every lane of the batch is here (those past the end of the rays returned at the start
     // and took no back-edge): one elected lane keeps the batch's sum.
-    uint batch = subgroupAdd(batch_iters);
+    uint batch = LOOP_LIMITED ? subgroupAdd(batch_iters) : 0u;
     if (subgroupElect()) {
         atomicMax(loops_max, batch);
         atomicMax(step_max, step_most);

@@ -27,6 +27,11 @@ pub const SPEC_ENVIRONMENT: u32 = 16;
 /// scene.glsl's: what the medium emits (0 nothing, 1 a constant Le per material, 2 a grid).
 pub const SPEC_EMISSION: u32 = 17;
 
+/// glsl/include/batch.glsl's, in kernels that count their SIMD batches' loop back-edges: the
+/// device ends loops past 65535 of them ([`crate::solvers::parts::resumable::loop_limited`],
+/// llvmpipe), so count them; off elsewhere, where the counting would only cost.
+pub const SPEC_LOOP_LIMITED: u32 = 18;
+
 /// The specialisation constants of [`Modelled::spec`], as a kernel declares them.
 pub const SCENE_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_DENSITY_KIND, SpecKind::U32),
@@ -82,6 +87,7 @@ pub const SPEC_NAMES: &[(u32, &str)] = &[
     (15, "EQUIANGULAR"),
     (SPEC_ENVIRONMENT, "ENVIRONMENT"),
     (SPEC_EMISSION, "EMISSION"),
+    (SPEC_LOOP_LIMITED, "LOOP_LIMITED"),
 ];
 
 /// The name of specialisation constant `id` ([`SPEC_NAMES`]).

@@ -1,0 +1,34 @@
+// batch.glsl: counting loop back-edges as llvmpipe's loop limiter counts them, per SIMD batch.
+//
+// llvmpipe (gallivm) gives every SIMD batch of a shader one counter of 65535 loop back-edges
+// in all (docs/lavapipe.md: LP_MAX_TGSI_LOOP_ITERATIONS, decremented at every loop's end block
+// the batch runs). The batch is the subgroup (8 lanes at 256 bits), and it runs *every* branch
+// of every `if` (masked, never skipped), so every loop construct the code passes costs the
+// batch its body's runs even when no lane is inside: once, with an empty mask. A lane's own
+// count (`iters`, budget.glsl) sees none of that, nor its neighbours' trips: lanes' own
+// counts of 36721 hid batches past the limit, and an image 15% wrong (lbl's march through a
+// cone fanned from its apex).
+//
+// The count, exact under that model: a loop L whose body holds loop constructs C (directly,
+// or in functions it calls, not inside a deeper loop) charges, at the top of each body run
+// that some lane makes, W(L) = 1 + sum S(C), where S(C) is the number of loop constructs in
+// C's subtree (C's own run, with its nested loops each once, whether or not lanes enter); a
+// construct outside every loop is charged S once at the kernel's start. A child's first run is
+// then prepaid, and its further runs charge themselves. subgroupElect() is true for exactly
+// one active lane, so `batch_iters` summed over the subgroup (subgroupAdd at a point every lane
+// reaches) is the batch's count. Loops the compiler unrolls are counted anyway (an
+// over-count), and a while (true) loop's exit run twice (the same).
+//
+// A kernel asks for it by defining SCATTERLAB_BATCH_LOOPS (with GL_KHR_shader_subgroup_basic
+// enabled) before its includes; LOOP_LIMITED, set by the host on llvmpipe only, leaves real
+// GPUs' loops as they were. Elsewhere BATCH_EDGE is empty and a kernel's SPIR-V is unchanged.
+#ifndef SCATTERLAB_BATCH
+#define SCATTERLAB_BATCH
+#ifdef SCATTERLAB_BATCH_LOOPS
+layout(constant_id = 18) const bool LOOP_LIMITED = false;
+uint batch_iters = 0u;
+#define BATCH_EDGE(w) { if (LOOP_LIMITED && subgroupElect()) batch_iters += (w); }
+#else
+#define BATCH_EDGE(w) {}
+#endif
+#endif
