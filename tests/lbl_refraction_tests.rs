@@ -10,7 +10,7 @@ use scatterlab::physics::dielectric::diffuse_fresnel;
 use scatterlab::scene::voxelise;
 
 use crate::common::{assert_clean, gpu, judge, render, scene, LBL};
-use crate::refraction_tests::{mesh, object_scene_seeded, ENV};
+use crate::refraction_tests::{fan_cone_obj, mesh, object_scene_seeded, ENV};
 
 #[test]
 fn occupancy_integrates_to_the_mesh_volume() {
@@ -124,24 +124,6 @@ fn lbl_with_refraction_agrees_with_path_across_the_range() {
         }
     }
     assert_clean(&gpu);
-}
-
-/// A closed cone (apex up, height 1.6, base radius 0.8, centred on the origin) whose side and
-/// base are fans of `n` triangles each about the apex and the base's centre: every side
-/// triangle's box reaches from the apex to the base, so the rays near the axis cross the boxes
-/// of most of them, and a short marching step's BVH query tests thousands of triangles.
-fn fan_cone_obj(n: usize) -> String {
-    let (h, r) = (1.6f64, 0.8f64);
-    let mut obj = format!("v 0 {} 0\nv 0 {} 0\n", h / 2.0, -h / 2.0);
-    for i in 0..n {
-        let a = std::f64::consts::TAU * i as f64 / n as f64;
-        obj += &format!("v {:.7} {} {:.7}\n", r * a.cos(), -h / 2.0, r * a.sin());
-    }
-    for i in 0..n {
-        let (a, b) = (3 + i, 3 + (i + 1) % n);
-        obj += &format!("f 1 {b} {a}\nf 2 {a} {b}\n");
-    }
-    obj
 }
 
 #[test]

@@ -245,6 +245,46 @@ pub fn light_depth(scene: &Scene, p: Vec3) -> (f64, f64) {
     (depth_sum / 26.0, (0.5 * tau_min * tau_min).min(absorbed_after))
 }
 
+/// The largest `path.budget` plus worst BVH query ([`crate::scene::bvh::Bvh::worst_query`])
+/// measured to give exact images on llvmpipe. Its loop limiter counts a SIMD batch's loops
+/// together, and a query cannot pause, so a mesh whose queries are long adds to every
+/// dispatch. Measured on closed cones whose side is a fan of triangles about the apex (16 spp,
+/// 32 x 32, each against budget 64): 2048 triangles (worst query 3611) and 4096 (7274) exact
+/// at budgets 1000, 2000 and 4096; 8192 (14491) exact at 300, 1000 and 2000 (a sum of 16491)
+/// and 1.8e-3 relL2 off at 4096 (18587), with no error. The shipped meshes' queries take at
+/// most 180.
+pub const VALIDATED_BUDGET_AND_QUERY: u32 = 16491;
+
+/// Rays [`mesh_query_note`] samples the mesh's BVH with.
+const QUERY_RAYS: u32 = 20000;
+
+/// A warning where a mesh's BVH queries are long enough that `budget` may let llvmpipe's loop
+/// limiter end the path kernels' loops silently (budget plus the worst query past
+/// [`VALIDATED_BUDGET_AND_QUERY`]), naming the knob and what fits; None elsewhere, and on
+/// devices without the limiter.
+pub fn mesh_query_note(gpu: &Gpu, scene: &Scene, budget: u32) -> Option<String> {
+    let object = scene.object.as_ref()?;
+    if !resumable::loop_limited(gpu) {
+        return None;
+    }
+    let q = object.bvh.worst_query(QUERY_RAYS, 1);
+    if budget.saturating_add(q) <= VALIDATED_BUDGET_AND_QUERY {
+        return None;
+    }
+    let fits = VALIDATED_BUDGET_AND_QUERY.saturating_sub(q);
+    let what = if fits >= 16 {
+        format!("use path.budget <= {fits} (budget plus query within the {VALIDATED_BUDGET_AND_QUERY} measured exact)")
+    } else {
+        "no path.budget fits; re-triangulate the mesh (long thin triangles sharing a vertex are the usual cause)"
+            .to_string()
+    };
+    Some(format!(
+        "path: the [[object]]'s BVH queries take up to {q} loop iterations ({QUERY_RAYS} sampled rays; the shipped \
+         meshes' at most 180), which llvmpipe's loop limiter counts with path.budget {budget}, past what was \
+         measured exact (a cone fanned from its apex was 1.8e-3 relL2 off at 14491 + 4096, with no error): {what}"
+    ))
+}
+
 /// Free paths shorter than this many float32 steps of position (at the medium's largest
 /// coordinate) are not resolved by the path vertices.
 pub const RESOLVED_STEPS: f64 = 8.0;
@@ -785,6 +825,7 @@ impl Solver for Path {
         (req.progress)(Progress::work(stage, total, total));
 
         let mut warnings: Vec<String> = position_resolution_note(scene).into_iter().collect();
+        warnings.extend(mesh_query_note(gpu, scene, budget));
         warnings.extend(lt_notes);
         let parts = [camera.as_ref().map(|c| &c.0), light.as_ref().map(|l| &l.0)];
         let (image, variance, device_bytes) = sum_parts(w, h, parts.into_iter().flatten(), &mut warnings, gs.bytes);

@@ -67,16 +67,17 @@ pub(super) fn object_scene(scene: &Scene) -> Scene {
 /// Point and directional lights as (position or travel direction, intensity or irradiance,
 /// is a point light), and the constant environments' summed radiance.
 pub(super) fn split_lights(scene: &Scene) -> (Vec<(Vec3, Vec3, bool)>, Vec3) {
-    let mut env = Vec3::ZERO;
-    let mut lights = Vec::new();
-    for l in &scene.lights {
-        match l {
-            Light::Point { position, intensity } => lights.push((*position, *intensity, true)),
-            Light::Directional { direction, irradiance } => lights.push((*direction, *irradiance, false)),
-            Light::Environment { radiance } => env += *radiance,
-        }
-    }
-    (lights, env)
+    // The environment lights in one sum, in scene order (the one path and networks use).
+    let lights = scene
+        .lights
+        .iter()
+        .filter_map(|l| match l {
+            Light::Point { position, intensity } => Some((*position, *intensity, true)),
+            Light::Directional { direction, irradiance } => Some((*direction, *irradiance, false)),
+            Light::Environment { .. } => None,
+        })
+        .collect();
+    (lights, scene.environment_radiance())
 }
 
 /// Whether each sample holds a second coefficient set for the environment (psi times the
