@@ -838,6 +838,22 @@ fn environment_values_are_checked_and_named() {
     // `devices` names the variable too.
     let out = with_env("SCATTERLAB_DEVICE", "bogus", vec!["devices".into()]);
     error_line(&out, &["no Vulkan device matches SCATTERLAB_DEVICE=bogus"], Cause::Once);
+    // So does `--device auto` that resolves from a variable: the variable, not `--device bogus`
+    // (which the user never typed).
+    let mut args = c.render_args(&s, &TINY);
+    args.extend(["--device".into(), "auto".into()]);
+    let line = c.fails_with(
+        || with_env("SCATTERLAB_DEVICE", "bogus", args.clone()),
+        &["SCATTERLAB_DEVICE=bogus"],
+        Cause::Once,
+    );
+    assert!(!line.contains("--device bogus"), "{line}");
+    let line = c.fails_with(
+        || with_env("CUDA_VISIBLE_DEVICES", "GPU-00000000-dead", args.clone()),
+        &["no Vulkan device matches CUDA_VISIBLE_DEVICES=uuid:GPU-00000000-dead"],
+        Cause::Once,
+    );
+    assert!(!line.contains("--device"), "{line}");
     // A mapping the device cannot give, asked for by the variable, names the variable.
     let gpu = crate::common::gpu();
     let fams = gpu.info().queue_families.clone();

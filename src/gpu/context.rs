@@ -700,30 +700,40 @@ fn uuid_digits(u: &str) -> String {
 /// Where two of them are set and name different GPUs, the first in that order wins and the
 /// second is named in the returned note.
 pub fn auto_device(list: &[DeviceSummary], env: &dyn Fn(&str) -> Option<String>) -> (Option<String>, Option<String>) {
+    let (chosen, note) = auto_choice(list, env);
+    (chosen.map(|(wanted, _)| wanted), note)
+}
+
+/// [`auto_device`] and the variable its choice came from, which an error about it names (a
+/// `SCATTERLAB_DEVICE=bogus` behind `--device auto` was reported as `--device bogus`).
+fn auto_choice(
+    list: &[DeviceSummary],
+    env: &dyn Fn(&str) -> Option<String>,
+) -> (Option<(String, &'static str)>, Option<String>) {
     let get = |k: &str| env(k).map(|v| v.trim().to_string()).filter(|v| !v.is_empty());
     if let Some(d) = get(ENV_DEVICE).filter(|d| d != "auto") {
-        return (Some(d), None);
+        return (Some((d, ENV_DEVICE)), None);
     }
     let gpus: Vec<&DeviceSummary> = list.iter().filter(|d| d.device_type != "cpu").collect();
-    let resolve = |var: &str| -> Option<(String, String)> {
+    let resolve = |var: &'static str| -> Option<(&'static str, String)> {
         let value = get(var)?;
         let first = value.split(',').next()?.trim().to_string();
         if first.starts_with("GPU-") || first.starts_with("MIG-") {
-            return Some((var.to_string(), format!("uuid:{first}")));
+            return Some((var, format!("uuid:{first}")));
         }
         let i: usize = first.parse().ok()?;
         let d = gpus.get(i).or(gpus.first())?;
-        Some((var.to_string(), d.index.to_string()))
+        Some((var, d.index.to_string()))
     };
-    let found: Vec<(String, String)> =
-        ["CUDA_VISIBLE_DEVICES", "SLURM_STEP_GPUS", "SLURM_JOB_GPUS"].iter().filter_map(|v| resolve(v)).collect();
+    let found: Vec<(&'static str, String)> =
+        ["CUDA_VISIBLE_DEVICES", "SLURM_STEP_GPUS", "SLURM_JOB_GPUS"].into_iter().filter_map(resolve).collect();
     let Some((var, wanted)) = found.first().cloned() else { return (None, None) };
     let same = |a: &str, b: &str| choose_device(list, Some(a)).ok() == choose_device(list, Some(b)).ok();
     let note =
         found.iter().skip(1).find(|(_, w)| !same(w, &wanted)).map(|(other, w)| {
             format!("--device auto: {var} names device {wanted} and {other} names {w}; using {var}'s")
         });
-    (Some(wanted), note)
+    (Some((wanted, var)), note)
 }
 
 /// The index of the device `Gpu::new` opens for `wanted` (an index, `uuid:GPU-...` (a unique
@@ -736,11 +746,15 @@ pub fn choose_device(list: &[DeviceSummary], wanted: Option<&str>) -> Result<Opt
         return Err(GpuError::NoDevice);
     }
     if wanted == Some("auto") {
-        let (resolved, note) = auto_device(list, &|k| std::env::var(k).ok());
+        let (resolved, note) = auto_choice(list, &|k| std::env::var(k).ok());
         if let Some(n) = note {
             eprintln!("warning: {n}");
         }
-        return choose_device(list, resolved.as_deref());
+        return match resolved {
+            // Not found: said as the variable named it (kept by a caller's `named_by`).
+            Some((w, var)) => choose_device(list, Some(&w)).map_err(|e| e.named_by(var)),
+            None => choose_device(list, None),
+        };
     }
     let available =
         || list.iter().map(|c| format!("{}: {} ({})", c.index, c.name, c.uuid)).collect::<Vec<_>>().join(", ");

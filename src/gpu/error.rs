@@ -90,10 +90,14 @@ pub fn naming(from: &str, value: &str) -> String {
 }
 
 impl GpuError {
-    /// A device not found, said as named by `from` (`--device` or `SCATTERLAB_DEVICE`).
+    /// A device not found, said as named by `from` (`--device` or `SCATTERLAB_DEVICE`), where
+    /// `choose_device` left it as `--device`; one `--device auto` resolved from a variable
+    /// already names that variable, and keeps it.
     pub fn named_by(self, from: &'static str) -> GpuError {
         match self {
-            GpuError::DeviceNotFound { wanted, available, .. } => GpuError::DeviceNotFound { wanted, available, from },
+            GpuError::DeviceNotFound { wanted, available, from: "--device" } => {
+                GpuError::DeviceNotFound { wanted, available, from }
+            }
             e => e,
         }
     }
