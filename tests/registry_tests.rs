@@ -852,20 +852,13 @@ fn the_reference_build_keeps_every_part_path_imports() {
 #[test]
 fn batch_counting_kernels_charge_what_llvmpipe_runs() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut kernels = Vec::new();
-    let mut dirs = vec![root.join("glsl")];
-    while let Some(dir) = dirs.pop() {
-        for e in std::fs::read_dir(&dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                dirs.push(p);
-            } else if p.extension().is_some_and(|x| x == "comp")
-                && std::fs::read_to_string(&p).unwrap().contains("#define SCATTERLAB_BATCH_LOOPS")
-            {
-                kernels.push(p);
-            }
-        }
-    }
+    let mut kernels: Vec<_> = files_under(&root.join("glsl"))
+        .into_iter()
+        .filter(|p| {
+            p.extension().is_some_and(|x| x == "comp")
+                && std::fs::read_to_string(p).unwrap().contains("#define SCATTERLAB_BATCH_LOOPS")
+        })
+        .collect();
     kernels.sort();
     assert!(kernels.iter().any(|k| k.ends_with("marching/march.comp")), "{kernels:?}");
     for k in &kernels {

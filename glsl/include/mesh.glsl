@@ -3,10 +3,10 @@
 // layout and traversal here mirror `Bvh::intersect`, which the host tests against brute force.
 // Needs budget.glsl: the traversal counts every iteration of each of its three loops (nodes,
 // a leaf's triangles, popping the stack) into `iters` (LOOP_EDGE: and the batch's where the
-// kernel counts it), since llvmpipe's loop limiter counts every loop back-edge of an invocation's SIMD batch together, and a loop left uncounted let
-// the path kernel's batches reach it at the default budget (silently wrong images, caught by
-// rendering at several budgets: tests/refraction_tests.rs) and MESH_NODES_BINDING,
-// MESH_TRIS_BINDING defined first.
+// kernel counts it), since llvmpipe's loop limiter counts every loop back-edge of an
+// invocation's SIMD batch together, and a loop left uncounted let the path kernel's batches
+// reach it at the default budget (silently wrong images, caught by rendering at several
+// budgets: tests/refraction_tests.rs) and MESH_NODES_BINDING, MESH_TRIS_BINDING defined first.
 #ifndef SCATTERLAB_MESH
 #define SCATTERLAB_MESH
 #include "dielectric.glsl"
@@ -99,7 +99,7 @@ bool mesh_hit_tri(vec3 o, vec3 d, float t_min, float t_max, out float t_hit, out
     if (node_entry(nodes[0], o, inv_d, t_min, t_hit) == INF) return false;
     uint node = 0u;
     while (true) {
-        LOOP_EDGE(3u);   // itself and its two nested loops (batch.glsl; MESH_HIT_LOOPS)
+        LOOP_EDGE(MESH_HIT_LOOPS);   // itself and its two nested loops (batch.glsl)
         BvhNode nd = nodes[node];
         bool descend = false;
         if (nd.count > 0u) {

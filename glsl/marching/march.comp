@@ -110,7 +110,7 @@ float lobe_reflectance(vec3 d, vec3 n_out, float g, float ior) {
     vec3 b = cross(n_out, t);
     float num = 0.0, den = 0.0;
     for (uint i = 0u; i < 16u; ++i) {
-        LOOP_EDGE(2u);   // itself and the loop in it (LOBE_LOOPS)
+        LOOP_EDGE(LOBE_LOOPS);   // itself and the loop in it
         float mu = (float(i) + 0.5) / 16.0;
         float s = sqrt(1.0 - mu * mu);
         float ct;

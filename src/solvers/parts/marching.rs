@@ -715,7 +715,7 @@ impl Marcher {
 
     /// The most loop back-edges one SIMD batch of the march took in a round, and in one step,
     /// in any round so far (glsl/marching/march.comp's `Loops`, counted as llvmpipe counts them).
-    pub fn loops(&self, gpu: &Gpu) -> Result<(u32, u32), SolverError> {
+    fn loops(&self, gpu: &Gpu) -> Result<(u32, u32), SolverError> {
         let n: Vec<u32> = gpu.read_buffer_as(&self.loops)?;
         Ok((n[0], n[1]))
     }
