@@ -848,7 +848,8 @@ fn the_reference_build_keeps_every_part_path_imports() {
 /// glsl/include/batch.glsl) charges each loop reachable from main exactly the loop constructs
 /// llvmpipe runs per body run, and prepays main's: tools/glsl-loop-counts derives them from
 /// the preprocessed source and exits 1 on a weight that does not match (a loop added to the
-/// BVH query without raising MESH_HIT_LOOPS would undercount every step of lbl's march).
+/// BVH query without raising MESH_HIT_LOOPS would undercount every step of lbl's march), or on
+/// a kernel's generated W_ weights (<kernel>.loops.glsl, specialisation-aware) that are stale.
 #[test]
 fn batch_counting_kernels_charge_what_llvmpipe_runs() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -860,7 +861,9 @@ fn batch_counting_kernels_charge_what_llvmpipe_runs() {
         })
         .collect();
     kernels.sort();
-    assert!(kernels.iter().any(|k| k.ends_with("marching/march.comp")), "{kernels:?}");
+    for k in ["marching/march.comp", "path/trace.comp", "path/light.comp"] {
+        assert!(kernels.iter().any(|p| p.ends_with(k)), "{k} does not count its batches: {kernels:?}");
+    }
     for k in &kernels {
         let out = std::process::Command::new(root.join("tools/glsl-loop-counts"))
             .arg("--check")
@@ -872,7 +875,14 @@ fn batch_counting_kernels_charge_what_llvmpipe_runs() {
         // The step loop of the march: itself, the BVH query's 3, lobe_reflectance's 2 and the
         // forward population's channel loop.
         if k.ends_with("marching/march.comp") {
-            assert!(text.lines().any(|l| l.starts_with("loop main:") && l.ends_with("S=7 charged=7")), "{text}");
+            assert!(
+                text.lines().any(|l| l.starts_with("loop main:") && l.contains(" S=7 ") && l.ends_with("charged=7")),
+                "{text}"
+            );
+        }
+        // The path kernels' event loop charges its generated, specialisation-aware weight.
+        if k.ends_with("path/trace.comp") || k.ends_with("path/light.comp") {
+            assert!(text.lines().any(|l| l.starts_with("loop main:") && l.ends_with("charged=W_EVENTS")), "{text}");
         }
     }
 }

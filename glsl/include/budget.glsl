@@ -20,4 +20,14 @@ const uint LOOP_GUARD = 60000u;
 // LOOP_EDGE(w) at the top of its body, w = 1 + the loop constructs nested in it.
 #include "batch.glsl"
 #define LOOP_EDGE(w) { iters++; BATCH_EDGE(w); }
+
+// Whether the dispatch's work is spent at a resumable point: the lane's own `limit`, or, in a
+// kernel that pauses on its batch's count (batch.glsl), the batch's past BATCH_PAUSE once this
+// lane has done some work in the dispatch (iters > 0), so every dispatch moves every lane on
+// however much its neighbours spent.
+#ifdef SCATTERLAB_BATCH_PAUSE
+#define SPENT(limit) (iters >= (limit) || (BATCH_SPENT && iters > 0u))
+#else
+#define SPENT(limit) (iters >= (limit))
+#endif
 #endif

@@ -56,7 +56,7 @@ bool chain_trace(uint c, vec2 ab, vec3 light, bool point, bool light_in, out vec
     ch_inside = light_in ? 1u : 0u;
     ch_mat[0] = triangle_material(f0);
     for (uint v = 0u; v < k; v++) {
-        iters++;   // every loop's back-edges count (budget.glsl)
+        LOOP_EDGE(W_CHAIN_PLANES);   // every loop's back-edges count (budget.glsl)
         uint f = mnee_cells[c + 1u + v];
         vec3 n = triangle_normal(f);
         if (v > 0u) {
@@ -204,7 +204,7 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check,
         bool good = false;
         uint back = 0u;
         for (uint it = 0u; it < 40u; it++) {
-            iters++;
+            LOOP_EDGE(W_NEWTON);
             bool through = traced || chain_trace(c, ab, light, point, light_in, q, w, qa, qb, wa, wb, fres);
             traced = false;
             if (!through) {
@@ -259,7 +259,7 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check,
         if (!done) return false;
         if (!(ab.x >= 0.0 && ab.y >= 0.0 && ab.x + ab.y <= 1.0)) return false;
         for (uint v = 1u; v < k; v++) {
-            iters++;
+            LOOP_EDGE(W_CHAIN_FACETS);
             if (!point_in_triangle(mnee_cells[c + 1u + v], ch_p[v])) return false;
         }
         // The last leg must end in the scattering point's object.
@@ -278,7 +278,7 @@ bool chain_at(uint c, vec3 x, vec3 light, bool point, bool light_in, bool check,
             if (mesh_hit_tri(ch_p[0], -light, surface_eps(ch_p[0]), INF, t, tri)) return false;
         }
         for (uint l = 1u; l < k; l++) {
-            iters++;
+            LOOP_EDGE(W_CHAIN_LEGS);
             if ((ch_inside & (1u << l)) == 0u && !leg_clear(ch_p[l - 1u], ch_p[l])) return false;
         }
     }
@@ -310,10 +310,12 @@ bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, i
     }
     float E = 0.0;
     while (true) {
+        BATCH_EDGE(W_MNEE_CHAINS);
         if (ev_sub == 2u) {
             bool found = false;
             for (; ev_surf_tri < end; ev_surf_tri++) {
-                if (iters >= iter_limit) return false;
+                BATCH_EDGE(W_MNEE_TRY);
+                if (SPENT(iter_limit)) return false;
                 iters += CHAIN_TRY_ITERS;
                 if (chain_at(mnee_cells[ev_surf_tri], p, li.pos_kind.xyz, point, light_in, check, E)) {
                     found = true;
@@ -331,7 +333,7 @@ bool mnee_estimate(Light li, vec3 p, vec3 d, float g, vec3 beta, inout vec3 L, i
         uint k = mnee_cells[mnee_cells[ev_surf_tri]] & 0xffu;
         // Legs k down to 0 (leg 0 lies inside only from a light inside an object).
         for (; ev_sub >= 3u; ev_sub--) {
-            iters++;
+            LOOP_EDGE(W_MNEE_LEGS);
             uint l = ev_sub - 3u;
             if ((ch_inside & (1u << l)) != 0u) {
                 // Tracked from the leg's far end (x, or just inside vertex l) back to vertex

@@ -3,6 +3,7 @@
 #ifndef SCATTERLAB_SCENE
 #define SCATTERLAB_SCENE
 #include "scene_block.glsl"
+#include "batch.glsl"
 
 #define DENSITY_CONSTANT 0u
 #define DENSITY_SPHERE 1u
@@ -76,6 +77,7 @@ bool pixel_misses_medium(uvec2 px) {
         if (dist <= r) return false;
         float cos_half = 1.0;
         for (uint i = 0u; i < 4u; i++) {
+            BATCH_EDGE(1u);
             camera_ray(p + vec2(float(i & 1u), float(i >> 1u)), oc, d);
             cos_half = min(cos_half, dot(d, dc));
         }
@@ -261,6 +263,7 @@ Segments segments_begin(vec3 o, vec3 d, float t0, float t1) {
     vec3 go = (o + d * t0 - f.bounds_min.xyz) / ext * m;
     vec3 gd = d / ext * m;
     for (int a = 0; a < 3; ++a) {
+        BATCH_EDGE(1u);
         s.cell[a] = clamp(int(floor(go[a])), 0, int(f.maj_dims[a]) - 1);
         if (gd[a] > 0.0) {
             s.next_t[a] = t0 + (float(s.cell[a] + 1) - go[a]) / gd[a];

@@ -92,7 +92,7 @@ bool mesh_crossing_tri(vec3 p, vec3 w, float t_min, float t_max, bool entering, 
     tri = 0u;
     // A closed mesh alternates entries and exits; a few extra steps cover edge double hits.
     for (uint k = 0u; k < 8u; k++) {
-        iters++;
+        LOOP_EDGE(W_CROSSING);
         if (!mesh_hit_tri(p, w, t, t_max, t, tri)) return false;
         if ((dot(w, triangle_normal(tri)) < 0.0) == entering) return true;
     }
@@ -224,7 +224,8 @@ void track_save(out vec4 a, out vec4 b, out vec4 c) {
 int track_next(inout uvec2 rng) {
     float t0;
     while (true) {
-        if (iters >= iter_limit && !trk_step_due) {
+        BATCH_EDGE(W_TRACK_STEP);
+        if (SPENT(iter_limit) && !trk_step_due) {
             trk_paused = true;
             return -1;
         }
@@ -234,7 +235,8 @@ int track_next(inout uvec2 rng) {
 #ifdef MESH_NODES_BINDING
                 // A transmittance through an index-matched mesh: on into the next inside interval.
                 vec2 iv;
-                if (trk_chain && next_inside_interval(trk.s.org, trk.s.dir, trk.s.t_max, trk_far, iv)) {
+                // (trk_chain holds HAS_MESH; the test says so where specialisation sees it.)
+                if (HAS_MESH && trk_chain && next_inside_interval(trk.s.org, trk.s.dir, trk.s.t_max, trk_far, iv)) {
                     iters++;
                     trk.s = segments_begin(trk.s.org, trk.s.dir, iv.x, iv.y);
                     continue;
@@ -292,10 +294,12 @@ bool transmittance_run(inout uvec2 rng) {
         // material.
         vec2 iv;
         float t_end = trk.s.t_max;
-        while (trk_chain && next_inside_interval(trk.s.org, trk.s.dir, t_end, trk_far, iv)) {
-            iters++;
-            tau += mat_sigma_t().xyz * (iv.y - iv.x);
-            t_end = iv.y;
+        if (HAS_MESH) {
+            while (trk_chain && next_inside_interval(trk.s.org, trk.s.dir, t_end, trk_far, iv)) {
+                LOOP_EDGE(W_CHAIN_INTERVAL);
+                tau += mat_sigma_t().xyz * (iv.y - iv.x);
+                t_end = iv.y;
+            }
         }
 #endif
         trk.T = exp(-tau);
@@ -303,6 +307,7 @@ bool transmittance_run(inout uvec2 rng) {
         return true;
     }
     while (true) {
+        BATCH_EDGE(W_TRANSMITTANCE);
         int r = track_next(rng);
         if (r < 0) return false;
         if (r == 0) return true;
@@ -344,6 +349,7 @@ vec3 trk_emitted = vec3(0.0);
 int scatter_run(inout vec3 beta, inout uvec2 rng, out float t_hit) {
     t_hit = 0.0;
     while (true) {
+        BATCH_EDGE(W_FLIGHT);
         int r = track_next(rng);
         if (r < 0) return FLIGHT_PAUSED;
         if (r == 0) return FLIGHT_ESCAPED;

@@ -31,6 +31,16 @@
 // crosses surfaces unchanged, and its camera connection takes the optical depth of every
 // object it crosses (tracking.glsl's chained intervals).
 #extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_basic : require
+
+// On llvmpipe the kernel counts its SIMD batches' loop back-edges as the driver's loop limiter
+// does and pauses the batch before the limit (glsl/include/batch.glsl): a batch's lanes run
+// different loops, and their sum, not one lane's count, is what the limiter ends.
+#define SCATTERLAB_BATCH_LOOPS
+#define SCATTERLAB_BATCH_PAUSE 64
+#ifndef SCATTERLAB_LOOP_COUNTS   // tools/glsl-loop-counts reads the weights by name
+#include "light.loops.glsl"
+#endif
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
@@ -178,6 +188,7 @@ bool splat(vec3 x, vec3 d_in, vec3 beta, inout uvec2 rng) {
     uint base = slice_words + 6u * (px.y * res.x + px.x);
     splat_count++;
     for (uint ch = 0u; ch < 3u; ++ch) {
+        BATCH_EDGE(W_SPLAT_CHANNELS);
         float q = c[ch];
         if (q > SPLAT_MAX) { q = SPLAT_MAX; splat_clamped++; }
         if (q > 0.0) add_fixed(base + 2u * ch, q, rnd(rng));
@@ -207,7 +218,8 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, vec3 emitted, inout uin
             // With a mesh the flight ended at the surface (or the box): the path flies on
             // through the vacuum into the next object its ray enters (a torus's other side, or
             // another object), whose material it takes on; else it has left.
-            if (!HAS_MESH || max3(beta) <= 0.0 || truncated) return EVENT_ENDED;
+            if (!HAS_MESH) return EVENT_ENDED;
+            if (max3(beta) <= 0.0 || truncated) return EVENT_ENDED;
             float t_in;
             uint tri;
             if (!mesh_crossing_tri(o, d, trk.s.t_max, INF, true, t_in, tri)) return EVENT_ENDED;
@@ -244,6 +256,7 @@ vec3 emitted_weight(uint i) {
 }
 
 void main() {
+    BATCH_BEGIN(W_MAIN);
     uvec2 px = gl_GlobalInvocationID.xy;
     uvec2 res = scene.image.xy;
     if (px.x >= res.x || px.y >= res.y) return;
@@ -276,7 +289,8 @@ void main() {
     uint segs = 0u;
     uint light_count = scene.image.z;
 
-    while (iters < pc.budget) {
+    while (!SPENT(pc.budget)) {
+        BATCH_EDGE(W_EVENTS);
         if (!in_flight) {
             if (k >= pc.sample_end) break;
             slice_words = slice_of(k, res);
@@ -287,7 +301,7 @@ void main() {
             light = 0xffffffffu;
             float acc = 0.0;
             for (uint i = 0u; i < min(light_count, 32u); ++i) {
-                iters++;
+                LOOP_EDGE(W_LIGHT_PICK);
                 if ((pc.light_traced & (1u << i)) == 0u) continue;
                 float p = avg3(scene.lights[i].value.rgb);
                 if (p <= 0.0) continue;
@@ -340,6 +354,7 @@ void main() {
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);
+    if (LOOP_LIMITED) atomicMax(stats[STATS_BATCH_WORD], BATCH_COUNT);
     if (in_flight || k < pc.sample_end) atomicAdd(stats[3u + pc.slot], 1u);
     if (splat_clamped > 0u) atomicAdd(lstats[0], splat_clamped);
     if (sum_overflow > 0u) atomicAdd(lstats[1], sum_overflow);

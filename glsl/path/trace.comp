@@ -28,6 +28,16 @@
 // included (surface_event). Both choices have weight 1; refraction scales the throughput by
 // eta^2 (radiance compression, transport of radiance as pbrt-v4 and Mitsuba 3 do).
 #extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_basic : require
+
+// On llvmpipe the kernel counts its SIMD batches' loop back-edges as the driver's loop limiter
+// does and pauses the batch before the limit (glsl/include/batch.glsl): a batch's lanes run
+// different loops, and their sum, not one lane's count, is what the limiter ends.
+#define SCATTERLAB_BATCH_LOOPS
+#define SCATTERLAB_BATCH_PAUSE 64
+#ifndef SCATTERLAB_LOOP_COUNTS   // tools/glsl-loop-counts reads the weights by name
+#include "trace.loops.glsl"
+#endif
 
 #define SCENE_BINDING 0
 #define DENSITY_BINDING 1
@@ -212,9 +222,10 @@ bool equiangular_lights(vec3 o, vec3 d, float t_in, float t_out, vec3 beta, inou
     uint light_count = scene.image.z;
     float g = scene.materials[path_mat].albedo.w;
     for (; ev_light < light_count; ev_light++, ev_sub = 0u) {
+        BATCH_EDGE(W_EQ_LIGHTS);
         uint i = ev_light;
         if (ev_sub == 0u) {
-            if (iters >= iter_limit) return false;
+            if (SPENT(iter_limit)) return false;
             iters++;
         }
         Light li = scene.lights[i];
@@ -343,7 +354,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         ev_light = 0u;
         ev_sub = 0u;
     }
-    if (ev_step == EV_EQ) {
+    if (EQUIANGULAR && ev_step == EV_EQ) {
         if (!equiangular_lights(o, d, seg.x, seg.y, beta, L, rng)) return EVENT_PAUSED;
         ev_step = EV_FLIGHT;
     }
@@ -376,7 +387,8 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
             // The loop runs without an environment too: its iteration count decides where a
             // paused path resumes, and the image must not depend on ENVIRONMENT.
             for (; ev_light < light_count; ev_light++) {
-                if (iters >= iter_limit) return EVENT_PAUSED;
+                BATCH_EDGE(W_ESCAPE_LIGHTS);
+                if (SPENT(iter_limit)) return EVENT_PAUSED;
                 iters++;
                 if (!ENVIRONMENT || uint(scene.lights[ev_light].pos_kind.w) != LIGHT_ENVIRONMENT) continue;
                 // The camera ray sees the environment directly; later escapes share the
@@ -394,9 +406,10 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
     float t_hit = ev_s;
     vec3 p = o + d * t_hit;
     for (; ev_light < light_count; ev_light++, ev_sub = 0u) {
+        BATCH_EDGE(W_NEE_LIGHTS);
         uint i = ev_light;
         if (ev_sub == 0u) {
-            if (iters >= iter_limit) return EVENT_PAUSED;
+            if (SPENT(iter_limit)) return EVENT_PAUSED;
             iters++;
         }
         Light li = scene.lights[i];
@@ -404,7 +417,7 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
         // A light inside an object with a refractive boundary: the straight shadow ray (ev_sub
         // 0-1), then its chains (mnee_estimate from ev_sub 0 again, on at 2 and up).
         bool chains = mnee_light(i) && kind != LIGHT_ENVIRONMENT;
-        if (chains && !mnee_light_inside(i)) {
+        if (MNEE && chains && !mnee_light_inside(i)) {
             if (kind == LIGHT_POINT && !camera_side(i)) continue;
             if (!mnee_estimate(li, p, d, g, beta, L, rng)) return EVENT_PAUSED;
         } else if (kind == LIGHT_POINT) {
@@ -429,7 +442,10 @@ int advance(inout vec3 o, inout vec3 d, inout vec3 beta, inout vec3 L, inout uin
                 if (!chains) continue;
                 ev_sub = 0u;
             }
-            if (!mnee_estimate(li, p, d, g, beta, L, rng)) return EVENT_PAUSED;
+            // (chains holds MNEE; the test says so where specialisation can see it: batch.glsl)
+            if (MNEE) {
+                if (!mnee_estimate(li, p, d, g, beta, L, rng)) return EVENT_PAUSED;
+            }
         } else if (kind == LIGHT_DIRECTIONAL) {
             vec3 wi = -li.pos_kind.xyz;
             ev_sub = 1u;
@@ -484,6 +500,7 @@ void add_samples(uint pixel, vec3 L, float n) {
 }
 
 void main() {
+    BATCH_BEGIN(W_MAIN);
     uvec2 px = gl_GlobalInvocationID.xy;
     uvec2 res = scene.image.xy;
     if (px.x >= res.x || px.y >= res.y) return;
@@ -529,7 +546,8 @@ void main() {
     bool pixel_misses = !in_flight && pixel_misses_medium(px);
     vec3 env_seen = vec3(pc.env_r, pc.env_g, pc.env_b);   // what a camera ray that misses the medium sees
 
-    while (iters < pc.budget) {
+    while (!SPENT(pc.budget)) {
+        BATCH_EDGE(W_EVENTS);
         if (!in_flight) {
             // Samples whose camera ray misses the medium see the environment and nothing else:
             // they end here, in a tight loop of their own, instead of running a whole event in
@@ -546,7 +564,8 @@ void main() {
                 segs += pc.sample_end - k;
                 k = pc.sample_end;
             }
-            while (k < pc.sample_end && iters < pc.budget) {
+            while (k < pc.sample_end && !SPENT(pc.budget)) {
+                BATCH_EDGE(W_MISSED_SAMPLES);
                 rng = rng_init(pc.seed_lo, pc.seed_hi, pixel, k);
                 vec2 jitter = rnd2(rng);   // box filter: uniform over the pixel's area
                 camera_ray(vec2(px) + jitter, o, d);
@@ -603,5 +622,6 @@ void main() {
     if (trunc_count > 0u) atomicAdd(stats[0], trunc_count);
     atomicAdd(stats[1], segs);
     atomicMax(stats[2], iters);
+    if (LOOP_LIMITED) atomicMax(stats[STATS_BATCH_WORD], BATCH_COUNT);
     if (in_flight || k < pc.sample_end) atomicAdd(stats[3u + pc.slot], 1u);
 }

@@ -5,14 +5,17 @@
 //! (LP_MAX_TGSI_LOOP_ITERATIONS, shared by every loop; docs/lavapipe.md), so every kernel
 //! with data-dependent loops counts its own iterations, stops at a resumable point after
 //! `budget` of them, and reports whether it has work left. Stats buffer layout shared by such
-//! kernels: word 2 = most iterations one invocation ran in a dispatch; words 3.. = one
+//! kernels: word 2 = most iterations one invocation ran in a dispatch (in the path kernels on
+//! llvmpipe, the most one SIMD batch ran: glsl/include/batch.glsl); words 3.. = one
 //! "invocations with work left" counter per round of a submission.
 
 use crate::gpu::{Buffer, Gpu, Pass, QueueRole};
 
 use crate::solvers::interface::{Knob, Knobs, Range, SolverError};
 
-/// Largest budget (`path.budget`, `single.budget`) for a scene with an [[object]] mesh.
+/// Largest budget of the view march (`single.budget` and the views of lbl and dom) for a scene
+/// with an [[object]] mesh; the path kernels count their SIMD batches instead and pause them
+/// (glsl/include/batch.glsl).
 /// llvmpipe's loop limiter counts a SIMD batch's loop back-edges together (glsl/include/budget.glsl), at most the sum of its 8
 /// lanes' own counts: 8 x (4096 + one event's overshoot) stays below 65535. Measured on the box
 /// mesh (max_depth 1, 20 x 20): budgets 64, 300, 1000 and 4096 give the same image bit for bit,
@@ -20,8 +23,7 @@ use crate::solvers::interface::{Knob, Knobs, Range, SolverError};
 pub const MESH_MAX_BUDGET: u32 = 4096;
 
 /// Refuse the budget knob `name` (its value `budget`) past [`MESH_MAX_BUDGET`] where the
-/// scene has an [[object]] mesh: the kernels that trace it (path's, the view march) share
-/// the limit.
+/// scene has an [[object]] mesh: the view march, which counts each lane's loops only.
 pub fn check_mesh_budget(k: &Knobs, name: &str, budget: u32, has_mesh: bool) -> Result<(), SolverError> {
     if has_mesh && budget > MESH_MAX_BUDGET {
         return Err(k.invalid(
@@ -36,15 +38,6 @@ pub fn check_mesh_budget(k: &Knobs, name: &str, budget: u32, has_mesh: bool) -> 
     Ok(())
 }
 
-/// Largest `path.budget` on a device whose loops end past 65535 back-edges ([`loop_limited`]),
-/// whatever the scene. A path kernel's lanes diverge (one in a free flight, its neighbour in a
-/// shadow ray), and llvmpipe counts the back-edges of the SIMD batch of 8 together, not each
-/// lane's, while the kernels' guard reads each lane's own count: budgets of 16 to 8000 gave the
-/// cloud (scenes/cloud.toml, 16 x 16, 512 spp) the same image bit for bit, 9000 wrong pixels
-/// (27 of 256), 10000-15000 70-80 of 256, up to 6.9% each, with no lane past 12612 and so no
-/// error. The mesh scenes' measured limit ([`MESH_MAX_BUDGET`]) holds there too.
-pub const LIMITED_PATH_BUDGET: u32 = MESH_MAX_BUDGET;
-
 /// Whether this device ends an invocation's loops after 65535 back-edges in all: llvmpipe
 /// (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS; glsl/include/budget.glsl). Real GPUs have no such
 /// limit.
@@ -53,26 +46,18 @@ pub fn loop_limited(gpu: &Gpu) -> bool {
     info.name.starts_with("llvmpipe") || info.driver_name == "llvmpipe"
 }
 
-/// Refuse `path.budget` past [`LIMITED_PATH_BUDGET`] on a [`loop_limited`] device: its
-/// divergent lanes' loops add up in one SIMD batch.
-pub fn check_path_budget(gpu: &Gpu, k: &Knobs, name: &str, budget: u32) -> Result<(), SolverError> {
-    if loop_limited(gpu) && budget > LIMITED_PATH_BUDGET {
-        return Err(k.invalid(
-            name,
-            format!(
-                "{budget} on llvmpipe: its loop limiter counts the 8 lanes of a SIMD batch together, and path's \
-                 lanes run different loops, so above {LIMITED_PATH_BUDGET} their loops could end silently \
-                 (measured: wrong pixels from 9000 on scenes/cloud.toml); use at most {LIMITED_PATH_BUDGET}"
-            ),
-        ));
-    }
-    Ok(())
-}
-
 /// Dispatches per submission; each reports its unfinished invocations in its own counter.
 pub const ROUNDS_PER_SUBMIT: u32 = 4;
+/// The stats word after the rounds' counters: the most loop back-edges one SIMD batch ran in a
+/// dispatch, in a kernel that counts them (the path kernels on llvmpipe: glsl/include/batch.glsl
+/// STATS_BATCH_WORD); 0 elsewhere.
+pub const BATCH_WORD: usize = 3 + ROUNDS_PER_SUBMIT as usize;
+/// The count past which the path kernels pause a SIMD batch at its next resumable point on
+/// llvmpipe (glsl/include/batch.glsl BATCH_PAUSE), [`LOOP_GUARD`] less the room left for work
+/// that cannot pause (a BVH query).
+pub const BATCH_PAUSE: u32 = 32768;
 /// Words in a resumable kernel's stats buffer.
-pub const STATS_WORDS: u64 = 3 + ROUNDS_PER_SUBMIT as u64;
+pub const STATS_WORDS: u64 = BATCH_WORD as u64 + 1;
 /// Own-counted loop iterations past which llvmpipe's shared loop limiter (65535) may fire: the
 /// kernels' `LOOP_GUARD` (glsl/include/budget.glsl), the one number both sides use (tested).
 pub const LOOP_GUARD: u32 = 60000;
@@ -83,7 +68,7 @@ pub fn budget_knob() -> Knob {
         "4096",
         Range::int(16, (LOOP_GUARD / 4) as u64),
         "loop iterations per invocation per dispatch of a resumable kernel (llvmpipe ends loops past 65535 in a SIMD \
-         batch: there path takes at most 4096)",
+         batch: there the path kernels also pause a batch past 32768 of its own)",
     )
 }
 
@@ -127,15 +112,21 @@ pub fn run_until_done_reporting(
         let point = gpu.submit(role, &passes, &[])?;
         gpu.wait(point)?;
         let st: Vec<u32> = gpu.read_buffer_as(stats)?;
-        if st[2] >= LOOP_GUARD {
+        let most = st[2].max(st[BATCH_WORD]);
+        if most >= LOOP_GUARD {
             // Every loop of a resumable kernel pauses at the budget (the path kernels inside a
-            // free flight too: glsl/include/tracking.glsl), so this is a kernel bug, not a scene
-            // the user could have avoided; it is still refused rather than return a wrong image.
+            // free flight too: glsl/include/tracking.glsl), and the path kernels pause a SIMD
+            // batch whose count nears the limit (glsl/include/batch.glsl), so what is left is
+            // work between two pause points that cannot itself pause: a BVH query through a
+            // mesh whose triangles' boxes pile up along rays, or a kernel bug. Refused rather
+            // than return a wrong image.
             return Err(SolverError::Unsupported(format!(
-                "{solver}: one invocation ran {} loop iterations in a dispatch, past the {LOOP_GUARD} at which \
-                    llvmpipe silently ends loops: a kernel loop that does not pause at its budget (please report it \
-                    with the scene); a lower {solver}.budget may avoid it",
-                st[2]
+                "{solver}: one invocation (on llvmpipe: one SIMD batch of 8) ran {} loop iterations in a dispatch, \
+                    past the {LOOP_GUARD} at which llvmpipe silently ends loops, in work that cannot pause: a BVH \
+                    query through an [[object]] mesh whose long thin triangles share a vertex (re-triangulate it), \
+                    or a kernel loop that does not pause (please report it with the scene); a lower \
+                    {solver}.budget may avoid it",
+                most
             )));
         }
         // Slot i counts the invocations with work left after the submission's dispatch i.
@@ -157,5 +148,16 @@ mod tests {
         let glsl = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/glsl/include/budget.glsl"));
         let want = format!("const uint LOOP_GUARD = {}u;", super::LOOP_GUARD);
         assert!(glsl.contains(&want), "glsl/include/budget.glsl does not say {want:?}");
+    }
+
+    #[test]
+    fn the_batch_word_is_the_kernels() {
+        let glsl = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/glsl/include/batch.glsl"));
+        for want in [
+            format!("const uint STATS_BATCH_WORD = {}u;", super::BATCH_WORD),
+            format!("const uint BATCH_PAUSE = {}u;", super::BATCH_PAUSE),
+        ] {
+            assert!(glsl.contains(&want), "glsl/include/batch.glsl does not say {want:?}");
+        }
     }
 }

@@ -43,7 +43,7 @@ use crate::solvers::interface::{
     Estimate, Figure, Headline, Knob, Knobs, Range, RenderOutput, RenderReport, RenderRequest, Rung, Schedule, Solver,
     SolverError, Stats, Variant,
 };
-use crate::solvers::parts::gpu_scene::{self, GpuScene, MESH_SPEC};
+use crate::solvers::parts::gpu_scene::{self, GpuScene};
 use crate::solvers::parts::resumable;
 
 pub struct Path;
@@ -128,22 +128,35 @@ const TRACE_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_MNEE, SpecKind::Bool),
     (SPEC_EQUIANGULAR, SpecKind::Bool),
     (SPEC_ENVIRONMENT, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_LOOP_LIMITED, SpecKind::Bool),
 ];
 
 /// The trace kernel's specialisation: the scene's and the mesh's ([`GpuScene`]), and whether
 /// any light takes manifold NEE (`mnee`, a bit per light) or equiangular sampling
 /// (`equiangular`), and the environment as the scene's modelled features say (all on with
-/// `--force-full`).
-fn trace_spec(gs: &GpuScene, equiangular: u32, mnee: u32) -> Vec<(u32, Spec)> {
+/// `--force-full`); on llvmpipe, counting its SIMD batches' loops (glsl/include/batch.glsl).
+fn trace_spec(gpu: &Gpu, gs: &GpuScene, equiangular: u32, mnee: u32) -> Vec<(u32, Spec)> {
     let full = gs.modelled.forced_full;
     let mut spec = gs.modelled.mesh_spec();
     spec.push((SPEC_MNEE, Spec::Bool(mnee != 0 || full)));
     spec.push((SPEC_EQUIANGULAR, Spec::Bool(equiangular != 0 || full)));
     spec.push((SPEC_ENVIRONMENT, Spec::Bool(gs.modelled.environment)));
+    spec.push((gpu_scene::SPEC_LOOP_LIMITED, Spec::Bool(resumable::loop_limited(gpu))));
     spec
 }
 pub const LIGHT: Kernel =
-    Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: MESH_SPEC };
+    Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: LIGHT_SPEC };
+/// The light kernel's: the scene's and the mesh's, and whether to count its SIMD batches' loops.
+const LIGHT_SPEC: &[(u32, SpecKind)] = &[
+    (gpu_scene::SPEC_DENSITY_KIND, SpecKind::U32),
+    (gpu_scene::SPEC_CHROMATIC, SpecKind::Bool),
+    (gpu_scene::SPEC_ANISOTROPIC, SpecKind::Bool),
+    (gpu_scene::SPEC_FIELDS, SpecKind::Bool),
+    (gpu_scene::SPEC_EMISSION, SpecKind::U32),
+    (gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
+    (gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
+    (gpu_scene::SPEC_LOOP_LIMITED, SpecKind::Bool),
+];
 /// The light kernel's bindings of the [[object]]'s BVH nodes and triangles (6 holds its stats).
 const LIGHT_MESH_NODES_BINDING: u32 = 7;
 const LIGHT_MESH_TRIS_BINDING: u32 = 8;
@@ -169,7 +182,6 @@ pub const MAX_LIGHT_TRACED: usize = 32;
 /// Per-pixel resumable path state (`PathState` in glsl/path/trace.comp: the path, the progress
 /// of its current event, and a tracking loop paused mid-flight).
 pub const STATE_BYTES_PER_PIXEL: u64 = 160;
-pub use crate::solvers::parts::resumable::MESH_MAX_BUDGET;
 /// The kernels keep the index of the light an event is at in 16 bits.
 pub const MAX_LIGHTS: usize = 1 << 16;
 /// A paused tracking loop keeps its majorant cell along y and z in 14 bits each
@@ -243,46 +255,6 @@ pub fn light_depth(scene: &Scene, p: Vec3) -> (f64, f64) {
     }
     let absorbed_after = 1.0 / (1.0 - m.albedo.max_element() as f64).max(1e-12);
     (depth_sum / 26.0, (0.5 * tau_min * tau_min).min(absorbed_after))
-}
-
-/// The largest `path.budget` plus worst BVH query ([`crate::scene::bvh::Bvh::worst_query`])
-/// measured to give exact images on llvmpipe. Its loop limiter counts a SIMD batch's loops
-/// together, and a query cannot pause, so a mesh whose queries are long adds to every
-/// dispatch. Measured on closed cones whose side is a fan of triangles about the apex (16 spp,
-/// 32 x 32, each against budget 64): 2048 triangles (worst query 3611) and 4096 (7274) exact
-/// at budgets 1000, 2000 and 4096; 8192 (14491) exact at 300, 1000 and 2000 (a sum of 16491)
-/// and 1.8e-3 relL2 off at 4096 (18587), with no error. The shipped meshes' queries take at
-/// most 180.
-pub const VALIDATED_BUDGET_AND_QUERY: u32 = 16491;
-
-/// Rays [`mesh_query_note`] samples the mesh's BVH with.
-const QUERY_RAYS: u32 = 20000;
-
-/// A warning where a mesh's BVH queries are long enough that `budget` may let llvmpipe's loop
-/// limiter end the path kernels' loops silently (budget plus the worst query past
-/// [`VALIDATED_BUDGET_AND_QUERY`]), naming the knob and what fits; None elsewhere, and on
-/// devices without the limiter.
-pub fn mesh_query_note(gpu: &Gpu, scene: &Scene, budget: u32) -> Option<String> {
-    let object = scene.object.as_ref()?;
-    if !resumable::loop_limited(gpu) {
-        return None;
-    }
-    let q = object.bvh.worst_query(QUERY_RAYS, 1);
-    if budget.saturating_add(q) <= VALIDATED_BUDGET_AND_QUERY {
-        return None;
-    }
-    let fits = VALIDATED_BUDGET_AND_QUERY.saturating_sub(q);
-    let what = if fits >= 16 {
-        format!("use path.budget <= {fits} (budget plus query within the {VALIDATED_BUDGET_AND_QUERY} measured exact)")
-    } else {
-        "no path.budget fits; re-triangulate the mesh (long thin triangles sharing a vertex are the usual cause)"
-            .to_string()
-    };
-    Some(format!(
-        "path: the [[object]]'s BVH queries take up to {q} loop iterations ({QUERY_RAYS} sampled rays; the shipped \
-         meshes' at most 180), which llvmpipe's loop limiter counts with path.budget {budget}, past what was \
-         measured exact (a cone fanned from its apex was 1.8e-3 relL2 off at 14491 + 4096, with no error): {what}"
-    ))
 }
 
 /// Free paths shorter than this many float32 steps of position (at the medium's largest
@@ -578,6 +550,9 @@ pub struct CameraStats {
     pub truncated_paths: u64,
     pub dispatches: u64,
     pub max_loop_iterations: u32,
+    /// On llvmpipe, the most loop back-edges one SIMD batch ran in a dispatch as its loop
+    /// limiter counts them (glsl/include/batch.glsl: the batch pauses past 32768); 0 elsewhere.
+    pub max_batch_loop_iterations: u32,
     /// Counted in 32 bits on the GPU per render; wraps past 4e9 (a lower bound then).
     pub tracking_steps: u32,
 }
@@ -596,6 +571,8 @@ pub struct LightStats {
     pub splats: u32,
     pub dispatches: u64,
     pub max_loop_iterations: u32,
+    /// As [`CameraStats::max_batch_loop_iterations`].
+    pub max_batch_loop_iterations: u32,
     pub tracking_steps: u32,
 }
 
@@ -761,8 +738,6 @@ impl Solver for Path {
         let default_batch = ((1u64 << 24) / pixels.max(1)).clamp(1, 1024) as u32;
         let batch: u32 = k.get_or("batch", default_batch)?;
         let budget: u32 = k.get("budget")?;
-        crate::solvers::parts::resumable::check_mesh_budget(&k, "budget", budget, scene.object.is_some())?;
-        crate::solvers::parts::resumable::check_path_budget(gpu, &k, "budget", budget)?;
         let collision_cap: u32 = k.get("collision_cap")?;
         let eq_mode: String = k.get("equiangular")?;
         let equiangular = equiangular_lights(scene, &eq_mode);
@@ -825,7 +800,6 @@ impl Solver for Path {
         (req.progress)(Progress::work(stage, total, total));
 
         let mut warnings: Vec<String> = position_resolution_note(scene).into_iter().collect();
-        warnings.extend(mesh_query_note(gpu, scene, budget));
         warnings.extend(lt_notes);
         let parts = [camera.as_ref().map(|c| &c.0), light.as_ref().map(|l| &l.0)];
         let (image, variance, device_bytes) = sum_parts(w, h, parts.into_iter().flatten(), &mut warnings, gs.bytes);
@@ -1130,7 +1104,7 @@ fn camera_paths(
 ) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
-    let pipeline = gpu.pipeline(&TRACE, &trace_spec(gs, equiangular, mnee))?;
+    let pipeline = gpu.pipeline(&TRACE, &trace_spec(gpu, gs, equiangular, mnee))?;
     let grid = gpu.buffer_with("path manifold NEE facet grid", c.mnee_grid)?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
@@ -1178,7 +1152,13 @@ fn camera_paths(
     };
     Ok((
         part,
-        CameraStats { truncated_paths: truncated, dispatches, max_loop_iterations: st[2], tracking_steps: st[1] },
+        CameraStats {
+            truncated_paths: truncated,
+            dispatches,
+            max_loop_iterations: st[2],
+            max_batch_loop_iterations: st[resumable::BATCH_WORD],
+            tracking_steps: st[1],
+        },
     ))
 }
 
@@ -1292,7 +1272,9 @@ fn light_paths(
         })
         .sum();
     let inv_quantum = QUANTA_PER_TYPICAL_SPLAT / typical_splat(scene, power_sum);
-    let pipeline = gpu.pipeline(&LIGHT, &gs.modelled.mesh_spec())?;
+    let mut spec = gs.modelled.mesh_spec();
+    spec.push((gpu_scene::SPEC_LOOP_LIMITED, Spec::Bool(resumable::loop_limited(gpu))));
+    let pipeline = gpu.pipeline(&LIGHT, &spec)?;
     let slice_words = (pixels * LIGHT_SLICE_BYTES_PER_PIXEL / 4) as usize;
     let splats = gpu.buffer("light splats", group as u64 * pixels * LIGHT_SLICE_BYTES_PER_PIXEL)?;
     let state = gpu.buffer("light path state", pixels * LIGHT_STATE_BYTES)?;
@@ -1409,6 +1391,7 @@ fn light_paths(
             splats: ls[2],
             dispatches,
             max_loop_iterations: st[2],
+            max_batch_loop_iterations: st[resumable::BATCH_WORD],
             tracking_steps: st[1],
         },
     ))
