@@ -357,22 +357,16 @@ fn no_code_outside_a_solver_names_it() {
     };
     // Every file under src/solvers/, by its path below it, with its code lines (comments out).
     let mut files: Vec<(String, Vec<String>)> = Vec::new();
-    let mut stack = vec![root.join("solvers")];
-    while let Some(dir) = stack.pop() {
-        for e in std::fs::read_dir(&dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else if p.extension().is_some_and(|x| x == "rs") {
-                let rel = p.strip_prefix(root.join("solvers")).unwrap().to_string_lossy().into_owned();
-                let code = std::fs::read_to_string(&p)
-                    .unwrap()
-                    .lines()
-                    .filter(|l| !l.trim_start().starts_with("//"))
-                    .map(str::to_string)
-                    .collect();
-                files.push((rel, code));
-            }
+    for p in files_under(&root.join("solvers")) {
+        if p.extension().is_some_and(|x| x == "rs") {
+            let rel = p.strip_prefix(root.join("solvers")).unwrap().to_string_lossy().into_owned();
+            let code = std::fs::read_to_string(&p)
+                .unwrap()
+                .lines()
+                .filter(|l| !l.trim_start().starts_with("//"))
+                .map(str::to_string)
+                .collect();
+            files.push((rel, code));
         }
     }
     let mut offences = Vec::new();
@@ -646,45 +640,36 @@ fn the_shared_parts_table_is_true() {
     assert_eq!(table.keys().cloned().collect::<BTreeSet<_>>(), parts, "the table's rows and src/solvers/parts/");
     // Who imports each part, from the sources (comments out).
     let mut found: BTreeMap<String, BTreeSet<String>> = parts.iter().map(|p| (p.clone(), BTreeSet::new())).collect();
-    let mut stack = vec![root.join("src/solvers")];
-    while let Some(dir) = stack.pop() {
-        for e in std::fs::read_dir(&dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
+    for p in files_under(&root.join("src/solvers")) {
+        let rel = p.strip_prefix(root.join("src/solvers")).unwrap().to_string_lossy().into_owned();
+        let mut segs = rel.split('/');
+        let top = segs.next().unwrap().to_string();
+        let who = match top.as_str() {
+            "mod.rs" | "interface" => continue,
+            "parts" => format!("parts/{}", segs.next().unwrap().trim_end_matches(".rs")),
+            module => SOLVERS.iter().map(|s| s.name()).find(|n| n.replace('-', "_") == module).unwrap().to_string(),
+        };
+        let code: String = std::fs::read_to_string(&p)
+            .unwrap()
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("//"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let groups: Vec<&str> = code.split("parts::{").skip(1).map(|r| &r[..r.find('}').unwrap_or(r.len())]).collect();
+        for part in &parts {
+            if who == format!("parts/{part}") {
                 continue;
             }
-            let rel = p.strip_prefix(root.join("src/solvers")).unwrap().to_string_lossy().into_owned();
-            let mut segs = rel.split('/');
-            let top = segs.next().unwrap().to_string();
-            let who = match top.as_str() {
-                "mod.rs" | "interface" => continue,
-                "parts" => format!("parts/{}", segs.next().unwrap().trim_end_matches(".rs")),
-                module => SOLVERS.iter().map(|s| s.name()).find(|n| n.replace('-', "_") == module).unwrap().to_string(),
+            let word = |text: &str, prefix: &str| {
+                text.match_indices(&format!("{prefix}{part}")).any(|(i, m)| {
+                    let after = text[i + m.len()..].chars().next();
+                    !after.is_some_and(|c| c.is_alphanumeric() || c == '_')
+                })
             };
-            let code: String = std::fs::read_to_string(&p)
-                .unwrap()
-                .lines()
-                .filter(|l| !l.trim_start().starts_with("//"))
-                .collect::<Vec<_>>()
-                .join("\n");
-            let groups: Vec<&str> =
-                code.split("parts::{").skip(1).map(|r| &r[..r.find('}').unwrap_or(r.len())]).collect();
-            for part in &parts {
-                if who == format!("parts/{part}") {
-                    continue;
-                }
-                let word = |text: &str, prefix: &str| {
-                    text.match_indices(&format!("{prefix}{part}")).any(|(i, m)| {
-                        let after = text[i + m.len()..].chars().next();
-                        !after.is_some_and(|c| c.is_alphanumeric() || c == '_')
-                    })
-                };
-                let sibling = top == "parts" && word(&code, "super::");
-                let in_group = groups.iter().any(|g| g.split([',', ' ', '\n', ':', '{']).any(|w| w == part));
-                if word(&code, "parts::") || in_group || sibling {
-                    found.get_mut(part).unwrap().insert(who.clone());
-                }
+            let sibling = top == "parts" && word(&code, "super::");
+            let in_group = groups.iter().any(|g| g.split([',', ' ', '\n', ':', '{']).any(|w| w == part));
+            if word(&code, "parts::") || in_group || sibling {
+                found.get_mut(part).unwrap().insert(who.clone());
             }
         }
     }
