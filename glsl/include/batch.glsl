@@ -19,8 +19,8 @@
 // reaches) is the batch's count. Loops the compiler unrolls are counted anyway (an
 // over-count), and a while (true) loop's exit run twice (the same). Measured, the count is at
 // least llvmpipe's: no image went wrong below 65535, lbl's march within 8% of where it did,
-// path's up to 9 times over where code stays that only a variable or an early return makes
-// dead (docs/lavapipe.md).
+// path's 1.1-1.4 times over or more (docs/lavapipe.md); code that only a variable or an early
+// return makes dead is counted as live.
 //
 // A kernel asks for it by defining SCATTERLAB_BATCH_LOOPS (with GL_KHR_shader_subgroup_basic
 // enabled) before its includes; LOOP_LIMITED, set by the host on llvmpipe only, leaves real
