@@ -211,6 +211,37 @@ fn path_images_do_not_depend_on_the_loop_budget() {
     assert_clean(&gpu);
 }
 
+/// The batch count is at least what llvmpipe's limiter counts (glsl/include/batch.glsl; with the
+/// pause off, no image went wrong below 65535): with `path.batch_pause` raised to 59000 the
+/// batches run to just under the guard, and the renders are still the default's, bit for bit.
+/// (With the pause off, the cloud went wrong at budget 15000, count 101084, and milk-orb's
+/// manifold NEE 0.159 relL2 at 104642.)
+#[test]
+fn path_batch_counts_bound_llvmpipes_up_to_the_guard() {
+    let gpu = gpu();
+    let sized = |file: &str, size: &str, spp: &str| {
+        let sets: Vec<(String, String)> = [("render.width", size), ("render.height", size), ("render.spp", spp)]
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+        Scene::load(Path::new(file), &sets, &LoadOptions::default()).unwrap()
+    };
+    for (what, s) in
+        [("cloud", sized("scenes/cloud.toml", "16", "512")), ("milk orb", sized("scenes/milk-orb.toml", "24", "8"))]
+    {
+        let base = try_render(&gpu, &s, PATH, &[], false).unwrap();
+        let high = try_render(&gpu, &s, PATH, &[("path.budget", "15000"), ("path.batch_pause", "59000")], false)
+            .unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert!(high.image.data == base.image.data, "{what}: batches run to the guard changed the image");
+        if resumable::loop_limited(&gpu) {
+            // The batches did run near the limit: the test is not vacuous.
+            let most = high.report.detail::<PathStats>().unwrap().camera.as_ref().unwrap().max_batch_loop_iterations;
+            assert!((50000..resumable::LOOP_GUARD).contains(&most), "{what}: a batch ran {most}");
+        }
+    }
+    assert_clean(&gpu);
+}
+
 /// llvmpipe counts a SIMD batch's 8 lanes' loops together, and path's lanes diverge (one in a
 /// free flight, its neighbour in a shadow ray): with only each lane's own count to pause on,
 /// budgets from 9000 gave the cloud (16 x 16, 512 spp) wrong pixels, 27 to 80 of 256 and up to

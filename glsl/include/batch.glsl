@@ -37,9 +37,10 @@
 #ifdef SCATTERLAB_BATCH_LOOPS
 layout(constant_id = 18) const bool LOOP_LIMITED = false;
 #ifdef SCATTERLAB_BATCH_PAUSE
-// The batch pauses at its resumable points past this count, leaving 27232 below the guard
-// (LOOP_GUARD, budget.glsl) for the work between two of them that cannot pause (a BVH query).
-const uint BATCH_PAUSE = 32768u;
+// The batch pauses at its resumable points past this count (path.batch_pause), by default
+// leaving 27232 below the guard (LOOP_GUARD, budget.glsl) for the work between two of them
+// that cannot pause (a BVH query).
+layout(constant_id = 19) const uint BATCH_PAUSE = 32768u;
 shared uint batch_count[SCATTERLAB_BATCH_PAUSE];
 #define BATCH_EDGE(w) { if (LOOP_LIMITED && subgroupElect()) batch_count[gl_SubgroupID] += (w); }
 // At the kernel's start: the batch's count from zero, with main's prepayment w.

@@ -32,6 +32,10 @@ pub const SPEC_EMISSION: u32 = 17;
 /// llvmpipe), so count them; off elsewhere, where the counting would only cost.
 pub const SPEC_LOOP_LIMITED: u32 = 18;
 
+/// glsl/include/batch.glsl's, in kernels that pause on their SIMD batch's loop count: the count
+/// past which a batch pauses at its next resumable point (`path.batch_pause`).
+pub const SPEC_BATCH_PAUSE: u32 = 19;
+
 /// The specialisation constants of [`Modelled::spec`], as a kernel declares them.
 pub const SCENE_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_DENSITY_KIND, SpecKind::U32),
@@ -88,6 +92,7 @@ pub const SPEC_NAMES: &[(u32, &str)] = &[
     (SPEC_ENVIRONMENT, "ENVIRONMENT"),
     (SPEC_EMISSION, "EMISSION"),
     (SPEC_LOOP_LIMITED, "LOOP_LIMITED"),
+    (SPEC_BATCH_PAUSE, "BATCH_PAUSE"),
 ];
 
 /// The name of specialisation constant `id` ([`SPEC_NAMES`]).

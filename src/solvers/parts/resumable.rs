@@ -53,8 +53,8 @@ pub const ROUNDS_PER_SUBMIT: u32 = 4;
 /// STATS_BATCH_WORD); 0 elsewhere.
 pub const BATCH_WORD: usize = 3 + ROUNDS_PER_SUBMIT as usize;
 /// The count past which the path kernels pause a SIMD batch at its next resumable point on
-/// llvmpipe (glsl/include/batch.glsl BATCH_PAUSE), [`LOOP_GUARD`] less the room left for work
-/// that cannot pause (a BVH query).
+/// llvmpipe by default (glsl/include/batch.glsl BATCH_PAUSE, `path.batch_pause`), [`LOOP_GUARD`]
+/// less the room left for work that cannot pause (a BVH query).
 pub const BATCH_PAUSE: u32 = 32768;
 /// Words in a resumable kernel's stats buffer.
 pub const STATS_WORDS: u64 = BATCH_WORD as u64 + 1;
@@ -125,7 +125,7 @@ pub fn run_until_done_reporting(
                     past the {LOOP_GUARD} at which llvmpipe silently ends loops, in work that cannot pause: a BVH \
                     query through an [[object]] mesh whose long thin triangles share a vertex (re-triangulate it), \
                     or a kernel loop that does not pause (please report it with the scene); a lower \
-                    {solver}.budget may avoid it",
+                    {solver}.budget (in path, a lower path.batch_pause) may avoid it",
                 most
             )));
         }
@@ -155,7 +155,7 @@ mod tests {
         let glsl = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/glsl/include/batch.glsl"));
         for want in [
             format!("const uint STATS_BATCH_WORD = {}u;", super::BATCH_WORD),
-            format!("const uint BATCH_PAUSE = {}u;", super::BATCH_PAUSE),
+            format!("layout(constant_id = 19) const uint BATCH_PAUSE = {}u;", super::BATCH_PAUSE),
         ] {
             assert!(glsl.contains(&want), "glsl/include/batch.glsl does not say {want:?}");
         }

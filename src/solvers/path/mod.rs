@@ -129,20 +129,30 @@ const TRACE_SPEC: &[(u32, SpecKind)] = &[
     (SPEC_EQUIANGULAR, SpecKind::Bool),
     (SPEC_ENVIRONMENT, SpecKind::Bool),
     (crate::solvers::parts::gpu_scene::SPEC_LOOP_LIMITED, SpecKind::Bool),
+    (crate::solvers::parts::gpu_scene::SPEC_BATCH_PAUSE, SpecKind::U32),
 ];
 
 /// The trace kernel's specialisation: the scene's and the mesh's ([`GpuScene`]), and whether
 /// any light takes manifold NEE (`mnee`, a bit per light) or equiangular sampling
 /// (`equiangular`), and the environment as the scene's modelled features say (all on with
-/// `--force-full`); on llvmpipe, counting its SIMD batches' loops (glsl/include/batch.glsl).
-fn trace_spec(gpu: &Gpu, gs: &GpuScene, equiangular: u32, mnee: u32) -> Vec<(u32, Spec)> {
+/// `--force-full`); on llvmpipe, counting its SIMD batches' loops and pausing a batch past
+/// `batch_pause` of them (glsl/include/batch.glsl).
+fn trace_spec(gpu: &Gpu, gs: &GpuScene, equiangular: u32, mnee: u32, batch_pause: u32) -> Vec<(u32, Spec)> {
     let full = gs.modelled.forced_full;
     let mut spec = gs.modelled.mesh_spec();
     spec.push((SPEC_MNEE, Spec::Bool(mnee != 0 || full)));
     spec.push((SPEC_EQUIANGULAR, Spec::Bool(equiangular != 0 || full)));
     spec.push((SPEC_ENVIRONMENT, Spec::Bool(gs.modelled.environment)));
-    spec.push((gpu_scene::SPEC_LOOP_LIMITED, Spec::Bool(resumable::loop_limited(gpu))));
+    spec.extend(batch_spec(gpu, batch_pause));
     spec
+}
+
+/// Whether a path kernel counts its SIMD batches' loops (on llvmpipe), and where it pauses them.
+fn batch_spec(gpu: &Gpu, batch_pause: u32) -> [(u32, Spec); 2] {
+    [
+        (gpu_scene::SPEC_LOOP_LIMITED, Spec::Bool(resumable::loop_limited(gpu))),
+        (gpu_scene::SPEC_BATCH_PAUSE, Spec::U32(batch_pause)),
+    ]
 }
 pub const LIGHT: Kernel =
     Kernel { shader: shader!("path/light"), push_bytes: std::mem::size_of::<LightPush>(), spec: LIGHT_SPEC };
@@ -156,6 +166,7 @@ const LIGHT_SPEC: &[(u32, SpecKind)] = &[
     (gpu_scene::SPEC_HAS_MESH, SpecKind::Bool),
     (gpu_scene::SPEC_REFRACTIVE, SpecKind::Bool),
     (gpu_scene::SPEC_LOOP_LIMITED, SpecKind::Bool),
+    (gpu_scene::SPEC_BATCH_PAUSE, SpecKind::U32),
 ];
 /// The light kernel's bindings of the [[object]]'s BVH nodes and triangles (6 holds its stats).
 const LIGHT_MESH_NODES_BINDING: u32 = 7;
@@ -618,6 +629,15 @@ impl Solver for Path {
             ),
             resumable::budget_knob(),
             Knob::fixed(
+                "batch_pause",
+                "32768",
+                Range::int(1024, resumable::LOOP_GUARD as u64 - 1),
+                "on llvmpipe, the loop back-edges of a SIMD batch of 8 lanes past which it pauses at its next resumable \
+                    point: the driver ends every loop silently past 65535, and a dispatch whose batch passes 60000 is \
+                    refused. Lower leaves more room for work that cannot pause (a BVH query through a mesh whose thin \
+                    triangles share a vertex) at more dispatches; real GPUs ignore it",
+            ),
+            Knob::fixed(
                 "majorant_cell",
                 "16",
                 Range::int(1, 4096),
@@ -738,6 +758,7 @@ impl Solver for Path {
         let default_batch = ((1u64 << 24) / pixels.max(1)).clamp(1, 1024) as u32;
         let batch: u32 = k.get_or("batch", default_batch)?;
         let budget: u32 = k.get("budget")?;
+        let batch_pause: u32 = k.get("batch_pause")?;
         let collision_cap: u32 = k.get("collision_cap")?;
         let eq_mode: String = k.get("equiangular")?;
         let equiangular = equiangular_lights(scene, &eq_mode);
@@ -777,6 +798,7 @@ impl Solver for Path {
             spp,
             first_sample,
             budget,
+            batch_pause,
             seed,
             max_depth,
             collision_cap,
@@ -924,6 +946,8 @@ struct Common<'a> {
     /// Samples `first_sample .. first_sample + spp` of every pixel.
     first_sample: u32,
     budget: u32,
+    /// `path.batch_pause` (glsl/include/batch.glsl).
+    batch_pause: u32,
     seed: u64,
     max_depth: u32,
     collision_cap: u32,
@@ -1104,7 +1128,7 @@ fn camera_paths(
 ) -> Result<(Part, CameraStats), SolverError> {
     let (gpu, gs, w, h) = (c.gpu, c.gs, c.w, c.h);
     let pixels = w as u64 * h as u64;
-    let pipeline = gpu.pipeline(&TRACE, &trace_spec(gpu, gs, equiangular, mnee))?;
+    let pipeline = gpu.pipeline(&TRACE, &trace_spec(gpu, gs, equiangular, mnee, c.batch_pause))?;
     let grid = gpu.buffer_with("path manifold NEE facet grid", c.mnee_grid)?;
     let accum = gpu.buffer("path accumulation", pixels * 32)?;
     let state = gpu.buffer("path state", pixels * STATE_BYTES_PER_PIXEL)?;
@@ -1273,7 +1297,7 @@ fn light_paths(
         .sum();
     let inv_quantum = QUANTA_PER_TYPICAL_SPLAT / typical_splat(scene, power_sum);
     let mut spec = gs.modelled.mesh_spec();
-    spec.push((gpu_scene::SPEC_LOOP_LIMITED, Spec::Bool(resumable::loop_limited(gpu))));
+    spec.extend(batch_spec(gpu, c.batch_pause));
     let pipeline = gpu.pipeline(&LIGHT, &spec)?;
     let slice_words = (pixels * LIGHT_SLICE_BYTES_PER_PIXEL / 4) as usize;
     let splats = gpu.buffer("light splats", group as u64 * pixels * LIGHT_SLICE_BYTES_PER_PIXEL)?;
