@@ -23,8 +23,11 @@ const uint LOOP_GUARD = 60000u;
 
 // Whether the dispatch's work is spent at a resumable point: the lane's own `limit`, or, in a
 // kernel that pauses on its batch's count (batch.glsl), the batch's past BATCH_PAUSE once this
-// lane has done some work in the dispatch (iters > 0), so every dispatch moves every lane on
-// however much its neighbours spent.
+// lane has counted an iteration in the dispatch (iters > 0). A batch's count starts every
+// dispatch at main's prepayment, far below BATCH_PAUSE, so the first lane to reach a pause
+// point goes on, and every dispatch moves some lane of every unfinished batch on: the
+// dispatches end. (A lane can still pause without progress where its neighbours' work that
+// cannot pause filled the batch first; the next dispatch finds that work done.)
 #ifdef SCATTERLAB_BATCH_PAUSE
 #define SPENT(limit) (iters >= (limit) || (BATCH_SPENT && iters > 0u))
 #else
