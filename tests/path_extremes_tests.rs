@@ -211,6 +211,15 @@ fn path_images_do_not_depend_on_the_loop_budget() {
     assert_clean(&gpu);
 }
 
+/// A shipped scene at `size` x `size` pixels and `spp` samples per pixel.
+fn sized(file: &str, size: &str, spp: &str) -> Scene {
+    let sets: Vec<(String, String)> = [("render.width", size), ("render.height", size), ("render.spp", spp)]
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    Scene::load(Path::new(file), &sets, &LoadOptions::default()).unwrap()
+}
+
 /// The batch count is at least what llvmpipe's limiter counts (glsl/include/batch.glsl; with the
 /// pause off, no image went wrong below 65535): with `path.batch_pause` raised to 59000 the
 /// batches run to just under the guard, and the renders are still the default's, bit for bit.
@@ -219,13 +228,6 @@ fn path_images_do_not_depend_on_the_loop_budget() {
 #[test]
 fn path_batch_counts_bound_llvmpipes_up_to_the_guard() {
     let gpu = gpu();
-    let sized = |file: &str, size: &str, spp: &str| {
-        let sets: Vec<(String, String)> = [("render.width", size), ("render.height", size), ("render.spp", spp)]
-            .iter()
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect();
-        Scene::load(Path::new(file), &sets, &LoadOptions::default()).unwrap()
-    };
     for (what, s) in
         [("cloud", sized("scenes/cloud.toml", "16", "512")), ("milk orb", sized("scenes/milk-orb.toml", "24", "8"))]
     {
@@ -253,13 +255,6 @@ fn path_batch_counts_bound_llvmpipes_up_to_the_guard() {
 fn path_pauses_its_simd_batches_before_llvmpipes_loop_limiter() {
     let gpu = gpu();
     let limited = resumable::loop_limited(&gpu);
-    let sized = |file: &str, size: &str, spp: &str| {
-        let sets: Vec<(String, String)> = [("render.width", size), ("render.height", size), ("render.spp", spp)]
-            .iter()
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect();
-        Scene::load(Path::new(file), &sets, &LoadOptions::default()).unwrap()
-    };
     for (what, s) in [
         ("cloud", sized("scenes/cloud.toml", "16", "512")),
         ("light-traced point light in the cloud", sized("scenes/point-light-in-cloud.toml", "16", "64")),

@@ -566,9 +566,9 @@ fn path_pauses_its_batches_through_a_mesh_whose_bvh_queries_are_long() {
     ));
     let q = s.object.as_ref().unwrap().bvh.worst_query(20000, 1);
     assert!(q > 10000, "the fan cone's worst query {q}");
-    let out = |b: &str| crate::common::try_render(&gpu, &s, PATH, &[("path.budget", b)], false);
-    let small = out("64").unwrap();
-    let default = out("4096").unwrap();
+    let out = |knobs: &[(&str, &str)]| crate::common::try_render(&gpu, &s, PATH, knobs, false);
+    let small = out(&[("path.budget", "64")]).unwrap();
+    let default = out(&[("path.budget", "4096")]).unwrap();
     assert!(default.image.data == small.image.data, "the default budget changed the image");
     let cam = default.report.detail::<PathStats>().unwrap().camera.clone().unwrap();
     if resumable::loop_limited(&gpu) {
@@ -578,7 +578,7 @@ fn path_pauses_its_batches_through_a_mesh_whose_bvh_queries_are_long() {
             cam.max_batch_loop_iterations
         );
     }
-    match out("15000") {
+    match out(&[("path.budget", "15000")]) {
         Ok(o) => assert!(o.image.data == small.image.data, "budget 15000 changed the image"),
         Err(e) => {
             let e = e.to_string();
@@ -591,9 +591,7 @@ fn path_pauses_its_batches_through_a_mesh_whose_bvh_queries_are_long() {
     }
     // What the refusal names: a batch that pauses earlier leaves the queries room (measured: a
     // batch reached 61897 at the default 32768, 49624 at 16384).
-    let lower =
-        crate::common::try_render(&gpu, &s, PATH, &[("path.budget", "15000"), ("path.batch_pause", "16384")], false)
-            .unwrap();
+    let lower = out(&[("path.budget", "15000"), ("path.batch_pause", "16384")]).unwrap();
     assert!(lower.image.data == small.image.data, "budget 15000 at batch_pause 16384 changed the image");
     crate::common::assert_clean(&gpu);
 }
