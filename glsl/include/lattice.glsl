@@ -13,6 +13,8 @@
 // Channels carried: 1 for grey media (model only what the scene requires), 3 for chromatic.
 layout(constant_id = 3) const uint NCH = 3u;
 
+#include "one_minus_exp.glsl"
+
 // Links per voxel besides the rest: 6 (D3Q6) or 18 (D3Q18).
 layout(constant_id = 7) const uint LINKS = 6u;
 
@@ -75,11 +77,11 @@ void lattice_kappa(float sigma_t, float albedo, float g, float lambda, out float
     float sa = sigma_t * (1.0 - albedo);
     float st = sa + ss;
     if (LINKS == 6u) {
-        kt = 1.0 - exp(-st * lambda);
-        ks = kt - min(kt, 1.0 - exp(-sa * lambda));
+        kt = one_minus_exp(st * lambda);
+        ks = kt - min(kt, one_minus_exp(sa * lambda));
     } else {
-        kt = 1.0 - exp(-st * lambda * (1.5 / MEAN_LINK_D3Q18));
-        ks = kt - min(kt, 1.0 - exp(-sa * lambda * MEAN_LINK_D3Q18));
+        kt = one_minus_exp(st * lambda * (1.5 / MEAN_LINK_D3Q18));
+        ks = kt - min(kt, one_minus_exp(sa * lambda * MEAN_LINK_D3Q18));
     }
 }
 

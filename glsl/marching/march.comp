@@ -57,6 +57,7 @@
 #define MESH_TRIS_BINDING 7
 #include "../include/mesh.glsl"
 #include "../include/phase.glsl"
+#include "../include/one_minus_exp.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 // After the work group size: linear.glsl reads gl_WorkGroupSize.
@@ -168,7 +169,7 @@ void main() {
                 vec3 st = inside ? scene.materials[mat].sigma_t.xyz * medium_density(mid) : vec3(0.0);
                 vec3 seg_T = exp(-st * len);
                 vec3 a = scene.materials[mat].albedo.xyz;
-                vec3 dep = P * (vec3(1.0) - seg_T) * a;
+                vec3 dep = P * one_minus_exp3(st * len) * a;
                 P *= seg_T;
                 if (pc.forward != 0u) {
                     // The forward population (header): of what the step scatters, the share g
@@ -185,10 +186,10 @@ void main() {
                     vec3 path = vec3(len);
                     for (int c = 0; c < 3; ++c) {
                         LOOP_EDGE(1u);
-                        if (stp[c] * len > 1e-4) path[c] = (1.0 - q_T[c]) / stp[c];
+                        if (stp[c] * len > 1e-4) path[c] = one_minus_exp(stp[c] * len) / stp[c];
                     }
                     q_len = q0 * path / lambda;
-                    vec3 q_col = q0 * (vec3(1.0) - q_T);
+                    vec3 q_col = q0 * one_minus_exp3(stp * len);
                     vec3 q_dep = q_col * a * (1.0 - g) / red;
                     q_absorbed += q_col - q_dep;
                     dep = (1.0 - g) * dep + q_dep;

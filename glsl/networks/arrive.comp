@@ -17,6 +17,7 @@
 #define EMISSION_BINDING 15
 #include "../include/scene.glsl"
 #include "../include/budget.glsl"
+#include "../include/one_minus_exp.glsl"
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
@@ -60,8 +61,9 @@ void main() {
         for (uint k = 0u; k < n; ++k) {
             iters++;
             vec3 q = x + w * (a + (float(k) + 0.5) * dt);
-            vec3 seg_T = exp(-sigma_t * density_at(q) * dt);
-            L += T * absorbed * (vec3(1.0) - seg_T) * emission_at(q);
+            vec3 tau = sigma_t * density_at(q) * dt;
+            vec3 seg_T = exp(-tau);
+            L += T * absorbed * one_minus_exp3(tau) * emission_at(q);
             T *= seg_T;
         }
     }

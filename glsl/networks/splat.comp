@@ -28,6 +28,7 @@
 #include "../include/scene.glsl"
 #include "../include/budget.glsl"
 #include "../include/view.glsl"
+#include "../include/one_minus_exp.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
@@ -105,7 +106,7 @@ void main() {
         vec3 v = positions[k].xyz - o;
         vec3 off = v - dot(v, d) * d;
         float kernel = norm * exp(-dot(off, off) * inv2w2);
-        vec3 alpha = vec3(1.0) - exp(-pc.sigma_m.rgb * kernel * scale);
+        vec3 alpha = one_minus_exp3(pc.sigma_m.rgb * kernel * scale);
         L += T * alpha * colour[k].rgb;
         T *= vec3(1.0) - alpha;
     }

@@ -10,13 +10,15 @@
 // which the thesis needed for want of atomics; docs/decisions.md).
 // Out of core (dom.budget), the sums cover one slab of whole layers, voxels base .. base + voxels
 // (z outermost: contiguous), and deposits elsewhere wait for their slab's pass; each voxel's sum
-// is the same integer whichever slab plan it is made in.
+// is the same integer whichever slab plan it is made in. Each deposit is rounded without bias
+// (quantize.glsl: nearest-quantum rounding dropped every deposit of a thin medium).
 
 #extension GL_GOOGLE_include_directive : require
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 // After the work group size: linear.glsl reads gl_WorkGroupSize.
 #include "../include/linear.glsl"
+#include "../include/quantize.glsl"
 layout(std430, binding = 0) readonly buffer History { uvec4 rhb[]; };
 layout(std430, binding = 1) buffer Accum { uint acc[]; };               // [c][beam][voxel]
 layout(std430, binding = 2) readonly buffer RayBeam { uint ray_beam[]; }; // per ray
@@ -43,5 +45,5 @@ void main() {
     vec3 dep = uintBitsToFloat(s.yzw);
     uint b = ray_beam[e / pc.k] - pc.beam0;
     for (uint c = 0u; c < pc.channels; ++c)
-        atomicAdd(acc[(c * pc.beams + b) * pc.voxels + (s.x - pc.base)], uint(dep[c] * pc.scale + 0.5));
+        atomicAdd(acc[(c * pc.beams + b) * pc.voxels + (s.x - pc.base)], quantize(dep[c] * pc.scale, 4u * e + c));
 }

@@ -35,6 +35,7 @@
 #include "../include/mesh.glsl"
 #include "../include/dielectric.glsl"
 #include "../include/phase.glsl"
+#include "../include/one_minus_exp.glsl"
 #include "../include/sh.glsl"
 
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
@@ -380,8 +381,9 @@ vec3 segment_emission(vec3 x, vec3 d, float t1, uint mat) {
     for (uint i = 0u; i < n; ++i) {
         iters++;
         vec3 p = x + d * ((float(i) + 0.5) * dt);
-        vec3 seg_T = exp(-st * density_at(p) * dt);
-        L += T * k * (vec3(1.0) - seg_T) * emission_at(p);
+        vec3 tau = st * density_at(p) * dt;
+        vec3 seg_T = exp(-tau);
+        L += T * k * one_minus_exp3(tau) * emission_at(p);
         T *= seg_T;
     }
     return L;

@@ -38,6 +38,7 @@
 #include "../include/phase.glsl"
 #include "../include/budget.glsl"
 #include "../include/view.glsl"
+#include "../include/one_minus_exp.glsl"
 // The [[object]]'s mesh (scene format v2; `single` only, HAS_MESH false for every other
 // solver): bindings after the view pass's own.
 #define MESH_NODES_BINDING 8
@@ -338,7 +339,7 @@ vec3 octave_sum(float g, float c, vec3 tau, vec3 tau_chord, bool env, float onor
     vec3 s = vec3(0.0);
     float a = 1.0, b = 1.0, gi = g;
     vec3 w = vec3(1.0);
-    vec3 scattered = pc.octave.w != 0.0 ? scene.materials[0].albedo.xyz * (vec3(1.0) - exp(-tau_chord)) : vec3(1.0);
+    vec3 scattered = pc.octave.w != 0.0 ? scene.materials[0].albedo.xyz * one_minus_exp3(tau_chord) : vec3(1.0);
     for (uint i = 0u; i < OCTAVES; ++i) {
         iters++;
         s += b * w * phase_eval(gi, c) * exp(-a * tau) / (env ? onorm[i] : 1.0);
@@ -733,13 +734,14 @@ void main() {
         medium_mat = seg_mat;   // shadow rays' optical depths move it through other objects
         vec3 st_ = scene.materials[seg_mat].sigma_t.xyz * density_at(p);
         vec3 seg_T = exp(-st_ * dt);
-        L += T * scene.materials[seg_mat].albedo.xyz * (vec3(1.0) - seg_T) * (S + ms_inscatter(p, d, scene.materials[seg_mat].albedo.w));
+        vec3 seg_ext = one_minus_exp3(st_ * dt);
+        L += T * scene.materials[seg_mat].albedo.xyz * seg_ext * (S + ms_inscatter(p, d, scene.materials[seg_mat].albedo.w));
         // The medium's emission along the step, by the same rule: the integral of T(s) sigma_a
         // Le ds with sigma_t and Le held at the step's point is (1 - albedo) (1 - e^{-sigma_t
         // dt}) Le, so a thick step never emits more than Le (its equilibrium). Once per ray: a
         // later slab of an out-of-core volume (ms_only) adds its volume's light alone.
         if (EMISSION != EMISSION_NONE && pc.ms_only == 0u)
-            L += T * (vec3(1.0) - scene.materials[seg_mat].albedo.xyz) * (vec3(1.0) - seg_T) * emission_at(p);
+            L += T * (vec3(1.0) - scene.materials[seg_mat].albedo.xyz) * seg_ext * emission_at(p);
         T *= seg_T;
         S = vec3(0.0);
         j = 0u;

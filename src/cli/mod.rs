@@ -367,7 +367,8 @@ pub struct RenderArgs {
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub repeats: Option<u32>,
     /// Deterministic order of floating-point accumulation (bit-identical images):
-    /// `--set <solver>.deterministic=true` for a solver with that knob (`lbl`).
+    /// `--set <solver>.deterministic=true` for a solver with that knob (`lbl`, where it is the
+    /// default; `--set lbl.deterministic=false` asks for float atomics).
     #[arg(long)]
     pub deterministic: bool,
     /// Per-queue GPU timeline as Chrome-trace/Perfetto JSON (open in ui.perfetto.dev).
