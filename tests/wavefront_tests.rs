@@ -296,8 +296,9 @@ fn stability_extremes_both_integrators() {
     // The exponential integrator's whole render stays finite and non-negative at the stiffest corner too.
     // At sigma_t 1e4 every discretisation is thousands of mean free paths (the trust line's
     // warnings: voxel, shell and ray gap, and at albedo 0.5 the diffusion limit; and the view
-    // march's, its default camera step 270 mean free paths thick); at 1e-3 none.
-    for (sigma_t, albedo, warnings) in [(1e4f32, 0.5f32, 5usize), (1e-3, 1.0, 0), (1e4, 1.0, 4)] {
+    // march's, its default camera step 270 mean free paths thick); at 1e-3 the light 0.001 mean
+    // free paths deep, the one that a light too shallow to diffuse gets.
+    for (sigma_t, albedo, warnings) in [(1e4f32, 0.5f32, 5usize), (1e-3, 1.0, 1), (1e4, 1.0, 4)] {
         let sc = scene(&cube(sigma_t, albedo, 0.0, [0.0, 0.0, 0.0], 8));
         let out = try_render(&gpu, &sc, WAVEFRONT, &[("wavefront.grid", "16"), ("wavefront.layers", "64")], false)
             .unwrap_or_else(|e| panic!("sigma_t {sigma_t}: {e}"));
@@ -306,9 +307,10 @@ fn stability_extremes_both_integrators() {
         assert!(w.len() == warnings && w.iter().all(|l| l.starts_with("wavefront: ")), "sigma_t {sigma_t}: {w:?}");
         assert_eq!(
             w.iter().any(|l| l.contains("camera-ray step") && l.contains("wavefront.view_step=")),
-            warnings > 0,
+            sigma_t > 1.0,
             "sigma_t {sigma_t}: {w:?}"
         );
+        assert_eq!(w.iter().any(|l| l.contains("before it diffuses")), sigma_t < 1.0, "sigma_t {sigma_t}: {w:?}");
     }
     assert_clean(&gpu);
 }
@@ -602,10 +604,19 @@ fn wavefront_trust_figures_and_fixes() {
     assert!(close(absorbing.light_depth, 10.0) && !absorbing.within(), "{absorbing:?}");
     let w = absorbing.warnings();
     assert!(w.len() == 1 && w[0].contains("use path or dom"), "{w:?}");
-    for (st, albedo) in [(10.0, 0.5), (20.0, 0.9)] {
+    for (st, albedo) in [(10.0, 0.5), (20.0, 0.9), (2.0, 0.95)] {
         let t = WaveTrust::of(&trust_cube(st, albedo), &settings(64, 32, 128, Integrator::Exponential, 64));
         assert!(t.within(), "sigma_t {st}, albedo {albedo}: {t:?}");
     }
+    // A light too shallow to diffuse (the cube at sigma_t 1: 0.5 mean free paths to its faces,
+    // measured 0.81x path's energy): one warning, no knob, "use lbl, dom or path".
+    let shallow = WaveTrust::of(&trust_cube(1.0, 0.95), &settings(64, 32, 128, Integrator::Exponential, 64));
+    assert!(close(shallow.shallow_depth, 0.5) && !shallow.within(), "{shallow:?}");
+    let w = shallow.warnings();
+    assert!(w.len() == 1 && w[0].contains("before it diffuses") && w[0].contains("use lbl, dom or path"), "{w:?}");
+    // The shipped scene with a light inside is deep enough (1.8 mean free paths).
+    let cloud = WaveTrust::of(&cloud_with_light_inside(8), &settings(64, 32, 128, Integrator::Exponential, 64));
+    assert!(cloud.shallow_depth > 1.5 && cloud.warnings().is_empty(), "{cloud:?}");
     // No light inside: nothing gathered, nothing judged (the thick slab's voxels would be 6.25).
     let slab = crate::common::repo_scene("scenes/thick-slab.toml", &[]);
     let t = WaveTrust::of(&slab, &settings(64, 32, 128, Integrator::Exponential, 64));
