@@ -355,8 +355,6 @@ fn each_ray(
     beams
 }
 
-/// Floats per voxel of the deposit sums: one per channel, and with `directed` the deposit's flux
-/// (three per channel) after them.
 /// Fixed-point quanta per W of the deposit sums (glsl/marching/transfer_fixed.comp,
 /// glsl/ordinates/deposit.comp): 2^30 over a bound of everything the rays can deposit, so no
 /// voxel's sum (nor a signed flux's magnitude) can pass 2^30 however the deposits fall. A ray of
@@ -380,6 +378,8 @@ pub fn deposit_scale(total_power: f64, sigma_max: f64, rounds: u32, set: &MarchS
     }
 }
 
+/// Floats per voxel of the deposit sums: one per channel, and with `directed` the deposit's flux
+/// (three per channel) after them.
 fn sum_slots(nch: u32, directed: bool) -> u64 {
     nch as u64 * if directed { 4 } else { 1 }
 }
