@@ -15,6 +15,7 @@ mod emission_networks_tests;
 mod emission_tests;
 mod equiangular_tests;
 mod export_tests;
+mod extinction_gpu;
 mod gpu_core;
 mod lbl;
 mod lbl_refraction_tests;

@@ -183,10 +183,11 @@ void main() {
                     vec3 q0 = Q + g * dep;
                     vec3 q_T = exp(-stp * len);
                     // Q's path integral over the step, exact for its exponential decay.
-                    vec3 path = vec3(len);
+                    // (len itself, taken below 1e-4 mean free paths, was x/2 of it off.)
+                    vec3 path;
                     for (int c = 0; c < 3; ++c) {
                         LOOP_EDGE(1u);
-                        if (stp[c] * len > 1e-4) path[c] = one_minus_exp(stp[c] * len) / stp[c];
+                        path[c] = len * one_minus_exp_over(stp[c] * len);
                     }
                     q_len = q0 * path / lambda;
                     vec3 q_col = q0 * one_minus_exp3(stp * len);

@@ -392,8 +392,13 @@ vec3 step_transmittance(vec3 tau0, vec3 tau1, vec3 b) {
     vec3 num;
     vec3 fb;
     for (uint c = 0u; c < 3u; ++c) {
-        num[c] = abs(x[c]) < 1e-4 ? e0[c] * (1.0 - 0.5 * x[c]) : (e0[c] - exp(-tau1[c] - b[c])) / x[c];
-        fb[c] = b[c] < 1e-4 ? 1.0 - 0.5 * b[c] : (1.0 - exp(-b[c])) / b[c];
+        // exp(-tau1 - b) = exp(-tau0) exp(-x): for small |x| the quotient is one_minus_exp_over's
+        // series, without the cancellation of a difference of nearly equal exponentials (6e-4 of
+        // the step's transmittance where x or b was just over 1e-4: a first-order branch ended
+        // there). Not for large |x|: exp(-x) overflows where the depth toward the light falls
+        // steeply along the step (x < -88), and the difference itself is exact enough there.
+        num[c] = abs(x[c]) < 0.1 ? e0[c] * one_minus_exp_over(x[c]) : (e0[c] - exp(-tau1[c] - b[c])) / x[c];
+        fb[c] = one_minus_exp_over(b[c]);
     }
     return num / fb;
 }

@@ -84,7 +84,20 @@ pub struct ShPush {
 /// src/physics/sh.rs in tests/sh_tests.rs.
 pub const SH: Kernel = Kernel { shader: shader!("probe/sh"), push_bytes: std::mem::size_of::<ShPush>(), spec: &[] };
 
+/// Push constants of glsl/probe/extinction.comp.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ExtinctionPush {
+    /// Optical depths to evaluate.
+    pub count: u32,
+}
+
+/// glsl/probe/extinction.comp: 1 - exp(-x) and (1 - exp(-x)) / x of
+/// glsl/include/one_minus_exp.glsl, against double precision in tests/extinction_gpu.rs.
+pub const EXTINCTION: Kernel =
+    Kernel { shader: shader!("probe/extinction"), push_bytes: std::mem::size_of::<ExtinctionPush>(), spec: &[] };
+
 /// Every probe kernel.
 pub fn kernels() -> Vec<Kernel> {
-    vec![PHASE, BANDWIDTH, FRESNEL, BVH, SH]
+    vec![PHASE, BANDWIDTH, FRESNEL, BVH, SH, EXTINCTION]
 }
