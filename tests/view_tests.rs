@@ -272,11 +272,12 @@ fn iterations(stdout: &str, solver: &str) -> (f64, f64, u32) {
 
 /// A move of the light starts lbl, networks and dom from their last solution (their `animate`
 /// sequences, iterated to the tolerance each frame); a move of the camera starts again from
-/// zero. Measured at 32^2 on the sphere after 2-degree moves: networks 90 iterations from zero,
-/// 28 warm started (0.31; 89 and 28 at the default 128 directions); lbl at grid 16 72 from zero, 44 warm started (0.61: 65 for the
-/// first warm frame, then 33 with the previous frame's source in the guess; before its tail
-/// was extrapolated from seeded starts and its links carried, 129); dom at grid 16 0.41 (its
-/// carried state is exact: the series of the source's change and its pending bounce).
+/// zero. Measured at 32^2 on the sphere after 2-degree moves: networks at 32 directions 90
+/// iterations from zero, 28 warm started (0.31; 89 and 28 at the default 128 directions); lbl
+/// at grid 16 72 from zero, 44 warm started (0.61: 65 for the first warm frame, then 33 with
+/// the previous frame's source in the guess; before its tail was extrapolated from seeded
+/// starts and its links carried, 129); dom at grid 16 0.41 (its carried state is exact: the
+/// series of the source's change and its pending bounce).
 #[test]
 fn a_light_move_warm_starts_networks_lbl_and_dom_from_their_last_solution() {
     let x = Xvfb::start();

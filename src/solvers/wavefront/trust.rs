@@ -97,11 +97,11 @@ impl WaveTrust {
         let spacing = (4.0 * std::f32::consts::PI / (set.nu as f32 * set.nv as f32)).sqrt();
         let depths: Vec<f32> = lights.iter().map(|(p, _)| least_axis_depth(scene, *p)).collect();
         let light_depth = depths.iter().copied().fold(0.0f32, f32::max);
-        let shallow_depth = lights
-            .iter()
-            .map(|(p, _)| least_depth(scene, *p))
-            .fold(None, |m: Option<f32>, d| Some(m.map_or(d, |m| m.min(d))));
-        let shallow_depth = shallow_depth.unwrap_or(0.0);
+        let shallow_depth = if lights.is_empty() {
+            0.0
+        } else {
+            lights.iter().zip(&depths).map(|((p, _), axes)| least_depth(scene, *p, *axes)).fold(f32::INFINITY, f32::min)
+        };
         let voxel_depth = sigma * lambda;
         let shell_depth = sigma * radius / set.layers as f32;
         let ray_gap = sigma * radius * spacing;
@@ -242,63 +242,39 @@ impl WaveTrust {
 }
 
 /// The least optical depth (sigma_t max over channels) from `p` out of the medium's box over
-/// the six axis directions and 256 more of a spherical Fibonacci set, marched at 256 midpoints
-/// a direction: where light leaves a heterogeneous medium soonest. In a box of constant density
-/// it is the least axis depth; in the cloud it is not: with its light 1.0 mean free paths deep
-/// along the axes, light leaving along a thinner diagonal made the render 0.88x path's energy.
-fn least_depth(scene: &Scene, p: Vec3) -> f32 {
-    let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
-    let sigma = scene.max_sigma_t();
+/// 256 directions of a spherical Fibonacci set and `axes`, the least axis depth
+/// ([`least_axis_depth`]): where light leaves a heterogeneous medium soonest. In a box of
+/// constant density it is the least axis depth; in the cloud it is not: with its light 1.0 mean
+/// free paths deep along the axes, light leaving along a thinner diagonal made the render 0.88x
+/// path's energy.
+fn least_depth(scene: &Scene, p: Vec3, axes: f32) -> f32 {
     const DIRECTIONS: u32 = 256;
-    const STEPS: u32 = 256;
     let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-    let fibonacci = (0..DIRECTIONS).map(|k| {
-        let z = 1.0 - (2.0 * k as f32 + 1.0) / DIRECTIONS as f32;
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        let phi = golden * k as f32;
-        Vec3::new(r * phi.cos(), r * phi.sin(), z)
-    });
-    let axes = [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z];
-    let mut least = f32::INFINITY;
-    for w in axes.into_iter().chain(fibonacci) {
-        // Where the ray from p along w leaves the box.
-        let len = (0..3)
-            .filter(|&a| w[a] != 0.0)
-            .map(|a| ((if w[a] > 0.0 { hi[a] } else { lo[a] }) - p[a]) / w[a])
-            .fold(f32::INFINITY, f32::min)
-            .max(0.0);
-        let h = len / STEPS as f32;
-        let depth: f32 = (0..STEPS).map(|k| scene.density_at(p + w * ((k as f32 + 0.5) * h)) * h).sum::<f32>() * sigma;
-        least = least.min(depth);
-    }
-    if least.is_finite() {
-        least
-    } else {
-        0.0
-    }
+    (0..DIRECTIONS)
+        .map(|k| {
+            let z = 1.0 - (2.0 * k as f32 + 1.0) / DIRECTIONS as f32;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let phi = golden * k as f32;
+            depth_to_box(scene, p, Vec3::new(r * phi.cos(), r * phi.sin(), z))
+        })
+        .fold(axes, f32::min)
 }
 
 /// The least optical depth (sigma_t max over channels) from `p` to the medium's box along the
-/// six axis directions, marched at 256 midpoints a direction.
+/// six axis directions.
 fn least_axis_depth(scene: &Scene, p: Vec3) -> f32 {
+    [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z]
+        .into_iter()
+        .map(|w| depth_to_box(scene, p, w))
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// The optical depth (sigma_t max over channels) from `p` along the unit direction `w` to where
+/// it leaves the medium's box, marched at 256 midpoints (0 where the ray misses the box).
+fn depth_to_box(scene: &Scene, p: Vec3, w: Vec3) -> f32 {
+    const STEPS: u32 = 256;
     let (lo, hi) = (scene.medium.bounds_min, scene.medium.bounds_max);
-    let sigma = scene.max_sigma_t();
-    let mut least = f32::INFINITY;
-    for axis in 0..3 {
-        for (dir, len) in [(1.0f32, hi[axis] - p[axis]), (-1.0, p[axis] - lo[axis])] {
-            let len = len.max(0.0);
-            const STEPS: u32 = 256;
-            let h = len / STEPS as f32;
-            let mut w = Vec3::ZERO;
-            w[axis] = dir;
-            let depth: f32 =
-                (0..STEPS).map(|k| scene.density_at(p + w * ((k as f32 + 0.5) * h)) * h).sum::<f32>() * sigma;
-            least = least.min(depth);
-        }
-    }
-    if least.is_finite() {
-        least
-    } else {
-        0.0
-    }
+    let len = crate::physics::geometry::ray_box(p, w, lo, hi).map_or(0.0, |(_, t1)| t1.max(0.0));
+    let h = len / STEPS as f32;
+    (0..STEPS).map(|k| scene.density_at(p + w * ((k as f32 + 0.5) * h)) * h).sum::<f32>() * scene.max_sigma_t()
 }
