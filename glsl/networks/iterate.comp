@@ -26,6 +26,11 @@
 //   carried by the columns like all other light.
 // Deterministic: fixed order; the one atomic is a max (order-free).
 //
+// An isotropic medium (ANISOTROPIC false: every g is 0, scene.glsl's constant) has one value
+// in P, so the in-scattering sum is the same for every direction out of vp: it is summed once
+// per particle per iteration (networks/inscatter.comp) and read here, N D work instead of
+// N D^2, the same f32 sum bit for bit.
+//
 // Convergence is judged on the device: each workgroup reduces, in shared memory, the largest
 // change |I' - I| and the largest I' over its invocations and channels, and one atomicMax per
 // workgroup folds them into slot pc.slot of `stats` (as uint bits: for non-negative floats the
@@ -48,6 +53,8 @@
 // grid); this kernel reads the block alone, so it declares the constant itself (checked
 // against the Rust side's id and name by the kernel and registry tests).
 layout(constant_id = 17) const uint EMISSION = 0u;
+// scene.glsl's: some g is not 0 (else the in-scattering sum is inscatter.comp's, per particle).
+layout(constant_id = 2) const bool ANISOTROPIC = true;
 
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
@@ -66,6 +73,9 @@ layout(std430, binding = 8) readonly buffer Emitted { vec4 emitted[]; };
 // [p][i]: rgb E, the emission arriving unscattered at p scattered into direction i
 // (networks/arrive.comp); a placeholder, never read, unless pc.emission is EMIT_MARCHED.
 layout(std430, binding = 9) readonly buffer Scattered { vec4 scattered_emission[]; };
+// [p]: sum_d I[p][d] P[d][i], the same for every i (networks/inscatter.comp); a placeholder,
+// never read, where ANISOTROPIC.
+layout(std430, binding = 10) readonly buffer Inscattered { vec4 inscattered[]; };
 
 layout(push_constant) uniform Push {
     vec4 alpha;      // rgb opacity of a particle
@@ -103,7 +113,11 @@ vec3 step_one(uint p, uint i) {
         lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, wi));
     }
     vec3 scattered = vec3(0.0);
-    for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];
+    if (ANISOTROPIC) {
+        for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];
+    } else {
+        scattered = inscattered[vp].rgb;
+    }
     if (EMISSION != 0u && pc.emission == EMIT_MARCHED) scattered += scattered_emission[vp * D + i].rgb;
     vec3 a = pc.alpha.rgb;
     vec3 r = (1.0 - a) * current[vp * D + i].rgb + a * scene.materials[0].albedo.rgb * (lit + scattered);

@@ -75,6 +75,10 @@ pub struct Illumination {
     /// Which of `field` holds the current I.
     pub(super) current: usize,
     pub(super) pipeline: crate::gpu::Pipeline,
+    /// An isotropic medium's in-scattering pass and its per-particle sums (16 N bytes): the
+    /// iteration then reads one sum per link instead of summing D values
+    /// (glsl/networks/inscatter.comp). None where some g is not 0 (or `--model-all`).
+    pub(super) inscatter: Option<(crate::gpu::Pipeline, Buffer)>,
     pub(super) push: IteratePush,
     pub(super) step: f32,
     /// Iterations the next batch submits (adapted to the measured iteration time).
@@ -156,8 +160,18 @@ impl Illumination {
         } else {
             None
         };
-        let spec = [(crate::solvers::parts::gpu_scene::SPEC_EMISSION, crate::gpu::Spec::U32(kind))];
+        let anisotropic = gs.modelled.anisotropic;
+        let spec = [
+            (crate::solvers::parts::gpu_scene::SPEC_EMISSION, crate::gpu::Spec::U32(kind)),
+            (crate::solvers::parts::gpu_scene::SPEC_ANISOTROPIC, crate::gpu::Spec::Bool(anisotropic)),
+        ];
+        let inscatter = if anisotropic {
+            None
+        } else {
+            Some((gpu.pipeline(&INSCATTER, &[])?, gpu.buffer("networks in-scattering sums", 16 * n as u64)?))
+        };
         Ok(Illumination {
+            inscatter,
             phase,
             field: [
                 gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
@@ -237,7 +251,8 @@ impl Illumination {
         view: u64,
     ) -> u64 {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
-        let emitting = crate::solvers::parts::gpu_scene::modelled(scene, force_full).emission_kind() != 0;
+        let modelled = crate::solvers::parts::gpu_scene::modelled(scene, force_full);
+        let emitting = modelled.emission_kind() != 0;
         let emission_bytes = match (emitting, emission) {
             (false, _) => 0,
             (true, EmissionModel::Particles) => 16 * n,
@@ -248,6 +263,7 @@ impl Illumination {
             + net.direct_bytes(scene, env_dirs)
             + 2 * 16 * n * d
             + crate::solvers::parts::feedback::Feedback::bytes(4 * STATS_WORDS);
+        let state = state + if modelled.anisotropic { 0 } else { 16 * n };
         let image = 20 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
         base + net.build_bytes().max(state + image.max(view))
     }
@@ -296,28 +312,44 @@ impl Illumination {
     fn batch(&mut self, gpu: &Gpu, b: u32, tol: Option<f32>) -> Result<BatchRun, SolverError> {
         let d = self.push.directions;
         let mut passes = vec![self.stats.clear_pass(QueueRole::Diffuse)];
-        passes.extend((0..b as usize).map(|j| {
+        for j in 0..b as usize {
             let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
-            let push = IteratePush {
-                slot: j as u32,
-                check: (tol.is_some() && j > 0) as u32,
-                tol: tol.unwrap_or(0.0),
-                ..self.push
+            let check = (tol.is_some() && j > 0) as u32;
+            let push = IteratePush { slot: j as u32, check, tol: tol.unwrap_or(0.0), ..self.push };
+            // The placeholder where the medium is anisotropic: the kernel never reads it.
+            let sums = match &self.inscatter {
+                Some((pipeline, sums)) => {
+                    let push = InscatterPush { particles: self.push.particles, directions: d, check };
+                    passes.push(
+                        Pass::new("networks.inscatter", QueueRole::Diffuse, pipeline)
+                            .read(0, &self.field[from])
+                            .read(1, &self.phase)
+                            .write(2, sums)
+                            .read(3, self.stats.record())
+                            .push(&push)
+                            .cover([self.push.particles, 1, 1]),
+                    );
+                    sums
+                }
+                None => &self.gs.emission,
             };
-            Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
-                .read(0, &self.visible)
-                .read(1, &self.dirs)
-                .read(2, &self.direct)
-                .read(3, &self.field[from])
-                .write(4, &self.field[to])
-                .read(5, &self.phase)
-                .read_write(6, self.stats.record())
-                .read(7, &self.gs.block)
-                .read(8, self.emitted())
-                .read(9, self.scattered_emission())
-                .push(&push)
-                .cover([self.push.particles, d, 1])
-        }));
+            passes.push(
+                Pass::new("networks.iterate", QueueRole::Diffuse, &self.pipeline)
+                    .read(0, &self.visible)
+                    .read(1, &self.dirs)
+                    .read(2, &self.direct)
+                    .read(3, &self.field[from])
+                    .write(4, &self.field[to])
+                    .read(5, &self.phase)
+                    .read_write(6, self.stats.record())
+                    .read(7, &self.gs.block)
+                    .read(8, self.emitted())
+                    .read(9, self.scattered_emission())
+                    .read(10, sums)
+                    .push(&push)
+                    .cover([self.push.particles, d, 1]),
+            );
+        }
         passes.push(self.stats.copy_pass(QueueRole::Diffuse));
         let point = gpu.submit(QueueRole::Diffuse, &passes, &[])?;
         gpu.wait(point)?;

@@ -74,12 +74,19 @@ pub const DIRECT: Kernel = Kernel {
     push_bytes: std::mem::size_of::<DirectPush>(),
     spec: crate::solvers::parts::gpu_scene::VIEW_SPEC,
 };
-/// iterate.comp reads the scene block alone and declares scene.glsl's emission constant itself.
+/// iterate.comp reads the scene block alone and declares scene.glsl's emission and
+/// anisotropy constants itself.
 pub const ITERATE: Kernel = Kernel {
     shader: shader!("networks/iterate"),
     push_bytes: std::mem::size_of::<IteratePush>(),
-    spec: &[(crate::solvers::parts::gpu_scene::SPEC_EMISSION, crate::gpu::SpecKind::U32)],
+    spec: &[
+        (crate::solvers::parts::gpu_scene::SPEC_EMISSION, crate::gpu::SpecKind::U32),
+        (crate::solvers::parts::gpu_scene::SPEC_ANISOTROPIC, crate::gpu::SpecKind::Bool),
+    ],
 };
+/// An isotropic medium's in-scattering sum, once per particle per iteration.
+pub const INSCATTER: Kernel =
+    Kernel { shader: shader!("networks/inscatter"), push_bytes: std::mem::size_of::<InscatterPush>(), spec: &[] };
 pub const GATHER: Kernel = Kernel {
     shader: shader!("networks/gather"),
     push_bytes: std::mem::size_of::<GatherPush>(),
@@ -98,7 +105,7 @@ pub const SPLAT: Kernel = Kernel {
 
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
-    vec![COUNT, FILL, LINK, DIRECT, ARRIVE, ITERATE, GATHER, SPLAT]
+    vec![COUNT, FILL, LINK, DIRECT, ARRIVE, INSCATTER, ITERATE, GATHER, SPLAT]
 }
 
 #[repr(C)]
@@ -160,6 +167,16 @@ struct IteratePush {
     tol: f32,
     /// [`EmissionModel::code`] (read only where the kernels model emission).
     emission: u32,
+}
+
+/// glsl/networks/inscatter.comp's push constants.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct InscatterPush {
+    particles: u32,
+    directions: u32,
+    /// 1: return at once where the batch has stopped on the device.
+    check: u32,
 }
 
 /// How the medium's emission enters the network (`networks.emission`, issue 47).

@@ -783,9 +783,18 @@ impl Network {
     }
 
     /// `iterations` steps of the network's iteration on the device (glsl/networks/iterate.comp)
-    /// from I = 0, over the device's visibility network: I [p][i] rgb.
-    pub fn iterate(&self, gpu: &Gpu, scene: &Scene, iterations: u32, step: f32) -> Result<Vec<[f32; 4]>, SolverError> {
-        let mut state = Illumination::new(gpu, self, scene, step, true, 0)?;
+    /// from I = 0, over the device's visibility network: I [p][i] rgb. `force_full`: the
+    /// kernels model every feature (`--model-all`), so an isotropic medium's in-scattering is
+    /// the full sum, not the per-particle one (glsl/networks/inscatter.comp).
+    pub fn iterate(
+        &self,
+        gpu: &Gpu,
+        scene: &Scene,
+        iterations: u32,
+        step: f32,
+        force_full: bool,
+    ) -> Result<Vec<[f32; 4]>, SolverError> {
+        let mut state = Illumination::new(gpu, self, scene, step, force_full, 0)?;
         state.step(gpu, iterations)?;
         state.radiance(gpu)
     }
