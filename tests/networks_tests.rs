@@ -15,10 +15,13 @@ fn network(scene: &str, sets: &[(&str, &str)], n: u32, d: u32, m: Option<u32>) -
 }
 
 fn network_by(scene: &str, sets: &[(&str, &str)], n: u32, d: u32, m: Option<u32>, rule: WindowRule) -> Network {
-    let s = repo_scene(scene, sets);
-    let particles = Particles::sample(&s, n, s.render.seed).expect("particles");
+    network_of(&repo_scene(scene, sets), n, d, m, rule)
+}
+
+fn network_of(s: &scatterlab::scene::Scene, n: u32, d: u32, m: Option<u32>, rule: WindowRule) -> Network {
+    let particles = Particles::sample(s, n, s.render.seed).expect("particles");
     let directions = Directions::new(d, s.render.seed);
-    let window = Window::new(&s, &particles, &directions, m, rule);
+    let window = Window::new(s, &particles, &directions, m, rule);
     Network { particles, directions, window, opacity: Opacity::Linear }
 }
 
@@ -141,24 +144,34 @@ fn a_column_too_crowded_to_sort_is_refused() {
 /// against the host's double-precision oracles on the same network: the cloud under its sun
 /// and sky (a directional light, an environment as the network's sky), and the cloud with a
 /// point light inside it (its 1 / r^2 capped at the particle's ball) scattering backward
-/// (g -0.4), and the cloud made isotropic (g 0), whose in-scattering sum is taken once per
-/// particle (glsl/networks/inscatter.comp). After 12 iterations I within 2e-5 of the host's
-/// (relative to the largest); every entry finite and non-negative; the 12th step changes I by
-/// less than the first. The isotropic cloud's I equals, bit for bit, the full sum's
-/// (`--model-all`): the per-particle sum is the same f32 arithmetic, not an approximation.
+/// (g -0.4); the cloud made isotropic (g 0), whose in-scattering sum is taken once per
+/// particle (glsl/networks/inscatter.comp), and the cloud with a lamp beside its sun, whose two
+/// light units' scattered light is summed once into a table (glsl/networks/lit.comp),
+/// isotropic and not. After 12 iterations I within 2e-5 of the host's (relative to the
+/// largest); every entry finite and non-negative; the 12th step changes I by less than the
+/// first. Where a shortcut was taken, I equals, bit for bit, the general kernel's
+/// (`--model-all`, which sums every link's in-scattering and light units): the shortcuts are
+/// the same f32 arithmetic, not approximations.
 #[test]
 fn direct_light_and_iteration_on_the_device_match_the_host() {
+    use scatterlab::solvers::networks::{tabulates_lit, unit_count};
     let gpu = gpu();
+    let lamp = "[[light]]\nkind = \"point\"\nposition = [0.3, 0.2, -0.1]\nintensity = 0.5\n";
     let cube_light = [("light.0.position", "[0.1, -0.05, 0.2]"), ("medium.g", "-0.4")];
-    let isotropic = [("medium.g", "0.0")];
+    let cloud = "scenes/cloud.toml";
+    let isotropic = |mut s: scatterlab::scene::Scene| {
+        s.medium.g = 0.0;
+        s
+    };
     let cases = [
-        ("scenes/cloud.toml", &[][..], 400u32, 24u32),
-        ("scenes/point-light-in-cloud.toml", &cube_light[..], 300, 16),
-        ("scenes/cloud.toml", &isotropic[..], 400, 24),
+        ("cloud", repo_scene(cloud, &[]), 400u32, 24u32),
+        ("point light inside, g -0.4", repo_scene("scenes/point-light-in-cloud.toml", &cube_light), 300, 16),
+        ("cloud, g 0", isotropic(repo_scene(cloud, &[])), 400, 24),
+        ("cloud and a lamp", crate::common::repo_scene_plus(cloud, lamp), 400, 24),
+        ("cloud and a lamp, g 0", isotropic(crate::common::repo_scene_plus(cloud, lamp)), 400, 24),
     ];
-    for (scene, sets, n, d) in cases {
-        let s = repo_scene(scene, sets);
-        let net = network(scene, sets, n, d, None);
+    for (scene, s, n, d) in cases {
+        let net = network_of(&s, n, d, None, WindowRule::Fit);
         let v = net.visibility_cpu();
         let step = 0.01f32;
         let host_direct = net.direct_cpu(&s, step as f64);
@@ -166,18 +179,14 @@ fn direct_light_and_iteration_on_the_device_match_the_host() {
         let device = net.iterate(&gpu, &s, 12, step, false).expect("device iteration");
         let (worst, scale) = device_against_host(&device, &host);
         assert!(scale > 0.0, "{scene}: some light");
-        eprintln!(
-            "{scene} {sets:?}: N {n}, D {d}, M {}: largest difference {worst:.2e} of the largest I",
-            net.window.m
-        );
+        eprintln!("{scene}: N {n}, D {d}, M {}: largest difference {worst:.2e} of the largest I", net.window.m);
         assert!(worst < 2e-5, "{scene}: device against host {worst:e}");
-        if s.medium.g == 0.0 {
+        let tabulated = tabulates_lit(unit_count(&s, 0), false);
+        assert_eq!(tabulated, scene.contains("lamp"), "{scene}: two light units are tabulated, one is not");
+        if s.medium.g == 0.0 || tabulated {
             let full = net.iterate(&gpu, &s, 12, step, true).expect("device iteration, every feature modelled");
             let differ = device.iter().zip(&full).filter(|(a, b)| a[..3] != b[..3]).count();
-            assert_eq!(
-                differ, 0,
-                "{scene} {sets:?}: the per-particle sum differs from the full one in {differ} entries"
-            );
+            assert_eq!(differ, 0, "{scene}: the shortcuts' I differs from the general kernel's in {differ} entries");
         }
         assert!(device.iter().all(|x| x[..3].iter().all(|c| c.is_finite() && *c >= 0.0)), "{scene}");
         let one = net.iterate_cpu(&s, &v, &host_direct, 1);
@@ -456,4 +465,56 @@ pub fn device_against_host(device: &[[f32; 4]], host: &[[f64; 3]]) -> (f64, f64)
         .flat_map(|(a, b)| (0..3).map(move |c| (a[c] as f64 - b[c]).abs()))
         .fold(0.0f64, f64::max);
     (worst / scale, scale)
+}
+
+/// The splats' screen tiles (`SplatTiles`, glsl/networks/splat.comp) change the image's time,
+/// not the image: on the cloud (perspective, 40 x 28 pixels so that the last tiles are partial),
+/// the cloud seen from inside (particles beside and behind the eye, and reaches that hold it),
+/// and a sphere seen by an orthographic camera, the image at the default tiles, at 7-pixel tiles
+/// and at 1-pixel tiles equals, bit for bit, the image of one tile listing every particle (each
+/// pixel testing all N, the kernel before the tiles). The lists are a superset of what a pixel
+/// keeps, so the tiles hold at least every splat the image composited (counted), and fewer than
+/// N per tile on average where the particles do not fill the view.
+#[test]
+fn screen_tiles_splat_the_image_of_every_particle_bit_for_bit() {
+    use scatterlab::solvers::networks::{splat_order, Illumination, SplatTiles, SPLAT_TILE};
+    let gpu = gpu();
+    let small = [("render.width", "40"), ("render.height", "28")];
+    let inside = [("render.width", "24"), ("render.height", "24"), ("camera.origin", "[0.1, 0.05, 0.3]")];
+    let ortho = crate::common::scene(
+        "[render]\nwidth = 24\nheight = 20\nseed = 2\n\
+         [camera]\nkind = \"orthographic\"\norigin = [0.3, 3.0, 0.2]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, -1.0]\nextent = 1.4\n\
+         [medium]\nbounds = [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]\nsigma_t = 4.0\nalbedo = 0.8\ng = 0.3\n\
+         density = { kind = \"sphere\", center = [0.0, 0.0, 0.0], radius = 0.45 }\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 1.0\n",
+    );
+    let cases = [
+        ("cloud", repo_scene("scenes/cloud.toml", &small), 600u32),
+        ("inside the cloud", repo_scene("scenes/cloud.toml", &inside), 600),
+        ("orthographic sphere", ortho, 400),
+    ];
+    for (what, s, n) in cases {
+        let net = network_of(&s, n, 32, None, WindowRule::Fit);
+        let mut st = Illumination::new(&gpu, &net, &s, 0.01, false, 0).expect("network");
+        st.step(&gpu, 6).expect("iterations");
+        let width = 1.0f32;
+        let all = st.image_tiled(&gpu, &net, width, 0.02, Some(1 << 20)).expect("one tile");
+        let order = splat_order(&s.camera, &net.particles.positions);
+        let reach = 3.0 * (net.particle_radius() as f32 * width) as f64;
+        let size = [s.render.width, s.render.height];
+        for tile in [SPLAT_TILE, 7, 1] {
+            let img = st.image_tiled(&gpu, &net, width, 0.02, Some(tile)).expect("tiles");
+            let tiles = SplatTiles::new(&s.camera, size, &net.particles.positions, &order, reach, tile);
+            let per_tile = tiles.items.len() as f64 / (tiles.starts.len() - 1) as f64;
+            let differ = img.image.data.iter().zip(&all.image.data).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+            eprintln!("{what}, {tile}-pixel tiles: {per_tile:.1} of {n} particles a tile, {differ} values differ");
+            assert_eq!(differ, 0, "{what}, {tile}-pixel tiles: the image differs from every particle's");
+            assert_eq!(img.dropped, all.dropped, "{what}");
+            assert!(all.image.data.iter().any(|v| *v > 0.0), "{what}: some light");
+            if tile == 1 {
+                assert!(per_tile < n as f64, "{what}: a pixel's tile lists every particle");
+            }
+        }
+    }
+    assert_clean(&gpu);
 }

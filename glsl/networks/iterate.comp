@@ -29,7 +29,9 @@
 // An isotropic medium (ANISOTROPIC false: every g is 0, scene.glsl's constant) has one value
 // in P, so the in-scattering sum is the same for every direction out of vp: it is summed once
 // per particle per iteration (networks/inscatter.comp) and read here, N D work instead of
-// N D^2, the same f32 sum bit for bit.
+// N D^2, the same f32 sum bit for bit. And where the lights are more than one unit (pc.lit),
+// their light scattered at vp into i is read from networks/lit.comp's table, summed once per
+// light position, instead of summed over the units on every iteration.
 //
 // Convergence is judged on the device: each workgroup reduces, in shared memory, the largest
 // change |I' - I| and the largest I' over its invocations and channels, and one atomicMax per
@@ -76,6 +78,8 @@ layout(std430, binding = 9) readonly buffer Scattered { vec4 scattered_emission[
 // [p]: sum_d I[p][d] P[d][i], the same for every i (networks/inscatter.comp); a placeholder,
 // never read, where ANISOTROPIC.
 layout(std430, binding = 10) readonly buffer Inscattered { vec4 inscattered[]; };
+// [p][i]: sum_j L_j(p) p(w_j . w_i) (networks/lit.comp); a placeholder, never read, unless pc.lit.
+layout(std430, binding = 11) readonly buffer Lit { vec4 lit_table[]; };
 
 layout(push_constant) uniform Push {
     vec4 alpha;      // rgb opacity of a particle
@@ -87,6 +91,7 @@ layout(push_constant) uniform Push {
     uint check;      // 1: first judge slot - 1 against tol, and stop where it converged or faulted
     float tol;       // largest change per iteration, relative to the largest I'
     uint emission;   // with EMISSION: EMIT_PARTICLES or EMIT_MARCHED
+    uint lit;        // 1: the lights' scattered light from lit_table, not summed over the units
 } pc;
 
 // How the medium's emission enters (`networks.emission`): each upstream particle's own
@@ -108,9 +113,13 @@ vec3 step_one(uint p, uint i) {
     vec3 wi = dirs[3u * i + 2u].xyz;
     float g = scene.materials[0].albedo.w;
     vec3 lit = vec3(0.0);
-    for (uint j = 0u; j < pc.units; ++j) {
-        uint e = 2u * (vp * pc.units + j);
-        lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, wi));
+    if (pc.lit != 0u) {
+        lit = lit_table[vp * D + i].rgb;
+    } else {
+        for (uint j = 0u; j < pc.units; ++j) {
+            uint e = 2u * (vp * pc.units + j);
+            lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, wi));
+        }
     }
     vec3 scattered = vec3(0.0);
     if (ANISOTROPIC) {

@@ -39,6 +39,15 @@ pub fn verdict(change: f32, peak: f32, tol: f32) -> Verdict {
     }
 }
 
+/// Whether the iteration reads the lights' scattered light from a table (glsl/networks/lit.comp)
+/// rather than summing `units` light units on every link of every iteration: where there is
+/// more than one unit (an environment is 16 of them by default). One unit costs a link two
+/// reads either way. Not with `force_full` (`--model-all`): the iteration then sums the units
+/// on every link, the general kernel the table is checked against.
+pub fn tabulates_lit(units: u32, force_full: bool) -> bool {
+    units > 1 && !force_full
+}
+
 /// What one submitted batch of iterations did ([`Illumination::batch`]).
 pub(super) struct BatchRun {
     /// Per iteration that ran: its change relative to the largest I (NaN at a fault).
@@ -79,15 +88,21 @@ pub struct Illumination {
     /// iteration then reads one sum per link instead of summing D values
     /// (glsl/networks/inscatter.comp). None where some g is not 0 (or `--model-all`).
     pub(super) inscatter: Option<(crate::gpu::Pipeline, Buffer)>,
+    /// Where the lights are more than one unit: the table of their light scattered at each
+    /// particle into each direction (16 N D bytes), summed once per light position
+    /// (glsl/networks/lit.comp) and read by the iteration instead of summing the units.
+    pub(super) lit: Option<(crate::gpu::Pipeline, Buffer)>,
     pub(super) push: IteratePush,
     pub(super) step: f32,
     /// Iterations the next batch submits (adapted to the measured iteration time).
     pub(super) batch: u32,
     /// The image's size and a particle's extinction cross-section sigma_t m (rgb, units^2).
     pub(super) size: [u32; 2],
-    /// The camera's origin and, for an orthographic one, its axis: the splats' order.
-    pub(super) camera: (Vec3, Option<Vec3>),
     pub(super) sigma_m: Vec3,
+    /// The scene's camera: the splats' order and screen tiles.
+    pub(super) view: crate::scene::Camera,
+    /// The kernels model every feature and take no shortcut (`--model-all`).
+    pub(super) force_full: bool,
     /// Iterations run since the start (or the last light move).
     pub iterations: u32,
     /// Environment directions taken as direct units (`networks.single = view`), 0 where the
@@ -165,13 +180,20 @@ impl Illumination {
             (crate::solvers::parts::gpu_scene::SPEC_EMISSION, crate::gpu::Spec::U32(kind)),
             (crate::solvers::parts::gpu_scene::SPEC_ANISOTROPIC, crate::gpu::Spec::Bool(anisotropic)),
         ];
+        let units = unit_count(scene, env_dirs);
+        let lit = if tabulates_lit(units, force_full) {
+            Some((gpu.pipeline(&LIT, &[])?, gpu.buffer("networks lit table", 16 * n as u64 * d as u64)?))
+        } else {
+            None
+        };
         let inscatter = if anisotropic {
             None
         } else {
             Some((gpu.pipeline(&INSCATTER, &[])?, gpu.buffer("networks in-scattering sums", 16 * n as u64)?))
         };
-        Ok(Illumination {
+        let state = Illumination {
             inscatter,
+            lit,
             phase,
             field: [
                 gpu.buffer("networks radiance a", 16 * n as u64 * d as u64)?,
@@ -186,23 +208,19 @@ impl Illumination {
                 sky: [sky.x, sky.y, sky.z, 0.0],
                 particles: n,
                 directions: d,
-                units: unit_count(scene, env_dirs),
+                units,
                 slot: 0,
                 check: 0,
                 tol: 0.0,
                 emission: emission.code(),
+                lit: tabulates_lit(units, force_full) as u32,
             },
             env_dirs,
             step,
             size: [scene.render.width, scene.render.height],
-            camera: (
-                scene.camera.origin,
-                match scene.camera.kind {
-                    crate::scene::CameraKind::Orthographic { .. } => Some(scene.camera.basis().2),
-                    _ => None,
-                },
-            ),
             sigma_m: m.sigma_t * net.particles.mass as f32,
+            view: scene.camera,
+            force_full,
             iterations: 0,
             change: f64::INFINITY,
             faults: 0,
@@ -214,7 +232,26 @@ impl Illumination {
             emitted,
             arriving,
             emission,
-        })
+        };
+        state.tabulate_lit(gpu)?;
+        Ok(state)
+    }
+
+    /// Sum the lights' scattered light into the table, where there is one (after the direct
+    /// light changed).
+    fn tabulate_lit(&self, gpu: &Gpu) -> Result<(), SolverError> {
+        let Some((pipeline, table)) = &self.lit else { return Ok(()) };
+        let push = LitPush { particles: self.push.particles, directions: self.push.directions, units: self.push.units };
+        let pass = Pass::new("networks.lit", QueueRole::Diffuse, pipeline)
+            .read(0, &self.dirs)
+            .read(1, &self.direct)
+            .write(2, table)
+            .read(3, &self.gs.block)
+            .push(&push)
+            .cover([self.push.particles, self.push.directions, 1]);
+        let point = gpu.submit(QueueRole::Diffuse, &[pass], &[])?;
+        gpu.wait(point)?;
+        Ok(())
     }
 
     /// The particles' emission as the kernels bind it: the scene's emission placeholder where
@@ -241,7 +278,8 @@ impl Illumination {
     /// view`; 0 otherwise). `force_full`: the kernels model every feature, emission included
     /// (its per-particle array then, though the scene emits nothing).
     /// `emission`: how an emissive medium's emission enters (J and E, 32 N D bytes, where
-    /// marched).
+    /// marched). `footprint`: the splats' width in particle radii (`networks.footprint`), which
+    /// sets how many screen tiles list each particle ([`SplatTiles`]).
     pub fn device_bytes(
         net: &Network,
         scene: &Scene,
@@ -249,6 +287,7 @@ impl Illumination {
         emission: EmissionModel,
         env_dirs: u32,
         view: u64,
+        footprint: f32,
     ) -> u64 {
         let (n, d) = (net.particles.positions.len() as u64, net.directions.len() as u64);
         let modelled = crate::solvers::parts::gpu_scene::modelled(scene, force_full);
@@ -263,8 +302,16 @@ impl Illumination {
             + net.direct_bytes(scene, env_dirs)
             + 2 * 16 * n * d
             + crate::solvers::parts::feedback::Feedback::bytes(4 * STATS_WORDS);
-        let state = state + if modelled.anisotropic { 0 } else { 16 * n };
-        let image = 20 * n + 16 * scene.render.width as u64 * scene.render.height as u64;
+        let state = state
+            + if modelled.anisotropic { 0 } else { 16 * n }
+            + if tabulates_lit(unit_count(scene, env_dirs), force_full) { 16 * n * d } else { 0 };
+        let (size, positions) = ([scene.render.width, scene.render.height], &net.particles.positions);
+        let order = splat_order(&scene.camera, positions);
+        let tile = if force_full { size[0].max(size[1]).max(1) } else { SPLAT_TILE };
+        let reach = 3.0 * (net.particle_radius() as f32 * footprint) as f64;
+        let tiles = SplatTiles::new(&scene.camera, size, positions, &order, reach, tile);
+        let lists = 4 * tiles.starts.len() as u64 + 4 * tiles.items.len().max(1) as u64;
+        let image = 16 * n + lists + 16 * size[0] as u64 * size[1] as u64;
         base + net.build_bytes().max(state + image.max(view))
     }
 
@@ -280,6 +327,7 @@ impl Illumination {
         }
         gpu.write_buffer(&self.gs.block, 0, &bytes)?;
         net.direct(gpu, scene, &self.gs, &self.positions, self.step, self.env_dirs, &self.direct)?;
+        self.tabulate_lit(gpu)?;
         let sky = if self.env_dirs > 0 { Vec3::ZERO } else { scene.environment_radiance() };
         self.push.sky = [sky.x, sky.y, sky.z, 0.0];
         self.iterations = 0;
@@ -346,6 +394,7 @@ impl Illumination {
                     .read(8, self.emitted())
                     .read(9, self.scattered_emission())
                     .read(10, sums)
+                    .read(11, self.lit.as_ref().map_or(&self.gs.emission, |l| &l.1))
                     .push(&push)
                     .cover([self.push.particles, d, 1]),
             );

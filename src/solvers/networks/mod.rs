@@ -84,6 +84,9 @@ pub const ITERATE: Kernel = Kernel {
         (crate::solvers::parts::gpu_scene::SPEC_ANISOTROPIC, crate::gpu::SpecKind::Bool),
     ],
 };
+/// The lights' light scattered at each particle into each direction, once per light position.
+pub const LIT: Kernel =
+    Kernel { shader: shader!("networks/lit"), push_bytes: std::mem::size_of::<LitPush>(), spec: &[] };
 /// An isotropic medium's in-scattering sum, once per particle per iteration.
 pub const INSCATTER: Kernel =
     Kernel { shader: shader!("networks/inscatter"), push_bytes: std::mem::size_of::<InscatterPush>(), spec: &[] };
@@ -105,7 +108,7 @@ pub const SPLAT: Kernel = Kernel {
 
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
-    vec![COUNT, FILL, LINK, DIRECT, ARRIVE, INSCATTER, ITERATE, GATHER, SPLAT]
+    vec![COUNT, FILL, LINK, DIRECT, ARRIVE, LIT, INSCATTER, ITERATE, GATHER, SPLAT]
 }
 
 #[repr(C)]
@@ -117,6 +120,15 @@ struct GatherPush {
     direct: u32,
     /// [`EmissionModel::code`] (read only where the kernels model emission).
     emission: u32,
+}
+
+/// glsl/networks/lit.comp's push constants.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct LitPush {
+    particles: u32,
+    directions: u32,
+    units: u32,
 }
 
 #[repr(C)]
@@ -135,11 +147,13 @@ struct SplatPush {
     sigma_m: [f32; 4],
     sky: [f32; 4],
     width: f32,
-    particles: u32,
+    /// Pixels along a screen tile's side ([`SplatTiles`]).
+    tile: u32,
     /// Positive: each camera ray's splats scaled to the medium's optical depth along it, marched
     /// in steps of this (scene units); 0: the splats' own transmittance (the paper's).
     step: f32,
-    pad: u32,
+    /// Tiles along the image's width.
+    tiles_x: u32,
 }
 
 #[repr(C)]
@@ -167,6 +181,8 @@ struct IteratePush {
     tol: f32,
     /// [`EmissionModel::code`] (read only where the kernels model emission).
     emission: u32,
+    /// 1: the lights' scattered light comes from the table glsl/networks/lit.comp made.
+    lit: u32,
 }
 
 /// glsl/networks/inscatter.comp's push constants.
@@ -485,8 +501,15 @@ impl Networks {
         });
         stats.faults = st.faults + img.nonfinite as u64 + view_nonfinite as u64;
         let modelled = crate::solvers::parts::gpu_scene::modelled(scene, force_full);
-        let bytes =
-            Illumination::device_bytes(net, scene, force_full, set.emission, set.env_dirs(), set.view_bytes(scene));
+        let bytes = Illumination::device_bytes(
+            net,
+            scene,
+            force_full,
+            set.emission,
+            set.env_dirs(),
+            set.view_bytes(scene),
+            set.footprint,
+        );
         let mut report = RenderReport::finish(gpu, self, k, modelled, bytes, stats);
         let iterate_gpu_ms: f64 =
             report.passes.iter().filter(|p| p.name == "networks.iterate").map(|p| p.duration_ms()).sum();
@@ -740,7 +763,15 @@ impl Solver for Networks {
             return Ok(crate::solvers::parts::gpu_scene::scene_bytes(scene) + set.view_bytes(scene));
         }
         let net = set.network(scene)?;
-        Ok(Illumination::device_bytes(&net, scene, false, set.emission, set.env_dirs(), set.view_bytes(scene)))
+        Ok(Illumination::device_bytes(
+            &net,
+            scene,
+            false,
+            set.emission,
+            set.env_dirs(),
+            set.view_bytes(scene),
+            set.footprint,
+        ))
     }
 
     fn ladder(&self, _scene: &Scene) -> Vec<Rung> {
