@@ -477,7 +477,7 @@ pub fn device_against_host(device: &[[f32; 4]], host: &[[f64; 3]]) -> (f64, f64)
 /// N per tile on average where the particles do not fill the view.
 #[test]
 fn screen_tiles_splat_the_image_of_every_particle_bit_for_bit() {
-    use scatterlab::solvers::networks::{splat_order, Illumination, SplatTiles, SPLAT_TILE};
+    use scatterlab::solvers::networks::{Illumination, SplatTiles, SPLAT_TILE};
     let gpu = gpu();
     let small = [("render.width", "40"), ("render.height", "28")];
     let inside = [("render.width", "24"), ("render.height", "24"), ("camera.origin", "[0.1, 0.05, 0.3]")];
@@ -499,12 +499,10 @@ fn screen_tiles_splat_the_image_of_every_particle_bit_for_bit() {
         st.step(&gpu, 6).expect("iterations");
         let width = 1.0f32;
         let all = st.image_tiled(&gpu, &net, width, 0.02, Some(1 << 20)).expect("one tile");
-        let order = splat_order(&s.camera, &net.particles.positions);
-        let reach = 3.0 * (net.particle_radius() as f32 * width) as f64;
         let size = [s.render.width, s.render.height];
         for tile in [SPLAT_TILE, 7, 1] {
             let img = st.image_tiled(&gpu, &net, width, 0.02, Some(tile)).expect("tiles");
-            let tiles = SplatTiles::new(&s.camera, size, &net.particles.positions, &order, reach, tile);
+            let tiles = SplatTiles::of(&s.camera, size, &net, width, Some(tile), false);
             let per_tile = tiles.items.len() as f64 / (tiles.starts.len() - 1) as f64;
             let differ = img.image.data.iter().zip(&all.image.data).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
             eprintln!("{what}, {tile}-pixel tiles: {per_tile:.1} of {n} particles a tile, {differ} values differ");

@@ -29,6 +29,7 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 3) readonly buffer Positions { vec4 positions[]; };
 layout(std430, binding = 4) readonly buffer Dirs { vec4 dirs[]; };
 layout(std430, binding = 5) readonly buffer Direct { vec4 direct[]; };
+#include "lights.glsl"
 layout(std430, binding = 6) readonly buffer Radiance { vec4 radiance[]; };   // I [p][i]
 layout(std430, binding = 7) writeonly buffer Colour { vec4 colour[]; };     // [p]: rgb
 // [p]: rgb (1 - albedo) Le (`Network::emitted`); a placeholder, never read, where EMISSION is 0.
@@ -50,11 +51,7 @@ void main() {
     vec3 x = positions[p].xyz;
     vec3 o = scene.cam_origin.w < 0.5 ? normalize(scene.cam_origin.xyz - x) : -scene.cam_forward.xyz;
     float g = scene.materials[0].albedo.w;
-    vec3 lit = vec3(0.0);
-    for (uint j = 0u; pc.direct == 1u && j < pc.units; ++j) {
-        uint e = 2u * (p * pc.units + j);
-        lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, o));
-    }
+    vec3 lit = pc.direct == 1u ? lights_scattered(p, pc.units, g, o) : vec3(0.0);
     vec3 sum = vec3(0.0);
     float norm = 0.0;
     for (uint d = 0u; d < pc.directions; ++d) {

@@ -63,6 +63,7 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 0) readonly buffer Visible { uint visible[]; };     // [p][i]
 layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };           // u, v, w per direction
 layout(std430, binding = 2) readonly buffer Direct { vec4 direct[]; };       // networks/direct.comp
+#include "lights.glsl"
 layout(std430, binding = 3) readonly buffer Current { vec4 current[]; };     // I [p][i], rgb
 layout(std430, binding = 4) writeonly buffer Next { vec4 next[]; };          // I' [p][i]
 layout(std430, binding = 5) readonly buffer Phase { float phase[]; };        // P[d][i]
@@ -112,15 +113,7 @@ vec3 step_one(uint p, uint i) {
     if (vp == NONE) return pc.sky.rgb;
     vec3 wi = dirs[3u * i + 2u].xyz;
     float g = scene.materials[0].albedo.w;
-    vec3 lit = vec3(0.0);
-    if (pc.lit != 0u) {
-        lit = lit_table[vp * D + i].rgb;
-    } else {
-        for (uint j = 0u; j < pc.units; ++j) {
-            uint e = 2u * (vp * pc.units + j);
-            lit += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, wi));
-        }
-    }
+    vec3 lit = pc.lit != 0u ? lit_table[vp * D + i].rgb : lights_scattered(vp, pc.units, g, wi);
     vec3 scattered = vec3(0.0);
     if (ANISOTROPIC) {
         for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];

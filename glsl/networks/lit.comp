@@ -7,8 +7,8 @@
 // a link, the iteration's largest cost once an isotropic medium sums its in-scattering per
 // particle (networks/inscatter.comp). Summed here once per render and per light move
 // (src/solvers/networks/iteration.rs) where there is more than one unit, the iteration reads
-// one value a link. The same loop in the same order as iterate.comp's: the images are the
-// same bit for bit (networks_tests checks it).
+// one value a link. The same loop as iterate.comp's (lights.glsl): the images are the same bit
+// for bit (networks_tests checks it).
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 // The medium's g: the scene block's material table, entry 0.
@@ -19,6 +19,7 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
 layout(std430, binding = 0) readonly buffer Dirs { vec4 dirs[]; };      // u, v, w per direction
 layout(std430, binding = 1) readonly buffer Direct { vec4 direct[]; };  // networks/direct.comp
+#include "lights.glsl"
 layout(std430, binding = 2) writeonly buffer Lit { vec4 lit[]; };       // [p][i], rgb
 
 layout(push_constant) uniform Push {
@@ -32,10 +33,5 @@ void main() {
     if (p >= pc.particles || i >= pc.directions) return;
     vec3 wi = dirs[3u * i + 2u].xyz;
     float g = scene.materials[0].albedo.w;
-    vec3 sum = vec3(0.0);
-    for (uint j = 0u; j < pc.units; ++j) {
-        uint e = 2u * (p * pc.units + j);
-        sum += direct[e].rgb * hg_eval(g, dot(direct[e + 1u].xyz, wi));
-    }
-    lit[p * pc.directions + i] = vec4(sum, 0.0);
+    lit[p * pc.directions + i] = vec4(lights_scattered(p, pc.units, g, wi), 0.0);
 }

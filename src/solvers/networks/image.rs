@@ -42,6 +42,25 @@ pub struct SplatTiles {
 }
 
 impl SplatTiles {
+    /// The tiles a render of `net` at `camera` and `size` splats with: its particles in
+    /// [`splat_order`], a reach of three footprints (`footprint` particle radii), tiles of
+    /// `tile` pixels a side (None: [`SPLAT_TILE`], or one tile of every particle with
+    /// `force_full`, `--model-all`). [`Illumination::image`] and the memory estimate both take
+    /// them from here.
+    pub fn of(
+        camera: &crate::scene::Camera,
+        size: [u32; 2],
+        net: &Network,
+        footprint: f32,
+        tile: Option<u32>,
+        force_full: bool,
+    ) -> SplatTiles {
+        let tile = tile.unwrap_or(if force_full { size[0].max(size[1]) } else { SPLAT_TILE }).max(1);
+        let positions = &net.particles.positions;
+        let reach = 3.0 * splat_width(net, footprint) as f64;
+        SplatTiles::new(camera, size, positions, &splat_order(camera, positions), reach, tile)
+    }
+
     /// Bin the particles `order` lists (nearest the camera first) for `camera` and an image of
     /// `size` pixels, `reach` (scene units) the farthest a ray is from a particle whose splat
     /// it composites.
@@ -139,17 +158,13 @@ pub struct Splatted {
     pub nonfinite: u32,
 }
 
-impl Illumination {
-    /// The screen tiles of this network's splats ([`SplatTiles`]) of `tile` pixels a side
-    /// (None: [`SPLAT_TILE`], or one tile holding every particle where the kernels model
-    /// everything, `--model-all`).
-    fn splat_tiles(&self, net: &Network, order: &[u32], splat_width: f32, tile: Option<u32>) -> SplatTiles {
-        let [w, h] = self.size;
-        let tile = tile.unwrap_or(if self.force_full { w.max(h).max(1) } else { SPLAT_TILE }).max(1);
-        let reach = 3.0 * splat_width as f64;
-        SplatTiles::new(&self.view, self.size, &net.particles.positions, order, reach, tile)
-    }
+/// A splat's footprint width s (scene units): `footprint` particle radii (splat.comp's
+/// `width`, whose three widths are a splat's reach).
+fn splat_width(net: &Network, footprint: f32) -> f32 {
+    net.particle_radius() as f32 * footprint
+}
 
+impl Illumination {
     /// The image (paper 3.3's last paragraph) with the scene's camera: each particle's
     /// radiance toward the camera (glsl/networks/gather.comp), then the particles splatted
     /// front to back with alpha blending (glsl/networks/splat.comp), Gaussian footprints of the
@@ -178,9 +193,7 @@ impl Illumination {
         let colour = gpu.buffer("networks colours", 16 * n as u64)?;
         let [w, h] = self.size;
         let pixels = gpu.buffer("networks image", 16 * w as u64 * h as u64)?;
-        let order = splat_order(&self.view, &net.particles.positions);
-        let splat_width = net.particle_radius() as f32 * width;
-        let tiles = self.splat_tiles(net, &order, splat_width, tile);
+        let tiles = SplatTiles::of(&self.view, self.size, net, width, tile, self.force_full);
         let starts = gpu.buffer_with("networks splat tiles", &tiles.starts)?;
         // A one-word stand-in where no tile holds a particle (an empty binding is not allowed).
         let items =
@@ -214,7 +227,7 @@ impl Illumination {
                 .push(&SplatPush {
                     sigma_m: [sigma_m.x, sigma_m.y, sigma_m.z, 0.0],
                     sky,
-                    width: splat_width,
+                    width: splat_width(net, width),
                     tile: tiles.tile,
                     step: medium_step,
                     tiles_x: tiles.tiles_x,
@@ -224,7 +237,6 @@ impl Illumination {
         let point = gpu.submit(QueueRole::Trace, &passes, &[])?;
         gpu.wait(point)?;
         let px: Vec<[f32; 4]> = gpu.read_buffer_as(&pixels)?;
-        drop((starts, items));
         if px.iter().any(|p| p[3] < 0.0) {
             return Err(SolverError::Unsupported(
                 "networks: a pixel's splats ran past the per-invocation loop guard; use fewer networks.particles"

@@ -186,6 +186,7 @@ impl Illumination {
         } else {
             None
         };
+        let lit_table = lit.is_some();
         let inscatter = if anisotropic {
             None
         } else {
@@ -213,7 +214,7 @@ impl Illumination {
                 check: 0,
                 tol: 0.0,
                 emission: emission.code(),
-                lit: tabulates_lit(units, force_full) as u32,
+                lit: lit_table as u32,
             },
             env_dirs,
             step,
@@ -305,11 +306,8 @@ impl Illumination {
         let state = state
             + if modelled.anisotropic { 0 } else { 16 * n }
             + if tabulates_lit(unit_count(scene, env_dirs), force_full) { 16 * n * d } else { 0 };
-        let (size, positions) = ([scene.render.width, scene.render.height], &net.particles.positions);
-        let order = splat_order(&scene.camera, positions);
-        let tile = if force_full { size[0].max(size[1]).max(1) } else { SPLAT_TILE };
-        let reach = 3.0 * (net.particle_radius() as f32 * footprint) as f64;
-        let tiles = SplatTiles::new(&scene.camera, size, positions, &order, reach, tile);
+        let size = [scene.render.width, scene.render.height];
+        let tiles = SplatTiles::of(&scene.camera, size, net, footprint, None, force_full);
         let lists = 4 * tiles.starts.len() as u64 + 4 * tiles.items.len().max(1) as u64;
         let image = 16 * n + lists + 16 * size[0] as u64 * size[1] as u64;
         base + net.build_bytes().max(state + image.max(view))
