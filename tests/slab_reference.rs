@@ -591,7 +591,8 @@ fn voxel_ordinates_match_the_anisotropic_slab_reference() {
 /// scatter.comp scattering the field by the quadrature-normalised, mean-cosine-matched phase
 /// function) reproduces the CPU oracle's `solve_angular` on a heterogeneous grid after thirty
 /// iterations, with the source stored at the swept set and at fewer directions (upsampled), for
-/// forward and backward scattering.
+/// forward and backward scattering, in both of scatter.comp's layouts, on a grid of 210 voxels
+/// (not a whole number of its work groups).
 #[test]
 fn device_anisotropic_iteration_matches_the_cpu_oracle() {
     use crate::common::{assert_clean, gpu};
@@ -624,6 +625,10 @@ fn device_anisotropic_iteration_matches_the_cpu_oracle() {
         // every storage direction (N M = 65536 and 262144): scatter.comp splits them.
         ("product-16x16", "product-16x16", 0.9, Scheme::Characteristics),
         ("product-16x32", "product-16x32", 0.9, Scheme::Characteristics),
+        // scatter.comp's two layouts (local field up to 96 swept directions, else wide) with a
+        // storage set of 15 directions, not a whole number of its blocks of 8.
+        ("s6", "product-3x5", 0.5, Scheme::Characteristics),
+        ("product-8x16", "product-3x5", -0.6, Scheme::Step),
     ] {
         let q = Quadrature::named(swept).unwrap();
         let grid = OrdinatesGrid { scheme, ..grid.clone() };

@@ -16,14 +16,26 @@
 //     energy per voxel), added to what the bounces before gathered. The normalisation makes an
 //     isotropic field gather to its own fluence. G itself is needed only for this view, so
 //     the view's sum is kept (one float per voxel and channel) instead of the M of G.
-// One invocation per voxel and chunk of storage directions (y: chunk, `pc.chunk` directions each),
-// directions in a fixed order: deterministic. The chunks keep an invocation's loop back-edges
-// (about N + chunk (N + 19): src/solvers/dom/ordinates.rs, scatter_chunk) under
-// glsl/include/budget.glsl's LOOP_GUARD: one invocation scattering a
-// voxel into all M directions ran N M of them, and past 65535 llvmpipe ended its loops silently
-// (product-16x16 stored at itself, N M = 65536: the second bounce's fluence 1.3x the CPU
-// oracle's; product-16x32, 262144: 12.6x, the stale first source swept again each iteration).
-// The first chunk also gathers the light toward the camera.
+// Two layouts of the same sums, chosen per render by the swept set's size (pc.wide, the same for
+// every invocation; src/solvers/dom/ordinates.rs, ScatterShape):
+// - N <= MAX_LOCAL (s2-s8): one invocation per voxel reads the voxel's field once into a local
+//   array and sums each storage direction from it;
+// - N > MAX_LOCAL (product-8x16, product-16x32): one invocation per VOXELS voxels reads the
+//   field from the buffer for each block of storage directions.
+// Either way an invocation sums BLOCK storage directions at a time (register blocking): one
+// pass over the field feeds BLOCK accumulators (per voxel), each summing A[s][m] I_s over s in
+// ascending order exactly as one accumulator per direction did, so the sums are the same bits
+// whichever layout, block or chunk. On lavapipe a read from a buffer is a loop over the SIMD
+// lanes (its matrix entries, the same for the whole work group, are cheaper), and it is what
+// the blocks save: product-16x32 stored at itself on the 8^3 cube went from 1.10 s a pass
+// (a direction at a time) to 0.13 s (docs/dom.md, "The scattering pass").
+// Storage directions come in chunks of `pc.chunk` (work group y) that keep an invocation's loop
+// back-edges under glsl/include/budget.glsl's LOOP_GUARD (src/solvers/dom/ordinates.rs,
+// scatter_shape): one invocation scattering a voxel into all M directions ran N M of them, and
+// past 65535 llvmpipe ended its loops silently (product-16x16 stored at itself, N M = 65536: the
+// second bounce's fluence 1.3x the CPU oracle's; product-16x32, 262144: 12.6x, the stale first
+// source swept again each iteration). The first chunk also gathers the light toward the camera.
+// Directions in a fixed order: deterministic.
 #extension GL_GOOGLE_include_directive : require
 #include "../include/phase.glsl"
 
@@ -31,8 +43,13 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 // After the work group size: linear.glsl reads gl_WorkGroupSize.
 #include "../include/linear.glsl"
 
-// Directions whose field a voxel keeps in a local array (s8 has 80).
+// Directions whose field a voxel keeps in a local array (s8 has 80). A local array of 512
+// (product-16x32) was slower than the wide layout: 0.56 against 0.13 s a pass.
 const uint MAX_LOCAL = 96u;
+// Storage directions an invocation sums in one pass over the field.
+const uint BLOCK = 8u;
+// Voxels of a wide invocation: 64 apart, in its work group's run of 64 VOXELS.
+const uint VOXELS = 8u;
 
 layout(std430, binding = 0) readonly buffer Field { float field[]; };     // [octant][its direction][voxel]
 layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };        // by octant: xyz, w weight (sr)
@@ -59,86 +76,159 @@ layout(push_constant) uniform Push {
     float peak_share; // dom.delta_m: HG(g)'s mass within the cone of peak_cos (0: no split)
     float peak_cos;   // the cone about the camera's direction within which the field is interpolated
     float pad_f;
-    uint pad0, pad1, pad2;
+    uint wide;        // 1: the wide layout (N > MAX_LOCAL; src/solvers/dom/ordinates.rs, scatter_shape)
+    uint pad1, pad2;
 } pc;
 
-void main() {
-    if (ctrl_stopped != 0u) return;
+float local_field[MAX_LOCAL];
+
+// Gather voxel v's light toward the camera (first chunk) and, in the local layout, read its
+// field into local_field.
+void gather(uint v, uint V, uint c, bool first_chunk) {
+    ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
+    vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
+    vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+    float gathered = 0.0, norm = 0.0;
+    // With dom.delta_m the gather splits HG(g) at a cone about the camera's direction o, the
+    // set's covering radius (peak_cos): its mass inside the cone, peak_share (HG's own
+    // distribution), is the field interpolated at o from the directions inside it; outside,
+    // where the set resolves the lobe, HG(g) weighs the field as before, normalised to the
+    // rest of the mass. HG(g) normalised on the whole set weighs the far field by
+    // 1 / sum w p too much wherever the lobe is narrower than the set's spacing and o falls
+    // between directions: at g 0.99 on product-16x32 the light scattered more than once toward
+    // a back-lit camera came out 1.9x path's energy.
+    float peak = 0.0, peak_norm = 0.0;
+    bool split = pc.peak_share > 0.0;
+    for (uint o = 0u; o < 8u; ++o) {
+        uint packed = pc.octants[o / 4u][o % 4u];
+        uint first_dir = packed & 0xffffu, count = packed >> 16;
+        for (uint k = 0u; k < count; ++k) {
+            vec4 d = dirs[first_dir + k];
+            float radiance = field[(o * pc.slots + k) * V + v];
+            if (pc.wide == 0u) local_field[first_dir + k] = radiance;
+            float cos_eye = dot(d.xyz, to_eye);
+            if (split && cos_eye > pc.peak_cos) {
+                float wp = d.w * (cos_eye - pc.peak_cos);
+                peak += wp * radiance;
+                peak_norm += wp;
+            } else {
+                float w = d.w * hg_eval(pc.g, cos_eye);
+                gathered += w * radiance;
+                norm += w;
+            }
+        }
+    }
+    // The gathered light is kept where nothing scatters too: the view pass interpolates
+    // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
+    if (first_chunk && split && peak_norm > 0.0) {
+        float rest = norm > 0.0 ? gathered / norm : peak / peak_norm;
+        float light = pc.peak_share * peak / peak_norm + (1.0 - pc.peak_share) * rest;
+        camera[c * V + v] += 4.0 * PI * light * pc.grid.w * pc.grid.w;
+    } else if (first_chunk && norm > 0.0) {
+        camera[c * V + v] += 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w;
+    }
+}
+
+// The block's columns of A from storage direction m; past the last direction (M not a multiple
+// of BLOCK) they repeat it, and those sums are not stored.
+void block_columns(uint m, uint M, out uvec4 lo, out uvec4 hi) {
+    lo = min(uvec4(m) + uvec4(0u, 1u, 2u, 3u), uvec4(M - 1u));
+    hi = min(uvec4(m) + uvec4(4u, 5u, 6u, 7u), uvec4(M - 1u));
+}
+
+// Source of storage direction `row` ([c][m]) at voxel v: sigma_s times its sum, and 0 where
+// nothing scatters (no source for the next bounce).
+void store(uint row, uint v, uint V, float sigma, float sum) {
+    source[row * V + v] = sigma > 0.0 ? sigma * sum : 0.0;
+}
+
+// One voxel an invocation, its field in local_field.
+void scatter_local(uint V, uint M, uint N, uint c, uint m0, uint m1) {
     uint v = linear_id_z();
-    uint V = pc.dims.w;
     if (v >= V) return;
-    uint M = pc.storage;
-    uint N = pc.directions;
-    uint c = pc.channel;
-    uint m0 = gl_GlobalInvocationID.y * pc.chunk;
-    if (m0 >= M) return;
-    uint m1 = min(M, m0 + pc.chunk);
-    bool first_chunk = m0 == 0u;
-    bool local = N <= MAX_LOCAL;
     float sigma = sigma_s[c * V + v];
-    // The voxel's field, read once (in direction order) when it fits the local array.
-    float local_field[MAX_LOCAL];
-    if (first_chunk || (local && sigma > 0.0)) {
-        ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
-        vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
-        vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
-        float gathered = 0.0, norm = 0.0;
-        // With dom.delta_m the gather splits HG(g) at a cone about the camera's direction o, the
-        // set's covering radius (peak_cos): its mass inside the cone, peak_share (HG's own
-        // distribution), is the field interpolated at o from the directions inside it; outside,
-        // where the set resolves the lobe, HG(g) weighs the field as before, normalised to the
-        // rest of the mass. HG(g) normalised on the whole set weighs the far field by
-        // 1 / sum w p too much wherever the lobe is narrower than the set's spacing and o falls
-        // between directions: at g 0.99 on product-16x32 the light scattered more than once toward
-        // a back-lit camera came out 1.9x path's energy.
-        float peak = 0.0, peak_norm = 0.0;
-        bool split = pc.peak_share > 0.0;
+    if (m0 == 0u || sigma > 0.0) gather(v, V, c, m0 == 0u);
+    if (sigma <= 0.0) {
+        for (uint m = m0; m < m1; ++m) store(c * M + m, v, V, sigma, 0.0);
+        return;
+    }
+    for (uint m = m0; m < m1; m += BLOCK) {
+        uvec4 lo, hi;
+        block_columns(m, M, lo, hi);
+        vec4 sum_lo = vec4(0.0), sum_hi = vec4(0.0);
+        for (uint s = 0u; s < N; ++s) {
+            float radiance = local_field[s];
+            uint row = s * M;
+            sum_lo += vec4(scatter[row + lo.x], scatter[row + lo.y], scatter[row + lo.z], scatter[row + lo.w]) * radiance;
+            sum_hi += vec4(scatter[row + hi.x], scatter[row + hi.y], scatter[row + hi.z], scatter[row + hi.w]) * radiance;
+        }
+        for (uint b = 0u; b < BLOCK; ++b)
+            if (m + b < m1) store(c * M + m + b, v, V, sigma, b < 4u ? sum_lo[b] : sum_hi[b - 4u]);
+    }
+}
+
+// One storage direction's sums at the wide invocation's voxels (v0 + 64 j, j < VOXELS).
+void store_wide(uint row, uint v0, uint V, uint c, vec4 lo, vec4 hi) {
+    for (uint j = 0u; j < VOXELS; ++j) {
+        uint v = v0 + 64u * j;
+        if (v >= V) return;
+        store(row, v, V, sigma_s[c * V + v], j < 4u ? lo[j] : hi[j - 4u]);
+    }
+}
+
+// Column i of the block (matrix entry a) times the field of the wide invocation's voxels
+// (f_lo: voxels 0-3, f_hi: 4-7), into acc_lo[i] and acc_hi[i]. Every index constant, so the
+// accumulators stay in registers (an array indexed at run time lives in memory, which llvmpipe
+// reads lane by lane).
+#define COLUMN(i, a) { float a_ = (a); acc_lo[i] += a_ * f_lo; acc_hi[i] += a_ * f_hi; }
+#define STORE(i) if (m + i < m1) store_wide(c * M + m + i, v0, V, c, acc_lo[i], acc_hi[i]);
+
+// VOXELS voxels an invocation, the field read from the buffer once per block.
+void scatter_wide(uint V, uint M, uint c, uint m0, uint m1) {
+    uint id = linear_id_z();
+    uint v0 = (id / 64u) * 64u * VOXELS + id % 64u;
+    if (v0 >= V) return;
+    if (m0 == 0u) {
+        for (uint j = 0u; j < VOXELS; ++j) {
+            if (v0 + 64u * j >= V) break;
+            gather(v0 + 64u * j, V, c, true);
+        }
+    }
+    // Voxels past the grid's end read the last one's field and store nothing.
+    uvec4 vox_lo = min(uvec4(v0) + 64u * uvec4(0u, 1u, 2u, 3u), uvec4(V - 1u));
+    uvec4 vox_hi = min(uvec4(v0) + 64u * uvec4(4u, 5u, 6u, 7u), uvec4(V - 1u));
+    for (uint m = m0; m < m1; m += BLOCK) {
+        uvec4 lo, hi;
+        block_columns(m, M, lo, hi);
+        vec4 acc_lo[BLOCK] = vec4[BLOCK](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
+        vec4 acc_hi[BLOCK] = acc_lo;
         for (uint o = 0u; o < 8u; ++o) {
             uint packed = pc.octants[o / 4u][o % 4u];
             uint first_dir = packed & 0xffffu, count = packed >> 16;
             for (uint k = 0u; k < count; ++k) {
-                vec4 d = dirs[first_dir + k];
-                float radiance = field[(o * pc.slots + k) * V + v];
-                if (local) local_field[first_dir + k] = radiance;
-                float cos_eye = dot(d.xyz, to_eye);
-                if (split && cos_eye > pc.peak_cos) {
-                    float wp = d.w * (cos_eye - pc.peak_cos);
-                    peak += wp * radiance;
-                    peak_norm += wp;
-                } else {
-                    float w = d.w * hg_eval(pc.g, cos_eye);
-                    gathered += w * radiance;
-                    norm += w;
-                }
+                uint f = (o * pc.slots + k) * V;
+                vec4 f_lo = vec4(field[f + vox_lo.x], field[f + vox_lo.y], field[f + vox_lo.z], field[f + vox_lo.w]);
+                vec4 f_hi = vec4(field[f + vox_hi.x], field[f + vox_hi.y], field[f + vox_hi.z], field[f + vox_hi.w]);
+                uint row = (first_dir + k) * M;
+                COLUMN(0, scatter[row + lo.x]) COLUMN(1, scatter[row + lo.y]) COLUMN(2, scatter[row + lo.z]) COLUMN(3, scatter[row + lo.w])
+                COLUMN(4, scatter[row + hi.x]) COLUMN(5, scatter[row + hi.y]) COLUMN(6, scatter[row + hi.z]) COLUMN(7, scatter[row + hi.w])
             }
         }
-        // The gathered light is kept where nothing scatters too: the view pass interpolates
-        // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
-        if (first_chunk && split && peak_norm > 0.0) {
-            float rest = norm > 0.0 ? gathered / norm : peak / peak_norm;
-            float light = pc.peak_share * peak / peak_norm + (1.0 - pc.peak_share) * rest;
-            camera[c * V + v] += 4.0 * PI * light * pc.grid.w * pc.grid.w;
-        } else if (first_chunk && norm > 0.0) {
-            camera[c * V + v] += 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w;
-        }
+        STORE(0) STORE(1) STORE(2) STORE(3) STORE(4) STORE(5) STORE(6) STORE(7)
     }
-    if (sigma <= 0.0) {
-        // Nothing scatters here: no source for the next bounce.
-        for (uint m = m0; m < m1; ++m) source[(c * M + m) * V + v] = 0.0;
-        return;
-    }
-    for (uint m = m0; m < m1; ++m) {
-        float scattered = 0.0;
-        if (local) {
-            for (uint s = 0u; s < N; ++s) scattered += scatter[s * M + m] * local_field[s];
-        } else {
-            for (uint o = 0u; o < 8u; ++o) {
-                uint packed = pc.octants[o / 4u][o % 4u];
-                uint first_dir = packed & 0xffffu, count = packed >> 16;
-                for (uint k = 0u; k < count; ++k)
-                    scattered += scatter[(first_dir + k) * M + m] * field[(o * pc.slots + k) * V + v];
-            }
-        }
-        source[(c * M + m) * V + v] = sigma * scattered;
+}
+
+void main() {
+    if (ctrl_stopped != 0u) return;
+    // The chunk is the work group's (gl_WorkGroupID.y, the same for all its invocations): the
+    // matrix entries each pass reads are then the same for the whole group.
+    uint M = pc.storage;
+    uint m0 = gl_WorkGroupID.y * pc.chunk;
+    if (m0 >= M) return;
+    uint m1 = min(M, m0 + pc.chunk);
+    if (pc.wide != 0u) {
+        scatter_wide(pc.dims.w, M, pc.channel, m0, m1);
+    } else {
+        scatter_local(pc.dims.w, M, pc.directions, pc.channel, m0, m1);
     }
 }
