@@ -26,10 +26,12 @@
 //   carried by the columns like all other light.
 // Deterministic: fixed order; the one atomic is a max (order-free).
 //
-// An isotropic medium (ANISOTROPIC false: every g is 0, scene.glsl's constant) has one value
-// in P, so the in-scattering sum is the same for every direction out of vp: it is summed once
-// per particle per iteration (networks/inscatter.comp) and read here, N D work instead of
-// N D^2, the same f32 sum bit for bit. And where the lights are more than one unit (pc.lit),
+// The in-scattering sums sum_d I[vp][d] P[d][i] come from networks/inscatter.comp, the same
+// f32 sums bit for bit: an isotropic medium (ANISOTROPIC false: every g is 0, scene.glsl's
+// constant) has one value in P, so the sum is the same for every direction out of vp and is
+// summed once per particle per iteration, N D work instead of N D^2; an anisotropic one's
+// (pc.summed) once per particle and direction, with the particle's I read once per block of
+// directions instead of once per link. `--model-all` keeps the sum in the link. And where the lights are more than one unit (pc.lit),
 // their light scattered at vp into i is read from networks/lit.comp's table, summed once per
 // light position, instead of summed over the units on every iteration.
 //
@@ -76,8 +78,8 @@ layout(std430, binding = 8) readonly buffer Emitted { vec4 emitted[]; };
 // [p][i]: rgb E, the emission arriving unscattered at p scattered into direction i
 // (networks/arrive.comp); a placeholder, never read, unless pc.emission is EMIT_MARCHED.
 layout(std430, binding = 9) readonly buffer Scattered { vec4 scattered_emission[]; };
-// [p]: sum_d I[p][d] P[d][i], the same for every i (networks/inscatter.comp); a placeholder,
-// never read, where ANISOTROPIC.
+// sum_d I[p][d] P[d][i] (networks/inscatter.comp): [p], the same for every i, where not
+// ANISOTROPIC; [p][i] where pc.summed; else a placeholder, never read.
 layout(std430, binding = 10) readonly buffer Inscattered { vec4 inscattered[]; };
 // [p][i]: sum_j L_j(p) p(w_j . w_i) (networks/lit.comp); a placeholder, never read, unless pc.lit.
 layout(std430, binding = 11) readonly buffer Lit { vec4 lit_table[]; };
@@ -93,6 +95,7 @@ layout(push_constant) uniform Push {
     float tol;       // largest change per iteration, relative to the largest I'
     uint emission;   // with EMISSION: EMIT_PARTICLES or EMIT_MARCHED
     uint lit;        // 1: the lights' scattered light from lit_table, not summed over the units
+    uint summed;     // 1 (ANISOTROPIC): the in-scattering sums [p][i] from inscattered
 } pc;
 
 // How the medium's emission enters (`networks.emission`): each upstream particle's own
@@ -115,7 +118,9 @@ vec3 step_one(uint p, uint i) {
     float g = scene.materials[0].albedo.w;
     vec3 lit = pc.lit != 0u ? lit_table[vp * D + i].rgb : lights_scattered(vp, pc.units, g, wi);
     vec3 scattered = vec3(0.0);
-    if (ANISOTROPIC) {
+    if (ANISOTROPIC && pc.summed != 0u) {
+        scattered = inscattered[vp * D + i].rgb;
+    } else if (ANISOTROPIC) {
         for (uint d = 0u; d < D; ++d) scattered += current[vp * D + d].rgb * phase[d * D + i];
     } else {
         scattered = inscattered[vp].rgb;

@@ -48,6 +48,22 @@ pub fn tabulates_lit(units: u32, force_full: bool) -> bool {
     units > 1 && !force_full
 }
 
+/// In-scattering sums glsl/networks/inscatter.comp takes per particle each iteration for `d`
+/// directions: one where the medium is isotropic (the same for every direction out), `d` where
+/// it is anisotropic, none with `force_full` on an anisotropic medium (`--model-all`: the
+/// iteration keeps the sum in each link, the general kernel the others are held to).
+pub fn inscatter_outputs(anisotropic: bool, force_full: bool, d: u32) -> u32 {
+    match (anisotropic, force_full) {
+        (false, _) => 1,
+        (true, false) => d,
+        (true, true) => 0,
+    }
+}
+
+/// inscatter.comp's `BLOCK`: directions one anisotropic invocation sums in a pass over its
+/// particle's I.
+const INSCATTER_BLOCK: u32 = 8;
+
 /// What one submitted batch of iterations did ([`Illumination::batch`]).
 pub(super) struct BatchRun {
     /// Per iteration that ran: its change relative to the largest I (NaN at a fault).
@@ -84,9 +100,10 @@ pub struct Illumination {
     /// Which of `field` holds the current I.
     pub(super) current: usize,
     pub(super) pipeline: crate::gpu::Pipeline,
-    /// An isotropic medium's in-scattering pass and its per-particle sums (16 N bytes): the
-    /// iteration then reads one sum per link instead of summing D values
-    /// (glsl/networks/inscatter.comp). None where some g is not 0 (or `--model-all`).
+    /// The in-scattering pass and its sums (glsl/networks/inscatter.comp; 16 N bytes for an
+    /// isotropic medium, 16 N D for an anisotropic one, [`inscatter_outputs`]): the iteration
+    /// then reads one sum per link instead of summing D values. None with `--model-all` on an
+    /// anisotropic medium (the sum stays in the link).
     pub(super) inscatter: Option<(crate::gpu::Pipeline, Buffer)>,
     /// Where the lights are more than one unit: the table of their light scattered at each
     /// particle into each direction (16 N D bytes), summed once per light position
@@ -187,10 +204,13 @@ impl Illumination {
             None
         };
         let lit_table = lit.is_some();
-        let inscatter = if anisotropic {
-            None
-        } else {
-            Some((gpu.pipeline(&INSCATTER, &[])?, gpu.buffer("networks in-scattering sums", 16 * n as u64)?))
+        let outputs = inscatter_outputs(anisotropic, force_full, d);
+        let inscatter = match outputs {
+            0 => None,
+            k => Some((
+                gpu.pipeline(&INSCATTER, &[])?,
+                gpu.buffer("networks in-scattering sums", 16 * n as u64 * k as u64)?,
+            )),
         };
         let state = Illumination {
             inscatter,
@@ -215,6 +235,7 @@ impl Illumination {
                 tol: 0.0,
                 emission: emission.code(),
                 lit: lit_table as u32,
+                summed: (anisotropic && outputs > 0) as u32,
             },
             env_dirs,
             step,
@@ -304,7 +325,7 @@ impl Illumination {
             + 2 * 16 * n * d
             + crate::solvers::parts::feedback::Feedback::bytes(4 * STATS_WORDS);
         let state = state
-            + if modelled.anisotropic { 0 } else { 16 * n }
+            + 16 * n * inscatter_outputs(modelled.anisotropic, force_full, d as u32) as u64
             + if tabulates_lit(unit_count(scene, env_dirs), force_full) { 16 * n * d } else { 0 };
         let size = [scene.render.width, scene.render.height];
         let tiles = SplatTiles::of(&scene.camera, size, net, footprint, None, force_full);
@@ -365,7 +386,8 @@ impl Illumination {
             // The placeholder where the medium is anisotropic: the kernel never reads it.
             let sums = match &self.inscatter {
                 Some((pipeline, sums)) => {
-                    let push = InscatterPush { particles: self.push.particles, directions: d, check };
+                    let outputs = if self.push.summed != 0 { d } else { 1 };
+                    let push = InscatterPush { particles: self.push.particles, directions: d, check, outputs };
                     passes.push(
                         Pass::new("networks.inscatter", QueueRole::Diffuse, pipeline)
                             .read(0, &self.field[from])
@@ -373,7 +395,7 @@ impl Illumination {
                             .write(2, sums)
                             .read(3, self.stats.record())
                             .push(&push)
-                            .cover([self.push.particles, 1, 1]),
+                            .cover([self.push.particles, outputs.div_ceil(INSCATTER_BLOCK), 1]),
                     );
                     sums
                 }

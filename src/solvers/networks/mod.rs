@@ -183,6 +183,9 @@ struct IteratePush {
     emission: u32,
     /// 1: the lights' scattered light comes from the table glsl/networks/lit.comp made.
     lit: u32,
+    /// 1: an anisotropic medium's in-scattering sums come from glsl/networks/inscatter.comp's
+    /// table [p][i].
+    summed: u32,
 }
 
 /// glsl/networks/inscatter.comp's push constants.
@@ -193,6 +196,8 @@ struct InscatterPush {
     directions: u32,
     /// 1: return at once where the batch has stopped on the device.
     check: u32,
+    /// Directions summed per particle: 1 (isotropic) or D ([`inscatter_outputs`]).
+    outputs: u32,
 }
 
 /// How the medium's emission enters the network (`networks.emission`, issue 47).
