@@ -31,9 +31,10 @@
 // constant) has one value in P, so the sum is the same for every direction out of vp and is
 // summed once per particle per iteration, N D work instead of N D^2; an anisotropic one's
 // (pc.summed) once per particle and direction, with the particle's I read once per block of
-// directions instead of once per link. `--model-all` keeps the sum in the link. And where the lights are more than one unit (pc.lit),
-// their light scattered at vp into i is read from networks/lit.comp's table, summed once per
-// light position, instead of summed over the units on every iteration.
+// directions instead of once per link. `--model-all` keeps the sum in the link. And where the
+// lights are more than one unit (pc.lit), their light scattered at vp into i is read from
+// networks/lit.comp's table, summed once per light position, instead of summed over the units
+// on every iteration.
 //
 // Convergence is judged on the device: each workgroup reduces, in shared memory, the largest
 // change |I' - I| and the largest I' over its invocations and channels, and one atomicMax per

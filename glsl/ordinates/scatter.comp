@@ -167,12 +167,13 @@ void scatter_local(uint V, uint M, uint N, uint c, uint m0, uint m1) {
     }
 }
 
-// One storage direction's sums at the wide invocation's voxels (v0 + 64 j, j < VOXELS).
-void store_wide(uint row, uint v0, uint V, uint c, vec4 lo, vec4 hi) {
+// One storage direction's sums at the wide invocation's voxels (v0 + 64 j, j < VOXELS), whose
+// sigma_s are sigma_lo (voxels 0-3) and sigma_hi (4-7).
+void store_wide(uint row, uint v0, uint V, vec4 sigma_lo, vec4 sigma_hi, vec4 lo, vec4 hi) {
     for (uint j = 0u; j < VOXELS; ++j) {
         uint v = v0 + 64u * j;
         if (v >= V) return;
-        store(row, v, V, sigma_s[c * V + v], j < 4u ? lo[j] : hi[j - 4u]);
+        store(row, v, V, j < 4u ? sigma_lo[j] : sigma_hi[j - 4u], j < 4u ? lo[j] : hi[j - 4u]);
     }
 }
 
@@ -181,7 +182,7 @@ void store_wide(uint row, uint v0, uint V, uint c, vec4 lo, vec4 hi) {
 // accumulators stay in registers (an array indexed at run time lives in memory, which llvmpipe
 // reads lane by lane).
 #define COLUMN(i, a) { float a_ = (a); acc_lo[i] += a_ * f_lo; acc_hi[i] += a_ * f_hi; }
-#define STORE(i) if (m + i < m1) store_wide(c * M + m + i, v0, V, c, acc_lo[i], acc_hi[i]);
+#define STORE(i) if (m + i < m1) store_wide(c * M + m + i, v0, V, sigma_lo, sigma_hi, acc_lo[i], acc_hi[i]);
 
 // VOXELS voxels an invocation, the field read from the buffer once per block.
 void scatter_wide(uint V, uint M, uint c, uint m0, uint m1) {
@@ -197,6 +198,9 @@ void scatter_wide(uint V, uint M, uint c, uint m0, uint m1) {
     // Voxels past the grid's end read the last one's field and store nothing.
     uvec4 vox_lo = min(uvec4(v0) + 64u * uvec4(0u, 1u, 2u, 3u), uvec4(V - 1u));
     uvec4 vox_hi = min(uvec4(v0) + 64u * uvec4(4u, 5u, 6u, 7u), uvec4(V - 1u));
+    // Their sigma_s, read once for every block's stores.
+    vec4 sigma_lo = vec4(sigma_s[c * V + vox_lo.x], sigma_s[c * V + vox_lo.y], sigma_s[c * V + vox_lo.z], sigma_s[c * V + vox_lo.w]);
+    vec4 sigma_hi = vec4(sigma_s[c * V + vox_hi.x], sigma_s[c * V + vox_hi.y], sigma_s[c * V + vox_hi.z], sigma_s[c * V + vox_hi.w]);
     for (uint m = m0; m < m1; m += BLOCK) {
         uvec4 lo, hi;
         block_columns(m, M, lo, hi);

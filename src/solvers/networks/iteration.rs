@@ -383,7 +383,7 @@ impl Illumination {
             let (from, to) = ((self.current + j) % 2, (self.current + j + 1) % 2);
             let check = (tol.is_some() && j > 0) as u32;
             let push = IteratePush { slot: j as u32, check, tol: tol.unwrap_or(0.0), ..self.push };
-            // The placeholder where the medium is anisotropic: the kernel never reads it.
+            // The placeholder with `--model-all` on an anisotropic medium: the kernel never reads it.
             let sums = match &self.inscatter {
                 Some((pipeline, sums)) => {
                     let outputs = if self.push.summed != 0 { d } else { 1 };
