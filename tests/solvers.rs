@@ -612,8 +612,8 @@ fn majorant_cell_changes_the_cost_not_the_answer() {
 
 /// The shadow volume with a large sky quadrature: the units of a step resume across dispatches
 /// when the loop budget runs out mid-step (64 directions, a small budget) and give the marched
-/// image; past 2^27 bytes (what every device binds) `auto` marches and `volume` is refused
-/// with the knob named.
+/// image, and the same bits as without the pause; past 2^27 bytes (what every device binds)
+/// `auto` marches and `volume` is refused with the knob named.
 #[test]
 fn shadow_volume_resumes_within_the_budget_and_falls_back_when_too_large() {
     let gpu = gpu();
@@ -623,6 +623,13 @@ fn shadow_volume_resumes_within_the_budget_and_falls_back_when_too_large() {
     let march = render(&gpu, &s, SINGLE, &[sky[0], sky[1], ("single.shadow", "march")]);
     let m = scatterlab::output::compare(&vol.image, &march.image).unwrap();
     assert!(m.rel_l2 < 0.01, "64-direction sky, budget 300: volume vs march {m:?}");
+    // The step's units summed in the same order whichever dispatch adds them: resuming mid-step
+    // (and mid-light: the sky's 64 units) changes no bit. At budget 40 a step's units take
+    // several dispatches (157 passes against 5 at the default).
+    let whole = render(&gpu, &s, SINGLE, &[sky[0], ("single.shadow", "volume")]).image.data;
+    let tight = render(&gpu, &s, SINGLE, &[sky[0], ("single.budget", "40"), ("single.shadow", "volume")]).image.data;
+    assert!(vol.image.data == whole, "budget 300: the image differs from the default budget's");
+    assert!(tight == whole, "budget 40: the image differs from the default budget's");
     // 601 units x 64^3 voxels x 4 bytes = 630 MB.
     let big = [("single.env_dirs", "600"), ("single.budget", "4000")];
     let auto = render(&gpu, &s, SINGLE, &big);
