@@ -16,19 +16,16 @@
 //     energy per voxel), added to what the bounces before gathered. The normalisation makes an
 //     isotropic field gather to its own fluence. G itself is needed only for this view, so
 //     the view's sum is kept (one float per voxel and channel) instead of the M of G.
-// Two layouts of the same sums, chosen per render by the swept set's size (pc.wide, the same for
-// every invocation; src/solvers/dom/ordinates.rs, ScatterShape):
-// - N <= MAX_LOCAL (s2-s8): one invocation per voxel reads the voxel's field once into a local
-//   array and sums each storage direction from it;
-// - N > MAX_LOCAL (product-8x16, product-16x32): one invocation per VOXELS voxels reads the
-//   field from the buffer for each block of storage directions.
-// Either way an invocation sums BLOCK storage directions at a time (register blocking): one
-// pass over the field feeds BLOCK accumulators (per voxel), each summing A[s][m] I_s over s in
-// ascending order exactly as one accumulator per direction did, so the sums are the same bits
-// whichever layout, block or chunk. On lavapipe a read from a buffer is a loop over the SIMD
-// lanes (its matrix entries, the same for the whole work group, are cheaper), and it is what
-// the blocks save: product-16x32 stored at itself on the 8^3 cube went from 1.10 s a pass
-// (a direction at a time) to 0.13 s (docs/dom.md, "The scattering pass").
+// One invocation takes VOXELS consecutive voxels and sums BLOCK storage directions at a time in
+// registers (register blocking): one read of the field feeds BLOCK accumulators, and one read of
+// a matrix entry (the same for the whole work group) feeds VOXELS voxels. Each accumulator sums
+// A[s][m] I_s over s in ascending order exactly as one accumulator per direction and voxel did,
+// so the sums are the same bits whatever the block or chunk. On lavapipe a read from a buffer is
+// a loop over the SIMD lanes, and it is what the blocks save: product-16x32 stored at itself on
+// the 8^3 cube went from 1.10 s a pass (a direction at a time) to 0.13 s (docs/dom.md, "The
+// scattering pass"). Consecutive voxels, so that where nothing scatters (a cloud's empty edges)
+// whole invocations store zeros and return; up to s8 an invocation per voxel with its field in a
+// local array was the layout until 2026-12-07, 1.5-2.5x slower (the same docs).
 // Storage directions come in chunks of `pc.chunk` (work group y) that keep an invocation's loop
 // back-edges under glsl/include/budget.glsl's LOOP_GUARD (src/solvers/dom/ordinates.rs,
 // scatter_shape): one invocation scattering a voxel into all M directions ran N M of them, and
@@ -43,12 +40,9 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 // After the work group size: linear.glsl reads gl_WorkGroupSize.
 #include "../include/linear.glsl"
 
-// Directions whose field a voxel keeps in a local array (s8 has 80). A local array of 512
-// (product-16x32) was slower than the wide layout: 0.56 against 0.13 s a pass.
-const uint MAX_LOCAL = 96u;
 // Storage directions an invocation sums in one pass over the field.
 const uint BLOCK = 8u;
-// Voxels of a wide invocation: 64 apart, in its work group's run of 64 VOXELS.
+// Consecutive voxels an invocation takes.
 const uint VOXELS = 8u;
 
 layout(std430, binding = 0) readonly buffer Field { float field[]; };     // [octant][its direction][voxel]
@@ -76,14 +70,10 @@ layout(push_constant) uniform Push {
     float peak_share; // dom.delta_m: HG(g)'s mass within the cone of peak_cos (0: no split)
     float peak_cos;   // the cone about the camera's direction within which the field is interpolated
     float pad_f;
-    uint wide;        // 1: the wide layout (N > MAX_LOCAL; src/solvers/dom/ordinates.rs, scatter_shape)
-    uint pad1, pad2;
+    uint pad0, pad1, pad2;
 } pc;
 
-float local_field[MAX_LOCAL];
-
-// Gather voxel v's light toward the camera (first chunk) and, in the local layout, read its
-// field into local_field.
+// Gather voxel v's light toward the camera (the first chunk's invocations).
 void gather(uint v, uint V, uint c, bool first_chunk) {
     ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
     vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
@@ -105,7 +95,6 @@ void gather(uint v, uint V, uint c, bool first_chunk) {
         for (uint k = 0u; k < count; ++k) {
             vec4 d = dirs[first_dir + k];
             float radiance = field[(o * pc.slots + k) * V + v];
-            if (pc.wide == 0u) local_field[first_dir + k] = radiance;
             float cos_eye = dot(d.xyz, to_eye);
             if (split && cos_eye > pc.peak_cos) {
                 float wp = d.w * (cos_eye - pc.peak_cos);
@@ -142,65 +131,45 @@ void store(uint row, uint v, uint V, float sigma, float sum) {
     source[row * V + v] = sigma > 0.0 ? sigma * sum : 0.0;
 }
 
-// One voxel an invocation, its field in local_field.
-void scatter_local(uint V, uint M, uint N, uint c, uint m0, uint m1) {
-    uint v = linear_id_z();
-    if (v >= V) return;
-    float sigma = sigma_s[c * V + v];
-    if (m0 == 0u || sigma > 0.0) gather(v, V, c, m0 == 0u);
-    if (sigma <= 0.0) {
-        for (uint m = m0; m < m1; ++m) store(c * M + m, v, V, sigma, 0.0);
-        return;
-    }
-    for (uint m = m0; m < m1; m += BLOCK) {
-        uvec4 lo, hi;
-        block_columns(m, M, lo, hi);
-        vec4 sum_lo = vec4(0.0), sum_hi = vec4(0.0);
-        for (uint s = 0u; s < N; ++s) {
-            float radiance = local_field[s];
-            uint row = s * M;
-            sum_lo += vec4(scatter[row + lo.x], scatter[row + lo.y], scatter[row + lo.z], scatter[row + lo.w]) * radiance;
-            sum_hi += vec4(scatter[row + hi.x], scatter[row + hi.y], scatter[row + hi.z], scatter[row + hi.w]) * radiance;
-        }
-        for (uint b = 0u; b < BLOCK; ++b)
-            if (m + b < m1) store(c * M + m + b, v, V, sigma, b < 4u ? sum_lo[b] : sum_hi[b - 4u]);
-    }
-}
-
-// One storage direction's sums at the wide invocation's voxels (v0 + 64 j, j < VOXELS), whose
-// sigma_s are sigma_lo (voxels 0-3) and sigma_hi (4-7).
-void store_wide(uint row, uint v0, uint V, vec4 sigma_lo, vec4 sigma_hi, vec4 lo, vec4 hi) {
+// One storage direction's sums at the invocation's voxels (v0 + j, j < VOXELS), whose sigma_s
+// are sigma_lo (voxels 0-3) and sigma_hi (4-7).
+void store_voxels(uint row, uint v0, uint V, vec4 sigma_lo, vec4 sigma_hi, vec4 lo, vec4 hi) {
     for (uint j = 0u; j < VOXELS; ++j) {
-        uint v = v0 + 64u * j;
+        uint v = v0 + j;
         if (v >= V) return;
         store(row, v, V, j < 4u ? sigma_lo[j] : sigma_hi[j - 4u], j < 4u ? lo[j] : hi[j - 4u]);
     }
 }
 
-// Column i of the block (matrix entry a) times the field of the wide invocation's voxels
+// Column i of the block (matrix entry a) times the field of the invocation's voxels
 // (f_lo: voxels 0-3, f_hi: 4-7), into acc_lo[i] and acc_hi[i]. Every index constant, so the
 // accumulators stay in registers (an array indexed at run time lives in memory, which llvmpipe
 // reads lane by lane).
 #define COLUMN(i, a) { float a_ = (a); acc_lo[i] += a_ * f_lo; acc_hi[i] += a_ * f_hi; }
-#define STORE(i) if (m + i < m1) store_wide(c * M + m + i, v0, V, sigma_lo, sigma_hi, acc_lo[i], acc_hi[i]);
+#define STORE(i) if (m + i < m1) store_voxels(c * M + m + i, v0, V, sigma_lo, sigma_hi, acc_lo[i], acc_hi[i]);
 
 // VOXELS voxels an invocation, the field read from the buffer once per block.
-void scatter_wide(uint V, uint M, uint c, uint m0, uint m1) {
+void scatter_voxels(uint V, uint M, uint c, uint m0, uint m1) {
     uint id = linear_id_z();
-    uint v0 = (id / 64u) * 64u * VOXELS + id % 64u;
+    uint v0 = id * VOXELS;
     if (v0 >= V) return;
     if (m0 == 0u) {
         for (uint j = 0u; j < VOXELS; ++j) {
-            if (v0 + 64u * j >= V) break;
-            gather(v0 + 64u * j, V, c, true);
+            if (v0 + j >= V) break;
+            gather(v0 + j, V, c, true);
         }
     }
     // Voxels past the grid's end read the last one's field and store nothing.
-    uvec4 vox_lo = min(uvec4(v0) + 64u * uvec4(0u, 1u, 2u, 3u), uvec4(V - 1u));
-    uvec4 vox_hi = min(uvec4(v0) + 64u * uvec4(4u, 5u, 6u, 7u), uvec4(V - 1u));
+    uvec4 vox_lo = min(uvec4(v0) + uvec4(0u, 1u, 2u, 3u), uvec4(V - 1u));
+    uvec4 vox_hi = min(uvec4(v0) + uvec4(4u, 5u, 6u, 7u), uvec4(V - 1u));
     // Their sigma_s, read once for every block's stores.
     vec4 sigma_lo = vec4(sigma_s[c * V + vox_lo.x], sigma_s[c * V + vox_lo.y], sigma_s[c * V + vox_lo.z], sigma_s[c * V + vox_lo.w]);
     vec4 sigma_hi = vec4(sigma_s[c * V + vox_hi.x], sigma_s[c * V + vox_hi.y], sigma_s[c * V + vox_hi.z], sigma_s[c * V + vox_hi.w]);
+    // Nothing scatters at any of them: the zeros the sums would store, without the sums.
+    if (all(lessThanEqual(max(sigma_lo, sigma_hi), vec4(0.0)))) {
+        for (uint m = m0; m < m1; ++m) store_voxels(c * M + m, v0, V, sigma_lo, sigma_hi, vec4(0.0), vec4(0.0));
+        return;
+    }
     for (uint m = m0; m < m1; m += BLOCK) {
         uvec4 lo, hi;
         block_columns(m, M, lo, hi);
@@ -230,9 +199,5 @@ void main() {
     uint m0 = gl_WorkGroupID.y * pc.chunk;
     if (m0 >= M) return;
     uint m1 = min(M, m0 + pc.chunk);
-    if (pc.wide != 0u) {
-        scatter_wide(pc.dims.w, M, pc.channel, m0, m1);
-    } else {
-        scatter_local(pc.dims.w, M, pc.directions, pc.channel, m0, m1);
-    }
+    scatter_voxels(pc.dims.w, M, pc.channel, m0, m1);
 }

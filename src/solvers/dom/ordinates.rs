@@ -132,9 +132,7 @@ struct ScatterPush {
     peak_share: f32,
     peak_cos: f32,
     pad_f: f32,
-    /// 1: the wide layout ([`scatter_shape`]).
-    wide: u32,
-    pad: [u32; 2],
+    pad: [u32; 3],
 }
 
 /// Henyey-Greenstein's mass within angle acos(`c0`) of its axis: the integral of
@@ -164,56 +162,43 @@ fn covering_cos(q: &Quadrature) -> f64 {
     (worst.clamp(-1.0, 1.0).acos() * 1.1).min(std::f64::consts::PI).cos()
 }
 
-/// How scatter.comp lays its sums out for a swept set of `n` directions and `m` storage
-/// directions (the kernel's `pc.wide` and chunks): one voxel an invocation with its field in a
-/// local array up to [`SCATTER_MAX_LOCAL`] swept directions, else [`SCATTER_VOXELS`] voxels an
-/// invocation reading the field from the buffer.
+/// How scatter.comp splits its sums for a swept set of `n` directions and `m` storage
+/// directions: [`SCATTER_VOXELS`] consecutive voxels an invocation, the storage directions in
+/// chunks (work group y).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct ScatterShape {
-    pub wide: bool,
     /// Storage directions an invocation takes (work group y covers M in chunks).
     pub chunk: u32,
     /// Voxels an invocation takes.
     pub voxels: u32,
 }
 
-/// scatter.comp's `MAX_LOCAL`: swept directions whose field one voxel keeps in a local array.
-const SCATTER_MAX_LOCAL: u32 = 96;
-
 /// scatter.comp's `BLOCK`: storage directions summed in one pass over the field.
 const SCATTER_BLOCK: u32 = 8;
 
-/// scatter.comp's `VOXELS`: voxels a wide invocation takes.
+/// scatter.comp's `VOXELS`: consecutive voxels an invocation takes. Up to s8 one voxel an
+/// invocation with its field in a local array was 1.5-2.5x slower on lavapipe (s8 on a 24^3
+/// cube 363 against 144 ms a pass, s6 on the 128 x 4 x 128 slab 472 against 216) and no faster
+/// on the sparse cloud (88 against 83-86 ms, where whole invocations of empty voxels return).
 const SCATTER_VOXELS: u32 = 8;
 
-/// The chunk of a wide invocation: one block, each re-reading the field anyway, so the rows of
-/// work groups spread over M / 8 (a GPU's parallelism on a small grid; lavapipe measured 0.13 s
-/// a pass at one block against 0.15 at eight, product-16x32 on the 8^3 cube).
-const SCATTER_CHUNK_WIDE: u32 = SCATTER_BLOCK;
+/// The chunk: one block, each re-reading the field anyway, so the rows of work groups spread
+/// over M / 8 (a GPU's parallelism on a small grid; lavapipe measured 0.13 s a pass at one
+/// block against 0.15 at eight, product-16x32 on the 8^3 cube).
+const SCATTER_CHUNK: u32 = SCATTER_BLOCK;
 
-/// scatter.comp's layout for `n` swept and `m` storage directions. The chunk keeps an
+/// scatter.comp's shape for `n` swept and `m` storage directions. The chunk keeps an
 /// invocation's loop back-edges within `LOOP_GUARD` (glsl/include/budget.glsl: past 65535
 /// llvmpipe ends every loop of an invocation silently). A loop that runs n times takes n + 1
-/// (the last pass only exits). Local: the gather's octants and directions N + 17, then per
-/// block of [`SCATTER_BLOCK`] its directions N + 1, its stores 9 and its own; a voxel where
-/// nothing scatters, its chunk + 1 stores. Wide: the gather's voxels, octants and directions
-/// VOXELS (N + 18) + 1, then per block its octants and directions N + 17, its stores BLOCK
-/// (VOXELS + 1) and its own. The directions sets dom offers stop at 512 (product-16x32): 4861
-/// back-edges a wide invocation.
+/// (the last pass only exits): the gather's voxels, octants and directions VOXELS (N + 18) + 1,
+/// then per block its octants and directions N + 17, its stores BLOCK (VOXELS + 1) and its own.
+/// The directions sets dom offers stop at 512 (product-16x32): 4861 back-edges an invocation.
 pub(crate) fn scatter_shape(n: u32, m: u32) -> ScatterShape {
     let m = m.max(1);
-    let wide = n > SCATTER_MAX_LOCAL;
-    let (first, block, most, voxels) = if wide {
-        let block = n + 18 + SCATTER_BLOCK * (SCATTER_VOXELS + 1);
-        (SCATTER_VOXELS * (n + 18) + 1, block, SCATTER_CHUNK_WIDE, SCATTER_VOXELS)
-    } else {
-        // As many as the guard allows: one field read then serves them all, and a chunk is all
-        // of M for every set dom offers. Split instead in chunks of 64, s8 stored at itself
-        // on a 24^3 grid took 2.45 s for four passes against 1.44 s whole.
-        (n + 18, n + 12, u32::MAX, 1)
-    };
+    let first = SCATTER_VOXELS * (n + 18) + 1;
+    let block = n + 18 + SCATTER_BLOCK * (SCATTER_VOXELS + 1);
     let blocks = (LOOP_GUARD.saturating_sub(first) / block).max(1);
-    ScatterShape { wide, chunk: (blocks * SCATTER_BLOCK).min(most).min(m), voxels }
+    ScatterShape { chunk: (blocks * SCATTER_BLOCK).min(SCATTER_CHUNK).min(m), voxels: SCATTER_VOXELS }
 }
 
 #[repr(C)]
@@ -953,8 +938,7 @@ impl Sweeper {
                 peak_share: self.gather_split[0],
                 peak_cos: self.gather_split[1],
                 pad_f: 0.0,
-                wide: shape.wide as u32,
-                pad: [0; 2],
+                pad: [0; 3],
             })
             .cover_linear_z([v.div_ceil(shape.voxels), (self.storage.len() as u32).div_ceil(shape.chunk)])
     }
