@@ -267,19 +267,11 @@ vec3 optical_depth(vec3 p, vec3 w, float t_far) {
     return vec3(OPAQUE_DEPTH);
 }
 
-// The optical depth from p toward light unit `unit` (side 0, up to `dist`) or away from it
-// (side 1, to the medium's end): from the shadow volume, trilinear between voxel centres
-// (clamped at the outer half voxel, as the density), or marched where there is none.
-vec3 unit_depth(uint unit, uint side, vec3 p, vec3 w, float dist) {
-    if (pc.shadow_dims.x == 0u) return optical_depth(p, side == 0u ? w : -w, side == 0u ? dist : INF);
-    ivec3 n = ivec3(pc.shadow_dims.xyz);
-    uint V = pc.shadow_dims.x * pc.shadow_dims.y * pc.shadow_dims.z;
-    uint base = (pc.shadow_dims.w * unit + side) * V;
-    ivec3 i0, i1;
-    vec3 f;
-    grid_corners(box_voxel_coord(p, n), n, i0, i1, f);
-    iters++;
-    return scene.materials[0].sigma_t.xyz * TRILINEAR(sdepth, base, n, i0, i1, f);
+// The optical depth from p toward a light (side 0, along w up to `dist`) or away from it (side
+// 1, to the medium's end), marched: the marched shadows' (pc.shadow_dims.x = 0). The shadow
+// volume's units read their depths in volume_units.
+vec3 unit_depth(uint side, vec3 p, vec3 w, float dist) {
+    return optical_depth(p, side == 0u ? w : -w, side == 0u ? dist : INF);
 }
 
 // Light units per step: one per point or directional light, env_dirs per environment.
@@ -354,9 +346,9 @@ vec3 octave_sum(float g, float c, vec3 tau, vec3 tau_chord, bool env, float onor
 // Octaves: the optical depth toward the light (tau, up to `dist`) and of the whole chord
 // through p along it (tau plus the depth from p away from the light), the latter only for the
 // bounded form.
-vec3 octave_light(uint unit, float g, float c, vec3 p, vec3 wi, float dist, bool env, float onorm[8]) {
-    vec3 tau = unit_depth(unit, 0u, p, wi, dist);
-    vec3 chord = pc.octave.w != 0.0 ? tau + unit_depth(unit, 1u, p, wi, dist) : tau;
+vec3 octave_light(float g, float c, vec3 p, vec3 wi, float dist, bool env, float onorm[8]) {
+    vec3 tau = unit_depth(0u, p, wi, dist);
+    vec3 chord = pc.octave.w != 0.0 ? tau + unit_depth(1u, p, wi, dist) : tau;
     return octave_sum(g, c, tau, chord, env, onorm);
 }
 
@@ -403,20 +395,20 @@ vec3 step_transmittance(vec3 tau0, vec3 tau1, vec3 b) {
     return num / fb;
 }
 
-// The depth toward light unit `unit` from q (point lights: toward `lpos`, each point its own
+// The marched depth toward a light from q (point lights: toward `lpos`, each point its own
 // direction; others along wi).
-vec3 depth_from(uint unit, bool point, vec3 lpos, vec3 q, vec3 wi) {
-    if (!point) return unit_depth(unit, 0u, q, wi, INF);
+vec3 depth_from(bool point, vec3 lpos, vec3 q, vec3 wi) {
+    if (!point) return unit_depth(0u, q, wi, INF);
     vec3 to = lpos - q;
     float dq = length(to);
-    return dq > 0.0 ? unit_depth(unit, 0u, q, to / dq, dq) : vec3(0.0);
+    return dq > 0.0 ? unit_depth(0u, q, to / dq, dq) : vec3(0.0);
 }
 
 // In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T, for the step
-// [t0, t1] of the camera ray o + d t that p samples, whose extinction is b = sigma_t dt.
+// [t0, t1] of the camera ray o + d t that p samples, whose extinction is b = sigma_t dt; the
+// shadow marched (with a shadow volume, volume_units sums the step's units instead).
 vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, float norm, float onorm[8]) {
     float g = scene.materials[seg_mat].albedo.w;
-    uint unit = j;
     for (uint i = 0u; i < scene.image.z; ++i) {
         iters++;
         Light li = scene.lights[i];
@@ -441,7 +433,7 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, 
             geo = 4.0 * PI / float(pc.env_dirs);
         }
         // Octaves: each octave's environment quadrature is normalised by its own phase sum.
-        if (OCTAVES > 1u) return octave_light(unit, g, dot(d, wi), p, wi, dist, env, onorm) * li.value.rgb * geo;
+        if (OCTAVES > 1u) return octave_light(g, dot(d, wi), p, wi, dist, env, onorm) * li.value.rgb * geo;
         vec3 t;
         if (STEP_FIT) {
             bool point = kind == LIGHT_POINT;
@@ -450,10 +442,10 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, 
             // bright on a side-lit box pair, tests/material_tests.rs): the ends are taken a
             // rounding distance inside the step.
             float e = HAS_MESH && t1 - t0 > 8.0 * surface_eps(p) ? 2.0 * surface_eps(p) : 0.0;
-            t = step_transmittance(depth_from(unit, point, li.pos_kind.xyz, o + d * (t0 + e), wi),
-                                   depth_from(unit, point, li.pos_kind.xyz, o + d * (t1 - e), wi), b);
+            t = step_transmittance(depth_from(point, li.pos_kind.xyz, o + d * (t0 + e), wi),
+                                   depth_from(point, li.pos_kind.xyz, o + d * (t1 - e), wi), b);
         } else {
-            t = exp(-unit_depth(unit, 0u, p, wi, dist));
+            t = exp(-unit_depth(0u, p, wi, dist));
         }
         return phase_eval(g, dot(d, wi)) * li.value.rgb * geo * t / (env ? norm : 1.0);
     }
