@@ -655,6 +655,21 @@ fn shadow_volume_resumes_within_the_budget_and_falls_back_when_too_large() {
     let tight = render(&gpu, &s, SINGLE, &[sky[0], ("single.budget", "40"), ("single.shadow", "volume")]).image.data;
     assert!(vol.image.data == whole, "budget 300: the image differs from the default budget's");
     assert!(tight == whole, "budget 40: the image differs from the default budget's");
+    // Six lights at the smallest budget: the march's own loops and the walk to a unit's light
+    // use up 16 iterations before the fifth light's unit, and a call that ran no unit was
+    // repeated forever (it hung); each call now runs at least one unit.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cloud.toml");
+    let mut text = std::fs::read_to_string(&path).unwrap();
+    for d in ["[1.0, -0.2, 0.0]", "[-1.0, -0.3, 0.2]", "[0.0, -1.0, 0.3]", "[0.3, 0.2, -1.0]"] {
+        text += &format!("\n[[light]]\nkind = \"directional\"\ndirection = {d}\nirradiance = 0.5\n");
+    }
+    let sets = [("render.width", "6"), ("render.height", "6")].map(|(k, v)| (k.to_string(), v.to_string()));
+    let six =
+        scatterlab::scene::Scene::from_str(&text, "cloud.toml", path.parent().unwrap(), &sets, &Default::default())
+            .expect("the cloud with six lights");
+    let least = render(&gpu, &six, SINGLE, &[("single.budget", "16"), ("single.shadow", "volume")]);
+    let whole = render(&gpu, &six, SINGLE, &[("single.shadow", "volume")]);
+    assert!(least.image.data == whole.image.data, "six lights, budget 16: the image differs from the default budget's");
     // 601 units x 64^3 voxels x 4 bytes = 630 MB.
     let big = [("single.env_dirs", "600"), ("single.budget", "4000")];
     let auto = render(&gpu, &s, SINGLE, &big);

@@ -25,7 +25,7 @@
 // the 8^3 cube went from 1.10 s a pass (a direction at a time) to 0.13 s (docs/dom.md, "The
 // scattering pass"). Consecutive voxels, so that where nothing scatters (a cloud's empty edges)
 // whole invocations store zeros and return; up to s8 an invocation per voxel with its field in a
-// local array was the layout until 2026-12-07, 1.5-2.5x slower (the same docs).
+// local array was the layout until 2026-12-07, 1.5-2.7x slower (the same docs).
 // Storage directions come in chunks of `pc.chunk` (work group y) that keep an invocation's loop
 // back-edges under glsl/include/budget.glsl's LOOP_GUARD (src/solvers/dom/ordinates.rs,
 // scatter_shape): one invocation scattering a voxel into all M directions ran N M of them, and

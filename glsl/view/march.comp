@@ -476,14 +476,20 @@ void volume_units(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint units
     vec3 qa = o + d * (t0 + e), qb = o + d * (t1 - e);
     grid_corners(box_voxel_coord(fit ? qa : p, n), n, i0, i1, f);
     if (fit) grid_corners(box_voxel_coord(qb, n), n, k0, k1, fk);
+    // The walk to unit j's light starts at light 0 on every call, and its iterations count, so
+    // the budget is checked only before a unit, and the call's first unit always runs: a call
+    // that could run none would be repeated forever (5 lights at single.budget 16 did not end:
+    // the walk and the march's own loops used up the budget before the fifth light's unit).
+    bool first = true;
     uint u0 = 0u;   // the first unit of light i
-    for (uint i = 0u; i < scene.image.z && j < units && iters < pc.budget; ++i) {
+    for (uint i = 0u; i < scene.image.z && j < units; ++i) {
         iters++;
         Light li = scene.lights[i];
         uint kind = uint(li.pos_kind.w);
         bool env = is_environment(kind);
         uint count = env ? pc.env_dirs : 1u;
-        for (; j < u0 + count && iters < pc.budget; ++j) {
+        for (; j < u0 + count && (first || iters < pc.budget); ++j) {
+            first = false;
             iters++;
             uint base = pc.shadow_dims.w * j * V;
             vec3 wi;
@@ -518,6 +524,7 @@ void volume_units(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint units
             }
             S += phase_eval(g, dot(d, wi)) * li.value.rgb * geo * t / (env ? norm : 1.0);
         }
+        if (j < u0 + count) return;   // the budget ran out within light i
         u0 += count;
     }
 }

@@ -177,9 +177,10 @@ pub(crate) struct ScatterShape {
 const SCATTER_BLOCK: u32 = 8;
 
 /// scatter.comp's `VOXELS`: consecutive voxels an invocation takes. Up to s8 one voxel an
-/// invocation with its field in a local array was 1.5-2.5x slower on lavapipe (s8 on a 24^3
-/// cube 363 against 144 ms a pass, s6 on the 128 x 4 x 128 slab 472 against 216) and no faster
-/// on the sparse cloud (88 against 83-86 ms, where whole invocations of empty voxels return).
+/// invocation with its field in a local array was 1.5-2.7x slower on lavapipe (s8 on a 24^3
+/// cube 345 against 128 ms a pass, s6 on the 128 x 4 x 128 slab 489 against 225) and no faster
+/// on the sparse cloud (76 against 74 ms, where whole invocations of empty voxels return;
+/// docs/dom.md, "The scattering pass").
 const SCATTER_VOXELS: u32 = 8;
 
 /// The chunk: one block, each re-reading the field anyway, so the rows of work groups spread
@@ -187,12 +188,14 @@ const SCATTER_VOXELS: u32 = 8;
 /// block against 0.15 at eight, product-16x32 on the 8^3 cube).
 const SCATTER_CHUNK: u32 = SCATTER_BLOCK;
 
-/// scatter.comp's shape for `n` swept and `m` storage directions. The chunk keeps an
-/// invocation's loop back-edges within `LOOP_GUARD` (glsl/include/budget.glsl: past 65535
-/// llvmpipe ends every loop of an invocation silently). A loop that runs n times takes n + 1
-/// (the last pass only exits): the gather's voxels, octants and directions VOXELS (N + 18) + 1,
-/// then per block its octants and directions N + 17, its stores BLOCK (VOXELS + 1) and its own.
-/// The directions sets dom offers stop at 512 (product-16x32): 4861 back-edges an invocation.
+/// scatter.comp's shape for `n` swept and `m` storage directions: a chunk of one block
+/// ([`SCATTER_CHUNK`]), fewer only if one block's loop back-edges did not fit within
+/// `LOOP_GUARD` (glsl/include/budget.glsl: past 65535 llvmpipe ends every loop of an invocation
+/// silently), which no directions set dom offers comes near. A loop that runs n times takes
+/// n + 1 (the last pass only exits): the gather's voxels, octants and directions
+/// VOXELS (N + 18) + 1, then per block its octants and directions N + 17, its stores
+/// BLOCK (VOXELS + 1) and its own (an invocation where nothing scatters stores instead: fewer).
+/// The sets stop at 512 (product-16x32): 4241 + 602 = 4843 back-edges an invocation.
 pub(crate) fn scatter_shape(n: u32, m: u32) -> ScatterShape {
     let m = m.max(1);
     let first = SCATTER_VOXELS * (n + 18) + 1;
