@@ -656,7 +656,7 @@ fn shadow_volume_resumes_within_the_budget_and_falls_back_when_too_large() {
     assert!(vol.image.data == whole, "budget 300: the image differs from the default budget's");
     assert!(tight == whole, "budget 40: the image differs from the default budget's");
     // Six lights at the smallest budget: the march's own loops and the walk to a unit's light
-    // use up 16 iterations before the fifth light's unit, and a call that ran no unit was
+    // use up 16 iterations before a later light's unit, and a call that ran no unit was
     // repeated forever (it hung); each call now runs at least one unit.
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cloud.toml");
     let mut text = std::fs::read_to_string(&path).unwrap();

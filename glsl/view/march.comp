@@ -478,8 +478,9 @@ void volume_units(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint units
     if (fit) grid_corners(box_voxel_coord(qb, n), n, k0, k1, fk);
     // The walk to unit j's light starts at light 0 on every call, and its iterations count, so
     // the budget is checked only before a unit, and the call's first unit always runs: a call
-    // that could run none would be repeated forever (5 lights at single.budget 16 did not end:
-    // the walk and the march's own loops used up the budget before the fifth light's unit).
+    // that could run none would be repeated forever (the cloud with 6 lights at single.budget 16
+    // did not end: the walk and the march's own loops used up the budget before a later light's
+    // unit).
     bool first = true;
     uint u0 = 0u;   // the first unit of light i
     for (uint i = 0u; i < scene.image.z && j < units; ++i) {
