@@ -91,6 +91,21 @@ fn single_with_refraction_agrees_with_path_single_scattering_across_the_range() 
             let (rel_off, e_off) = judge(&off.image, &reference);
             eprintln!("{name}: off relL2 {rel_off:.4} energy {e_off:.4}");
             assert!(rel_on < rel_off, "{name}: refraction {rel_on} vs off {rel_off}");
+            if name == "thick" {
+                // Nothing crosses the thick sphere twice, so the refracting chain's internal
+                // reflections end at its cutoff and its march costs what the straight one does
+                // (60 dispatches against 64). Rays trapped at the faceted rim by total internal
+                // reflection once went on to the event limit: 2088.
+                let dispatches = |o: &scatterlab::solvers::RenderOutput| {
+                    o.report.detail::<scatterlab::solvers::parts::view::ViewStats>().expect("view stats").dispatches
+                };
+                let (d_on, d_off) = (dispatches(&on), dispatches(&off));
+                eprintln!("{name}: {d_on} dispatches refracting, {d_off} straight");
+                assert!(
+                    d_on <= 2 * d_off,
+                    "{name}: the refracting chain took {d_on} dispatches, the straight march {d_off}"
+                );
+            }
         }
     }
     assert_clean(&gpu);
