@@ -404,6 +404,33 @@ vec3 depth_from(bool point, vec3 lpos, vec3 q, vec3 wi) {
     return dq > 0.0 ? unit_depth(0u, q, to / dq, dq) : vec3(0.0);
 }
 
+// Light li's unit e (its environment direction; 0 for the others) seen from p, which samples
+// the step [t0, t1] of the camera ray o + d t: the direction wi toward it, its distance (INF but
+// for a point light) and the unit's weight geo (the point light's mean 1/r^2 over the step, the
+// environment quadrature's 4 pi / env_dirs, else 1). False for a point light at p itself (no
+// direction: the unit adds nothing). unit_inscatter and volume_units share it.
+bool light_unit(Light li, uint e, vec3 o, vec3 d, vec3 p, float t0, float t1, out vec3 wi, out float dist,
+                out float geo) {
+    uint kind = uint(li.pos_kind.w);
+    wi = vec3(0.0);
+    dist = INF;
+    geo = 1.0;
+    if (kind == LIGHT_POINT) {
+        vec3 to = li.pos_kind.xyz - p;
+        float dist2 = dot(to, to);
+        if (dist2 <= 0.0) return false;
+        dist = sqrt(dist2);
+        wi = to / dist;
+        geo = mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
+    } else if (kind == LIGHT_DIRECTIONAL) {
+        wi = -li.pos_kind.xyz;
+    } else {
+        wi = fibonacci_dir(e, pc.env_dirs);
+        geo = 4.0 * PI / float(pc.env_dirs);
+    }
+    return true;
+}
+
 // In-scattering toward -d at p per unit sigma_s from light unit j: p(cos) L_i T, for the step
 // [t0, t1] of the camera ray o + d t that p samples, whose extinction is b = sigma_t dt; the
 // shadow marched (with a shadow volume, volume_units sums the step's units instead).
@@ -416,22 +443,9 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, 
         uint n = is_environment(kind) ? pc.env_dirs : 1u;
         if (j >= n) { j -= n; continue; }
         vec3 wi;
-        float dist = INF;
-        float geo = 1.0;   // the point light's mean 1/r^2 over the step, the quadrature weight
+        float dist, geo;
         bool env = is_environment(kind);
-        if (kind == LIGHT_POINT) {
-            vec3 to = li.pos_kind.xyz - p;
-            float dist2 = dot(to, to);
-            if (dist2 <= 0.0) return vec3(0.0);
-            dist = sqrt(dist2);
-            wi = to / dist;
-            geo = mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
-        } else if (kind == LIGHT_DIRECTIONAL) {
-            wi = -li.pos_kind.xyz;
-        } else {
-            wi = fibonacci_dir(j, pc.env_dirs);
-            geo = 4.0 * PI / float(pc.env_dirs);
-        }
+        if (!light_unit(li, j, o, d, p, t0, t1, wi, dist, geo)) return vec3(0.0);
         // Octaves: each octave's environment quadrature is normalised by its own phase sum.
         if (OCTAVES > 1u) return octave_light(g, dot(d, wi), p, wi, dist, env, onorm) * li.value.rgb * geo;
         vec3 t;
@@ -461,6 +475,13 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, 
 // (docs/lavapipe.md), and the per-unit reads of the scene block and the walk over the lights
 // to find the unit's were most of the pass (the cloud's `single` at 256^2: 8.7 s, 4.9 s
 // without them).
+// One unit's optical depth toward its light from the shadow volume (its depths from `base`),
+// trilinear at the corners i0, i1 with weights f: the medium's extinction times the stored
+// density integral.
+vec3 volume_depth(vec3 sigma_t0, uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) {
+    return sigma_t0 * TRILINEAR(sdepth, base, n, i0, i1, f);
+}
+
 void volume_units(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint units, inout uint j, inout vec3 S,
                   float norm, float onorm[8]) {
     float g = scene.materials[seg_mat].albedo.w;
@@ -494,22 +515,11 @@ void volume_units(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint units
             iters++;
             uint base = pc.shadow_dims.w * j * V;
             vec3 wi;
-            float geo = 1.0;
-            if (kind == LIGHT_POINT) {
-                vec3 to = li.pos_kind.xyz - p;
-                float dist2 = dot(to, to);
-                if (dist2 <= 0.0) continue;
-                wi = to / sqrt(dist2);
-                geo = mean_inv_r2(o, d, t0, t1, li.pos_kind.xyz);
-            } else if (kind == LIGHT_DIRECTIONAL) {
-                wi = -li.pos_kind.xyz;
-            } else {
-                wi = fibonacci_dir(j - u0, pc.env_dirs);
-                geo = 4.0 * PI / float(pc.env_dirs);
-            }
+            float dist, geo;
+            if (!light_unit(li, j - u0, o, d, p, t0, t1, wi, dist, geo)) continue;
             if (OCTAVES > 1u) {
-                vec3 tau = sigma_t0 * TRILINEAR(sdepth, base, n, i0, i1, f);
-                vec3 chord = pc.octave.w != 0.0 ? tau + sigma_t0 * TRILINEAR(sdepth, base + V, n, i0, i1, f) : tau;
+                vec3 tau = volume_depth(sigma_t0, base, n, i0, i1, f);
+                vec3 chord = pc.octave.w != 0.0 ? tau + volume_depth(sigma_t0, base + V, n, i0, i1, f) : tau;
                 S += octave_sum(g, dot(d, wi), tau, chord, env, onorm) * li.value.rgb * geo;
                 continue;
             }
@@ -518,10 +528,10 @@ void volume_units(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint units
                 // depth_from: a point light at the end itself is no depth away.
                 bool at_a = kind == LIGHT_POINT && !(length(li.pos_kind.xyz - qa) > 0.0);
                 bool at_b = kind == LIGHT_POINT && !(length(li.pos_kind.xyz - qb) > 0.0);
-                t = step_transmittance(at_a ? vec3(0.0) : sigma_t0 * TRILINEAR(sdepth, base, n, i0, i1, f),
-                                       at_b ? vec3(0.0) : sigma_t0 * TRILINEAR(sdepth, base, n, k0, k1, fk), b);
+                t = step_transmittance(at_a ? vec3(0.0) : volume_depth(sigma_t0, base, n, i0, i1, f),
+                                       at_b ? vec3(0.0) : volume_depth(sigma_t0, base, n, k0, k1, fk), b);
             } else {
-                t = exp(-(sigma_t0 * TRILINEAR(sdepth, base, n, i0, i1, f)));
+                t = exp(-volume_depth(sigma_t0, base, n, i0, i1, f));
             }
             S += phase_eval(g, dot(d, wi)) * li.value.rgb * geo * t / (env ? norm : 1.0);
         }
