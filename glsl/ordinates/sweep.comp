@@ -30,7 +30,12 @@ layout(std430, binding = 4) buffer Fluence { float fluence[]; };           // [c
 layout(std430, binding = 5) readonly buffer Upsample { float upsample[]; }; // [s][m] (mode 2)
 // Scheme 1: per direction, f[i][o] then s[i][o] (18 floats, padded to 20), and the outgoing
 // face radiances across x, y, z, laid out as the field.
-layout(std430, binding = 6) readonly buffer Geometry { float geometry[]; };
+// A uniform block, not a storage buffer: every invocation reads the same direction's factors
+// at once, which llvmpipe loads once a SIMD batch where a storage buffer's read is a loop over
+// the lanes (docs/lavapipe.md: the sweeps 1.45x faster). 64 KiB at most (the host checks the
+// device's maxUniformBufferRange): 819 directions.
+layout(std140, binding = 6) uniform Geometry { vec4 geometry4[4096]; }; // per direction: f[i][o], s[i][o] (20)
+float geometry(uint i) { return geometry4[i >> 2u][i & 3u]; }
 layout(std430, binding = 7) buffer FaceX { float face_x[]; };
 layout(std430, binding = 8) buffer FaceY { float face_y[]; };
 layout(std430, binding = 9) buffer FaceZ { float face_z[]; };
@@ -125,9 +130,9 @@ void main() {
             radiance = 0.0;
             for (int i = 0; i < 3; ++i) {
                 for (int oo = 0; oo < 3; ++oo) {
-                    float f = geometry[gbase + uint(3 * i + oo)];
+                    float f = geometry(gbase + uint(3 * i + oo));
                     if (f == 0.0) continue;
-                    float sl = geometry[gbase + 9u + uint(3 * i + oo)];
+                    float sl = geometry(gbase + 9u + uint(3 * i + oo));
                     float x = st * pc.h * sl;
                     vec2 pp = phi_psi(x);
                     float qh = q * pc.h * sl;

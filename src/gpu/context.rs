@@ -128,6 +128,9 @@ pub struct DeviceInfo {
     pub driver_name: String,
     pub driver_info: String,
     pub max_storage_buffer_range: u64,
+    /// The most bytes of a uniform block a binding reads (16 KiB guaranteed; lavapipe and
+    /// NVIDIA 64 KiB).
+    pub max_uniform_buffer_range: u64,
     pub max_image_dimension_3d: u32,
     pub max_compute_workgroup_count: [u32; 3],
     pub max_compute_workgroup_invocations: u32,
@@ -464,6 +467,7 @@ fn device_info(instance: &ash::Instance, chosen: &Candidate, f: &Features, mappi
         driver_name: cstr_array(&driver.driver_name),
         driver_info: cstr_array(&driver.driver_info),
         max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
+        max_uniform_buffer_range: props.limits.max_uniform_buffer_range as u64,
         max_image_dimension_3d: props.limits.max_image_dimension3_d,
         max_compute_workgroup_count: props.limits.max_compute_work_group_count,
         max_compute_workgroup_invocations: props.limits.max_compute_work_group_invocations,

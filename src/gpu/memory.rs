@@ -229,7 +229,8 @@ impl Gpu {
         let b = self.raw_buffer(
             name,
             size.max(4),
-            vk::BufferUsageFlags::STORAGE_BUFFER,
+            // Any of them may be bound as a uniform block too (a table read at uniform addresses).
+            vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::UNIFORM_BUFFER,
             MemoryLocation::GpuOnly,
             transfer,
         )?;

@@ -23,6 +23,11 @@ pub struct ShaderSource {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BindingKind {
     StorageBuffer,
+    /// A uniform block: a table every invocation reads at the same addresses (llvmpipe loads it
+    /// once for the SIMD batch where a storage buffer's read is a loop over the lanes,
+    /// docs/lavapipe.md). Bound to a [`crate::gpu::Buffer`] as a storage buffer is; at most
+    /// `max_uniform_buffer_range` bytes of it are read.
+    UniformBuffer,
     StorageImage,
 }
 
@@ -30,6 +35,7 @@ impl BindingKind {
     fn vk(self) -> vk::DescriptorType {
         match self {
             BindingKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
+            BindingKind::UniformBuffer => vk::DescriptorType::UNIFORM_BUFFER,
             BindingKind::StorageImage => vk::DescriptorType::STORAGE_IMAGE,
         }
     }
@@ -104,10 +110,11 @@ pub fn reflect(src: &ShaderSource) -> Result<Reflection> {
         for (index, info) in b {
             let kind = match info.ty {
                 rspirv_reflect::DescriptorType::STORAGE_BUFFER => BindingKind::StorageBuffer,
+                rspirv_reflect::DescriptorType::UNIFORM_BUFFER => BindingKind::UniformBuffer,
                 rspirv_reflect::DescriptorType::STORAGE_IMAGE => BindingKind::StorageImage,
                 other => {
                     return Err(err(format!(
-                        "binding {index} has descriptor type {other:?}; only storage buffers and images are supported"
+                        "binding {index} has descriptor type {other:?}; only storage and uniform buffers and storage images are supported"
                     )))
                 }
             };

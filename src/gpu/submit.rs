@@ -194,7 +194,11 @@ impl Pass {
                         self.pipeline.name
                     )))
                 }
-                Some((kind, decl)) if *kind != b.resource.kind() => {
+                // A buffer binds as a storage buffer or a uniform block alike.
+                Some((kind, decl))
+                    if *kind != b.resource.kind()
+                        && !(*kind == BindingKind::UniformBuffer && b.resource.kind() == BindingKind::StorageBuffer) =>
+                {
                     return Err(err(format!(
                         "shader declares `{decl}` as {kind:?} but the pass binds {:?}, a {:?}",
                         b.resource.name(),
@@ -432,7 +436,9 @@ impl Gpu {
                             ),
                             (
                                 vk::PipelineStageFlags2::COMPUTE_SHADER,
-                                vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE,
+                                vk::AccessFlags2::SHADER_STORAGE_READ
+                                    | vk::AccessFlags2::SHADER_STORAGE_WRITE
+                                    | vk::AccessFlags2::UNIFORM_READ,
                             ),
                         );
                         written.clear();
@@ -484,7 +490,11 @@ impl Gpu {
                             let w = vk::WriteDescriptorSet::default().dst_binding(b.binding);
                             match &b.resource {
                                 Resource::Buffer(_) => {
-                                    w.descriptor_type(vk::DescriptorType::STORAGE_BUFFER).buffer_info(&buffer_infos[j])
+                                    let ty = match p.pipeline.reflection.bindings.get(&b.binding) {
+                                        Some((BindingKind::UniformBuffer, _)) => vk::DescriptorType::UNIFORM_BUFFER,
+                                        _ => vk::DescriptorType::STORAGE_BUFFER,
+                                    };
+                                    w.descriptor_type(ty).buffer_info(&buffer_infos[j])
                                 }
                                 Resource::Image(_) => {
                                     w.descriptor_type(vk::DescriptorType::STORAGE_IMAGE).image_info(&image_infos[j])

@@ -602,7 +602,10 @@ impl BlockSweeper {
             staging_records,
             dirs: gpu.buffer_with("dom block directions", &to_vec4(&t.swept))?,
             upsample: gpu.buffer_with("dom block upsampling", &t.upsample)?,
-            geometry: gpu.buffer_with("dom block geometry", &t.geometry)?,
+            geometry: {
+                super::ordinates::check_geometry(gpu, &t.geometry, s.quadrature)?;
+                gpu.buffer_with("dom block geometry", &t.geometry)?
+            },
             scatter: gpu.buffer_with("dom block scattering", &t.scatter)?,
             work: gpu.buffer("dom block order", 8 * s.channels as u64 * blocks as u64 * 32)?,
             scratch: gpu.buffer("dom block scratch", groups as u64 * scratch_bytes)?,

@@ -44,6 +44,28 @@ pub const EMIT: Kernel = Kernel {
 pub const CONVERGE: Kernel =
     Kernel { shader: shader!("ordinates/converge"), push_bytes: std::mem::size_of::<ConvergePush>(), spec: &[] };
 
+/// Bytes of the uniform block the sweeps read the characteristics' factors from (glsl/ordinates/
+/// sweep.comp and block_sweep.comp, `geometry4[4096]`): 20 floats a direction, 819 directions.
+const GEOMETRY_BLOCK_BYTES: u64 = 4096 * 16;
+
+/// The characteristics' factors (`geometry`, 20 floats a direction of `q`) fit the sweeps'
+/// uniform block on this device, or one line naming the knob.
+pub(crate) fn check_geometry(gpu: &Gpu, geometry: &[f32], q: &Quadrature) -> Result<(), SolverError> {
+    let bytes = geometry.len() as u64 * 4;
+    let max = gpu.info().max_uniform_buffer_range.min(GEOMETRY_BLOCK_BYTES);
+    if bytes <= max {
+        return Ok(());
+    }
+    Err(SolverError::Unsupported(format!(
+        "dom.directions={}: the characteristics' factors of its {} directions take {bytes} bytes, past the {max} of a \
+         uniform block on this device (maxUniformBufferRange): choose a set of at most {} directions (dom.directions) \
+         or dom.scheme=step",
+        q.name,
+        q.len(),
+        max / 80
+    )))
+}
+
 /// Every kernel of this part.
 pub fn kernels() -> Vec<Kernel> {
     vec![SWEEP, SCATTER, DEPOSIT, BIN, EMIT, CONVERGE]
@@ -623,7 +645,10 @@ impl Sweeper {
             gather_split,
             bin_split,
             field: gpu.buffer("ordinates field", 8 * slots as u64 * sv * 4)?,
-            geometry: gpu.buffer_with("ordinates characteristics geometry", &geometry)?,
+            geometry: {
+                check_geometry(gpu, &geometry, s.quadrature)?;
+                gpu.buffer_with("ordinates characteristics geometry", &geometry)?
+            },
             faces: [
                 gpu.buffer("ordinates faces x", face_bytes)?,
                 gpu.buffer("ordinates faces y", face_bytes)?,
