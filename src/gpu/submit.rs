@@ -197,7 +197,8 @@ impl Pass {
                 // A buffer binds as a storage buffer or a uniform block alike.
                 Some((kind, decl))
                     if *kind != b.resource.kind()
-                        && !(*kind == BindingKind::UniformBuffer && b.resource.kind() == BindingKind::StorageBuffer) =>
+                        && !(*kind == BindingKind::UniformBuffer
+                            && b.resource.kind() == BindingKind::StorageBuffer) =>
                 {
                     return Err(err(format!(
                         "shader declares `{decl}` as {kind:?} but the pass binds {:?}, a {:?}",
