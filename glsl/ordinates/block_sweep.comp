@@ -32,12 +32,8 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(std430, binding = 0) buffer Pool { float pool[]; };                // slots x record
 layout(std430, binding = 1) readonly buffer Dirs { vec4 dirs[]; };        // by octant: xyz, w weight (sr)
 layout(std430, binding = 2) readonly buffer Upsample { float upsample[]; }; // [s][m] (mode 2)
-// A uniform block, not a storage buffer: every invocation reads the same direction's factors
-// at once, which llvmpipe loads once a SIMD batch where a storage buffer's read is a loop over
-// the lanes (docs/lavapipe.md: the sweeps 1.45x faster). 64 KiB at most (the host checks the
-// device's maxUniformBufferRange): 819 directions.
-layout(std140, binding = 3) uniform Geometry { vec4 geometry4[4096]; }; // per direction: f[i][o], s[i][o] (20)
-float geometry(uint i) { return geometry4[i >> 2u][i & 3u]; }
+// Binding 3: the characteristics' factors per direction (characteristics.glsl's uniform block).
+#define GEOMETRY_BINDING 3
 layout(std430, binding = 4) readonly buffer Scatter { float scatter[]; };   // A[s][m]
 // Per work group: (slot, upwind slot along x, y, z or ~0u), (lower corner xyz, edges packed).
 layout(std430, binding = 5) readonly buffer Work { uvec4 work[]; };

@@ -30,12 +30,8 @@ layout(std430, binding = 4) buffer Fluence { float fluence[]; };           // [c
 layout(std430, binding = 5) readonly buffer Upsample { float upsample[]; }; // [s][m] (mode 2)
 // Scheme 1: per direction, f[i][o] then s[i][o] (18 floats, padded to 20), and the outgoing
 // face radiances across x, y, z, laid out as the field.
-// A uniform block, not a storage buffer: every invocation reads the same direction's factors
-// at once, which llvmpipe loads once a SIMD batch where a storage buffer's read is a loop over
-// the lanes (docs/lavapipe.md: the sweeps 1.45x faster). 64 KiB at most (the host checks the
-// device's maxUniformBufferRange): 819 directions.
-layout(std140, binding = 6) uniform Geometry { vec4 geometry4[4096]; }; // per direction: f[i][o], s[i][o] (20)
-float geometry(uint i) { return geometry4[i >> 2u][i & 3u]; }
+// Binding 6: the characteristics' factors per direction (characteristics.glsl's uniform block).
+#define GEOMETRY_BINDING 6
 layout(std430, binding = 7) buffer FaceX { float face_x[]; };
 layout(std430, binding = 8) buffer FaceY { float face_y[]; };
 layout(std430, binding = 9) buffer FaceZ { float face_z[]; };

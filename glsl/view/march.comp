@@ -466,6 +466,13 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, 
     return vec3(0.0);
 }
 
+// One unit's optical depth toward its light from the shadow volume (its depths from `base`),
+// trilinear at the corners i0, i1 with weights f: the medium's extinction times the stored
+// density integral.
+vec3 volume_depth(vec3 sigma_t0, uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) {
+    return sigma_t0 * TRILINEAR(sdepth, base, n, i0, i1, f);
+}
+
 // The shadow volume's light units of one step, from unit j on while the loop budget lasts
 // (pc.shadow_dims.x != 0): unit_inscatter's terms, summed into S in the same order, with what
 // the step's units share taken once. The volume is read at the density grid's voxel centres
@@ -475,13 +482,6 @@ vec3 unit_inscatter(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint j, 
 // (docs/lavapipe.md), and the per-unit reads of the scene block and the walk over the lights
 // to find the unit's were most of the pass (the cloud's `single` at 256^2: 8.7 s, 4.9 s
 // without them).
-// One unit's optical depth toward its light from the shadow volume (its depths from `base`),
-// trilinear at the corners i0, i1 with weights f: the medium's extinction times the stored
-// density integral.
-vec3 volume_depth(vec3 sigma_t0, uint base, ivec3 n, ivec3 i0, ivec3 i1, vec3 f) {
-    return sigma_t0 * TRILINEAR(sdepth, base, n, i0, i1, f);
-}
-
 void volume_units(vec3 o, vec3 d, vec3 p, float t0, float t1, vec3 b, uint units, inout uint j, inout vec3 S,
                   float norm, float onorm[8]) {
     float g = scene.materials[seg_mat].albedo.w;
