@@ -26,8 +26,14 @@ impl Xvfb {
     fn start() -> Xvfb {
         // -displayfd: Xvfb picks a free display itself and writes its number once it accepts
         // connections (the socket file appears earlier: a client then failed in XRandR's query).
+        // -noreset: by default the server resets when its last client leaves, and a client
+        // connecting during the reset is dropped before its setup is answered ("Failed to open
+        // connection to X server"); each test runs `scatterlab view` several times in a row, and
+        // one failed so under the full suite's load. Measured here: 4 processes each opening and
+        // closing 300 connections (raw setup requests) were refused 665 times in 1200 with the
+        // default, 0 with -noreset (also openscad#3037, pyvista#9188).
         let mut child = Command::new("Xvfb")
-            .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+            .args(["-displayfd", "1", "-noreset", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
