@@ -2,9 +2,13 @@
 // ordinates/sweep: one wavefront plane of all eight octants of a discrete-ordinates sweep
 // (thesis 5.3.3: the voxels with i + j + k = w in an octant's own coordinates depend only on
 // its plane w - 1, so a plane is one dispatch; the octants are independent, so they share it,
-// gl_GlobalInvocationID.z being the octant). Each invocation is one voxel of one octant's plane
-// and takes every direction of the octant in turn into the octant's own fluence slice, so the
-// fluence is summed in a fixed order without atomics (the host adds the slices): deterministic.
+// gl_WorkGroupID.y being the octant). Each invocation is one voxel of one octant's plane, the
+// plane's cells listed by the host (binding 11: only cells on the plane are launched; llvmpipe
+// runs a SIMD batch whose lanes have all returned through the rest of the kernel, masked, so a
+// square of (i, j) with k = w - i - j mostly off the grid cost nearly what the work did;
+// docs/lavapipe.md), and takes every direction of the octant in turn into the octant's own
+// fluence slice, so the fluence is summed in a fixed order without atomics (the host adds the
+// slices): deterministic.
 // The per-voxel update mirrors src/physics/ordinates.rs (the CPU oracle), by pc.scheme:
 // 0, step difference: the voxel's balance with its outflow equal to its mean radiance,
 //   I = (Q + sum_a |w_a| I_upwind,a / h) / (sigma_t + sum_a |w_a| / h);
@@ -20,7 +24,7 @@
 // set (Q_s itself); mode 2, upsampled, q_s = sum_m U[s][m] Q_m. Channel c of a chromatic medium
 // has its own extinction, source and fluence slices.
 
-layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
 layout(std430, binding = 0) readonly buffer SigmaT { float sigma_t[]; };   // [c][voxel], 1/unit
 layout(std430, binding = 1) readonly buffer Source { float source[]; };    // [c][m][voxel], per unit volume and sr
@@ -39,6 +43,9 @@ layout(std430, binding = 9) buffer FaceZ { float face_z[]; };
 // dom's convergence test on the device (ordinates/converge.comp): word 0 set once the iteration
 // has converged, after which the rest of a submitted batch returns at once.
 layout(std430, binding = 10) readonly buffer Control { uint ctrl_stopped; };
+// Every plane's cells in octant-local coordinates, i | j << 16, plane by plane (the same for
+// every octant; src/solvers/dom/ordinates.rs `plane_cells`).
+layout(std430, binding = 11) readonly buffer Cells { uint cells[]; };
 
 layout(push_constant) uniform Push {
     uvec4 dims;       // voxels xyz, w = voxel count
@@ -51,7 +58,9 @@ layout(push_constant) uniform Push {
     uint channel;     // c
     uint mode;        // 0: M = 1; 1: storage = swept set; 2: upsampled
     uint scheme;      // 0: step difference; 1: step characteristics
-    uint pad1;
+    uint first_cell;  // the plane's first entry in cells[]
+    uint plane_cells; // and its number of cells
+    uint pad0, pad1, pad2;
 } pc;
 
 float read_face(int axis, uint i) {
@@ -68,10 +77,12 @@ uint voxel_index(ivec3 p) {
 void main() {
     if (ctrl_stopped != 0u) return;
     ivec3 n = ivec3(pc.dims.xyz);
-    ivec2 ab = ivec2(gl_GlobalInvocationID.xy);
-    uint o = gl_GlobalInvocationID.z;
+    uint id = gl_GlobalInvocationID.x;
+    uint o = gl_WorkGroupID.y;
+    if (o >= 8u || id >= pc.plane_cells) return;
+    uint cell = cells[pc.first_cell + id];
+    ivec2 ab = ivec2(int(cell & 0xffffu), int(cell >> 16u));
     int c = pc.plane - ab.x - ab.y;
-    if (o >= 8u || ab.x >= n.x || ab.y >= n.y || c < 0 || c >= n.z) return;
     uint count = pc.count[o / 4u][o % 4u];
     if (count == 0u) return;
     uint first_dir = pc.first[o / 4u][o % 4u];

@@ -133,7 +133,10 @@ struct SweepPush {
     channel: u32,
     mode: u32,
     scheme: u32,
-    pad: u32,
+    /// The plane's first entry in the cells list ([`plane_cells`]) and its number of cells.
+    first_cell: u32,
+    plane_cells: u32,
+    pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -380,6 +383,10 @@ pub struct Sweeper {
     geometry: Buffer,
     faces: [Buffer; 3],
     scheme: Scheme,
+    /// Every plane's cells in octant-local coordinates ([`plane_cells`]), and where each plane's
+    /// begin (one more than the planes: the last is the voxel count).
+    cells: Buffer,
+    plane_starts: Vec<u32>,
     fluence: Buffer,
     /// Per channel and voxel: the energy (fluence times lambda^2) that scattered isotropically
     /// gives the light scattered toward the eye (glsl/ordinates/scatter.comp).
@@ -404,6 +411,30 @@ pub struct Sweeper {
     extrap: Buffer,
     cam_hist: Buffer,
     partials: Buffer,
+}
+
+/// The cells (i, j) of every wavefront plane w = i + j + k of an `nx x ny x nz` grid in an
+/// octant's own coordinates (k = w - i - j within the grid), packed `i | j << 16`, plane by plane
+/// with j outer and i inner; and where each plane's cells begin (`nx + ny + nz - 1` entries, the
+/// last the voxel count). glsl/ordinates/sweep.comp launches only these: a square of (i, j) per
+/// plane, most of it off the grid, cost llvmpipe nearly as much as the cells on it (its masked
+/// SIMD batches run the kernel through; docs/lavapipe.md). Every voxel is listed once.
+fn plane_cells([nx, ny, nz]: [u32; 3]) -> (Vec<u32>, Vec<u32>) {
+    assert!(nx <= 0xffff && ny <= 0xffff, "dom's grid is at most 512 a side");
+    let planes = nx + ny + nz - 2;
+    let mut cells = Vec::with_capacity(nx as usize * ny as usize * nz as usize);
+    let mut starts = Vec::with_capacity(planes as usize + 1);
+    for w in 0..planes {
+        starts.push(cells.len() as u32);
+        for j in 0..ny.min(w + 1) {
+            // k = w - i - j in [0, nz): i from w - j - (nz - 1), to w - j, within [0, nx).
+            let lo = (w - j).saturating_sub(nz - 1);
+            let hi = (w - j).min(nx - 1);
+            cells.extend((lo..=hi).map(|i| i | j << 16));
+        }
+    }
+    starts.push(cells.len() as u32);
+    (cells, starts)
 }
 
 /// A run of whole layers of the grid (z outermost, so its voxels are contiguous): the direct
@@ -597,6 +628,7 @@ impl Sweeper {
             wanted.push((&CONVERGE, &[]));
         }
         let mut built = gpu.pipelines(&wanted)?.into_iter();
+        let (cells, plane_starts) = if sweeps { plane_cells(s.dims) } else { (vec![0], vec![0]) };
         let (sweep, scatter_p, deposit, bin) = (
             built.next().expect("sweep"),
             built.next().expect("scatter"),
@@ -655,6 +687,8 @@ impl Sweeper {
                 gpu.buffer("ordinates faces z", face_bytes)?,
             ],
             scheme: s.scheme,
+            cells: gpu.buffer_with("ordinates plane cells", &cells)?,
+            plane_starts,
             fluence: gpu.buffer("ordinates fluence", nch * 8 * sv * 4)?,
             camera: gpu.buffer("ordinates toward the camera", nch * sv * 4)?,
             first_dir,
@@ -691,7 +725,8 @@ impl Sweeper {
             + n * m                                           // the scattering matrix
             + if upsampled { n * m } else { 1 } // the upsampling (one float when unused)
             + if scheme == Scheme::Characteristics { 20 * n + 3 * kept(8 * slots * sv) } else { 1 + 3 }
-            + kept(sv * channels) + kept(2 * sv * channels) + kept(sv * channels) + kept(3 * sv * channels); // the test's
+            + kept(sv * channels) + kept(2 * sv * channels) + kept(sv * channels) + kept(3 * sv * channels) // the test's
+            + kept(sv); // the planes' cells
         4 * floats
             + Self::partial_bytes(channels * sv)
             + crate::solvers::parts::feedback::Feedback::bytes(std::mem::size_of::<DomControl>() as u64)
@@ -718,6 +753,7 @@ impl Sweeper {
             &self.faces[0],
             &self.faces[1],
             &self.faces[2],
+            &self.cells,
             &self.fluence,
             &self.camera,
             &self.accum,
@@ -908,6 +944,7 @@ impl Sweeper {
         let planes = (nx + ny + nz - 2) as i32;
         (0..planes)
             .map(|w| {
+                let (first_cell, end) = (self.plane_starts[w as usize], self.plane_starts[w as usize + 1]);
                 let push = SweepPush {
                     dims: [nx, ny, nz, v],
                     plane: w,
@@ -919,7 +956,9 @@ impl Sweeper {
                     channel,
                     mode: self.mode as u32,
                     scheme: (self.scheme == Scheme::Characteristics) as u32,
-                    pad: 0,
+                    first_cell,
+                    plane_cells: end - first_cell,
+                    pad: [0; 3],
                 };
                 Pass::new("ordinates.sweep", QueueRole::Diffuse, &self.sweep)
                     .read(0, &self.sigma_t)
@@ -933,8 +972,9 @@ impl Sweeper {
                     .read_write(8, &self.faces[1])
                     .read_write(9, &self.faces[2])
                     .read(10, self.control.record())
+                    .read(11, &self.cells)
                     .push(&push)
-                    .cover([nx, ny, 8])
+                    .cover([end - first_cell, 8, 1])
             })
             .collect()
     }
@@ -1108,4 +1148,35 @@ pub fn bin_group(m: u64, channels: u64, point: bool) -> u32 {
     let per_beam = (ch + 1) + 2 * (m + 1) + m * (ch + 1) + 1 + if point { 34 * (m + 1) + 33 } else { 0 };
     let fixed = (ch + 1) + ch * (m + 1) + 1;
     ((LOOP_GUARD as u64).saturating_sub(fixed) / per_beam).clamp(1, u32::MAX as u64) as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::plane_cells;
+
+    /// Every voxel of a grid is listed once, on its own plane, and the planes are in order: the
+    /// sweep launched over the lists updates what the square of (i, j) per plane updated.
+    #[test]
+    fn plane_cells_list_every_voxel_once_on_its_plane() {
+        for dims in [[1, 1, 1], [12, 12, 12], [7, 3, 5], [2, 9, 4], [128, 4, 128], [5, 1, 1], [1, 6, 2]] {
+            let [nx, ny, nz] = dims;
+            let (cells, starts) = plane_cells(dims);
+            assert_eq!(starts.len() as u32, nx + ny + nz - 1, "{dims:?}");
+            assert_eq!(*starts.last().unwrap() as usize, cells.len(), "{dims:?}");
+            let mut seen = vec![false; (nx * ny * nz) as usize];
+            for w in 0..nx + ny + nz - 2 {
+                let plane = &cells[starts[w as usize] as usize..starts[w as usize + 1] as usize];
+                assert!(!plane.is_empty(), "{dims:?}: plane {w} has no cells");
+                for &cell in plane {
+                    let (i, j) = (cell & 0xffff, cell >> 16);
+                    let k = w as i64 - i as i64 - j as i64;
+                    assert!(i < nx && j < ny && (0..nz as i64).contains(&k), "{dims:?}: ({i}, {j}) off plane {w}");
+                    let v = (i + nx * (j + ny * k as u32)) as usize;
+                    assert!(!seen[v], "{dims:?}: ({i}, {j}, {k}) listed twice");
+                    seen[v] = true;
+                }
+            }
+            assert!(seen.iter().all(|s| *s), "{dims:?}: a voxel is on no plane");
+        }
+    }
 }
