@@ -942,6 +942,7 @@ impl Sweeper {
         let [nx, ny, nz] = self.dims;
         let v = nx * ny * nz;
         let planes = (nx + ny + nz - 2) as i32;
+        assert_eq!(self.plane_starts.len(), planes as usize + 1, "a source-only sweeper (for_source) sweeps nothing");
         (0..planes)
             .map(|w| {
                 let (first_cell, end) = (self.plane_starts[w as usize], self.plane_starts[w as usize + 1]);
