@@ -73,11 +73,45 @@ layout(push_constant) uniform Push {
     uint pad0, pad1, pad2;
 } pc;
 
-// Gather voxel v's light toward the camera (the first chunk's invocations).
-void gather(uint v, uint V, uint c, bool first_chunk) {
+// The direction from voxel v's centre toward the camera.
+vec3 eye_direction(uint v) {
     ivec3 p = ivec3(v % pc.dims.x, (v / pc.dims.x) % pc.dims.y, v / (pc.dims.x * pc.dims.y));
     vec3 centre = pc.grid.xyz + (vec3(p) + 0.5) * pc.grid.w;
-    vec3 to_eye = pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+    return pc.eye.w != 0.0 ? pc.eye.xyz : normalize(pc.eye.xyz - centre);
+}
+
+// One direction d's radiance at a voxel into its gathered sums (`gather` below, per direction).
+void gather_add(vec4 d, float radiance, vec3 to_eye, inout float gathered, inout float norm, inout float peak,
+                inout float peak_norm) {
+    float cos_eye = dot(d.xyz, to_eye);
+    if (pc.peak_share > 0.0 && cos_eye > pc.peak_cos) {
+        float wp = d.w * (cos_eye - pc.peak_cos);
+        peak += wp * radiance;
+        peak_norm += wp;
+    } else {
+        float w = d.w * hg_eval(pc.g, cos_eye);
+        gathered += w * radiance;
+        norm += w;
+    }
+}
+
+// The gathered sums of voxel v added to its light toward the camera.
+void gather_store(uint v, uint V, uint c, float gathered, float norm, float peak, float peak_norm) {
+    // The gathered light is kept where nothing scatters too: the view pass interpolates
+    // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
+    if (pc.peak_share > 0.0 && peak_norm > 0.0) {
+        float rest = norm > 0.0 ? gathered / norm : peak / peak_norm;
+        float light = pc.peak_share * peak / peak_norm + (1.0 - pc.peak_share) * rest;
+        camera[c * V + v] += 4.0 * PI * light * pc.grid.w * pc.grid.w;
+    } else if (norm > 0.0) {
+        camera[c * V + v] += 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w;
+    }
+}
+
+// Gather voxel v's light toward the camera on its own (the first chunk's invocations whose
+// voxels scatter nothing; the others gather in their pass over the field, scatter_voxels).
+void gather(uint v, uint V, uint c) {
+    vec3 to_eye = eye_direction(v);
     float gathered = 0.0, norm = 0.0;
     // With dom.delta_m the gather splits HG(g) at a cone about the camera's direction o, the
     // set's covering radius (peak_cos): its mass inside the cone, peak_share (HG's own
@@ -88,34 +122,13 @@ void gather(uint v, uint V, uint c, bool first_chunk) {
     // between directions: at g 0.99 on product-16x32 the light scattered more than once toward
     // a back-lit camera came out 1.9x path's energy.
     float peak = 0.0, peak_norm = 0.0;
-    bool split = pc.peak_share > 0.0;
     for (uint o = 0u; o < 8u; ++o) {
         uint packed = pc.octants[o / 4u][o % 4u];
         uint first_dir = packed & 0xffffu, count = packed >> 16;
-        for (uint k = 0u; k < count; ++k) {
-            vec4 d = dirs[first_dir + k];
-            float radiance = field[(o * pc.slots + k) * V + v];
-            float cos_eye = dot(d.xyz, to_eye);
-            if (split && cos_eye > pc.peak_cos) {
-                float wp = d.w * (cos_eye - pc.peak_cos);
-                peak += wp * radiance;
-                peak_norm += wp;
-            } else {
-                float w = d.w * hg_eval(pc.g, cos_eye);
-                gathered += w * radiance;
-                norm += w;
-            }
-        }
+        for (uint k = 0u; k < count; ++k)
+            gather_add(dirs[first_dir + k], field[(o * pc.slots + k) * V + v], to_eye, gathered, norm, peak, peak_norm);
     }
-    // The gathered light is kept where nothing scatters too: the view pass interpolates
-    // between voxel centres, and a medium's edge lies between an empty voxel and a full one.
-    if (first_chunk && split && peak_norm > 0.0) {
-        float rest = norm > 0.0 ? gathered / norm : peak / peak_norm;
-        float light = pc.peak_share * peak / peak_norm + (1.0 - pc.peak_share) * rest;
-        camera[c * V + v] += 4.0 * PI * light * pc.grid.w * pc.grid.w;
-    } else if (first_chunk && norm > 0.0) {
-        camera[c * V + v] += 4.0 * PI * gathered / norm * pc.grid.w * pc.grid.w;
-    }
+    gather_store(v, V, c, gathered, norm, peak, peak_norm);
 }
 
 // The block's columns of A from storage direction m; past the last direction (M not a multiple
@@ -148,25 +161,44 @@ void store_voxels(uint row, uint v0, uint V, vec4 sigma_lo, vec4 sigma_hi, vec4 
 #define COLUMN(i, a) { float a_ = (a); acc_lo[i] += a_ * f_lo; acc_hi[i] += a_ * f_hi; }
 #define STORE(i) if (m + i < m1) store_voxels(c * M + m + i, v0, V, sigma_lo, sigma_hi, acc_lo[i], acc_hi[i]);
 
-// VOXELS voxels an invocation, the field read from the buffer once per block.
+// One direction's field at the invocation's voxels (f_lo: voxels 0-3, f_hi: 4-7) into the
+// block's accumulators.
+#define BLOCK_DIRECTION() \
+    uint f = (o * pc.slots + k) * V; \
+    vec4 f_lo = vec4(field[f + vox_lo.x], field[f + vox_lo.y], field[f + vox_lo.z], field[f + vox_lo.w]); \
+    vec4 f_hi = vec4(field[f + vox_hi.x], field[f + vox_hi.y], field[f + vox_hi.z], field[f + vox_hi.w]); \
+    uint row = (first_dir + k) * M; \
+    COLUMN(0, scatter[row + lo.x]) COLUMN(1, scatter[row + lo.y]) COLUMN(2, scatter[row + lo.z]) COLUMN(3, scatter[row + lo.w]) \
+    COLUMN(4, scatter[row + hi.x]) COLUMN(5, scatter[row + hi.y]) COLUMN(6, scatter[row + hi.z]) COLUMN(7, scatter[row + hi.w])
+
+// Voxel j's gathered sums take direction d's radiance r (the field just read).
+#define GATHER(j, r) gather_add(d, r, to_eye[j], g_sum[j], g_norm[j], g_peak[j], g_peak_norm[j]);
+
+// VOXELS voxels an invocation, the field read from the buffer once per block. The first chunk
+// (m0 = 0) also gathers its voxels' light toward the camera from the same reads of the field:
+// per voxel the sums gather() takes, in the same order (the same bits), its direction to the
+// eye and sums in registers. Gathering in a pass of its own read the field and the directions
+// again for each voxel: at M = 1 (the deep cube of tests/animate_tests.rs) that was most of
+// the pass.
 void scatter_voxels(uint V, uint M, uint c, uint m0, uint m1) {
     uint id = linear_id_z();
     uint v0 = id * VOXELS;
     if (v0 >= V) return;
-    if (m0 == 0u) {
-        for (uint j = 0u; j < VOXELS; ++j) {
-            if (v0 + j >= V) break;
-            gather(v0 + j, V, c, true);
-        }
-    }
     // Voxels past the grid's end read the last one's field and store nothing.
     uvec4 vox_lo = min(uvec4(v0) + uvec4(0u, 1u, 2u, 3u), uvec4(V - 1u));
     uvec4 vox_hi = min(uvec4(v0) + uvec4(4u, 5u, 6u, 7u), uvec4(V - 1u));
     // Their sigma_s, read once for every block's stores.
     vec4 sigma_lo = vec4(sigma_s[c * V + vox_lo.x], sigma_s[c * V + vox_lo.y], sigma_s[c * V + vox_lo.z], sigma_s[c * V + vox_lo.w]);
     vec4 sigma_hi = vec4(sigma_s[c * V + vox_hi.x], sigma_s[c * V + vox_hi.y], sigma_s[c * V + vox_hi.z], sigma_s[c * V + vox_hi.w]);
-    // Nothing scatters at any of them: the zeros the sums would store, without the sums.
+    // Nothing scatters at any of them: the zeros the sums would store, without the sums (the
+    // light toward the camera gathered on its own).
     if (all(lessThanEqual(max(sigma_lo, sigma_hi), vec4(0.0)))) {
+        if (m0 == 0u) {
+            for (uint j = 0u; j < VOXELS; ++j) {
+                if (v0 + j >= V) break;
+                gather(v0 + j, V, c);
+            }
+        }
         for (uint m = m0; m < m1; ++m) store_voxels(c * M + m, v0, V, sigma_lo, sigma_hi, vec4(0.0), vec4(0.0));
         return;
     }
@@ -175,16 +207,34 @@ void scatter_voxels(uint V, uint M, uint c, uint m0, uint m1) {
         block_columns(m, M, lo, hi);
         vec4 acc_lo[BLOCK] = vec4[BLOCK](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
         vec4 acc_hi[BLOCK] = acc_lo;
-        for (uint o = 0u; o < 8u; ++o) {
-            uint packed = pc.octants[o / 4u][o % 4u];
-            uint first_dir = packed & 0xffffu, count = packed >> 16;
-            for (uint k = 0u; k < count; ++k) {
-                uint f = (o * pc.slots + k) * V;
-                vec4 f_lo = vec4(field[f + vox_lo.x], field[f + vox_lo.y], field[f + vox_lo.z], field[f + vox_lo.w]);
-                vec4 f_hi = vec4(field[f + vox_hi.x], field[f + vox_hi.y], field[f + vox_hi.z], field[f + vox_hi.w]);
-                uint row = (first_dir + k) * M;
-                COLUMN(0, scatter[row + lo.x]) COLUMN(1, scatter[row + lo.y]) COLUMN(2, scatter[row + lo.z]) COLUMN(3, scatter[row + lo.w])
-                COLUMN(4, scatter[row + hi.x]) COLUMN(5, scatter[row + hi.y]) COLUMN(6, scatter[row + hi.z]) COLUMN(7, scatter[row + hi.w])
+        if (m == 0u) {
+            vec3 to_eye[VOXELS];
+            float g_sum[VOXELS], g_norm[VOXELS], g_peak[VOXELS], g_peak_norm[VOXELS];
+            for (uint j = 0u; j < VOXELS; ++j) {
+                to_eye[j] = eye_direction(min(v0 + j, V - 1u));
+                g_sum[j] = 0.0; g_norm[j] = 0.0; g_peak[j] = 0.0; g_peak_norm[j] = 0.0;
+            }
+            for (uint o = 0u; o < 8u; ++o) {
+                uint packed = pc.octants[o / 4u][o % 4u];
+                uint first_dir = packed & 0xffffu, count = packed >> 16;
+                for (uint k = 0u; k < count; ++k) {
+                    BLOCK_DIRECTION()
+                    vec4 d = dirs[first_dir + k];
+                    GATHER(0, f_lo.x) GATHER(1, f_lo.y) GATHER(2, f_lo.z) GATHER(3, f_lo.w)
+                    GATHER(4, f_hi.x) GATHER(5, f_hi.y) GATHER(6, f_hi.z) GATHER(7, f_hi.w)
+                }
+            }
+            for (uint j = 0u; j < VOXELS; ++j) {
+                if (v0 + j >= V) break;
+                gather_store(v0 + j, V, c, g_sum[j], g_norm[j], g_peak[j], g_peak_norm[j]);
+            }
+        } else {
+            for (uint o = 0u; o < 8u; ++o) {
+                uint packed = pc.octants[o / 4u][o % 4u];
+                uint first_dir = packed & 0xffffu, count = packed >> 16;
+                for (uint k = 0u; k < count; ++k) {
+                    BLOCK_DIRECTION()
+                }
             }
         }
         STORE(0) STORE(1) STORE(2) STORE(3) STORE(4) STORE(5) STORE(6) STORE(7)

@@ -218,7 +218,8 @@ const SCATTER_CHUNK: u32 = SCATTER_BLOCK;
 /// `LOOP_GUARD` (glsl/include/budget.glsl: past 65535 llvmpipe ends every loop of an invocation
 /// silently), which no directions set dom offers comes near. A loop that runs n times takes
 /// n + 1 (the last pass only exits): the gather's voxels, octants and directions
-/// VOXELS (N + 18) + 1, then per block its octants and directions N + 17, its stores
+/// VOXELS (N + 18) + 1 (where the voxels scatter nothing; elsewhere the first chunk gathers in its
+/// block's pass over the field, fewer), then per block its octants and directions N + 17, its stores
 /// BLOCK (VOXELS + 1) and its own (an invocation where nothing scatters stores instead: fewer).
 /// The sets stop at 512 (product-16x32): 4241 + 602 = 4843 back-edges an invocation.
 pub(crate) fn scatter_shape(n: u32, m: u32) -> ScatterShape {
