@@ -83,6 +83,14 @@ vec3 eye_direction(uint v) {
 // One direction d's radiance at a voxel into its gathered sums (`gather` below, per direction).
 void gather_add(vec4 d, float radiance, vec3 to_eye, inout float gathered, inout float norm, inout float peak,
                 inout float peak_norm) {
+    // With dom.delta_m the gather splits HG(g) at a cone about the camera's direction o, the
+    // set's covering radius (peak_cos): its mass inside the cone, peak_share (HG's own
+    // distribution), is the field interpolated at o from the directions inside it; outside,
+    // where the set resolves the lobe, HG(g) weighs the field as before, normalised to the
+    // rest of the mass. HG(g) normalised on the whole set weighs the far field by
+    // 1 / sum w p too much wherever the lobe is narrower than the set's spacing and o falls
+    // between directions: at g 0.99 on product-16x32 the light scattered more than once toward
+    // a back-lit camera came out 1.9x path's energy.
     float cos_eye = dot(d.xyz, to_eye);
     if (pc.peak_share > 0.0 && cos_eye > pc.peak_cos) {
         float wp = d.w * (cos_eye - pc.peak_cos);
@@ -113,14 +121,6 @@ void gather_store(uint v, uint V, uint c, float gathered, float norm, float peak
 void gather(uint v, uint V, uint c) {
     vec3 to_eye = eye_direction(v);
     float gathered = 0.0, norm = 0.0;
-    // With dom.delta_m the gather splits HG(g) at a cone about the camera's direction o, the
-    // set's covering radius (peak_cos): its mass inside the cone, peak_share (HG's own
-    // distribution), is the field interpolated at o from the directions inside it; outside,
-    // where the set resolves the lobe, HG(g) weighs the field as before, normalised to the
-    // rest of the mass. HG(g) normalised on the whole set weighs the far field by
-    // 1 / sum w p too much wherever the lobe is narrower than the set's spacing and o falls
-    // between directions: at g 0.99 on product-16x32 the light scattered more than once toward
-    // a back-lit camera came out 1.9x path's energy.
     float peak = 0.0, peak_norm = 0.0;
     for (uint o = 0u; o < 8u; ++o) {
         uint packed = pc.octants[o / 4u][o % 4u];
@@ -207,6 +207,9 @@ void scatter_voxels(uint V, uint M, uint c, uint m0, uint m1) {
         block_columns(m, M, lo, hi);
         vec4 acc_lo[BLOCK] = vec4[BLOCK](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
         vec4 acc_hi[BLOCK] = acc_lo;
+        // Two loops, not a test inside one: llvmpipe runs code its lanes have left, masked
+        // (measured after a return, docs/lavapipe.md), so a test in the loop would likely have
+        // every chunk pay for the gather at each direction.
         if (m == 0u) {
             vec3 to_eye[VOXELS];
             float g_sum[VOXELS], g_norm[VOXELS], g_peak[VOXELS], g_peak_norm[VOXELS];
